@@ -1,0 +1,119 @@
+"""Validators for user input.
+
+Each validator checks one value and hands it back as a float64 array, or
+raises ``ValueError``/``TypeError`` whose message names the argument in
+backticks, the expected shape and what was given (the style of SciPy's
+``_ivp/common.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "as_array",
+    "as_vector",
+    "as_matrix",
+    "check_psd",
+    "shape_error",
+]
+
+
+def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
+    """The one message template for a wrong shape."""
+    return ValueError(f"`{name}` must have shape {expected}; got shape {tuple(got)}.")
+
+
+def as_array(name: str, value, *, allow_nan: bool = False) -> np.ndarray:
+    """Return `value` as a float64 array, rejecting non-numeric and non-finite input."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise TypeError(f"`{name}` must be an array of numbers; got {type(value).__name__}.")
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"`{name}` must be an array of real numbers; got {value!r:.80}.") from exc
+    if np.iscomplexobj(np.asarray(value)):
+        raise TypeError(f"`{name}` must be real; got complex values.")
+    bad = ~np.isfinite(arr) if not allow_nan else np.isinf(arr)
+    if bad.any():
+        what = "infinite" if allow_nan else "non-finite (NaN or inf)"
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"`{name}` must be finite; got a {what} value at index {index}.")
+    return arr
+
+
+def as_vector(name: str, value, size: int | None = None) -> np.ndarray:
+    """Return `value` as a vector of shape (size,); a scalar is a vector of length 1."""
+    arr = as_array(name, value)
+    if arr.ndim == 0:
+        arr = arr.reshape(1)
+    if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
+        raise shape_error(name, f"({size if size is not None else 'n'},)", arr.shape)
+    return arr
+
+
+def as_matrix(
+    name: str,
+    value,
+    rows: int | None,
+    cols: int | None,
+    *,
+    steps: int | None = None,
+    row_vector_ok: bool = False,
+    column_vector_ok: bool = False,
+) -> np.ndarray:
+    """Return `value` as a matrix (rows, cols) or a time-varying stack (T, rows, cols).
+
+    A scalar is accepted for a 1 x 1 matrix. With `row_vector_ok`, a 1-D array
+    of length `cols` is one row; with `column_vector_ok`, a 1-D array of
+    length `rows` is one column. `steps`, when given, is the length a
+    leading time axis must have.
+    """
+    arr = as_array(name, value)
+    if arr.ndim == 0:
+        arr = arr.reshape(1, 1)
+    elif arr.ndim == 1:
+        if row_vector_ok and (cols is None or arr.shape[0] == cols):
+            arr = arr.reshape(1, -1)
+        elif column_vector_ok and (rows is None or arr.shape[0] == rows):
+            arr = arr.reshape(-1, 1)
+    r = "m" if rows is None else rows
+    c = "n" if cols is None else cols
+    t = "T" if steps is None else steps
+    expected = f"({r}, {c}) or, time-varying, ({t}, {r}, {c})"
+    if arr.ndim not in (2, 3):
+        raise shape_error(name, expected, arr.shape)
+    if (rows is not None and arr.shape[-2] != rows) or (cols is not None and arr.shape[-1] != cols):
+        raise shape_error(name, expected, arr.shape)
+    if arr.ndim == 3 and steps is not None and arr.shape[0] != steps:
+        raise shape_error(name, expected, arr.shape)
+    return arr
+
+
+def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
+    """Check that `cov` (..., n, n) is symmetric positive semi-definite; return it symmetrised.
+
+    Symmetry and the smallest eigenvalue are judged relative to the matrix's
+    scale, so round-off in a user's matrix is accepted but a real asymmetry
+    or a negative direction is not.
+    """
+    scale = np.max(np.abs(cov), axis=(-2, -1), keepdims=True)
+    scale = np.where(scale > 0, scale, 1.0)
+    asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > rtol * scale
+    if asym.any():
+        where = _where(np.argwhere(asym)[0], cov.ndim)
+        raise ValueError(f"`{name}` must be symmetric; it is not{where}.")
+    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    low = np.linalg.eigvalsh(sym)[..., 0] < -rtol * scale[..., 0, 0]
+    if np.any(low):
+        where = _where(np.argwhere(np.atleast_1d(low))[0], cov.ndim) if cov.ndim > 2 else ""
+        eig = float(np.min(np.linalg.eigvalsh(sym)))
+        raise ValueError(
+            f"`{name}` must be positive semi-definite; its smallest eigenvalue is {eig:.3g}{where}."
+        )
+    return sym
+
+
+def _where(index, ndim: int) -> str:
+    """' at time step k' for a time-varying stack, '' for a single matrix."""
+    return f" at time step {int(index[0])}" if ndim == 3 else ""

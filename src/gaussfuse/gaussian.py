@@ -1,0 +1,149 @@
+"""The Gaussian belief and the fusion (product) of two Gaussians."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_triangular
+
+from . import kalman
+from ._validation import as_matrix, as_vector, check_psd
+
+__all__ = ["Gaussian", "fuse"]
+
+
+@dataclass(frozen=True, eq=False, init=False)
+class Gaussian:
+    """An immutable multivariate Gaussian ``N(mean, cov)``.
+
+    Parameters
+    ----------
+    mean : array_like of shape (n,)
+        Mean; a scalar is a 1-dimensional Gaussian.
+    cov : array_like of shape (n, n)
+        Covariance, symmetric positive semi-definite; a scalar is the
+        variance of a 1-dimensional Gaussian.
+
+    Attributes
+    ----------
+    mean : ndarray of shape (n,)
+        Read-only float64 mean.
+    cov : ndarray of shape (n, n)
+        Read-only float64 covariance (symmetrised).
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> g = gf.Gaussian([0.0, 1.0], [[2.0, 0.0], [0.0, 3.0]])
+    >>> g.dim
+    2
+    >>> print(gf.Gaussian(1.0, 4.0))
+    Gaussian(mean=[1.], cov=[[4.]])
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+
+    def __init__(self, mean, cov) -> None:
+        mean = as_vector("mean", mean)
+        cov = as_matrix("cov", cov, mean.shape[0], mean.shape[0])
+        if cov.ndim != 2:
+            raise ValueError(
+                f"`cov` must have shape ({mean.shape[0]}, {mean.shape[0]}); got shape {cov.shape}."
+            )
+        cov = check_psd("cov", cov)
+        mean.setflags(write=False)
+        cov.setflags(write=False)
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "cov", cov)
+
+    @property
+    def dim(self) -> int:
+        """Dimension n of the variable."""
+        return self.mean.shape[0]
+
+    @property
+    def std(self) -> np.ndarray:
+        """Marginal standard deviations, array of shape (n,)."""
+        return np.sqrt(np.diag(self.cov))
+
+    def __repr__(self) -> str:
+        with np.printoptions(precision=6, suppress=True):
+            return f"Gaussian(mean={self.mean}, cov={self.cov.tolist() if self.dim > 1 else self.cov})"
+
+    def logpdf(self, x) -> np.ndarray | float:
+        """Log-density at `x`, array_like of shape (n,) or (k, n).
+
+        Uses a Cholesky factor of the covariance, which must be positive definite.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        if x.shape[-1:] != (self.dim,) and not (self.dim == 1 and x.ndim <= 1):
+            raise ValueError(f"`x` must have shape ({self.dim},) or (k, {self.dim}); got shape {x.shape}.")
+        if self.dim == 1 and x.shape[-1:] != (1,):
+            x = x[..., None]
+        L = kalman.cholesky(self.cov, "`cov`")
+        white = solve_triangular(L, (x - self.mean).T, lower=True)
+        quad = np.sum(white**2, axis=0)
+        logdet = 2.0 * np.sum(np.log(np.diag(L)))
+        out = -0.5 * (quad + logdet + self.dim * np.log(2.0 * np.pi))
+        return float(out) if np.ndim(out) == 0 else out
+
+    def sample(self, size: int | None = None, rng=None) -> np.ndarray:
+        """Draw samples: array of shape (n,) for ``size=None``, else (size, n)."""
+        rng = np.random.default_rng(rng)
+        return rng.multivariate_normal(self.mean, self.cov, size=size, method="cholesky")
+
+
+def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
+    r"""Fuse two Gaussian beliefs about the same variable: their normalised product.
+
+    Parameters
+    ----------
+    a, b : Gaussian
+        Two independent Gaussian beliefs of the same dimension n. Their
+        covariances may be singular (a belief that is certain in some
+        direction), but not both in the same direction.
+
+    Returns
+    -------
+    Gaussian
+        The belief proportional to :math:`N(x; \mu_a, \Sigma_a) N(x; \mu_b, \Sigma_b)`.
+
+    Notes
+    -----
+    In one dimension, with :math:`a = N(\mu_1, \sigma_1^2)` and
+    :math:`b = N(\mu_2, \sigma_2^2)`,
+
+    .. math::
+
+        \mu = \mu_1 + \frac{\sigma_1^2 (\mu_2 - \mu_1)}{\sigma_1^2 + \sigma_2^2},
+        \qquad
+        \sigma^2 = \sigma_1^2 - \frac{\sigma_1^4}{\sigma_1^2 + \sigma_2^2}.
+
+    In n dimensions this is the Kalman update of `a` by the measurement
+    ``z = b.mean`` with ``H = I`` and ``R = b.cov`` (see
+    :func:`gaussfuse.kalman.fuse_moments`): a Cholesky solve with
+    :math:`\Sigma_a + \Sigma_b`, never an explicit inverse.
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> gf.fuse(gf.Gaussian(0.0, 1.0), gf.Gaussian(2.0, 1.0))
+    Gaussian(mean=[1.], cov=[[0.5]])
+    """
+    for name, g in (("a", a), ("b", b)):
+        if not isinstance(g, Gaussian):
+            raise TypeError(f"`{name}` must be a gaussfuse.Gaussian; got {type(g).__name__}.")
+    if a.dim != b.dim:
+        raise ValueError(
+            f"`a` and `b` must have the same dimension; got {a.dim} and {b.dim}."
+        )
+    try:
+        mean, cov = kalman.fuse_moments(a.mean, a.cov, b.mean, b.cov)
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            "`a.cov + b.cov` must be positive definite: the two beliefs are both certain "
+            "in a common direction, so their product is not a Gaussian."
+        ) from None
+    return Gaussian(mean, cov)

@@ -1,0 +1,117 @@
+"""Linear-Gaussian state-space models."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import as_matrix, check_psd
+
+__all__ = ["LinearModel"]
+
+
+class LinearModel:
+    r"""A linear-Gaussian state-space model with optional control input.
+
+    .. math::
+
+        x_k = F_k x_{k-1} + B_k u_k + w_k, \quad w_k \sim N(0, Q_k), \\
+        z_k = H_k x_k + v_k, \quad v_k \sim N(0, R_k).
+
+    Parameters
+    ----------
+    F : array_like of shape (n, n) or (T, n, n)
+        State-transition matrix.
+    H : array_like of shape (m, n) or (T, m, n)
+        Measurement matrix; a 1-D array of length n is a single row.
+    Q : array_like of shape (n, n) or (T, n, n)
+        Process-noise covariance, symmetric positive semi-definite.
+    R : array_like of shape (m, m) or (T, m, m)
+        Measurement-noise covariance, symmetric positive semi-definite; a
+        scalar when m = 1.
+    B : array_like of shape (n, p) or (T, n, p), optional
+        Control-input matrix; a 1-D array of length n is a single column.
+
+    Notes
+    -----
+    Any matrix with a leading time axis is time-varying: its entry ``[k]`` is
+    used at step k (the transition into, and the measurement of, the k-th
+    state). All time-varying matrices must have the same number of steps T,
+    and a series filtered with the model must have T steps.
+
+    The model is immutable: its arrays are read-only.
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=[[1, 0], [0, 3]], R=10)
+    >>> model.n, model.m, model.p
+    (2, 1, 0)
+    """
+
+    __slots__ = ("F", "H", "Q", "R", "B")
+
+    F: np.ndarray
+    H: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    B: np.ndarray | None
+
+    def __init__(self, F, H, Q, R, B=None) -> None:
+        F = as_matrix("F", F, None, None)
+        if F.shape[-1] != F.shape[-2]:
+            raise ValueError(
+                f"`F` must be square, of shape (n, n) or (T, n, n); got shape {F.shape}."
+            )
+        n = F.shape[-1]
+        H = as_matrix("H", H, None, n, row_vector_ok=True)
+        m = H.shape[-2]
+        Q = check_psd("Q", as_matrix("Q", Q, n, n))
+        R = check_psd("R", as_matrix("R", R, m, m))
+        if B is not None:
+            B = as_matrix("B", B, n, None, column_vector_ok=True)
+        given = {"F": F, "H": H, "Q": Q, "R": R, "B": B}
+        steps = {name: a.shape[0] for name, a in given.items() if a is not None and a.ndim == 3}
+        if len(set(steps.values())) > 1:
+            listed = ", ".join(f"`{k}` has {v}" for k, v in steps.items())
+            raise ValueError(
+                f"time-varying matrices must all have the same number of steps; {listed}."
+            )
+        for name, a in given.items():
+            if a is not None:
+                a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    def __setattr__(self, name, value):
+        raise AttributeError("LinearModel is immutable; build a new one instead.")
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.F.shape[-1]
+
+    @property
+    def m(self) -> int:
+        """Measurement dimension."""
+        return self.H.shape[-2]
+
+    @property
+    def p(self) -> int:
+        """Control dimension (0 without a control input)."""
+        return 0 if self.B is None else self.B.shape[-1]
+
+    @property
+    def steps(self) -> int | None:
+        """Number of steps T of a time-varying model, ``None`` if time-invariant."""
+        for a in (self.F, self.H, self.Q, self.R, self.B):
+            if a is not None and a.ndim == 3:
+                return a.shape[0]
+        return None
+
+    def at(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """The matrices ``(F, H, Q, R, B)`` in force at step k."""
+        return tuple(None if a is None else (a[k] if a.ndim == 3 else a)
+                     for a in (self.F, self.H, self.Q, self.R, self.B))
+
+    def __repr__(self) -> str:
+        tv = "" if self.steps is None else f", time-varying over {self.steps} steps"
+        return f"LinearModel(n={self.n}, m={self.m}, p={self.p}{tv})"

@@ -1,0 +1,110 @@
+"""Online filtering: one predict or update at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import kalman
+from ._validation import as_array, shape_error
+from .gaussian import Gaussian
+from .inference import _at_step, check_prior
+from .models.linear import LinearModel
+
+__all__ = ["KalmanFilter"]
+
+
+class KalmanFilter:
+    """A Kalman filter that takes measurements as they arrive.
+
+    Parameters
+    ----------
+    model : LinearModel
+        The model; for a time-varying one, the k-th call of :meth:`predict`
+        uses its matrices at step k (counting from 0), and :meth:`update`
+        those of the step last predicted.
+    prior : Gaussian
+        The belief before the first :meth:`predict`.
+
+    Attributes
+    ----------
+    belief : Gaussian
+        The current belief.
+    x : ndarray of shape (n,)
+        Its mean.
+    P : ndarray of shape (n, n)
+        Its covariance.
+    step : int
+        Number of predictions made so far.
+    loglik : float
+        Sum of the log-likelihood contributions of the updates so far.
+
+    Notes
+    -----
+    ``predict(u_k)`` then ``update(z_k)`` for k = 0..T-1 is exactly
+    :func:`gaussfuse.filter` on the same series; both call
+    :func:`gaussfuse.kalman.predict` and :func:`gaussfuse.kalman.update`.
+
+    Examples
+    --------
+    >>> import numpy as np, gaussfuse as gf
+    >>> model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=[[1, 0], [0, 3]], R=10)
+    >>> kf = gf.KalmanFilter(model, gf.Gaussian([0, 1], 500 * np.eye(2)))
+    >>> for z in [1, 2, 3, 2, 1]:
+    ...     _ = kf.predict()
+    ...     _ = kf.update(z)
+    >>> kf.x.shape, kf.P.shape
+    ((2,), (2, 2))
+    """
+
+    def __init__(self, model: LinearModel, prior: Gaussian) -> None:
+        if not isinstance(model, LinearModel):
+            raise TypeError(f"`model` must be a gaussfuse.LinearModel; got {type(model).__name__}.")
+        self.model = model
+        self.belief = check_prior(prior, model.n)
+        self.step = 0
+        self.loglik = 0.0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.belief.mean
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.belief.cov
+
+    def _matrices(self, k: int):
+        steps = self.model.steps
+        if steps is not None and not 0 <= k < steps:
+            raise IndexError(f"the time-varying model has {steps} steps; step {k} is beyond it.")
+        return self.model.at(k)
+
+    def predict(self, u=None) -> Gaussian:
+        """Advance the belief one step, with control input `u` of shape (p,) when the model has B."""
+        F, _, Q, _, B = self._matrices(self.step)
+        if B is None and u is not None:
+            raise ValueError("`u` was given but the model has no control input; give the model `B`.")
+        b = None
+        if B is not None:
+            if u is None:
+                raise ValueError(f"`u` is required: the model has a control input with p = {B.shape[-1]}.")
+            u = np.atleast_1d(as_array("u", u))
+            if u.shape != (B.shape[-1],):
+                raise shape_error("u", f"({B.shape[-1]},)", u.shape)
+            b = B @ u
+        with _at_step(self.step):
+            mean, cov = kalman.predict(self.belief.mean, self.belief.cov, F, Q, b)
+        self.belief = Gaussian(mean, cov)
+        self.step += 1
+        return self.belief
+
+    def update(self, z) -> Gaussian:
+        """Condition the belief on measurement `z` of shape (m,) (a scalar when m = 1); NaN = missing."""
+        _, H, _, R, _ = self._matrices(max(self.step - 1, 0))
+        z = np.atleast_1d(as_array("z", z, allow_nan=True))
+        if z.shape != (H.shape[0],):
+            raise shape_error("z", f"({H.shape[0]},)", z.shape)
+        with _at_step(max(self.step - 1, 0)):
+            post = kalman.update(self.belief.mean, self.belief.cov, z, H, R)
+        self.belief = Gaussian(post.mean, post.cov)
+        self.loglik += post.loglik
+        return self.belief
