@@ -7,7 +7,7 @@ Gaussians. The equations live in :mod:`gaussfuse.kalman`; the drivers in
 
 from .gaussian import Gaussian, fuse
 from .inference import METHODS, FilterResult, SmoothResult, filter, smooth
-from .models import LinearModel, constant_acceleration, constant_velocity
+from .models import LinearModel, NonlinearModel, constant_acceleration, constant_velocity
 from .online import KalmanFilter
 
 __version__ = "0.1.0"
@@ -16,6 +16,7 @@ __all__ = [
     "Gaussian",
     "fuse",
     "LinearModel",
+    "NonlinearModel",
     "constant_velocity",
     "constant_acceleration",
     "filter",

@@ -15,9 +15,12 @@ import numpy as np
 from . import kalman
 from ._validation import as_array, shape_error
 from .gaussian import Gaussian
+from .linearize import Exact, Nominal, SigmaPoints, Taylor
+from .linearize.sigma_points import cubature, gauss_hermite, unscented
 from .models.linear import LinearModel
+from .models.nonlinear import ModelFunctionError, NonlinearModel
 
-__all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
+__all__ = ["filter", "smooth", "run_filter", "run_smoother", "FilterResult", "SmoothResult", "METHODS"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,60 +86,80 @@ class SmoothResult:
 
 
 # ---------------------------------------------------------------------------
-# The linear Kalman filter and RTS smoother
+# The drivers: one affine Kalman loop for every method
 # ---------------------------------------------------------------------------
 
 
-def _kf_filter(model: LinearModel, prior: Gaussian, zs: np.ndarray, us: np.ndarray | None) -> FilterResult:
-    T, n, m = zs.shape[0], model.n, model.m
+def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1,
+               state_angles=None, measurement_angles=None) -> FilterResult:
+    """Filter one series (T, m) with a linearisation strategy (see :mod:`gaussfuse.linearize`).
+
+    Each step predicts through ``lin.transition`` and updates through
+    ``lin.measurement``. With ``iterations > 1`` the update is repeated,
+    each time re-linearising the measurement at the latest posterior and
+    conditioning the *prediction* again (the iterated EKF's Gauss–Newton
+    steps, or posterior linearisation).
+    """
+    T, n, m = zs.shape[0], prior.dim, zs.shape[1]
     means, covs = np.empty((T, n)), np.empty((T, n, n))
     pmeans, pcovs = np.empty((T, n)), np.empty((T, n, n))
     innov, icovs = np.empty((T, m)), np.empty((T, m, m))
     loglik = 0.0
     mean, cov = prior.mean, prior.cov
     for k in range(T):
-        F, H, Q, R, B = model.at(k)
         with _at_step(k):
-            mean, cov = kalman.predict(mean, cov, F, Q, None if B is None else B @ us[k])
+            A, b, Q = lin.transition(k, mean, cov)
+            mean, cov = kalman.predict(mean, cov, A, Q, b)
+            mean = kalman.wrap_components(mean, state_angles)
             pmeans[k], pcovs[k] = mean, cov
-            mean, cov, innov[k], icovs[k], ll = kalman.update(mean, cov, zs[k], H, R)
-        means[k], covs[k] = mean, cov
-        loglik += ll
+            post_mean, post_cov = mean, cov
+            for _ in range(iterations):
+                H, d, R = lin.measurement(k, post_mean, post_cov)
+                post = kalman.update(mean, cov, zs[k], H, R, d, angles=measurement_angles)
+                post_mean, post_cov = kalman.wrap_components(post.mean, state_angles), post.cov
+        mean, cov = post_mean, post_cov
+        means[k], covs[k], innov[k], icovs[k] = mean, cov, post.innovation, post.innovation_cov
+        loglik += post.loglik
     return FilterResult(means, covs, pmeans, pcovs, innov, icovs, loglik)
 
 
-def _kf_smooth(model: LinearModel, prior: Gaussian, zs: np.ndarray, us: np.ndarray | None) -> SmoothResult:
-    filt = _kf_filter(model, prior, zs, us)
-    F = model.F[1:] if model.F.ndim == 3 else model.F
-    cross = filt.covs[:-1] @ np.swapaxes(F, -1, -2)
-    return rts(filt, cross)
+def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
+                 state_angles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The RTS backward pass over a filtered series, with transitions from `lin`.
 
+    The transition out of each filtered belief is re-linearised at that
+    belief (for sigma-point smoothers: points re-drawn from ``(m_k, P_k)``),
+    so ``A``, the prediction and the cross-covariance ``P_k Aᵀ`` agree. With
+    `prior`, the pass continues back to the prior's time.
 
-def rts(filt: FilterResult, cross_covs: np.ndarray) -> SmoothResult:
-    """Run the RTS backward pass over a filtered series.
-
-    Parameters
-    ----------
-    filt : FilterResult
-        A single-series forward pass.
-    cross_covs : array of shape (T - 1, n, n)
-        ``cross_covs[k] = Cov(x_k, x_{k+1} | z_1..z_k)``.
+    Returns
+    -------
+    means : ndarray of shape (T, n), or (T + 1, n) with `prior`
+    covs : ndarray of shape (T, n, n), or (T + 1, n, n) with `prior`
+    gains : ndarray of shape (T - 1, n, n), or (T, n, n) with `prior`
     """
-    T, n = filt.means.shape
-    means, covs = filt.means.copy(), filt.covs.copy()
-    gains = np.empty((max(T - 1, 0), n, n))
-    for k in range(T - 2, -1, -1):
-        with _at_step(k):
-            means[k], covs[k], gains[k] = kalman.rts_step(
-                filt.means[k], filt.covs[k],
-                filt.predicted_means[k + 1], filt.predicted_covs[k + 1],
-                means[k + 1], covs[k + 1], cross_covs[k],
+    means, covs = filt.means, filt.covs
+    first = 1
+    if prior is not None:
+        means = np.concatenate([prior.mean[None], means])
+        covs = np.concatenate([prior.cov[None], covs])
+        first = 0
+    sm_means, sm_covs = means.copy(), covs.copy()
+    gains = np.empty((max(means.shape[0] - 1, 0), *covs.shape[1:]))
+    for j in range(means.shape[0] - 2, -1, -1):
+        with _at_step(j + first):
+            A, b, Q = lin.transition(j + first, means[j], covs[j])
+            pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)
+            sm_means[j], sm_covs[j], gains[j] = kalman.rts_step(
+                means[j], covs[j], kalman.wrap_components(pred_mean, state_angles), pred_cov,
+                sm_means[j + 1], sm_covs[j + 1], covs[j] @ A.T, angles=state_angles,
             )
-    return SmoothResult(means, covs, gains, filt)
+            sm_means[j] = kalman.wrap_components(sm_means[j], state_angles)
+    return sm_means, sm_covs, gains
 
 
 class _at_step:
-    """Prefix the time step to a ``LinAlgError`` raised inside the block."""
+    """Prefix the time step to an error raised inside the block by the algebra or the model."""
 
     def __init__(self, k: int) -> None:
         self.k = k
@@ -145,14 +168,39 @@ class _at_step:
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None and issubclass(exc_type, np.linalg.LinAlgError):
-            raise np.linalg.LinAlgError(f"at step {self.k}: {exc}") from exc
+        if exc_type is not None and issubclass(exc_type, (np.linalg.LinAlgError, ModelFunctionError)):
+            raise exc_type(f"at step {self.k}: {exc}") from exc
         return False
 
 
 # ---------------------------------------------------------------------------
 # Method registry
 # ---------------------------------------------------------------------------
+
+
+def _positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"`{name}` must be a positive integer; got {value!r}.")
+    return int(value)
+
+
+def _real(name: str, value, *, positive: bool = False, optional: bool = False):
+    if optional and value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(value) or (positive and value <= 0):
+        kind = "a positive" if positive else "a finite"
+        raise ValueError(f"`{name}` must be {kind} number{' or None' if optional else ''}; got {value!r}.")
+    return float(value)
+
+
+OPTION_CHECKS: dict[str, Callable] = {
+    "iterations": _positive_int,
+    "order": _positive_int,
+    "alpha": lambda name, v: _real(name, v, positive=True),
+    "beta": _real,
+    "kappa": lambda name, v: _real(name, v, optional=True),
+}
 
 
 class Method(NamedTuple):
@@ -164,25 +212,50 @@ class Method(NamedTuple):
         The model classes it accepts.
     options : dict
         Accepted keyword options and their defaults.
-    filter, smooth : callable
-        ``(model, prior, zs, us, **options)`` on one series, returning a
-        :class:`FilterResult` / :class:`SmoothResult`.
+    strategy : callable
+        ``(model, us, **options) -> strategy``: how the model is linearised
+        (see :mod:`gaussfuse.linearize`); ``iterations`` is not passed.
+    iterated : bool
+        Whether ``iterations`` repeats the update (filter) and the whole
+        linearise-filter-smooth pass (smoother).
+    description : str
+        One line for listings.
     """
 
     model_types: tuple[type, ...]
     options: dict
-    filter: Callable[..., FilterResult]
-    smooth: Callable[..., SmoothResult]
+    strategy: Callable
+    iterated: bool
+    description: str
 
 
 METHODS: dict[str, Method] = {
-    "kf": Method((LinearModel,), {}, _kf_filter, _kf_smooth),
+    "kf": Method((LinearModel,), {}, lambda model, us: Exact(model, us), False,
+                 "Kalman filter / Rauch-Tung-Striebel smoother (exact for linear models)"),
+    "ekf": Method((NonlinearModel,), {}, lambda model, us: Taylor(model, us), False,
+                  "extended Kalman filter / extended RTS smoother"),
+    "iekf": Method((NonlinearModel,), {"iterations": 10},
+                   lambda model, us: Taylor(model, us), True,
+                   "iterated EKF / iterated extended (Gauss-Newton) smoother"),
+    "ukf": Method((NonlinearModel,), {"alpha": 1.0, "beta": 0.0, "kappa": None},
+                  lambda model, us, alpha, beta, kappa:
+                  SigmaPoints(model, unscented(model.n, alpha, beta, kappa), us), False,
+                  "unscented Kalman filter / unscented RTS smoother"),
+    "ckf": Method((NonlinearModel,), {}, lambda model, us: SigmaPoints(model, cubature(model.n), us),
+                  False, "cubature Kalman filter / cubature RTS smoother"),
+    "ghkf": Method((NonlinearModel,), {"order": 3},
+                   lambda model, us, order: SigmaPoints(model, gauss_hermite(model.n, order), us),
+                   False, "Gauss-Hermite Kalman filter / RTS smoother"),
+    "iplf": Method((NonlinearModel,), {"iterations": 10, "order": 3},
+                   lambda model, us, order: SigmaPoints(model, gauss_hermite(model.n, order), us),
+                   True, "iterated posterior-linearisation filter / smoother (Gauss-Hermite)"),
 }
 
-DEFAULT_METHOD: dict[type, str] = {LinearModel: "kf"}
+DEFAULT_METHOD: dict[type, str] = {LinearModel: "kf", NonlinearModel: "ukf"}
 
 
 def _resolve_method(model, method: str | None, options: dict) -> tuple[Method, dict]:
+    """Pick the method (default by model type) and check its options."""
     if method is None:
         for cls, name in DEFAULT_METHOD.items():
             if isinstance(model, cls):
@@ -190,7 +263,7 @@ def _resolve_method(model, method: str | None, options: dict) -> tuple[Method, d
                 break
         else:
             known = ", ".join(c.__name__ for c in DEFAULT_METHOD)
-            raise TypeError(f"`model` must be one of {known}; got {type(model).__name__}.")
+            raise TypeError(f"`model` must be a {known}; got {type(model).__name__}.")
     if method not in METHODS:
         raise ValueError(f"`method` must be one of {sorted(METHODS)}; got {method!r}.")
     spec = METHODS[method]
@@ -206,7 +279,40 @@ def _resolve_method(model, method: str | None, options: dict) -> tuple[Method, d
         raise TypeError(
             f"unknown option(s) {unknown} for method {method!r}; valid options are {valid}."
         )
+    options = {name: OPTION_CHECKS[name](name, value) for name, value in options.items()}
     return spec, {**spec.options, **options}
+
+
+def _angles(model):
+    return getattr(model, "state_angles", None), getattr(model, "measurement_angles", None)
+
+
+def _method_filter(spec: Method, model, prior, zs, us, options) -> FilterResult:
+    options = dict(options)
+    iterations = options.pop("iterations", 1)
+    lin = spec.strategy(model, us, **options)
+    xa, za = _angles(model)
+    return run_filter(lin, prior, zs, iterations=iterations, state_angles=xa, measurement_angles=za)
+
+
+def _method_smooth(spec: Method, model, prior, zs, us, options) -> SmoothResult:
+    filt = _method_filter(spec, model, prior, zs, us, options)
+    options = dict(options)
+    passes = options.pop("iterations", 1)
+    lin = spec.strategy(model, us, **options)
+    xa, za = _angles(model)
+    if not spec.iterated:
+        means, covs, gains = run_smoother(lin, filt, state_angles=xa)
+        return SmoothResult(means, covs, gains, filt)
+    # Iterated smoothers: each pass linearises about the previous pass's smoothed
+    # trajectory (the first about the iterated filter's), from the prior's time on.
+    means = np.concatenate([prior.mean[None], filt.means])
+    covs = np.concatenate([prior.cov[None], filt.covs])
+    for _ in range(passes):
+        nominal = Nominal(lin, means, covs)
+        last = run_filter(nominal, prior, zs, state_angles=xa, measurement_angles=za)
+        means, covs, gains = run_smoother(nominal, last, prior, state_angles=xa)
+    return SmoothResult(means[1:], covs[1:], gains[1:], filt)
 
 
 # ---------------------------------------------------------------------------
@@ -228,33 +334,41 @@ def check_prior(prior, n: int) -> Gaussian:
 def check_measurements(zs, m: int) -> np.ndarray:
     """Return `zs` as an array (N, T, m); NaN marks a missing component."""
     arr = as_array("zs", zs, allow_nan=True)
+    given = arr.shape
     if arr.ndim == 1 and m == 1:
         arr = arr[:, None]
     if arr.ndim == 2 and arr.shape[1] == m:
         arr = arr[None]
     if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0:
         expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1"
-        raise shape_error("zs", expected, np.shape(arr))
+        raise shape_error("zs", expected, given)
     return arr
 
 
 def check_controls(us, model, N: int, T: int) -> np.ndarray | None:
-    """Return `us` as an array (N, T, p), or None for a model without control input."""
-    p = getattr(model, "p", 0)
-    if p == 0:
-        if us is not None:
-            raise ValueError("`us` was given but the model has no control input; give the model `B`.")
-        return None
+    """Return `us` as an array (N, T, p), or None when there are no controls.
+
+    A LinearModel needs controls exactly when it has ``B``; for a
+    NonlinearModel they are optional and passed to ``f(x, u)``.
+    """
+    p = model.p if isinstance(model, LinearModel) else None
+    if p == 0 and us is not None:
+        raise ValueError("`us` was given but the model has no control input; give the model `B`.")
     if us is None:
-        raise ValueError(f"`us` is required: the model has a control input with p = {p}.")
+        if p:
+            raise ValueError(f"`us` is required: the model has a control input with p = {p}.")
+        return None
     arr = as_array("us", us)
-    if arr.ndim == 1 and p == 1:
+    if arr.ndim == 1 and p in (1, None):
         arr = arr[:, None]
     if arr.ndim == 2:
-        arr = np.broadcast_to(arr, (N, *arr.shape))
-    if arr.ndim != 3 or arr.shape[1:] != (T, p) or arr.shape[0] not in (1, N):
-        raise shape_error("us", f"(T, p) = ({T}, {p}) or ({N}, {T}, {p}), matching `zs`", np.shape(us))
-    return np.broadcast_to(arr, (N, T, p))
+        arr = arr[None]
+    shown = "p" if p is None else p
+    if arr.ndim != 3 or arr.shape[1] != T or (p is not None and arr.shape[2] != p) \
+            or arr.shape[0] not in (1, N):
+        raise shape_error("us", f"(T, p) = ({T}, {shown}) or ({N}, {T}, {shown}), matching `zs`",
+                          np.shape(us))
+    return np.broadcast_to(arr, (N, *arr.shape[1:]))
 
 
 def _check_steps(model, T: int) -> None:
@@ -326,7 +440,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
     """
     spec, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
     results = [
-        spec.filter(model, prior, z, None if us is None else us[i], **options)
+        _method_filter(spec, model, prior, z, None if us is None else us[i], options)
         for i, z in enumerate(zs)
     ]
     return _stack(results) if batch else results[0]
@@ -354,7 +468,7 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
     """
     spec, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
     results = [
-        spec.smooth(model, prior, z, None if us is None else us[i], **options)
+        _method_smooth(spec, model, prior, z, None if us is None else us[i], options)
         for i, z in enumerate(zs)
     ]
     return _stack(results) if batch else results[0]

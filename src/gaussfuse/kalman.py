@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
-__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "cholesky"]
+__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "cholesky", "wrap_angle", "wrap_components"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
 
@@ -51,6 +51,20 @@ class Update(NamedTuple):
     innovation: np.ndarray
     innovation_cov: np.ndarray
     loglik: float
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap angles in radians to [-π, π)."""
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def wrap_components(diff: np.ndarray, angles: np.ndarray | None) -> np.ndarray:
+    """`diff` with its angle components wrapped (a copy when any are)."""
+    if angles is None or not angles.any():
+        return diff
+    diff = diff.copy()
+    diff[angles] = wrap_angle(diff[angles])
+    return diff
 
 
 def symmetrize(cov: np.ndarray) -> np.ndarray:
@@ -123,6 +137,7 @@ def update(
     H: np.ndarray,
     R: np.ndarray,
     d: np.ndarray | None = None,
+    angles: np.ndarray | None = None,
 ) -> Update:
     r"""Condition a Gaussian belief on a measurement (Joseph form).
 
@@ -140,6 +155,8 @@ def update(
         Measurement-noise covariance (plus any linearisation error).
     d : array of shape (m,), optional
         Measurement offset.
+    angles : array of bool, shape (m,), optional
+        Components that are angles: their innovation is wrapped to [-π, π).
 
     Returns
     -------
@@ -170,7 +187,7 @@ def update(
     pred_z = H @ mean
     if d is not None:
         pred_z = pred_z + d
-    innovation = z - pred_z
+    innovation = wrap_components(z - pred_z, angles)
     S_full = symmetrize(H @ cov @ H.T + R)
     observed = ~np.isnan(z)
     if not observed.any():
@@ -197,6 +214,7 @@ def rts_step(
     next_mean: np.ndarray,
     next_cov: np.ndarray,
     cross_cov: np.ndarray,
+    angles: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""One backward step of the Rauch–Tung–Striebel smoother.
 
@@ -211,6 +229,8 @@ def rts_step(
     cross_cov : array of shape (n, n)
         :math:`C_{k+1} = \operatorname{Cov}(x_k, x_{k+1} \mid z_{1:k})`;
         :math:`P_k A^\top` for affine dynamics.
+    angles : array of bool, shape (n,), optional
+        State components that are angles: ``m^s_{k+1} - m^-_{k+1}`` is wrapped.
 
     Returns
     -------
@@ -237,7 +257,7 @@ def rts_step(
         gain = cho_solve((L, True), cross_cov.T, check_finite=False).T
     except np.linalg.LinAlgError:
         gain = np.linalg.lstsq(pred_cov, cross_cov.T, rcond=None)[0].T
-    mean = filt_mean + gain @ (next_mean - pred_mean)
+    mean = filt_mean + gain @ wrap_components(next_mean - pred_mean, angles)
     cov = symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T)
     return mean, cov, gain
 

@@ -1,0 +1,218 @@
+r"""Sigma-point rules and statistical linear regression (SLR).
+
+A sigma-point rule is a set of unit points :math:`\xi_i` with weights
+:math:`w^m_i, w^c_i`; for a belief :math:`N(m, P)` with :math:`P = L L^\top`
+the points are :math:`\mathcal X_i = m + L \xi_i`.
+
+Statistical linear regression fits the affine map that best explains
+:math:`y = g(x)` under the belief,
+
+.. math::
+
+    \bar y &= \textstyle\sum_i w^m_i\, g(\mathcal X_i), \\
+    C &= \textstyle\sum_i w^c_i\, (\mathcal X_i - m)(g(\mathcal X_i) - \bar y)^\top, \qquad
+    S = \textstyle\sum_i w^c_i\, (g(\mathcal X_i) - \bar y)(g(\mathcal X_i) - \bar y)^\top, \\
+    A &= C^\top P^{-1}, \qquad b = \bar y - A m, \qquad \Omega = S - A P A^\top,
+
+so that :math:`g(x) \approx A x + b + e`, :math:`e \sim N(0, \Omega)`. Fed to
+the affine Kalman step this gives exactly the sigma-point filter's formulas:
+the predicted mean is :math:`\bar y`, the innovation covariance
+:math:`S + R`, the gain :math:`C (S + R)^{-1}`, and the smoother gain
+:math:`C_f (P^-)^{-1}`.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import numpy as np
+from numpy.polynomial.hermite_e import hermegauss
+from scipy.linalg import cho_solve
+
+from ..kalman import symmetrize, wrap_angle
+
+__all__ = ["SigmaPoints", "SigmaRule", "unscented", "cubature", "gauss_hermite", "slr", "RULES"]
+
+
+class SigmaRule(NamedTuple):
+    """Unit sigma points and their weights.
+
+    Attributes
+    ----------
+    points : ndarray of shape (k, n)
+        Unit points :math:`\\xi_i`, for a standard normal belief.
+    wm : ndarray of shape (k,)
+        Weights of the mean.
+    wc : ndarray of shape (k,)
+        Weights of the covariances.
+    """
+
+    points: np.ndarray
+    wm: np.ndarray
+    wc: np.ndarray
+
+
+def unscented(n: int, alpha: float = 1.0, beta: float = 0.0, kappa: float | None = None) -> SigmaRule:
+    r"""The scaled unscented rule: 2n + 1 points.
+
+    Parameters
+    ----------
+    n : int
+        Dimension.
+    alpha, beta : float
+        Spread and prior-knowledge parameters; ``alpha=1, beta=0`` is the
+        original unscented transform.
+    kappa : float, optional
+        Secondary scaling; defaults to ``3 - n``.
+
+    Notes
+    -----
+    With :math:`\lambda = \alpha^2 (n + \kappa) - n`, the points are
+    :math:`0` and :math:`\pm\sqrt{n + \lambda}\, e_i`, with weights
+    :math:`w^m_0 = \lambda / (n + \lambda)`,
+    :math:`w^c_0 = w^m_0 + 1 - \alpha^2 + \beta` and
+    :math:`w_i = 1 / (2 (n + \lambda))` otherwise.
+    """
+    kappa = 3.0 - n if kappa is None else float(kappa)
+    lam = alpha**2 * (n + kappa) - n
+    if not n + lam > 0:
+        raise ValueError(
+            f"the unscented rule needs alpha**2 * (n + kappa) > 0; got alpha={alpha}, kappa={kappa}, n={n}."
+        )
+    scale = np.sqrt(n + lam)
+    points = np.vstack([np.zeros(n), scale * np.eye(n), -scale * np.eye(n)])
+    wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    wm[0] = lam / (n + lam)
+    wc = wm.copy()
+    wc[0] += 1.0 - alpha**2 + beta
+    return SigmaRule(points, wm, wc)
+
+
+def cubature(n: int) -> SigmaRule:
+    r"""The spherical–radial cubature rule: the 2n points :math:`\pm\sqrt n\, e_i`, equal weights."""
+    points = np.sqrt(n) * np.vstack([np.eye(n), -np.eye(n)])
+    w = np.full(2 * n, 0.5 / n)
+    return SigmaRule(points, w, w)
+
+
+def gauss_hermite(n: int, order: int = 3) -> SigmaRule:
+    """The tensor-product Gauss–Hermite rule: order**n points.
+
+    The 1-D rule is the probabilists' Hermite rule
+    (:func:`numpy.polynomial.hermite_e.hermegauss`), exact for polynomials
+    of degree up to 2·order − 1 under a standard normal; its weights are
+    normalised to sum to 1.
+    """
+    if not isinstance(order, (int, np.integer)) or order < 1:
+        raise ValueError(f"`order` must be a positive integer; got {order!r}.")
+    x, w = hermegauss(order)
+    w = w / w.sum()
+    grids = np.meshgrid(*([x] * n), indexing="ij")
+    points = np.stack([g.reshape(-1) for g in grids], axis=-1)
+    weights = np.prod(np.stack(np.meshgrid(*([w] * n), indexing="ij")).reshape(n, -1), axis=0)
+    return SigmaRule(points, weights, weights)
+
+
+RULES: dict[str, Callable[..., SigmaRule]] = {
+    "unscented": unscented,
+    "cubature": cubature,
+    "gauss_hermite": gauss_hermite,
+}
+
+
+def sqrt_cov(cov: np.ndarray) -> np.ndarray:
+    """A square root L with L Lᵀ = cov: Cholesky, or the symmetric root when cov is singular."""
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        vals, vecs = np.linalg.eigh(cov)
+        if vals[0] < -1e-9 * max(vals[-1], 1e-300):
+            raise np.linalg.LinAlgError(
+                f"the covariance is not positive semi-definite (smallest eigenvalue {vals[0]:.3g}), "
+                "so sigma points cannot be drawn"
+            ) from None
+        return vecs * np.sqrt(np.clip(vals, 0.0, None))
+
+
+def circular_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted mean of angles along axis 0: ``atan2(Σ w sin, Σ w cos)``."""
+    return np.arctan2(weights @ np.sin(values), weights @ np.cos(values))
+
+
+def slr(
+    g: Callable[[np.ndarray], np.ndarray],
+    rule: SigmaRule,
+    mean: np.ndarray,
+    cov: np.ndarray,
+    angles: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Statistical linear regression of `g` under ``N(mean, cov)`` (see the module notes).
+
+    Parameters
+    ----------
+    g : callable
+        Maps a stack of states (k, n) to outputs (k, d).
+    rule : SigmaRule
+        Unit points and weights for dimension n.
+    mean : ndarray of shape (n,)
+    cov : ndarray of shape (n, n)
+    angles : ndarray of bool, shape (d,), optional
+        Output components that are angles: their mean is circular and their
+        residuals wrapped to [-π, π).
+
+    Returns
+    -------
+    A : ndarray of shape (d, n)
+    b : ndarray of shape (d,)
+    Omega : ndarray of shape (d, d)
+    """
+    L = sqrt_cov(cov)
+    X = mean + rule.points @ L.T
+    Y = g(X)
+    y_mean = rule.wm @ Y
+    dY = Y - y_mean
+    if angles is not None and angles.any():
+        y_mean[angles] = circular_mean(Y[:, angles], rule.wm)
+        dY[:, angles] = wrap_angle(Y[:, angles] - y_mean[angles])
+    dX = X - mean
+    C = (dX * rule.wc[:, None]).T @ dY
+    S = (dY * rule.wc[:, None]).T @ dY
+    try:
+        A = cho_solve((np.linalg.cholesky(cov), True), C, check_finite=False).T
+    except np.linalg.LinAlgError:
+        A = np.linalg.lstsq(cov, C, rcond=None)[0].T
+    return A, y_mean - A @ mean, symmetrize(S - A @ cov @ A.T)
+
+
+class SigmaPoints:
+    """Statistical linear regression of a NonlinearModel through a sigma-point rule.
+
+    Parameters
+    ----------
+    model : NonlinearModel
+    rule : SigmaRule
+        Unit points for the model's state dimension.
+    us : ndarray of shape (T, p), optional
+        Controls, passed to f as ``f(x, u_k)``.
+
+    Notes
+    -----
+    f and h are evaluated once per step on the whole stack of points when
+    the model is vectorized, otherwise once per point.
+    """
+
+    def __init__(self, model, rule: SigmaRule, us: np.ndarray | None = None) -> None:
+        self.model, self.rule, self.us = model, rule, us
+
+    def transition(self, k: int, mean: np.ndarray, cov: np.ndarray):
+        """``(A, b, Q + Ω)`` from the regression of f under ``N(mean, cov)``."""
+        m = self.model
+        u = None if self.us is None else self.us[k]
+        A, b, omega = slr(lambda X: m.transition(X, u), self.rule, mean, cov, m.state_angles)
+        return A, b, m.noise(k)[0] + omega
+
+    def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
+        """``(H, d, R + Ω)`` from the regression of h under ``N(mean, cov)``."""
+        m = self.model
+        H, d, omega = slr(m.measurement, self.rule, mean, cov, m.measurement_angles)
+        return H, d, m.noise(k)[1] + omega

@@ -1,0 +1,135 @@
+r"""First-order Taylor linearisation, with analytic or automatic Jacobians.
+
+A function :math:`g` is approximated around a point :math:`\hat x` by
+
+.. math::
+
+    g(x) \approx J (x - \hat x) + g(\hat x) = A x + b, \qquad
+    A = J = \partial g / \partial x \,|_{\hat x}, \quad b = g(\hat x) - A \hat x,
+
+with no error covariance (:math:`\Omega = 0`). This is the extended Kalman
+filter's linearisation; the iterated EKF re-linearises at each iterate.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Callable
+
+import numpy as np
+
+from ..models.nonlinear import ModelFunctionError, call_checked
+
+__all__ = ["Taylor", "jacobian", "complex_step_jacobian", "finite_difference_jacobian"]
+
+_COMPLEX_STEP = 1e-100
+
+
+def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
+             vectorized: bool = False) -> np.ndarray:
+    """Jacobian of ``fn(x, *args)`` (returning shape (size,)) at x of shape (n,).
+
+    Complex-step differentiation [1]_ when `fn` accepts complex input:
+    ``J[:, i] = Im fn(x + i h e_i) / h`` with h = 1e-100, exact to round-off
+    for analytic functions (no subtractive cancellation). Otherwise adaptive
+    central differences with Richardson extrapolation
+    (:func:`scipy.differentiate.jacobian`).
+
+    Returns
+    -------
+    ndarray of shape (size, n)
+
+    References
+    ----------
+    .. [1] J. R. R. A. Martins, P. Sturdza and J. J. Alonso, "The complex-step
+       derivative approximation", ACM TOMS 29(3), 2003.
+    """
+    try:
+        return complex_step_jacobian(name, fn, x, args, size, vectorized)
+    except _RejectsComplex:
+        return finite_difference_jacobian(name, fn, x, args, size)
+
+
+class _RejectsComplex(Exception):
+    """The function cannot be evaluated at a complex argument."""
+
+
+def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
+                          vectorized: bool = False) -> np.ndarray:
+    """Complex-step Jacobian, shape (size, n); see :func:`jacobian`."""
+    n = x.shape[0]
+    X = x + 1j * _COMPLEX_STEP * np.eye(n)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", np.exceptions.ComplexWarning)
+            if vectorized:
+                Y = np.asarray(fn(X, *args))
+            else:
+                Y = np.stack([np.asarray(fn(xi, *args)).reshape(-1) for xi in X])
+    except Exception as exc:
+        raise _RejectsComplex from exc
+    if not np.iscomplexobj(Y) or Y.size != n * size:
+        raise _RejectsComplex
+    J = Y.reshape(n, size).imag.T / _COMPLEX_STEP
+    if not np.all(np.isfinite(J)):
+        raise _RejectsComplex
+    return J
+
+
+def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple,
+                               size: int) -> np.ndarray:
+    """Adaptive finite-difference Jacobian, shape (size, n); see :func:`jacobian`."""
+    from scipy.differentiate import jacobian as scipy_jacobian
+
+    n = x.shape[0]
+
+    def stacked(xi: np.ndarray) -> np.ndarray:
+        # scipy passes shape (n, ...) and expects (size, ...).
+        flat = xi.reshape(n, -1).T
+        out = np.stack([call_checked(name, fn, p, args, (size,)) for p in flat], axis=-1)
+        return out.reshape(size, *xi.shape[1:])
+
+    # Steps scale with each component (so domains like log(x) hold) and with
+    # the state as a whole (so a component at zero is not stepped into round-off).
+    scale = np.maximum(np.abs(x), max(1e-2, 0.1 * np.max(np.abs(x))))
+    res = scipy_jacobian(stacked, x, initial_step=0.1 * scale,
+                         tolerances=dict(rtol=1e-11, atol=1e-300))
+    J = np.asarray(res.df).reshape(size, n)
+    if not np.all(np.isfinite(J)):
+        raise ModelFunctionError(f"the Jacobian of `{name}` could not be computed at x = {x}.")
+    return J
+
+
+class Taylor:
+    """First-order Taylor linearisation of a NonlinearModel (the EKF's).
+
+    Parameters
+    ----------
+    model : NonlinearModel
+    us : ndarray of shape (T, p), optional
+        Controls, passed to f as ``f(x, u_k)``.
+    """
+
+    def __init__(self, model, us: np.ndarray | None = None) -> None:
+        self.model, self.us = model, us
+
+    def _affine(self, name, fn, jac, x, args, size, vectorized):
+        y = (self.model.transition(x, *args) if name == "f" else self.model.measurement(x))
+        if jac is not None:
+            A = call_checked(f"{name}_jacobian", jac, x, args, (size, x.shape[0]))
+        else:
+            A = jacobian(name, fn, x, args, size, vectorized)
+        return A, y - A @ x
+
+    def transition(self, k: int, mean: np.ndarray, cov: np.ndarray):
+        """``(A, b, Q)`` with A the Jacobian of f at `mean`."""
+        m = self.model
+        args = () if self.us is None else (self.us[k],)
+        A, b = self._affine("f", m.f, m.f_jacobian, mean, args, m.n, m.vectorized)
+        return A, b, m.noise(k)[0]
+
+    def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
+        """``(H, d, R)`` with H the Jacobian of h at `mean`."""
+        m = self.model
+        H, d = self._affine("h", m.h, m.h_jacobian, mean, (), m.m, m.vectorized)
+        return H, d, m.noise(k)[1]

@@ -1,0 +1,122 @@
+"""Sigma-point rules and statistical linear regression."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gaussfuse.linearize.sigma_points import cubature, gauss_hermite, slr, sqrt_cov, unscented
+
+
+def _random_gaussian(rng, n):
+    A = rng.standard_normal((n, n))
+    return rng.standard_normal(n), A @ A.T + 0.5 * np.eye(n)
+
+
+def _moments(rule, mean, cov):
+    X = mean + rule.points @ sqrt_cov(cov).T
+    m = rule.wm @ X
+    d = X - m
+    return m, (d * rule.wc[:, None]).T @ d
+
+
+@pytest.mark.parametrize(
+    "make", [lambda n: unscented(n), lambda n: unscented(n, 0.5, 2.0, 1.0), cubature,
+             lambda n: gauss_hermite(n, 3), lambda n: gauss_hermite(n, 5)],
+    ids=["ut", "ut-scaled", "cubature", "gh3", "gh5"],
+)
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_rules_reproduce_mean_and_covariance(make, n):
+    rng = np.random.default_rng(n)
+    mean, cov = _random_gaussian(rng, n)
+    rule = make(n)
+    m, P = _moments(rule, mean, cov)
+    np.testing.assert_allclose(rule.wm.sum(), 1.0, rtol=1e-14)
+    np.testing.assert_allclose(m, mean, atol=1e-12)
+    # The scaled UT's covariance weights carry 1 - alpha^2 + beta on the centre point,
+    # which is zero for alpha=1, beta=0 only; the mean weights give the covariance exactly.
+    d = mean + rule.points @ sqrt_cov(cov).T - mean
+    np.testing.assert_allclose((d * rule.wm[:, None]).T @ d, cov, rtol=1e-12, atol=1e-12)
+
+
+def test_rule_sizes_and_weights():
+    assert unscented(3).points.shape == (7, 3)
+    assert cubature(3).points.shape == (6, 3)
+    assert gauss_hermite(3, 4).points.shape == (64, 3)
+    rule = unscented(2)  # alpha=1, beta=0, kappa=3-n=1: lambda = 1
+    np.testing.assert_allclose(rule.wm, [1 / 3] + [1 / 6] * 4)
+    np.testing.assert_allclose(rule.wc, rule.wm)
+    np.testing.assert_allclose(np.abs(rule.points).max(), np.sqrt(3))
+    scaled = unscented(2, alpha=0.5, beta=2.0, kappa=0.0)
+    lam = 0.25 * 2 - 2
+    assert scaled.wc[0] == pytest.approx(lam / (2 + lam) + 1 - 0.25 + 2)
+
+
+def test_gauss_hermite_is_exact_for_polynomials():
+    """Order-p Gauss-Hermite integrates x^k under N(0,1) exactly for k <= 2p - 1."""
+    rule = gauss_hermite(1, 4)
+    x = rule.points[:, 0]
+    double_factorial = {0: 1, 2: 1, 4: 3, 6: 15}
+    for k in range(8):
+        exact = double_factorial[k] if k % 2 == 0 else 0.0
+        assert rule.wm @ x**k == pytest.approx(exact, abs=1e-12)
+
+
+def test_unscented_rejects_degenerate_scaling():
+    with pytest.raises(ValueError, match=r"alpha\*\*2 \* \(n \+ kappa\) > 0"):
+        unscented(2, alpha=1.0, kappa=-2.0)
+    with pytest.raises(ValueError, match="`order` must be a positive integer"):
+        gauss_hermite(2, 0)
+
+
+def test_julier_uhlmann_polar_to_cartesian():
+    """Julier & Uhlmann's example: r ~ N(1, 0.02²), θ ~ N(90°, 15²) mapped to y = r sin θ.
+
+    The true mean is E[r] E[sin θ] = exp(-σθ²/2) ≈ 0.96631; linearisation at the
+    mean gives sin(90°) = 1.0. The unscented transform (kappa = 3 - n) gets it.
+    """
+    sigma_t = np.deg2rad(15.0)
+    mean = np.array([1.0, np.pi / 2])
+    cov = np.diag([0.02**2, sigma_t**2])
+
+    def to_cartesian(X):
+        return np.stack([X[:, 0] * np.cos(X[:, 1]), X[:, 0] * np.sin(X[:, 1])], axis=-1)
+
+    A, b, _ = slr(to_cartesian, unscented(2), mean, cov)
+    y_ut = A @ mean + b
+    exact = np.exp(-sigma_t**2 / 2)
+    assert exact == pytest.approx(0.96631, abs=5e-6)
+    assert y_ut[1] == pytest.approx(0.96631, abs=5e-5)
+    assert abs(y_ut[1] - exact) < 1e-3
+    assert to_cartesian(mean[None])[0, 1] == pytest.approx(1.0)  # the linearised answer
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 4), d=st.integers(1, 3))
+def test_slr_of_an_affine_map_is_exact(seed, n, d):
+    rng = np.random.default_rng(seed)
+    mean, cov = _random_gaussian(rng, n)
+    A_true, b_true = rng.standard_normal((d, n)), rng.standard_normal(d)
+    for rule in (unscented(n), cubature(n), gauss_hermite(n, 3)):
+        A, b, omega = slr(lambda X: X @ A_true.T + b_true, rule, mean, cov)
+        np.testing.assert_allclose(A, A_true, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(b, b_true, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(omega, 0.0, atol=1e-9)
+
+
+def test_slr_wraps_angle_outputs():
+    """Bearings straddling ±π average to π, not 0, and their spread stays small."""
+    mean, cov = np.array([np.pi]), np.array([[0.01**2]])
+    A, b, omega = slr(lambda X: (X + np.pi) % (2 * np.pi) - np.pi, unscented(1), mean, cov,
+                      angles=np.array([True]))
+    assert abs(abs(A @ mean + b)[0] - np.pi) < 1e-9
+    assert omega[0, 0] < 1e-8
+    assert A[0, 0] == pytest.approx(1.0, rel=1e-9)
+
+
+def test_sqrt_cov_of_singular_covariance():
+    cov = np.array([[1.0, 1.0], [1.0, 1.0]])
+    L = sqrt_cov(cov)
+    np.testing.assert_allclose(L @ L.T, cov, atol=1e-12)
+    with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
+        sqrt_cov(np.array([[1.0, 0.0], [0.0, -1.0]]))

@@ -1,0 +1,99 @@
+"""Automatic Jacobians against analytic ones."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gaussfuse.linearize.taylor import (
+    Taylor,
+    complex_step_jacobian,
+    finite_difference_jacobian,
+    jacobian,
+)
+from gaussfuse.models.nonlinear import ModelFunctionError, NonlinearModel
+
+
+def smooth(x):
+    return np.array([np.sin(x[0]) * np.exp(x[1]), np.log(x[0]) * x[1] ** 3, x[0] / (1 + x[1] ** 2)])
+
+
+def smooth_jacobian(x):
+    return np.array([
+        [np.cos(x[0]) * np.exp(x[1]), np.sin(x[0]) * np.exp(x[1])],
+        [x[1] ** 3 / x[0], 3 * np.log(x[0]) * x[1] ** 2],
+        [1 / (1 + x[1] ** 2), -2 * x[0] * x[1] / (1 + x[1] ** 2) ** 2],
+    ])
+
+
+def range_bearing(x):
+    """Rejects complex input: arctan2 has no complex version."""
+    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+
+def range_bearing_jacobian(x):
+    r2 = x[0] ** 2 + x[1] ** 2
+    r = np.sqrt(r2)
+    return np.array([[x[0] / r, x[1] / r], [-x[1] / r2, x[0] / r2]])
+
+
+def _relerr(J, J_true):
+    return np.max(np.abs(J - J_true)) / np.max(np.abs(J_true))
+
+
+@settings(max_examples=50, deadline=None)
+@given(x0=st.floats(0.05, 5.0), x1=st.floats(-2.0, 2.0))
+def test_complex_step_is_exact_on_smooth_functions(x0, x1):
+    x = np.array([x0, x1])
+    J = jacobian("g", smooth, x, (), 3)
+    assert _relerr(J, smooth_jacobian(x)) <= 1e-10
+
+
+@settings(max_examples=30, deadline=None)
+@given(x0=st.floats(0.2, 50.0), x1=st.floats(-50.0, 50.0))
+def test_finite_difference_fallback_for_functions_rejecting_complex(x0, x1):
+    x = np.array([x0, x1])
+    with pytest.raises(Exception):
+        complex_step_jacobian("h", range_bearing, x, (), 2)
+    J = jacobian("h", range_bearing, x, (), 2)
+    assert _relerr(J, range_bearing_jacobian(x)) <= 1e-10
+
+
+def test_finite_differences_on_smooth_functions():
+    x = np.array([0.7, -0.3])
+    assert _relerr(finite_difference_jacobian("g", smooth, x, (), 3), smooth_jacobian(x)) <= 1e-10
+
+
+def test_vectorized_complex_step_uses_one_call():
+    calls = []
+
+    def f(X):
+        calls.append(X.shape)
+        return np.stack([X[:, 0] * X[:, 1], np.cos(X[:, 0])], axis=-1)
+
+    J = jacobian("f", f, np.array([0.3, 2.0]), (), 2, vectorized=True)
+    np.testing.assert_allclose(J, [[2.0, 0.3], [-np.sin(0.3), 0.0]], rtol=1e-14)
+    assert calls == [(2, 2)]
+
+
+def test_taylor_strategy_uses_given_jacobians_and_controls():
+    model = NonlinearModel(
+        f=lambda x, u: np.array([x[0] + u[0] * x[1], x[1]]),
+        h=lambda x: np.array([x[0] ** 2]),
+        Q=np.eye(2), R=1.0,
+        h_jacobian=lambda x: np.array([[2 * x[0], 0.0]]),
+    )
+    lin = Taylor(model, us=np.array([[0.5], [2.0]]))
+    A, b, Q = lin.transition(1, np.array([1.0, 3.0]), np.eye(2))
+    np.testing.assert_allclose(A, [[1.0, 2.0], [0.0, 1.0]], atol=1e-15)
+    np.testing.assert_allclose(A @ [1.0, 3.0] + b, [7.0, 3.0])
+    H, d, R = lin.measurement(0, np.array([3.0, 0.0]), np.eye(2))
+    np.testing.assert_allclose(H, [[6.0, 0.0]])
+    np.testing.assert_allclose(H @ [3.0, 0.0] + d, [9.0])
+
+
+def test_bad_user_jacobian_shape_is_named():
+    model = NonlinearModel(f=lambda x: x, h=lambda x: x[:1], Q=np.eye(2), R=1.0,
+                           f_jacobian=lambda x: np.eye(3))
+    with pytest.raises(ModelFunctionError, match=r"`f_jacobian` must return shape \(2, 2\).*got shape \(3, 3\)"):
+        Taylor(model).transition(0, np.zeros(2), np.eye(2))

@@ -1,0 +1,276 @@
+"""Nonlinear filters and smoothers: the published pendulum table, linear consistency, angles, errors."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import gaussfuse as gf
+from gaussfuse.models.nonlinear import ModelFunctionError
+
+DATA = Path(__file__).parent / "data"
+
+# ---------------------------------------------------------------------------
+# Särkkä & Svensson (2023), pendulum example: RMSE of the angle.
+# ---------------------------------------------------------------------------
+
+DT, G = 0.01, 9.81
+PENDULUM_TABLE = [
+    # (method, options, filter RMSE, smoother RMSE)
+    ("ekf", {}, 0.16830859, 0.05744620),
+    ("iekf", {"iterations": 10}, 0.16547516, 0.03463604),
+    ("ukf", {"alpha": 1.0, "beta": 0.0, "kappa": 1.0}, 0.09524392, 0.03661756),
+    ("ckf", {}, 0.11419660, 0.04064624),
+    ("ghkf", {"order": 5}, 0.09980624, 0.03710182),
+    ("iplf", {"iterations": 10, "order": 3}, 0.14055766, 0.03473322),
+]
+
+
+def pendulum_f(x):
+    return np.array([x[0] + DT * x[1], x[1] - G * np.sin(x[0]) * DT])
+
+
+def pendulum_h(x):
+    return np.array([np.sin(x[0])])
+
+
+def pendulum_f_vec(X):
+    return np.stack([X[:, 0] + DT * X[:, 1], X[:, 1] - G * np.sin(X[:, 0]) * DT], axis=-1)
+
+
+def pendulum_h_vec(X):
+    return np.sin(X[:, :1])
+
+
+PENDULUM_Q = 0.01 * np.array([[DT**3 / 3, DT**2 / 2], [DT**2 / 2, DT]])
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    data = json.loads((DATA / "pendulum.json").read_text())
+    truth = np.array(data["X"]).T
+    zs = np.array(data["Y"])
+    return truth, zs
+
+
+def _rmse(means, truth):
+    return np.sqrt(np.mean((means[:, 0] - truth[:, 0]) ** 2))
+
+
+@pytest.mark.parametrize("vectorized", [False, True], ids=["plain", "vectorized"])
+@pytest.mark.parametrize("method, options, filter_rmse, smoother_rmse", PENDULUM_TABLE,
+                         ids=[row[0] for row in PENDULUM_TABLE])
+def test_pendulum_table(pendulum, method, options, filter_rmse, smoother_rmse, vectorized):
+    truth, zs = pendulum
+    f, h = (pendulum_f_vec, pendulum_h_vec) if vectorized else (pendulum_f, pendulum_h)
+    model = gf.NonlinearModel(f, h, PENDULUM_Q, 0.1, vectorized=vectorized)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    sm = gf.smooth(model, prior, zs, method=method, **options)
+    assert _rmse(sm.filtered.means, truth) == pytest.approx(filter_rmse, abs=5e-8)
+    assert _rmse(sm.means, truth) == pytest.approx(smoother_rmse, abs=5e-8)
+    res = gf.filter(model, prior, zs, method=method, **options)
+    np.testing.assert_array_equal(res.means, sm.filtered.means)
+
+
+def test_pendulum_ukf_defaults_are_the_table_settings(pendulum):
+    truth, zs = pendulum
+    model = gf.NonlinearModel(pendulum_f, pendulum_h, PENDULUM_Q, 0.1)
+    res = gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), zs)  # default method: ukf
+    assert _rmse(res.means, truth) == pytest.approx(0.09524392, abs=5e-8)
+
+
+def test_analytic_jacobians_match_automatic(pendulum):
+    _, zs = pendulum
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    auto = gf.NonlinearModel(pendulum_f, pendulum_h, PENDULUM_Q, 0.1)
+    analytic = gf.NonlinearModel(
+        pendulum_f, pendulum_h, PENDULUM_Q, 0.1,
+        f_jacobian=lambda x: np.array([[1.0, DT], [-G * np.cos(x[0]) * DT, 1.0]]),
+        h_jacobian=lambda x: np.array([[np.cos(x[0]), 0.0]]),
+    )
+    a = gf.smooth(auto, prior, zs[:100], method="ekf")
+    b = gf.smooth(analytic, prior, zs[:100], method="ekf")
+    np.testing.assert_allclose(a.means, b.means, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(a.covs, b.covs, rtol=1e-12, atol=1e-13)
+
+
+# ---------------------------------------------------------------------------
+# Every method on a linear model equals the Kalman filter and RTS smoother.
+# ---------------------------------------------------------------------------
+
+NONLINEAR_METHODS = [m for m in gf.METHODS if m != "kf"]
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 3), m=st.integers(1, 2),
+       T=st.integers(1, 6), controls=st.booleans(), missing=st.booleans())
+def test_every_method_on_a_linear_model_equals_the_kalman_filter(seed, n, m, T, controls, missing):
+    rng = np.random.default_rng(seed)
+    F = np.eye(n) + 0.3 * rng.standard_normal((n, n))
+    H = rng.standard_normal((m, n))
+    A = rng.standard_normal((n, n))
+    Q = 0.2 * A @ A.T + 0.1 * np.eye(n)
+    C = rng.standard_normal((m, m))
+    R = C @ C.T + 0.5 * np.eye(m)
+    B = rng.standard_normal((n, 1)) if controls else None
+    us = rng.standard_normal((T, 1)) if controls else None
+    zs = rng.standard_normal((T, m))
+    if missing:
+        zs[rng.random((T, m)) < 0.3] = np.nan
+    prior = gf.Gaussian(rng.standard_normal(n), np.eye(n))
+    linear = gf.LinearModel(F, H, Q, R, B)
+    if controls:
+        nonlinear = gf.NonlinearModel(lambda x, u: F @ x + B @ u, lambda x: H @ x, Q, R)
+    else:
+        nonlinear = gf.NonlinearModel(lambda x: F @ x, lambda x: H @ x, Q, R)
+    ref = gf.smooth(linear, prior, zs, us)
+    for method in NONLINEAR_METHODS:
+        sm = gf.smooth(nonlinear, prior, zs, us, method=method)
+        for got, want in ((sm.filtered.means, ref.filtered.means), (sm.filtered.covs, ref.filtered.covs),
+                          (sm.means, ref.means), (sm.covs, ref.covs)):
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9, err_msg=method)
+        assert sm.filtered.loglik == pytest.approx(ref.filtered.loglik, rel=1e-9, abs=1e-9), method
+
+
+# ---------------------------------------------------------------------------
+# Angles: a range-bearing tracker whose bearing crosses ±180°.
+# ---------------------------------------------------------------------------
+
+
+def _range_bearing_model(vectorized=False):
+    dt = 1.0
+    F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    q = 0.01
+    Q = q * np.kron(np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]), np.eye(2))
+
+    def h(x):
+        return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+    def h_jacobian(x):  # arctan2 rejects complex input: spare the finite-difference fallback
+        r2 = x[0] ** 2 + x[1] ** 2
+        return np.array([[x[0], x[1], 0, 0] / np.sqrt(r2), [-x[1], x[0], 0, 0] / r2])
+
+    return gf.NonlinearModel(lambda x: F @ x, h, Q, np.diag([0.5**2, np.deg2rad(1.0) ** 2]),
+                             h_jacobian=h_jacobian, measurement_angles=[1])
+
+
+def _crossing_track(rng, T=40):
+    """A target moving along x = -100 from y = +60 to y = -60: the bearing passes ±180°."""
+    truth = np.zeros((T, 4))
+    truth[:, 0], truth[:, 1], truth[:, 3] = -100.0, 60.0 - 3.0 * np.arange(T), -3.0
+    r = np.hypot(truth[:, 0], truth[:, 1]) + 0.5 * rng.standard_normal(T)
+    b = np.arctan2(truth[:, 1], truth[:, 0]) + np.deg2rad(1.0) * rng.standard_normal(T)
+    # The sensor reports bearings in [0, 2π) while h (arctan2) returns [-π, π):
+    # the two conventions disagree by 2π on the far side of the crossing.
+    return truth, np.stack([r, b % (2 * np.pi)], axis=-1)
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf", "ckf", "iekf"])
+def test_bearing_crossing_180_degrees(method):
+    rng = np.random.default_rng(7)
+    truth, zs = _crossing_track(rng)
+    bearing = np.arctan2(truth[:, 1], truth[:, 0])
+    assert np.any(np.abs(np.diff(bearing)) > np.pi)  # the true bearing jumps across ±180°
+    model = _range_bearing_model()
+    prior = gf.Gaussian([-100.0, 63.0, 0.0, -3.0], np.diag([25.0, 25.0, 1.0, 1.0]))
+    sm = gf.smooth(model, prior, zs, method=method)
+    err_f = np.hypot(*(sm.filtered.means[:, :2] - truth[:, :2]).T)
+    err_s = np.hypot(*(sm.means[:, :2] - truth[:, :2]).T)
+    assert err_f.max() < 5.0 and err_s.max() < 5.0
+    # innovations are wrapped: no 2π jumps
+    assert np.all(np.abs(sm.filtered.innovations[:, 1]) < np.deg2rad(10))
+
+    # Without declaring the angle, the filter is thrown off at the crossing.
+    unwrapped = gf.NonlinearModel(model.f, model.h, model.Q, model.R, h_jacobian=model.h_jacobian)
+    bad = gf.filter(unwrapped, prior, zs, method=method)
+    assert np.abs(bad.innovations[:, 1]).max() > np.pi
+
+
+def test_state_angles_are_wrapped():
+    """A heading that keeps turning stays in [-π, π)."""
+    model = gf.NonlinearModel(lambda x: np.array([x[0] + 0.5]), lambda x: np.array([np.cos(x[0]), np.sin(x[0])]),
+                              Q=1e-4, R=0.01 * np.eye(2), state_angles=[0])
+    heading = (0.5 * np.arange(1, 21) + np.pi) % (2 * np.pi) - np.pi
+    zs = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
+    for method in ("ekf", "ukf"):
+        sm = gf.smooth(model, gf.Gaussian(0.0, 0.01), zs, method=method)
+        for means in (sm.means, sm.filtered.means):
+            assert np.all((means >= -np.pi) & (means < np.pi))
+            np.testing.assert_allclose(np.angle(np.exp(1j * (means[:, 0] - heading))), 0.0, atol=0.05)
+
+
+# ---------------------------------------------------------------------------
+# Errors: methods, options, model functions, factorisations.
+# ---------------------------------------------------------------------------
+
+
+def _simple():
+    return gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0), gf.Gaussian([0.0, 0.0], np.eye(2))
+
+
+def test_unknown_method_lists_valid_ones():
+    model, prior = _simple()
+    with pytest.raises(ValueError, match=r"`method` must be one of \['ckf', 'ekf', 'ghkf', 'iekf', 'iplf', 'kf', 'ukf'\]; got 'pf'"):
+        gf.filter(model, prior, np.zeros(3), method="pf")
+    with pytest.raises(TypeError, match=r"method 'kf' does not apply to a NonlinearModel; valid methods for it are \['ckf', 'ekf', 'ghkf', 'iekf', 'iplf', 'ukf'\]"):
+        gf.filter(model, prior, np.zeros(3), method="kf")
+
+
+def test_unknown_or_bad_option_is_rejected():
+    model, prior = _simple()
+    with pytest.raises(TypeError, match=r"unknown option\(s\) \['order'\] for method 'ukf'; valid options are \['alpha', 'beta', 'kappa'\]"):
+        gf.filter(model, prior, np.zeros(3), method="ukf", order=3)
+    with pytest.raises(TypeError, match=r"valid options are none"):
+        gf.filter(model, prior, np.zeros(3), method="ekf", iterations=3)
+    with pytest.raises(ValueError, match=r"`iterations` must be a positive integer; got 0"):
+        gf.smooth(model, prior, np.zeros(3), method="iekf", iterations=0)
+    with pytest.raises(ValueError, match=r"`alpha` must be a positive number; got -1"):
+        gf.filter(model, prior, np.zeros(3), method="ukf", alpha=-1)
+    with pytest.raises(ValueError, match=r"`order` must be a positive integer; got 2.5"):
+        gf.filter(model, prior, np.zeros(3), method="ghkf", order=2.5)
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_model_function_errors_name_function_step_and_shapes(method):
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    wrong_shape = gf.NonlinearModel(lambda x: x, lambda x: np.ones(3), np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError, match=r"at step 0: `h` must return shape \(1,\) for an input of shape \(2,\); got shape \(3,\)"):
+        gf.filter(wrong_shape, prior, np.zeros(3), method=method)
+
+    def f_nan_later(x):
+        return x + (np.nan if x[0] > 0.5 else 0.1)
+
+    nan_model = gf.NonlinearModel(f_nan_later, lambda x: x[:1], np.eye(2) * 1e-6, 1.0)
+    with pytest.raises(ModelFunctionError, match=r"at step \d+: `f` returned a non-finite value \(NaN or inf\) for an input of shape \(2,\)"):
+        gf.filter(nan_model, gf.Gaussian([0.0, 0.0], 1e-6 * np.eye(2)), np.zeros(10), method=method)
+
+    def h_raises(x):
+        raise ZeroDivisionError("boom")
+
+    raising = gf.NonlinearModel(lambda x: x, h_raises, np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError, match=r"at step 0: `h` raised ZeroDivisionError on an input of shape \(2,\): boom"):
+        gf.filter(raising, prior, np.zeros(3), method=method)
+
+
+def test_vectorized_function_returning_wrong_shape():
+    model = gf.NonlinearModel(lambda X: X[0], lambda X: X[:, :1], np.eye(2), 1.0, vectorized=True)
+    with pytest.raises(ModelFunctionError, match=r"`f` must return shape \(5, 2\) for an input of shape \(5, 2\); got shape \(2,\)"):
+        gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf")
+
+
+def test_failed_cholesky_names_the_step_and_matrix():
+    model = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.zeros((2, 2)), 0.0)
+    prior = gf.Gaussian([0.0, 0.0], np.diag([0.0, 1.0]))
+    with pytest.raises(np.linalg.LinAlgError, match=r"at step 0: the innovation covariance S = H P Hᵀ \+ R is not positive definite"):
+        gf.filter(model, prior, np.ones(2), method="ekf")
+
+
+def test_controls_are_passed_to_f():
+    model = gf.NonlinearModel(lambda x, u: x + u, lambda x: x, 1e-9, 1.0)
+    res = gf.filter(model, gf.Gaussian(0.0, 1e-12), np.full(3, np.nan), us=[1.0, 2.0, 3.0], method="ekf")
+    np.testing.assert_allclose(res.means[:, 0], [1.0, 3.0, 6.0])
+    with pytest.raises(ValueError, match=r"`us` must have shape \(T, p\) = \(3, p\)"):
+        gf.filter(model, gf.Gaussian(0.0, 1.0), np.zeros(3), us=np.zeros(4), method="ekf")
