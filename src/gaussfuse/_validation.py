@@ -29,26 +29,35 @@ def as_array(name: str, value, *, allow_nan: bool = False) -> np.ndarray:
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(f"`{name}` must be an array of numbers; got {type(value).__name__}.")
     try:
+        kind = np.asarray(value).dtype.kind
+    except ValueError:  # ragged nesting; the cast below says so
+        kind = None
+    if kind == "c":
+        # Checked before the cast, which would warn and drop the imaginary part.
+        raise TypeError(f"`{name}` must be real; got complex values.")
+    if kind == "b":
+        raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
+    try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`{name}` must be an array of real numbers; got {value!r:.80}.") from exc
-    if np.iscomplexobj(np.asarray(value)):
-        raise TypeError(f"`{name}` must be real; got complex values.")
     bad = ~np.isfinite(arr) if not allow_nan else np.isinf(arr)
     if bad.any():
-        what = "infinite" if allow_nan else "non-finite (NaN or inf)"
+        what = "an infinite" if allow_nan else "a non-finite (NaN or inf)"
         index = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"`{name}` must be finite; got a {what} value at index {index}.")
+        raise ValueError(f"`{name}` must be finite; got {what} value at index {index}.")
     return arr
 
 
 def as_vector(name: str, value, size: int | None = None) -> np.ndarray:
     """Return `value` as a vector of shape (size,); a scalar is a vector of length 1."""
     arr = as_array(name, value)
+    given = arr.shape
     if arr.ndim == 0:
         arr = arr.reshape(1)
-    if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
-        raise shape_error(name, f"({size if size is not None else 'n'},)", arr.shape)
+    if arr.ndim != 1 or arr.shape[0] == 0 or (size is not None and arr.shape[0] != size):
+        expected = f"({size},)" if size is not None else "(n,) with n >= 1"
+        raise shape_error(name, expected, given)
     return arr
 
 
@@ -61,15 +70,21 @@ def as_matrix(
     steps: int | None = None,
     row_vector_ok: bool = False,
     column_vector_ok: bool = False,
+    row_name: str = "m",
+    col_name: str = "n",
+    time_varying: bool = True,
 ) -> np.ndarray:
     """Return `value` as a matrix (rows, cols) or a time-varying stack (T, rows, cols).
 
     A scalar is accepted for a 1 x 1 matrix. With `row_vector_ok`, a 1-D array
     of length `cols` is one row; with `column_vector_ok`, a 1-D array of
     length `rows` is one column. `steps`, when given, is the length a
-    leading time axis must have.
+    leading time axis must have. `row_name` and `col_name` stand for a
+    dimension left free (None) in the message; with ``time_varying=False``
+    only a single matrix is accepted. Every dimension must be at least 1.
     """
     arr = as_array(name, value)
+    given = arr.shape
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
     elif arr.ndim == 1:
@@ -77,16 +92,16 @@ def as_matrix(
             arr = arr.reshape(1, -1)
         elif column_vector_ok and (rows is None or arr.shape[0] == rows):
             arr = arr.reshape(-1, 1)
-    r = "m" if rows is None else rows
-    c = "n" if cols is None else cols
+    r = row_name if rows is None else rows
+    c = col_name if cols is None else cols
     t = "T" if steps is None else steps
-    expected = f"({r}, {c}) or, time-varying, ({t}, {r}, {c})"
-    if arr.ndim not in (2, 3):
-        raise shape_error(name, expected, arr.shape)
+    expected = f"({r}, {c}) or, time-varying, ({t}, {r}, {c})" if time_varying else f"({r}, {c})"
+    if arr.ndim not in ((2, 3) if time_varying else (2,)) or 0 in arr.shape:
+        raise shape_error(name, expected, given)
     if (rows is not None and arr.shape[-2] != rows) or (cols is not None and arr.shape[-1] != cols):
-        raise shape_error(name, expected, arr.shape)
+        raise shape_error(name, expected, given)
     if arr.ndim == 3 and steps is not None and arr.shape[0] != steps:
-        raise shape_error(name, expected, arr.shape)
+        raise shape_error(name, expected, given)
     return arr
 
 

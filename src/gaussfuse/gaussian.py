@@ -8,7 +8,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from . import kalman
-from ._validation import as_matrix, as_vector, check_psd
+from ._validation import as_array, as_matrix, as_vector, check_psd
 
 __all__ = ["Gaussian", "fuse"]
 
@@ -47,11 +47,7 @@ class Gaussian:
 
     def __init__(self, mean, cov) -> None:
         mean = as_vector("mean", mean)
-        cov = as_matrix("cov", cov, mean.shape[0], mean.shape[0])
-        if cov.ndim != 2:
-            raise ValueError(
-                f"`cov` must have shape ({mean.shape[0]}, {mean.shape[0]}); got shape {cov.shape}."
-            )
+        cov = as_matrix("cov", cov, mean.shape[0], mean.shape[0], time_varying=False)
         cov = check_psd("cov", cov)
         mean.setflags(write=False)
         cov.setflags(write=False)
@@ -77,8 +73,8 @@ class Gaussian:
 
         Uses a Cholesky factor of the covariance, which must be positive definite.
         """
-        x = np.asarray(x, dtype=np.float64)
-        if x.shape[-1:] != (self.dim,) and not (self.dim == 1 and x.ndim <= 1):
+        x = as_array("x", x)
+        if x.ndim > 2 or (x.shape[-1:] != (self.dim,) and not (self.dim == 1 and x.ndim <= 1)):
             raise ValueError(f"`x` must have shape ({self.dim},) or (k, {self.dim}); got shape {x.shape}.")
         if self.dim == 1 and x.shape[-1:] != (1,):
             x = x[..., None]
@@ -90,9 +86,20 @@ class Gaussian:
         return float(out) if np.ndim(out) == 0 else out
 
     def sample(self, size: int | None = None, rng=None) -> np.ndarray:
-        """Draw samples: array of shape (n,) for ``size=None``, else (size, n)."""
+        """Draw samples: array of shape (n,) for ``size=None``, else (size, n).
+
+        A singular covariance (a belief certain in some direction) is
+        factorised by its eigendecomposition instead of Cholesky.
+        """
         rng = np.random.default_rng(rng)
-        return rng.multivariate_normal(self.mean, self.cov, size=size, method="cholesky")
+        try:
+            np.linalg.cholesky(self.cov)
+            method = "cholesky"
+        except np.linalg.LinAlgError:
+            method = "eigh"
+        return rng.multivariate_normal(
+            self.mean, self.cov, size=size, method=method, check_valid="ignore"
+        )
 
 
 def fuse(a: Gaussian, b: Gaussian) -> Gaussian:

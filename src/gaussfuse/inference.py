@@ -382,8 +382,9 @@ def _check_steps(model, T: int) -> None:
 def _prepare(model, prior, zs, us, method, options):
     spec, options = _resolve_method(model, method, options)
     prior = check_prior(prior, model.n)
-    batch = np.ndim(zs) == 3
-    zs = check_measurements(zs, model.m)
+    checked = check_measurements(zs, model.m)
+    batch = np.ndim(zs) == 3  # only after the check: a ragged `zs` must not reach NumPy
+    zs = checked
     N, T = zs.shape[:2]
     _check_steps(model, T)
     us = check_controls(us, model, N, T)

@@ -75,7 +75,7 @@ class KalmanFilter:
     def _matrices(self, k: int):
         steps = self.model.steps
         if steps is not None and not 0 <= k < steps:
-            raise IndexError(f"the time-varying model has {steps} steps; step {k} is beyond it.")
+            raise ValueError(f"the time-varying model has {steps} steps; step {k} is beyond it.")
         return self.model.at(k)
 
     def predict(self, u=None) -> Gaussian:

@@ -57,7 +57,7 @@ class LinearModel:
     B: np.ndarray | None
 
     def __init__(self, F, H, Q, R, B=None) -> None:
-        F = as_matrix("F", F, None, None)
+        F = as_matrix("F", F, None, None, row_name="n")
         if F.shape[-1] != F.shape[-2]:
             raise ValueError(
                 f"`F` must be square, of shape (n, n) or (T, n, n); got shape {F.shape}."
@@ -68,7 +68,7 @@ class LinearModel:
         Q = check_psd("Q", as_matrix("Q", Q, n, n))
         R = check_psd("R", as_matrix("R", R, m, m))
         if B is not None:
-            B = as_matrix("B", B, n, None, column_vector_ok=True)
+            B = as_matrix("B", B, n, None, column_vector_ok=True, col_name="p")
         given = {"F": F, "H": H, "Q": Q, "R": R, "B": B}
         steps = {name: a.shape[0] for name, a in given.items() if a is not None and a.ndim == 3}
         if len(set(steps.values())) > 1:

@@ -15,10 +15,9 @@ _PREFIX = ("", "v", "a")
 
 
 def _check(name: str, value, positive: bool) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"`{name}` must be a number; got {value!r}.") from None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"`{name}` must be a number; got {value!r}.")
+    value = float(value)
     if not np.isfinite(value) or value < 0 or (positive and value == 0):
         raise ValueError(f"`{name}` must be {'positive' if positive else 'non-negative'}; got {value}.")
     return value
@@ -37,7 +36,7 @@ def _integrated_white_noise(order: int, dt: float, q: float, r: float, dim: int)
 
     The full state orders all positions first, then all velocities, and so on.
     """
-    if not isinstance(dim, (int, np.integer)) or not 1 <= dim <= 3:
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= 3:
         raise ValueError(f"`dim` must be 1, 2 or 3; got {dim!r}.")
     dt = _check("dt", dt, positive=True)
     q = _check("q", q, positive=False)
