@@ -1,0 +1,34 @@
+"""Shared fixtures for the core test suite.
+
+The test folder is put on ``sys.path`` (whatever pytest's import mode), so
+test modules import the dense reference as ``import _oracle``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+TESTS_DIR = Path(__file__).resolve().parent
+DATA_DIR = TESTS_DIR / "data"
+
+if str(TESTS_DIR) not in sys.path:
+    sys.path.insert(0, str(TESTS_DIR))
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    """The folder of test data files, found relative to this file."""
+    return DATA_DIR
+
+
+@pytest.fixture(scope="session")
+def car_track() -> dict[str, np.ndarray]:
+    """Särkkä & Svensson's car-tracking data: X (4, 100) truth, Y (2, 100) measurements."""
+    with open(DATA_DIR / "car_track.json", encoding="utf-8") as fh:
+        raw = json.load(fh)
+    return {"X": np.asarray(raw["X"], dtype=float), "Y": np.asarray(raw["Y"], dtype=float)}

@@ -1,0 +1,278 @@
+"""gf.Gaussian and gf.fuse."""
+
+from __future__ import annotations
+
+import dataclasses
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import multivariate_normal
+
+import _oracle
+import gaussfuse as gf
+
+# ---------------------------------------------------------------------------
+# Gaussian: construction and immutability
+# ---------------------------------------------------------------------------
+
+
+def test_arrays_are_read_only_copies():
+    mean, cov = np.array([1.0, 2.0]), np.array([[2.0, 0.5], [0.5, 1.0]])
+    g = gf.Gaussian(mean, cov)
+    with pytest.raises(ValueError, match="read-only"):
+        g.mean[0] = 5.0
+    with pytest.raises(ValueError, match="read-only"):
+        g.cov[0, 0] = 5.0
+    # The caller's arrays are neither frozen nor aliased.
+    mean[0] = 9.0
+    cov[0, 0] = 9.0
+    assert g.mean[0] == 1.0 and g.cov[0, 0] == 2.0
+    assert g.mean.dtype == np.float64 and g.cov.dtype == np.float64
+
+
+def test_attributes_cannot_be_assigned():
+    g = gf.Gaussian([0.0], [[1.0]])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        g.mean = np.array([1.0])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        g.cov = np.array([[2.0]])
+    with pytest.raises(AttributeError):
+        g.extra = 1
+    assert g.mean[0] == 0.0
+
+
+def test_scalar_input_is_one_dimensional():
+    g = gf.Gaussian(1.5, 4.0)
+    assert g.dim == 1
+    assert g.mean.shape == (1,) and g.cov.shape == (1, 1)
+    assert g.mean[0] == 1.5 and g.cov[0, 0] == 4.0
+    np.testing.assert_array_equal(g.std, [2.0])
+
+
+def test_integer_lists_become_float64():
+    g = gf.Gaussian([1, 2], [[2, 1], [1, 2]])
+    assert g.mean.dtype == np.float64
+    np.testing.assert_array_equal(g.cov, [[2.0, 1.0], [1.0, 2.0]])
+
+
+def test_round_off_asymmetry_is_accepted_and_removed():
+    g = gf.Gaussian([0.0, 0.0], [[1.0, 0.3 + 1e-13], [0.3, 1.0]])
+    np.testing.assert_array_equal(g.cov, g.cov.T)
+    assert g.cov[0, 1] == pytest.approx(0.3, abs=1e-12)
+
+
+def test_singular_covariance_is_allowed():
+    g = gf.Gaussian([1.0, 2.0], [[1.0, 1.0], [1.0, 1.0]])
+    assert np.linalg.matrix_rank(g.cov) == 1
+
+
+# Validation errors: the message names the argument, the expected and the received shape.
+
+
+@pytest.mark.parametrize(
+    ("mean", "cov", "error", "match"),
+    [
+        ([0.0, 0.0], [[1.0, 0.5], [0.0, 1.0]], ValueError, r"^`cov` must be symmetric; it is not\.$"),
+        ([0.0, 0.0], [[1.0, 2.0], [2.0, 1.0]], ValueError,
+         r"^`cov` must be positive semi-definite; its smallest eigenvalue is -1\.$"),
+        ([0.0, np.nan], np.eye(2), ValueError,
+         r"^`mean` must be finite; got a non-finite \(NaN or inf\) value at index \(1,\)\.$"),
+        ([0.0, 0.0], [[1.0, np.inf], [np.inf, 1.0]], ValueError,
+         r"^`cov` must be finite; got a non-finite \(NaN or inf\) value at index \(0, 1\)\.$"),
+        ([0.0, 0.0], np.eye(3), ValueError, r"^`cov` must have shape \(2, 2\); got shape \(3, 3\)\.$"),
+        ([0.0, 0.0], np.ones((3, 2, 2)), ValueError, r"^`cov` must have shape \(2, 2\); got shape \(3, 2, 2\)\.$"),
+        ([0.0, 0.0], [1.0, 1.0], ValueError, r"^`cov` must have shape \(2, 2\); got shape \(2,\)\.$"),
+        ([0.0, 0.0], 1.0, ValueError, r"^`cov` must have shape \(2, 2\); got shape \(\)\.$"),
+        ([[0.0, 0.0]], np.eye(2), ValueError, r"^`mean` must have shape \(n,\) with n >= 1; got shape \(1, 2\)\.$"),
+        ([], np.zeros((0, 0)), ValueError, r"^`mean` must have shape \(n,\) with n >= 1; got shape \(0,\)\.$"),
+        ("ab", np.eye(2), TypeError, r"^`mean` must be an array of numbers; got str\.$"),
+        ([0.0], "1", TypeError, r"^`cov` must be an array of numbers; got str\.$"),
+        ([0.0], None, TypeError, r"^`cov` must be an array of numbers; got NoneType\.$"),
+        ([0.0], [[1 + 1j]], TypeError, r"^`cov` must be real; got complex values\.$"),
+        ([0.0, "a"], np.eye(2), TypeError, r"^`mean` must be an array of real numbers"),
+    ],
+    ids=["non-symmetric", "not-psd", "nan-mean", "inf-cov", "cov-3x3", "cov-stack", "cov-vector",
+         "cov-scalar", "mean-2d", "empty", "str-mean", "str-cov", "none-cov", "complex-cov", "mixed-mean"],
+)
+def test_invalid_gaussian(mean, cov, error, match):
+    with pytest.raises(error, match=match):
+        gf.Gaussian(mean, cov)
+
+
+# ---------------------------------------------------------------------------
+# logpdf and sample
+# ---------------------------------------------------------------------------
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 4), st.integers(1, 5), st.integers(0, 2**32 - 1))
+def test_logpdf_matches_scipy(n, k, seed):
+    rng = np.random.default_rng(seed)
+    mean, cov = rng.normal(size=n), _oracle.random_spd(rng, n)
+    g = gf.Gaussian(mean, cov)
+    ref = multivariate_normal(mean, cov)
+    xs = rng.normal(size=(k, n)) * 3
+    batch = g.logpdf(xs)
+    assert batch.shape == (k,)
+    np.testing.assert_allclose(batch, np.atleast_1d(ref.logpdf(xs)), rtol=1e-12, atol=1e-12)
+    single = g.logpdf(xs[0])
+    assert isinstance(single, float)
+    assert single == pytest.approx(float(ref.logpdf(xs[0])), rel=1e-12, abs=1e-12)
+
+
+def test_logpdf_of_a_one_dimensional_gaussian():
+    g = gf.Gaussian(1.0, 4.0)
+    ref = multivariate_normal(1.0, 4.0)
+    assert g.logpdf(3.0) == pytest.approx(ref.logpdf(3.0), rel=1e-14)
+    assert g.logpdf([3.0]) == pytest.approx(ref.logpdf(3.0), rel=1e-14)
+    xs = np.array([0.0, 1.0, 2.5])
+    np.testing.assert_allclose(g.logpdf(xs), ref.logpdf(xs), rtol=1e-14)
+    np.testing.assert_allclose(g.logpdf(xs[:, None]), ref.logpdf(xs), rtol=1e-14)
+
+
+@pytest.mark.parametrize("x", [np.zeros(3), np.zeros((4, 3)), np.zeros((2, 4, 2))], ids=["(3,)", "(4,3)", "(2,4,2)"])
+def test_logpdf_rejects_wrong_shapes(x):
+    g = gf.Gaussian([0.0, 0.0], np.eye(2))
+    shape = str(x.shape).replace("(", r"\(").replace(")", r"\)")
+    with pytest.raises(ValueError, match=rf"^`x` must have shape \(2,\) or \(k, 2\); got shape {shape}\.$"):
+        g.logpdf(x)
+
+
+def test_logpdf_rejects_non_numeric_and_non_finite_points():
+    g = gf.Gaussian([0.0, 0.0], np.eye(2))
+    with pytest.raises(TypeError, match=r"^`x` must be an array of numbers; got str\.$"):
+        g.logpdf("ab")
+    with pytest.raises(ValueError, match=r"^`x` must be finite; got a non-finite \(NaN or inf\) value at index \(1, 0\)\.$"):
+        g.logpdf([[0.0, 0.0], [np.nan, 0.0]])
+
+
+def test_logpdf_of_a_singular_gaussian_names_cov():
+    g = gf.Gaussian([0.0, 0.0], np.diag([1.0, 0.0]))
+    with pytest.raises(np.linalg.LinAlgError, match=r"^`cov` is not positive definite"):
+        g.logpdf([0.0, 0.0])
+
+
+def test_sample_moments_with_fixed_seed():
+    mean = np.array([1.0, -2.0, 0.5])
+    cov = np.array([[2.0, 0.6, 0.0], [0.6, 1.0, -0.3], [0.0, -0.3, 0.5]])
+    g = gf.Gaussian(mean, cov)
+    N = 200_000
+    x = g.sample(N, rng=12345)
+    assert x.shape == (N, 3)
+    # Mean within 5 standard errors, covariance within a few percent.
+    np.testing.assert_array_less(np.abs(x.mean(axis=0) - mean), 5 * np.sqrt(np.diag(cov) / N))
+    np.testing.assert_allclose(np.cov(x.T), cov, atol=0.03)
+    # Reproducible with the same seed, different with another.
+    np.testing.assert_array_equal(g.sample(5, rng=1), g.sample(5, rng=1))
+    assert not np.array_equal(g.sample(5, rng=1), g.sample(5, rng=2))
+    assert g.sample(rng=0).shape == (3,)
+    generator = np.random.default_rng(0)
+    assert g.sample(2, rng=generator).shape == (2, 3)
+
+
+def test_sample_from_a_singular_gaussian_stays_on_its_support():
+    # A belief certain along x1 - x2 = 0 (as fuse produces): every sample obeys it.
+    g = gf.Gaussian([1.0, 1.0], [[1.0, 1.0], [1.0, 1.0]])
+    x = g.sample(1000, rng=3)
+    np.testing.assert_allclose(x[:, 0], x[:, 1], atol=1e-12)
+    assert x[:, 0].std() == pytest.approx(1.0, rel=0.1)  # marginal variance 1
+    certain = gf.Gaussian([4.0, -1.0], np.zeros((2, 2)))
+    np.testing.assert_array_equal(certain.sample(3, rng=0), [[4.0, -1.0]] * 3)
+
+
+# ---------------------------------------------------------------------------
+# fuse
+# ---------------------------------------------------------------------------
+
+_means = st.floats(-1e3, 1e3, allow_nan=False, allow_subnormal=False)
+_variances = st.floats(1e-6, 1e6, allow_nan=False, allow_subnormal=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_means, _variances, _means, _variances)
+def test_fuse_one_dimensional_matches_textbook_formulas(mu1, v1, mu2, v2):
+    # The textbook formulas evaluated exactly in rational arithmetic (the
+    # variance formula cancels catastrophically in floating point).
+    F1, F2, S1, S2 = map(Fraction, (mu1, mu2, v1, v2))
+    mu = F1 + S1 * (F2 - F1) / (S1 + S2)
+    var = S1 - S1 * S1 / (S1 + S2)
+    fused = gf.fuse(gf.Gaussian(mu1, v1), gf.Gaussian(mu2, v2))
+    # rtol 1e-12; the mean's absolute floor is set by the inputs' magnitude,
+    # since mu1 + K (mu2 - mu1) can cancel to (nearly) zero.
+    assert fused.mean[0] == pytest.approx(float(mu), rel=1e-12, abs=1e-12 * (abs(mu1) + abs(mu2)))
+    assert fused.cov[0, 0] == pytest.approx(float(var), rel=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.integers(0, 2**32 - 1))
+def test_fuse_matches_information_form(n, seed):
+    rng = np.random.default_rng(seed)
+    a, A = rng.normal(size=n) * 3, _oracle.random_spd(rng, n)
+    b, B = rng.normal(size=n) * 3, _oracle.random_spd(rng, n)
+    # Information form with explicit inverses: Λ = A⁻¹ + B⁻¹, η = A⁻¹ a + B⁻¹ b.
+    Ai, Bi = np.linalg.inv(A), np.linalg.inv(B)
+    cov = np.linalg.inv(Ai + Bi)
+    mean = cov @ (Ai @ a + Bi @ b)
+    fused = gf.fuse(gf.Gaussian(a, A), gf.Gaussian(b, B))
+    np.testing.assert_allclose(fused.mean, mean, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(fused.cov, cov, rtol=1e-9, atol=1e-10)
+    assert isinstance(fused, gf.Gaussian)
+    # Commutative (up to round-off).
+    swapped = gf.fuse(gf.Gaussian(b, B), gf.Gaussian(a, A))
+    np.testing.assert_allclose(swapped.mean, fused.mean, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(swapped.cov, fused.cov, rtol=1e-10, atol=1e-11)
+
+
+def test_fuse_doc_example():
+    fused = gf.fuse(gf.Gaussian(0.0, 1.0), gf.Gaussian(2.0, 1.0))
+    assert fused.mean[0] == pytest.approx(1.0) and fused.cov[0, 0] == pytest.approx(0.5)
+
+
+def test_fusing_with_a_certain_belief_gives_its_value():
+    rng = np.random.default_rng(8)
+    other = gf.Gaussian(rng.normal(size=3), _oracle.random_spd(rng, 3))
+    certain = gf.Gaussian([1.0, -2.0, 3.0], np.zeros((3, 3)))
+    for fused in (gf.fuse(certain, other), gf.fuse(other, certain)):
+        np.testing.assert_allclose(fused.mean, certain.mean, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fused.cov, np.zeros((3, 3)), atol=1e-12)
+
+
+def test_fusing_with_a_belief_certain_in_one_direction():
+    # a is certain about x1 only; the fused x1 is a's value, x2 the 1-D fusion.
+    a = gf.Gaussian([1.0, 0.0], np.diag([0.0, 2.0]))
+    b = gf.Gaussian([5.0, 3.0], np.diag([1.0, 1.0]))
+    fused = gf.fuse(a, b)
+    assert fused.mean[0] == pytest.approx(1.0, abs=1e-14)
+    assert fused.mean[1] == pytest.approx(0.0 + 2.0 * 3.0 / 3.0)
+    np.testing.assert_allclose(fused.cov, np.diag([0.0, 2.0 / 3.0]), atol=1e-14)
+
+
+def test_fusing_beliefs_certain_in_complementary_directions():
+    a = gf.Gaussian([1.0, 2.0], np.diag([0.0, 1.0]))
+    b = gf.Gaussian([3.0, 4.0], np.diag([1.0, 0.0]))
+    fused = gf.fuse(a, b)
+    np.testing.assert_allclose(fused.mean, [1.0, 4.0], atol=1e-14)
+    np.testing.assert_allclose(fused.cov, np.zeros((2, 2)), atol=1e-14)
+
+
+def test_fuse_rejects_dimension_mismatch():
+    with pytest.raises(ValueError, match=r"^`a` and `b` must have the same dimension; got 2 and 3\.$"):
+        gf.fuse(gf.Gaussian([0.0, 0.0], np.eye(2)), gf.Gaussian([0.0, 0.0, 0.0], np.eye(3)))
+
+
+@pytest.mark.parametrize("which", ["a", "b"])
+def test_fuse_rejects_non_gaussian(which):
+    g = gf.Gaussian([0.0, 0.0], np.eye(2))
+    args = ((np.zeros(2), np.eye(2)), g) if which == "a" else (g, (np.zeros(2), np.eye(2)))
+    with pytest.raises(TypeError, match=rf"^`{which}` must be a gaussfuse.Gaussian; got tuple\.$"):
+        gf.fuse(*args)
+
+
+def test_fuse_rejects_beliefs_both_certain_in_the_same_direction():
+    a = gf.Gaussian([1.0, 0.0], np.diag([0.0, 1.0]))
+    b = gf.Gaussian([2.0, 0.0], np.diag([0.0, 3.0]))
+    with pytest.raises(ValueError, match=r"^`a\.cov \+ b\.cov` must be positive definite: the two beliefs are both certain"):
+        gf.fuse(a, b)

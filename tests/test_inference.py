@@ -1,0 +1,359 @@
+"""gf.filter and gf.smooth against the dense joint-Gaussian oracle and a published reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import _oracle
+import gaussfuse as gf
+
+RTOL = 1e-8
+
+# ---------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------
+
+
+def assert_close(actual, desired, what: str, rtol: float = RTOL) -> None:
+    """allclose with an absolute floor scaled to the size of the reference values."""
+    actual, desired = np.asarray(actual), np.asarray(desired)
+    assert actual.shape == desired.shape, f"{what}: shape {actual.shape} != {desired.shape}"
+    finite = desired[np.isfinite(desired)]
+    scale = max(1.0, float(np.max(np.abs(finite)))) if finite.size else 1.0
+    np.testing.assert_allclose(actual, desired, rtol=rtol, atol=rtol * scale, equal_nan=True, err_msg=what)
+
+
+def build(problem: dict) -> tuple[gf.LinearModel, gf.Gaussian]:
+    model = gf.LinearModel(
+        F=problem["F"], H=problem["H"], Q=problem["Q"], R=problem["R"], B=problem["B"]
+    )
+    return model, gf.Gaussian(problem["m0"], problem["P0"])
+
+
+def oracle(problem: dict, zs=None) -> dict:
+    return _oracle.reference(
+        problem["F"], problem["H"], problem["Q"], problem["R"], problem["m0"], problem["P0"],
+        problem["zs"] if zs is None else zs, B=problem["B"], us=problem["us"],
+    )
+
+
+def assert_filter_matches(res: gf.FilterResult, ref: dict, zs: np.ndarray) -> None:
+    for name in ("predicted_means", "predicted_covs", "means", "covs",
+                 "innovations", "innovation_covs"):
+        assert_close(getattr(res, name), ref[name], name)
+    # Innovations are NaN exactly where a component is missing.
+    np.testing.assert_array_equal(np.isnan(res.innovations), np.isnan(zs))
+    assert np.ndim(res.loglik) == 0
+    assert res.loglik == pytest.approx(ref["loglik"], rel=RTOL, abs=RTOL)
+    np.testing.assert_array_equal(res.covs, np.swapaxes(res.covs, -1, -2))
+
+
+MATRICES = ("F", "H", "Q", "R", "B")
+
+
+@st.composite
+def problems(draw):
+    """Dimensions, which matrices vary in time, control input, missing-data mask, seed."""
+    n = draw(st.integers(1, 4), label="n")
+    m = draw(st.integers(1, 3), label="m")
+    T = draw(st.integers(1, 8), label="T")
+    p = draw(st.sampled_from([0, 1, 2]), label="p")
+    varying = frozenset(
+        name for name in MATRICES if (name != "B" or p) and draw(st.booleans(), label=f"{name} varies")
+    )
+    kind = draw(st.sampled_from(["complete", "partial", "all missing"]), label="missing")
+    mask = np.zeros((T, m), dtype=bool)
+    if kind == "partial":
+        flat = draw(st.lists(st.booleans(), min_size=T * m, max_size=T * m), label="mask")
+        mask = np.array(flat, dtype=bool).reshape(T, m)
+        rows = draw(st.sets(st.integers(0, T - 1), max_size=T), label="missing rows")
+        mask[sorted(rows)] = True
+    elif kind == "all missing":
+        mask[:] = True
+    seed = draw(st.integers(0, 2**32 - 1), label="seed")
+    return _oracle.random_problem(np.random.default_rng(seed), n, m, T, p, varying, mask)
+
+
+HYPOTHESIS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+# ---------------------------------------------------------------------------
+# The oracle itself, on a case computed by hand
+# ---------------------------------------------------------------------------
+
+
+def test_oracle_reproduces_hand_computed_scalar_case():
+    f, h, q, r, m0, p0, b, u, z = 0.9, 2.0, 0.5, 0.3, 1.0, 2.0, 0.7, 1.5, 3.0
+    ref = _oracle.reference([[f]], [[h]], [[q]], [[r]], [m0], [[p0]], [[z]], B=[[b]], us=[[u]])
+    m_pred = f * m0 + b * u
+    p_pred = f * f * p0 + q
+    s = h * h * p_pred + r
+    k = p_pred * h / s
+    assert ref["predicted_means"][0, 0] == pytest.approx(m_pred, rel=1e-13)
+    assert ref["predicted_covs"][0, 0, 0] == pytest.approx(p_pred, rel=1e-13)
+    assert ref["innovations"][0, 0] == pytest.approx(z - h * m_pred, rel=1e-13)
+    assert ref["innovation_covs"][0, 0, 0] == pytest.approx(s, rel=1e-13)
+    assert ref["means"][0, 0] == pytest.approx(m_pred + k * (z - h * m_pred), rel=1e-13)
+    assert ref["covs"][0, 0, 0] == pytest.approx(p_pred - k * h * p_pred, rel=1e-13)
+    v = z - h * m_pred
+    ll = -0.5 * (v * v / s + np.log(s) + np.log(2 * np.pi))
+    assert ref["loglik"] == pytest.approx(ll, rel=1e-13)
+
+
+def test_oracle_two_step_smoother_by_hand():
+    # Random walk, two steps, only z_2 observed: x_1 is smoothed through x_2.
+    q, r, p0 = 1.0, 0.5, 2.0
+    ref = _oracle.reference([[1.0]], [[1.0]], [[q]], [[r]], [0.0], [[p0]], [[np.nan], [4.0]])
+    p1, p2 = p0 + q, p0 + 2 * q
+    assert ref["loglik"] == pytest.approx(-0.5 * (16 / (p2 + r) + np.log(2 * np.pi * (p2 + r))))
+    assert ref["smoothed_means"][1, 0] == pytest.approx(p2 / (p2 + r) * 4.0)
+    # Cov(x_1, z_2) = p1, so E[x_1 | z_2] = p1 / (p2 + r) * z_2.
+    assert ref["smoothed_means"][0, 0] == pytest.approx(p1 / (p2 + r) * 4.0)
+    assert ref["smoothed_covs"][0, 0, 0] == pytest.approx(p1 - p1 * p1 / (p2 + r))
+
+
+# ---------------------------------------------------------------------------
+# filter / smooth against the dense oracle
+# ---------------------------------------------------------------------------
+
+
+@HYPOTHESIS
+@given(problems())
+def test_filter_matches_dense_oracle(problem):
+    model, prior = build(problem)
+    res = gf.filter(model, prior, problem["zs"], problem["us"])
+    assert_filter_matches(res, oracle(problem), problem["zs"])
+
+
+@HYPOTHESIS
+@given(problems())
+def test_smooth_matches_dense_oracle(problem):
+    model, prior = build(problem)
+    sm = gf.smooth(model, prior, problem["zs"], problem["us"])
+    ref = oracle(problem)
+    assert_close(sm.means, ref["smoothed_means"], "smoothed means")
+    assert_close(sm.covs, ref["smoothed_covs"], "smoothed covs")
+    assert_close(sm.gains, ref["gains"], "smoother gains")
+    assert_filter_matches(sm.filtered, ref, problem["zs"])
+    assert sm.loglik == sm.filtered.loglik
+    # The last smoothed belief is the last filtered one.
+    np.testing.assert_array_equal(sm.means[-1], sm.filtered.means[-1])
+
+
+@pytest.mark.parametrize("T", [1, 5])
+def test_all_missing_series_is_the_prior_propagated(T):
+    rng = np.random.default_rng(7)
+    problem = _oracle.random_problem(rng, 3, 2, T, 1, {"F", "B"}, np.ones((T, 2), bool))
+    model, prior = build(problem)
+    sm = gf.smooth(model, prior, problem["zs"], problem["us"])
+    res = sm.filtered
+    assert res.loglik == 0.0
+    np.testing.assert_array_equal(res.means, res.predicted_means)
+    np.testing.assert_array_equal(res.covs, res.predicted_covs)
+    np.testing.assert_array_equal(sm.means, res.means)
+    assert np.isnan(res.innovations).all()
+    # Without measurements the beliefs are the prior pushed through the dynamics.
+    mean, cov = problem["m0"], problem["P0"]
+    for k in range(T):
+        F = problem["F"][k]
+        mean = F @ mean + problem["B"][k] @ problem["us"][k]
+        cov = F @ cov @ F.T + problem["Q"]
+        assert_close(res.means[k], mean, "propagated mean")
+        assert_close(res.covs[k], cov, "propagated cov")
+    assert_filter_matches(res, oracle(problem), problem["zs"])
+
+
+def test_singular_prediction_uses_least_squares_gain_and_matches_oracle():
+    # No process noise and a prior certain along one direction: every predicted
+    # covariance is singular, so the RTS gain takes its least-squares branch.
+    F = np.array([[1.0, 0.1], [0.0, 1.0]])
+    H = np.array([[1.0, 0.0]])
+    Q = np.zeros((2, 2))
+    R = np.array([[0.25]])
+    m0, P0 = np.array([0.0, 1.0]), np.array([[0.0, 0.0], [0.0, 1.0]])
+    zs = np.array([[0.2], [0.1], [np.nan], [0.5], [0.4]])
+    sm = gf.smooth(gf.LinearModel(F, H, Q, R), gf.Gaussian(m0, P0), zs)
+    assert np.linalg.matrix_rank(sm.filtered.predicted_covs[1]) == 1
+    # The oracle's gains need a definite prediction, so condition the joint directly.
+    J = _oracle.JointGaussian(F, H, Q, R, m0, P0, len(zs))
+    mean_s, cov_s = J.condition(zs, len(zs))
+    for k in range(len(zs)):
+        xi = J.x_index(k)
+        assert_close(sm.means[k], mean_s[xi], f"smoothed mean {k}")
+        assert_close(sm.covs[k], cov_s[np.ix_(xi, xi)], f"smoothed cov {k}")
+
+
+# ---------------------------------------------------------------------------
+# Batches of series
+# ---------------------------------------------------------------------------
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.integers(1, 3), st.integers(1, 2), st.integers(1, 6), st.sampled_from([0, 1, 2]),
+    st.integers(1, 4), st.booleans(), st.integers(0, 2**32 - 1),
+)
+def test_batch_equals_per_series(n, m, T, p, N, shared_controls, seed):
+    rng = np.random.default_rng(seed)
+    problem = _oracle.random_problem(rng, n, m, T, p, {"F", "R"})
+    model, prior = build(problem)
+    zs = rng.normal(size=(N, T, m))
+    zs[rng.random(size=zs.shape) < 0.2] = np.nan
+    if p == 0:
+        us = None
+    elif shared_controls:
+        us = rng.normal(size=(T, p))  # one control sequence for every series
+    else:
+        us = rng.normal(size=(N, T, p))
+
+    res = gf.filter(model, prior, zs, us)
+    sm = gf.smooth(model, prior, zs, us)
+    assert np.shape(res.loglik) == (N,)
+    assert np.shape(sm.loglik) == (N,)
+    assert res.means.shape == (N, T, n)
+    assert res.innovation_covs.shape == (N, T, m, m)
+    assert sm.gains.shape == (N, max(T - 1, 0), n, n)
+    for i in range(N):
+        u_i = None if us is None else (us if shared_controls else us[i])
+        one = gf.filter(model, prior, zs[i], u_i)
+        one_sm = gf.smooth(model, prior, zs[i], u_i)
+        for name in ("means", "covs", "predicted_means", "predicted_covs",
+                     "innovations", "innovation_covs"):
+            np.testing.assert_array_equal(getattr(res, name)[i], getattr(one, name), err_msg=name)
+            np.testing.assert_array_equal(getattr(sm.filtered, name)[i], getattr(one, name))
+        assert res.loglik[i] == one.loglik
+        np.testing.assert_array_equal(sm.means[i], one_sm.means)
+        np.testing.assert_array_equal(sm.covs[i], one_sm.covs)
+        # And each series against the oracle.
+        ref = oracle(problem | {"us": u_i}, zs[i])
+        assert_close(sm.means[i], ref["smoothed_means"], "batch smoothed means")
+        assert res.loglik[i] == pytest.approx(ref["loglik"], rel=RTOL, abs=RTOL)
+
+
+def test_batch_of_one_keeps_the_series_axis():
+    model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.arange(4.0).reshape(1, 4, 1)
+    res = gf.filter(model, prior, zs)
+    assert res.means.shape == (1, 4, 2)
+    assert np.shape(res.loglik) == (1,)
+    assert res.loglik[0] == gf.filter(model, prior, zs[0]).loglik
+
+
+# ---------------------------------------------------------------------------
+# Input forms
+# ---------------------------------------------------------------------------
+
+
+def test_scalar_measurements_and_controls_accept_1d_arrays():
+    rng = np.random.default_rng(3)
+    problem = _oracle.random_problem(rng, 2, 1, 6, 1)
+    model, prior = build(problem)
+    a = gf.filter(model, prior, problem["zs"][:, 0], problem["us"][:, 0])
+    b = gf.filter(model, prior, problem["zs"], problem["us"])
+    np.testing.assert_array_equal(a.means, b.means)
+    assert a.loglik == b.loglik
+    assert a.innovations.shape == (6, 1)
+
+
+def test_explicit_kf_method_equals_default():
+    rng = np.random.default_rng(4)
+    problem = _oracle.random_problem(rng, 2, 2, 5)
+    model, prior = build(problem)
+    a = gf.smooth(model, prior, problem["zs"])
+    b = gf.smooth(model, prior, problem["zs"], method="kf")
+    np.testing.assert_array_equal(a.means, b.means)
+    assert a.loglik == b.loglik
+    assert "kf" in gf.METHODS
+
+
+def test_single_step_smoother_is_the_filter():
+    rng = np.random.default_rng(5)
+    problem = _oracle.random_problem(rng, 3, 2, 1)
+    model, prior = build(problem)
+    sm = gf.smooth(model, prior, problem["zs"])
+    np.testing.assert_array_equal(sm.means, sm.filtered.means)
+    np.testing.assert_array_equal(sm.covs, sm.filtered.covs)
+    assert sm.gains.shape == (0, 3, 3)
+
+
+def test_results_are_frozen():
+    model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
+    res = gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0])
+    with pytest.raises(AttributeError):
+        res.loglik = 0.0
+
+
+# ---------------------------------------------------------------------------
+# Published reference: Särkkä & Svensson's car-tracking example
+# ---------------------------------------------------------------------------
+
+CAR_DT, CAR_Q, CAR_S = 0.1, 1.0, 0.5
+RMSE_MEASUREMENTS = 0.7679855237247215
+RMSE_KF = 0.4253824660526518
+RMSE_RTS = 0.26497104638205465
+
+
+def car_model_explicit() -> gf.LinearModel:
+    dt, q, s = CAR_DT, CAR_Q, CAR_S
+    A = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+    Q = q * np.array([
+        [dt**3 / 3, 0, dt**2 / 2, 0],
+        [0, dt**3 / 3, 0, dt**2 / 2],
+        [dt**2 / 2, 0, dt, 0],
+        [0, dt**2 / 2, 0, dt],
+    ])
+    H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], dtype=float)
+    R = s**2 * np.eye(2)
+    return gf.LinearModel(F=A, H=H, Q=Q, R=R)
+
+
+def car_model_library() -> gf.LinearModel:
+    return gf.constant_velocity(dt=CAR_DT, q=CAR_Q, r=CAR_S**2, dim=2)
+
+
+CAR_PRIOR = ([0.0, 0.0, 1.0, -1.0], np.eye(4))
+
+
+def position_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((estimate[:, :2] - truth[:, :2]) ** 2, axis=-1))))
+
+
+def test_car_track_models_agree():
+    a, b = car_model_explicit(), car_model_library()
+    for name in ("F", "H", "Q", "R"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-15, atol=1e-17, err_msg=name)
+    assert b.B is None and b.steps is None
+
+
+def test_car_track_measurement_rmse(car_track):
+    X, Y = car_track["X"], car_track["Y"]
+    assert X.shape == (4, 100) and Y.shape == (2, 100)
+    assert position_rmse(Y.T, X.T) == pytest.approx(RMSE_MEASUREMENTS, abs=1e-8)
+
+
+@pytest.mark.parametrize("make_model", [car_model_explicit, car_model_library], ids=["explicit", "library"])
+def test_car_track_kalman_filter_and_rts_smoother_rmse(car_track, make_model):
+    X, Y = car_track["X"], car_track["Y"]
+    prior = gf.Gaussian(*CAR_PRIOR)
+    sm = gf.smooth(make_model(), prior, Y.T)
+    assert position_rmse(sm.filtered.means, X.T) == pytest.approx(RMSE_KF, abs=1e-8)
+    assert position_rmse(sm.means, X.T) == pytest.approx(RMSE_RTS, abs=1e-8)
+    # gf.filter is the same forward pass.
+    res = gf.filter(make_model(), prior, Y.T)
+    np.testing.assert_array_equal(res.means, sm.filtered.means)
+
+
+def test_car_track_against_dense_oracle(car_track):
+    # The full 100-step joint Gaussian is 600-dimensional: still cheap, and it
+    # pins the filter's numbers on real data, not just the RMSE summary.
+    Y = car_track["Y"].T[:40]
+    model = car_model_explicit()
+    ref = _oracle.reference(model.F, model.H, model.Q, model.R, CAR_PRIOR[0], CAR_PRIOR[1], Y)
+    sm = gf.smooth(model, gf.Gaussian(*CAR_PRIOR), Y)
+    assert_close(sm.means, ref["smoothed_means"], "smoothed means")
+    assert_close(sm.covs, ref["smoothed_covs"], "smoothed covs")
+    assert_filter_matches(sm.filtered, ref, Y)

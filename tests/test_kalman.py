@@ -1,0 +1,191 @@
+"""Unit tests of the Kalman equations in gaussfuse.kalman."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import _oracle
+import gaussfuse as gf
+from gaussfuse import kalman
+
+
+def _belief_and_sensor(seed: int, n: int, m: int):
+    rng = np.random.default_rng(seed)
+    mean = rng.normal(size=n)
+    cov = _oracle.random_spd(rng, n)
+    H = rng.normal(size=(m, n))
+    R = _oracle.random_spd(rng, m)
+    z = H @ mean + rng.normal(size=m)
+    return mean, cov, z, H, R
+
+
+# ---------------------------------------------------------------------------
+# update
+# ---------------------------------------------------------------------------
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 5), st.integers(1, 4), st.integers(0, 2**32 - 1))
+def test_joseph_form_equals_standard_form_for_the_optimal_gain(n, m, seed):
+    mean, cov, z, H, R = _belief_and_sensor(seed, n, m)
+    post = kalman.update(mean, cov, z, H, R)
+
+    # Textbook form with an explicit inverse (fine in a test).
+    S = H @ cov @ H.T + R
+    K = cov @ H.T @ np.linalg.inv(S)
+    standard = (np.eye(n) - K @ H) @ cov
+    scale = np.abs(cov).max()
+    np.testing.assert_allclose(post.cov, standard, rtol=1e-10, atol=1e-12 * scale)
+    np.testing.assert_allclose(post.mean, mean + K @ (z - H @ mean), rtol=1e-10, atol=1e-12 * max(1.0, np.abs(z).max()))
+    np.testing.assert_allclose(post.innovation, z - H @ mean, rtol=1e-12, atol=1e-12 * np.abs(z).max())
+    np.testing.assert_allclose(post.innovation_cov, S, rtol=1e-12, atol=1e-13 * np.abs(S).max())
+    # The Joseph form is kept exactly symmetric and positive semi-definite.
+    np.testing.assert_array_equal(post.cov, post.cov.T)
+    np.testing.assert_array_equal(post.innovation_cov, post.innovation_cov.T)
+    assert np.linalg.eigvalsh(post.cov)[0] > 0
+    # The log-likelihood is log N(z; H m, S), constant included.
+    sign, logdet = np.linalg.slogdet(S)
+    v = z - H @ mean
+    expected = -0.5 * (v @ np.linalg.solve(S, v) + logdet + m * np.log(2 * np.pi))
+    assert post.loglik == pytest.approx(expected, rel=1e-10, abs=1e-10)
+
+
+def test_joseph_form_stays_symmetric_psd_with_a_nearly_exact_measurement():
+    # A very precise measurement of one component: (I - KH)P loses symmetry and
+    # definiteness to round-off, the Joseph form does not.
+    cov = np.array([[4.0, 1.999999], [1.999999, 1.0]])
+    H = np.array([[1.0, 0.0]])
+    post = kalman.update(np.zeros(2), cov, np.array([1.0]), H, np.array([[1e-12]]))
+    np.testing.assert_array_equal(post.cov, post.cov.T)
+    assert np.linalg.eigvalsh(post.cov)[0] >= -1e-15
+    assert post.cov[0, 0] == pytest.approx(1e-12, rel=1e-3)
+
+
+def test_all_missing_update_returns_the_prediction_and_zero_loglik():
+    mean, cov, _, H, R = _belief_and_sensor(1, 3, 2)
+    post = kalman.update(mean, cov, np.array([np.nan, np.nan]), H, R)
+    np.testing.assert_array_equal(post.mean, mean)
+    np.testing.assert_array_equal(post.cov, cov)
+    assert post.loglik == 0.0
+    assert np.isnan(post.innovation).all()
+    np.testing.assert_allclose(post.innovation_cov, H @ cov @ H.T + R, rtol=1e-13)
+
+
+def test_partially_missing_update_uses_only_the_observed_rows():
+    mean, cov, z, H, R = _belief_and_sensor(2, 3, 3)
+    R = np.diag(np.diag(R))  # so that dropping a row is the same as not having it
+    z_missing = z.copy()
+    z_missing[1] = np.nan
+    post = kalman.update(mean, cov, z_missing, H, R)
+    keep = [0, 2]
+    reduced = kalman.update(mean, cov, z[keep], H[keep], R[np.ix_(keep, keep)])
+    np.testing.assert_allclose(post.mean, reduced.mean, rtol=1e-13)
+    np.testing.assert_allclose(post.cov, reduced.cov, rtol=1e-13, atol=1e-15)
+    assert post.loglik == pytest.approx(reduced.loglik, rel=1e-13)
+    assert np.isnan(post.innovation[1]) and not np.isnan(post.innovation[keep]).any()
+    assert post.innovation_cov.shape == (3, 3)  # full S, all m components
+
+
+def test_update_with_offset_d():
+    mean, cov, z, H, R = _belief_and_sensor(3, 2, 2)
+    d = np.array([0.5, -1.0])
+    with_d = kalman.update(mean, cov, z, H, R, d)
+    shifted = kalman.update(mean, cov, z - d, H, R)
+    np.testing.assert_allclose(with_d.mean, shifted.mean, rtol=1e-13)
+    np.testing.assert_allclose(with_d.innovation, shifted.innovation, rtol=1e-13)
+    assert with_d.loglik == pytest.approx(shifted.loglik, rel=1e-13)
+
+
+def test_non_positive_definite_innovation_covariance_raises_naming_S():
+    # A certain belief measured without noise: S = 0.
+    with pytest.raises(np.linalg.LinAlgError, match=r"innovation covariance S = H P Hᵀ \+ R is not positive definite"):
+        kalman.update(np.zeros(2), np.zeros((2, 2)), np.array([1.0]), np.array([[1.0, 0.0]]), np.zeros((1, 1)))
+
+
+def test_filter_names_the_step_of_a_singular_innovation_covariance():
+    # The prior is certain about x1, and H measures x1; R is 0 only at step 2.
+    model = gf.LinearModel(
+        F=np.eye(2), H=[1.0, 0.0], Q=np.diag([0.0, 1.0]),
+        R=np.array([1.0, 1.0, 0.0, 1.0]).reshape(4, 1, 1),
+    )
+    prior = gf.Gaussian([0.0, 0.0], np.diag([0.0, 1.0]))
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 2: the innovation covariance S"):
+        gf.filter(model, prior, [1.0, 1.0, 1.0, 1.0])
+    # The same step missing is no error: nothing is conditioned on.
+    res = gf.filter(model, prior, [1.0, 1.0, np.nan, 1.0])
+    assert np.isfinite(res.loglik)
+
+
+def test_cholesky_names_the_matrix():
+    with pytest.raises(np.linalg.LinAlgError, match=r"^`P` is not positive definite"):
+        kalman.cholesky(np.array([[1.0, 2.0], [2.0, 1.0]]), "`P`")
+    L = kalman.cholesky(np.array([[4.0, 2.0], [2.0, 5.0]]), "`P`")
+    np.testing.assert_allclose(L @ L.T, [[4.0, 2.0], [2.0, 5.0]], rtol=1e-15)
+
+
+# ---------------------------------------------------------------------------
+# predict
+# ---------------------------------------------------------------------------
+
+
+def test_predict_is_affine_propagation():
+    rng = np.random.default_rng(4)
+    mean, cov = rng.normal(size=3), _oracle.random_spd(rng, 3)
+    A, Q, b = rng.normal(size=(3, 3)), _oracle.random_spd(rng, 3), rng.normal(size=3)
+    m_pred, P_pred = kalman.predict(mean, cov, A, Q, b)
+    np.testing.assert_allclose(m_pred, A @ mean + b, rtol=1e-14)
+    np.testing.assert_allclose(P_pred, A @ cov @ A.T + Q, rtol=1e-13)
+    np.testing.assert_array_equal(P_pred, P_pred.T)
+    m0, _ = kalman.predict(mean, cov, A, Q)
+    np.testing.assert_allclose(m0, A @ mean, rtol=1e-14)
+
+
+# ---------------------------------------------------------------------------
+# rts_step
+# ---------------------------------------------------------------------------
+
+
+def test_rts_step_matches_explicit_formulas():
+    rng = np.random.default_rng(5)
+    n = 3
+    m_f, P_f = rng.normal(size=n), _oracle.random_spd(rng, n)
+    F, Q = _oracle.random_transition(rng, n), _oracle.random_spd(rng, n)
+    m_p, P_p = F @ m_f, F @ P_f @ F.T + Q
+    m_next, P_next = rng.normal(size=n), _oracle.random_spd(rng, n)
+    mean, cov, G = kalman.rts_step(m_f, P_f, m_p, P_p, m_next, P_next, P_f @ F.T)
+    G_ref = P_f @ F.T @ np.linalg.inv(P_p)
+    np.testing.assert_allclose(G, G_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(mean, m_f + G_ref @ (m_next - m_p), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(cov, P_f + G_ref @ (P_next - P_p) @ G_ref.T, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(cov, cov.T)
+
+
+def test_rts_step_with_singular_prediction_uses_a_least_squares_gain():
+    # P_pred singular: the gain is the minimum-norm solution of G P_pred = C.
+    P_f = np.diag([1.0, 0.0])
+    F = np.eye(2)
+    P_p = F @ P_f @ F.T
+    mean, cov, G = kalman.rts_step(
+        np.zeros(2), P_f, np.zeros(2), P_p, np.array([2.0, 0.0]), np.diag([0.5, 0.0]), P_f @ F.T
+    )
+    np.testing.assert_allclose(G, np.diag([1.0, 0.0]), atol=1e-14)
+    np.testing.assert_allclose(mean, [2.0, 0.0], atol=1e-14)
+    np.testing.assert_allclose(cov, np.diag([0.5, 0.0]), atol=1e-14)
+
+
+# ---------------------------------------------------------------------------
+# fuse_moments
+# ---------------------------------------------------------------------------
+
+
+def test_fuse_moments_is_the_update_with_identity_measurement():
+    rng = np.random.default_rng(6)
+    a, A = rng.normal(size=2), _oracle.random_spd(rng, 2)
+    b, B = rng.normal(size=2), _oracle.random_spd(rng, 2)
+    mean, cov = kalman.fuse_moments(a, A, b, B)
+    post = kalman.update(a, A, b, np.eye(2), B)
+    np.testing.assert_array_equal(mean, post.mean)
+    np.testing.assert_array_equal(cov, post.cov)

@@ -1,0 +1,162 @@
+"""The online gf.KalmanFilter: one predict or update at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import _oracle
+import gaussfuse as gf
+
+
+def _model_prior(problem):
+    model = gf.LinearModel(problem["F"], problem["H"], problem["Q"], problem["R"], problem["B"])
+    return model, gf.Gaussian(problem["m0"], problem["P0"])
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.integers(1, 4), st.integers(1, 3), st.integers(1, 8), st.sampled_from([0, 1, 2]),
+    st.sets(st.sampled_from(["F", "H", "Q", "R", "B"])), st.integers(0, 2**32 - 1),
+)
+def test_stepping_equals_batch_filter(n, m, T, p, varying, seed):
+    rng = np.random.default_rng(seed)
+    mask = rng.random(size=(T, m)) < 0.3
+    mask[rng.random(size=T) < 0.2] = True  # some whole rows missing
+    problem = _oracle.random_problem(rng, n, m, T, p, varying if p else varying - {"B"}, mask)
+    model, prior = _model_prior(problem)
+    zs, us = problem["zs"], problem["us"]
+    res = gf.filter(model, prior, zs, us)
+
+    kf = gf.KalmanFilter(model, prior)
+    assert kf.step == 0 and kf.loglik == 0.0
+    for k in range(T):
+        predicted = kf.predict(None if us is None else us[k])
+        assert isinstance(predicted, gf.Gaussian)
+        np.testing.assert_allclose(predicted.mean, res.predicted_means[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(predicted.cov, res.predicted_covs[k], rtol=1e-12, atol=1e-12)
+        updated = kf.update(zs[k])
+        assert updated is kf.belief
+        np.testing.assert_allclose(kf.x, res.means[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(kf.P, res.covs[k], rtol=1e-12, atol=1e-12)
+        assert kf.step == k + 1
+    assert kf.loglik == pytest.approx(res.loglik, rel=1e-12, abs=1e-12)
+
+
+def test_scalar_measurement_and_control():
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=0.1 * np.eye(2), R=2.0, B=[0.5, 1.0])
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs, us = [1.0, np.nan, 2.5], [0.1, -0.2, 0.3]
+    res = gf.filter(model, prior, zs, us)
+    kf = gf.KalmanFilter(model, prior)
+    for z, u in zip(zs, us):
+        kf.predict(u)
+        kf.update(z)
+    np.testing.assert_allclose(kf.x, res.means[-1], rtol=1e-12)
+    assert kf.loglik == pytest.approx(res.loglik, rel=1e-12)
+
+
+def test_missing_update_changes_nothing():
+    model = gf.constant_velocity(dt=1.0, q=0.5, r=1.0, dim=2)
+    kf = gf.KalmanFilter(model, gf.Gaussian(np.zeros(4), np.eye(4)))
+    before = kf.predict()
+    after = kf.update([np.nan, np.nan])
+    np.testing.assert_array_equal(after.mean, before.mean)
+    np.testing.assert_array_equal(after.cov, before.cov)
+    assert kf.loglik == 0.0
+
+
+def test_belief_is_an_immutable_gaussian():
+    model = gf.constant_velocity(dt=1.0, q=0.5, r=1.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
+    kf.predict()
+    kf.update(1.0)
+    with pytest.raises(ValueError, match="read-only"):
+        kf.x[0] = 3.0
+    assert kf.x is kf.belief.mean and kf.P is kf.belief.cov
+
+
+# ---------------------------------------------------------------------------
+# Errors
+# ---------------------------------------------------------------------------
+
+
+def _with_control():
+    model = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2), B=[[1.0], [0.0]])
+    return gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
+
+
+def test_control_required_when_model_has_B():
+    kf = _with_control()
+    with pytest.raises(ValueError, match=r"^`u` is required: the model has a control input with p = 1\.$"):
+        kf.predict()
+    assert kf.step == 0  # nothing happened
+
+
+def test_control_rejected_without_B():
+    kf = gf.KalmanFilter(gf.constant_velocity(dt=1.0, q=1.0, r=1.0), gf.Gaussian([0.0, 0.0], np.eye(2)))
+    with pytest.raises(ValueError, match=r"^`u` was given but the model has no control input; give the model `B`\.$"):
+        kf.predict([1.0])
+    assert kf.step == 0
+
+
+@pytest.mark.parametrize(("u", "shape"), [([1.0, 2.0], r"\(2,\)"), ([[1.0]], r"\(1, 1\)")])
+def test_control_of_wrong_shape(u, shape):
+    kf = _with_control()
+    with pytest.raises(ValueError, match=rf"^`u` must have shape \(1,\); got shape {shape}\.$"):
+        kf.predict(u)
+
+
+def test_control_must_be_finite():
+    with pytest.raises(ValueError, match=r"^`u` must be finite"):
+        _with_control().predict([np.nan])
+
+
+@pytest.mark.parametrize(("z", "shape"), [([1.0, 2.0, 3.0], r"\(3,\)"), ([[1.0, 2.0]], r"\(1, 2\)"), (1.0, r"\(1,\)")])
+def test_measurement_of_wrong_shape(z, shape):
+    kf = _with_control()
+    kf.predict([0.0])
+    with pytest.raises(ValueError, match=rf"^`z` must have shape \(2,\); got shape {shape}\."):
+        kf.update(z)
+
+
+def test_measurement_must_not_be_infinite_or_text():
+    kf = _with_control()
+    kf.predict([0.0])
+    with pytest.raises(ValueError, match=r"^`z` must be finite; got an infinite value at index \(1,\)\.$"):
+        kf.update([0.0, np.inf])
+    with pytest.raises(TypeError, match=r"^`z` must be an array of numbers; got str\.$"):
+        kf.update("12")
+
+
+def test_stepping_past_the_end_of_a_time_varying_model():
+    model = gf.LinearModel(F=np.stack([np.eye(2), 2 * np.eye(2)]), H=[1.0, 0.0], Q=np.eye(2), R=1.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([1.0, 1.0], np.eye(2)))
+    kf.predict()
+    kf.update(1.0)
+    kf.predict()
+    np.testing.assert_allclose(kf.x[1], 2.0)  # F[1] was used at the second step
+    kf.update(1.0)
+    with pytest.raises(ValueError, match=r"^the time-varying model has 2 steps; step 2 is beyond it\.$"):
+        kf.predict()
+    assert kf.step == 2
+
+
+def test_constructor_checks_model_and_prior():
+    with pytest.raises(TypeError, match=r"^`model` must be a gaussfuse.LinearModel; got dict\.$"):
+        gf.KalmanFilter({}, gf.Gaussian([0.0], [[1.0]]))
+    model = gf.constant_velocity(dt=1.0, q=1.0, r=1.0)
+    with pytest.raises(ValueError, match=r"^`prior` must have dimension 2 \(the model's state\); got 1\.$"):
+        gf.KalmanFilter(model, gf.Gaussian([0.0], [[1.0]]))
+    with pytest.raises(TypeError, match=r"^`prior` must be a gaussfuse.Gaussian\(mean, cov\); got tuple\.$"):
+        gf.KalmanFilter(model, (np.zeros(2), np.eye(2)))
+
+
+def test_singular_innovation_names_the_step():
+    model = gf.LinearModel(F=np.eye(1), H=np.eye(1), Q=np.zeros((1, 1)), R=np.zeros((1, 1)))
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0], [[0.0]]))
+    kf.predict()
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: the innovation covariance S"):
+        kf.update(1.0)

@@ -1,0 +1,298 @@
+"""Input validation: the validators themselves and every error of gf.filter / gf.smooth.
+
+Each message names the argument in backticks, the expected shape and what was
+given; the tests pin them with anchored regular expressions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+from gaussfuse._validation import as_array, as_matrix, as_vector, check_psd, shape_error
+
+FRONTS = [gf.filter, gf.smooth]
+front = pytest.mark.parametrize("run", FRONTS, ids=["filter", "smooth"])
+
+
+# ---------------------------------------------------------------------------
+# The validators
+# ---------------------------------------------------------------------------
+
+
+def test_shape_error_template():
+    err = shape_error("x", "(2, 3)", (4,))
+    assert isinstance(err, ValueError)
+    assert str(err) == "`x` must have shape (2, 3); got shape (4,)."
+
+
+def test_as_array_returns_a_float64_copy():
+    src = np.array([1, 2, 3])
+    out = as_array("x", src)
+    assert out.dtype == np.float64
+    out[0] = 10
+    assert src[0] == 1
+
+
+@pytest.mark.parametrize(
+    ("value", "kwargs", "error", "match"),
+    [
+        ("abc", {}, TypeError, r"^`x` must be an array of numbers; got str\.$"),
+        (b"abc", {}, TypeError, r"^`x` must be an array of numbers; got bytes\.$"),
+        (None, {}, TypeError, r"^`x` must be an array of numbers; got NoneType\.$"),
+        ([1.0, "a"], {}, TypeError, r"^`x` must be an array of real numbers; got \[1\.0, 'a'\]\.$"),
+        ([[1.0], [1.0, 2.0]], {}, TypeError, r"^`x` must be an array of real numbers"),
+        ([1.0, 1j], {}, TypeError, r"^`x` must be real; got complex values\.$"),
+        (np.array([1.0, 1j]), {}, TypeError, r"^`x` must be real; got complex values\.$"),
+        (np.complex128(1j), {}, TypeError, r"^`x` must be real; got complex values\.$"),
+        ([1.0, np.nan], {}, ValueError, r"^`x` must be finite; got a non-finite \(NaN or inf\) value at index \(1,\)\.$"),
+        ([[1.0, -np.inf]], {}, ValueError, r"^`x` must be finite; got a non-finite \(NaN or inf\) value at index \(0, 1\)\.$"),
+        ([np.nan, np.inf], {"allow_nan": True}, ValueError, r"^`x` must be finite; got an infinite value at index \(1,\)\.$"),
+    ],
+)
+def test_as_array_errors(value, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        as_array("x", value, **kwargs)
+
+
+def test_as_array_allows_nan_when_asked():
+    out = as_array("x", [1.0, np.nan], allow_nan=True)
+    assert np.isnan(out[1])
+
+
+def test_as_vector():
+    np.testing.assert_array_equal(as_vector("v", 3.0), [3.0])
+    np.testing.assert_array_equal(as_vector("v", [1, 2], size=2), [1.0, 2.0])
+    with pytest.raises(ValueError, match=r"^`v` must have shape \(3,\); got shape \(2,\)\.$"):
+        as_vector("v", [1, 2], size=3)
+    with pytest.raises(ValueError, match=r"^`v` must have shape \(2,\); got shape \(\)\.$"):
+        as_vector("v", 1.0, size=2)
+    with pytest.raises(ValueError, match=r"^`v` must have shape \(n,\) with n >= 1; got shape \(2, 2\)\.$"):
+        as_vector("v", np.eye(2))
+
+
+def test_as_matrix_forms():
+    assert as_matrix("M", 2.0, 1, 1).shape == (1, 1)
+    assert as_matrix("M", [1.0, 2.0], None, 2, row_vector_ok=True).shape == (1, 2)
+    assert as_matrix("M", [1.0, 2.0], 2, None, column_vector_ok=True).shape == (2, 1)
+    assert as_matrix("M", np.ones((4, 2, 3)), 2, 3, steps=4).shape == (4, 2, 3)
+
+
+@pytest.mark.parametrize(
+    ("value", "args", "kwargs", "match"),
+    [
+        (np.ones((2, 3)), (3, 3), {}, r"^`M` must have shape \(3, 3\) or, time-varying, \(T, 3, 3\); got shape \(2, 3\)\.$"),
+        (np.ones(3), (None, None), {}, r"^`M` must have shape \(m, n\) or, time-varying, \(T, m, n\); got shape \(3,\)\.$"),
+        (np.ones(3), (None, None), {"row_name": "n"}, r"^`M` must have shape \(n, n\) or, time-varying, \(T, n, n\); got shape \(3,\)\.$"),
+        (np.ones((2, 2)), (3, None), {"col_name": "p"}, r"^`M` must have shape \(3, p\) or, time-varying, \(T, 3, p\); got shape \(2, 2\)\.$"),
+        (np.ones((5, 2, 2)), (2, 2), {"steps": 4}, r"^`M` must have shape \(2, 2\) or, time-varying, \(4, 2, 2\); got shape \(5, 2, 2\)\.$"),
+        (np.ones((1, 2, 2, 2)), (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(1, 2, 2, 2\)\.$"),
+        (np.ones((3, 2, 2)), (2, 2), {"time_varying": False}, r"^`M` must have shape \(2, 2\); got shape \(3, 2, 2\)\.$"),
+        (5.0, (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(\)\.$"),
+        (np.ones((0, 2)), (None, 2), {}, r"^`M` must have shape \(m, 2\) or, time-varying, \(T, m, 2\); got shape \(0, 2\)\.$"),
+        (np.ones((0, 2, 2)), (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(0, 2, 2\)\.$"),
+    ],
+)
+def test_as_matrix_errors(value, args, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        as_matrix("M", value, *args, **kwargs)
+
+
+def test_check_psd():
+    sym = check_psd("P", np.array([[1.0, 0.5 + 1e-12], [0.5, 1.0]]))
+    np.testing.assert_array_equal(sym, sym.T)
+    np.testing.assert_array_equal(check_psd("P", np.zeros((2, 2))), np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"^`P` must be symmetric; it is not\.$"):
+        check_psd("P", np.array([[1.0, 0.5], [0.4, 1.0]]))
+    with pytest.raises(ValueError, match=r"^`P` must be positive semi-definite; its smallest eigenvalue is -1\.$"):
+        check_psd("P", np.diag([1.0, -1.0]))
+    stack = np.stack([np.eye(2), np.eye(2), np.diag([1.0, -0.5])])
+    with pytest.raises(ValueError, match=r"^`P` must be positive semi-definite; its smallest eigenvalue is -0\.5 at time step 2\.$"):
+        check_psd("P", stack)
+    stack[1, 0, 1] = 0.3
+    with pytest.raises(ValueError, match=r"^`P` must be symmetric; it is not at time step 1\.$"):
+        check_psd("P", stack)
+
+
+def test_check_psd_judges_relative_to_scale():
+    # Round-off on a large matrix is accepted; a real negative direction is not.
+    big = 1e8 * np.array([[1.0, 1.0], [1.0, 1.0]])
+    big_off = big.copy()
+    big_off[0, 1] += 1e-3
+    check_psd("P", big_off)
+    with pytest.raises(ValueError, match="positive semi-definite"):
+        check_psd("P", np.array([[1.0, 0.0], [0.0, -1e-6]]))
+
+
+# ---------------------------------------------------------------------------
+# filter / smooth
+# ---------------------------------------------------------------------------
+
+
+def _model(**kw):
+    base = {"F": np.eye(2), "H": [1.0, 0.0], "Q": np.eye(2), "R": 1.0}
+    return gf.LinearModel(**(base | kw))
+
+
+PRIOR = gf.Gaussian([0.0, 0.0], np.eye(2))
+
+
+@front
+@pytest.mark.parametrize(
+    ("m", "zs", "match"),
+    [
+        (1, np.ones((3, 2)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(3, 2\)\.$"),
+        (1, np.ones((0, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(0, 1\)\.$"),
+        (1, np.ones(0), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(0,\)\.$"),
+        (1, 5.0, r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(\)\.$"),
+        (1, np.ones((2, 3, 4, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(2, 3, 4, 1\)\.$"),
+        (2, np.ones(4), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(4,\)\.$"),
+        (2, np.ones((4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(4, 3\)\.$"),
+        (2, np.ones((2, 4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(2, 4, 3\)\.$"),
+    ],
+)
+def test_measurements_of_wrong_shape(run, m, zs, match):
+    model = _model(H=np.eye(m, 2), R=np.eye(m))
+    with pytest.raises(ValueError, match=match):
+        run(model, PRIOR, zs)
+
+
+@front
+def test_measurements_must_be_numbers_without_inf(run):
+    with pytest.raises(ValueError, match=r"^`zs` must be finite; got an infinite value at index \(2,\)\.$"):
+        run(_model(), PRIOR, [1.0, np.nan, -np.inf])
+    with pytest.raises(TypeError, match=r"^`zs` must be an array of numbers; got str\.$"):
+        run(_model(), PRIOR, "123")
+
+
+@front
+def test_ragged_measurements_are_caught_by_the_validator(run):
+    model = _model(H=np.eye(2), R=np.eye(2))
+    with pytest.raises(TypeError, match=r"^`zs` must be an array of real numbers; got \[\[1\.0, 2\.0\], \[3\.0\]\]\.$"):
+        run(model, PRIOR, [[1.0, 2.0], [3.0]])
+
+
+@front
+def test_controls_required_when_model_has_B(run):
+    with pytest.raises(ValueError, match=r"^`us` is required: the model has a control input with p = 1\.$"):
+        run(_model(B=[1.0, 0.0]), PRIOR, [1.0, 2.0])
+
+
+@front
+def test_controls_rejected_without_B(run):
+    with pytest.raises(ValueError, match=r"^`us` was given but the model has no control input; give the model `B`\.$"):
+        run(_model(), PRIOR, [1.0, 2.0], us=[0.0, 0.0])
+
+
+@front
+@pytest.mark.parametrize(
+    ("zs", "us", "match"),
+    [
+        ([1.0, 2.0], [1.0, 2.0, 3.0], r"^`us` must have shape \(T, p\) = \(2, 1\) or \(1, 2, 1\), matching `zs`; got shape \(3,\)\.$"),
+        ([1.0, 2.0], np.ones((2, 2)), r"^`us` must have shape \(T, p\) = \(2, 1\) or \(1, 2, 1\), matching `zs`; got shape \(2, 2\)\.$"),
+        (np.ones((3, 2, 1)), np.ones((2, 2, 1)), r"^`us` must have shape \(T, p\) = \(2, 1\) or \(3, 2, 1\), matching `zs`; got shape \(2, 2, 1\)\.$"),
+        ([1.0, 2.0], np.ones((1, 1, 2, 1)), r"^`us` must have shape \(T, p\) = \(2, 1\) or \(1, 2, 1\), matching `zs`; got shape \(1, 1, 2, 1\)\.$"),
+    ],
+)
+def test_controls_of_wrong_shape(run, zs, us, match):
+    with pytest.raises(ValueError, match=match):
+        run(_model(B=[1.0, 0.0]), PRIOR, zs, us=us)
+
+
+@front
+def test_controls_must_be_finite(run):
+    with pytest.raises(ValueError, match=r"^`us` must be finite; got a non-finite \(NaN or inf\) value at index \(1,\)\.$"):
+        run(_model(B=[1.0, 0.0]), PRIOR, [1.0, 2.0], us=[0.0, np.nan])
+
+
+@front
+def test_controls_broadcast_over_series(run):
+    # (T, p) controls are shared by every one of N series, (1, T, p) too.
+    model = _model(B=[1.0, 0.0])
+    zs = np.arange(6.0).reshape(3, 2, 1)
+    a = run(model, PRIOR, zs, us=[0.5, -0.5])
+    b = run(model, PRIOR, zs, us=np.array([0.5, -0.5]).reshape(1, 2, 1))
+    np.testing.assert_array_equal(a.means, b.means)
+    assert a.means.shape == (3, 2, 2)
+
+
+@front
+def test_prior_of_wrong_type(run):
+    with pytest.raises(TypeError, match=r"^`prior` must be a gaussfuse.Gaussian\(mean, cov\); got tuple\.$"):
+        run(_model(), (np.zeros(2), np.eye(2)), [1.0])
+
+
+@front
+def test_prior_of_wrong_dimension(run):
+    with pytest.raises(ValueError, match=r"^`prior` must have dimension 2 \(the model's state\); got 3\.$"):
+        run(_model(), gf.Gaussian(np.zeros(3), np.eye(3)), [1.0])
+
+
+@front
+def test_time_varying_model_length_must_match_T(run):
+    model = _model(F=np.stack([np.eye(2)] * 3))
+    with pytest.raises(ValueError, match=r"^the model is time-varying over 3 steps but `zs` has 2 steps; they must agree\.$"):
+        run(model, PRIOR, [1.0, 2.0])
+    with pytest.raises(ValueError, match=r"but `zs` has 4 steps"):
+        run(model, PRIOR, np.ones((5, 4, 1)))
+    assert run(model, PRIOR, [1.0, 2.0, 3.0]).means.shape[0] == 3
+
+
+def test_time_varying_matrices_must_agree_in_length():
+    with pytest.raises(ValueError, match=r"^time-varying matrices must all have the same number of steps; `F` has 3, `R` has 4\.$"):
+        _model(F=np.stack([np.eye(2)] * 3), R=np.ones((4, 1, 1)))
+
+
+@front
+def test_unknown_method(run):
+    with pytest.raises(ValueError, match=r"^`method` must be one of \[('[a-z]+', )*'kf'(, '[a-z]+')*\]; got 'no-such-method'\.$"):
+        run(_model(), PRIOR, [1.0], method="no-such-method")
+
+
+@front
+def test_unknown_option(run):
+    with pytest.raises(TypeError, match=r"^unknown option\(s\) \['alpha', 'bogus'\] for method 'kf'; valid options are none\.$"):
+        run(_model(), PRIOR, [1.0], alpha=1.0, bogus=2)
+
+
+@front
+@pytest.mark.parametrize("model", [None, {"F": np.eye(2)}, "model"], ids=["None", "dict", "str"])
+def test_wrong_model_type(run, model):
+    name = type(model).__name__
+    # The list of model types grows with the library; LinearModel is always in it.
+    with pytest.raises(TypeError, match=rf"^`model` must be (a|one of) (\w+, )*LinearModel(, \w+)*; got {name}\.$"):
+        run(model, PRIOR, [1.0])
+    with pytest.raises(TypeError, match=rf"^method 'kf' does not apply to a {name}; valid methods for it are \[\]\.$"):
+        run(model, PRIOR, [1.0], method="kf")
+
+
+@front
+def test_no_numpy_broadcasting_errors_leak(run):
+    # A sample of malformed inputs: each must be caught by a validator, whose
+    # message starts with a backticked argument name or names the model.
+    model = _model(B=[1.0, 0.0])
+    cases = [
+        lambda: run(model, PRIOR, np.ones((3, 2)), us=np.ones(3)),
+        lambda: run(model, PRIOR, [[1.0], [2.0]], us=[[1.0, 2.0]]),
+        lambda: run(model, PRIOR, np.ones((2, 3, 1)), us=np.ones((3, 3, 1))),
+    ]
+    for case in cases:
+        with pytest.raises((ValueError, TypeError), match=r"`"):
+            case()
+
+
+@pytest.mark.parametrize("value", [True, [True, False], np.array([[True]])])
+def test_booleans_are_not_numbers(value):
+    from gaussfuse._validation import as_array
+
+    with pytest.raises(TypeError, match=r"`x` must be an array of numbers; got booleans"):
+        as_array("x", value)
+    with pytest.raises(TypeError, match=r"`R` must be an array of numbers; got booleans"):
+        gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[1.0]], R=value if np.ndim(value) != 1 else [value[:1]])
+
+
+@pytest.mark.parametrize("bad", ["0.5", True, None, [0.5]])
+def test_motion_parameters_must_be_numbers(bad):
+    with pytest.raises(TypeError, match=r"`dt` must be a number"):
+        gf.constant_velocity(dt=bad, q=1.0, r=1.0)
