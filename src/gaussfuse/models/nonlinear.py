@@ -180,8 +180,7 @@ def _evaluate(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, ve
     return np.stack([call_checked(name, fn, x, args, (size,)) for x in X])
 
 
-def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...],
-                 dtype=np.float64) -> np.ndarray:
+def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...]) -> np.ndarray:
     """Call ``fn(x, *args)`` and check that it returns a finite array of `shape`.
 
     Raises
@@ -195,7 +194,12 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
         raise ModelFunctionError(
             f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}"
         ) from exc
-    out = np.asarray(out, dtype=np.result_type(dtype, np.asarray(out).dtype))
+    try:
+        out = np.asarray(out, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelFunctionError(
+            f"`{name}` must return an array of real numbers; got {type(out).__name__} {out!r:.60}."
+        ) from None
     if out.shape != shape:
         if out.size == int(np.prod(shape)) and out.ndim <= 1 and len(shape) == 1:
             out = out.reshape(shape)

@@ -1,0 +1,521 @@
+"""Reading measurements (CSV) and models (TOML), writing estimates (CSV).
+
+Measurement file (CSV)
+----------------------
+A header row, then one row per time step::
+
+    t,x,y
+    0.0,1.02,-0.31
+    0.5,,0.12
+    1.0,nan,NaN
+
+* One column is the time, named ``t`` or ``time`` (any case); its values must
+  be numbers and strictly increasing. It labels the rows: the model's own
+  time step is what the filter uses.
+* Every other column, in order, is one component of the measurement.
+* An empty cell, ``nan`` or ``NaN`` is a missing component.
+
+Model file (TOML)
+-----------------
+Either explicit matrices (nested arrays; a scalar is a 1 x 1 matrix, a flat
+array is one row of ``H``)::
+
+    [model]
+    F = [[1.0, 1.0], [0.0, 1.0]]
+    H = [[1.0, 0.0]]
+    Q = [[0.25, 0.5], [0.5, 1.0]]
+    R = [[4.0]]
+    states = ["x", "v"]          # optional; default x0, x1, ...
+
+or a named motion model (:func:`gaussfuse.constant_velocity`,
+:func:`gaussfuse.constant_acceleration`)::
+
+    [model]
+    kind = "constant_velocity"   # or "constant_acceleration"
+    dim = 2                      # 1, 2 or 3 axes; default 1
+    dt = 0.5
+    q = 1.0
+    r = 0.25
+
+and optionally the belief one step before the first measurement::
+
+    [prior]
+    mean = [0.0, 0.0, 1.0, 0.0]  # default: zeros
+    var = 100.0                  # var * I; or cov = [[...]]; default 1e6 * I
+
+A control input ``B`` is not supported in model files yet.
+
+Estimates file (CSV)
+--------------------
+The time column, the state means (one column per state name), then
+``std_<name>`` for each state; floats are written with ``repr`` so they read
+back exactly.
+
+Every error about a file's content is an :class:`InputFileError` whose message
+starts with the file, then the line or field, e.g.
+``model.toml: [model] Q: `Q` must be positive semi-definite; ...``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import secrets
+import sys
+import tomllib
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager, suppress
+from typing import IO, NamedTuple
+
+import numpy as np
+
+from ._validation import as_array, as_vector, shape_error
+from .gaussian import Gaussian
+from .models.linear import LinearModel
+from .models.motion import constant_acceleration, constant_velocity, state_names
+
+__all__ = [
+    "InputFileError",
+    "Measurements",
+    "ModelFile",
+    "read_measurements",
+    "read_model",
+    "write_estimates",
+    "open_atomic",
+    "DEFAULT_PRIOR_VAR",
+]
+
+DEFAULT_PRIOR_VAR = 1e6
+"""Variance of each state in the default prior ``N(0, 1e6 I)``."""
+
+TIME_COLUMNS = ("t", "time")
+
+StrPath = str | os.PathLike[str]
+
+# kind -> (constructor, order of the integrated white-noise model)
+_KINDS = {"constant_velocity": (constant_velocity, 1), "constant_acceleration": (constant_acceleration, 2)}
+_EXPLICIT_KEYS = ("F", "H", "Q", "R", "states")
+_NAMED_KEYS = ("kind", "dim", "dt", "q", "r", "states")
+_PRIOR_KEYS = ("mean", "cov", "var")
+_TABLES = ("model", "prior")
+
+
+class InputFileError(ValueError):
+    """Bad content in an input file.
+
+    The message is ``"<path>: line <line>: <field>: <message>"``, leaving out
+    the parts that are not known.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    message : str
+        What is wrong.
+    line : int, optional
+        1-based line number (the header of a CSV file is line 1).
+    field : str, optional
+        Where in the file, e.g. ``"column `x`"`` or ``"[model] Q"``.
+    """
+
+    def __init__(
+        self, path: StrPath, message: str, *, line: int | None = None, field: str | None = None
+    ) -> None:
+        self.path = os.fspath(path)
+        self.line = line
+        self.field = field
+        where = [self.path] + ([f"line {line}"] if line is not None else []) + ([field] if field else [])
+        super().__init__(": ".join(where + [message]))
+
+
+# ---------------------------------------------------------------------------
+# Measurements (CSV)
+# ---------------------------------------------------------------------------
+
+
+class Measurements(NamedTuple):
+    """What :func:`read_measurements` returns.
+
+    Attributes
+    ----------
+    times : ndarray of shape (T,)
+        Strictly increasing times.
+    zs : ndarray of shape (T, m)
+        Measurements; NaN where a component is missing.
+    columns : list of str
+        The time column's name, then the m measurement columns' names.
+    """
+
+    times: np.ndarray
+    zs: np.ndarray
+    columns: list[str]
+
+
+def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
+    """Read a measurement CSV file (see the module docstring for the format).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file.
+    m : int, optional
+        The number of measurement components the model expects; when given,
+        the file must have exactly that many measurement columns.
+
+    Returns
+    -------
+    Measurements
+        ``(times, zs, columns)``: times of shape (T,), zs of shape (T, m),
+        and the column names, time column first.
+
+    Raises
+    ------
+    InputFileError
+        For a missing or repeated time column, a wrong number of columns or
+        cells, a cell that is not a number, an infinite value, a missing or
+        non-increasing time, or no data rows; the message names the file and
+        the line and column.
+    OSError
+        When the file cannot be read.
+    """
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.reader(f, strict=True)
+        try:
+            header = [name.strip() for name in next(reader, [])]
+            time_col = _time_column(path, header)
+            names = [header[time_col]] + header[:time_col] + header[time_col + 1:]
+            if m is not None and len(names) - 1 != m:
+                raise InputFileError(
+                    path,
+                    f"found {len(names) - 1} measurement column(s) {names[1:]} besides `{names[0]}`, "
+                    f"but the model measures m = {m} component(s).",
+                )
+            lines, rows = [], []
+            for row in reader:
+                if len(row) <= 1 and not "".join(row).strip():
+                    continue  # a blank line
+                lines.append(reader.line_num)
+                rows.append(_parse_row(path, reader.line_num, header, time_col, row))
+        except csv.Error as exc:
+            raise InputFileError(path, str(exc), line=reader.line_num) from None
+        except UnicodeDecodeError as exc:  # decoded in blocks, so no line number
+            raise InputFileError(path, f"not UTF-8 text: {exc}") from None
+    if not rows:
+        raise InputFileError(path, "no data rows after the header.")
+    data = np.array(rows)
+    times, zs = data[:, 0], data[:, 1:]
+    back = np.flatnonzero(np.diff(times) <= 0)
+    if back.size:
+        k = back[0] + 1
+        raise InputFileError(
+            path,
+            f"times must be strictly increasing; {float(times[k])!r} follows {float(times[k - 1])!r}.",
+            line=lines[k], field=f"column `{names[0]}`",
+        )
+    return Measurements(times, zs, names)
+
+
+def _time_column(path, header: list[str]) -> int:
+    """Index of the one time column in `header`."""
+    found = [i for i, name in enumerate(header) if name.lower() in TIME_COLUMNS]
+    if len(found) != 1:
+        what = "no time column" if not found else "more than one time column"
+        raise InputFileError(
+            path, f"{what}: expected exactly one column named `t` or `time`; found columns {header}."
+        )
+    if len(header) < 2:
+        raise InputFileError(path, f"no measurement columns besides `{header[found[0]]}`.")
+    return found[0]
+
+
+def _parse_row(path, line: int, header: list[str], time_col: int, row: list[str]) -> list[float]:
+    """One data row as ``[time, z_1, ..., z_m]``; empty and NaN cells are NaN."""
+    if len(row) != len(header):
+        raise InputFileError(
+            path, f"expected {len(header)} cells ({', '.join(header)}); found {len(row)}.", line=line
+        )
+    values = []
+    for name, cell in zip(header, row):
+        where = {"line": line, "field": f"column `{name}`"}
+        text = cell.strip()
+        try:
+            value = float(text) if text else math.nan
+        except ValueError:
+            raise InputFileError(path, f"{cell!r} is not a number.", **where) from None
+        if math.isinf(value):
+            raise InputFileError(path, f"{cell!r} is not finite.", **where)
+        values.append(value)
+    if math.isnan(values[time_col]):
+        raise InputFileError(path, "the time is missing; every row needs a time.", line=line,
+                             field=f"column `{header[time_col]}`")
+    return [values[time_col]] + values[:time_col] + values[time_col + 1:]
+
+
+# ---------------------------------------------------------------------------
+# Models (TOML)
+# ---------------------------------------------------------------------------
+
+
+class ModelFile(NamedTuple):
+    """What :func:`read_model` returns.
+
+    Attributes
+    ----------
+    model : LinearModel
+        The model, with state dimension n.
+    prior : Gaussian
+        The belief one step before the first measurement; ``N(0, 1e6 I)``
+        when the file has no ``[prior]``.
+    state_names : list of str
+        n names, one per state.
+    """
+
+    model: LinearModel
+    prior: Gaussian
+    state_names: list[str]
+
+
+def read_model(path: StrPath) -> ModelFile:
+    """Read a model TOML file (see the module docstring for the format).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The TOML file.
+
+    Returns
+    -------
+    ModelFile
+        ``(model, prior, state_names)``.
+
+    Raises
+    ------
+    InputFileError
+        For a TOML syntax error, an unknown table or key, a missing key, a
+        control input ``B``, or a value that gaussfuse rejects; the message
+        names the file and the field, followed by gaussfuse's own message.
+    OSError
+        When the file cannot be read.
+    """
+    with open(path, "rb") as f:
+        try:
+            doc = tomllib.load(f)
+        except tomllib.TOMLDecodeError as exc:
+            raise InputFileError(path, f"invalid TOML: {exc}") from None
+    _check_keys(path, None, doc, _TABLES)
+    table = _table(path, doc, "model")
+    if table is None:
+        raise InputFileError(path, "missing the [model] table.")
+    if "kind" in table:
+        model, names = _named_model(path, table)
+    else:
+        model, names = _explicit_model(path, table)
+    names = _state_names(path, table.get("states"), names)
+    prior = _prior(path, _table(path, doc, "prior") or {}, model.n)
+    return ModelFile(model, prior, names)
+
+
+def _table(path, doc: dict, name: str) -> dict | None:
+    table = doc.get(name)
+    if table is not None and not isinstance(table, dict):
+        raise InputFileError(path, f"`{name}` must be a table, [{name}]; got {table!r:.40}.")
+    return table
+
+
+def _check_keys(path, table_name: str | None, table: dict, valid: Sequence[str], hint: str = "") -> None:
+    """Reject keys of `table` not in `valid`, listing the valid ones."""
+    unknown = [key for key in table if key not in valid]
+    if unknown:
+        if table_name is None:
+            what = f"unknown table(s) {unknown}; valid tables are " + ", ".join(f"[{t}]" for t in valid)
+        else:
+            what = f"unknown key(s) {unknown}; valid keys are {', '.join(valid)}"
+        raise InputFileError(path, what + hint + ".", field=None if table_name is None else f"[{table_name}]")
+
+
+def _require(path, table: dict, keys: Sequence[str], what: str) -> None:
+    missing = [key for key in keys if key not in table]
+    if missing:
+        raise InputFileError(path, f"missing key(s) {missing}; {what}.", field="[model]")
+
+
+@contextmanager
+def _field(path, table_name: str, fields: dict[str, str]) -> Iterator[None]:
+    """Turn a gaussfuse ValueError/TypeError into an InputFileError naming the field.
+
+    gaussfuse names the offending argument first, in backticks; `fields`
+    maps those argument names to the file's keys.
+    """
+    try:
+        yield
+    except (ValueError, TypeError) as exc:
+        named = re.search(r"`(\w+)`", str(exc))
+        key = fields.get(named.group(1)) if named else None
+        field = f"[{table_name}] {key}" if key else f"[{table_name}]"
+        raise InputFileError(path, str(exc), field=field) from exc
+
+
+def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
+    if "B" in table:
+        raise InputFileError(
+            path, "a control input is not supported by `gaussfuse filter` yet; remove `B`.",
+            field="[model] B",
+        )
+    _check_keys(path, "model", table, _EXPLICIT_KEYS,
+                f" (explicit matrices), or {', '.join(_NAMED_KEYS)} (a named model)")
+    _require(path, table, ("F", "H", "Q", "R"), "explicit models need F, H, Q and R")
+    with _field(path, "model", {k: k for k in "FHQR"}):
+        model = LinearModel(table["F"], table["H"], table["Q"], table["R"])
+    return model, [f"x{i}" for i in range(model.n)]
+
+
+def _named_model(path, table: dict) -> tuple[LinearModel, list[str]]:
+    _check_keys(path, "model", table, _NAMED_KEYS,
+                f" (a named model), or {', '.join(_EXPLICIT_KEYS)} (explicit matrices, without `kind`)")
+    kind = table["kind"]
+    if not isinstance(kind, str) or kind not in _KINDS:
+        raise InputFileError(
+            path, f"unknown model kind {kind!r}; valid kinds are {', '.join(sorted(_KINDS))}.",
+            field="[model] kind",
+        )
+    _require(path, table, ("dt", "q", "r"), f"a {kind} model needs dt, q and r (and optionally dim)")
+    build, order = _KINDS[kind]
+    dim = table.get("dim", 1)
+    with _field(path, "model", {k: k for k in ("dim", "dt", "q", "r")}):
+        model = build(table["dt"], table["q"], table["r"], dim=dim)
+    return model, state_names(order, dim)
+
+
+def _state_names(path, given, default: list[str]) -> list[str]:
+    if given is None:
+        return default
+    n = len(default)
+    if (not isinstance(given, list) or not all(isinstance(s, str) and s for s in given)
+            or len(given) != n or len(set(given)) != n):
+        raise InputFileError(
+            path, f"`states` must be a list of {n} distinct names, one per state; got {given!r:.80}.",
+            field="[model] states",
+        )
+    return given
+
+
+def _prior(path, table: dict, n: int) -> Gaussian:
+    _check_keys(path, "prior", table, _PRIOR_KEYS, " (give `cov` or `var`, not both)")
+    if "cov" in table and "var" in table:
+        raise InputFileError(path, "give either `cov` or `var` (var * I), not both.", field="[prior]")
+    with _field(path, "prior", {"mean": "mean", "cov": "var" if "var" in table else "cov", "var": "var"}):
+        mean = as_vector("mean", table.get("mean", np.zeros(n)), n)
+        if "cov" in table:
+            cov = table["cov"]
+        else:
+            var = as_array("var", table.get("var", DEFAULT_PRIOR_VAR))
+            if var.ndim != 0:
+                raise shape_error("var", "() (one number)", var.shape)
+            cov = var * np.eye(n)
+        return Gaussian(mean, cov)
+
+
+# ---------------------------------------------------------------------------
+# Estimates (CSV)
+# ---------------------------------------------------------------------------
+
+
+def write_estimates(
+    dest: StrPath | IO[str] | None,
+    times,
+    means,
+    covs,
+    state_names: Sequence[str],
+    time_name: str = "t",
+) -> None:
+    """Write state estimates as CSV: time, means, then standard deviations.
+
+    Parameters
+    ----------
+    dest : str, os.PathLike, text file or None
+        A path (written atomically: nothing is left behind on error), an
+        open text file, or None for standard output.
+    times : array_like of shape (T,)
+        Times, one per row.
+    means : array_like of shape (T, n)
+        State means.
+    covs : array_like of shape (T, n, n)
+        State covariances; the square roots of their diagonals are written.
+    state_names : sequence of str, of length n
+        Column names of the means; the standard deviations are ``std_<name>``.
+    time_name : str, default "t"
+        Name of the time column.
+
+    Notes
+    -----
+    Floats are written with ``repr``, the shortest text that reads back to
+    the same float64.
+
+    Examples
+    --------
+    >>> import io, numpy as np
+    >>> from gaussfuse.io import write_estimates
+    >>> out = io.StringIO()
+    >>> write_estimates(out, [0.5], [[1.0, -2.0]], [np.diag([4.0, 0.01])], ["x", "v"])
+    >>> print(out.getvalue(), end="")
+    t,x,v,std_x,std_v
+    0.5,1.0,-2.0,2.0,0.1
+    """
+    times, means, covs = (np.asarray(a, dtype=np.float64) for a in (times, means, covs))
+    T, n = times.shape[0], len(state_names)
+    for name, arr, shape in (("times", times, (T,)), ("means", means, (T, n)), ("covs", covs, (T, n, n))):
+        if arr.shape != shape:
+            raise shape_error(name, str(shape), arr.shape)
+    stds = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    header = [time_name, *state_names, *(f"std_{name}" for name in state_names)]
+    rows = np.column_stack([times, means, stds]).tolist()  # Python floats: str() is repr
+
+    def write(f: IO[str]) -> None:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(header)
+        writer.writerows(rows)
+
+    if dest is None:
+        write(sys.stdout)
+    elif hasattr(dest, "write"):
+        write(dest)
+    else:
+        with open_atomic(dest, "w", newline="", encoding="utf-8") as f:
+            write(f)
+
+
+@contextmanager
+def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
+    """Open a file for writing that appears at `path` only if the block succeeds.
+
+    The data go to a hidden temporary file in the same directory, which
+    replaces `path` (``os.replace``) when the block ends without an
+    exception; on an exception it is removed and `path` is left untouched.
+    The file gets the usual permissions (``0o666`` less the umask).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    mode : {"w", "wb"}
+        Text or binary.
+    **kwargs
+        Passed to :func:`open` (e.g. ``newline=""``, ``encoding``).
+    """
+    path = os.fspath(path)
+    directory, name = os.path.split(os.path.abspath(path))
+    tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    except OSError as exc:
+        raise type(exc)(exc.errno, exc.strerror, path) from None
+    try:
+        with open(fd, mode, **kwargs) as f:
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        with suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise

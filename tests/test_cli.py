@@ -1,0 +1,393 @@
+"""Tests of the `gaussfuse` command: demo, filter, help, version and error handling."""
+
+import csv
+import importlib.metadata
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+from gaussfuse.cli import main, textbook_example, tracking_demo
+from gaussfuse.io import DEFAULT_PRIOR_VAR
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def run(capsys, *argv):
+    """Run main in-process; return (exit code, stdout, stderr)."""
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(err, match):
+    assert err.endswith("\n") and err.count("\n") == 1, err
+    assert err.startswith("gaussfuse: error: "), err
+    assert "Traceback" not in err
+    assert re.search(match, err), (match, err)
+
+
+def read_csv(path_or_text):
+    text = Path(path_or_text).read_text() if isinstance(path_or_text, Path) else path_or_text
+    rows = list(csv.reader(text.splitlines()))
+    return rows[0], np.array(rows[1:], dtype=float)
+
+
+# ---------------------------------------------------------------------------
+# demo
+# ---------------------------------------------------------------------------
+
+
+def parse_rmse(out):
+    return {name: float(value)
+            for name, value in re.findall(r"^(measurements|filter|smoother)\s+([0-9.]+)$", out, re.M)}
+
+
+def test_demo_in_process(tmp_path, capsys):
+    outdir = tmp_path / "figs" / "new"  # created, with its parent
+    code, out, err = run(capsys, "demo", "--out", outdir)
+    assert (code, err) == (0, "")
+    figure = outdir / "gaussfuse-demo.png"
+    assert figure.read_bytes()[:8] == PNG_SIGNATURE
+    assert figure.stat().st_size > 10_000
+    assert f"figure: {figure}" in out
+    assert os.listdir(outdir) == ["gaussfuse-demo.png"]
+
+    # the textbook table: one row per measurement, matching gf.filter
+    zs, res = textbook_example()
+    rows = re.findall(r"^\s+(\d)\s+([-0-9.]+)\s+([-0-9.]+)\s+([-0-9.]+)\s+([-0-9.]+)$", out, re.M)
+    assert len(rows) == 5
+    table = np.array(rows, dtype=float)
+    np.testing.assert_array_equal(table[:, 0], [1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(table[:, 1], [1, 2, 3, 2, 1])
+    np.testing.assert_allclose(table[:, 2:4], res.means, atol=5e-5)
+    np.testing.assert_allclose(table[:, 4], np.sqrt(res.covs[:, 0, 0]), atol=5e-5)
+
+    # the RMSE table: smoother < filter < measurements, as tracking_demo computes
+    rmse = parse_rmse(out)
+    assert rmse["smoother"] < rmse["filter"] < rmse["measurements"]
+    expected = tracking_demo(0).rmse
+    assert rmse == pytest.approx(expected, abs=5e-5)
+
+
+def test_textbook_example_matches_the_hand_computed_first_steps():
+    zs, res = textbook_example()
+    np.testing.assert_array_equal(zs, [1, 2, 3, 2, 1])
+    # step 1: predict [1, 1], P- = [[1001, 500], [500, 503]]; z = 1 = H m-, so the mean is unchanged
+    np.testing.assert_allclose(res.means[0], [1.0, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(res.covs[0, 0, 0], 1001 * 10 / 1011, rtol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_tracking_demo_orders_the_errors(seed):
+    demo = tracking_demo(seed)
+    assert demo.truth.shape == (150, 4) and demo.zs.shape == (150, 2) and demo.times.shape == (150,)
+    assert demo.rmse["smoother"] < demo.rmse["filter"] < demo.rmse["measurements"]
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    reference = gf.smooth(model, gf.Gaussian([0, 0, 1, 0.5], np.eye(4)), demo.zs)
+    np.testing.assert_array_equal(demo.smoothed.means, reference.means)
+
+
+def test_demo_default_directory_and_seed(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(capsys, "demo", "--seed", 3)
+    assert (code, err) == (0, "")
+    assert (tmp_path / "gaussfuse-demo.png").read_bytes()[:8] == PNG_SIGNATURE
+    assert "seed 3" in out
+    assert parse_rmse(out) == pytest.approx(tracking_demo(3).rmse, abs=5e-5)
+
+
+def test_demo_out_is_a_file(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("keep")
+    code, out, err = run(capsys, "demo", "--out", blocker)
+    assert code == 2
+    assert_one_line_error(err, r"file: File exists")
+    assert blocker.read_text() == "keep"
+
+
+def test_demo_as_a_subprocess_is_fast(tmp_path):
+    import matplotlib.font_manager  # noqa: F401  (builds matplotlib's font cache once, untimed)
+
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "gaussfuse", "demo", "--out", str(tmp_path)],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    elapsed = time.perf_counter() - start
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    assert "smoother" in proc.stdout
+    assert (tmp_path / "gaussfuse-demo.png").stat().st_size > 10_000
+    assert elapsed < 5.0
+
+
+# ---------------------------------------------------------------------------
+# help, version, usage errors, entry point
+# ---------------------------------------------------------------------------
+
+
+def test_help_as_a_subprocess_and_the_entry_point():
+    proc = subprocess.run([sys.executable, "-m", "gaussfuse", "--help"], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0 and proc.stderr == ""
+    assert proc.stdout.startswith("usage: gaussfuse ")
+    assert "demo" in proc.stdout and "filter" in proc.stdout and "examples:" in proc.stdout
+    (script,) = importlib.metadata.entry_points(group="console_scripts", name="gaussfuse")
+    assert script.value == "gaussfuse.cli:main"
+    assert script.load() is main
+
+
+@pytest.mark.parametrize(
+    "argv, phrases",
+    [
+        (["--help"], ["usage: gaussfuse", "gaussfuse demo --out", "gaussfuse filter track.csv"]),
+        (["demo", "--help"], ["usage: gaussfuse demo", "--seed N", "gaussfuse-demo.png", "example:"]),
+        (["filter", "--help"], ["usage: gaussfuse filter", "--smooth", "--plot FIG.png", "`t` or `time`",
+                                'kind = "constant_velocity"', "N(0, 1e6 I)", "std_<state>", "example:"]),
+    ],
+)
+def test_help(capsys, argv, phrases):
+    code, out, err = run(capsys, *argv)
+    assert (code, err) == (0, "")
+    for phrase in phrases:
+        assert phrase in out
+
+
+def test_default_prior_in_help_is_the_one_used():
+    assert DEFAULT_PRIOR_VAR == 1e6
+
+
+def test_version(capsys):
+    code, out, err = run(capsys, "--version")
+    assert code == 0
+    assert out == f"gaussfuse {gf.__version__}\n"
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        ([], r"the following arguments are required: COMMAND"),
+        (["frobnicate"], r"invalid choice: 'frobnicate'"),
+        (["filter", "data.csv"], r"the following arguments are required: -m/--model"),
+        (["demo", "--seed", "x"], r"argument --seed: invalid int value: 'x'"),
+    ],
+)
+def test_usage_errors_exit_2(capsys, argv, match):
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and out == ""
+    assert err.startswith("usage: gaussfuse")
+    assert re.search(match, err)
+
+
+def test_no_matplotlib_for_import_and_help():
+    code = ("import sys, gaussfuse, gaussfuse.io, gaussfuse.plotting, gaussfuse.cli\n"
+            "assert gaussfuse.cli.main(['--help']) == 0\n"
+            "assert gaussfuse.cli.main(['filter', '--help']) == 0\n"
+            "assert 'matplotlib' not in sys.modules, 'matplotlib imported'\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+
+
+# ---------------------------------------------------------------------------
+# filter
+# ---------------------------------------------------------------------------
+
+DT, Q, R = 0.5, 0.3, 0.2
+MISSING = {(3, 0): "", (3, 1): "", (5, 1): "NaN", (8, 0): "nan"}  # (row, component) -> cell
+
+
+@pytest.fixture
+def series(tmp_path):
+    """A simulated 2-D constant-velocity series as CSV (time column `time`, some cells missing)."""
+    rng = np.random.default_rng(42)
+    model = gf.constant_velocity(DT, Q, R, dim=2)
+    T = 25
+    x = np.array([0.0, 0.0, 1.0, -1.0])
+    zs = np.empty((T, 2))
+    for k in range(T):
+        x = model.F @ x + rng.multivariate_normal(np.zeros(4), model.Q)
+        zs[k] = model.H @ x + rng.normal(0.0, np.sqrt(R), 2)
+    times = 100.0 + DT * np.arange(T)
+    lines = ["time,px,py"]
+    for k in range(T):
+        cells = [repr(float(v)) for v in zs[k]]
+        for j in range(2):
+            if (k, j) in MISSING:
+                cells[j] = MISSING[k, j]
+                zs[k, j] = np.nan
+        lines.append(",".join([repr(float(times[k])), *cells]))
+    path = tmp_path / "data.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path, times, zs, model
+
+
+NAMED_TOML = f"""\
+[model]
+kind = "constant_velocity"
+dim = 2
+dt = {DT}
+q = {Q}
+r = {R}
+
+[prior]
+mean = [0.0, 0.0, 1.0, -1.0]
+var = 2.0
+"""
+
+
+def explicit_toml(model):
+    def fmt(a):
+        return "[" + ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in a) + "]"
+
+    return (f"[model]\nF = {fmt(model.F)}\nH = {fmt(model.H)}\nQ = {fmt(model.Q)}\nR = {fmt(model.R)}\n"
+            'states = ["px", "py", "vx", "vy"]\n')
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_filter_named_model_matches_the_library(tmp_path, capsys, series, smooth):
+    data, times, zs, model = series
+    toml = tmp_path / "cv.toml"
+    toml.write_text(NAMED_TOML)
+    out = tmp_path / "out.csv"
+    code, stdout, err = run(capsys, "filter", data, "--model", toml, "--out", out, *(["--smooth"] * smooth))
+    assert (code, stdout, err) == (0, "", "")
+
+    prior = gf.Gaussian([0.0, 0.0, 1.0, -1.0], 2.0 * np.eye(4))
+    expected = (gf.smooth if smooth else gf.filter)(model, prior, zs)
+    header, values = read_csv(out)
+    assert header == ["time", "x", "y", "vx", "vy", "std_x", "std_y", "std_vx", "std_vy"]
+    np.testing.assert_array_equal(values[:, 0], times)
+    np.testing.assert_allclose(values[:, 1:5], expected.means, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(values[:, 5:], np.sqrt(np.diagonal(expected.covs, axis1=1, axis2=2)),
+                               rtol=1e-12, atol=1e-12)
+    assert np.isnan(zs).sum() == len(MISSING)  # the missing cells were really missing
+
+
+def test_filter_explicit_model_to_stdout_with_default_prior(tmp_path, capsys, series):
+    data, times, zs, model = series
+    toml = tmp_path / "explicit.toml"
+    toml.write_text(explicit_toml(model))
+    code, stdout, err = run(capsys, "filter", data, "-m", toml, "--smooth")
+    assert (code, err) == (0, "")
+    header, values = read_csv(stdout)
+    assert header == ["time", "px", "py", "vx", "vy", "std_px", "std_py", "std_vx", "std_vy"]
+    expected = gf.smooth(model, gf.Gaussian(np.zeros(4), 1e6 * np.eye(4)), zs)
+    np.testing.assert_allclose(values[:, 1:5], expected.means, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(values[:, 5:], np.sqrt(np.diagonal(expected.covs, axis1=1, axis2=2)),
+                               rtol=1e-12, atol=1e-12)
+    assert sorted(os.listdir(tmp_path)) == ["data.csv", "explicit.toml"]
+
+
+def test_filter_plot(tmp_path, capsys, series):
+    data, times, zs, model = series
+    toml = tmp_path / "cv.toml"
+    toml.write_text(NAMED_TOML)
+    out, fig = tmp_path / "out.csv", tmp_path / "fig.png"
+    code, stdout, err = run(capsys, "filter", data, "-m", toml, "-o", out, "--plot", fig)
+    assert (code, stdout, err) == (0, "", "")
+    assert fig.read_bytes()[:8] == PNG_SIGNATURE
+    assert fig.stat().st_size > 10_000
+    assert read_csv(out)[1].shape == (25, 9)
+
+
+@pytest.mark.parametrize("model", ["cv2d.toml", "explicit.toml"])
+def test_filter_the_examples(tmp_path, capsys, model):
+    out = tmp_path / "track-out.csv"
+    code, stdout, err = run(capsys, "filter", EXAMPLES / "data" / "track.csv",
+                            "--model", EXAMPLES / "models" / model, "--smooth", "--out", out)
+    assert (code, err) == (0, "")
+    header, values = read_csv(out)
+    assert header[:5] == ["t", "x", "y", "vx", "vy"]
+    assert values.shape == (20, 9) and np.isfinite(values).all()
+
+
+# ---------------------------------------------------------------------------
+# filter: bad input
+# ---------------------------------------------------------------------------
+
+GOOD_CSV = "t,x,y\n1,0.1,0.2\n2,0.3,0.1\n3,0.5,0.4\n"
+GOOD_TOML = '[model]\nkind = "constant_velocity"\ndim = 2\ndt = 1\nq = 1\nr = 1\n'
+EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
+
+
+@pytest.mark.parametrize(
+    "data, model, extra, match",
+    [
+        (None, GOOD_TOML, [], r"gaussfuse: error: \S*nope\.csv: No such file or directory$"),
+        (GOOD_CSV, None, [], r"gaussfuse: error: \S*nope\.toml: No such file or directory$"),
+        ("x,y\n1,2\n", GOOD_TOML, [], r"data\.csv: no time column: .*found columns \['x', 'y'\]"),
+        ("t,x\n1,2\n", GOOD_TOML, [], r"data\.csv: found 1 measurement column\(s\) \['x'\] besides `t`, "
+                                      r"but the model measures m = 2"),
+        ("t,x,y\n1,2,3\n2,3,zz\n", GOOD_TOML, [], r"data\.csv: line 3: column `y`: 'zz' is not a number\."),
+        ("t,x,y\n1,2,3\n2,3\n", GOOD_TOML, [], r"data\.csv: line 3: expected 3 cells \(t, x, y\); found 2"),
+        ("t,x,y\n1,2,3\n2,3,4\n2,3,4\n", GOOD_TOML, [],
+         r"data\.csv: line 4: column `t`: times must be strictly increasing"),
+        ("t,x,y\n1,2,3\n2,inf,4\n", GOOD_TOML, [], r"data\.csv: line 3: column `x`: 'inf' is not finite"),
+        (GOOD_CSV, "[model]\nkind = \n", [], r"model\.toml: invalid TOML: .*\(at line 2, column \d+\)"),
+        (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0, 0]]\nQ = [[1, 0], [0, 1]]\nR = 1\n", [],
+         r"model\.toml: \[model\] H: `H` must have shape"),
+        (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0], [0, 1]]\nQ = [[1, 0], [0, -1]]\nR = 1\n",
+         [], r"model\.toml: \[model\] Q: `Q` must be positive semi-definite"),
+        (GOOD_CSV, GOOD_TOML.replace("constant_velocity", "singer"), [],
+         r"model\.toml: \[model\] kind: unknown model kind 'singer'; valid kinds are"),
+        (GOOD_CSV, GOOD_TOML + "speed = 3\n", [], r"model\.toml: \[model\]: unknown key\(s\) \['speed'\]; "
+                                                  r"valid keys are kind, dim, dt, q, r, states"),
+        (GOOD_CSV, GOOD_TOML + "[priors]\n", [], r"model\.toml: unknown table\(s\) \['priors'\]"),
+        (GOOD_CSV, "[model]\nF = [[1]]\nH = [[1], [1]]\nQ = [[1]]\nR = [[1, 0], [0, 1]]\nB = [[1]]\n", [],
+         r"model\.toml: \[model\] B: a control input is not supported by `gaussfuse filter`"),
+        (GOOD_CSV, GOOD_TOML + "[prior]\nmean = [0, 0]\n", [], r"model\.toml: \[prior\] mean: `mean` must have"),
+        # the filter itself fails after reading: a zero innovation covariance
+        ("t,x\n1,0.5\n", EXPLICIT_1D + "[prior]\nvar = 0\n", [], r"step 0: .*not positive definite"),
+        # the figure fails after the CSV was written to its temporary file
+        (GOOD_CSV, GOOD_TOML, ["--plot", "{tmp}/fig.nope"], r"fig\.nope: unknown image format 'nope'"),
+        (GOOD_CSV, GOOD_TOML, ["--plot", "{tmp}/nodir/fig.png"], r"nodir/fig\.png: No such file or directory"),
+    ],
+    ids=[
+        "missing-data-file", "missing-model-file", "no-time-column", "wrong-column-count",
+        "non-numeric-cell", "ragged-row", "non-increasing-time", "infinite-value", "toml-syntax",
+        "wrong-matrix-shape", "non-psd-Q", "unknown-kind", "unknown-key", "unknown-table",
+        "B-given", "prior-mean-size", "filter-fails", "plot-format", "plot-dir-missing",
+    ],
+)
+def test_filter_bad_input(tmp_path, capsys, data, model, extra, match):
+    data_path, model_path = tmp_path / "nope.csv", tmp_path / "nope.toml"
+    if data is not None:
+        data_path = tmp_path / "data.csv"
+        data_path.write_text(data)
+    if model is not None:
+        model_path = tmp_path / "model.toml"
+        model_path.write_text(model)
+    before = sorted(os.listdir(tmp_path))
+    extra = [arg.format(tmp=tmp_path) for arg in extra]
+
+    # a new output file is not created ...
+    new = tmp_path / "new.csv"
+    code, out, err = run(capsys, "filter", data_path, "--model", model_path, "--out", new, *extra)
+    assert (code, out) == (2, "")
+    assert_one_line_error(err, match)
+    assert sorted(os.listdir(tmp_path)) == before
+
+    # ... and an existing one is left as it was
+    old = tmp_path / "old.csv"
+    old.write_text("precious\n")
+    code, out, err2 = run(capsys, "filter", data_path, "--model", model_path, "--out", old, *extra)
+    assert (code, out, err2) == (2, "", err.replace(str(new), str(old)))
+    assert old.read_text() == "precious\n"
+    assert sorted(os.listdir(tmp_path)) == sorted(before + ["old.csv"])
+
+
+def test_filter_bad_input_writes_nothing_to_stdout(tmp_path, capsys):
+    data = tmp_path / "data.csv"
+    data.write_text(GOOD_CSV)
+    model = tmp_path / "model.toml"
+    model.write_text(GOOD_TOML)
+    code, out, err = run(capsys, "filter", data, "-m", model, "--plot", tmp_path / "fig.nope")
+    assert (code, out) == (2, "")
+    assert_one_line_error(err, r"unknown image format")

@@ -1,0 +1,324 @@
+"""Tests of gaussfuse.io: measurement CSV, model TOML, estimates CSV, atomic writes."""
+
+import doctest
+import io as stdio
+import os
+import stat
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+import gaussfuse.io
+from gaussfuse.io import (
+    InputFileError,
+    open_atomic,
+    read_measurements,
+    read_model,
+    write_estimates,
+)
+
+
+def write(path, text):
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+# ---------------------------------------------------------------------------
+# read_measurements
+# ---------------------------------------------------------------------------
+
+
+def test_read_measurements_values_names_and_missing_cells(tmp_path):
+    path = write(tmp_path / "data.csv", "t,x,y\n0.5,1.25,-2\n1.0,,NaN\n1.5, nan ,3e-3\n\n")
+    times, zs, columns = read_measurements(path)
+    assert columns == ["t", "x", "y"]
+    np.testing.assert_array_equal(times, [0.5, 1.0, 1.5])
+    np.testing.assert_array_equal(zs, [[1.25, -2.0], [np.nan, np.nan], [np.nan, 3e-3]])
+    assert zs.shape == (3, 2) and zs.dtype == np.float64
+
+
+def test_read_measurements_time_column_anywhere_any_case(tmp_path):
+    path = write(tmp_path / "data.csv", "\ufeffa, TIME ,b\n1,10,2\n3,20,4\n")  # with a BOM
+    times, zs, columns = read_measurements(path, m=2)
+    assert columns == ["TIME", "a", "b"]
+    np.testing.assert_array_equal(times, [10, 20])
+    np.testing.assert_array_equal(zs, [[1, 2], [3, 4]])
+
+
+@pytest.mark.parametrize(
+    "text, match, line",
+    [
+        ("x,y\n1,2\n", r"data\.csv: no time column: .*`t` or `time`; found columns \['x', 'y'\]", None),
+        ("t,time,x\n1,2,3\n", r"data\.csv: more than one time column", None),
+        ("", r"data\.csv: no time column", None),
+        ("t\n1\n", r"data\.csv: no measurement columns besides `t`", None),
+        ("t,x\n", r"data\.csv: no data rows", None),
+        ("t,x,y\n1,2,3\n2,abc,4\n", r"data\.csv: line 3: column `x`: 'abc' is not a number\.", 3),
+        ("t,x,y\n1,2,3\n2,3\n", r"data\.csv: line 3: expected 3 cells \(t, x, y\); found 2\.", 3),
+        ("t,x,y\n1,2,3\n2,3,4,5\n", r"data\.csv: line 3: expected 3 cells", 3),
+        ("t,x\n1,2\n2,3\n2,4\n", r"data\.csv: line 4: column `t`: times must be strictly increasing; "
+                                 r"2\.0 follows 2\.0\.", 4),
+        ("t,x\n1,2\n0.5,4\n", r"line 3: column `t`: times must be strictly increasing", 3),
+        ("t,x\n,2\n", r"data\.csv: line 2: column `t`: the time is missing", 2),
+        ("t,x\nnan,2\n", r"line 2: column `t`: the time is missing", 2),
+        ("t,x\nabc,2\n", r"line 2: column `t`: 'abc' is not a number", 2),
+        ("t,x\n1,-inf\n", r"data\.csv: line 2: column `x`: '-inf' is not finite", 2),
+        ("t,x\n1,\"2\n", r"data\.csv: line 2: unexpected end of data", 2),
+        ("t,x\n1,\"2\"x\n", r"data\.csv: line 2: .*expected after", 2),
+    ],
+)
+def test_read_measurements_errors(tmp_path, text, match, line):
+    path = write(tmp_path / "data.csv", text)
+    with pytest.raises(InputFileError, match=match) as info:
+        read_measurements(path)
+    assert info.value.path == str(path) and info.value.line == line
+    assert str(info.value).startswith(str(path))
+
+
+def test_read_measurements_checks_the_number_of_columns(tmp_path):
+    path = write(tmp_path / "data.csv", "t,x\n1,2\n")
+    with pytest.raises(
+        InputFileError,
+        match=r"data\.csv: found 1 measurement column\(s\) \['x'\] besides `t`, but the model "
+              r"measures m = 2 component\(s\)\.",
+    ):
+        read_measurements(path, m=2)
+
+
+def test_read_measurements_not_utf8(tmp_path):
+    path = tmp_path / "data.csv"
+    path.write_bytes(b"t,x\n1,\xff\n")
+    with pytest.raises(InputFileError, match=r"data\.csv: not UTF-8 text: 'utf-8' codec can't decode"):
+        read_measurements(path)
+
+
+def test_read_measurements_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        read_measurements(tmp_path / "nope.csv")
+
+
+# ---------------------------------------------------------------------------
+# read_model
+# ---------------------------------------------------------------------------
+
+
+def test_read_named_model_with_default_prior(tmp_path):
+    path = write(tmp_path / "m.toml", '[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 2\nr = 0.25\n')
+    model, prior, names = read_model(path)
+    expected = gf.constant_velocity(0.5, 2.0, 0.25, dim=2)
+    for a, b in zip(model.at(0), expected.at(0)):
+        np.testing.assert_array_equal(a, b)
+    assert names == ["x", "y", "vx", "vy"]
+    np.testing.assert_array_equal(prior.mean, np.zeros(4))
+    np.testing.assert_array_equal(prior.cov, 1e6 * np.eye(4))
+
+
+def test_read_named_constant_acceleration_default_dim_and_var_prior(tmp_path):
+    path = write(tmp_path / "m.toml", '[model]\nkind = "constant_acceleration"\ndt = 1\nq = 0.1\nr = 4\n'
+                                      "[prior]\nmean = [1, 2, 3]\nvar = 9\n")
+    model, prior, names = read_model(path)
+    np.testing.assert_array_equal(model.F, gf.constant_acceleration(1.0, 0.1, 4.0).F)
+    assert names == ["x", "vx", "ax"]
+    np.testing.assert_array_equal(prior.mean, [1, 2, 3])
+    np.testing.assert_array_equal(prior.cov, 9 * np.eye(3))
+
+
+def test_read_explicit_model_with_states_and_cov_prior(tmp_path):
+    path = write(tmp_path / "m.toml", "[model]\nF = [[1, 1], [0, 1]]\nH = [1, 0]\nQ = [[1, 0], [0, 3]]\n"
+                                      'R = 10\nstates = ["pos", "vel"]\n'
+                                      "[prior]\nmean = [0, 1]\ncov = [[500, 0], [0, 500]]\n")
+    model, prior, names = read_model(path)
+    np.testing.assert_array_equal(model.F, [[1, 1], [0, 1]])
+    np.testing.assert_array_equal(model.H, [[1, 0]])
+    np.testing.assert_array_equal(model.R, [[10]])
+    assert (model.n, model.m, model.p) == (2, 1, 0)
+    assert names == ["pos", "vel"]
+    np.testing.assert_array_equal(prior.cov, 500 * np.eye(2))
+
+
+def test_read_explicit_model_default_names_and_prior_mean(tmp_path):
+    path = write(tmp_path / "m.toml", "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.5]]\nR = [[2.0]]\n"
+                                      "[prior]\ncov = [[4.0]]\n")
+    model, prior, names = read_model(path)
+    assert names == ["x0"]
+    np.testing.assert_array_equal(prior.mean, [0.0])
+    np.testing.assert_array_equal(prior.cov, [[4.0]])
+
+
+EXPLICIT = "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0]]\nQ = [[1, 0], [0, 1]]\nR = 1\n"
+NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("[model]\nF = [[1,\n", r"m\.toml: invalid TOML: .*\(at (line \d+, column \d+|end of document)\)"),
+        ("[model\n", r"m\.toml: invalid TOML: .*line 1"),
+        ("", r"m\.toml: missing the \[model\] table\."),
+        ("model = 3\n", r"m\.toml: `model` must be a table"),
+        (EXPLICIT + "[extra]\n", r"m\.toml: unknown table\(s\) \['extra'\]; valid tables are \[model\], \[prior\]\."),
+        (EXPLICIT + "[prior]\nmean = [0, 0]\nsigma = 1\n",
+         r"m\.toml: \[prior\]: unknown key\(s\) \['sigma'\]; valid keys are mean, cov, var"),
+        (EXPLICIT + "G = 1\n", r"m\.toml: \[model\]: unknown key\(s\) \['G'\]; valid keys are F, H, Q, R, states "
+                               r"\(explicit matrices\), or kind, dim, dt, q, r, states \(a named model\)\."),
+        (NAMED + "F = [[1]]\n", r"\[model\]: unknown key\(s\) \['F'\]; valid keys are kind, dim, dt, q, r, states"),
+        (EXPLICIT + "B = [[1], [0]]\n",
+         r"m\.toml: \[model\] B: a control input is not supported by `gaussfuse filter` yet"),
+        ("[model]\nF = [[1]]\nH = [[1]]\nQ = [[1]]\n", r"m\.toml: \[model\]: missing key\(s\) \['R'\]; "
+                                                        r"explicit models need F, H, Q and R\."),
+        ('[model]\nkind = "constant_velocity"\ndt = 1\n', r"\[model\]: missing key\(s\) \['q', 'r'\]"),
+        ('[model]\nkind = "singer"\ndt = 1\nq = 1\nr = 1\n', r"m\.toml: \[model\] kind: unknown model kind "
+                                                           r"'singer'; valid kinds are constant_acceleration, "
+                                                           r"constant_velocity\."),
+        ("[model]\nkind = 3\n", r"\[model\] kind: unknown model kind 3"),
+        (NAMED.replace("dt = 1", "dt = -1"), r"m\.toml: \[model\] dt: `dt` must be positive"),
+        (NAMED.replace("dt = 1", 'dt = "soon"'), r"m\.toml: \[model\] dt: `dt` must be a number"),
+        (NAMED + "dim = 4\n", r"m\.toml: \[model\] dim: `dim` must be 1, 2 or 3"),
+        (EXPLICIT.replace("H = [[1, 0]]", "H = [[1, 0, 0]]"), r"m\.toml: \[model\] H: `H` must have shape"),
+        (EXPLICIT.replace("F = [[1, 0], [0, 1]]", "F = [[1, 0]]"), r"m\.toml: \[model\] F: `F` must be square"),
+        (EXPLICIT.replace("Q = [[1, 0], [0, 1]]", "Q = [[1, 0], [0, -1]]"),
+         r"m\.toml: \[model\] Q: `Q` must be positive semi-definite; its smallest eigenvalue is -1"),
+        (EXPLICIT.replace("Q = [[1, 0], [0, 1]]", "Q = [[1, 2], [0, 1]]"), r"\[model\] Q: `Q` must be symmetric"),
+        (EXPLICIT.replace("R = 1", 'R = "one"'), r"m\.toml: \[model\] R: `R` must be an array of numbers"),
+        (EXPLICIT.replace("R = 1", "R = [[1], [2, 3]]"), r"\[model\] R: `R` must be an array of real numbers"),
+        (EXPLICIT + 'states = ["a"]\n', r"m\.toml: \[model\] states: `states` must be a list of 2 distinct names"),
+        (EXPLICIT + 'states = ["a", "a"]\n', r"\[model\] states: `states` must be a list of 2 distinct names"),
+        (EXPLICIT + "states = [1, 2]\n", r"\[model\] states: `states` must be a list of 2 distinct names"),
+        (EXPLICIT + "states = [[1], [2]]\n", r"\[model\] states: `states` must be a list of 2 distinct names"),
+        (EXPLICIT + 'states = "xy"\n', r"\[model\] states: `states` must be a list of 2 distinct names"),
+        (EXPLICIT + "[prior]\nmean = [1, 2, 3]\n", r"m\.toml: \[prior\] mean: `mean` must have shape \(2,\)"),
+        (EXPLICIT + "[prior]\ncov = [[1]]\n", r"m\.toml: \[prior\] cov: `cov` must have shape \(2, 2\)"),
+        (EXPLICIT + "[prior]\ncov = [[1, 0], [0, -1]]\n", r"\[prior\] cov: `cov` must be positive semi-definite"),
+        (EXPLICIT + "[prior]\nvar = -2\n", r"m\.toml: \[prior\] var: `cov` must be positive semi-definite"),
+        (EXPLICIT + "[prior]\nvar = [1, 2]\n", r"m\.toml: \[prior\] var: `var` must have shape \(\) \(one number\)"),
+        (EXPLICIT + "[prior]\nvar = 1\ncov = [[1, 0], [0, 1]]\n",
+         r"m\.toml: \[prior\]: give either `cov` or `var` \(var \* I\), not both\."),
+        (EXPLICIT + "prior = 1\n", r"\[model\]: unknown key\(s\) \['prior'\]"),
+        ("prior = 1\n" + EXPLICIT, r"m\.toml: `prior` must be a table"),
+    ],
+)
+def test_read_model_errors(tmp_path, text, match):
+    path = write(tmp_path / "m.toml", text)
+    with pytest.raises(InputFileError, match=match) as info:
+        read_model(path)
+    assert str(info.value).startswith(f"{path}: ")
+    assert "\n" not in str(info.value)
+
+
+def test_read_model_keeps_gaussfuse_error_as_cause(tmp_path):
+    path = write(tmp_path / "m.toml", EXPLICIT.replace("Q = [[1, 0], [0, 1]]", "Q = [[1, 0], [0, -1]]"))
+    with pytest.raises(InputFileError, match=r"\[model\] Q") as info:
+        read_model(path)
+    assert info.value.field == "[model] Q"
+    assert isinstance(info.value.__cause__, ValueError)
+    assert str(info.value).endswith(str(info.value.__cause__))
+
+
+def test_read_model_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        read_model(tmp_path / "nope.toml")
+
+
+# ---------------------------------------------------------------------------
+# write_estimates
+# ---------------------------------------------------------------------------
+
+
+def random_estimates(T=6, n=3, seed=1):
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(rng.uniform(0.1, 1.0, T))
+    means = rng.normal(size=(T, n)) * 10.0 ** rng.integers(-8, 8, size=(T, n))
+    A = rng.normal(size=(T, n, n))
+    covs = A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(n)
+    return times, means, covs
+
+
+def test_write_estimates_round_trips_exactly(tmp_path):
+    times, means, covs = random_estimates()
+    path = tmp_path / "est.csv"
+    write_estimates(path, times, means, covs, ["a", "b", "c"], time_name="time")
+    assert path.read_text().splitlines()[0] == "time,a,b,c,std_a,std_b,std_c"
+    t, values, columns = read_measurements(path)
+    assert columns == ["time", "a", "b", "c", "std_a", "std_b", "std_c"]
+    np.testing.assert_array_equal(t, times)
+    np.testing.assert_array_equal(values[:, :3], means)
+    np.testing.assert_array_equal(values[:, 3:], np.sqrt(np.diagonal(covs, axis1=1, axis2=2)))
+
+
+def test_write_estimates_to_stdout_and_to_a_stream(tmp_path, capsys):
+    times, means, covs = random_estimates(T=2, n=1)
+    write_estimates(None, times, means, covs, ["x"])
+    stream = stdio.StringIO()
+    write_estimates(stream, times, means, covs, ["x"])
+    out = capsys.readouterr().out
+    assert out == stream.getvalue()
+    lines = out.splitlines()
+    assert lines[0] == "t,x,std_x" and len(lines) == 3
+    assert lines[1] == ",".join(repr(float(v)) for v in (times[0], means[0, 0], np.sqrt(covs[0, 0, 0])))
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        ((np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2, 2)), ["a"]), r"`means` must have shape \(3, 1\)"),
+        ((np.zeros(3), np.zeros((2, 2)), np.zeros((3, 2, 2)), ["a", "b"]), r"`means` must have shape \(3, 2\)"),
+        ((np.zeros(3), np.zeros((3, 2)), np.zeros((3, 2)), ["a", "b"]), r"`covs` must have shape \(3, 2, 2\)"),
+        ((np.zeros((3, 1)), np.zeros((3, 2)), np.zeros((3, 2, 2)), ["a", "b"]), r"`times` must have shape"),
+    ],
+)
+def test_write_estimates_rejects_mismatched_shapes(tmp_path, args, match):
+    path = tmp_path / "est.csv"
+    with pytest.raises(ValueError, match=match):
+        write_estimates(path, *args)
+    assert not path.exists()
+
+
+# ---------------------------------------------------------------------------
+# open_atomic
+# ---------------------------------------------------------------------------
+
+
+def test_open_atomic_writes_with_usual_permissions(tmp_path):
+    path = tmp_path / "out.txt"
+    with open_atomic(path, "w") as f:
+        f.write("new")
+        assert not path.exists()  # nothing appears before the block ends
+    assert path.read_text() == "new"
+    assert os.listdir(tmp_path) == ["out.txt"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+
+
+def test_open_atomic_leaves_nothing_on_error(tmp_path):
+    path = tmp_path / "out.bin"
+    with pytest.raises(RuntimeError, match="boom"):
+        with open_atomic(path, "wb") as f:
+            f.write(b"partial")
+            raise RuntimeError("boom")
+    assert os.listdir(tmp_path) == []
+
+
+def test_open_atomic_keeps_the_old_file_on_error(tmp_path):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    with pytest.raises(ValueError, match="bad"):
+        with open_atomic(path) as f:
+            f.write("new")
+            raise ValueError("bad")
+    assert path.read_text() == "old"
+    assert os.listdir(tmp_path) == ["out.txt"]
+
+
+def test_open_atomic_missing_directory_names_the_target(tmp_path):
+    path = tmp_path / "nodir" / "out.txt"
+    with pytest.raises(FileNotFoundError) as info:
+        with open_atomic(path):
+            pass
+    assert info.value.filename == str(path)
+
+
+def test_docstring_examples():
+    result = doctest.testmod(gaussfuse.io, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
