@@ -15,6 +15,8 @@ MODULES = [
     "gaussfuse.online",
     "gaussfuse.models.linear",
     "gaussfuse.models.motion",
+    "gaussfuse.models.nonlinear",
+    "gaussfuse.linearize.sigma_points",
 ]
 
 

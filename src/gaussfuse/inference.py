@@ -287,19 +287,22 @@ def _angles(model):
     return getattr(model, "state_angles", None), getattr(model, "measurement_angles", None)
 
 
-def _method_filter(spec: Method, model, prior, zs, us, options) -> FilterResult:
+def _linearisation(spec: Method, model, us, options: dict):
+    """The method's strategy for one series, and its ``iterations`` (1 if it has none)."""
     options = dict(options)
     iterations = options.pop("iterations", 1)
-    lin = spec.strategy(model, us, **options)
+    return spec.strategy(model, us, **options), iterations
+
+
+def _method_filter(spec: Method, model, prior, zs, us, options) -> FilterResult:
+    lin, iterations = _linearisation(spec, model, us, options)
     xa, za = _angles(model)
     return run_filter(lin, prior, zs, iterations=iterations, state_angles=xa, measurement_angles=za)
 
 
 def _method_smooth(spec: Method, model, prior, zs, us, options) -> SmoothResult:
     filt = _method_filter(spec, model, prior, zs, us, options)
-    options = dict(options)
-    passes = options.pop("iterations", 1)
-    lin = spec.strategy(model, us, **options)
+    lin, passes = _linearisation(spec, model, us, options)
     xa, za = _angles(model)
     if not spec.iterated:
         means, covs, gains = run_smoother(lin, filt, state_angles=xa)
@@ -411,7 +414,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
 
     Parameters
     ----------
-    model : LinearModel
+    model : LinearModel or NonlinearModel
         The state-space model.
     prior : Gaussian
         Belief about the state one step *before* the first measurement;
@@ -420,11 +423,17 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
         Measurements; a NaN component is missing. A leading axis holds N
         independent series, and every result then gains that axis.
     us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
-        Control inputs, required exactly when the model has ``B``.
+        Control inputs: required exactly when a LinearModel has ``B``;
+        passed to a NonlinearModel's ``f(x, u_k)`` when given.
     method : str, optional
-        One of ``METHODS``; defaults to ``"kf"`` for a LinearModel.
+        One of ``METHODS``: ``"kf"`` (the default for a LinearModel) or,
+        for a NonlinearModel, ``"ekf"``, ``"iekf"``, ``"ukf"`` (default),
+        ``"ckf"``, ``"ghkf"`` or ``"iplf"``.
     **options
-        Method options; an unknown one is rejected with the list of valid ones.
+        Method options: ``iterations`` (iekf, iplf: update iterations per
+        step); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0, 3 - n);
+        ``order`` (ghkf, iplf: Gauss–Hermite points per axis, default 3).
+        An unknown one is rejected with the list of valid ones.
 
     Returns
     -------
@@ -450,8 +459,14 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
-    Takes the same arguments as :func:`filter`; the linear method is the
-    Rauch–Tung–Striebel smoother (see :func:`gaussfuse.kalman.rts_step`).
+    Takes the same arguments as :func:`filter`. Every method ends in the
+    Rauch–Tung–Striebel backward pass (:func:`gaussfuse.kalman.rts_step`):
+    exact for ``"kf"``; with the transition re-linearised at each filtered
+    belief for ``"ekf"``, ``"ukf"``, ``"ckf"`` and ``"ghkf"``. The iterated
+    smoothers ``"iekf"`` and ``"iplf"`` make `iterations` passes, each a
+    filter and RTS pass linearised about the previous pass's smoothed
+    trajectory (the first about the iterated filter's), reaching back to the
+    prior's time; their ``.filtered`` is the iterated filter.
 
     Returns
     -------
