@@ -7,6 +7,8 @@ The algebra of every step is in :mod:`gaussfuse.kalman`.
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 from dataclasses import dataclass, fields
 from typing import Callable, NamedTuple
 
@@ -47,15 +49,34 @@ class FilterResult:
     loglik : float
         ``log p(z_1..z_T)`` over the observed components, including the
         ``-m/2 log 2π`` constants.
+    last_mean : ndarray of shape (n,)
+        The final filtered mean (the belief to continue from).
+    last_cov : ndarray of shape (n, n)
+        The final filtered covariance.
+
+    Notes
+    -----
+    With ``keep="means"`` the covariance fields are None; with
+    ``keep="last"`` every per-step field is None, so that a long series
+    filters in memory independent of its length.
     """
 
-    means: np.ndarray
-    covs: np.ndarray
-    predicted_means: np.ndarray
-    predicted_covs: np.ndarray
-    innovations: np.ndarray
-    innovation_covs: np.ndarray
+    means: np.ndarray | None
+    covs: np.ndarray | None
+    predicted_means: np.ndarray | None
+    predicted_covs: np.ndarray | None
+    innovations: np.ndarray | None
+    innovation_covs: np.ndarray | None
     loglik: float | np.ndarray
+    last_mean: np.ndarray
+    last_cov: np.ndarray
+
+    @property
+    def last(self) -> Gaussian:
+        """The final filtered belief, to continue filtering from (one series only)."""
+        if self.last_mean.ndim != 1:
+            raise ValueError("`last` is for one series; use `last_mean` and `last_cov` for a batch.")
+        return Gaussian(self.last_mean, self.last_cov)
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,20 +111,25 @@ class SmoothResult:
 # ---------------------------------------------------------------------------
 
 
+KEEP = ("all", "means", "last")
+
+
 def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1,
-               state_angles=None, measurement_angles=None) -> FilterResult:
+               state_angles=None, measurement_angles=None, keep: str = "all") -> FilterResult:
     """Filter one series (T, m) with a linearisation strategy (see :mod:`gaussfuse.linearize`).
 
     Each step predicts through ``lin.transition`` and updates through
     ``lin.measurement``. With ``iterations > 1`` the update is repeated,
     each time re-linearising the measurement at the latest posterior and
     conditioning the *prediction* again (the iterated EKF's Gauss–Newton
-    steps, or posterior linearisation).
+    steps, or posterior linearisation). `keep` is one of ``KEEP``.
     """
     T, n, m = zs.shape[0], prior.dim, zs.shape[1]
-    means, covs = np.empty((T, n)), np.empty((T, n, n))
-    pmeans, pcovs = np.empty((T, n)), np.empty((T, n, n))
-    innov, icovs = np.empty((T, m)), np.empty((T, m, m))
+    rows = 0 if keep == "last" else T
+    crows = T if keep == "all" else 0
+    means, covs = np.empty((rows, n)), np.empty((crows, n, n))
+    pmeans, pcovs = np.empty((rows, n)), np.empty((crows, n, n))
+    innov, icovs = np.empty((rows, m)), np.empty((crows, m, m))
     loglik = 0.0
     mean, cov = prior.mean, prior.cov
     for k in range(T):
@@ -111,16 +137,23 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1,
             A, b, Q = lin.transition(k, mean, cov)
             mean, cov = kalman.predict(mean, cov, A, Q, b)
             mean = kalman.wrap_components(mean, state_angles)
-            pmeans[k], pcovs[k] = mean, cov
+            if rows:
+                pmeans[k] = mean
+            if crows:
+                pcovs[k] = cov
             post_mean, post_cov = mean, cov
             for _ in range(iterations):
                 H, d, R = lin.measurement(k, post_mean, post_cov)
                 post = kalman.update(mean, cov, zs[k], H, R, d, angles=measurement_angles)
                 post_mean, post_cov = kalman.wrap_components(post.mean, state_angles), post.cov
         mean, cov = post_mean, post_cov
-        means[k], covs[k], innov[k], icovs[k] = mean, cov, post.innovation, post.innovation_cov
+        if rows:
+            means[k], innov[k] = mean, post.innovation
+        if crows:
+            covs[k], icovs[k] = cov, post.innovation_cov
         loglik += post.loglik
-    return FilterResult(means, covs, pmeans, pcovs, innov, icovs, loglik)
+    return FilterResult(*(a if a.shape[0] else None for a in (means, covs, pmeans, pcovs, innov, icovs)),
+                        loglik, mean, cov)
 
 
 def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
@@ -220,6 +253,12 @@ class Method(NamedTuple):
         linearise-filter-smooth pass (smoother).
     description : str
         One line for listings.
+    compiled : str or None
+        Module under :mod:`gaussfuse._kernels` with the compiled engine:
+        functions ``filter(method, model, prior, zs, us, options, keep)``
+        and ``smooth(method, model, prior, zs, us, options)`` taking the
+        validated (N, T, m) measurements and (N, T, p) controls (or None)
+        and returning results with the leading N axis.
     """
 
     model_types: tuple[type, ...]
@@ -227,11 +266,12 @@ class Method(NamedTuple):
     strategy: Callable
     iterated: bool
     description: str
+    compiled: str | None = None
 
 
 METHODS: dict[str, Method] = {
     "kf": Method((LinearModel,), {}, lambda model, us: Exact(model, us), False,
-                 "Kalman filter / Rauch-Tung-Striebel smoother (exact for linear models)"),
+                 "Kalman filter / Rauch-Tung-Striebel smoother (exact for linear models)", "linear"),
     "ekf": Method((NonlinearModel,), {}, lambda model, us: Taylor(model, us), False,
                   "extended Kalman filter / extended RTS smoother"),
     "iekf": Method((NonlinearModel,), {"iterations": 10},
@@ -240,12 +280,12 @@ METHODS: dict[str, Method] = {
     "ukf": Method((NonlinearModel,), {"alpha": 1.0, "beta": 0.0, "kappa": None},
                   lambda model, us, alpha, beta, kappa:
                   SigmaPoints(model, unscented(model.n, alpha, beta, kappa), us), False,
-                  "unscented Kalman filter / unscented RTS smoother"),
+                  "unscented Kalman filter / unscented RTS smoother", "sigma_points"),
     "ckf": Method((NonlinearModel,), {}, lambda model, us: SigmaPoints(model, cubature(model.n), us),
-                  False, "cubature Kalman filter / cubature RTS smoother"),
+                  False, "cubature Kalman filter / cubature RTS smoother", "sigma_points"),
     "ghkf": Method((NonlinearModel,), {"order": 3},
                    lambda model, us, order: SigmaPoints(model, gauss_hermite(model.n, order), us),
-                   False, "Gauss-Hermite Kalman filter / RTS smoother"),
+                   False, "Gauss-Hermite Kalman filter / RTS smoother", "sigma_points"),
     "iplf": Method((NonlinearModel,), {"iterations": 10, "order": 3},
                    lambda model, us, order: SigmaPoints(model, gauss_hermite(model.n, order), us),
                    True, "iterated posterior-linearisation filter / smoother (Gauss-Hermite)"),
@@ -294,10 +334,11 @@ def _linearisation(spec: Method, model, us, options: dict):
     return spec.strategy(model, us, **options), iterations
 
 
-def _method_filter(spec: Method, model, prior, zs, us, options) -> FilterResult:
+def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all") -> FilterResult:
     lin, iterations = _linearisation(spec, model, us, options)
     xa, za = _angles(model)
-    return run_filter(lin, prior, zs, iterations=iterations, state_angles=xa, measurement_angles=za)
+    return run_filter(lin, prior, zs, iterations=iterations, state_angles=xa, measurement_angles=za,
+                      keep=keep)
 
 
 def _method_smooth(spec: Method, model, prior, zs, us, options) -> SmoothResult:
@@ -384,6 +425,7 @@ def _check_steps(model, T: int) -> None:
 
 def _prepare(model, prior, zs, us, method, options):
     spec, options = _resolve_method(model, method, options)
+    method = next(name for name, value in METHODS.items() if value is spec)
     prior = check_prior(prior, model.n)
     checked = check_measurements(zs, model.m)
     batch = np.ndim(zs) == 3  # only after the check: a ragged `zs` must not reach NumPy
@@ -391,7 +433,7 @@ def _prepare(model, prior, zs, us, method, options):
     N, T = zs.shape[:2]
     _check_steps(model, T)
     us = check_controls(us, model, N, T)
-    return spec, options, prior, zs, us, batch
+    return spec, method, options, prior, zs, us, batch
 
 
 def _stack(results: list):
@@ -400,8 +442,49 @@ def _stack(results: list):
     values = {}
     for f in fields(cls):
         items = [getattr(r, f.name) for r in results]
-        values[f.name] = _stack(items) if f.name == "filtered" else np.stack(items)
+        if f.name == "filtered":
+            values[f.name] = _stack(items)
+        else:
+            values[f.name] = None if items[0] is None else np.stack(items)
     return cls(**values)
+
+
+def _first(result):
+    """The only series of a batched result, without the leading axis."""
+    values = {}
+    for f in fields(type(result)):
+        item = getattr(result, f.name)
+        if f.name == "filtered":
+            values[f.name] = _first(item)
+        elif f.name == "loglik":
+            values[f.name] = float(item[0])
+        else:
+            values[f.name] = None if item is None else item[0]
+    return type(result)(**values)
+
+
+ENGINES = ("auto", "python", "numba")
+AUTO_NUMBA_STEPS = 1000  # "auto" compiles from this many steps (all series together) on
+
+
+def _compiled_engine(spec: Method, method: str, engine: str, steps: int):
+    """The compiled module to run, or None for the readable Python path."""
+    if engine not in ENGINES:
+        raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
+    if engine == "python" or (engine == "auto" and steps < AUTO_NUMBA_STEPS):
+        return None
+    available = importlib.util.find_spec("numba") is not None
+    if engine == "numba":
+        if spec.compiled is None:
+            fits = sorted(k for k, v in METHODS.items() if v.compiled)
+            raise ValueError(
+                f"`engine='numba'` is not available for method {method!r}; it is for {fits}."
+            )
+        if not available:
+            raise ValueError("`engine='numba'` needs numba: pip install numba.")
+    if spec.compiled is None or not available:
+        return None
+    return importlib.import_module(f"._kernels.{spec.compiled}", __package__)
 
 
 # ---------------------------------------------------------------------------
@@ -409,7 +492,8 @@ def _stack(results: list):
 # ---------------------------------------------------------------------------
 
 
-def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **options) -> FilterResult:
+def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
+           engine: str = "auto", keep: str = "all", **options) -> FilterResult:
     """Filter a series of measurements: the belief about each state given the past.
 
     Parameters
@@ -434,6 +518,17 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
         step); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0, 3 - n);
         ``order`` (ghkf, iplf: Gauss–Hermite points per axis, default 3).
         An unknown one is rejected with the list of valid ones.
+    engine : {"auto", "python", "numba"}, default "auto"
+        ``"python"`` is the readable implementation, the specification;
+        ``"numba"`` runs compiled kernels (methods "kf", "ukf", "ckf",
+        "ghkf"; series in parallel), equal to it to round-off; ``"auto"``
+        compiles when numba is installed and the series have at least
+        1000 steps in all.
+    keep : {"all", "means", "last"}, default "all"
+        What to return per step: everything; the means, predictions and
+        innovations but no covariances; or nothing but the final belief
+        (``last_mean``, ``last_cov``) and the log-likelihood, so memory does
+        not grow with T.
 
     Returns
     -------
@@ -448,18 +543,25 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
     >>> res.means.shape, res.covs.shape
     ((5, 2), (5, 2, 2))
     """
-    spec, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
+    if keep not in KEEP:
+        raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
+    spec, method, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
+    compiled = _compiled_engine(spec, method, engine, zs.shape[0] * zs.shape[1])
+    if compiled is not None:
+        result = compiled.filter(method, model, prior, zs, us, options, keep)
+        return result if batch else _first(result)
     results = [
-        _method_filter(spec, model, prior, z, None if us is None else us[i], options)
+        _method_filter(spec, model, prior, z, None if us is None else us[i], options, keep)
         for i, z in enumerate(zs)
     ]
     return _stack(results) if batch else results[0]
 
 
-def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, **options) -> SmoothResult:
+def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
+           engine: str = "auto", **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
-    Takes the same arguments as :func:`filter`. Every method ends in the
+    Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
     Rauch–Tung–Striebel backward pass (:func:`gaussfuse.kalman.rts_step`):
     exact for ``"kf"``; with the transition re-linearised at each filtered
     belief for ``"ekf"``, ``"ukf"``, ``"ckf"`` and ``"ghkf"``. The iterated
@@ -482,7 +584,11 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, **opt
     >>> sm.means.shape, sm.filtered.means.shape
     ((5, 2), (5, 2))
     """
-    spec, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
+    spec, method, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
+    compiled = _compiled_engine(spec, method, engine, zs.shape[0] * zs.shape[1])
+    if compiled is not None:
+        result = compiled.smooth(method, model, prior, zs, us, options)
+        return result if batch else _first(result)
     results = [
         _method_smooth(spec, model, prior, z, None if us is None else us[i], options)
         for i, z in enumerate(zs)
