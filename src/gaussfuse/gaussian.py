@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from . import kalman
 from ._validation import as_array, as_matrix, as_vector, check_psd
@@ -79,7 +78,7 @@ class Gaussian:
         if self.dim == 1 and x.shape[-1:] != (1,):
             x = x[..., None]
         L = kalman.cholesky(self.cov, "`cov`")
-        white = solve_triangular(L, (x - self.mean).T, lower=True)
+        white = np.linalg.solve(L, (x - self.mean).T)
         quad = np.sum(white**2, axis=0)
         logdet = 2.0 * np.sum(np.log(np.diag(L)))
         out = -0.5 * (quad + logdet + self.dim * np.log(2.0 * np.pi))

@@ -27,9 +27,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss
-from scipy.linalg import cho_solve
 
-from ..kalman import symmetrize, wrap_angle
+from ..kalman import cho_solve, symmetrize, wrap_angle
 
 __all__ = ["SigmaPoints", "SigmaRule", "unscented", "cubature", "gauss_hermite", "slr", "RULES"]
 
@@ -190,7 +189,7 @@ def slr(
     C = (dX * rule.wc[:, None]).T @ dY
     S = (dY * rule.wc[:, None]).T @ dY
     try:
-        A = cho_solve((np.linalg.cholesky(cov), True), C, check_finite=False).T
+        A = cho_solve(np.linalg.cholesky(cov), C).T
     except np.linalg.LinAlgError:
         A = np.linalg.lstsq(cov, C, rcond=None)[0].T
     return A, y_mean - A @ mean, symmetrize(S - A @ cov @ A.T)
