@@ -1,0 +1,347 @@
+"""The compiled linear engine (method "kf") equals the readable path.
+
+Every comparison runs ``engine="numba"`` (:mod:`gaussfuse._kernels.linear`)
+against ``engine="python"`` (:mod:`gaussfuse.kalman`, the specification)
+through ``gf.filter`` and ``gf.smooth``, to 1e-10.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import tracemalloc
+from dataclasses import fields
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from numba.core.runtime import _nrt_python, rtsys
+
+import _oracle
+import gaussfuse as gf
+from gaussfuse._kernels import linear
+
+TOL = 1e-10
+PER_STEP = ("means", "covs", "predicted_means", "predicted_covs", "innovations", "innovation_covs")
+COVARIANCES = ("covs", "predicted_covs", "innovation_covs")
+
+
+def assert_close(actual, desired, what: str) -> None:
+    """Equal to TOL, relative, with an absolute floor scaled to the size of the values."""
+    actual, desired = np.asarray(actual), np.asarray(desired)
+    assert actual.shape == desired.shape, f"{what}: shape {actual.shape} != {desired.shape}"
+    finite = desired[np.isfinite(desired)]
+    scale = max(1.0, float(np.max(np.abs(finite)))) if finite.size else 1.0
+    np.testing.assert_allclose(actual, desired, rtol=TOL, atol=TOL * scale, equal_nan=True, err_msg=what)
+
+
+def assert_same(got, want) -> None:
+    """Every field of two Filter/SmoothResults agrees (None exactly where the other is None)."""
+    assert type(got) is type(want)
+    for field in fields(want):
+        a, b = getattr(got, field.name), getattr(want, field.name)
+        if field.name == "filtered":
+            assert_same(a, b)
+        elif b is None:
+            assert a is None, field.name
+        else:
+            assert np.shape(a) == np.shape(b), field.name
+            assert_close(a, b, field.name)
+    if isinstance(want, gf.FilterResult) and want.innovations is not None:
+        # NaN exactly where a component is missing, in both.
+        np.testing.assert_array_equal(np.isnan(got.innovations), np.isnan(want.innovations))
+
+
+# ---------------------------------------------------------------------------
+# Random problems: one model, N series with their own controls and gaps
+# ---------------------------------------------------------------------------
+
+MATRICES = ("F", "H", "Q", "R", "B")
+
+
+def missing_mask(rng: np.random.Generator, kind: str, T: int, m: int) -> np.ndarray:
+    mask = np.zeros((T, m), dtype=bool)
+    if kind == "partial":
+        mask = rng.random((T, m)) < 0.3
+        mask[rng.random(T) < 0.25] = True  # whole rows
+    elif kind == "all missing":
+        mask[:] = True
+    return mask
+
+
+@st.composite
+def batches(draw):
+    """A model with any of F, H, Q, R, B time-varying, a prior, and N series (N, T, m)."""
+    n = draw(st.integers(1, 4), label="n")
+    m = draw(st.integers(1, 3), label="m")
+    T = draw(st.integers(1, 12), label="T")
+    N = draw(st.integers(1, 3), label="N")
+    p = draw(st.sampled_from([0, 1, 2]), label="p")
+    varying = frozenset(
+        name for name in MATRICES if (name != "B" or p) and draw(st.booleans(), label=f"{name} varies")
+    )
+    kind = draw(st.sampled_from(["none", "partial", "all missing"]), label="missing")
+    shared_us = bool(p) and draw(st.booleans(), label="one control series for all")
+    seed = draw(st.integers(0, 2**32 - 1), label="seed")
+    rng = np.random.default_rng(seed)
+    problem = _oracle.random_problem(rng, n, m, T, p, varying, missing_mask(rng, kind, T, m))
+    zs = [problem["zs"]]
+    for _ in range(N - 1):
+        z = np.where(np.isnan(zs[0]), 0.0, zs[0]) + rng.normal(size=(T, m))
+        z[missing_mask(rng, kind, T, m)] = np.nan
+        zs.append(z)
+    us = None
+    if p:
+        us = problem["us"] if shared_us else rng.normal(size=(N, T, p))
+    model = gf.LinearModel(problem["F"], problem["H"], problem["Q"], problem["R"], problem["B"])
+    return model, gf.Gaussian(problem["m0"], problem["P0"]), np.stack(zs), us
+
+
+def first(us):
+    """The controls of series 0 as (T, p)."""
+    return None if us is None else (us if us.ndim == 2 else us[0])
+
+
+HYPOTHESIS = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@HYPOTHESIS
+@given(batches())
+def test_filter_equals_readable_path(case):
+    model, prior, zs, us = case
+    got = gf.filter(model, prior, zs, us, engine="numba")
+    assert_same(got, gf.filter(model, prior, zs, us, engine="python"))
+    assert got.loglik.shape == (zs.shape[0],)
+    np.testing.assert_array_equal(got.last_mean, got.means[:, -1])
+    np.testing.assert_array_equal(got.last_cov, got.covs[:, -1])
+    np.testing.assert_array_equal(got.covs, np.swapaxes(got.covs, -1, -2))
+
+    # One series given as (T, m): no series axis, a float log-likelihood.
+    one = gf.filter(model, prior, zs[0], first(us), engine="numba")
+    assert_same(one, gf.filter(model, prior, zs[0], first(us), engine="python"))
+    assert isinstance(one.loglik, float)
+
+    # keep: the same numbers for what is kept, None for the rest.
+    for keep, dropped in (("means", COVARIANCES), ("last", PER_STEP)):
+        kept = gf.filter(model, prior, zs, us, engine="numba", keep=keep)
+        for name in PER_STEP:
+            if name in dropped:
+                assert getattr(kept, name) is None, (keep, name)
+            else:
+                np.testing.assert_array_equal(getattr(kept, name), getattr(got, name), err_msg=name)
+        for name in ("loglik", "last_mean", "last_cov"):
+            np.testing.assert_array_equal(getattr(kept, name), getattr(got, name), err_msg=name)
+
+
+@HYPOTHESIS
+@given(batches())
+def test_smooth_equals_readable_path(case):
+    model, prior, zs, us = case
+    got = gf.smooth(model, prior, zs, us, engine="numba")
+    assert_same(got, gf.smooth(model, prior, zs, us, engine="python"))
+    T, n = zs.shape[1], model.n
+    assert got.gains.shape == (zs.shape[0], T - 1, n, n)
+    np.testing.assert_array_equal(got.means[:, -1], got.filtered.means[:, -1])
+    # The forward pass of the smoother is the filter.
+    np.testing.assert_array_equal(got.filtered.covs, gf.filter(model, prior, zs, us, engine="numba").covs)
+    one = gf.smooth(model, prior, zs[0], first(us), engine="numba")
+    assert_same(one, gf.smooth(model, prior, zs[0], first(us), engine="python"))
+
+
+def test_one_compiled_signature_serves_every_case():
+    rng = np.random.default_rng(3)
+    for varying, p, zs_order in ((set(), 0, "C"), ({"F", "R"}, 1, "F"), (set(MATRICES), 2, "C")):
+        problem = _oracle.random_problem(rng, 3, 2, 6, p, varying, rng.random((6, 2)) < 0.2)
+        model = gf.LinearModel(problem["F"], problem["H"], problem["Q"], problem["R"], problem["B"])
+        prior = gf.Gaussian(problem["m0"], problem["P0"])
+        zs = np.asarray(problem["zs"], order=zs_order)
+        for keep in ("all", "means", "last"):
+            gf.filter(model, prior, zs, problem["us"], engine="numba", keep=keep)
+        gf.smooth(model, prior, np.stack([zs, zs]), problem["us"], engine="numba")
+    for kernel in linear.KERNELS:
+        assert len(kernel.signatures) == 1, kernel
+
+
+# ---------------------------------------------------------------------------
+# A published reference: Särkkä & Svensson's car tracking
+# ---------------------------------------------------------------------------
+
+
+def test_car_track_rmse(car_track):
+    X, Y = car_track["X"].T, car_track["Y"].T
+    model = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
+    prior = gf.Gaussian([0.0, 0.0, 1.0, -1.0], np.eye(4))
+
+    def rmse(estimate):
+        return float(np.sqrt(np.mean(np.sum((estimate[:, :2] - X[:, :2]) ** 2, axis=-1))))
+
+    sm = gf.smooth(model, prior, Y, engine="numba")
+    assert rmse(sm.filtered.means) == pytest.approx(0.4253824660526518, abs=1e-8)
+    assert rmse(sm.means) == pytest.approx(0.26497104638205465, abs=1e-8)
+    filtered = gf.filter(model, prior, Y, engine="numba")
+    assert rmse(filtered.means) == pytest.approx(0.4253824660526518, abs=1e-8)
+
+
+# ---------------------------------------------------------------------------
+# Failures and degenerate cases
+# ---------------------------------------------------------------------------
+
+
+def blind_at_step_3() -> gf.LinearModel:
+    """A model whose measurement carries no information and no noise at step 3: S = 0."""
+    H = np.array([[[1.0, 0.0]]] * 6)
+    H[3] = 0.0
+    return gf.LinearModel(F=np.eye(2), H=H, Q=np.eye(2), R=[[0.0]])
+
+
+def test_not_positive_definite_innovation_covariance_raises_like_the_readable_path():
+    model, prior = blind_at_step_3(), gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.arange(6.0)
+    with pytest.raises(np.linalg.LinAlgError) as python:
+        gf.filter(model, prior, zs, engine="python")
+    with pytest.raises(np.linalg.LinAlgError) as numba:
+        gf.filter(model, prior, zs, engine="numba")
+    assert str(numba.value) == str(python.value)
+    assert str(numba.value).startswith(
+        "at step 3: the innovation covariance S = H P Hᵀ + R is not positive definite, "
+        "so it cannot be factorised"
+    )
+    with pytest.raises(np.linalg.LinAlgError, match="^at step 3: the innovation covariance"):
+        gf.smooth(model, prior, zs, engine="numba")
+
+
+def test_not_positive_definite_names_the_series():
+    model, prior = blind_at_step_3(), gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.tile(np.arange(6.0)[None, :, None], (4, 1, 1))
+    zs[:2, 3] = np.nan  # series 0 and 1 skip the blind step; series 2 and 3 do not
+    with pytest.raises(np.linalg.LinAlgError,
+                       match=r"^in series 2, at step 3: the innovation covariance S = H P Hᵀ \+ R "
+                             r"is not positive definite, so it cannot be factorised: \[\[0\.\]\]$"):
+        gf.filter(model, prior, zs, engine="numba")
+    # Without the failing series, the same batch filters.
+    res = gf.filter(model, prior, zs[:2], engine="numba")
+    assert np.all(np.isfinite(res.loglik))
+
+
+def test_singular_prediction_takes_the_least_squares_gain():
+    # No process noise and a belief certain of the velocity: P⁻ is singular
+    # from the first step, so every smoother gain falls back to least squares.
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=np.zeros((2, 2)), R=[[0.5]])
+    prior = gf.Gaussian([0.0, 1.0], np.diag([2.0, 0.0]))
+    zs = np.array([[1.2], [1.9], [np.nan], [4.1], [5.0]])
+    got = gf.smooth(model, prior, zs, engine="numba")
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(got.filtered.predicted_covs[1])
+    assert_same(got, gf.smooth(model, prior, zs, engine="python"))
+    batch = gf.smooth(model, prior, np.stack([zs, zs + 1.0]), engine="numba")
+    assert_same(batch, gf.smooth(model, prior, np.stack([zs, zs + 1.0]), engine="python"))
+
+
+# ---------------------------------------------------------------------------
+# Memory: keep="last" allocates nothing per step
+# ---------------------------------------------------------------------------
+
+
+def test_keep_last_allocates_nothing_per_step():
+    model = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)  # n = 4, m = 2
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    T = 100_000
+    zs = np.random.default_rng(0).normal(size=(T, 2)).cumsum(axis=0)
+    gf.filter(model, prior, zs[:10], engine="numba", keep="last")  # compiled before tracing
+
+    def peak(keep: str) -> int:
+        tracemalloc.start()
+        try:
+            gf.filter(model, prior, zs, engine="numba", keep=keep)
+            return tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    # The validated copy of `zs` (and its NaN scan) is all that grows with T;
+    # the per-step arrays of keep="all" are 23 times the size of `zs`.
+    assert peak("last") < 1.25 * zs.nbytes + 100_000 < T * 4 * 8
+    assert peak("all") > T * (4 + 16) * 8 * 2
+
+
+def test_keep_last_kernel_allocations_do_not_grow_with_T():
+    model = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    zs = np.random.default_rng(1).normal(size=(2, 20_000, 2))
+
+    def allocations(T: int) -> int:
+        before = rtsys.get_allocation_stats().alloc
+        gf.filter(model, prior, zs[:, :T], engine="numba", keep="last")
+        return rtsys.get_allocation_stats().alloc - before
+
+    was_enabled = _nrt_python.memsys_stats_enabled()
+    _nrt_python.memsys_enable_stats()
+    try:
+        gf.filter(model, prior, zs[:, :5], engine="numba", keep="last")
+        short, long = allocations(10), allocations(20_000)
+    finally:
+        if not was_enabled:
+            _nrt_python.memsys_disable_stats()
+    assert 0 < short == long  # scratch per call, none per step
+
+
+# ---------------------------------------------------------------------------
+# Compilation: cached on disk; "auto" compiles only for long inputs
+# ---------------------------------------------------------------------------
+
+CACHE_PROBE = textwrap.dedent("""
+    import json
+    import numpy as np
+    import gaussfuse as gf
+    from gaussfuse._kernels import linear
+
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
+    gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
+    stats = linear._filter_series.stats
+    print(json.dumps({"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}))
+""")
+
+
+def test_compiled_kernels_are_cached_on_disk(tmp_path):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+
+    def probe() -> dict:
+        out = subprocess.run([sys.executable, "-c", CACHE_PROBE], env=env, capture_output=True,
+                             text=True, check=True, timeout=300)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    assert probe() == {"hits": 0, "misses": 1}  # compiled, and written to the cache
+    assert any(tmp_path.rglob("*.nbi"))
+    assert probe() == {"hits": 1, "misses": 0}  # a new process loads it
+
+
+@pytest.mark.parametrize("front", ["filter", "smooth"])
+def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
+    calls = []
+    original = getattr(linear, front)
+
+    def spy(*args, **kwargs):
+        calls.append(args[3].shape)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(linear, front, spy)
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.random.default_rng(2).normal(size=(4, 250, 1))
+    run = getattr(gf, front)
+
+    below = run(model, prior, zs[:, :249])  # 996 steps in all: the readable path
+    assert calls == []
+    assert_same(below, run(model, prior, zs[:, :249], engine="python"))
+
+    auto = run(model, prior, zs)  # 1000 steps: compiled
+    assert calls == [(4, 250, 1)]
+    assert_same(auto, run(model, prior, zs, engine="python"))
+
+    run(model, prior, zs[0, :999])
+    assert len(calls) == 1
+    run(model, prior, zs.reshape(1000, 1))
+    assert calls[-1] == (1, 1000, 1)

@@ -1,0 +1,524 @@
+"""The compiled sigma-point engine (ukf, ckf, ghkf) equals the readable path.
+
+Every comparison runs ``engine="numba"`` against ``engine="python"`` (the
+readable SLR + Kalman path) to 1e-10, in the three execution modes of
+:mod:`gaussfuse._kernels.sigma_points`: plain Python f and h, vectorized f
+and h, and numba-compiled f and h (the whole loop compiled).
+"""
+
+import json
+from dataclasses import fields
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import gaussfuse as gf
+from gaussfuse._kernels import sigma_points as sp
+from gaussfuse.models.nonlinear import ModelFunctionError
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+TOL = 1e-10
+MODES = ["plain", "vectorized", "jitted"]
+METHODS = [("ukf", {}), ("ckf", {}), ("ghkf", {})]
+
+
+def assert_same(got, want, tol=TOL):
+    """Every field of two Filter/SmoothResults agrees to `tol` (None where the other is None)."""
+    assert type(got) is type(want)
+    for field in fields(want):
+        a, b = getattr(got, field.name), getattr(want, field.name)
+        if field.name == "filtered":
+            assert_same(a, b, tol)
+        elif b is None:
+            assert a is None, field.name
+        else:
+            assert np.shape(a) == np.shape(b), field.name
+            np.testing.assert_allclose(a, b, rtol=tol, atol=tol, err_msg=field.name)
+
+
+def both(fn, *args, **kwargs):
+    """``fn`` with the compiled and the readable engine: (numba result, python result, mode used)."""
+    got = fn(*args, engine="numba", **kwargs)
+    mode = sp.last_mode
+    return got, fn(*args, engine="python", **kwargs), mode
+
+
+# ---------------------------------------------------------------------------
+# Särkkä & Svensson's pendulum, in the three modes
+# ---------------------------------------------------------------------------
+
+DT, G = 0.01, 9.81
+PENDULUM_Q = 0.01 * np.array([[DT**3 / 3, DT**2 / 2], [DT**2 / 2, DT]])
+
+
+def pendulum_f(x):
+    return np.array([x[0] + DT * x[1], x[1] - G * np.sin(x[0]) * DT])
+
+
+def pendulum_h(x):
+    return np.array([np.sin(x[0])])
+
+
+def pendulum_f_vec(X):
+    return np.stack([X[:, 0] + DT * X[:, 1], X[:, 1] - G * np.sin(X[:, 0]) * DT], axis=-1)
+
+
+def pendulum_h_vec(X):
+    return np.sin(X[:, :1])
+
+
+pendulum_f_jit = numba.njit(cache=True)(pendulum_f)
+pendulum_h_jit = numba.njit(cache=True)(pendulum_h)
+
+
+@numba.njit(cache=True)
+def pendulum_f_stack_jit(X):
+    out = np.empty_like(X)
+    out[:, 0] = X[:, 0] + DT * X[:, 1]
+    out[:, 1] = X[:, 1] - G * np.sin(X[:, 0]) * DT
+    return out
+
+
+@numba.njit(cache=True)
+def pendulum_h_stack_jit(X):
+    return np.sin(X[:, :1])
+
+
+@numba.njit(cache=True)
+def pendulum_h_scalar_jit(x):
+    return np.sin(x[0])
+
+
+PENDULUM_FUNCTIONS = {
+    "plain": (pendulum_f, pendulum_h, False),
+    "vectorized": (pendulum_f_vec, pendulum_h_vec, False),
+    "jitted": (pendulum_f_jit, pendulum_h_jit, False),
+    "jitted-vectorized": (pendulum_f_stack_jit, pendulum_h_stack_jit, True),
+    "jitted-scalar-h": (pendulum_f_jit, pendulum_h_scalar_jit, False),
+}
+PENDULUM_TABLE = [
+    ("ukf", {"alpha": 1.0, "beta": 0.0, "kappa": 1.0}, 0.09524392, 0.03661756),
+    ("ckf", {}, 0.11419660, 0.04064624),
+    ("ghkf", {"order": 5}, 0.09980624, 0.03710182),
+]
+
+
+def pendulum_model(mode):
+    f, h, stacked = PENDULUM_FUNCTIONS[mode]
+    return gf.NonlinearModel(f, h, PENDULUM_Q, 0.1, vectorized=mode == "vectorized" or stacked)
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    data = json.loads((DATA / "pendulum.json").read_text())
+    return np.array(data["X"]).T, np.array(data["Y"])
+
+
+def _rmse(means, truth):
+    return np.sqrt(np.mean((means[:, 0] - truth[:, 0]) ** 2))
+
+
+@pytest.mark.parametrize("mode", list(PENDULUM_FUNCTIONS))
+@pytest.mark.parametrize("method, options, filter_rmse, smoother_rmse", PENDULUM_TABLE,
+                         ids=[row[0] for row in PENDULUM_TABLE])
+def test_pendulum_table(pendulum, mode, method, options, filter_rmse, smoother_rmse):
+    truth, zs = pendulum
+    model = pendulum_model(mode)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    sm, ref, used = both(gf.smooth, model, prior, zs, method=method, **options)
+    assert used == ("python" if mode in ("plain", "vectorized") else "compiled")
+    assert _rmse(sm.filtered.means, truth) == pytest.approx(filter_rmse, abs=5e-8)
+    assert _rmse(sm.means, truth) == pytest.approx(smoother_rmse, abs=5e-8)
+    assert_same(sm, ref)
+    res = gf.filter(model, prior, zs, method=method, engine="numba", **options)
+    np.testing.assert_array_equal(res.means, sm.filtered.means)
+    np.testing.assert_array_equal(res.covs, sm.filtered.covs)
+    assert res.loglik == sm.loglik
+
+
+# ---------------------------------------------------------------------------
+# A small nonlinear model with angles, controls, time-varying noise and gaps
+# ---------------------------------------------------------------------------
+# x = (position, heading [an angle], speed); z = (range to a beacon, bearing [an angle]).
+
+
+def toy_f(x):
+    return np.array([x[0] + 0.1 * x[2] * np.cos(x[1]), x[1] + 0.3 + 0.05 * np.sin(x[0]), 0.95 * x[2]])
+
+
+def toy_f_u(x, u):
+    return toy_f(x) + np.array([u[0], 0.0, u[1]])
+
+
+def toy_h(x):
+    return np.array([np.sqrt(1.0 + (x[0] - 2.0) ** 2 + x[2] ** 2), np.arctan2(x[2] - 0.5, x[0] - 2.0)])
+
+
+def toy_f_vec(X):
+    return np.stack([X[:, 0] + 0.1 * X[:, 2] * np.cos(X[:, 1]), X[:, 1] + 0.3 + 0.05 * np.sin(X[:, 0]),
+                     0.95 * X[:, 2]], axis=-1)
+
+
+def toy_f_u_vec(X, u):
+    return toy_f_vec(X) + np.array([u[0], 0.0, u[1]])
+
+
+def toy_h_vec(X):
+    return np.stack([np.sqrt(1.0 + (X[:, 0] - 2.0) ** 2 + X[:, 2] ** 2),
+                     np.arctan2(X[:, 2] - 0.5, X[:, 0] - 2.0)], axis=-1)
+
+
+toy_f_jit = numba.njit(cache=True)(toy_f)
+toy_h_jit = numba.njit(cache=True)(toy_h)
+
+
+@numba.njit(cache=True)
+def toy_f_u_jit(x, u):
+    return toy_f_jit(x) + np.array([u[0], 0.0, u[1]])
+
+
+@numba.njit(cache=True)
+def toy_f_stack_jit(X):
+    out = np.empty_like(X)
+    for i in range(X.shape[0]):
+        out[i] = toy_f_jit(X[i])
+    return out
+
+
+@numba.njit(cache=True)
+def toy_f_u_stack_jit(X, u):
+    out = np.empty_like(X)
+    for i in range(X.shape[0]):
+        out[i] = toy_f_u_jit(X[i], u)
+    return out
+
+
+@numba.njit(cache=True)
+def toy_h_stack_jit(X):
+    out = np.empty((X.shape[0], 2))
+    for i in range(X.shape[0]):
+        out[i] = toy_h_jit(X[i])
+    return out
+
+
+TOY = {
+    "plain": (toy_f, toy_f_u, toy_h),
+    "vectorized": (toy_f_vec, toy_f_u_vec, toy_h_vec),
+    "jitted": (toy_f_jit, toy_f_u_jit, toy_h_jit),
+    "jitted-vectorized": (toy_f_stack_jit, toy_f_u_stack_jit, toy_h_stack_jit),
+}
+
+
+def _spd(rng, size, scale):
+    A = rng.standard_normal((size, size))
+    return scale * (A @ A.T / size + 0.2 * np.eye(size))
+
+
+def toy_problem(seed, mode, *, N=1, T=6, controls=False, missing=False, varying=False, angles=True):
+    rng = np.random.default_rng(seed)
+    f, f_u, h = TOY[mode]
+    Q = np.stack([_spd(rng, 3, 0.01) for _ in range(T)]) if varying else _spd(rng, 3, 0.01)
+    R = np.stack([_spd(rng, 2, 0.05) for _ in range(T)]) if varying else _spd(rng, 2, 0.05)
+    model = gf.NonlinearModel(f_u if controls else f, h, Q, R, vectorized=mode.endswith("vectorized"),
+                              state_angles=[1] if angles else (), measurement_angles=[1] if angles else ())
+    prior = gf.Gaussian(rng.normal(0.0, 0.3, 3) + [0.0, 3.0, 1.0], _spd(rng, 3, 0.05))
+    zs = np.stack([toy_h(x) for x in rng.normal(0.0, 1.0, (N * T, 3))]).reshape(N, T, 2)
+    zs += rng.normal(0.0, 0.2, zs.shape)
+    if missing:
+        zs[rng.random(zs.shape) < 0.3] = np.nan
+        zs[:, T // 2] = np.nan  # a step with nothing observed
+    us = rng.normal(0.0, 0.1, (N, T, 2)) if controls else None
+    return model, prior, zs, us
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), mode=st.sampled_from(list(TOY)), method=st.sampled_from(["ukf", "ckf", "ghkf"]),
+       N=st.integers(1, 3), T=st.integers(1, 7), controls=st.booleans(), missing=st.booleans(),
+       varying=st.booleans(), angles=st.booleans(), keep=st.sampled_from(["all", "means", "last"]))
+def test_filter_and_smoother_equal_the_readable_path(seed, mode, method, N, T, controls, missing, varying, angles,
+                                                     keep):
+    model, prior, zs, us = toy_problem(seed, mode, N=N, T=T, controls=controls, missing=missing,
+                                       varying=varying, angles=angles)
+    res, ref, used = both(gf.filter, model, prior, zs, us, method=method, keep=keep)
+    assert used == ("compiled" if mode.startswith("jitted") else "python")
+    assert_same(res, ref)
+    sm, ref, _ = both(gf.smooth, model, prior, zs, us, method=method)
+    assert_same(sm, ref)
+    assert sm.means.shape == (N, T, 3) and sm.gains.shape == (N, T - 1, 3, 3)
+
+
+@pytest.mark.parametrize("mode", list(TOY))
+@pytest.mark.parametrize("method, options", [("ukf", {"alpha": 0.5, "beta": 2.0, "kappa": 0.0}),
+                                             ("ghkf", {"order": 2})])
+def test_options_controls_time_varying_noise_and_gaps(mode, method, options):
+    model, prior, zs, us = toy_problem(3, mode, N=2, T=30, controls=True, missing=True, varying=True)
+    sm, ref, _ = both(gf.smooth, model, prior, zs, us, method=method, **options)
+    assert_same(sm, ref)
+    assert np.isnan(sm.filtered.innovations[:, 15]).all()  # the all-missing step
+    np.testing.assert_array_equal(sm.filtered.means[:, 15], sm.filtered.predicted_means[:, 15])
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_keep_and_batches(mode):
+    model, prior, zs, us = toy_problem(11, mode, N=3, T=20, controls=True, missing=True)
+    full = gf.filter(model, prior, zs, us, method="ckf", engine="numba")
+    for keep, dropped in (("means", ("covs", "predicted_covs", "innovation_covs")),
+                          ("last", ("means", "covs", "predicted_means", "predicted_covs", "innovations",
+                                    "innovation_covs"))):
+        part = gf.filter(model, prior, zs, us, method="ckf", engine="numba", keep=keep)
+        for field in fields(part):
+            value = getattr(part, field.name)
+            if field.name in dropped:
+                assert value is None
+            else:
+                np.testing.assert_array_equal(value, getattr(full, field.name))
+    # a batch is its series, one by one
+    assert full.loglik.shape == (3,) and full.last_mean.shape == (3, 3) and full.last_cov.shape == (3, 3, 3)
+    for i in range(3):
+        one = gf.filter(model, prior, zs[i], us[i], method="ckf", engine="numba")
+        assert isinstance(one.loglik, float)
+        np.testing.assert_allclose(one.means, full.means[i], rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(one.last_cov, full.last_cov[i], rtol=1e-13, atol=1e-13)
+        assert one.loglik == pytest.approx(full.loglik[i], rel=1e-13)
+
+
+# ---------------------------------------------------------------------------
+# A range-bearing track whose bearing crosses ±180°
+# ---------------------------------------------------------------------------
+
+CV = np.array([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+CV_Q = 0.01 * np.kron(np.array([[1 / 3, 1 / 2], [1 / 2, 1]]), np.eye(2))
+RB_R = np.diag([0.5**2, np.deg2rad(1.0) ** 2])
+
+
+def rb_f(x):
+    return CV @ x
+
+
+def rb_h(x):
+    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+
+def rb_f_vec(X):
+    return X @ CV.T
+
+
+def rb_h_vec(X):
+    return np.stack([np.hypot(X[:, 0], X[:, 1]), np.arctan2(X[:, 1], X[:, 0])], axis=-1)
+
+
+@numba.njit(cache=True)
+def rb_f_jit(x):
+    return np.array([x[0] + x[2], x[1] + x[3], x[2], x[3]])
+
+
+rb_h_jit = numba.njit(cache=True)(rb_h)
+RB = {"plain": (rb_f, rb_h), "vectorized": (rb_f_vec, rb_h_vec), "jitted": (rb_f_jit, rb_h_jit)}
+
+
+def crossing_track(T=40):
+    """A target moving along x = -100 from y = +60 to y = -60; bearings reported in [0, 2π)."""
+    rng = np.random.default_rng(7)
+    truth = np.zeros((T, 4))
+    truth[:, 0], truth[:, 1], truth[:, 3] = -100.0, 60.0 - 3.0 * np.arange(T), -3.0
+    r = np.hypot(truth[:, 0], truth[:, 1]) + 0.5 * rng.standard_normal(T)
+    b = np.arctan2(truth[:, 1], truth[:, 0]) + np.deg2rad(1.0) * rng.standard_normal(T)
+    return truth, np.stack([r, b % (2 * np.pi)], axis=-1)
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("method", ["ukf", "ckf", "ghkf"])
+def test_bearing_crossing_180_degrees(mode, method):
+    truth, zs = crossing_track()
+    assert np.any(np.abs(np.diff(np.arctan2(truth[:, 1], truth[:, 0]))) > np.pi)
+    model = gf.NonlinearModel(*RB[mode], CV_Q, RB_R, vectorized=mode == "vectorized", measurement_angles=[1])
+    prior = gf.Gaussian([-100.0, 63.0, 0.0, -3.0], np.diag([25.0, 25.0, 1.0, 1.0]))
+    sm, ref, _ = both(gf.smooth, model, prior, zs, method=method)
+    assert_same(sm, ref)
+    assert np.hypot(*(sm.means[:, :2] - truth[:, :2]).T).max() < 5.0
+    assert np.all(np.abs(sm.filtered.innovations[:, 1]) < np.deg2rad(10))  # wrapped: no 2π jumps
+
+
+def test_state_angles_are_wrapped():
+    model = gf.NonlinearModel(lambda x: np.array([x[0] + 0.5]), lambda x: np.array([np.cos(x[0]), np.sin(x[0])]),
+                              Q=1e-4, R=0.01 * np.eye(2), state_angles=[0])
+    heading = (0.5 * np.arange(1, 21) + np.pi) % (2 * np.pi) - np.pi
+    zs = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
+    sm, ref, _ = both(gf.smooth, model, gf.Gaussian(0.0, 0.01), zs, method="ukf")
+    assert_same(sm, ref)
+    assert np.all((sm.means >= -np.pi) & (sm.means < np.pi))
+
+
+# ---------------------------------------------------------------------------
+# Singular covariances, odd functions, the automatic engine
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("mode", ["plain", "jitted"])
+def test_singular_covariances_use_the_readable_square_root_and_gain(mode):
+    """No noise on a state that starts known: Cholesky fails; the symmetric root and lstsq gain are used."""
+    f, h = (pendulum_f, pendulum_h) if mode == "plain" else (pendulum_f_jit, pendulum_h_jit)
+    model = gf.NonlinearModel(f, h, np.diag([0.0, 1e-4]), 0.1)
+    prior = gf.Gaussian([0.3, 0.0], np.diag([0.0, 0.0]))
+    zs = np.sin(0.3 + 0.01 * np.arange(8))
+    sm, ref, _ = both(gf.smooth, model, prior, zs, method="ukf")
+    assert_same(sm, ref)
+    batch, ref, _ = both(gf.filter, model, prior, np.stack([zs, zs + 0.1])[..., None], method="ckf")
+    assert_same(batch, ref)
+
+
+def test_jitted_functions_that_do_not_fit_run_in_python_mode():
+    """A jitted h returning integers (a signature the compiled loop does not take) still gives the same numbers."""
+    h_int = numba.njit(cache=True)(lambda x: np.array([int(x[0] > 0.0)]))
+    model = gf.NonlinearModel(pendulum_f_jit, h_int, PENDULUM_Q, 0.1)
+    assert sp.execution_mode(model, gf.Gaussian([0.1, 0.0], np.eye(2))) == "python"
+    res, ref, used = both(gf.filter, model, gf.Gaussian([0.1, 0.0], np.eye(2)), np.ones(5), method="ukf")
+    assert used == "python"
+    assert_same(res, ref)
+
+
+def test_auto_engine_compiles_long_series(pendulum):
+    _, zs = pendulum
+    model = pendulum_model("jitted")
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zz = np.concatenate([zs, zs])  # 1000 steps
+    sp.last_mode = None
+    res = gf.filter(model, prior, zz, method="ckf")
+    assert sp.last_mode == "compiled"
+    assert_same(res, gf.filter(model, prior, zz, method="ckf", engine="python"))
+
+
+# ---------------------------------------------------------------------------
+# Errors: the readable path's messages, with the step
+# ---------------------------------------------------------------------------
+
+
+def same_error(exc_type, model, *args, match, **kwargs):
+    """Both engines raise `exc_type` with the same message, which matches `match`.
+
+    For jitted f and h, the error is raised from the compiled loop.
+    """
+    with pytest.raises(exc_type, match=match) as got:
+        gf.filter(model, *args, engine="numba", **kwargs)
+    assert sp.last_mode == ("compiled" if numba.extending.is_jitted(model.f) else "python")
+    with pytest.raises(exc_type) as want:
+        gf.filter(model, *args, engine="python", **kwargs)
+    assert str(got.value) == str(want.value)
+
+
+def f_nan_later(x):
+    return x + (np.nan if x[0] > 0.5 else 0.1)
+
+
+def f_nan_later_vec(X):
+    return X + np.where(X[:, :1] > 0.5, np.nan, 0.1)
+
+
+f_nan_later_jit = numba.njit(cache=True)(f_nan_later)
+
+
+def h_wrong_shape(x):
+    return np.ones(3)
+
+
+h_wrong_shape_jit = numba.njit(cache=True)(h_wrong_shape)
+
+
+def h_raises_later(x):
+    if x[0] > 0.35:
+        raise ValueError("too far")
+    return x[:1].copy()
+
+
+h_raises_later_jit = numba.njit(cache=True)(h_raises_later)
+
+
+def first(x):
+    return x[:1].copy()
+
+
+first_jit = numba.njit(cache=True)(first)
+
+
+def identity(x):
+    return x.copy()
+
+
+identity_jit = numba.njit(cache=True)(identity)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_f_returning_nan_names_f_and_the_step(mode):
+    f, h = {"plain": (f_nan_later, first), "vectorized": (f_nan_later_vec, lambda X: X[:, :1]),
+            "jitted": (f_nan_later_jit, first_jit)}[mode]
+    model = gf.NonlinearModel(f, h, np.eye(2) * 1e-6, 1.0, vectorized=mode == "vectorized")
+    shape = r"\(4, 2\)" if mode == "vectorized" else r"\(2,\)"  # ckf: 2n = 4 points
+    same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], 1e-6 * np.eye(2)), np.zeros(10), method="ckf",
+               match=rf"at step \d+: `f` returned a non-finite value \(NaN or inf\) for an input of shape {shape}")
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_wrong_output_shape_names_the_function(mode):
+    h = {"plain": h_wrong_shape, "vectorized": lambda X: np.ones((len(X), 3)), "jitted": h_wrong_shape_jit}[mode]
+    f = {"plain": identity, "vectorized": lambda X: X, "jitted": identity_jit}[mode]
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0, vectorized=mode == "vectorized")
+    given_shape, want = (r"\(5, 2\)", r"\(5, 1\)") if mode == "vectorized" else (r"\(2,\)", r"\(1,\)")
+    got = r"\(5, 3\)" if mode == "vectorized" else r"\(3,\)"
+    same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf",
+               match=rf"at step 0: `h` must return shape {want} for an input of shape {given_shape}; got shape {got}")
+
+
+@pytest.mark.parametrize("mode", ["plain", "jitted"])
+def test_raising_function_names_it_and_the_step(mode):
+    f, h = (lambda x: x + 0.1, h_raises_later) if mode == "plain" else (
+        numba.njit(cache=True)(lambda x: x + 0.1), h_raises_later_jit)
+    model = gf.NonlinearModel(f, h, np.eye(2) * 1e-8, 1.0)
+    same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], 1e-8 * np.eye(2)), np.zeros(6), method="ukf",
+               match=r"at step [1-9]: `h` raised ValueError on an input of shape \(2,\): too far")
+
+
+def test_wrong_type_from_a_plain_function():
+    model = gf.NonlinearModel(lambda x: "x", first, np.eye(2), 1.0)
+    same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf",
+               match=r"at step 0: `f` must return an array of real numbers; got str 'x'")
+
+
+def constant(x):
+    return np.array([0.0, 1.0])
+
+
+constant_jit = numba.njit(cache=True)(constant)
+
+
+@pytest.mark.parametrize("mode", ["plain", "jitted"])
+def test_innovation_covariance_not_positive_definite(mode):
+    f, h = (identity, constant) if mode == "plain" else (identity_jit, constant_jit)
+    model = gf.NonlinearModel(f, h, np.eye(2), np.diag([1.0, 0.0]))  # h ignores x: S = R, singular
+    same_error(np.linalg.LinAlgError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.ones((2, 2)),
+               method="ckf", match=r"at step 0: the innovation covariance S = H P Hᵀ \+ R is not positive "
+                                   r"definite, so it cannot be factorised: \[\[1\., 0\.\],\s*\[0\., 0\.\]\]")
+    # with the first component missing, the observed block is the 1 x 1 zero
+    same_error(np.linalg.LinAlgError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), [[np.nan, 1.0]],
+               method="ckf", match=r"at step 0: .* factorised: \[\[0\.\]\]")
+
+
+def test_singular_prior_without_noise_fails_like_the_readable_path():
+    """Singular covariances take the Python mode's square root; then S = 0 cannot be factorised."""
+    model = gf.NonlinearModel(identity_jit, first_jit, np.zeros((2, 2)), 0.0)
+    prior = gf.Gaussian([0.0, 0.0], np.diag([0.0, 1.0]))
+    with pytest.raises(np.linalg.LinAlgError) as got:
+        gf.filter(model, prior, np.ones(2), method="ukf", engine="numba")
+    with pytest.raises(np.linalg.LinAlgError) as want:
+        gf.filter(model, prior, np.ones(2), method="ukf", engine="python")
+    assert str(got.value) == str(want.value)
+    assert str(got.value).startswith("at step 0: the innovation covariance S = H P Hᵀ + R is not positive definite")
+
+
+def test_scalar_outputs_from_plain_functions_are_accepted():
+    model = gf.NonlinearModel(lambda x: 0.9 * x, lambda x: float(np.sin(x[0])), 0.01, 0.1)
+    res, ref, _ = both(gf.smooth, model, gf.Gaussian(0.5, 1.0), np.sin(np.linspace(0, 1, 6)), method="ukf")
+    assert_same(res, ref)
