@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 import gaussfuse as gf
+import gaussfuse.learning
+from gaussfuse import datasets, io as gfio
 from gaussfuse.cli import main, textbook_example, tracking_demo
 from gaussfuse.io import DEFAULT_PRIOR_VAR
 
@@ -391,3 +393,110 @@ def test_filter_bad_input_writes_nothing_to_stdout(tmp_path, capsys):
     code, out, err = run(capsys, "filter", data, "-m", model, "--plot", tmp_path / "fig.nope")
     assert (code, out) == (2, "")
     assert_one_line_error(err, r"unknown image format")
+
+
+# ---------------------------------------------------------------------------
+# fit
+# ---------------------------------------------------------------------------
+
+
+def test_fit_nile_mle_writes_a_model_file_that_reads_back(tmp_path, capsys):
+    out = tmp_path / "fitted.toml"
+    code, stdout, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model",
+                            EXAMPLES / "models" / "local_level.toml", "--learn", "Q,R", "--method", "mle",
+                            "--out", out)
+    assert (code, stdout) == (0, "")
+    assert err.startswith("mle: ") and "log-likelihood -633.46" in err
+    fitted = gfio.read_model(out)
+    assert fitted.prior == "diffuse" and fitted.state_names == ["level"]
+    assert fitted.model.R[0, 0] == pytest.approx(15099, rel=5e-3)
+    assert fitted.model.Q[0, 0] == pytest.approx(1469.1, rel=5e-3)
+    # the same numbers as the library, to the last digit
+    _, flow = datasets.nile()
+    lib = gf.fit(gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0), "diffuse", flow, method="mle")
+    assert fitted.model.Q[0, 0] == lib.model.Q[0, 0]
+    assert "# log-likelihood -633.46" in out.read_text()
+
+
+def test_fit_em_to_stdout_with_structure(tmp_path, capsys, series):
+    data, times, zs, model = series
+    toml = tmp_path / "model.toml"
+    toml.write_text(explicit_toml(model))
+    code, stdout, err = run(capsys, "fit", data, "--model", toml, "--learn", "Q,R", "--structure",
+                            "R=scalar", "--iterations", "5")
+    assert code == 0, err
+    doc = gfio.tomllib.loads(stdout)
+    R = np.array(doc["model"]["R"])
+    assert R[0, 1] == 0.0 and R[0, 0] == R[1, 1]
+    assert "after 5 iterations" in err
+
+
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        (["--learn", "Q,Z"], r"--learn must be a comma-separated list of F, H, Q, R, B, m0, P0; got 'Q,Z'"),
+        (["--structure", "Q"], r"--structure takes NAME=KIND pairs"),
+        (["--structure", "Q=banded"], r"`structure` maps \['Q', 'R', 'P0'\] to one of"),
+        (["--iterations", "0"], r"`iterations` must be a positive integer; got 0"),
+    ],
+)
+def test_fit_bad_arguments(tmp_path, capsys, extra, match):
+    out = tmp_path / "fitted.toml"
+    code, stdout, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model",
+                            EXAMPLES / "models" / "local_level.toml", "--out", out, *extra)
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, match)
+    assert not out.exists()
+
+
+def test_fit_ctrl_c_writes_the_best_model_so_far(tmp_path, capsys, monkeypatch):
+    real_fit = gf.learning.fit
+
+    def interrupted_fit(*args, callback=None, **kwargs):
+        def stop(iteration, loglik):
+            callback(iteration, loglik)
+            if iteration == 2:
+                raise KeyboardInterrupt
+        return real_fit(*args, callback=stop, **kwargs)
+
+    monkeypatch.setattr(gf.learning, "fit", interrupted_fit)
+    out = tmp_path / "fitted.toml"
+    code, _, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model",
+                       EXAMPLES / "models" / "local_level.toml", "--out", out)
+    assert code == 130
+    assert "interrupted: the best model so far" in err
+    assert gfio.read_model(out).model.Q[0, 0] != 1000.0
+
+
+def test_fit_progress_bar_on_a_terminal():
+    from gaussfuse.cli import _Progress
+
+    class Terminal(list):
+        def isatty(self):
+            return True
+
+        def write(self, text):
+            self.append(text)
+
+        def flush(self):
+            pass
+
+    term = Terminal()
+    bar = _Progress("em", 10, term)
+    bar(5, -633.5)
+    bar.close()
+    assert term[0] == "\rem [###############...............] 5/10  loglik -633.500000"
+    assert term[-1] == "\n"
+
+
+def test_diffuse_prior_in_a_model_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[model]\nF = 1\nH = 1\nQ = 1\nR = 1\n[prior]\ndiffuse = true\nvar = 1\n")
+    code, _, err = run(capsys, "filter", EXAMPLES / "data" / "nile.csv", "--model", bad)
+    assert code == 2
+    assert_one_line_error(err, r"bad.toml: \[prior\]: `diffuse = true` stands alone")
+    code, out, err = run(capsys, "filter", EXAMPLES / "data" / "nile.csv", "--model",
+                         EXAMPLES / "models" / "local_level.toml")
+    header, values = read_csv(out)
+    assert code == 0 and header == ["t", "level", "std_level"]
+    assert values[0, 1] == 1120.0 and values[0, 2] == pytest.approx(100.0)  # y_1, sqrt(R)

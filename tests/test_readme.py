@@ -26,7 +26,7 @@ def test_readme_commands(tmp_path):
     assert any(c.startswith("pip install") for c in commands)
     assert "python -m pytest" in commands
     gaussfuse = [c.split() for c in commands if c.startswith("gaussfuse ")]
-    assert [c[1] for c in gaussfuse] == ["demo", "filter"]
+    assert [c[1] for c in gaussfuse] == ["demo", "filter", "fit"]
     bindir = Path(sys.executable).parent
     for argv in gaussfuse:
         argv = [a if not a.startswith("examples/") else str(ROOT / a) for a in argv]
@@ -37,3 +37,4 @@ def test_readme_commands(tmp_path):
     assert (tmp_path / "gaussfuse-demo.png").stat().st_size > 10_000
     assert (tmp_path / "estimates.csv").read_text().startswith("t,x,y,vx,vy,std_x")
     assert (tmp_path / "estimates.png").stat().st_size > 10_000
+    assert "[model]" in (tmp_path / "nile-fitted.toml").read_text()

@@ -219,8 +219,10 @@ def test_controls_broadcast_over_series(run):
 
 @front
 def test_prior_of_wrong_type(run):
-    with pytest.raises(TypeError, match=r"^`prior` must be a gaussfuse.Gaussian\(mean, cov\); got tuple\.$"):
+    with pytest.raises(TypeError, match=r"^`prior` must be a gaussfuse.Gaussian\(mean, cov\) or 'diffuse'; got tuple\.$"):
         run(_model(), (np.zeros(2), np.eye(2)), [1.0])
+    with pytest.raises(TypeError, match=r"^`prior` must be a gaussfuse.Gaussian\(mean, cov\) or 'diffuse'; got 'flat'\.$"):
+        run(_model(), "flat", [1.0])
 
 
 @front

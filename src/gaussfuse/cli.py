@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import __version__, inference, plotting
+from . import __version__, inference, learning, plotting
 from . import io as gfio
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
@@ -50,7 +50,8 @@ and optionally the belief one step before the first measurement
     [prior]
     mean = [0.0, 0.0, 1.0, 0.0]    # default: zeros
     var = 100.0                    # var * I, or cov = [[...]]
-Without [prior] the prior is N(0, 1e6 I). The model's own time step is used;
+Without [prior] the prior is N(0, 1e6 I); `diffuse = true` alone in [prior]
+is a flat prior, handled exactly. The model's own time step is used;
 the time column only labels the rows. A control input (B) is not supported
 yet.
 
@@ -191,6 +192,79 @@ def _run_filter(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------
+# gaussfuse fit
+# ---------------------------------------------------------------------------
+
+
+def _names(text: str, what: str, valid) -> list[str]:
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    bad = [item for item in items if item not in valid]
+    if bad or not items:
+        raise ValueError(f"{what} must be a comma-separated list of {', '.join(valid)}; got {text!r}.")
+    return items
+
+
+def _structure(text: str | None) -> dict:
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        name, sep, kind = item.partition("=")
+        if not sep:
+            raise ValueError(f"--structure takes NAME=KIND pairs such as Q=diagonal,R=scalar; got {text!r}.")
+        out[name.strip()] = kind.strip()
+    return out
+
+
+class _Progress:
+    """A one-line progress bar on stderr (only when stderr is a terminal)."""
+
+    def __init__(self, method: str, total: int, stream=None) -> None:
+        self.method, self.total = method, total
+        self.stream = stream if stream is not None else sys.stderr
+        self.live = self.stream.isatty()
+
+    def __call__(self, iteration: int, loglik: float) -> None:
+        if not self.live:
+            return
+        width = 30
+        done = min(width, round(width * iteration / max(self.total, 1)))
+        self.stream.write(f"\r{self.method} [{'#' * done}{'.' * (width - done)}] "
+                          f"{iteration}/{self.total}  loglik {loglik:.6f}")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.live:
+            self.stream.write("\n")
+
+
+def _run_fit(args: argparse.Namespace) -> int:
+    spec = gfio.read_model(args.model)
+    data = gfio.read_measurements(args.data, m=spec.model.m)
+    learn = _names(args.learn, "--learn", learning.LEARNABLE)
+    iterations = args.iterations if args.iterations is not None else (500 if args.method == "em" else 1000)
+    progress = _Progress(args.method, iterations)
+    try:
+        res = learning.fit(spec.model, spec.prior, data.zs, learn=learn, method=args.method,
+                           structure=_structure(args.structure), iterations=iterations, tol=args.tol,
+                           callback=progress)
+    finally:
+        progress.close()
+    comments = [f"fitted by gaussfuse {__version__}: gaussfuse fit {os.path.basename(args.data)} "
+                f"--learn {','.join(learn)} --method {args.method}",
+                f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {res.message}"]
+    if res.standard_errors:
+        for name, se in res.standard_errors.items():
+            comments.append(f"standard errors of {name}: {np.array2string(se, separator=', ').replace(chr(10), '')}")
+    sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(sys.stdout)
+    with sink as out:
+        gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
+    print(f"{args.method}: {res.message}; log-likelihood {res.loglik:.6f} after {len(res.history) - 1} "
+          f"iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
+    return 130 if res.message.startswith("interrupted") else 0
+
+
+# ---------------------------------------------------------------------------
 # The parser and main
 # ---------------------------------------------------------------------------
 
@@ -240,6 +314,34 @@ def build_parser() -> argparse.ArgumentParser:
                       help="also draw measurements against the estimates with ±2σ bands "
                            "(needs matplotlib)")
     filt.set_defaults(run=_run_filter)
+
+    fit = commands.add_parser(
+        "fit", help="learn a model's matrices from a CSV file of measurements",
+        description="Learn the matrices named by --learn (of F, H, Q, R and the prior's m0, P0)\n"
+                    "from the measurements in DATA.csv, starting from MODEL.toml, by EM or by\n"
+                    "maximum likelihood, and write the fitted model as a TOML model file.\n"
+                    "A prior `diffuse = true` in MODEL.toml is handled exactly. Ctrl-C stops the\n"
+                    "fit and writes the best model so far (exit status 130).\n\n" + _FORMATS,
+        epilog="example:\n  gaussfuse fit examples/data/nile.csv --model examples/models/local_level.toml "
+               "--learn Q,R --method mle --out nile-fitted.toml",
+        formatter_class=raw,
+    )
+    fit.add_argument("data", metavar="DATA.csv", help="the measurements")
+    fit.add_argument("-m", "--model", metavar="MODEL.toml", required=True,
+                     help="the starting model and prior")
+    fit.add_argument("--learn", metavar="NAMES", default="Q,R",
+                     help="comma-separated matrices to learn, of F,H,Q,R,m0,P0 (default: Q,R)")
+    fit.add_argument("--method", choices=("em", "mle"), default="em",
+                     help="expectation-maximisation or maximum likelihood (default: em)")
+    fit.add_argument("--structure", metavar="NAME=KIND,...",
+                     help="constrain learned covariances: Q, R or P0 = full, diagonal or scalar "
+                          "(default: full)")
+    fit.add_argument("--iterations", type=int, metavar="N",
+                     help="maximum iterations (default: 500 for em, 1000 for mle)")
+    fit.add_argument("--tol", type=float, metavar="TOL", help="convergence tolerance (see gaussfuse.fit)")
+    fit.add_argument("-o", "--out", metavar="FITTED.toml",
+                     help="write the fitted model to this file (default: standard output)")
+    fit.set_defaults(run=_run_fit)
     return parser
 
 
@@ -266,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError, OSError) as exc:  # includes InputFileError and LinAlgError
         print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("gaussfuse: interrupted", file=sys.stderr)
+        return 130
 
 
 def _message(exc: Exception) -> str:

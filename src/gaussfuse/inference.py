@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -364,11 +364,15 @@ def _method_smooth(spec: Method, model, prior, zs, us, options) -> SmoothResult:
 # ---------------------------------------------------------------------------
 
 
-def check_prior(prior, n: int) -> Gaussian:
-    """Check that `prior` is a Gaussian over the n-dimensional state."""
+def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
+    """Check that `prior` is a Gaussian over the n-dimensional state (or "diffuse", where allowed)."""
+    if diffuse_ok and isinstance(prior, str) and prior == "diffuse":
+        return prior
     if not isinstance(prior, Gaussian):
+        also = " or 'diffuse'" if diffuse_ok else ""
+        shown = repr(prior) if isinstance(prior, str) else type(prior).__name__
         raise TypeError(
-            f"`prior` must be a gaussfuse.Gaussian(mean, cov); got {type(prior).__name__}."
+            f"`prior` must be a gaussfuse.Gaussian(mean, cov){also}; got {shown}."
         )
     if prior.dim != n:
         raise ValueError(f"`prior` must have dimension {n} (the model's state); got {prior.dim}.")
@@ -426,7 +430,7 @@ def _check_steps(model, T: int) -> None:
 def _prepare(model, prior, zs, us, method, options):
     spec, options = _resolve_method(model, method, options)
     method = next(name for name, value in METHODS.items() if value is spec)
-    prior = check_prior(prior, model.n)
+    prior = check_prior(prior, model.n, diffuse_ok=method == "kf")
     checked = check_measurements(zs, model.m)
     batch = np.ndim(zs) == 3  # only after the check: a ragged `zs` must not reach NumPy
     zs = checked
@@ -500,9 +504,12 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     ----------
     model : LinearModel or NonlinearModel
         The state-space model.
-    prior : Gaussian
+    prior : Gaussian or "diffuse"
         Belief about the state one step *before* the first measurement;
         every step is predict (with ``u_k``), then update (with ``z_k``).
+        ``"diffuse"`` (linear models) is a flat prior, handled exactly
+        (:mod:`gaussfuse.diffuse`): beliefs are NaN until the measurements
+        identify the state, and `loglik` is the diffuse log-likelihood.
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
         Measurements; a NaN component is missing. A leading axis holds N
         independent series, and every result then gains that axis.
@@ -520,8 +527,9 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         An unknown one is rejected with the list of valid ones.
     engine : {"auto", "python", "numba"}, default "auto"
         ``"python"`` is the readable implementation, the specification;
-        ``"numba"`` runs compiled kernels (methods "kf", "ukf", "ckf",
-        "ghkf"; series in parallel), equal to it to round-off; ``"auto"``
+        ``"numba"`` runs compiled kernels (methods "kf", with series in
+        parallel, and "ukf", "ckf", "ghkf", whose whole loop is compiled when
+        f and h are numba-jitted functions), equal to it to round-off; ``"auto"``
         compiles when numba is installed and the series have at least
         1000 steps in all.
     keep : {"all", "means", "last"}, default "all"
@@ -546,6 +554,12 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
     spec, method, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
+    if prior == "diffuse":
+        from .diffuse import diffuse_filter
+
+        results = [_kept(diffuse_filter(model, z, None if us is None else us[i], engine), keep)
+                   for i, z in enumerate(zs)]
+        return _stack(results) if batch else results[0]
     compiled = _compiled_engine(spec, method, engine, zs.shape[0] * zs.shape[1])
     if compiled is not None:
         result = compiled.filter(method, model, prior, zs, us, options, keep)
@@ -555,6 +569,35 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         for i, z in enumerate(zs)
     ]
     return _stack(results) if batch else results[0]
+
+
+def smooth_from_prior(model: LinearModel, prior: Gaussian, zs, us=None, engine: str = "auto"):
+    """RTS-smooth one series of a linear model back to the prior's time 0.
+
+    Returns
+    -------
+    means : ndarray of shape (T + 1, n)
+        Smoothed means at times 0..T, time 0 being the prior's.
+    covs : ndarray of shape (T + 1, n, n)
+    gains : ndarray of shape (T, n, n)
+        Smoother gains from time t to t + 1.
+    filtered : FilterResult
+    """
+    sm = smooth(model, prior, zs, us, engine=engine)
+    F = model.at(0)[0]
+    filt = sm.filtered
+    m0, P0, G0 = kalman.rts_step(prior.mean, prior.cov, filt.predicted_means[0], filt.predicted_covs[0],
+                                 sm.means[0], sm.covs[0], prior.cov @ F.T)
+    return (np.concatenate([m0[None], sm.means]), np.concatenate([P0[None], sm.covs]),
+            np.concatenate([G0[None], sm.gains]), filt)
+
+
+def _kept(result: FilterResult, keep: str) -> FilterResult:
+    """Drop what `keep` does not ask for from a full single-series result."""
+    drop = {"all": (), "means": ("covs", "predicted_covs", "innovation_covs"),
+            "last": ("means", "covs", "predicted_means", "predicted_covs", "innovations",
+                     "innovation_covs")}[keep]
+    return replace(result, **dict.fromkeys(drop))
 
 
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
@@ -585,6 +628,11 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     ((5, 2), (5, 2))
     """
     spec, method, options, prior, zs, us, batch = _prepare(model, prior, zs, us, method, options)
+    if prior == "diffuse":
+        from .diffuse import diffuse_smooth
+
+        results = [diffuse_smooth(model, z, None if us is None else us[i], engine) for i, z in enumerate(zs)]
+        return _stack(results) if batch else results[0]
     compiled = _compiled_engine(spec, method, engine, zs.shape[0] * zs.shape[1])
     if compiled is not None:
         result = compiled.smooth(method, model, prior, zs, us, options)

@@ -43,6 +43,9 @@ and optionally the belief one step before the first measurement::
     mean = [0.0, 0.0, 1.0, 0.0]  # default: zeros
     var = 100.0                  # var * I; or cov = [[...]]; default 1e6 * I
 
+or ``diffuse = true`` alone: a flat prior, handled exactly (see
+:mod:`gaussfuse.diffuse`).
+
 A control input ``B`` is not supported in model files yet.
 
 Estimates file (CSV)
@@ -83,6 +86,7 @@ __all__ = [
     "read_measurements",
     "read_model",
     "write_estimates",
+    "write_model",
     "open_atomic",
     "DEFAULT_PRIOR_VAR",
 ]
@@ -98,7 +102,7 @@ StrPath = str | os.PathLike[str]
 _KINDS = {"constant_velocity": (constant_velocity, 1), "constant_acceleration": (constant_acceleration, 2)}
 _EXPLICIT_KEYS = ("F", "H", "Q", "R", "states")
 _NAMED_KEYS = ("kind", "dim", "dt", "q", "r", "states")
-_PRIOR_KEYS = ("mean", "cov", "var")
+_PRIOR_KEYS = ("mean", "cov", "var", "diffuse")
 _TABLES = ("model", "prior")
 
 
@@ -401,8 +405,13 @@ def _state_names(path, given, default: list[str]) -> list[str]:
     return given
 
 
-def _prior(path, table: dict, n: int) -> Gaussian:
+def _prior(path, table: dict, n: int) -> Gaussian | str:
     _check_keys(path, "prior", table, _PRIOR_KEYS, " (give `cov` or `var`, not both)")
+    if "diffuse" in table:
+        if table["diffuse"] is not True or len(table) > 1:
+            raise InputFileError(path, "`diffuse = true` stands alone: no `mean`, `cov` or `var` with it.",
+                                 field="[prior]")
+        return "diffuse"
     if "cov" in table and "var" in table:
         raise InputFileError(path, "give either `cov` or `var` (var * I), not both.", field="[prior]")
     with _field(path, "prior", {"mean": "mean", "cov": "var" if "var" in table else "cov", "var": "var"}):
@@ -484,6 +493,46 @@ def write_estimates(
     else:
         with open_atomic(dest, "w", newline="", encoding="utf-8") as f:
             write(f)
+
+
+def write_model(out: IO[str], model: LinearModel, prior: Gaussian | str, names: Sequence[str],
+                comments: Sequence[str] = ()) -> None:
+    """Write a model file (explicit matrices) that :func:`read_model` reads back exactly.
+
+    Parameters
+    ----------
+    out : text stream
+        Where to write.
+    model : LinearModel
+        A time-invariant model without control input.
+    prior : Gaussian or "diffuse"
+    names : sequence of str
+        State names.
+    comments : sequence of str
+        Lines written first, as TOML comments.
+    """
+    if model.steps is not None or model.B is not None:
+        raise ValueError("only a time-invariant model without control input can be written as a model file.")
+    for line in comments:
+        out.write(f"# {line}\n")
+    out.write("[model]\n")
+    for name in ("F", "H", "Q", "R"):
+        out.write(f"{name} = {_toml_array(getattr(model, name))}\n")
+    out.write(f"states = [{', '.join(_toml_string(n) for n in names)}]\n\n[prior]\n")
+    if isinstance(prior, str):
+        out.write("diffuse = true\n")
+    else:
+        out.write(f"mean = {_toml_array(prior.mean)}\ncov = {_toml_array(prior.cov)}\n")
+
+
+def _toml_array(a: np.ndarray) -> str:
+    if a.ndim == 0:
+        return repr(float(a))
+    return "[" + ", ".join(_toml_array(x) for x in a) + "]"
+
+
+def _toml_string(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 @contextmanager

@@ -1,0 +1,263 @@
+r"""Exact diffuse initialisation: a flat prior on the initial state.
+
+``prior="diffuse"`` says nothing is known about :math:`x_0`, the state one
+step before the first measurement: :math:`x_0 \sim N(0, \kappa I)` with
+:math:`\kappa \to \infty`. The limit is computed exactly, not with a large
+:math:`\kappa`, by the augmentation argument of de Jong (1991), which gives the
+same filter, smoother and likelihood as the exact diffuse Kalman filter of
+Koopman (1997) and Durbin & Koopman (2012, ch. 5):
+
+Write :math:`x_0 = \delta`. Given :math:`\delta`, the model is an ordinary
+linear-Gaussian one with a *known* initial state, and every mean the Kalman
+filter and RTS smoother produce is affine in :math:`\delta` while no
+covariance depends on it:
+
+.. math::
+
+    m_t(\delta) = m_t^{(0)} + M_t \delta, \qquad
+    v_t(\delta) = v_t^{(0)} + V_t \delta, \qquad
+    m^s_t(\delta) = m_t^{s(0)} + N_t \delta .
+
+The columns of :math:`M_t, V_t, N_t` are the same filter and smoother run from
+:math:`x_0 = e_i` on zero data. The likelihood of the measurements up to t is
+then a Gaussian in :math:`\delta` with information and score
+
+.. math::
+
+    \mathcal S_t = \sum_{k \le t} V_k^\top S_k^{-1} V_k, \qquad
+    s_t = -\sum_{k \le t} V_k^\top S_k^{-1} v_k^{(0)},
+
+so under the flat prior :math:`\delta \mid z_{1:t} \sim N(\mathcal S_t^{-1}
+s_t, \mathcal S_t^{-1})` once :math:`\mathcal S_t` is non-singular (the state is
+*identified*). Averaging over it,
+
+.. math::
+
+    E[x_t \mid z_{1:t}] = m_t^{(0)} + M_t \hat\delta_t, \qquad
+    \operatorname{Cov}[x_t \mid z_{1:t}] = P_t + M_t \mathcal S_t^{-1} M_t^\top,
+
+and the same for the predictions (with :math:`\mathcal S_{t-1}`) and the
+smoothed states (with :math:`\mathcal S_T`).
+
+The diffuse log-likelihood is
+
+.. math::
+
+    \log L_d = \sum_t -\tfrac12\left(v_t^{(0)\top} S_t^{-1} v_t^{(0)} + \log|S_t|
+    + m_t \log 2\pi\right) + \tfrac12 s_T^\top \mathcal S_T^{-1} s_T
+    - \tfrac12 \log|\mathcal S_T|,
+
+with :math:`m_t` the number of observed components at step t: every
+observation, including those that identify the initial state, carries the
+:math:`\log 2\pi` constant, as in Durbin & Koopman (2012, eq. 7.4), and the
+flat prior contributes no constant. Because the diffuse state is
+:math:`x_0`, for a transition matrix with :math:`|\det F_1| \ne 1` this
+differs by :math:`\log|\det F_1|` from the convention that makes :math:`x_1`
+diffuse; for the local level and trend models (:math:`\det F = 1`) the two
+agree. Filtered and predicted beliefs before the state is identified are
+NaN.
+
+References
+----------
+.. [1] P. de Jong, "The diffuse Kalman filter", Annals of Statistics 19(2), 1991.
+.. [2] S. J. Koopman, "Exact initial Kalman filtering and smoothing for
+   nonstationary time series models", JASA 92(440), 1997.
+.. [3] J. Durbin and S. J. Koopman, *Time Series Analysis by State Space
+   Methods*, 2nd ed., Oxford University Press, 2012.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import kalman
+from .gaussian import Gaussian
+from .inference import FilterResult, SmoothResult, smooth_from_prior
+from .inference import filter as inference_filter
+
+__all__ = ["DIFFUSE", "diffuse_filter", "diffuse_smooth", "diffuse_moments"]
+
+DIFFUSE = "diffuse"
+
+
+class _Runs(NamedTuple):
+    base: FilterResult            # from x_0 = 0, on the data
+    sens: list[FilterResult]      # from x_0 = e_i, on zero data, no controls
+    smoothed: list | None         # (means, covs, gains) from time 0 of base and sens, when asked
+
+
+def _runs(model, zs: np.ndarray, us: np.ndarray | None, engine: str, smooth: bool = False) -> _Runs:
+    n = model.n
+    zero_data = np.where(np.isnan(zs), np.nan, 0.0)
+    zero_controls = None if us is None else np.zeros_like(us)
+    jobs = [(np.zeros(n), zs, us)] + [(np.eye(n)[i], zero_data, zero_controls) for i in range(n)]
+    filtered, smoothed = [], []
+    for x0, data, controls in jobs:
+        known = Gaussian(x0, np.zeros((n, n)))
+        if smooth:
+            means, covs, gains, filt = smooth_from_prior(model, known, data, controls, engine)
+            smoothed.append((means, covs, gains))
+        else:
+            filt = inference_filter(model, known, data, controls, engine=engine)
+        filtered.append(filt)
+    return _Runs(filtered[0], filtered[1:], smoothed if smooth else None)
+
+
+class _Information(NamedTuple):
+    info: np.ndarray      # (T, n, n): S_t after step t
+    score: np.ndarray     # (T, n): s_t after step t
+    loglik0: float        # the sum of the known-x_0 contributions
+
+
+def _information(model, runs: _Runs) -> _Information:
+    base = runs.base
+    T, n = base.means.shape
+    V = _innovation_sensitivity(model, runs)
+    v0, S = base.innovations, base.innovation_covs
+    observed = ~np.isnan(v0)
+    terms, scores = np.zeros((T, n, n)), np.zeros((T, n))
+    full = observed.all(axis=1)
+    if full.any():  # the common case, all at once
+        L = np.linalg.cholesky(S[full])
+        WV = np.linalg.solve(L, V[full])
+        wv = np.linalg.solve(L, v0[full][..., None])
+        terms[full] = np.swapaxes(WV, -1, -2) @ WV
+        scores[full] = -(np.swapaxes(WV, -1, -2) @ wv)[..., 0]
+    for t in np.flatnonzero(observed.any(axis=1) & ~full):
+        o = observed[t]
+        L = kalman.cholesky(S[t][np.ix_(o, o)], f"at step {t}: the innovation covariance S")
+        WV = np.linalg.solve(L, V[t][o])
+        terms[t], scores[t] = WV.T @ WV, -WV.T @ np.linalg.solve(L, v0[t][o])
+    return _Information(np.cumsum(terms, axis=0), np.cumsum(scores, axis=0), base.loglik)
+
+
+def _predicted_sensitivity(runs: _Runs) -> np.ndarray:
+    """``Mp[t]``: how the prediction at step t moves with x_0, (T, n, n)."""
+    return np.stack([r.predicted_means for r in runs.sens], axis=-1)
+
+
+def _innovation_sensitivity(model, runs: _Runs) -> np.ndarray:
+    """``V[t] = -H_t Mp[t]`` over all m components, (T, m, n)."""
+    Mp = _predicted_sensitivity(runs)
+    H = model.H if model.H.ndim == 3 else model.H[None]
+    return -(H @ Mp)
+
+
+def _identified(info: np.ndarray) -> np.ndarray:
+    """Which of the information matrices (T, n, n) about x_0 are non-singular."""
+    eig = np.linalg.eigvalsh(info)
+    return eig[:, 0] > 1e-12 * np.maximum(eig[:, -1], 1e-300)
+
+
+def _spread(L: np.ndarray, score: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``M δ̂`` and ``M S⁻¹ Mᵀ`` for δ ~ N(S⁻¹ s, S⁻¹), S = L Lᵀ; stacked over a leading axis."""
+    delta = np.linalg.solve(np.swapaxes(L, -1, -2), np.linalg.solve(L, score[..., None]))
+    W = np.linalg.solve(L, np.swapaxes(M, -1, -2))  # L⁻¹ Mᵀ
+    return (M @ delta)[..., 0], np.swapaxes(W, -1, -2) @ W
+
+
+def _not_identified() -> ValueError:
+    return ValueError(
+        "the diffuse initial state is not identified by the measurements: "
+        "no combination of them determines every component of x_0; "
+        "give a proper Gaussian prior instead."
+    )
+
+
+def diffuse_filter(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> FilterResult:
+    """Exact diffuse Kalman filter of one series (see the module notes).
+
+    Parameters
+    ----------
+    model : LinearModel
+    zs : ndarray of shape (T, m)
+    us : ndarray of shape (T, p), optional
+    engine : str
+        Engine of the underlying filter runs (see :func:`gaussfuse.filter`).
+
+    Returns
+    -------
+    FilterResult
+        With NaN beliefs at the steps before x_0 is identified and the
+        diffuse log-likelihood.
+    """
+    runs = _runs(model, zs, us, engine)
+    return _filter(model, runs, _information(model, runs))
+
+
+def _filter(model, runs: _Runs, inf: _Information) -> FilterResult:
+    base = runs.base
+    M = np.stack([r.means for r in runs.sens], axis=-1)            # (T, n, n)
+    Mp = _predicted_sensitivity(runs)
+    V = _innovation_sensitivity(model, runs)                        # (T, m, n)
+    out = {name: np.full_like(getattr(base, name), np.nan) for name in
+           ("means", "covs", "predicted_means", "predicted_covs", "innovations", "innovation_covs")}
+    ok = _identified(inf.info)
+    if not ok[-1]:
+        raise _not_identified()
+    d = int(np.argmax(ok))  # the information only grows: identified from step d on
+    L = np.linalg.cholesky(inf.info[d:])
+    shift, spread = _spread(L, inf.score[d:], M[d:])
+    out["means"][d:] = base.means[d:] + shift
+    out["covs"][d:] = kalman.symmetrize(base.covs[d:] + spread)
+    # predictions and innovations at step t use what is known after step t - 1
+    L, sc = L[:-1], inf.score[d:-1]
+    for name, base_name, sens in (("predicted_means", "predicted_covs", Mp), ("innovations", "innovation_covs", V)):
+        shift, spread = _spread(L, sc, sens[d + 1:])
+        out[name][d + 1:] = getattr(base, name)[d + 1:] + shift
+        out[base_name][d + 1:] = kalman.symmetrize(getattr(base, base_name)[d + 1:] + spread)
+    loglik = _diffuse_loglik(inf, (np.linalg.cholesky(inf.info[-1]), inf.score[-1]))
+    return FilterResult(**out, loglik=loglik, last_mean=out["means"][-1], last_cov=out["covs"][-1])
+
+
+def _diffuse_loglik(inf: _Information, final: tuple[np.ndarray, np.ndarray]) -> float:
+    L, s = final
+    white = np.linalg.solve(L, s)
+    return float(inf.loglik0 + 0.5 * white @ white - np.sum(np.log(np.diag(L))))
+
+
+class Moments(NamedTuple):
+    """Smoothed moments over times 0..T, time 0 being the prior's.
+
+    Attributes
+    ----------
+    means : ndarray of shape (T + 1, n)
+    covs : ndarray of shape (T + 1, n, n)
+    cross : ndarray of shape (T, n, n)
+        ``cross[t] = Cov(x_{t+1}, x_t | z_1..z_T)``.
+    loglik : float
+    filtered : FilterResult
+    gains : ndarray of shape (T, n, n)
+        Smoother gains from time t to t + 1, t = 0..T-1.
+    """
+
+    means: np.ndarray
+    covs: np.ndarray
+    cross: np.ndarray
+    loglik: float
+    filtered: FilterResult
+    gains: np.ndarray
+
+
+def diffuse_moments(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> Moments:
+    """Exact diffuse smoothed moments of one series, from the prior's time on."""
+    runs = _runs(model, zs, us, engine, smooth=True)
+    inf = _information(model, runs)
+    filt = _filter(model, runs, inf)
+    L = np.linalg.cholesky(inf.info[-1])
+    base_m, base_P, gains = runs.smoothed[0]
+    N = np.stack([means for means, _, _ in runs.smoothed[1:]], axis=-1)   # (T + 1, n, n)
+    delta = kalman.cho_solve(L, inf.score[-1])
+    W = np.linalg.solve(L, np.swapaxes(N, -1, -2))                  # L⁻¹ N_tᵀ, (T + 1, n, n)
+    means = base_m + N @ delta
+    covs = kalman.symmetrize(base_P + np.swapaxes(W, -1, -2) @ W)
+    cross = base_P[1:] @ np.swapaxes(gains, -1, -2) + np.swapaxes(W[1:], -1, -2) @ W[:-1]
+    return Moments(means, covs, cross, filt.loglik, filt, gains)
+
+
+def diffuse_smooth(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> SmoothResult:
+    """Exact diffuse RTS smoother of one series (see the module notes)."""
+    mom = diffuse_moments(model, zs, us, engine)
+    return SmoothResult(mom.means[1:], mom.covs[1:], mom.gains[1:], mom.filtered)

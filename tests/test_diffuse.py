@@ -1,0 +1,96 @@
+"""Exact diffuse initialisation against Koopman's analytic case, statsmodels' exact diffuse filter and the large-prior limit."""
+
+import numpy as np
+import pytest
+import statsmodels.api as sm
+
+import gaussfuse as gf
+from gaussfuse.datasets import nile
+
+SIG_EPS, SIG_ETA = 15099.0, 1469.1
+
+
+def _local_level():
+    return gf.LinearModel(F=1, H=1, Q=SIG_ETA, R=SIG_EPS)
+
+
+def test_local_level_first_observation_koopman():
+    """After y_1 the filtered state is y_1 with variance σ²_ε; the next prediction has σ²_ε + σ²_η."""
+    _, flow = nile()
+    res = gf.filter(_local_level(), "diffuse", flow)
+    assert res.means[0, 0] == pytest.approx(flow[0], rel=1e-14)
+    assert res.covs[0, 0, 0] == pytest.approx(SIG_EPS, rel=1e-12)
+    assert res.predicted_covs[1, 0, 0] == pytest.approx(SIG_EPS + SIG_ETA, rel=1e-12)
+    assert np.isnan(res.predicted_means[0, 0]) and np.isnan(res.innovations[0, 0])
+    assert np.isfinite(res.means).all()
+
+
+def test_nile_against_statsmodels_exact_diffuse():
+    _, flow = nile()
+    ref = sm.tsa.UnobservedComponents(flow, "local level", use_exact_diffuse=True).smooth([SIG_EPS, SIG_ETA])
+    res = gf.filter(_local_level(), "diffuse", flow)
+    sm_res = gf.smooth(_local_level(), "diffuse", flow)
+    assert res.loglik == pytest.approx(ref.llf, rel=1e-12)
+    np.testing.assert_allclose(res.means[:, 0], ref.filtered_state[0], rtol=1e-11)
+    np.testing.assert_allclose(res.covs[:, 0, 0], ref.filtered_state_cov[0, 0], rtol=1e-10)
+    np.testing.assert_allclose(res.predicted_means[1:, 0], ref.predicted_state[0, 1:-1], rtol=1e-11)
+    np.testing.assert_allclose(sm_res.means[:, 0], ref.smoothed_state[0], rtol=1e-11)
+    np.testing.assert_allclose(sm_res.covs[:, 0, 0], ref.smoothed_state_cov[0, 0], rtol=1e-10)
+
+
+def test_local_linear_trend_with_missing_data_against_statsmodels():
+    rng = np.random.default_rng(3)
+    T = 60
+    level = np.cumsum(np.cumsum(0.1 * rng.standard_normal(T)) + 0.5)
+    y = level + rng.standard_normal(T)
+    y[[0, 5, 6, 30]] = np.nan
+    s_eps, s_level, s_trend = 1.2, 0.3, 0.05
+    ref = sm.tsa.UnobservedComponents(y, "local linear trend", use_exact_diffuse=True).smooth(
+        [s_eps, s_level, s_trend])
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([s_level, s_trend]), R=s_eps)
+    res = gf.smooth(model, "diffuse", y)
+    assert res.loglik == pytest.approx(ref.llf, rel=1e-11)
+    np.testing.assert_allclose(res.means, ref.smoothed_state.T, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(res.covs, np.moveaxis(ref.smoothed_state_cov, -1, 0), rtol=1e-8, atol=1e-9)
+    identified = np.isfinite(res.filtered.means[:, 0])
+    np.testing.assert_allclose(res.filtered.means[identified], ref.filtered_state.T[identified], rtol=1e-9, atol=1e-9)
+    assert not identified[:2].any() and identified[2:].all()  # y_1 is missing; y_2, y_3 identify level and slope
+
+
+def test_diffuse_is_the_limit_of_a_wide_prior():
+    """ℓ_κ + (n/2) log κ → ℓ_d, and the beliefs converge, as the prior N(0, κ I) widens."""
+    rng = np.random.default_rng(0)
+    model = gf.LinearModel(F=[[1, 0.5], [0, 0.9]], H=[[1, 0], [0.3, 1]], Q=np.diag([0.2, 0.1]), R=np.eye(2),
+                           B=[[0.5], [1.0]])
+    zs, us = rng.standard_normal((25, 2)), rng.standard_normal((25, 1))
+    zs[3, 1] = np.nan
+    exact = gf.smooth(model, "diffuse", zs, us)
+    kappa = 1e7
+    wide = gf.smooth(model, gf.Gaussian([0, 0], kappa * np.eye(2)), zs, us)
+    assert wide.loglik + np.log(kappa) == pytest.approx(exact.loglik, abs=1e-5)
+    np.testing.assert_allclose(wide.means, exact.means, atol=1e-5)
+    np.testing.assert_allclose(wide.covs, exact.covs, atol=1e-5)
+    np.testing.assert_allclose(wide.filtered.means[1:], exact.filtered.means[1:], atol=1e-5)
+
+
+def test_batch_and_keep():
+    _, flow = nile()
+    zs = np.stack([flow, flow[::-1]])[:, :, None]
+    batch = gf.filter(_local_level(), "diffuse", zs, keep="means")
+    single = gf.filter(_local_level(), "diffuse", flow[::-1])
+    np.testing.assert_allclose(batch.means[1], single.means, rtol=1e-13)
+    assert batch.covs is None and batch.loglik.shape == (2,)
+    last = gf.filter(_local_level(), "diffuse", flow, keep="last")
+    assert last.means is None and last.last_cov[0, 0] > 0
+
+
+def test_not_identified_and_wrong_uses():
+    # the velocity of a state that never moves position is invisible
+    model = gf.LinearModel(F=np.eye(2), H=[1, 0], Q=np.eye(2), R=1.0)
+    with pytest.raises(ValueError, match="the diffuse initial state is not identified by the measurements"):
+        gf.filter(model, "diffuse", np.ones(5))
+    with pytest.raises(ValueError, match="the diffuse initial state is not identified"):
+        gf.filter(_local_level(), "diffuse", np.full(3, np.nan))
+    nonlinear = gf.NonlinearModel(lambda x: x, lambda x: x, 1.0, 1.0)
+    with pytest.raises(TypeError, match=r"`prior` must be a gaussfuse.Gaussian\(mean, cov\); got 'diffuse'"):
+        gf.filter(nonlinear, "diffuse", np.ones(3))
