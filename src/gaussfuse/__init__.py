@@ -7,8 +7,36 @@ Gaussians. The equations live in :mod:`gaussfuse.kalman`; the drivers in
 
 from .gaussian import Gaussian, fuse
 from .inference import METHODS, FilterResult, SmoothResult, filter, smooth
-from .models import LinearModel, NonlinearModel, constant_acceleration, constant_velocity
+from .learning import FitResult, fit
+from .models import (
+    BearingOnly,
+    ConstantAcceleration,
+    ConstantPosition,
+    ConstantVelocity,
+    CoordinatedTurn,
+    ForceInput,
+    LinearModel,
+    LinearMotion,
+    LinearSDE,
+    LinearSensor,
+    LocalLevel,
+    LocalLinearTrend,
+    NonlinearModel,
+    NonlinearMotion,
+    NonlinearSensor,
+    Position,
+    RandomWalk,
+    RangeBearing,
+    RangeBearingElevation,
+    Singer,
+    constant_acceleration,
+    constant_velocity,
+    model,
+    van_loan,
+)
 from .online import KalmanFilter
+from .fusion import Fused, Fuser, Measurement, fuse_timeline
+from .imm import IMMResult, imm_filter
 
 __version__ = "0.1.0"
 
@@ -19,10 +47,38 @@ __all__ = [
     "NonlinearModel",
     "constant_velocity",
     "constant_acceleration",
+    "model",
+    "van_loan",
+    "LinearMotion",
+    "NonlinearMotion",
+    "ConstantPosition",
+    "ConstantVelocity",
+    "ConstantAcceleration",
+    "ForceInput",
+    "Singer",
+    "RandomWalk",
+    "LocalLevel",
+    "LocalLinearTrend",
+    "LinearSDE",
+    "CoordinatedTurn",
+    "LinearSensor",
+    "Position",
+    "NonlinearSensor",
+    "RangeBearing",
+    "RangeBearingElevation",
+    "BearingOnly",
     "filter",
     "smooth",
     "FilterResult",
     "SmoothResult",
     "METHODS",
     "KalmanFilter",
+    "Measurement",
+    "fuse_timeline",
+    "Fused",
+    "Fuser",
+    "imm_filter",
+    "IMMResult",
+    "fit",
+    "FitResult",
 ]

@@ -1,4 +1,22 @@
-"""Motion models with position measurements, built for a given time step."""
+r"""Motion models: what the state does over a time step.
+
+A motion model is a small immutable description of continuous- or
+discrete-time dynamics that gives, for any time step dt, the transition and
+the process noise:
+
+- :class:`LinearMotion`: ``transition(dt) -> (F, Q)`` and
+  ``control(dt) -> B or None``, for :math:`x_k = F x_{k-1} + B u_k + w_k`;
+- :class:`NonlinearMotion`: ``f(x, dt)``, ``jacobian(x, dt)`` and
+  ``noise(dt)``, for :math:`x_k = f(x_{k-1}) + w_k`.
+
+Kinematic states list all positions first (x, y[, z]), then all velocities
+(vx, vy[, vz]), then all accelerations; the axes are independent and share
+the noise settings. Combine a motion with a sensor into a filterable model
+with :func:`gaussfuse.model`.
+
+The functions :func:`constant_velocity` and :func:`constant_acceleration`
+build such a model (measuring the positions) in one call.
+"""
 
 from __future__ import annotations
 
@@ -7,50 +25,816 @@ from math import factorial
 import numpy as np
 
 from .linear import LinearModel
+from .noise import _real, continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan
 
-__all__ = ["constant_velocity", "constant_acceleration", "state_names"]
+__all__ = [
+    "LinearMotion",
+    "NonlinearMotion",
+    "ConstantPosition",
+    "ConstantVelocity",
+    "ConstantAcceleration",
+    "ForceInput",
+    "Singer",
+    "RandomWalk",
+    "LocalLevel",
+    "LocalLinearTrend",
+    "LinearSDE",
+    "CoordinatedTurn",
+    "constant_velocity",
+    "constant_acceleration",
+    "state_names",
+]
 
 _AXES = ("x", "y", "z")
 _PREFIX = ("", "v", "a")
 
+# ---------------------------------------------------------------------------
+# Validators and the immutable base
+# ---------------------------------------------------------------------------
 
-def _check(name: str, value, positive: bool) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"`{name}` must be a number; got {value!r}.")
-    value = float(value)
-    if not np.isfinite(value) or value < 0 or (positive and value == 0):
-        raise ValueError(f"`{name}` must be {'positive' if positive else 'non-negative'}; got {value}.")
+
+def _dim(value) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 3:
+        raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
+    return int(value)
+
+
+def _count(name: str, value, minimum: int = 1) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"`{name}` must be an integer >= {minimum}; got {value!r}.")
+    return int(value)
+
+
+def _noise_kind(value) -> str:
+    if not isinstance(value, str) or value not in ("continuous", "piecewise"):
+        raise ValueError(f"`noise` must be 'continuous' or 'piecewise'; got {value!r}.")
     return value
 
 
-def _integrated_white_noise(order: int, dt: float, q: float, r: float, dim: int) -> LinearModel:
-    r"""The order-K integrated white-noise model per axis, stacked over `dim` axes.
+def _names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
+    """A tuple of n strings (component names), or `default` for None."""
+    if value is None:
+        return default
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
+    names = tuple(value)
+    if not all(isinstance(s, str) for s in names):
+        raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
+    if len(names) != n:
+        raise ValueError(f"`names` must have {n} entries, one per component; got {len(names)}.")
+    return names
 
-    Per axis the state is (position, its first K derivatives) and the K-th
-    derivative is driven by continuous white noise of spectral density q:
+
+def check_state(x, n: int, name: str = "x") -> np.ndarray:
+    """`x` as an array of shape (n,) or (k, n), real or complex (for complex-step derivatives)."""
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "biufc" or arr.dtype.kind == "b":
+        raise TypeError(f"`{name}` must be an array of numbers; got {arr.dtype} values.")
+    if arr.ndim not in (1, 2) or arr.shape[-1] != n:
+        raise ValueError(f"`{name}` must have shape ({n},) or (k, {n}); got shape {arr.shape}.")
+    if arr.dtype.kind in "iu":
+        arr = arr.astype(np.float64)
+    return arr
+
+
+class _Frozen:
+    """Immutable value: slots set once in ``__init__`` through `_set`; pickles by its arguments."""
+
+    __slots__ = ()
+
+    def _set(self, **values) -> None:
+        for name, value in values.items():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
+
+    def __delattr__(self, name):
+        raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
+
+    def _fields(self) -> tuple[str, ...]:
+        """The constructor's arguments, in order: the slots of the class and its bases."""
+        return tuple(s for cls in reversed(type(self).__mro__) for s in cls.__dict__.get("__slots__", ()))
+
+    def __reduce__(self):
+        return type(self), tuple(getattr(self, s) for s in self._fields())
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{s}={getattr(self, s)!r}" for s in self._fields())
+        return f"{type(self).__name__}({args})"
+
+
+class LinearMotion(_Frozen):
+    r"""Base class of linear motion models, :math:`x_k = F x_{k-1} + B u_k + w_k`.
+
+    Subclasses give the state size `n`, the component `names` and
+    :meth:`transition`; those with a control input override :meth:`control`.
+
+    Attributes
+    ----------
+    n : int
+        State dimension.
+    names : tuple of str
+        Names of the n state components.
+    state_angles : tuple of int
+        Always empty: a linear model has no angle components.
+    """
+
+    __slots__ = ()
+
+    n: int
+    names: tuple[str, ...]
+
+    @property
+    def state_angles(self) -> tuple[int, ...]:
+        """Components that are angles: none for a linear motion."""
+        return ()
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``."""
+        raise NotImplementedError
+
+    def control(self, dt: float) -> np.ndarray | None:
+        """The control matrix B of shape (n, p) over a time step ``dt > 0``; None without control."""
+        _real("dt", dt, positive=True)
+        return None
+
+
+class NonlinearMotion(_Frozen):
+    r"""Base class of nonlinear motion models, :math:`x_k = f(x_{k-1}; \Delta t) + w_k`.
+
+    Attributes
+    ----------
+    n : int
+        State dimension.
+    names : tuple of str
+        Names of the n state components.
+    state_angles : tuple of int
+        Components that are angles in radians (wrapped to [-π, π) in residuals).
+
+    Notes
+    -----
+    Subclasses implement ``f(x, dt)`` (x of shape (n,) or a stack (k, n)),
+    ``jacobian(x, dt)`` of shape (n, n) and ``noise(dt)`` of shape (n, n).
+    """
+
+    __slots__ = ()
+
+    n: int
+    names: tuple[str, ...]
+
+    @property
+    def state_angles(self) -> tuple[int, ...]:
+        """Components that are angles (none unless a subclass says so)."""
+        return ()
+
+    def f(self, x, dt: float) -> np.ndarray:
+        """The state after a time step dt from x."""
+        raise NotImplementedError
+
+    def jacobian(self, x, dt: float) -> np.ndarray:
+        """The Jacobian of :meth:`f` with respect to x, shape (n, n)."""
+        raise NotImplementedError
+
+    def noise(self, dt: float) -> np.ndarray:
+        """The process-noise covariance Q over a time step dt, shape (n, n)."""
+        raise NotImplementedError
+
+
+# ---------------------------------------------------------------------------
+# Integrated white noise: constant position / velocity / acceleration
+# ---------------------------------------------------------------------------
+
+
+def _kinematic_transition(order: int, dt: float) -> np.ndarray:
+    r"""Per axis :math:`F_{ij} = \Delta t^{j-i}/(j-i)!` for j >= i (Taylor series of the position)."""
+    F = np.zeros((order + 1, order + 1))
+    for i in range(order + 1):
+        for j in range(i, order + 1):
+            F[i, j] = dt ** (j - i) / factorial(j - i)
+    return F
+
+
+class _IntegratedWhiteNoise(LinearMotion):
+    __slots__ = ("dim", "q", "noise")
+    _order: int = 0
+
+    def __init__(self, dim: int = 1, q: float = 1.0, noise: str = "continuous") -> None:
+        self._set(dim=_dim(dim), q=_real("q", q, positive=False), noise=_noise_kind(noise))
+
+    @property
+    def n(self) -> int:
+        """State dimension, (order + 1) · dim."""
+        return (self._order + 1) * self.dim
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """``x, y, z`` then ``vx, vy, vz`` then ``ax, ay, az`` (as far as the order and dim go)."""
+        return tuple(state_names(self._order, self.dim))
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``."""
+        dt = _real("dt", dt, positive=True)
+        K = self._order
+        noise = continuous_white_noise if self.noise == "continuous" else piecewise_white_noise
+        eye = np.eye(self.dim)
+        return np.kron(_kinematic_transition(K, dt), eye), np.kron(noise(K, dt, self.q), eye)
+
+
+class ConstantPosition(_IntegratedWhiteNoise):
+    r"""A position that drifts as a random walk (order 0).
+
+    Parameters
+    ----------
+    dim : {1, 2, 3}
+        Number of spatial axes; the state is ``[x, (y, z)]``.
+    q : float, default 1.0
+        With ``noise="continuous"`` the spectral density of the white-noise
+        velocity; with ``noise="piecewise"`` the variance of a velocity held
+        constant over each step. >= 0.
+    noise : {"continuous", "piecewise"}
+        See :func:`~gaussfuse.models.noise.continuous_white_noise` and
+        :func:`~gaussfuse.models.noise.piecewise_white_noise`.
+
+    Notes
+    -----
+    Per axis :math:`F = 1` and :math:`Q = q \Delta t` (continuous) or
+    :math:`Q = q \Delta t^2` (piecewise).
+
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import ConstantPosition
+    >>> ConstantPosition(dim=2, q=0.5).transition(2.0)[1]
+    array([[1., 0.],
+           [0., 1.]])
+    """
+
+    __slots__ = ()
+    _order = 0
+
+
+class ConstantVelocity(_IntegratedWhiteNoise):
+    r"""Nearly constant velocity: white-noise acceleration (order 1).
+
+    Parameters
+    ----------
+    dim : {1, 2, 3}
+        Number of spatial axes; the state is ``[x, (y, z,) vx, (vy, vz)]``,
+        of size 2·dim.
+    q : float, default 1.0
+        With ``noise="continuous"`` the spectral density of the white-noise
+        acceleration (units² / time³); with ``noise="piecewise"`` the variance
+        of an acceleration held constant over each step. >= 0.
+    noise : {"continuous", "piecewise"}
+
+    Notes
+    -----
+    Per axis :math:`F = \begin{bmatrix} 1 & \Delta t \\ 0 & 1 \end{bmatrix}` and
 
     .. math::
 
-        F_{ij} = \frac{\Delta t^{j-i}}{(j-i)!} \ (j \ge i), \qquad
-        Q_{ij} = q \frac{\Delta t^{2K+1-i-j}}{(2K+1-i-j)\,(K-i)!\,(K-j)!}.
+        Q_\text{continuous} = q \begin{bmatrix} \Delta t^3/3 & \Delta t^2/2 \\
+        \Delta t^2/2 & \Delta t \end{bmatrix}, \qquad
+        Q_\text{piecewise} = q\, g g^T, \quad g = [\Delta t^2/2, \Delta t]^T.
 
-    The full state orders all positions first, then all velocities, and so on.
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import ConstantVelocity
+    >>> cv = ConstantVelocity(dim=2, q=3.0)
+    >>> cv.names
+    ('x', 'y', 'vx', 'vy')
+    >>> F, Q = cv.transition(dt=2.0)
+    >>> F
+    array([[1., 0., 2., 0.],
+           [0., 1., 0., 2.],
+           [0., 0., 1., 0.],
+           [0., 0., 0., 1.]])
+    >>> Q[::2, ::2]  # the x axis
+    array([[8., 6.],
+           [6., 6.]])
     """
-    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= 3:
-        raise ValueError(f"`dim` must be 1, 2 or 3; got {dim!r}.")
-    dt = _check("dt", dt, positive=True)
-    q = _check("q", q, positive=False)
-    r = _check("r", r, positive=True)
-    K = order
-    idx = np.arange(K + 1)
-    i, j = np.meshgrid(idx, idx, indexing="ij")
-    fact = np.vectorize(factorial)
-    F1 = np.where(j >= i, dt ** np.abs(j - i) / fact(np.abs(j - i)), 0.0)
-    power = 2 * K + 1 - i - j
-    Q1 = q * dt**power / (power * fact(K - i) * fact(K - j))
-    eye = np.eye(dim)
-    H = np.hstack([eye, np.zeros((dim, K * dim))])
-    return LinearModel(F=np.kron(F1, eye), H=H, Q=np.kron(Q1, eye), R=r * eye)
+
+    __slots__ = ()
+    _order = 1
+
+
+class ConstantAcceleration(_IntegratedWhiteNoise):
+    r"""Nearly constant acceleration: white-noise jerk (order 2).
+
+    Parameters
+    ----------
+    dim : {1, 2, 3}
+        Number of spatial axes; the state is positions, velocities, then
+        accelerations, of size 3·dim.
+    q : float, default 1.0
+        Spectral density of the white-noise jerk (``noise="continuous"``) or
+        the variance of a jerk held constant over each step (``"piecewise"``).
+    noise : {"continuous", "piecewise"}
+
+    Notes
+    -----
+    Per axis :math:`F = \begin{bmatrix} 1 & \Delta t & \Delta t^2/2 \\ 0 & 1 & \Delta t
+    \\ 0 & 0 & 1 \end{bmatrix}` and
+
+    .. math::
+
+        Q_\text{continuous} = q \begin{bmatrix}
+        \Delta t^5/20 & \Delta t^4/8 & \Delta t^3/6 \\
+        \Delta t^4/8 & \Delta t^3/3 & \Delta t^2/2 \\
+        \Delta t^3/6 & \Delta t^2/2 & \Delta t \end{bmatrix}, \qquad
+        Q_\text{piecewise} = q\, g g^T, \quad g = [\Delta t^3/6, \Delta t^2/2, \Delta t]^T.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import ConstantAcceleration
+    >>> ConstantAcceleration(dim=1).transition(2.0)[0]
+    array([[1., 2., 2.],
+           [0., 1., 2.],
+           [0., 0., 1.]])
+    """
+
+    __slots__ = ()
+    _order = 2
+
+
+class ForceInput(LinearMotion):
+    r"""A mass pushed by a known force: constant velocity with acceleration input u = f / m.
+
+    Parameters
+    ----------
+    q : float, default 0.0
+        Variance of an unknown acceleration held constant over each step
+        (piecewise white noise), >= 0.
+    dim : {1, 2, 3}
+        Number of spatial axes; the state is ``[x, (y, z,) vx, (vy, vz)]``
+        and the control ``u = [ax, (ay, az)]``, the known acceleration
+        (force over mass) during the step.
+
+    Notes
+    -----
+    With the acceleration u constant over the step, per axis
+
+    .. math::
+
+        x_k = \begin{bmatrix} 1 & \Delta t \\ 0 & 1 \end{bmatrix} x_{k-1}
+        + \begin{bmatrix} \Delta t^2/2 \\ \Delta t \end{bmatrix} u_k + w_k,
+        \qquad w_k \sim N(0, q\, g g^T), \quad g = [\Delta t^2/2, \Delta t]^T,
+
+    which is exact kinematics: an unknown acceleration enters exactly as the
+    known one does.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import ForceInput
+    >>> ForceInput().control(2.0)
+    array([[2.],
+           [2.]])
+    """
+
+    __slots__ = ("q", "dim")
+
+    def __init__(self, q: float = 0.0, dim: int = 1) -> None:
+        self._set(q=_real("q", q, positive=False), dim=_dim(dim))
+
+    @property
+    def n(self) -> int:
+        """State dimension, 2 · dim."""
+        return 2 * self.dim
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Positions then velocities."""
+        return tuple(state_names(1, self.dim))
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)``, each of shape (2·dim, 2·dim), over a time step ``dt > 0``."""
+        dt = _real("dt", dt, positive=True)
+        eye = np.eye(self.dim)
+        return (np.kron(_kinematic_transition(1, dt), eye),
+                np.kron(piecewise_white_noise(1, dt, self.q), eye))
+
+    def control(self, dt: float) -> np.ndarray:
+        """B of shape (2·dim, dim): ``[dt²/2, dt]`` per axis."""
+        dt = _real("dt", dt, positive=True)
+        return np.kron(np.array([[dt**2 / 2], [dt]]), np.eye(self.dim))
+
+
+class Singer(LinearMotion):
+    r"""Singer's model: the acceleration is a first-order Markov (Ornstein–Uhlenbeck) process.
+
+    Parameters
+    ----------
+    dim : {1, 2, 3}
+        Number of spatial axes; the state is positions, velocities, then
+        accelerations, of size 3·dim.
+    tau : float, default 1.0
+        Time constant (correlation time) of the acceleration, > 0.
+    sigma : float, default 1.0
+        Standard deviation of the stationary acceleration, >= 0.
+
+    Notes
+    -----
+    Per axis, with :math:`\alpha = 1/\tau`,
+
+    .. math::
+
+        d\begin{bmatrix} p \\ v \\ a \end{bmatrix} =
+        \begin{bmatrix} 0 & 1 & 0 \\ 0 & 0 & 1 \\ 0 & 0 & -\alpha \end{bmatrix}
+        \begin{bmatrix} p \\ v \\ a \end{bmatrix} dt +
+        \begin{bmatrix} 0 \\ 0 \\ 1 \end{bmatrix} d\beta, \qquad
+        E[d\beta^2] = \frac{2\sigma^2}{\tau} dt,
+
+    discretised exactly by :func:`~gaussfuse.models.noise.van_loan` [1]_:
+    :math:`F = e^{A\Delta t}` has
+    :math:`F_{02} = \tau^2 (e^{-\Delta t/\tau} - 1 + \Delta t/\tau)`,
+    :math:`F_{12} = \tau (1 - e^{-\Delta t/\tau})`,
+    :math:`F_{22} = e^{-\Delta t/\tau}`.
+    As :math:`\tau \to \infty` with :math:`2\sigma^2/\tau = q` fixed it tends
+    to :class:`ConstantAcceleration` (q); as :math:`\tau \to 0` with
+    :math:`2\sigma^2\tau = q` fixed, its position–velocity part tends to
+    :class:`ConstantVelocity` (q).
+
+    References
+    ----------
+    .. [1] R. A. Singer, "Estimating optimal tracking filter performance for
+       manned maneuvering targets", IEEE Trans. AES 6(4), 1970.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from gaussfuse.models.motion import Singer
+    >>> F, Q = Singer(tau=2.0, sigma=1.0).transition(1.0)
+    >>> bool(np.isclose(F[2, 2], np.exp(-0.5)))
+    True
+    """
+
+    __slots__ = ("dim", "tau", "sigma")
+
+    def __init__(self, dim: int = 1, tau: float = 1.0, sigma: float = 1.0) -> None:
+        self._set(dim=_dim(dim), tau=_real("tau", tau, positive=True),
+                  sigma=_real("sigma", sigma, positive=False))
+
+    @property
+    def n(self) -> int:
+        """State dimension, 3 · dim."""
+        return 3 * self.dim
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Positions, velocities, accelerations."""
+        return tuple(state_names(2, self.dim))
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)``, each of shape (3·dim, 3·dim), over a time step ``dt > 0``."""
+        dt = _real("dt", dt, positive=True)
+        A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / self.tau]])
+        F1, Q1 = van_loan(A, [0.0, 0.0, 1.0], 2.0 * self.sigma**2 / self.tau, dt)
+        eye = np.eye(self.dim)
+        return np.kron(F1, eye), np.kron(Q1, eye)
+
+
+class RandomWalk(LinearMotion):
+    r"""n independent random walks: :math:`F = I`, :math:`Q = q \Delta t\, I`.
+
+    Parameters
+    ----------
+    n : int, default 1
+        State dimension, >= 1. The components are named ``x0, x1, ...``.
+    q : float, default 1.0
+        Spectral density (variance per unit time) of each walk, >= 0.
+
+    Notes
+    -----
+    :math:`dx = d\beta`, :math:`E[d\beta\, d\beta^T] = q I\, dt`, so over a step
+    :math:`x_k = x_{k-1} + w_k`, :math:`w_k \sim N(0, q \Delta t\, I)`.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import RandomWalk
+    >>> RandomWalk(n=2, q=0.5).transition(4.0)[1]
+    array([[2., 0.],
+           [0., 2.]])
+    """
+
+    __slots__ = ("n", "q")
+
+    def __init__(self, n: int = 1, q: float = 1.0) -> None:
+        self._set(n=_count("n", n), q=_real("q", q, positive=False))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """``x0, x1, ...``."""
+        return tuple(f"x{i}" for i in range(self.n))
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(I, q·dt·I)`` of shape (n, n)."""
+        dt = _real("dt", dt, positive=True)
+        return np.eye(self.n), self.q * dt * np.eye(self.n)
+
+
+class LocalLevel(LinearMotion):
+    r"""The local-level (random walk) model of Durbin & Koopman; dt counts steps.
+
+    Parameters
+    ----------
+    q : float, default 1.0
+        Variance of the level's disturbance per step, >= 0.
+
+    Notes
+    -----
+    :math:`\mu_k = \mu_{k-1} + \eta_k`, :math:`\eta_k \sim N(0, q\,\Delta t)`:
+    F = [[1]], Q = [[q·dt]] (dt = 1 for consecutive observations) [1]_.
+
+    References
+    ----------
+    .. [1] J. Durbin and S. J. Koopman, *Time Series Analysis by State Space
+       Methods*, 2nd ed., Oxford University Press, 2012, ch. 2.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import LocalLevel
+    >>> LocalLevel(q=1469.1).transition(1)
+    (array([[1.]]), array([[1469.1]]))
+    """
+
+    __slots__ = ("q",)
+
+    def __init__(self, q: float = 1.0) -> None:
+        self._set(q=_real("q", q, positive=False))
+
+    n = property(lambda self: 1, doc="State dimension, 1.")
+    names = property(lambda self: ("level",), doc="``('level',)``.")
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``([[1]], [[q·dt]])``."""
+        dt = _real("dt", dt, positive=True)
+        return np.ones((1, 1)), np.full((1, 1), self.q * dt)
+
+
+class LocalLinearTrend(LinearMotion):
+    r"""The local linear trend model of Durbin & Koopman; dt counts steps.
+
+    Parameters
+    ----------
+    q_level : float, default 1.0
+        Variance of the level's disturbance per step, >= 0.
+    q_slope : float, default 1.0
+        Variance of the slope's disturbance per step, >= 0.
+
+    Notes
+    -----
+    .. math::
+
+        \mu_k = \mu_{k-1} + \Delta t\, \nu_{k-1} + \xi_k, \qquad
+        \nu_k = \nu_{k-1} + \zeta_k,
+
+    :math:`F = \begin{bmatrix} 1 & \Delta t \\ 0 & 1 \end{bmatrix}`,
+    :math:`Q = \mathrm{diag}(q_\text{level}, q_\text{slope})\, \Delta t`.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.motion import LocalLinearTrend
+    >>> LocalLinearTrend(q_level=2.0, q_slope=0.5).transition(1)[1]
+    array([[2. , 0. ],
+           [0. , 0.5]])
+    """
+
+    __slots__ = ("q_level", "q_slope")
+
+    def __init__(self, q_level: float = 1.0, q_slope: float = 1.0) -> None:
+        self._set(q_level=_real("q_level", q_level, positive=False),
+                  q_slope=_real("q_slope", q_slope, positive=False))
+
+    n = property(lambda self: 2, doc="State dimension, 2.")
+    names = property(lambda self: ("level", "slope"), doc="``('level', 'slope')``.")
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)`` of shape (2, 2)."""
+        dt = _real("dt", dt, positive=True)
+        return (np.array([[1.0, dt], [0.0, 1.0]]),
+                np.diag([self.q_level * dt, self.q_slope * dt]))
+
+
+class LinearSDE(LinearMotion):
+    r"""Any linear time-invariant SDE :math:`dx = A x\,dt + L\,d\beta`, discretised exactly.
+
+    Parameters
+    ----------
+    A : array_like of shape (n, n)
+        Drift matrix.
+    L : array_like of shape (n, s)
+        Noise gain; a 1-D array of length n is a single column.
+    Qc : array_like of shape (s, s)
+        Spectral density of β, symmetric positive semi-definite; a scalar
+        when s = 1.
+    names : sequence of n str, optional
+        Component names; ``x0, x1, ...`` by default.
+
+    Notes
+    -----
+    ``transition(dt)`` is :func:`~gaussfuse.models.noise.van_loan`:
+    :math:`F = e^{A\Delta t}`,
+    :math:`Q = \int_0^{\Delta t} e^{As} L Q_c L^T e^{A^Ts} ds`.
+
+    Examples
+    --------
+    A damped oscillator driven by white-noise force:
+
+    >>> from gaussfuse.models.motion import LinearSDE
+    >>> sde = LinearSDE([[0, 1], [-4, -0.4]], [0, 1], 0.1, names=("x", "v"))
+    >>> sde.n, sde.names
+    (2, ('x', 'v'))
+    """
+
+    __slots__ = ("A", "L", "Qc", "names")
+
+    def __init__(self, A, L, Qc, names=None) -> None:
+        A, L, Qc = sde_arrays(A, L, Qc)
+        n = A.shape[0]
+        self._set(A=A, L=L, Qc=Qc, names=_names(names, n, tuple(f"x{i}" for i in range(n))))
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.A.shape[0]
+
+    def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)`` of shape (n, n) by Van Loan's method."""
+        return van_loan(self.A, self.L, self.Qc, dt)
+
+    def __repr__(self) -> str:
+        return f"LinearSDE(n={self.n}, s={self.L.shape[1]}, names={self.names!r})"
+
+
+# ---------------------------------------------------------------------------
+# Coordinated turn
+# ---------------------------------------------------------------------------
+
+_SERIES = 0.1  # |ω dt| below which the turn functions are evaluated by their Taylor series
+_TERMS = 8
+
+
+def _turn_functions(theta):
+    r"""``(sin θ/θ, (1 - cos θ)/θ)`` and their θ-derivatives, smooth through θ = 0.
+
+    Taylor series for small |θ| (no cancellation), closed forms elsewhere;
+    elementwise on real or complex arrays:
+
+    .. math::
+
+        \frac{\sin\theta}{\theta} = \sum_k \frac{(-1)^k \theta^{2k}}{(2k+1)!}, \qquad
+        \frac{1 - \cos\theta}{\theta} = \sum_k \frac{(-1)^k \theta^{2k+1}}{(2k+2)!}.
+    """
+    theta = np.asarray(theta)
+    small = np.abs(theta.real) < _SERIES
+    t = np.where(small, theta, 0.0)
+    t2 = t * t
+    s = c = ds = dc = np.zeros_like(t)
+    power = np.ones_like(t)  # θ^(2k)
+    for k in range(_TERMS):
+        sign = -1.0 if k % 2 else 1.0
+        s = s + sign * power / factorial(2 * k + 1)
+        c = c + sign * power * t / factorial(2 * k + 2)
+        dc = dc + sign * (2 * k + 1) * power / factorial(2 * k + 2)
+        power = power * t2
+    power = t  # d/dθ sin θ/θ = Σ_{k>=1} (-1)^k 2k θ^(2k-1) / (2k+1)!
+    for k in range(1, _TERMS + 1):
+        sign = -1.0 if k % 2 else 1.0
+        ds = ds + sign * 2 * k * power / factorial(2 * k + 1)
+        power = power * t2
+    big = np.where(small, 1.0, theta)
+    sin, cos = np.sin(big), np.cos(big)
+    one_minus_cos = 2.0 * np.sin(0.5 * big) ** 2
+    return (np.where(small, s, sin / big),
+            np.where(small, c, one_minus_cos / big),
+            np.where(small, ds, (big * cos - sin) / big**2),
+            np.where(small, dc, (big * sin - one_minus_cos) / big**2))
+
+
+class CoordinatedTurn(NonlinearMotion):
+    r"""Coordinated turn with unknown turn rate: constant speed along a circular arc.
+
+    Parameters
+    ----------
+    q_acc : float, default 1.0
+        Spectral density of the white-noise acceleration along x and y
+        (as :class:`ConstantVelocity` with ``dim=2``), >= 0.
+    q_turn : float, default 0.01
+        Spectral density of the turn rate's random walk (rad²/s³), >= 0.
+
+    Attributes
+    ----------
+    n : int
+        5: the state is ``[x, y, vx, vy, omega]``, omega the turn rate in
+        rad/s (not an angle: it is never wrapped).
+    dim : int
+        2, the number of spatial axes.
+
+    Notes
+    -----
+    The velocity rotates at the rate ω, :math:`\dot p = v`, :math:`\dot v =
+    \omega J v` with :math:`J = [[0, -1], [1, 0]]`, :math:`\dot\omega = 0`.
+    Over a step, with :math:`\theta = \omega \Delta t`,
+    :math:`S = \sin\theta`, :math:`C = \cos\theta`,
+
+    .. math::
+
+        f(x) = \begin{bmatrix}
+        x + \frac{S}{\omega} v_x - \frac{1 - C}{\omega} v_y \\
+        y + \frac{1 - C}{\omega} v_x + \frac{S}{\omega} v_y \\
+        C v_x - S v_y \\
+        S v_x + C v_y \\
+        \omega \end{bmatrix},
+
+    whose limit as ω → 0 is the constant-velocity transition; the functions
+    :math:`S/\omega = \Delta t \,\mathrm{sinc}` and :math:`(1 - C)/\omega`
+    and their ω-derivatives (in the analytic Jacobian) are evaluated by
+    their Taylor series for :math:`|\theta| < 0.1`, so f and its Jacobian
+    are smooth and accurate through ω = 0. The process noise is
+
+    .. math::
+
+        Q = \mathrm{blockdiag}\left(q_\text{acc}
+        \begin{bmatrix} \Delta t^3/3 & \Delta t^2/2 \\ \Delta t^2/2 & \Delta t
+        \end{bmatrix} \otimes I_2,\; q_\text{turn} \Delta t\right).
+
+    See Bar-Shalom, Li and Kirubarajan [1]_, section 11.7.
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with
+       Applications to Tracking and Navigation*, Wiley, 2001.
+
+    Examples
+    --------
+    A quarter turn at 1 m/s with ω = π/2 rad/s over 1 s:
+
+    >>> import numpy as np
+    >>> from gaussfuse.models.motion import CoordinatedTurn
+    >>> ct = CoordinatedTurn()
+    >>> np.round(ct.f([0.0, 0.0, 1.0, 0.0, np.pi / 2], dt=1.0), 6)
+    array([0.63662 , 0.63662 , 0.      , 1.      , 1.570796])
+    """
+
+    __slots__ = ("q_acc", "q_turn")
+
+    def __init__(self, q_acc: float = 1.0, q_turn: float = 0.01) -> None:
+        self._set(q_acc=_real("q_acc", q_acc, positive=False),
+                  q_turn=_real("q_turn", q_turn, positive=False))
+
+    n = property(lambda self: 5, doc="State dimension, 5.")
+    dim = property(lambda self: 2, doc="Number of spatial axes, 2.")
+    names = property(lambda self: ("x", "y", "vx", "vy", "omega"),
+                     doc="``('x', 'y', 'vx', 'vy', 'omega')``.")
+
+    def f(self, x, dt: float) -> np.ndarray:
+        """The state after dt: x of shape (5,) or (k, 5), real or complex; dt >= 0 (0 is the identity)."""
+        x = check_state(x, 5)
+        dt = _real("dt", dt, positive=False)
+        px, py, vx, vy, w = (x[..., i] for i in range(5))
+        theta = w * dt
+        s, c, _, _ = _turn_functions(theta)
+        s, c = s * dt, c * dt  # sin(ω dt)/ω and (1 - cos(ω dt))/ω
+        sin, cos = np.sin(theta), np.cos(theta)
+        return np.stack([px + s * vx - c * vy,
+                         py + c * vx + s * vy,
+                         cos * vx - sin * vy,
+                         sin * vx + cos * vy,
+                         w], axis=-1)
+
+    def jacobian(self, x, dt: float) -> np.ndarray:
+        """∂f/∂x of shape (5, 5) (or (k, 5, 5) for a stack of states)."""
+        x = check_state(x, 5)
+        dt = _real("dt", dt, positive=False)
+        vx, vy, w = x[..., 2], x[..., 3], x[..., 4]
+        theta = w * dt
+        s, c, ds, dc = _turn_functions(theta)
+        s, c = s * dt, c * dt
+        ds, dc = ds * dt**2, dc * dt**2  # d/dω of s and c
+        sin, cos = np.sin(theta), np.cos(theta)
+        J = np.zeros(x.shape[:-1] + (5, 5), dtype=np.result_type(x.dtype, np.float64))
+        J[..., 0, 0] = J[..., 1, 1] = J[..., 4, 4] = 1.0
+        J[..., 0, 2], J[..., 0, 3], J[..., 0, 4] = s, -c, ds * vx - dc * vy
+        J[..., 1, 2], J[..., 1, 3], J[..., 1, 4] = c, s, dc * vx + ds * vy
+        J[..., 2, 2], J[..., 2, 3], J[..., 2, 4] = cos, -sin, -dt * (sin * vx + cos * vy)
+        J[..., 3, 2], J[..., 3, 3], J[..., 3, 4] = sin, cos, dt * (cos * vx - sin * vy)
+        return J
+
+    def noise(self, dt: float) -> np.ndarray:
+        """Q of shape (5, 5): the CV block for x, y, vx, vy and q_turn·dt for omega (dt >= 0)."""
+        dt = _real("dt", dt, positive=False)
+        Q = np.zeros((5, 5))
+        if dt > 0:
+            Q[:4, :4] = np.kron(continuous_white_noise(1, dt, self.q_acc), np.eye(2))
+            Q[4, 4] = self.q_turn * dt
+        return Q
+
+
+# ---------------------------------------------------------------------------
+# One-call models (kept for backwards compatibility)
+# ---------------------------------------------------------------------------
 
 
 def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
@@ -74,7 +858,8 @@ def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearMode
 
     Notes
     -----
-    Per axis :math:`F = [[1, Δt], [0, 1]]` and
+    ``model(ConstantVelocity(dim, q), Position(dim, r), dt)``: per axis
+    :math:`F = [[1, Δt], [0, 1]]` and
     :math:`Q = q [[Δt^3/3, Δt^2/2], [Δt^2/2, Δt]]`.
 
     Examples
@@ -83,7 +868,10 @@ def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearMode
     >>> gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
     LinearModel(n=4, m=2, p=0)
     """
-    return _integrated_white_noise(1, dt, q, r, dim)
+    from .build import model
+    from .sensors import Position
+
+    return model(ConstantVelocity(dim=dim, q=q), Position(dim=dim, r=r), dt)
 
 
 def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
@@ -95,10 +883,14 @@ def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> Linear
 
     Notes
     -----
-    Per axis :math:`F = [[1, Δt, Δt^2/2], [0, 1, Δt], [0, 0, 1]]` and
+    ``model(ConstantAcceleration(dim, q), Position(dim, r), dt)``: per axis
+    :math:`F = [[1, Δt, Δt^2/2], [0, 1, Δt], [0, 0, 1]]` and
     :math:`Q = q [[Δt^5/20, Δt^4/8, Δt^3/6], [Δt^4/8, Δt^3/3, Δt^2/2], [Δt^3/6, Δt^2/2, Δt]]`.
     """
-    return _integrated_white_noise(2, dt, q, r, dim)
+    from .build import model
+    from .sensors import Position
+
+    return model(ConstantAcceleration(dim=dim, q=q), Position(dim=dim, r=r), dt)
 
 
 def state_names(order: int, dim: int) -> list[str]:

@@ -1,0 +1,155 @@
+r"""Combining a motion and a sensor into a state-space model for a time step."""
+
+from __future__ import annotations
+
+from .linear import LinearModel
+from .motion import LinearMotion, NonlinearMotion
+from .nonlinear import NonlinearModel
+from .sensors import LinearSensor, NonlinearSensor
+
+__all__ = ["model"]
+
+
+def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
+    r"""The state-space model of a motion observed by a sensor, stepped every dt.
+
+    Parameters
+    ----------
+    motion : LinearMotion or NonlinearMotion
+        What the state does, e.g. :class:`~gaussfuse.ConstantVelocity` or
+        :class:`~gaussfuse.CoordinatedTurn`.
+    sensor : LinearSensor or NonlinearSensor
+        What is measured, e.g. :class:`~gaussfuse.Position` or
+        :class:`~gaussfuse.RangeBearing`.
+    dt : float
+        Time step, > 0.
+
+    Returns
+    -------
+    LinearModel or NonlinearModel
+        A :class:`LinearModel` ``(F, H, Q, R, B)`` when both are linear (B
+        from ``motion.control(dt)``, if any); otherwise a
+        :class:`NonlinearModel` with the analytic Jacobians of both, the
+        angle components of both, and ``vectorized=True`` (the functions
+        take a stack of states).
+
+    Raises
+    ------
+    TypeError
+        If `motion` or `sensor` is not a motion or a sensor model.
+    ValueError
+        If the sensor does not fit the motion's state (a geometric sensor
+        reading more spatial axes than the motion has, or a matrix H of the
+        wrong width), or dt is not positive.
+
+    Notes
+    -----
+    With :math:`(F, Q) =` ``motion.transition(dt)`` or
+    :math:`f(x) =` ``motion.f(x, dt)``, :math:`Q =` ``motion.noise(dt)``:
+
+    .. math::
+
+        x_k = f(x_{k-1}) \;[+\, B u_k] + w_k, \quad w_k \sim N(0, Q), \qquad
+        z_k = h(x_k) + v_k, \quad v_k \sim N(0, R),
+
+    where a linear motion has :math:`f(x) = F x` (Jacobian F) and a linear
+    sensor :math:`h(x) = H x` (Jacobian H). A linear motion with a control
+    input combined with a nonlinear sensor gives ``f(x, u) = F x + B u``:
+    pass the controls to :func:`gaussfuse.filter` as `us`.
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.1), dt=0.1)
+    LinearModel(n=4, m=2, p=0)
+    >>> gf.model(gf.CoordinatedTurn(), gf.RangeBearing(), dt=1.0)
+    NonlinearModel(n=5, m=2, vectorized=True)
+    """
+    if not isinstance(motion, (LinearMotion, NonlinearMotion)):
+        raise TypeError(
+            f"`motion` must be a LinearMotion or NonlinearMotion (e.g. gaussfuse.ConstantVelocity); "
+            f"got {type(motion).__name__}."
+        )
+    if not isinstance(sensor, (LinearSensor, NonlinearSensor)):
+        raise TypeError(
+            f"`sensor` must be a LinearSensor or NonlinearSensor (e.g. gaussfuse.Position); "
+            f"got {type(sensor).__name__}."
+        )
+    n = motion.n
+    _check_fit(motion, sensor, n)
+
+    if isinstance(motion, LinearMotion):
+        F, Q = motion.transition(dt)
+        B = motion.control(dt)
+    else:
+        Q = motion.noise(dt)
+        if not dt > 0:  # noise() accepts dt = 0; a model's step must be positive
+            raise ValueError(f"`dt` must be positive; got {float(dt)}.")
+
+    if isinstance(motion, LinearMotion) and isinstance(sensor, LinearSensor):
+        H, R = sensor.linear(n)
+        return LinearModel(F=F, H=H, Q=Q, R=R, B=B)
+
+    if isinstance(motion, LinearMotion):
+        F.setflags(write=False)
+        FT = F.T
+        if B is None:
+            def f(x):
+                return x @ FT
+
+            def f_jacobian(x):
+                return F
+        else:
+            B.setflags(write=False)
+
+            def f(x, u):
+                return x @ FT + B @ u
+
+            def f_jacobian(x, u):
+                return F
+    else:
+        def f(x):
+            return motion.f(x, dt)
+
+        def f_jacobian(x):
+            return motion.jacobian(x, dt)
+
+    if isinstance(sensor, LinearSensor):
+        H, R = sensor.linear(n)
+        H.setflags(write=False)
+        HT = H.T
+
+        def h(x):
+            return x @ HT
+
+        def h_jacobian(x):
+            return H
+    else:
+        R = sensor.R
+        h, h_jacobian = sensor.h, sensor.jacobian
+
+    return NonlinearModel(f, h, Q, R, f_jacobian=f_jacobian, h_jacobian=h_jacobian, vectorized=True,
+                          state_angles=motion.state_angles,
+                          measurement_angles=sensor.measurement_angles)
+
+
+def _check_fit(motion, sensor, n: int) -> None:
+    """Raise ValueError if the sensor cannot observe the motion's state."""
+    if isinstance(sensor, LinearSensor) and sensor.H is not None and sensor.H.shape[1] != n:
+        raise ValueError(
+            f"`sensor` has `H` of shape {sensor.H.shape}, which does not fit the state of `motion` "
+            f"(n = {n}); `H` must have {n} columns."
+        )
+    reads = getattr(sensor, "dim", None)
+    if reads is None:
+        return
+    axes = getattr(motion, "dim", None)
+    if axes is not None and reads > axes:
+        raise ValueError(
+            f"`sensor` reads {reads} position components but `motion` has {axes} spatial "
+            f"{'axis' if axes == 1 else 'axes'}."
+        )
+    if reads > n:
+        raise ValueError(
+            f"`sensor` reads {reads} position components but the state of `motion` has only {n}."
+        )

@@ -1,0 +1,237 @@
+r"""Discretisation of continuous-time linear models: white-noise accelerations and Van Loan.
+
+A continuous-time linear stochastic differential equation
+
+.. math::
+
+    dx = A x \, dt + L \, d\beta, \qquad E[d\beta \, d\beta^T] = Q_c \, dt,
+
+observed at intervals :math:`\Delta t` is, exactly, the discrete model
+:math:`x_k = F x_{k-1} + w_k`, :math:`w_k \sim N(0, Q)` with
+
+.. math::
+
+    F = e^{A \Delta t}, \qquad
+    Q = \int_0^{\Delta t} e^{A s} L Q_c L^T e^{A^T s} \, ds .
+
+:func:`van_loan` computes both for any (A, L, Qc);
+:func:`continuous_white_noise` is the closed form for a chain of integrators
+(random walk, constant velocity, constant acceleration, ...) and
+:func:`piecewise_white_noise` the "piecewise constant" alternative in which
+the highest derivative is held constant over each step.
+"""
+
+from __future__ import annotations
+
+from math import ceil, factorial, log2
+
+import numpy as np
+
+from .._validation import as_matrix, check_psd
+
+__all__ = ["van_loan", "continuous_white_noise", "piecewise_white_noise"]
+
+
+def _real(name: str, value, *, positive: bool) -> float:
+    """`value` as a finite float, > 0 (`positive`) or >= 0; TypeError for a non-number."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"`{name}` must be a number; got {value!r}.")
+    value = float(value)
+    if not np.isfinite(value) or value < 0 or (positive and value == 0):
+        raise ValueError(f"`{name}` must be {'positive' if positive else 'non-negative'}; got {value}.")
+    return value
+
+
+def _order(value) -> int:
+    """`order` as a non-negative int."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"`order` must be a non-negative integer; got {value!r}.")
+    return int(value)
+
+
+def sde_arrays(A, L, Qc) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate the drift A (n, n), the noise gain L (n, s) and the noise density Qc (s, s)."""
+    A = as_matrix("A", A, None, None, row_name="n", time_varying=False)
+    if A.shape[0] != A.shape[1]:
+        raise ValueError(f"`A` must be square, of shape (n, n); got shape {A.shape}.")
+    n = A.shape[0]
+    L = as_matrix("L", L, n, None, column_vector_ok=True, col_name="s", time_varying=False)
+    s = L.shape[1]
+    Qc = check_psd("Qc", as_matrix("Qc", Qc, s, s, time_varying=False))
+    return A, L, Qc
+
+
+def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Exact discretisation of a linear SDE over a time step (Van Loan's method).
+
+    Parameters
+    ----------
+    A : array_like of shape (n, n)
+        Drift matrix of :math:`dx = A x\,dt + L\,d\beta`.
+    L : array_like of shape (n, s)
+        Noise gain; a 1-D array of length n is a single column.
+    Qc : array_like of shape (s, s)
+        Spectral density (diffusion) of the Brownian motion β,
+        :math:`E[d\beta\,d\beta^T] = Q_c\,dt`; symmetric positive
+        semi-definite; a scalar when s = 1.
+    dt : float
+        Time step, > 0.
+
+    Returns
+    -------
+    F : ndarray of shape (n, n)
+        Transition matrix :math:`e^{A \Delta t}`.
+    Q : ndarray of shape (n, n)
+        Process-noise covariance, symmetric positive semi-definite.
+
+    Notes
+    -----
+    With :math:`W = L Q_c L^T`, the matrix exponential [1]_
+
+    .. math::
+
+        \exp\left(\begin{bmatrix} -A & W \\ 0 & A^T \end{bmatrix} h\right)
+        = \begin{bmatrix} \cdot & G \\ 0 & \Phi_h^T \end{bmatrix}
+        \quad\text{gives}\quad
+        F_h = \Phi_h = e^{A h}, \qquad Q_h = \Phi_h G .
+
+    The block :math:`e^{-A h}` grows like :math:`e^{\|A\| h}`, which would
+    cost accuracy for stiff drifts (e.g. a short Singer time constant), so
+    the exponential is taken over :math:`h = \Delta t / 2^j` with
+    :math:`\|A\|_1 h \le 1/2` and the result doubled j times with the exact
+    rule :math:`F_{2h} = F_h^2`, :math:`Q_{2h} = F_h Q_h F_h^T + Q_h`.
+
+    References
+    ----------
+    .. [1] C. F. Van Loan, "Computing integrals involving the matrix
+       exponential", IEEE Trans. Automatic Control 23(3), 1978.
+
+    Examples
+    --------
+    The constant-velocity model (white-noise acceleration of density q):
+
+    >>> import numpy as np
+    >>> from gaussfuse.models.noise import van_loan
+    >>> F, Q = van_loan([[0, 1], [0, 0]], [0, 1], 3.0, dt=2.0)
+    >>> F
+    array([[1., 2.],
+           [0., 1.]])
+    >>> np.round(Q, 12)  # 3 * [[dt^3/3, dt^2/2], [dt^2/2, dt]]
+    array([[8., 6.],
+           [6., 6.]])
+    """
+    from scipy.linalg import expm  # imported here: scipy.linalg is slow to import
+
+    A, L, Qc = sde_arrays(A, L, Qc)
+    dt = _real("dt", dt, positive=True)
+    n = A.shape[0]
+    W = L @ Qc @ L.T
+    norm = np.max(np.sum(np.abs(A), axis=0)) * dt
+    halvings = max(0, ceil(log2(norm)) + 1) if norm > 0 else 0
+    h = dt / 2.0**halvings
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -A
+    M[:n, n:] = W
+    M[n:, n:] = A.T
+    E = expm(M * h)
+    F = E[n:, n:].T
+    Q = F @ E[:n, n:]
+    Q = 0.5 * (Q + Q.T)
+    for _ in range(halvings):
+        Q = F @ Q @ F.T + Q
+        Q = 0.5 * (Q + Q.T)
+        F = F @ F
+    return F, Q
+
+
+def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
+    r"""Process noise of an integrator chain driven by continuous white noise, for one axis.
+
+    Parameters
+    ----------
+    order : int
+        K, the derivative driven by the noise: 0 for a random walk, 1 for
+        constant velocity (white-noise acceleration), 2 for constant
+        acceleration (white-noise jerk), ...
+    dt : float
+        Time step, > 0.
+    q : float
+        Spectral density of the white noise, >= 0.
+
+    Returns
+    -------
+    ndarray of shape (K + 1, K + 1)
+        Covariance of (position, velocity, ...) accumulated over `dt`.
+
+    Notes
+    -----
+    The state is the position and its first K derivatives, and the K-th is
+    :math:`d x^{(K)} = d\beta` with :math:`E[d\beta^2] = q\,dt`. With
+    :math:`F_{ij} = \Delta t^{j-i} / (j-i)!`, the integral
+    :math:`\int_0^{\Delta t} e^{As} L q L^T e^{A^T s} ds` is
+
+    .. math::
+
+        Q_{ij} = q \, \frac{\Delta t^{2K+1-i-j}}{(2K+1-i-j)\,(K-i)!\,(K-j)!},
+        \qquad i, j = 0, \dots, K.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.noise import continuous_white_noise
+    >>> continuous_white_noise(1, dt=2.0, q=3.0)
+    array([[8., 6.],
+           [6., 6.]])
+    """
+    K = _order(order)
+    dt = _real("dt", dt, positive=True)
+    q = _real("q", q, positive=False)
+    idx = np.arange(K + 1)
+    i, j = np.meshgrid(idx, idx, indexing="ij")
+    fact = np.array([float(factorial(k)) for k in range(K + 1)])
+    power = 2 * K + 1 - i - j
+    return q * dt**power / (power * fact[K - i] * fact[K - j])
+
+
+def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
+    r"""Process noise of an integrator chain whose K-th derivative jumps once per step, for one axis.
+
+    Parameters
+    ----------
+    order : int
+        K: the K-th derivative (1 for the acceleration of a constant-velocity
+        model) is constant over each step, with independent values of
+        variance `var` from step to step.
+    dt : float
+        Time step, > 0.
+    var : float
+        Variance of the per-step value of that derivative, >= 0.
+
+    Returns
+    -------
+    ndarray of shape (K + 1, K + 1)
+        :math:`\mathrm{var} \cdot g g^T`.
+
+    Notes
+    -----
+    A constant K-th derivative a over the step moves the i-th derivative
+    (i = 0 the position) by :math:`g_i a` with
+
+    .. math::
+
+        g_i = \frac{\Delta t^{K+1-i}}{(K+1-i)!}, \qquad Q = \mathrm{var}\; g g^T,
+
+    so :math:`g = [\Delta t^2/2, \Delta t]` for constant velocity. Q has
+    rank one.
+
+    Examples
+    --------
+    >>> from gaussfuse.models.noise import piecewise_white_noise
+    >>> piecewise_white_noise(1, dt=2.0, var=0.5)
+    array([[2., 2.],
+           [2., 2.]])
+    """
+    K = _order(order)
+    dt = _real("dt", dt, positive=True)
+    var = _real("var", var, positive=False)
+    g = np.array([dt ** (K + 1 - i) / factorial(K + 1 - i) for i in range(K + 1)])
+    return var * np.outer(g, g)

@@ -1,0 +1,262 @@
+"""`model(motion, sensor, dt)`: combining a motion and a sensor into a filterable model."""
+
+from __future__ import annotations
+
+import contextlib
+import doctest
+import importlib
+import io
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+from gaussfuse.linearize.taylor import jacobian
+
+build_module = importlib.import_module("gaussfuse.models.build")
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("dt", [0.1, 1.5])
+def test_linear_combination_equals_the_one_call_models(dim, dt):
+    q, r = 0.7, 0.3
+    built = gf.model(gf.ConstantVelocity(dim, q), gf.Position(dim, r), dt)
+    assert isinstance(built, gf.LinearModel)
+    ref = gf.constant_velocity(dt, q, r, dim)
+    for name in ("F", "H", "Q", "R"):
+        np.testing.assert_array_equal(getattr(built, name), getattr(ref, name))
+    assert built.B is None and ref.B is None
+    # ... and the closed forms, independently: per axis F = [[1, dt], [0, 1]], Q = q [[dt³/3, dt²/2], [dt²/2, dt]].
+    eye = np.eye(dim)
+    np.testing.assert_allclose(built.F, np.kron([[1, dt], [0, 1]], eye), rtol=1e-15)
+    np.testing.assert_allclose(built.Q, q * np.kron([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]], eye), rtol=1e-14)
+    np.testing.assert_array_equal(built.H, np.hstack([eye, np.zeros((dim, dim))]))
+    np.testing.assert_array_equal(built.R, r * eye)
+    acc = gf.model(gf.ConstantAcceleration(dim, q), gf.Position(dim, r), dt)
+    ref = gf.constant_acceleration(dt, q, r, dim)
+    for name in ("F", "H", "Q", "R"):
+        np.testing.assert_array_equal(getattr(acc, name), getattr(ref, name))
+
+
+def test_linear_combination_with_control_and_general_sensor():
+    dt = 0.4
+    model = gf.model(gf.ForceInput(q=0.1, dim=2), gf.LinearSensor(np.eye(4)[2:], 0.2 * np.eye(2)), dt)
+    assert isinstance(model, gf.LinearModel)
+    np.testing.assert_array_equal(model.B, gf.ForceInput(dim=2).control(dt))
+    np.testing.assert_array_equal(model.H, np.eye(4)[2:])
+    assert (model.n, model.m, model.p) == (4, 2, 2)
+
+
+def test_linear_motion_with_nonlinear_sensor():
+    dt = 0.5
+    motion = gf.ConstantVelocity(dim=2, q=0.3)
+    sensor = gf.RangeBearing(r_range=2.0, r_bearing=1e-3, origin=(1.0, 2.0))
+    model = gf.model(motion, sensor, dt)
+    assert isinstance(model, gf.NonlinearModel)
+    F, Q = motion.transition(dt)
+    x = np.array([10.0, -4.0, 1.0, 2.0])
+    np.testing.assert_allclose(model.f(x), F @ x, rtol=1e-15)
+    np.testing.assert_array_equal(model.f_jacobian(x), F)
+    np.testing.assert_array_equal(model.h(x), sensor.h(x))
+    np.testing.assert_array_equal(model.h_jacobian(x), sensor.jacobian(x))
+    np.testing.assert_array_equal(model.Q, Q)
+    np.testing.assert_array_equal(model.R, sensor.R)
+    np.testing.assert_array_equal(model.measurement_angles, [False, True])
+    np.testing.assert_array_equal(model.state_angles, [False] * 4)
+    # Stacks of states, as sigma-point filters pass them.
+    X = np.stack([x, 2 * x, -x])
+    np.testing.assert_allclose(model.transition(X), X @ F.T, rtol=1e-15)
+    np.testing.assert_array_equal(model.measurement(X), sensor.h(X))
+
+
+def test_controlled_linear_motion_with_nonlinear_sensor_takes_u():
+    dt = 0.5
+    motion = gf.ForceInput(q=0.0, dim=2)
+    model = gf.model(motion, gf.BearingOnly(), dt)
+    assert isinstance(model, gf.NonlinearModel)
+    F, _ = motion.transition(dt)
+    B = motion.control(dt)
+    x, u = np.array([1.0, 2.0, 3.0, 4.0]), np.array([0.5, -1.0])
+    np.testing.assert_allclose(model.f(x, u), F @ x + B @ u, rtol=1e-15)
+    np.testing.assert_allclose(model.transition(x, u), F @ x + B @ u, rtol=1e-15)
+    np.testing.assert_array_equal(model.f_jacobian(x, u), F)
+    np.testing.assert_array_equal(model.measurement_angles, [True])
+
+
+def test_nonlinear_motion_with_linear_sensor():
+    dt = 1.0
+    motion = gf.CoordinatedTurn(q_acc=0.5, q_turn=0.02)
+    model = gf.model(motion, gf.Position(dim=2, r=0.25), dt)
+    assert isinstance(model, gf.NonlinearModel)
+    x = np.array([1.0, 2.0, 3.0, 4.0, 0.3])
+    np.testing.assert_array_equal(model.f(x), motion.f(x, dt))
+    np.testing.assert_array_equal(model.f_jacobian(x), motion.jacobian(x, dt))
+    np.testing.assert_array_equal(model.h(x), [1.0, 2.0])
+    np.testing.assert_array_equal(model.h_jacobian(x), np.eye(2, 5))
+    np.testing.assert_array_equal(model.Q, motion.noise(dt))
+    np.testing.assert_array_equal(model.R, 0.25 * np.eye(2))
+    assert not model.state_angles.any() and not model.measurement_angles.any()
+
+
+@pytest.mark.parametrize("sensor", [gf.RangeBearing(origin=(3.0, -1.0)), gf.BearingOnly(origin=(-2.0, 4.0))],
+                         ids=["rb", "bo"])
+def test_nonlinear_combination_jacobians_match_automatic_ones(sensor):
+    dt = 0.7
+    model = gf.model(gf.CoordinatedTurn(), sensor, dt)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        x = np.r_[rng.normal(scale=20, size=2), rng.normal(scale=5, size=2), rng.normal(scale=0.5)]
+        Jf = jacobian("f", model.f, x, (), 5, vectorized=True)
+        Jh = jacobian("h", model.h, x, (), model.m, vectorized=True)
+        np.testing.assert_allclose(model.f_jacobian(x), Jf, rtol=0, atol=1e-8 * max(1.0, np.max(np.abs(Jf))))
+        np.testing.assert_allclose(model.h_jacobian(x), Jh, rtol=1e-8, atol=1e-8 * np.max(np.abs(Jh)))
+
+
+def test_three_dimensional_combination():
+    model = gf.model(gf.ConstantVelocity(dim=3, q=1.0), gf.RangeBearingElevation(), 1.0)
+    x = np.array([3.0, 4.0, 12.0, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(model.h(x)[0], 13.0, rtol=1e-15)
+    assert (model.n, model.m) == (6, 3)
+    np.testing.assert_array_equal(model.measurement_angles, [False, True, False])
+
+
+# -- an EKF on a simulated coordinated-turn track ---------------------------------------
+
+
+def simulate(motion, sensor, dt, T, x0, seed):
+    rng = np.random.default_rng(seed)
+    Q = motion.noise(dt)
+    xs, zs = np.empty((T, 5)), np.empty((T, sensor.m))
+    x = x0
+    for k in range(T):
+        x = motion.f(x, dt) + rng.multivariate_normal(np.zeros(5), Q)
+        xs[k] = x
+        zs[k] = sensor.h(x) + rng.multivariate_normal(np.zeros(sensor.m), sensor.R)
+    zs[:, 1] = gf.models.nonlinear.wrap_angle(zs[:, 1])
+    return xs, zs
+
+
+@pytest.fixture(scope="module")
+def turn_track():
+    dt, T = 1.0, 120
+    motion = gf.CoordinatedTurn(q_acc=0.05, q_turn=1e-6)
+    sensor = gf.RangeBearing(r_range=4.0, r_bearing=1e-4, origin=(0.0, 0.0))
+    x0 = np.array([-250.0, -400.0, 5.0, 10.0, 0.02])  # a turn that takes the track across the -x axis
+    xs, zs = simulate(motion, sensor, dt, T, x0, seed=11)
+    prior = gf.Gaussian(x0 + np.array([5.0, -5.0, 1.0, -1.0, 0.01]), np.diag([100.0, 100.0, 4.0, 4.0, 1e-3]))
+    return motion, sensor, dt, xs, zs, prior
+
+
+def test_ekf_tracks_a_coordinated_turn(turn_track):
+    motion, sensor, dt, xs, zs, prior = turn_track
+    # The bearing crosses ±π during the run: the angle flag must do its job.
+    assert np.any(np.abs(np.diff(zs[:, 1])) > np.pi)
+    model = gf.model(motion, sensor, dt)
+    res = gf.filter(model, prior, zs, method="ekf")
+    err = np.hypot(*(res.means[20:, :2] - xs[20:, :2]).T)
+    # Raw measurements converted to positions, for scale.
+    raw = np.c_[zs[:, 0] * np.cos(zs[:, 1]), zs[:, 0] * np.sin(zs[:, 1])]
+    raw_err = np.hypot(*(raw[20:] - xs[20:, :2]).T)
+    rmse, raw_rmse = np.sqrt(np.mean(err**2)), np.sqrt(np.mean(raw_err**2))
+    assert rmse < 0.6 * raw_rmse
+    assert rmse < 4.5
+    np.testing.assert_allclose(res.means[-1, 4], xs[-1, 4], atol=3e-3)  # the turn rate is learnt
+    assert np.isfinite(res.loglik)
+
+
+def test_ekf_uses_the_analytic_jacobians(turn_track, monkeypatch):
+    motion, sensor, dt, xs, zs, prior = turn_track
+    calls = {"f": 0, "h": 0}
+    f_jac, h_jac = gf.CoordinatedTurn.jacobian, gf.RangeBearing.jacobian
+
+    def counted_f(self, x, dt):
+        calls["f"] += 1
+        return f_jac(self, x, dt)
+
+    def counted_h(self, x):
+        calls["h"] += 1
+        return h_jac(self, x)
+
+    monkeypatch.setattr(gf.CoordinatedTurn, "jacobian", counted_f)
+    monkeypatch.setattr(gf.RangeBearing, "jacobian", counted_h)
+    model = gf.model(motion, sensor, dt)
+    analytic = gf.filter(model, prior, zs, method="ekf")
+    assert calls == {"f": len(zs), "h": len(zs)}
+    # The same model with automatic Jacobians gives the same filter.
+    automatic = gf.NonlinearModel(model.f, model.h, model.Q, model.R, vectorized=True,
+                                  state_angles=np.flatnonzero(model.state_angles),
+                                  measurement_angles=np.flatnonzero(model.measurement_angles))
+    auto = gf.filter(automatic, prior, zs, method="ekf")
+    assert calls == {"f": len(zs), "h": len(zs)}  # not called by the automatic run
+    np.testing.assert_allclose(analytic.means, auto.means, rtol=0, atol=1e-8 * np.max(np.abs(auto.means)))
+    np.testing.assert_allclose(analytic.covs, auto.covs, rtol=0, atol=1e-8 * np.max(np.abs(auto.covs)))
+    np.testing.assert_allclose(analytic.loglik, auto.loglik, rtol=1e-10)
+
+
+def test_sigma_point_filters_run_on_built_models(turn_track):
+    """The vectorized functions serve the UKF and CKF too, and they agree with the EKF here."""
+    motion, sensor, dt, xs, zs, prior = turn_track
+    model = gf.model(motion, sensor, dt)
+    ekf = gf.filter(model, prior, zs, method="ekf")
+    for method in ("ukf", "ckf"):
+        res = gf.filter(model, prior, zs, method=method)
+        assert np.sqrt(np.mean(np.sum((res.means[20:, :2] - xs[20:, :2]) ** 2, axis=1))) < 4.5
+        np.testing.assert_allclose(res.means[20:, :2], ekf.means[20:, :2], atol=1.0)
+
+
+# -- validation ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("args", "error", "match"),
+    [
+        (("cv", gf.Position(), 1.0), TypeError,
+         r"^`motion` must be a LinearMotion or NonlinearMotion \(e\.g\. gaussfuse\.ConstantVelocity\); got str\.$"),
+        ((gf.ConstantVelocity(), gf.LinearModel(1, 1, 1, 1), 1.0), TypeError,
+         r"^`sensor` must be a LinearSensor or NonlinearSensor \(e\.g\. gaussfuse\.Position\); got LinearModel\.$"),
+        ((gf.ConstantVelocity(dim=1), gf.RangeBearing(), 1.0), ValueError,
+         r"^`sensor` reads 2 position components but `motion` has 1 spatial axis\.$"),
+        ((gf.ConstantVelocity(dim=1), gf.Position(dim=2), 1.0), ValueError,
+         r"^`sensor` reads 2 position components but `motion` has 1 spatial axis\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearingElevation(), 1.0), ValueError,
+         r"^`sensor` reads 3 position components but `motion` has 2 spatial axes\.$"),
+        ((gf.RandomWalk(n=1), gf.BearingOnly(), 1.0), ValueError,
+         r"^`sensor` reads 2 position components but the state of `motion` has only 1\.$"),
+        ((gf.ConstantVelocity(dim=2), gf.LinearSensor([[1, 0, 0]], 1.0), 1.0), ValueError,
+         r"^`sensor` has `H` of shape \(1, 3\), which does not fit the state of `motion` \(n = 4\); "
+         r"`H` must have 4 columns\.$"),
+        ((gf.ConstantVelocity(dim=2), gf.Position(dim=2, n=6), 1.0), ValueError,
+         r"^`sensor` has `H` of shape \(2, 6\)"),
+        ((gf.ConstantVelocity(), gf.Position(), 0.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearing(), 0.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearing(), -1.0), ValueError, r"^`dt` must be non-negative; got -1\.0\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearing(), "1"), TypeError, r"^`dt` must be a number; got '1'\.$"),
+    ],
+)
+def test_model_validation(args, error, match):
+    with pytest.raises(error, match=match):
+        gf.model(*args)
+
+
+def test_position_sensor_on_fewer_axes_is_allowed():
+    """Measuring x only of a 2-D motion is a legitimate (partial) sensor."""
+    model = gf.model(gf.ConstantVelocity(dim=2), gf.Position(dim=1), 1.0)
+    np.testing.assert_array_equal(model.H, [[1.0, 0.0, 0.0, 0.0]])
+
+
+def test_exported():
+    for name in ("model", "van_loan", "LinearMotion", "NonlinearMotion", "ConstantPosition", "ConstantVelocity",
+                 "ConstantAcceleration", "ForceInput", "Singer", "RandomWalk", "LocalLevel", "LocalLinearTrend",
+                 "LinearSDE", "CoordinatedTurn", "LinearSensor", "Position", "NonlinearSensor", "RangeBearing",
+                 "RangeBearingElevation", "BearingOnly"):
+        assert name in gf.__all__ and hasattr(gf, name)
+        assert name in gf.models.__all__
+    assert gf.model is gf.models.model
+
+
+def test_docstring_examples():
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        result = doctest.testmod(build_module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
+    assert result.attempted >= 2
+    assert result.failed == 0, out.getvalue()

@@ -1,0 +1,231 @@
+"""Discretisation: Van Loan's method and the white-noise process-noise matrices."""
+
+from __future__ import annotations
+
+import contextlib
+import doctest
+import io
+from math import factorial
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import quad_vec
+from scipy.linalg import expm
+
+import gaussfuse as gf
+from gaussfuse.models import noise
+from gaussfuse.models.noise import continuous_white_noise, piecewise_white_noise, van_loan
+
+
+def chain(order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Drift and noise gain of a chain of `order` integrators driven at the top."""
+    A = np.diag(np.ones(order), k=1)
+    L = np.zeros(order + 1)
+    L[-1] = 1.0
+    return A, L
+
+
+CV_CLOSED = lambda dt, q: q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])  # noqa: E731
+CA_CLOSED = lambda dt, q: q * np.array([  # noqa: E731
+    [dt**5 / 20, dt**4 / 8, dt**3 / 6],
+    [dt**4 / 8, dt**3 / 3, dt**2 / 2],
+    [dt**3 / 6, dt**2 / 2, dt],
+])
+
+
+@pytest.mark.parametrize("dt", [0.01, 0.3, 1.0, 2.5, 10.0])
+@pytest.mark.parametrize(("order", "closed"), [(1, CV_CLOSED), (2, CA_CLOSED)], ids=["cv", "ca"])
+def test_van_loan_matches_closed_forms(order, closed, dt):
+    q = 0.7
+    A, L = chain(order)
+    F, Q = van_loan(A, L, q, dt)
+    np.testing.assert_allclose(F, expm(A * dt), rtol=1e-12, atol=0)
+    np.testing.assert_allclose(Q, closed(dt, q), rtol=1e-12, atol=0)
+    # The closed form of the library says the same.
+    np.testing.assert_allclose(continuous_white_noise(order, dt, q), closed(dt, q), rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("order", [0, 1, 2, 3, 4])
+def test_continuous_white_noise_is_van_loan_of_the_integrator_chain(order):
+    dt, q = 1.7, 0.4
+    A, L = chain(order)
+    F, Q = van_loan(A, L, q, dt)
+    np.testing.assert_allclose(continuous_white_noise(order, dt, q), Q, rtol=1e-12, atol=0)
+    # F is the Taylor series of the position: F_ij = dt^(j-i) / (j-i)!.
+    expected = np.array([[dt ** (j - i) / factorial(j - i) if j >= i else 0.0
+                          for j in range(order + 1)] for i in range(order + 1)])
+    np.testing.assert_allclose(F, expected, rtol=1e-13, atol=0)
+
+
+def test_random_walk_order_zero():
+    np.testing.assert_array_equal(continuous_white_noise(0, 2.0, 3.0), [[6.0]])
+    np.testing.assert_array_equal(piecewise_white_noise(0, 2.0, 3.0), [[12.0]])
+
+
+def singer_gain(s, tau):
+    """e^{As} [0, 0, 1]ᵀ for the Singer drift, in closed form: how an acceleration impulse propagates."""
+    e = np.exp(-s / tau)
+    return np.array([tau**2 * (np.expm1(-s / tau) + s / tau), -tau * np.expm1(-s / tau), e])
+
+
+@pytest.mark.parametrize("tau", [1e-3, 0.05, 1.0, 30.0])
+@pytest.mark.parametrize("dt", [0.1, 1.0, 4.0])
+def test_van_loan_matches_numerical_integration_for_singer(tau, dt):
+    sigma = 1.3
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tau]])
+    Qc = 2 * sigma**2 / tau
+    F, Q = van_loan(A, [0.0, 0.0, 1.0], Qc, dt)
+    np.testing.assert_allclose(F, expm(A * dt), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(F[:, 2], singer_gain(dt, tau), rtol=1e-12, atol=1e-15)
+
+    def integrand(s):
+        g = singer_gain(s, tau)
+        return Qc * np.outer(g, g)
+
+    # Fast transients (short tau) are at the start of the interval: tell quad_vec.
+    points = [k * tau for k in (1, 5, 20) if k * tau < dt] or None
+    ref, err = quad_vec(integrand, 0.0, dt, epsabs=1e-15, epsrel=1e-13, points=points)
+    scale = np.max(np.abs(ref))
+    assert err < 1e-12 * scale
+    np.testing.assert_allclose(Q, ref, rtol=0, atol=1e-10 * scale)
+    assert scale > 1e-6  # not trivially small
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_van_loan_general_sde_matches_numerical_integration(seed):
+    rng = np.random.default_rng(seed)
+    n, s = 4, 2
+    A = rng.normal(size=(n, n))
+    L = rng.normal(size=(n, s))
+    C = rng.normal(size=(s, s))
+    Qc = C @ C.T
+    dt = 0.8
+    F, Q = van_loan(A, L, Qc, dt)
+    np.testing.assert_allclose(F, expm(A * dt), rtol=1e-11, atol=1e-13)
+    # e^{As} by eigendecomposition (cheap for quad_vec's many evaluations).
+    lam, V = np.linalg.eig(A)
+    Vinv = np.linalg.inv(V)
+    assert np.linalg.cond(V) < 1e3
+    W = L @ Qc @ L.T
+
+    def integrand(t):
+        E = ((V * np.exp(lam * t)) @ Vinv).real
+        return E @ W @ E.T
+
+    ref, err = quad_vec(integrand, 0.0, dt, epsabs=1e-15, epsrel=1e-13)
+    assert err < 1e-12 * np.max(np.abs(ref))
+    np.testing.assert_allclose(Q, ref, rtol=0, atol=1e-10 * np.max(np.abs(ref)))
+    np.testing.assert_array_equal(Q, Q.T)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    dt1=st.floats(0.01, 3.0),
+    dt2=st.floats(0.01, 3.0),
+)
+def test_van_loan_is_a_semigroup(seed, dt1, dt2):
+    """Two steps of the exact discretisation are one longer step: F = F2 F1, Q = F2 Q1 F2ᵀ + Q2."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(3, 3))
+    L = rng.normal(size=(3, 1))
+    F1, Q1 = van_loan(A, L, 0.5, dt1)
+    F2, Q2 = van_loan(A, L, 0.5, dt2)
+    F, Q = van_loan(A, L, 0.5, dt1 + dt2)
+    scale_F = max(1.0, np.max(np.abs(F)))
+    scale_Q = max(1.0, np.max(np.abs(Q)))
+    np.testing.assert_allclose(F2 @ F1, F, rtol=0, atol=1e-10 * scale_F)
+    np.testing.assert_allclose(F2 @ Q1 @ F2.T + Q2, Q, rtol=0, atol=1e-10 * scale_Q)
+    assert np.min(np.linalg.eigvalsh(Q)) > -1e-12 * scale_Q
+
+
+def test_van_loan_accepts_scalar_and_column_forms():
+    F1, Q1 = van_loan([[0, 1], [0, 0]], [0, 1], 2.0, 0.5)
+    F2, Q2 = van_loan(np.array([[0.0, 1.0], [0.0, 0.0]]), [[0.0], [1.0]], [[2.0]], 0.5)
+    np.testing.assert_array_equal(F1, F2)
+    np.testing.assert_array_equal(Q1, Q2)
+
+
+@pytest.mark.parametrize("dt", [0.1, 1.0, 3.0])
+@pytest.mark.parametrize("order", [0, 1, 2, 3])
+def test_piecewise_white_noise_is_g_gT(order, dt):
+    var = 0.9
+    Q = piecewise_white_noise(order, dt, var)
+    g = np.array([dt ** (order + 1 - i) / factorial(order + 1 - i) for i in range(order + 1)])
+    np.testing.assert_allclose(Q, var * np.outer(g, g), rtol=1e-15, atol=0)
+    assert np.linalg.matrix_rank(Q, tol=1e-12 * np.max(Q)) == 1
+    if order == 1:  # the textbook form for constant velocity
+        np.testing.assert_allclose(Q, var * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]),
+                                   rtol=1e-15)
+
+
+def test_piecewise_noise_is_the_effect_of_a_constant_highest_derivative():
+    """Integrating a K-th derivative held at a over dt moves the state by g·a."""
+    order, dt, a = 2, 0.7, 1.0
+    A, L = chain(order + 1)  # augment the chain with the constant derivative
+    x = expm(A * dt) @ np.r_[np.zeros(order + 1), a]
+    Q = piecewise_white_noise(order, dt, 1.0)
+    np.testing.assert_allclose(Q, np.outer(x[:-1], x[:-1]), rtol=1e-14)
+
+
+def test_van_loan_is_exported():
+    assert gf.van_loan is van_loan
+    assert "van_loan" in gf.__all__
+
+
+@pytest.mark.parametrize(
+    ("args", "error", "match"),
+    [
+        (([[0, 1, 0]], [0, 1], 1.0, 1.0), ValueError, r"^`A` must be square, of shape \(n, n\); got shape \(1, 3\)\.$"),
+        (([0, 1], [0, 1], 1.0, 1.0), ValueError, r"^`A` must have shape \(n, n\); got shape \(2,\)\.$"),
+        ((np.zeros((2, 2, 2)), [0, 1], 1.0, 1.0), ValueError, r"^`A` must have shape \(n, n\)"),
+        (([[0, 1], [0, 0]], [0, 1, 2], 1.0, 1.0), ValueError, r"^`L` must have shape \(2, s\); got shape \(3,\)\.$"),
+        (([[0, 1], [0, 0]], [0, 1], [1.0, 2.0], 1.0), ValueError, r"^`Qc` must have shape \(1, 1\); got shape \(2,\)\.$"),
+        (([[0, 1], [0, 0]], [0, 1], -1.0, 1.0), ValueError, r"^`Qc` must be positive semi-definite"),
+        (([[0, 1], [0, 0]], [[0, 1], [1, 0]], [[1, 2], [0, 1]], 1.0), ValueError, r"^`Qc` must be symmetric"),
+        (([[0, 1], [0, np.nan]], [0, 1], 1.0, 1.0), ValueError, r"^`A` must be finite"),
+        (([[0, 1], [0, 0]], "L", 1.0, 1.0), TypeError, r"^`L` must be an array of numbers; got str\.$"),
+        (([[0, 1], [0, 0]], [0, 1], 1.0, 0.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
+        (([[0, 1], [0, 0]], [0, 1], 1.0, -1), ValueError, r"^`dt` must be positive; got -1\.0\.$"),
+        (([[0, 1], [0, 0]], [0, 1], 1.0, "1"), TypeError, r"^`dt` must be a number; got '1'\.$"),
+    ],
+)
+def test_van_loan_validation(args, error, match):
+    with pytest.raises(error, match=match):
+        van_loan(*args)
+
+
+@pytest.mark.parametrize("fn", [continuous_white_noise, piecewise_white_noise])
+@pytest.mark.parametrize(
+    ("args", "error", "match"),
+    [
+        ((-1, 1.0, 1.0), ValueError, r"^`order` must be a non-negative integer; got -1\.$"),
+        ((1.0, 1.0, 1.0), ValueError, r"^`order` must be a non-negative integer; got 1\.0\.$"),
+        ((True, 1.0, 1.0), ValueError, r"^`order` must be a non-negative integer; got True\.$"),
+        ((1, 0.0, 1.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
+        ((1, np.inf, 1.0), ValueError, r"^`dt` must be positive; got inf\.$"),
+        ((1, None, 1.0), TypeError, r"^`dt` must be a number; got None\.$"),
+    ],
+)
+def test_white_noise_validation(fn, args, error, match):
+    with pytest.raises(error, match=match):
+        fn(*args)
+
+
+def test_white_noise_intensity_validation():
+    with pytest.raises(ValueError, match=r"^`q` must be non-negative; got -1\.0\.$"):
+        continuous_white_noise(1, 1.0, -1.0)
+    with pytest.raises(ValueError, match=r"^`var` must be non-negative; got nan\.$"):
+        piecewise_white_noise(1, 1.0, np.nan)
+    with pytest.raises(TypeError, match=r"^`var` must be a number; got \[1\.0\]\.$"):
+        piecewise_white_noise(1, 1.0, [1.0])
+
+
+def test_docstring_examples():
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        result = doctest.testmod(noise, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
+    assert result.attempted >= 3
+    assert result.failed == 0, out.getvalue()
