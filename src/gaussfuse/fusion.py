@@ -1,0 +1,636 @@
+r"""Asynchronous multi-sensor fusion: several sensors, each on its own clock.
+
+Every sensor reports at its own timestamps; the state moves between them by
+a motion model (:mod:`gaussfuse.models.motion`) over the elapsed time. The
+timeline of events becomes ONE state-space model over the event steps:
+
+* the measurement vector stacks the components of every sensor,
+  :math:`z = (z^{(1)}, \dots, z^{(S)})` with :math:`m = \sum_s m_s`, and the
+  components of sensors that do not report at a step are NaN, so the core's
+  missing-data update (:func:`gaussfuse.kalman.update`) conditions on exactly
+  what was observed;
+* step k's transition is the motion over :math:`\Delta t_k = t_k - t_{k-1}`
+  (a zero step is the identity with no process noise).
+
+:func:`fuse_timeline` runs that model through :func:`gaussfuse.filter` or
+:func:`gaussfuse.smooth`; :class:`Fuser` takes the events one at a time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from . import inference, kalman
+from ._validation import as_array, shape_error
+from .gaussian import Gaussian
+from .inference import FilterResult, SmoothResult, check_prior
+from .models.linear import LinearModel
+from .models.motion import LinearMotion, NonlinearMotion
+from .models.nonlinear import NonlinearModel, call_checked
+from .models.sensors import LinearSensor, NonlinearSensor, Position
+
+__all__ = ["Measurement", "Fused", "fuse_timeline", "Fuser"]
+
+
+class Measurement(NamedTuple):
+    """One timestamped measurement from a named sensor.
+
+    Attributes
+    ----------
+    t : float
+        Time of the measurement.
+    sensor : str
+        Name of the sensor, a key of the ``sensors`` mapping.
+    z : array_like of shape (m_s,)
+        The measurement (a scalar when the sensor has m_s = 1); a NaN
+        component is missing.
+    """
+
+    t: float
+    sensor: str
+    z: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Fused:
+    """The output of :func:`fuse_timeline`: one belief per event step.
+
+    Attributes
+    ----------
+    times : ndarray of shape (K,)
+        Time of each step, non-decreasing. Measurements at the same time
+        from different sensors share a step; a sensor reporting twice at the
+        same time gives two steps at that time.
+    means : ndarray of shape (K, n)
+        Filtered (or, with ``smooth=True``, smoothed) means.
+    covs : ndarray of shape (K, n, n)
+        Their covariances.
+    sources : list of length K
+        What each step holds: the sensor's name, a tuple of names when
+        several sensors report at that step, or None for an output time
+        without measurements.
+    loglik : float
+        Log-likelihood of all the measurements.
+    result : FilterResult or SmoothResult
+        The underlying result over the K steps, in the stacked measurement
+        vector (innovations and their covariances have ``m = Σ m_s``
+        components, in the order of the ``sensors`` mapping).
+    """
+
+    times: np.ndarray
+    means: np.ndarray
+    covs: np.ndarray
+    sources: list
+    loglik: float
+    result: FilterResult | SmoothResult
+
+    def at(self, times) -> tuple[np.ndarray, np.ndarray]:
+        """The beliefs at the given times, after every measurement at each.
+
+        Parameters
+        ----------
+        times : float or array_like of shape (k,)
+            Times that are steps of the timeline: measurement times, or
+            output times passed to :func:`fuse_timeline` as ``times``.
+
+        Returns
+        -------
+        means : ndarray of shape (n,) or (k, n)
+        covs : ndarray of shape (n, n) or (k, n, n)
+
+        Raises
+        ------
+        ValueError
+            For a time that is not a step of the timeline, naming it.
+        """
+        query = as_array("times", times)
+        if query.ndim > 1:
+            raise shape_error("times", "() or (k,)", query.shape)
+        flat = np.atleast_1d(query)
+        idx = np.searchsorted(self.times, flat, side="right") - 1
+        ok = (idx >= 0) & (self.times[np.clip(idx, 0, None)] == flat)
+        if not ok.all():
+            missing = flat[~ok].tolist()
+            raise ValueError(
+                f"`times` must be times of the timeline (measurement times, or output times "
+                f"passed to fuse_timeline(times=...)); got {missing}, which are not."
+            )
+        if query.ndim == 0:
+            return self.means[idx[0]], self.covs[idx[0]]
+        return self.means[idx], self.covs[idx]
+
+
+# ---------------------------------------------------------------------------
+# The sensors stacked into one measurement vector, and the motion between steps
+# ---------------------------------------------------------------------------
+
+
+def _check_fit(name: str, sensor, motion) -> None:
+    """A geometric sensor must not read more position components than the motion has."""
+    reads, axes = getattr(sensor, "dim", None), getattr(motion, "dim", None)
+    if reads is None:
+        return
+    if axes is not None and reads > axes:
+        raise ValueError(
+            f"`sensors[{name!r}]` reads {reads} position components but `motion` has {axes} "
+            f"spatial {'axis' if axes == 1 else 'axes'}."
+        )
+    if reads > motion.n:
+        raise ValueError(
+            f"`sensors[{name!r}]` reads {reads} position components but the state of `motion` "
+            f"has only {motion.n}."
+        )
+
+
+def _linear_sensor(sensor, n: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(H, R)`` of a linear sensor for an n-dimensional state, None for a nonlinear one."""
+    if isinstance(sensor, Position) and sensor.n is None:
+        return sensor.linear(n)
+    if isinstance(sensor, LinearSensor):
+        return sensor.H, sensor.R
+    return None
+
+
+class _Stack:
+    """The motion and all sensors as one model over a timeline of steps.
+
+    The measurement vector stacks the sensors' components in the order of
+    the ``sensors`` mapping; ``slots[name]`` is each sensor's slice.
+    """
+
+    def __init__(self, motion, sensors) -> None:
+        if not isinstance(motion, (LinearMotion, NonlinearMotion)):
+            raise TypeError(
+                "`motion` must be a motion model (a LinearMotion or NonlinearMotion, "
+                f"e.g. gaussfuse.ConstantVelocity); got {type(motion).__name__}."
+            )
+        if isinstance(motion, LinearMotion) and motion.control(1.0) is not None:
+            raise ValueError(
+                f"`motion` has a control input ({type(motion).__name__}); fusion takes no "
+                "controls, so use a motion without one."
+            )
+        if not isinstance(sensors, Mapping) or not sensors:
+            raise TypeError(
+                "`sensors` must be a non-empty dict mapping names to sensors; "
+                f"got {sensors!r:.80}."
+            )
+        self.motion, self.n = motion, motion.n
+        self.names = tuple(sensors)
+        self.sensors = dict(sensors)
+        self.slots: dict[str, slice] = {}
+        self.linear_parts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        noises, angles, start = [], [], 0
+        for name, sensor in self.sensors.items():
+            if not isinstance(name, str):
+                raise TypeError(f"`sensors` must have str keys (sensor names); got {name!r}.")
+            if not isinstance(sensor, (LinearSensor, NonlinearSensor)):
+                raise TypeError(
+                    f"`sensors[{name!r}]` must be a sensor (a LinearSensor, Position or "
+                    f"NonlinearSensor, e.g. gaussfuse.RangeBearing); got {type(sensor).__name__}."
+                )
+            _check_fit(name, sensor, motion)
+            parts = _linear_sensor(sensor, self.n)
+            if parts is not None:
+                H, R = np.asarray(parts[0], dtype=float), np.asarray(parts[1], dtype=float)
+                if H.ndim != 2 or H.shape[1] != self.n:
+                    raise ValueError(
+                        f"`sensors[{name!r}]` must measure a state of n = {self.n} components "
+                        f"(the motion's); its H has shape {H.shape}."
+                    )
+                self.linear_parts[name] = (H, R)
+                m, sensor_angles = H.shape[0], ()
+            else:
+                R = np.asarray(sensor.R, dtype=float)
+                m, sensor_angles = sensor.m, tuple(sensor.measurement_angles)
+            self.slots[name] = slice(start, start + m)
+            noises.append(R)
+            angles.extend(start + int(i) for i in sensor_angles)
+            start += m
+        self.m = start
+        self.R = np.zeros((self.m, self.m))
+        for name, R in zip(self.names, noises):
+            self.R[self.slots[name], self.slots[name]] = R
+        self.measurement_angles = tuple(angles)
+        self.linear = isinstance(motion, LinearMotion) and len(self.linear_parts) == len(self.sensors)
+        if self.linear_parts:
+            self.H = np.zeros((self.m, self.n))
+            for name, (H, _) in self.linear_parts.items():
+                self.H[self.slots[name]] = H
+        self.state_angles = tuple(getattr(motion, "state_angles", ()))
+        self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    # -- the motion over dt ------------------------------------------------
+
+    def linear_transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, Q)`` of a linear motion over dt (identity and zero for dt = 0), cached."""
+        if dt not in self._cache:
+            if dt == 0.0:
+                self._cache[dt] = np.eye(self.n), np.zeros((self.n, self.n))
+            else:
+                F, Q = self.motion.transition(dt)
+                self._cache[dt] = np.asarray(F, dtype=float), np.asarray(Q, dtype=float)
+        return self._cache[dt]
+
+    def noise(self, dt: float) -> np.ndarray:
+        """Process-noise covariance over dt."""
+        if isinstance(self.motion, LinearMotion):
+            return self.linear_transition(dt)[1]
+        if dt == 0.0:
+            return np.zeros((self.n, self.n))
+        return np.asarray(self.motion.noise(dt), dtype=float)
+
+    def f(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The state after ``dt = u[0]``."""
+        dt = float(u[0])
+        if isinstance(self.motion, LinearMotion):
+            return self.linear_transition(dt)[0] @ x
+        if dt == 0.0:
+            return x
+        return self.motion.f(x, dt)
+
+    def f_jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        dt = float(u[0])
+        if isinstance(self.motion, LinearMotion):
+            return self.linear_transition(dt)[0]
+        if dt == 0.0:
+            return np.eye(self.n)
+        return self.motion.jacobian(x, dt)
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        """All sensors' predicted measurements, stacked: shape (m,)."""
+        out = np.empty(self.m)
+        for name, sensor in self.sensors.items():
+            if name in self.linear_parts:
+                out[self.slots[name]] = self.linear_parts[name][0] @ x
+            else:
+                m = self.slots[name].stop - self.slots[name].start
+                out[self.slots[name]] = call_checked(f"sensors[{name!r}].h", sensor.h, x, (), (m,))
+        return out
+
+    def h_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """All sensors' measurement Jacobians, stacked: shape (m, n)."""
+        out = np.empty((self.m, self.n))
+        for name, sensor in self.sensors.items():
+            if name in self.linear_parts:
+                out[self.slots[name]] = self.linear_parts[name][0]
+            else:
+                m = self.slots[name].stop - self.slots[name].start
+                out[self.slots[name]] = call_checked(
+                    f"sensors[{name!r}].jacobian", sensor.jacobian, x, (), (m, self.n))
+        return out
+
+    # -- the model over a timeline -----------------------------------------
+
+    def model(self, dts: np.ndarray) -> tuple[LinearModel | NonlinearModel, np.ndarray | None]:
+        """The model over steps with elapsed times `dts` (K,), and its controls (K, 1) or None."""
+        Q = np.stack([self.noise(float(dt)) for dt in dts])
+        if self.linear:
+            F = np.stack([self.linear_transition(float(dt))[0] for dt in dts])
+            return LinearModel(F, self.H, Q, self.R), None
+        model = NonlinearModel(
+            self.f, self.h, Q, self.R, f_jacobian=self.f_jacobian, h_jacobian=self.h_jacobian,
+            state_angles=self.state_angles, measurement_angles=self.measurement_angles,
+        )
+        return model, np.asarray(dts, dtype=float).reshape(-1, 1)
+
+    def default_method(self) -> str:
+        return "kf" if self.linear else "ekf"
+
+    def measurement_vector(self, name: str, z) -> np.ndarray:
+        """`z` of sensor `name` checked, as its slot of an otherwise-NaN stacked vector."""
+        slot = self.slots[name]
+        m = slot.stop - slot.start
+        arr = as_array("z", z, allow_nan=True)
+        if arr.shape != (m,) and not (m == 1 and arr.ndim == 0):
+            raise shape_error("z", f"({m},) for sensor {name!r}" + (" or a scalar" if m == 1 else ""),
+                              arr.shape)
+        full = np.full(self.m, np.nan)
+        full[slot] = arr.reshape(m)
+        return full
+
+    def check_name(self, name, argument: str) -> str:
+        if not isinstance(name, str) or name not in self.slots:
+            raise ValueError(f"`{argument}` must be one of {list(self.names)}; got {name!r}.")
+        return name
+
+
+def _time(name: str, value) -> float:
+    """A finite real time."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"`{name}` must be a real number (a time); got {value!r:.60}.")
+    value = float(value)
+    if not np.isfinite(value):
+        raise ValueError(f"`{name}` must be finite; got {value}.")
+    return value
+
+
+def _parse(measurements, stack: _Stack, t0: float) -> list[tuple[float, str, np.ndarray]]:
+    """Checked measurements as (t, sensor, stacked z), in the order given."""
+    if isinstance(measurements, (str, bytes)) or not isinstance(measurements, Iterable):
+        raise TypeError(
+            "`measurements` must be an iterable of Measurement(t, sensor, z) or (t, sensor, z) "
+            f"tuples; got {type(measurements).__name__}."
+        )
+    events = []
+    for i, item in enumerate(measurements):
+        if not isinstance(item, tuple) or len(item) != 3:
+            raise TypeError(
+                f"`measurements[{i}]` must be a Measurement(t, sensor, z) or a (t, sensor, z) "
+                f"tuple; got {item!r:.80}."
+            )
+        t = _time(f"measurements[{i}].t", item[0])
+        name = stack.check_name(item[1], f"measurements[{i}].sensor")
+        if t < t0:
+            raise ValueError(
+                f"`measurements[{i}].t` must not be earlier than `t0` = {t0} (the prior's time); "
+                f"got {t}."
+            )
+        try:
+            z = stack.measurement_vector(name, item[2])
+        except (TypeError, ValueError) as exc:
+            raise type(exc)(str(exc).replace("`z`", f"`measurements[{i}].z`", 1)) from None
+        events.append((t, name, z))
+    return events
+
+
+def _steps(events, outputs: np.ndarray, stack: _Stack):
+    """Group time-sorted events into steps; add output-only steps.
+
+    Measurements at one time share a step unless a sensor repeats, which
+    starts another step at the same time. An output time with measurements
+    needs no step of its own.
+    """
+    times, zs, sources = [], [], []
+    for t, name, z in sorted(events, key=lambda e: e[0]):  # sorted() is stable
+        if times and times[-1] == t and sources[-1] is not None and name not in sources[-1]:
+            filled = stack.slots[name]
+            zs[-1][filled] = z[filled]
+            sources[-1] = (*sources[-1], name)
+        else:
+            times.append(t)
+            zs.append(z.copy())
+            sources.append((name,))
+    have = set(times)
+    for t in np.unique(outputs):
+        if float(t) not in have:
+            at = int(np.searchsorted(times, t, side="right"))
+            times.insert(at, float(t))
+            zs.insert(at, np.full(stack.m, np.nan))
+            sources.insert(at, None)
+    sources = [s if s is None or len(s) > 1 else s[0] for s in sources]
+    return np.array(times, dtype=float), np.array(zs, dtype=float).reshape(len(times), stack.m), sources
+
+
+def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, times=None,
+                  smooth: bool = False, method: str | None = None, **options) -> Fused:
+    r"""Fuse timestamped measurements from several sensors into one trajectory estimate.
+
+    Parameters
+    ----------
+    motion : LinearMotion or NonlinearMotion
+        How the state moves over an elapsed time (e.g.
+        :class:`gaussfuse.ConstantVelocity`, :class:`gaussfuse.CoordinatedTurn`).
+        Motions with a control input are not accepted.
+    sensors : dict of str to sensor
+        The sensors by name: :class:`gaussfuse.Position`,
+        :class:`gaussfuse.LinearSensor` or a NonlinearSensor such as
+        :class:`gaussfuse.RangeBearing`.
+    prior : Gaussian
+        Belief about the state at time `t0`, of the motion's dimension n.
+    t0 : float
+        Time of the prior; no measurement may be earlier.
+    measurements : iterable of Measurement or of (t, sensor, z) tuples
+        In any order: they are sorted by time (stably, so measurements at
+        equal times keep their order). ``z`` has the sensor's shape (m_s,)
+        (a scalar when m_s = 1); NaN components are missing.
+    times : array_like of shape (k,), optional
+        Extra output times (>= `t0`) at which to report the belief; steps
+        without measurements are added for those not already measurement
+        times. Read them back with :meth:`Fused.at`.
+    smooth : bool, default False
+        Return the smoothed beliefs (given every measurement) instead of the
+        filtered ones (given those up to each step).
+    method : str, optional
+        The inference method (:data:`gaussfuse.METHODS`): ``"kf"`` when the
+        motion and every sensor are linear (the default then); for a
+        nonlinear motion or sensor ``"ekf"`` (the default here, with the
+        models' analytic Jacobians), ``"ukf"``, ``"ckf"``, ``"ghkf"``,
+        ``"iekf"`` or ``"iplf"``.
+    **options
+        Passed on to :func:`gaussfuse.filter` / :func:`gaussfuse.smooth`:
+        the method's options and ``engine``.
+
+    Returns
+    -------
+    Fused
+        ``times`` (K,), ``means`` (K, n), ``covs`` (K, n, n), ``sources``,
+        ``loglik`` and :meth:`Fused.at`.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For a bad motion, sensor, prior, time or measurement, naming it.
+
+    Notes
+    -----
+    The K steps are the distinct measurement times (a sensor reporting
+    twice at one time adds a step at that time) and the extra output
+    times, in order, with :math:`t_0` before them. One model is built over
+    them and run by :func:`gaussfuse.filter` or :func:`gaussfuse.smooth`:
+
+    .. math::
+
+        x_k &= f(x_{k-1}, \Delta t_k) + w_k, \quad w_k \sim N(0, Q(\Delta t_k)),
+        \quad \Delta t_k = t_k - t_{k-1}, \\
+        z_k &= \begin{pmatrix} h_1(x_k) \\ \vdots \\ h_S(x_k) \end{pmatrix} + v_k,
+        \quad v_k \sim N(0, \operatorname{blockdiag}(R_1, \dots, R_S)),
+
+    with :math:`f(x, 0) = x`, :math:`Q(0) = 0`, and NaN in the components of
+    sensors that do not report at step k. For a linear motion and sensors it
+    is a time-varying :class:`gaussfuse.LinearModel`
+    (:math:`F_k = F(\Delta t_k)`); otherwise a
+    :class:`gaussfuse.NonlinearModel` whose ``f(x, u)`` takes
+    :math:`u_k = [\Delta t_k]` as its control.
+
+    Because the update conditions on the observed components only, the
+    sensors at a shared step are fused in one joint update, which equals
+    updating with them one after another.
+
+    Examples
+    --------
+    >>> import numpy as np, gaussfuse as gf
+    >>> motion = gf.ConstantVelocity(dim=1, q=0.1)
+    >>> sensors = {"gps": gf.Position(dim=1, r=4.0),
+    ...            "speed": gf.LinearSensor(H=[[0.0, 1.0]], R=[[0.01]])}
+    >>> prior = gf.Gaussian([0.0, 1.0], np.diag([10.0, 1.0]))
+    >>> meas = [(1.0, "gps", 1.2), (1.5, "speed", 1.05), (2.0, "gps", 2.1), (2.0, "speed", 0.98)]
+    >>> out = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, times=[3.0])
+    >>> out.times.tolist(), out.sources
+    ([1.0, 1.5, 2.0, 3.0], ['gps', 'speed', ('gps', 'speed'), None])
+    >>> mean, cov = out.at(3.0)
+    >>> mean.shape, cov.shape
+    ((2,), (2, 2))
+    """
+    stack = _Stack(motion, sensors)
+    prior = check_prior(prior, stack.n)
+    t0 = _time("t0", t0)
+    if not isinstance(smooth, (bool, np.bool_)):
+        raise TypeError(f"`smooth` must be True or False; got {smooth!r}.")
+    if "keep" in options:
+        raise TypeError("`keep` is not an option of fuse_timeline: it returns every step.")
+    outputs = np.zeros(0)
+    if times is not None:
+        outputs = as_array("times", times)
+        if outputs.ndim == 0:
+            outputs = outputs.reshape(1)
+        if outputs.ndim != 1:
+            raise shape_error("times", "(k,)", outputs.shape)
+        if outputs.size and outputs.min() < t0:
+            raise ValueError(
+                f"`times` must not be earlier than `t0` = {t0} (the prior's time); got {outputs.min()}."
+            )
+    events = _parse(measurements, stack, t0)
+    step_times, zs, sources = _steps(events, outputs, stack)
+    if step_times.size == 0:
+        raise ValueError("`measurements` and `times` are both empty: there is nothing to estimate.")
+    dts = np.diff(step_times, prepend=t0)
+    model, us = stack.model(dts)
+    method = stack.default_method() if method is None else method
+    if smooth:
+        res = inference.smooth(model, prior, zs, us, method, **options)
+    else:
+        res = inference.filter(model, prior, zs, us, method, **options)
+    for a in (step_times, res.means, res.covs):
+        a.setflags(write=False)
+    return Fused(step_times, res.means, res.covs, sources, float(res.loglik), res)
+
+
+class Fuser:
+    r"""Online asynchronous fusion: take each measurement as it arrives.
+
+    Parameters
+    ----------
+    motion : LinearMotion or NonlinearMotion
+        How the state moves over an elapsed time.
+    sensors : dict of str to sensor
+        The sensors by name (see :func:`fuse_timeline`).
+    prior : Gaussian
+        Belief about the state at time `t0`.
+    t0 : float
+        Time of the prior.
+    method : str, optional
+        ``"kf"`` (linear motion and sensors; the default then), or for a
+        nonlinear motion or sensor ``"ekf"`` (the default), ``"ukf"``,
+        ``"ckf"`` or ``"ghkf"``.
+    **options
+        The method's options (e.g. ``alpha`` for ``"ukf"``).
+
+    Attributes
+    ----------
+    belief : Gaussian
+        The current belief, at time `t`.
+    t : float
+        The time of the belief.
+    loglik : float
+        Log-likelihood of the measurements taken so far.
+
+    Notes
+    -----
+    :meth:`predict` moves the belief to a later time through the
+    linearisation strategy of `method` (:class:`gaussfuse.linearize.Exact`,
+    :class:`~gaussfuse.linearize.Taylor` or
+    :class:`~gaussfuse.linearize.SigmaPoints`) and
+    :func:`gaussfuse.kalman.predict`; :meth:`update` conditions it with
+    :func:`gaussfuse.kalman.update`. The same steps as :func:`fuse_timeline`
+    on the same (time-ordered) measurements give the same beliefs. Several
+    sensors at one time are updated one after another: for linear sensors
+    that equals their joint update; for nonlinear ones each update is
+    linearised at the belief left by the one before, so it differs from the
+    joint update of :func:`fuse_timeline` by a linearisation error.
+
+    Time only moves forward: a timestamp earlier than :attr:`t` is rejected
+    (:func:`fuse_timeline` sorts its input instead).
+
+    Examples
+    --------
+    >>> import numpy as np, gaussfuse as gf
+    >>> fuser = gf.Fuser(gf.ConstantVelocity(dim=1, q=0.1), {"gps": gf.Position(dim=1, r=4.0)},
+    ...                  gf.Gaussian([0.0, 1.0], np.diag([10.0, 1.0])), t0=0.0)
+    >>> _ = fuser.update(1.0, "gps", 1.2)
+    >>> _ = fuser.predict(1.5)
+    >>> fuser.t, fuser.belief.dim
+    (1.5, 2)
+    """
+
+    def __init__(self, motion, sensors, prior: Gaussian, t0: float, method: str | None = None,
+                 **options) -> None:
+        self._stack = _Stack(motion, sensors)
+        self.belief = check_prior(prior, self._stack.n)
+        self.t = _time("t0", t0)
+        self.loglik = 0.0
+        probe, _ = self._stack.model(np.zeros(1))
+        method = self._stack.default_method() if method is None else method
+        self._spec, options = inference._resolve_method(probe, method, options)
+        if self._spec.iterated:
+            raise ValueError(
+                f"`method` {method!r} iterates over the whole series; the online Fuser takes "
+                "'kf', 'ekf', 'ukf', 'ckf' or 'ghkf'."
+            )
+        self._options = options
+        self._measure = self._strategy(probe, np.zeros(1))
+        self._state_angles = getattr(probe, "state_angles", None)
+        self._measurement_angles = getattr(probe, "measurement_angles", None)
+
+    def _strategy(self, model, dts):
+        us = None if self._stack.linear else np.asarray(dts, dtype=float).reshape(-1, 1)
+        return self._spec.strategy(model, us, **self._options)
+
+    def _advance(self, t: float, argument: str) -> None:
+        if t < self.t:
+            raise ValueError(
+                f"`{argument}` = {t} is earlier than the fuser's current time {self.t}: an online "
+                "Fuser cannot go back in time (out-of-order measurement); fuse_timeline sorts "
+                "measurements by time instead."
+            )
+        dt = t - self.t
+        if dt > 0.0:
+            model, _ = self._stack.model(np.array([dt]))
+            lin = self._strategy(model, [dt])
+            mean, cov = self.belief.mean, self.belief.cov
+            A, b, Q = lin.transition(0, mean, cov)
+            mean, cov = kalman.predict(mean, cov, A, Q, b)
+            mean = kalman.wrap_components(mean, self._state_angles)
+            self.belief = Gaussian(mean, cov)
+        self.t = t
+
+    def predict(self, t: float) -> Gaussian:
+        """Move the belief to time `t` (>= the current time) and return it."""
+        self._advance(_time("t", t), "t")
+        return self.belief
+
+    def update(self, t: float, sensor: str, z) -> Gaussian:
+        """Predict to time `t`, condition on `sensor`'s measurement `z` and return the belief.
+
+        Parameters
+        ----------
+        t : float
+            Time of the measurement, >= the current time.
+        sensor : str
+            Name of the sensor.
+        z : array_like of shape (m_s,)
+            The measurement (a scalar when m_s = 1); NaN components are missing.
+        """
+        t = _time("t", t)
+        name = self._stack.check_name(sensor, "sensor")
+        z = self._stack.measurement_vector(name, z)
+        self._advance(t, "t")
+        mean, cov = self.belief.mean, self.belief.cov
+        H, d, R = self._measure.measurement(0, mean, cov)
+        post = kalman.update(mean, cov, z, H, R, d, angles=self._measurement_angles)
+        self.belief = Gaussian(kalman.wrap_components(post.mean, self._state_angles), post.cov)
+        self.loglik += post.loglik
+        return self.belief

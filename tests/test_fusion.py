@@ -1,0 +1,389 @@
+"""Asynchronous multi-sensor fusion: gf.fuse_timeline (batch) and gf.Fuser (online)."""
+
+from __future__ import annotations
+
+import doctest
+import re
+
+import numpy as np
+import pytest
+from scipy.linalg import block_diag
+
+import _oracle
+import gaussfuse as gf
+import gaussfuse.fusion
+
+R_POS = 0.5 * np.eye(2)
+R_VEL = np.array([[0.04, 0.01], [0.01, 0.09]])
+H_VEL = np.hstack([np.zeros((2, 2)), np.eye(2)])
+
+
+def _motion():
+    return gf.ConstantVelocity(dim=2, q=0.3)
+
+
+def _sensors():
+    return {"pos": gf.Position(dim=2, r=0.5), "vel": gf.LinearSensor(H=H_VEL, R=R_VEL)}
+
+
+def _prior():
+    return gf.Gaussian([0.0, 1.0, 1.0, -0.5], np.diag([4.0, 4.0, 1.0, 1.0]))
+
+
+def _scenario(seed: int = 0):
+    """Position at 1 Hz and velocity at 3.3 Hz, each with a gap, and one simultaneous pair.
+
+    Returns the measurements (time-ordered, as Measurement tuples) and the
+    output times.
+    """
+    rng = np.random.default_rng(seed)
+    pos_times = [float(t) for t in range(1, 13) if t not in (5, 6, 7)]
+    vel_times = [k / 3.3 for k in range(1, 40) if not 12 <= k <= 18]  # 33 / 3.3 == 10.0
+    events = sorted([(t, "pos") for t in pos_times] + [(t, "vel") for t in vel_times],
+                    key=lambda e: (e[0], e[1]))
+    assert sum(t == 10.0 for t, _ in events) == 2  # the simultaneous pair
+    motion, x, t_prev = _motion(), rng.multivariate_normal(_prior().mean, _prior().cov), 0.0
+    measurements = []
+    for t, name in events:
+        if t > t_prev:
+            F, Q = motion.transition(t - t_prev)
+            x = F @ x + rng.multivariate_normal(np.zeros(4), Q)
+            t_prev = t
+        if name == "pos":
+            z = x[:2] + rng.multivariate_normal(np.zeros(2), R_POS)
+        else:
+            z = x[2:] + rng.multivariate_normal(np.zeros(2), R_VEL)
+        measurements.append(gf.Measurement(t, name, z))
+    # One position with its y component missing.
+    t, name, z = measurements[3]
+    assert name == "pos"
+    measurements[3] = gf.Measurement(t, name, np.array([z[0], np.nan]))
+    outputs = [2.5, 5.5, 6.2, 12.5]  # between measurements, in both gaps, and after the last
+    return measurements, outputs
+
+
+def _dense_reference(measurements, outputs):
+    """The stacked time-varying model written out by hand, conditioned densely (tests/_oracle.py)."""
+    times = sorted({m.t for m in measurements} | set(outputs))
+    zs = np.full((len(times), 4), np.nan)
+    for t, name, z in measurements:
+        cols = slice(0, 2) if name == "pos" else slice(2, 4)
+        zs[times.index(t), cols] = z
+    dts = np.diff(times, prepend=0.0)
+    F = np.stack([_motion().transition(dt)[0] for dt in dts])
+    Q = np.stack([_motion().transition(dt)[1] for dt in dts])
+    H = np.vstack([np.hstack([np.eye(2), np.zeros((2, 2))]), H_VEL])
+    R = block_diag(R_POS, R_VEL)
+    prior = _prior()
+    return np.array(times), _oracle.reference(F, H, Q, R, prior.mean, prior.cov, zs)
+
+
+@pytest.fixture(scope="module")
+def dense():
+    measurements, outputs = _scenario()
+    return measurements, outputs, *_dense_reference(measurements, outputs)
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_batch_equals_dense_joint_gaussian(smooth, dense):
+    measurements, outputs, times, ref = dense
+    shuffled = [measurements[i] for i in np.random.default_rng(1).permutation(len(measurements))]
+    out = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0, shuffled, times=outputs, smooth=smooth)
+    np.testing.assert_array_equal(out.times, times)
+    key = "smoothed_" if smooth else ""
+    np.testing.assert_allclose(out.means, ref[key + "means"], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(out.covs, ref[key + "covs"], rtol=1e-8, atol=1e-8)
+    assert out.loglik == pytest.approx(ref["loglik"], rel=1e-8, abs=1e-8)
+    assert isinstance(out.result, gf.SmoothResult if smooth else gf.FilterResult)
+    k = int(np.flatnonzero(out.times == 10.0)[0])
+    assert sorted(out.sources[k]) == ["pos", "vel"]  # one step, in the order given
+    assert [out.sources[int(np.flatnonzero(out.times == t)[0])] for t in outputs] == [None] * 4
+    assert out.sources[:4] == ["vel", "vel", "vel", "pos"]
+    # Output times, read back.
+    means, covs = out.at(outputs)
+    idx = [times.tolist().index(t) for t in outputs]
+    np.testing.assert_allclose(means, ref[key + "means"][idx], rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(covs, ref[key + "covs"][idx], rtol=1e-8, atol=1e-8)
+
+
+def _online(measurements, outputs, motion=None, sensors=None, prior=None, method=None):
+    """Run a Fuser over the events in time order; the belief after each event, by time."""
+    fuser = gf.Fuser(motion or _motion(), sensors or _sensors(), prior or _prior(), 0.0, method=method)
+    beliefs = {}
+    events = sorted([(m.t, 0, m) for m in measurements] + [(t, 1, None) for t in outputs],
+                    key=lambda e: (e[0], e[1]))
+    for t, _, m in events:
+        belief = fuser.predict(t) if m is None else fuser.update(*m)
+        assert belief is fuser.belief and fuser.t == t
+        beliefs[t] = belief
+    return fuser, beliefs
+
+
+def test_online_equals_batch():
+    measurements, outputs = _scenario()
+    out = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0, measurements, times=outputs)
+    fuser, beliefs = _online(measurements, outputs)
+    assert len(beliefs) == len(out.times)
+    for k, t in enumerate(out.times):
+        np.testing.assert_allclose(beliefs[t].mean, out.means[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(beliefs[t].cov, out.covs[k], rtol=1e-12, atol=1e-12)
+    assert fuser.loglik == pytest.approx(out.loglik, rel=1e-12)
+
+
+def test_sequential_equals_joint_update():
+    z_pos, z_vel = np.array([0.3, 1.4]), np.array([0.9, -0.2])
+    joint = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0,
+                             [(0.7, "pos", z_pos), (0.7, "vel", z_vel)])
+    assert joint.times.tolist() == [0.7] and joint.sources == [("pos", "vel")]
+    fuser = gf.Fuser(_motion(), _sensors(), _prior(), 0.0)
+    fuser.update(0.7, "vel", z_vel)
+    fuser.update(0.7, "pos", z_pos)  # the other order, too
+    np.testing.assert_allclose(fuser.belief.mean, joint.means[0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(fuser.belief.cov, joint.covs[0], rtol=1e-12, atol=1e-12)
+    assert fuser.loglik == pytest.approx(joint.loglik, rel=1e-12)
+    # The joint update by hand: the stacked measurement with the block-diagonal noise.
+    F, Q = _motion().transition(0.7)
+    H = np.vstack([np.hstack([np.eye(2), np.zeros((2, 2))]), H_VEL])
+    m, P = F @ _prior().mean, F @ _prior().cov @ F.T + Q
+    S = H @ P @ H.T + block_diag(R_POS, R_VEL)
+    K = np.linalg.solve(S, H @ P).T
+    np.testing.assert_allclose(joint.means[0], m + K @ (np.r_[z_pos, z_vel] - H @ m), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(joint.covs[0], P - K @ S @ K.T, rtol=1e-10, atol=1e-12)
+
+
+def test_online_rejects_out_of_order():
+    fuser = gf.Fuser(_motion(), _sensors(), _prior(), 0.0)
+    fuser.update(2.0, "pos", [0.0, 1.0])
+    before = fuser.belief
+    msg = ("`t` = 1.5 is earlier than the fuser's current time 2.0: an online Fuser cannot go back "
+           "in time (out-of-order measurement); fuse_timeline sorts measurements by time instead.")
+    with pytest.raises(ValueError, match=re.escape(msg)):
+        fuser.update(1.5, "vel", [1.0, 0.0])
+    with pytest.raises(ValueError, match=re.escape(msg)):
+        fuser.predict(1.5)
+    assert fuser.belief is before and fuser.t == 2.0 and fuser.loglik != 0.0
+    with pytest.raises(ValueError, match=r"`t` = -1.0 is earlier than the fuser's current time 0.0"):
+        gf.Fuser(_motion(), _sensors(), _prior(), 0.0).predict(-1.0)
+
+
+def test_batch_sorts_stably():
+    measurements, _ = _scenario()
+    ordered = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0, measurements)
+    reversed_ = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0, (m for m in measurements[::-1]))
+    np.testing.assert_array_equal(reversed_.times, ordered.times)
+    np.testing.assert_allclose(reversed_.means, ordered.means, rtol=1e-12, atol=1e-12)
+    # The same sensor twice at one time: two steps at that time, in the order given.
+    z1, z2 = [0.1, 0.9], [0.4, 1.3]
+    twice = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0,
+                             [(1.0, "vel", [1.0, -0.4]), (1.0, "pos", z1), (1.0, "pos", z2)])
+    assert twice.times.tolist() == [1.0, 1.0] and twice.sources == [("vel", "pos"), "pos"]
+    first = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0, [(1.0, "vel", [1.0, -0.4]), (1.0, "pos", z1)])
+    np.testing.assert_allclose(twice.means[0], first.means[0], rtol=1e-12, atol=1e-12)
+    mean, cov = twice.at(1.0)  # after everything at that time
+    np.testing.assert_array_equal(mean, twice.means[1])
+    fuser = gf.Fuser(_motion(), _sensors(), _prior(), 0.0)
+    for name, z in (("vel", [1.0, -0.4]), ("pos", z1), ("pos", z2)):
+        fuser.update(1.0, name, z)
+    np.testing.assert_allclose(fuser.belief.mean, mean, rtol=1e-12, atol=1e-12)
+
+
+def test_output_times_between_measurements():
+    motion, sensors, prior = _motion(), _sensors(), _prior()
+    meas = [(1.0, "pos", [1.0, 0.5]), (3.0, "pos", [2.9, -0.4])]
+    out = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, times=[0.0, 1.0, 2.2, 4.0, 2.2])
+    assert out.times.tolist() == [0.0, 1.0, 2.2, 3.0, 4.0]
+    assert out.sources == [None, "pos", None, "pos", None]
+    # At t0 the belief is the prior; between measurements, the prediction.
+    np.testing.assert_allclose(out.means[0], prior.mean, rtol=0, atol=0)
+    np.testing.assert_allclose(out.covs[0], prior.cov, rtol=0, atol=0)
+    F, Q = motion.transition(1.2)
+    np.testing.assert_allclose(out.means[2], F @ out.means[1], rtol=1e-12)
+    np.testing.assert_allclose(out.covs[2], F @ out.covs[1] @ F.T + Q, rtol=1e-12)
+    means, covs = out.at([4.0, 2.2])
+    assert means.shape == (2, 4) and covs.shape == (2, 4, 4)
+    np.testing.assert_array_equal(means[1], out.means[2])
+    mean, cov = out.at(1.0)
+    assert mean.shape == (4,) and cov.shape == (4, 4)
+    with pytest.raises(ValueError, match=re.escape(
+            "`times` must be times of the timeline (measurement times, or output times passed to "
+            "fuse_timeline(times=...)); got [2.0, 5.0], which are not.")):
+        out.at([1.0, 2.0, 5.0])
+    # Smoothed: a step without measurements is smoothed like any other.
+    sm = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, times=[2.2], smooth=True)
+    assert np.trace(sm.covs[1]) < np.trace(out.covs[2])
+    # Only output times: pure prediction from the prior, loglik 0.
+    pred = gf.fuse_timeline(motion, sensors, prior, 0.0, [], times=[2.0])
+    np.testing.assert_allclose(pred.means[0], motion.transition(2.0)[0] @ prior.mean, rtol=1e-12)
+    assert pred.loglik == 0.0 and pred.sources == [None]
+
+
+def test_fused_is_immutable():
+    out = gf.fuse_timeline(_motion(), _sensors(), _prior(), 0.0, [(1.0, "pos", [1.0, 0.5])])
+    with pytest.raises(AttributeError):
+        out.means = None
+    with pytest.raises(ValueError):
+        out.means[0, 0] = 1.0
+
+
+# ---------------------------------------------------------------------------
+# Nonlinear motion and sensors
+# ---------------------------------------------------------------------------
+
+
+def _turning_scenario(seed: int = 3):
+    motion = gf.CoordinatedTurn(q_acc=0.1, q_turn=1e-3)
+    sensors = {"radar": gf.RangeBearing(r_range=1.0, r_bearing=1e-4, origin=(-50.0, 20.0)),
+               "gps": gf.Position(dim=2, r=4.0)}
+    prior = gf.Gaussian([0.0, 0.0, 8.0, 1.0, 0.05], np.diag([4.0, 4.0, 1.0, 1.0, 1e-3]))
+    rng = np.random.default_rng(seed)
+    x, t_prev, meas = rng.multivariate_normal(prior.mean, prior.cov), 0.0, []
+    # No two at one time: a nonlinear sequential update is not the joint one.
+    events = sorted([(0.5 * k, "radar") for k in range(1, 30)] + [(1.3 * k + 0.07, "gps") for k in range(10)])
+    for t, name in events:
+        x = motion.f(x, t - t_prev)
+        t_prev = t
+        sensor = sensors[name]
+        hx = sensor.h(x) if name == "radar" else x[:2]
+        R = sensor.R if name == "radar" else 4.0 * np.eye(2)
+        meas.append((t, name, hx + rng.multivariate_normal(np.zeros(2), R)))
+    return motion, sensors, prior, meas
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_nonlinear_online_equals_batch(method):
+    motion, sensors, prior, meas = _turning_scenario()
+    out = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, times=[3.14], method=method)
+    assert isinstance(out.result, gf.FilterResult)
+    fuser, beliefs = _online([gf.Measurement(*m) for m in meas], [3.14], motion, sensors, prior, method)
+    for k, t in enumerate(out.times):
+        np.testing.assert_allclose(beliefs[t].mean, out.means[k], rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(beliefs[t].cov, out.covs[k], rtol=1e-10, atol=1e-10)
+    assert fuser.loglik == pytest.approx(out.loglik, rel=1e-10)
+    assert np.isfinite(out.loglik)
+
+
+def test_nonlinear_default_is_ekf_and_smoother_runs():
+    motion, sensors, prior, meas = _turning_scenario()
+    default = gf.fuse_timeline(motion, sensors, prior, 0.0, meas)
+    ekf = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, method="ekf")
+    np.testing.assert_array_equal(default.means, ekf.means)
+    sm = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, smooth=True, method="ukf", alpha=0.5)
+    assert isinstance(sm.result, gf.SmoothResult)
+    assert np.all(np.trace(sm.covs, axis1=1, axis2=2) <= np.trace(
+        gf.fuse_timeline(motion, sensors, prior, 0.0, meas, method="ukf", alpha=0.5).covs, axis1=1, axis2=2
+    ) + 1e-9)
+
+
+def test_bearing_innovation_is_wrapped():
+    # A target due west of the radar: bearings near ±π on both sides of the cut.
+    sensors = {"radar": gf.RangeBearing(r_range=1.0, r_bearing=1e-4)}
+    prior = gf.Gaussian([-100.0, 0.0, 0.0, 0.0, 0.0], np.diag([1.0, 1.0, 0.01, 0.01, 1e-6]))
+    meas = [(1.0, "radar", [100.0, np.pi - 0.001]), (2.0, "radar", [100.0, -np.pi + 0.001])]
+    out = gf.fuse_timeline(gf.CoordinatedTurn(q_acc=0.01, q_turn=1e-6), sensors, prior, 0.0, meas)
+    assert np.all(np.abs(out.means[:, 1]) < 0.5)
+    assert np.all(np.abs(out.result.innovations[:, 1]) < 0.01)
+
+
+# ---------------------------------------------------------------------------
+# Validation
+# ---------------------------------------------------------------------------
+
+
+def _call(**changes):
+    args = dict(motion=_motion(), sensors=_sensors(), prior=_prior(), t0=0.0,
+                measurements=[(1.0, "pos", [0.0, 0.0])])
+    args.update(changes)
+    return gf.fuse_timeline(**args)
+
+
+@pytest.mark.parametrize("changes, error, message", [
+    (dict(motion="cv"), TypeError,
+     "`motion` must be a motion model (a LinearMotion or NonlinearMotion, e.g. "
+     "gaussfuse.ConstantVelocity); got str."),
+    (dict(motion=gf.ForceInput(q=0.1, dim=2)), ValueError,
+     "`motion` has a control input (ForceInput); fusion takes no controls"),
+    (dict(sensors={}), TypeError, "`sensors` must be a non-empty dict mapping names to sensors; got {}."),
+    (dict(sensors={"pos": "gps"}), TypeError,
+     "`sensors['pos']` must be a sensor (a LinearSensor, Position or NonlinearSensor, e.g. "
+     "gaussfuse.RangeBearing); got str."),
+    (dict(sensors={1: gf.Position(dim=2)}), TypeError, "`sensors` must have str keys (sensor names); got 1."),
+    (dict(sensors={"p3": gf.Position(dim=3)}), ValueError,
+     "`sensors['p3']` reads 3 position components but `motion` has 2 spatial axes."),
+    (dict(motion=gf.RandomWalk(n=1), sensors={"rb": gf.RangeBearing()}), ValueError,
+     "`sensors['rb']` reads 2 position components but the state of `motion` has only 1."),
+    (dict(sensors={"v": gf.LinearSensor(H=[[0.0, 1.0]], R=[[1.0]])}), ValueError,
+     "`sensors['v']` must measure a state of n = 4 components (the motion's); its H has shape (1, 2)."),
+    (dict(prior=gf.Gaussian([0.0, 0.0], np.eye(2))), ValueError,
+     "`prior` must have dimension 4 (the model's state); got 2."),
+    (dict(t0="0"), TypeError, "`t0` must be a real number (a time); got '0'."),
+    (dict(t0=np.nan), ValueError, "`t0` must be finite; got nan."),
+    (dict(measurements=5), TypeError,
+     "`measurements` must be an iterable of Measurement(t, sensor, z) or (t, sensor, z) tuples; got int."),
+    (dict(measurements=[(1.0, "pos")]), TypeError,
+     "`measurements[0]` must be a Measurement(t, sensor, z) or a (t, sensor, z) tuple; got (1.0, 'pos')."),
+    (dict(measurements=[(1.0, "pos", [0, 0]), (-0.5, "vel", [0, 0])]), ValueError,
+     "`measurements[1].t` must not be earlier than `t0` = 0.0 (the prior's time); got -0.5."),
+    (dict(measurements=[(1.0, "lidar", [0, 0])]), ValueError,
+     "`measurements[0].sensor` must be one of ['pos', 'vel']; got 'lidar'."),
+    (dict(measurements=[(1.0, "pos", [0, 0, 0])]), ValueError,
+     "`measurements[0].z` must have shape (2,) for sensor 'pos'; got shape (3,)."),
+    (dict(measurements=[(1.0, "pos", [0, np.inf])]), ValueError,
+     "`measurements[0].z` must be finite; got an infinite value at index (1,)."),
+    (dict(measurements=[(None, "pos", [0, 0])]), TypeError,
+     "`measurements[0].t` must be a real number (a time); got None."),
+    (dict(times=[[1.0]]), ValueError, "`times` must have shape (k,); got shape (1, 1)."),
+    (dict(times=[2.0, -1.0]), ValueError,
+     "`times` must not be earlier than `t0` = 0.0 (the prior's time); got -1.0."),
+    (dict(measurements=[]), ValueError,
+     "`measurements` and `times` are both empty: there is nothing to estimate."),
+    (dict(smooth="yes"), TypeError, "`smooth` must be True or False; got 'yes'."),
+    (dict(keep="last"), TypeError, "`keep` is not an option of fuse_timeline: it returns every step."),
+    (dict(method="ekf"), TypeError, "method 'ekf' does not apply to a LinearModel; valid methods for it are ['kf']."),
+    (dict(alpha=0.5), TypeError, "unknown option(s) ['alpha'] for method 'kf'; valid options are none."),
+    # `engine` is gf.filter's (numba for long timelines; checked equal to python to 1e-15 by hand).
+    (dict(engine="gpu"), ValueError, "`engine` must be one of ['auto', 'python', 'numba']; got 'gpu'."),
+])
+def test_fuse_timeline_validation(changes, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        _call(**changes)
+
+
+def test_fuser_validation():
+    fuser = gf.Fuser(_motion(), _sensors(), _prior(), 0.0)
+    with pytest.raises(ValueError, match=re.escape("`sensor` must be one of ['pos', 'vel']; got 'gps'.")):
+        fuser.update(1.0, "gps", [0.0, 0.0])
+    with pytest.raises(ValueError, match=re.escape("`z` must have shape (2,) for sensor 'vel'; got shape ().")):
+        fuser.update(1.0, "vel", 3.0)
+    with pytest.raises(TypeError, match=re.escape("`t` must be a real number (a time); got '1'.")):
+        fuser.predict("1")
+    assert fuser.t == 0.0 and fuser.loglik == 0.0  # nothing happened
+    motion, sensors, prior, _ = _turning_scenario()
+    with pytest.raises(ValueError, match=re.escape(
+            "`method` 'iekf' iterates over the whole series; the online Fuser takes "
+            "'kf', 'ekf', 'ukf', 'ckf' or 'ghkf'.")):
+        gf.Fuser(motion, sensors, prior, 0.0, method="iekf")
+    with pytest.raises(TypeError, match=re.escape("unknown option(s) ['order'] for method 'ekf'")):
+        gf.Fuser(motion, sensors, prior, 0.0, order=3)
+    with pytest.raises(TypeError, match=re.escape("`prior` must be a gaussfuse.Gaussian(mean, cov); got list.")):
+        gf.Fuser(_motion(), _sensors(), [0.0] * 4, 0.0)
+
+
+def test_scalar_sensor_and_nan_component():
+    motion = gf.ConstantVelocity(dim=1, q=0.1)
+    sensors = {"gps": gf.Position(dim=1, r=4.0), "both": gf.LinearSensor(H=np.eye(2), R=np.eye(2))}
+    prior = gf.Gaussian([0.0, 1.0], np.diag([10.0, 1.0]))
+    out = gf.fuse_timeline(motion, sensors, prior, 0.0, [(1.0, "gps", 1.2), (2.0, "both", [np.nan, 0.8])])
+    # The second step observed only the velocity component of "both".
+    only_vel = gf.fuse_timeline(motion, {**sensors, "v": gf.LinearSensor(H=[[0.0, 1.0]], R=[[1.0]])}, prior,
+                                0.0, [(1.0, "gps", 1.2), (2.0, "v", 0.8)])
+    np.testing.assert_allclose(out.means, only_vel.means, rtol=1e-12, atol=1e-12)
+    assert out.loglik == pytest.approx(only_vel.loglik, rel=1e-12)
+    fuser = gf.Fuser(motion, sensors, prior, 0.0)
+    fuser.update(1.0, "gps", 1.2)
+    fuser.update(2.0, "both", [np.nan, 0.8])
+    np.testing.assert_allclose(fuser.belief.mean, out.means[-1], rtol=1e-12, atol=1e-12)
+
+
+def test_docstring_examples():
+    result = doctest.testmod(gaussfuse.fusion, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
