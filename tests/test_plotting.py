@@ -1,6 +1,8 @@
 """Tests of gaussfuse.plotting (matplotlib, Agg canvas, no pyplot)."""
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -8,7 +10,9 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 import gaussfuse as gf
-from gaussfuse.plotting import plot_demo, plot_measurements, save_figure
+from gaussfuse.diagnostics import chi2_interval, consistency, nees, nis
+from gaussfuse.plotting import (plot_consistency, plot_demo, plot_measurements, plot_mode_probabilities,
+                                plot_series, plot_trajectory, save_figure)
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -115,3 +119,266 @@ def test_save_figure_failure_keeps_the_old_file(tmp_path, filtered, monkeypatch)
         save_figure(fig, path)
     assert path.read_bytes() == b"old"
     assert os.listdir(tmp_path) == ["fig.png"]
+
+
+# ---------------------------------------------------------------------------
+# The single-panel functions
+# ---------------------------------------------------------------------------
+
+
+def assert_png(fig, path):
+    """Save `fig` to `path` and check it is a real PNG image of some substance."""
+    save_figure(fig, path)
+    data = path.read_bytes()
+    assert data.startswith(PNG_SIGNATURE)
+    assert len(data) > 5_000
+
+
+@pytest.fixture
+def track():
+    """A 2-D constant-velocity track, filtered, with its truth."""
+    rng = np.random.default_rng(5)
+    model = gf.constant_velocity(0.5, 0.2, 0.5, dim=2)
+    truth = np.cumsum(np.column_stack([np.full((40, 2), 0.5), rng.normal(0, 0.05, (40, 2))]), axis=0)
+    truth[:, 2:] = 1.0
+    zs = truth[:, :2] + rng.normal(0, 0.7, (40, 2))
+    zs[7] = np.nan
+    res = gf.filter(model, gf.Gaussian(np.zeros(4), 4 * np.eye(4)), zs)
+    return 0.5 * np.arange(1, 41), zs, truth, res
+
+
+def test_plot_series_new_figure(tmp_path, track):
+    times, zs, truth, res = track
+    fig = plot_series(times, res.means, res.covs, component=1, k=3.0, zs=zs, truth=truth)
+    assert isinstance(fig, Figure)
+    (ax,) = fig.get_axes()
+    dots, true, line = ax.get_lines()
+    np.testing.assert_array_equal(dots.get_ydata(), zs[:, 1])
+    np.testing.assert_array_equal(true.get_ydata(), truth[:, 1])
+    np.testing.assert_array_equal(line.get_xdata(), times)
+    np.testing.assert_array_equal(line.get_ydata(), res.means[:, 1])
+    std = np.sqrt(res.covs[:, 1, 1])
+    low, high = band_limits(ax)
+    assert low == pytest.approx(np.min(res.means[:, 1] - 3 * std))
+    assert high == pytest.approx(np.max(res.means[:, 1] + 3 * std))
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["measurement", "truth", "estimate",
+                                                                   "estimate ±3σ"]
+    assert ax.get_xlabel() == "time"
+    assert_png(fig, tmp_path / "series.png")
+
+
+def test_plot_series_into_given_axes(tmp_path, track):
+    times, zs, truth, res = track
+    fig = Figure()
+    left, right = fig.subplots(1, 2)
+    assert plot_series(times, res.means, res.covs, zs=zs, ax=right, label="filter") is fig
+    assert fig.get_axes() == [left, right]
+    assert not left.get_lines() and len(right.get_lines()) == 2
+    assert [t.get_text() for t in right.get_legend().get_texts()] == ["measurement", "filter", "filter ±2σ"]
+    assert_png(fig, tmp_path / "series.png")
+
+
+def test_plot_series_in_a_subfigure_returns_the_root_figure(track):
+    times, zs, truth, res = track
+    fig = Figure()
+    ax = fig.subfigures(1, 2)[1].add_subplot()
+    assert plot_series(times, res.means, res.covs, ax=ax) is fig
+
+
+def test_plot_series_one_dimensional_and_without_band():
+    times = np.arange(5.0)
+    means, variances = np.array([1.0, 2.0, 3.0, 2.0, 1.0]), np.array([4.0, 1.0, 1.0, 1.0, 0.25])
+    ax = plot_series(times, means, variances).get_axes()[0]
+    low, high = band_limits(ax)
+    assert (low, high) == pytest.approx((np.min(means - 2 * np.sqrt(variances)),
+                                         np.max(means + 2 * np.sqrt(variances))))
+    ax = plot_series(times, means, None).get_axes()[0]
+    assert not [c for c in ax.collections if isinstance(c, PolyCollection)]
+    np.testing.assert_array_equal(ax.get_lines()[0].get_ydata(), means)
+
+
+def ellipse_points(patch, count=16):
+    """Points on a drawn Ellipse patch, from its centre, axes and angle."""
+    t = np.linspace(0, 2 * np.pi, count, endpoint=False)
+    a = np.radians(patch.angle)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    local = np.column_stack([patch.width / 2 * np.cos(t), patch.height / 2 * np.sin(t)])
+    return np.asarray(patch.center) + local @ rot.T
+
+
+def test_plot_trajectory_ellipses_are_k_sigma_contours(tmp_path, track):
+    from matplotlib.patches import Ellipse
+
+    times, zs, truth, res = track
+    # a strongly correlated, rotated covariance as well as the filter's own
+    covs = res.covs.copy()
+    covs[10, :2, :2] = [[2.0, 1.2], [1.2, 1.0]]
+    fig = plot_trajectory(res.means, covs, truth=truth, zs=zs, every=5, k=3.0)
+    (ax,) = fig.get_axes()
+    assert [line.get_label() for line in ax.get_lines()] == ["measurement", "truth", "estimate"]
+    np.testing.assert_array_equal(ax.get_lines()[2].get_xydata(), res.means[:, :2])
+    ellipses = [p for p in ax.patches if isinstance(p, Ellipse)]
+    assert len(ellipses) == 8  # steps 0, 5, ..., 35
+    for patch, step in zip(ellipses, range(0, 40, 5)):
+        np.testing.assert_allclose(patch.center, res.means[step, :2])
+        d = ellipse_points(patch) - res.means[step, :2]
+        quad = np.einsum("ki,ij,kj->k", d, np.linalg.inv(covs[step, :2, :2]), d)
+        np.testing.assert_allclose(quad, 9.0, rtol=1e-9)
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["measurement", "truth", "estimate",
+                                                                   "estimate 3σ"]
+    assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_aspect()) == ("x", "y", 1.0)
+    assert_png(fig, tmp_path / "track.png")
+
+
+def test_plot_trajectory_into_given_axes_skips_undefined_ellipses(tmp_path, track):
+    times, zs, truth, res = track
+    fig = Figure()
+    ax = fig.add_subplot()
+    covs = res.covs.copy()
+    covs[:3] = np.nan  # e.g. a diffuse start
+    assert plot_trajectory(res.means, covs, every=1, ax=ax, label="filter") is fig
+    assert len(ax.patches) == 37
+    plot_trajectory(res.means[:, :2], ax=ax, label="positions only")  # no covariances: no ellipses
+    assert len(ax.patches) == 37 and len(ax.get_lines()) == 2
+    assert_png(fig, tmp_path / "track.png")
+
+
+def test_plot_consistency_of_diagnostics_output(tmp_path, track):
+    times, zs, truth, res = track
+    values = nees(truth - res.means, res.covs)
+    interval = chi2_interval(4, count=values.size)
+    fig = plot_consistency(values, interval)
+    (ax,) = fig.get_axes()
+    per_step, average, low, high = ax.get_lines()
+    np.testing.assert_array_equal(per_step.get_xdata(), np.arange(1, 41))
+    np.testing.assert_array_equal(per_step.get_ydata(), values)
+    assert average.get_ydata()[0] == pytest.approx(values.mean())
+    assert (low.get_ydata()[0], high.get_ydata()[0]) == pytest.approx(interval)
+    mean = values.mean()
+    verdict = ("consistent" if interval[0] <= mean <= interval[1]
+               else "overconfident" if mean > interval[1] else "too cautious")
+    assert ax.get_title().startswith(f"NEES: average {mean:.3f} ") and ax.get_title().endswith(verdict)
+    assert ax.get_ylabel() == "NEES" and ax.get_xlabel() == "step"
+    assert_png(fig, tmp_path / "nees.png")
+
+    report = consistency(res)  # the one-call report's interval is accepted as it is
+    fig = Figure()
+    ax = fig.add_subplot()
+    assert plot_consistency(nis(res.innovations, res.innovation_covs), report.nis_interval, kind="NIS",
+                            ax=ax) is fig
+    assert ax.get_title().startswith("NIS: average ")
+    assert_png(fig, tmp_path / "nis.png")
+
+
+@pytest.mark.parametrize("scale, words", [(1.0, "in [1.732, 2.287]: consistent"),
+                                          (3.0, "above [1.732, 2.287]: overconfident"),
+                                          (0.3, "below [1.732, 2.287]: too cautious")])
+def test_plot_consistency_verdicts(scale, words):
+    values = np.random.default_rng(2).chisquare(2, size=200)
+    values *= 2.0 * scale / values.mean()  # average exactly 2·scale
+    ax = plot_consistency(values, chi2_interval(2, count=200), kind="NIS").get_axes()[0]
+    assert ax.get_title() == f"NIS: average {2.0 * scale:.3f} {words}"
+
+
+def test_plot_consistency_monte_carlo_runs_with_missing_steps():
+    values = np.array([[1.0, np.nan, 3.0], [3.0, np.nan, 5.0], [2.0, 4.0, np.nan]])
+    ax = plot_consistency(values, (1.0, 6.0), kind="NIS").get_axes()[0]
+    per_step = ax.get_lines()[0]
+    np.testing.assert_array_equal(per_step.get_ydata(), [2.0, 4.0, 4.0])
+    assert per_step.get_label() == "NIS, average of 3 runs"
+    assert ax.get_lines()[1].get_ydata()[0] == pytest.approx(3.0)  # over all the finite values
+
+
+@pytest.mark.parametrize("stacked", [False, True])
+def test_plot_mode_probabilities(tmp_path, stacked):
+    times = np.linspace(0, 10, 60)
+    p = 0.5 + 0.45 * np.sin(times)
+    probs = np.column_stack([0.8 * p, 0.2 * p, 1 - p])
+    fig = plot_mode_probabilities(times, probs, ["CV", "CT", "CA"], stacked=stacked)
+    (ax,) = fig.get_axes()
+    if stacked:
+        assert sum(isinstance(c, PolyCollection) for c in ax.collections) == 3
+    else:
+        lines = ax.get_lines()
+        assert [line.get_label() for line in lines] == ["CV", "CT", "CA"]
+        np.testing.assert_array_equal(lines[2].get_ydata(), 1 - p)
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["CV", "CT", "CA"]
+    assert ax.get_ylim() == pytest.approx((-0.02, 1.02))
+    assert_png(fig, tmp_path / "modes.png")
+
+
+def test_plot_mode_probabilities_into_given_axes_with_default_names(tmp_path):
+    fig = Figure()
+    ax = fig.add_subplot()
+    times = np.arange(30.0)
+    p = np.clip(np.linspace(0.05, 0.95, 30), 0, 1)
+    assert plot_mode_probabilities(times, np.column_stack([p, 1 - p]), ax=ax) is fig
+    assert [line.get_label() for line in ax.get_lines()] == ["mode 0", "mode 1"]
+    assert_png(fig, tmp_path / "modes.png")
+
+
+BAD = [
+    (lambda: plot_series(np.arange(3.0), np.zeros((4, 2)), None),
+     r"`means` must have shape .*got shape \(4, 2\)"),
+    (lambda: plot_series(np.zeros((3, 1)), np.zeros((3, 2)), None), r"`times` must have shape \(T,\)"),
+    (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), np.zeros((3, 3, 3))),
+     r"`covs` must have shape \(3, 2, 2\) to match `means`.*got shape \(3, 3, 3\)"),
+    (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), None, component=2), r"`component` must be"),
+    (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), None, zs=np.zeros(4)), r"`zs` must have shape"),
+    (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), None, component=1, truth=np.zeros((3, 1))),
+     r"`truth` must have shape \(T,\) or \(T, d\) with d > 1"),
+    (lambda: plot_series(np.arange(3.0), np.zeros(3), None, k=0), r"`k` must be a positive number"),
+    (lambda: plot_trajectory(np.zeros((5, 1))), r"`means` must have shape \(T, n\) with n >= 2"),
+    (lambda: plot_trajectory(np.zeros(5)), r"`means` must have shape \(T, n\) with n >= 2"),
+    (lambda: plot_trajectory(np.zeros((5, 4)), np.zeros((5, 2, 2))),
+     r"`covs` must have shape \(5, 4, 4\) to match `means`"),
+    (lambda: plot_trajectory(np.zeros((5, 2)), truth=np.zeros(5)), r"`truth` must have shape \(K, d\)"),
+    (lambda: plot_trajectory(np.zeros((5, 2)), zs=np.zeros((5, 1))), r"`zs` must have shape \(K, d\)"),
+    (lambda: plot_trajectory(np.zeros((5, 2)), every=0), r"`every` must be a positive integer"),
+    (lambda: plot_consistency(np.zeros((2, 3, 4)), (1, 2)), r"`values` must have shape \(T,\) or \(N, T\)"),
+    (lambda: plot_consistency(np.full(3, np.nan), (1, 2)), r"`values` must have at least one finite value"),
+    (lambda: plot_consistency(np.ones(3), 2.0), r"`interval` must be a pair"),
+    (lambda: plot_consistency(np.ones(3), (3.0, 2.0)), r"`interval` must be finite with low <= high"),
+    (lambda: plot_mode_probabilities(np.arange(4.0), np.ones((3, 2))),
+     r"`probs` must have shape \(4, M\) to match `times`"),
+    (lambda: plot_mode_probabilities(np.arange(3.0), np.ones((3, 2)), ["a"]), r"`names` must have one name"),
+    (lambda: plot_measurements(np.arange(3.0), np.zeros((3, 2)), np.zeros((3, 4)), np.zeros((3, 4, 4)),
+                               np.zeros((2, 3))), r"`H` must have shape \(2, 4\) or \(3, 2, 4\)"),
+    (lambda: plot_measurements(np.arange(3.0), np.zeros((4, 2)), np.zeros((3, 4)), np.zeros((3, 4, 4)),
+                               np.zeros((2, 4))), r"`zs` must have shape"),
+]
+
+
+@pytest.mark.parametrize("call, match", BAD, ids=range(len(BAD)))
+def test_bad_input_names_the_argument(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_ax_must_be_axes():
+    with pytest.raises(TypeError, match=r"`ax` must be a matplotlib Axes or None; got Figure"):
+        plot_trajectory(np.zeros((3, 2)), ax=Figure())
+
+
+def test_docstring_examples():
+    import contextlib
+    import doctest
+    import io
+
+    import gaussfuse.plotting
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        result = doctest.testmod(gaussfuse.plotting, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0, out.getvalue()
+
+
+def test_drawing_never_touches_pyplot():
+    code = ("import sys, numpy as np\n"
+            "from gaussfuse.plotting import *\n"
+            "t = np.arange(5.0); m = np.column_stack([t, t]); P = np.broadcast_to(np.eye(2), (5, 2, 2))\n"
+            "plot_series(t, m, P); plot_trajectory(m, P); plot_consistency(t, (1, 3))\n"
+            "plot_mode_probabilities(t, np.full((5, 2), 0.5), stacked=True)\n"
+            "assert 'matplotlib.pyplot' not in sys.modules, 'pyplot imported'\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr

@@ -1,9 +1,16 @@
-"""Figures of measurements and estimates.
+"""Figures of measurements, estimates and filter diagnostics.
 
 matplotlib is an optional dependency (``pip install gaussfuse[plot]``); it is
 imported inside these functions only, and figures are drawn with the Agg
 canvas on a :class:`matplotlib.figure.Figure`, never through pyplot's global
-state. Every function takes an optional `fig` and returns the figure.
+state.
+
+The single-panel functions (:func:`plot_series`, :func:`plot_trajectory`,
+:func:`plot_consistency`, :func:`plot_mode_probabilities`) take an optional
+`ax`: they draw into that :class:`matplotlib.axes.Axes`, or into a new figure
+when it is None, and return the figure either way. The multi-panel functions
+(:func:`plot_measurements`, :func:`plot_demo`) take an optional `fig` and are
+built from the single-panel ones.
 """
 
 from __future__ import annotations
@@ -14,11 +21,347 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ._validation import as_array, shape_error
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["plot_measurements", "plot_demo", "save_figure"]
+__all__ = [
+    "plot_series",
+    "plot_trajectory",
+    "plot_consistency",
+    "plot_mode_probabilities",
+    "plot_measurements",
+    "plot_demo",
+    "save_figure",
+]
+
+_MEASUREMENT_STYLE = dict(linestyle="none", marker=".", color="0.35", markersize=4)
+_TRUTH_STYLE = dict(color="black", linewidth=1)
+
+
+# ---------------------------------------------------------------------------
+# Single panels
+# ---------------------------------------------------------------------------
+
+
+def plot_series(
+    times,
+    means,
+    covs,
+    *,
+    component: int = 0,
+    k: float = 2.0,
+    zs=None,
+    truth=None,
+    ax: Axes | None = None,
+    label: str = "estimate",
+) -> Figure:
+    r"""One component of an estimate against time, with a band of :math:`\pm k\sigma`.
+
+    Draws, in this order: the measurements as dots, the truth as a black
+    line, the estimate :math:`m_{k,c}` as a line and the band
+    :math:`m_{k,c} \pm k \sqrt{P_{k,cc}}` shaded in the same colour, where c
+    is `component`.
+
+    Parameters
+    ----------
+    times : array_like of shape (T,)
+        Times.
+    means : array_like of shape (T, n) or (T,)
+        Means (filtered or smoothed), e.g. ``res.means``.
+    covs : array_like of shape (T, n, n), or (T,) variances when `means` is 1-D, optional
+        Covariances, e.g. ``res.covs``; None draws no band.
+    component : int, default 0
+        Which component c of the means to draw.
+    k : float, default 2.0
+        Half-width of the band in standard deviations.
+    zs : array_like of shape (T,) or (T, d), optional
+        Measurements of the same quantity; of a 2-D array, column `component`
+        is drawn. NaN (missing) values are not drawn.
+    truth : array_like of shape (T,) or (T, d), optional
+        True values (simulations); of a 2-D array, column `component`.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw into; a new figure by default.
+    label : str, default "estimate"
+        Legend label of the estimate; the band is labelled ``"<label> ±kσ"``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure of `ax`, or the new figure.
+
+    Raises
+    ------
+    ValueError
+        If an argument has the wrong shape (the message names it), `component`
+        is out of range or `k` is not positive.
+
+    Examples
+    --------
+    >>> import numpy as np, gaussfuse as gf
+    >>> from gaussfuse.plotting import plot_series
+    >>> model = gf.constant_velocity(1.0, 0.1, 1.0)
+    >>> zs = np.arange(20.0) + np.random.default_rng(0).normal(size=20)
+    >>> res = gf.filter(model, gf.Gaussian([0.0, 1.0], np.eye(2)), zs)
+    >>> fig = plot_series(np.arange(20), res.means, res.covs, zs=zs)
+    >>> [line.get_label() for line in fig.axes[0].get_lines()]
+    ['measurement', 'estimate']
+    """
+    times = _times("times", times)
+    T = times.shape[0]
+    means = _data("means", means, (1, 2), T, "(T,) or (T, n)")
+    if means.ndim == 1:
+        means = means[:, None]
+    n = means.shape[1]
+    if isinstance(component, bool) or not isinstance(component, (int, np.integer)) \
+            or not -n <= component < n:
+        raise ValueError(f"`component` must be an integer in [0, {n}) for `means` with n = {n}; "
+                         f"got {component!r}.")
+    std = None
+    if covs is not None:
+        covs = _data("covs", covs, (1, 3), T, f"({T}, {n}, {n}) to match `means`")
+        if covs.ndim == 1:
+            covs = covs[:, None, None]
+        if covs.shape != (T, n, n):
+            raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+        std = np.sqrt(np.maximum(covs[:, component, component], 0.0))
+    k = _positive("k", k)
+    fig, ax = _axes(ax, (7.0, 3.2))
+    if zs is not None:
+        ax.plot(times, _column("zs", zs, T, component), label="measurement", **_MEASUREMENT_STYLE)
+    if truth is not None:
+        ax.plot(times, _column("truth", truth, T, component), label="truth", **_TRUTH_STYLE)
+    _band(ax, times, means[:, component], std, label, k)
+    ax.set_xlabel("time")
+    ax.set_ylabel(f"component {component}")
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def plot_trajectory(
+    means,
+    covs=None,
+    *,
+    truth=None,
+    zs=None,
+    every: int = 10,
+    k: float = 2.0,
+    ax: Axes | None = None,
+    label: str = "estimate",
+) -> Figure:
+    r"""An x–y path with covariance ellipses.
+
+    The first two state components are the position. Every `every` steps
+    (from the first) the k-sigma ellipse of the position covariance
+    :math:`P_{xy}` (its upper-left 2 × 2 block) is drawn:
+    :math:`\{p : (p - m)^\top P_{xy}^{-1} (p - m) = k^2\}`, with semi-axes
+    :math:`k\sqrt{\lambda_i}` along the eigenvectors of :math:`P_{xy}`. A
+    2-D Gaussian falls inside with probability :math:`1 - e^{-k^2/2}` (86.5 %
+    for k = 2).
+
+    Parameters
+    ----------
+    means : array_like of shape (T, n), n >= 2
+        Means, positions (x, y) first.
+    covs : array_like of shape (T, n, n), optional
+        Covariances; without them no ellipses are drawn.
+    truth : array_like of shape (K, d), d >= 2, optional
+        True path, positions first.
+    zs : array_like of shape (K, d), d >= 2, optional
+        Position measurements (x, y) first, drawn as dots; NaN rows are not
+        drawn.
+    every : int, default 10
+        Steps between ellipses.
+    k : float, default 2.0
+        Size of the ellipses in standard deviations.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw into; a new figure by default.
+    label : str, default "estimate"
+        Legend label of the path; the ellipses are labelled ``"<label> kσ"``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure of `ax`, or the new figure.
+
+    Raises
+    ------
+    ValueError
+        If an argument has the wrong shape (the message names it), or
+        `every` or `k` is not positive.
+    """
+    means = _data("means", means, (2,), None, "(T, n) with n >= 2")
+    T, n = means.shape
+    if n < 2:
+        raise shape_error("means", "(T, n) with n >= 2", means.shape)
+    if covs is not None:
+        covs = _data("covs", covs, (3,), T, f"({T}, {n}, {n}) to match `means`")
+        if covs.shape != (T, n, n):
+            raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ValueError(f"`every` must be a positive integer; got {every!r}.")
+    k = _positive("k", k)
+    fig, ax = _axes(ax, (6.0, 5.5))
+    if zs is not None:
+        zs = _points("zs", zs)
+        ax.plot(zs[:, 0], zs[:, 1], label="measurement", **_MEASUREMENT_STYLE)
+    if truth is not None:
+        truth = _points("truth", truth)
+        ax.plot(truth[:, 0], truth[:, 1], label="truth", **_TRUTH_STYLE)
+    (line,) = ax.plot(means[:, 0], means[:, 1], label=label)
+    if covs is not None:
+        _ellipses(ax, means[::every, :2], covs[::every, :2, :2], k, line.get_color(), f"{label} {k:g}σ")
+    ax.set(xlabel="x", ylabel="y", aspect="equal", adjustable="datalim")
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def plot_consistency(values, interval, *, kind: str = "NEES", ax: Axes | None = None) -> Figure:
+    r"""NIS or NEES per step against its χ² interval, with the verdict in the title.
+
+    Draws the values per step, their average over all steps (a dashed
+    line) and the two bounds of `interval` (horizontal lines). The title
+    says whether the average lies inside the interval (*consistent*), above
+    it (*overconfident*: the covariances are too small) or below it (*too
+    cautious*), as :class:`gaussfuse.diagnostics.ConsistencyReport` does.
+
+    Parameters
+    ----------
+    values : array_like of shape (T,) or (N, T)
+        :func:`gaussfuse.diagnostics.nis` or :func:`~gaussfuse.diagnostics.nees`
+        of one run, or of N Monte Carlo runs (then the average over the runs
+        is drawn at each step). NaN values (steps with nothing observed) are
+        left out.
+    interval : (float, float)
+        ``(low, high)`` bounds of the average, e.g.
+        ``chi2_interval(dof, count=values.size)`` or ``report.nees_interval``
+        of :func:`gaussfuse.diagnostics.consistency`.
+    kind : str, default "NEES"
+        Name of the statistic, for the labels.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw into; a new figure by default.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure of `ax`, or the new figure.
+
+    Raises
+    ------
+    ValueError
+        If `values` has the wrong shape or no finite value, or `interval` is
+        not two finite numbers ``low <= high``.
+
+    Notes
+    -----
+    The verdict compares the average of *all* the values with `interval`,
+    so the strict test is ``chi2_interval(dof, count=values.size)``. For N
+    Monte Carlo runs the classic picture instead draws
+    ``chi2_interval(dof, count=N)``, the bounds of each step's average over
+    the runs, which about 95 % of the steps should respect; the verdict on
+    the overall average is then lenient.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from gaussfuse.diagnostics import chi2_interval
+    >>> from gaussfuse.plotting import plot_consistency
+    >>> values = np.random.default_rng(0).chisquare(2, size=200)
+    >>> fig = plot_consistency(values, chi2_interval(2, count=200), kind="NIS")
+    >>> fig.axes[0].get_title()
+    'NIS: average 2.258 in [1.732, 2.287]: consistent'
+    """
+    values = as_array("values", values, allow_nan=True)
+    if values.ndim not in (1, 2) or values.shape[-1] == 0:
+        raise shape_error("values", "(T,) or (N, T) for N runs", values.shape)
+    if not np.isfinite(values).any():
+        raise ValueError("`values` must have at least one finite value; all are NaN.")
+    try:
+        low, high = (float(v) for v in interval)
+    except (TypeError, ValueError):
+        raise ValueError(f"`interval` must be a pair (low, high) of numbers; got {interval!r:.80}.") from None
+    if not (np.isfinite(low) and np.isfinite(high) and low <= high):
+        raise ValueError(f"`interval` must be finite with low <= high; got ({low!r}, {high!r}).")
+    if not isinstance(kind, str):
+        raise TypeError(f"`kind` must be a string; got {type(kind).__name__}.")
+    per_step = values if values.ndim == 1 else _nanmean(values, axis=0)
+    average = float(np.nanmean(values))
+    verdict = ("consistent" if low <= average <= high
+               else "overconfident" if average > high else "too cautious")
+    where = "in" if verdict == "consistent" else ("above" if average > high else "below")
+    runs = "" if values.ndim == 1 else f", average of {values.shape[0]} runs"
+    fig, ax = _axes(ax, (7.0, 3.2))
+    steps = np.arange(1, per_step.shape[0] + 1)
+    (line,) = ax.plot(steps, per_step, marker=".", markersize=3, linewidth=0.8, label=f"{kind}{runs}")
+    ax.axhline(average, color=line.get_color(), linestyle="--", label=f"average {average:.3g}")
+    ax.axhline(low, color="0.3", linewidth=1, label=f"χ² interval [{low:.3g}, {high:.3g}]")
+    ax.axhline(high, color="0.3", linewidth=1)
+    ax.set(xlabel="step", ylabel=kind,
+           title=f"{kind}: average {average:.3f} {where} [{low:.3f}, {high:.3f}]: {verdict}")
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+def plot_mode_probabilities(
+    times,
+    probs,
+    names: Sequence[str] | None = None,
+    ax: Axes | None = None,
+    *,
+    stacked: bool = False,
+) -> Figure:
+    """Mode probabilities against time (e.g. of an IMM filter), one per mode.
+
+    Parameters
+    ----------
+    times : array_like of shape (T,)
+        Times.
+    probs : array_like of shape (T, M)
+        Probability of each of the M modes at each step, e.g.
+        ``res.mode_probs`` of :func:`gaussfuse.imm_filter`.
+    names : sequence of str of length M, optional
+        Names of the modes; ``"mode 0"``, ``"mode 1"``, ... by default.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw into; a new figure by default.
+    stacked : bool, default False
+        Stack the probabilities as filled areas (they sum to 1) instead of
+        drawing one line per mode.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure of `ax`, or the new figure.
+
+    Raises
+    ------
+    ValueError
+        If `probs` or `names` does not match `times`.
+    """
+    times = _times("times", times)
+    probs = as_array("probs", probs)
+    T = times.shape[0]
+    if probs.ndim != 2 or probs.shape[0] != T or probs.shape[1] == 0:
+        raise shape_error("probs", f"({T}, M) to match `times`", probs.shape)
+    M = probs.shape[1]
+    names = [f"mode {j}" for j in range(M)] if names is None else [str(s) for s in names]
+    if len(names) != M:
+        raise ValueError(f"`names` must have one name per mode ({M}); got {len(names)}.")
+    fig, ax = _axes(ax, (7.0, 3.2))
+    if stacked:
+        ax.stackplot(times, probs.T, labels=names, alpha=0.8)
+    else:
+        for j in range(M):
+            ax.plot(times, probs[:, j], label=names[j])
+    ax.set(xlabel="time", ylabel="mode probability", ylim=(-0.02, 1.02))
+    ax.legend(loc="best", fontsize="small")
+    return fig
+
+
+# ---------------------------------------------------------------------------
+# Multi-panel figures
+# ---------------------------------------------------------------------------
 
 
 def plot_measurements(
@@ -35,7 +378,8 @@ def plot_measurements(
 
     Panel j shows the measurements :math:`z_{k,j}` as dots, the estimate
     :math:`(H m_k)_j` as a line and a band of :math:`\pm 2\sigma` with
-    :math:`\sigma = \sqrt{(H P_k H^\top)_{jj}}`.
+    :math:`\sigma = \sqrt{(H P_k H^\top)_{jj}}` (each panel is a
+    :func:`plot_series` of the estimated measurement).
 
     Parameters
     ----------
@@ -57,23 +401,41 @@ def plot_measurements(
     Returns
     -------
     matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValueError
+        If an argument has the wrong shape (the message names it).
     """
-    times = np.asarray(times, dtype=np.float64)
-    zs = np.asarray(zs, dtype=np.float64).reshape(times.shape[0], -1)
-    means, covs = np.asarray(means, dtype=np.float64), np.asarray(covs, dtype=np.float64)
-    H = np.asarray(H, dtype=np.float64)
-    est = (H @ means[..., None])[..., 0]
-    std = np.sqrt(np.diagonal(H @ covs @ np.swapaxes(H, -1, -2), axis1=-2, axis2=-1))
+    times = _times("times", times)
+    T = times.shape[0]
+    zs = _data("zs", zs, (1, 2), T, "(T,) or (T, m)")
+    zs = zs.reshape(T, -1)
     m = zs.shape[1]
-    names = list(names) if names is not None else [f"z{j}" for j in range(m)]
+    means = _data("means", means, (2,), T, "(T, n)")
+    n = means.shape[1]
+    covs = _data("covs", covs, (3,), T, f"({T}, {n}, {n}) to match `means`")
+    if covs.shape != (T, n, n):
+        raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+    H = as_array("H", H)
+    if H.ndim == 1 and m == 1:
+        H = H[None]
+    if H.shape not in ((m, n), (T, m, n)):
+        raise shape_error("H", f"({m}, {n}) or ({T}, {m}, {n}) to match `zs` and `means`", H.shape)
+    names = [f"z{j}" for j in range(m)] if names is None else [str(s) for s in names]
+    if len(names) != m:
+        raise ValueError(f"`names` must have one name per measurement component ({m}); got {len(names)}.")
+    est = (H @ means[..., None])[..., 0]
+    zcov = H @ covs @ np.swapaxes(H, -1, -2)
     fig = fig if fig is not None else _figure((7.0, 1.0 + 2.2 * m))
     axes = fig.subplots(m, 1, sharex=True, squeeze=False)[:, 0]
     for j, ax in enumerate(axes):
-        ax.plot(times, zs[:, j], ".", color="0.35", markersize=4, label="measurement")
-        _band(ax, times, est[:, j], std[:, j], "estimate")
+        plot_series(times, est, zcov, component=j, zs=zs, ax=ax)
         ax.set_ylabel(names[j])
-    axes[0].legend(loc="best", fontsize="small")
-    axes[-1].set_xlabel("time")
+        if j:
+            ax.get_legend().remove()
+        if j < m - 1:
+            ax.set_xlabel("")
     return fig
 
 
@@ -86,6 +448,10 @@ def plot_demo(
     fig: Figure | None = None,
 ) -> Figure:
     """A 2-D track: the x–y trajectory, and the x position against time with ±2σ bands.
+
+    The left panel is a :func:`plot_trajectory` (with the covariance ellipses
+    of the first estimate), the right one a :func:`plot_series` of x per
+    estimate.
 
     Parameters
     ----------
@@ -105,21 +471,14 @@ def plot_demo(
     -------
     matplotlib.figure.Figure
     """
-    times, zs, truth = (np.asarray(a, dtype=np.float64) for a in (times, zs, truth))
     fig = fig if fig is not None else _figure((11.0, 4.5))
     track, xt = fig.subplots(1, 2)
-    track.plot(zs[:, 0], zs[:, 1], ".", color="0.35", markersize=4, label="measurement")
-    track.plot(truth[:, 0], truth[:, 1], color="black", linewidth=1, label="truth")
-    xt.plot(times, zs[:, 0], ".", color="0.35", markersize=4, label="measurement")
-    xt.plot(times, truth[:, 0], color="black", linewidth=1, label="truth")
-    for label, (means, covs) in estimates.items():
-        means, covs = np.asarray(means), np.asarray(covs)
-        track.plot(means[:, 0], means[:, 1], label=label)
-        _band(xt, times, means[:, 0], np.sqrt(covs[:, 0, 0]), label)
-    track.set(xlabel="x", ylabel="y", title="trajectory", aspect="equal", adjustable="datalim")
-    xt.set(xlabel="time", ylabel="x", title="x position, ±2σ bands")
-    track.legend(loc="best", fontsize="small")
-    xt.legend(loc="best", fontsize="small")
+    for i, (label, (means, covs)) in enumerate(estimates.items()):
+        first = dict(zs=zs, truth=truth) if i == 0 else {}
+        plot_trajectory(means, covs if i == 0 else None, ax=track, label=label, **first)
+        plot_series(times, means, covs, component=0, ax=xt, label=label, **first)
+    track.set_title("trajectory")
+    xt.set(ylabel="x", title="x position, ±2σ bands")
     return fig
 
 
@@ -150,6 +509,11 @@ def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
         fig.savefig(f, format=fmt)
 
 
+# ---------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------
+
+
 def _figure(figsize: tuple[float, float]) -> Figure:
     """A new figure on an Agg canvas, outside pyplot."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -160,8 +524,89 @@ def _figure(figsize: tuple[float, float]) -> Figure:
     return fig
 
 
-def _band(ax: Axes, times: np.ndarray, mean: np.ndarray, std: np.ndarray, label: str) -> None:
-    """A line for `mean` and a shaded band of ±2 `std` in the same colour."""
+def _axes(ax: Axes | None, figsize: tuple[float, float]) -> tuple[Figure, Axes]:
+    """``(figure, axes)``: those of `ax`, or a new figure with one axes."""
+    from matplotlib.axes import Axes
+
+    if ax is None:
+        fig = _figure(figsize)
+        return fig, fig.add_subplot()
+    if not isinstance(ax, Axes):
+        raise TypeError(f"`ax` must be a matplotlib Axes or None; got {type(ax).__name__}.")
+    fig = ax.figure
+    return getattr(fig, "figure", fig), ax  # a SubFigure's `figure` is the root Figure
+
+
+def _times(name: str, value) -> np.ndarray:
+    arr = as_array(name, value)
+    if arr.ndim != 1 or arr.shape[0] == 0:
+        raise shape_error(name, "(T,) with T >= 1", arr.shape)
+    return arr
+
+
+def _data(name: str, value, ndims: tuple[int, ...], T: int | None, expected: str) -> np.ndarray:
+    """`value` as a float array (NaN allowed) with one of `ndims` and, if given, T rows."""
+    arr = as_array(name, value, allow_nan=True)
+    if arr.ndim not in ndims or 0 in arr.shape or (T is not None and arr.shape[0] != T):
+        rows = "" if T is None else f" with T = {T} to match `times`"
+        raise shape_error(name, expected + rows, arr.shape)
+    return arr
+
+
+def _column(name: str, value, T: int, component: int) -> np.ndarray:
+    """Column `component` of a (T, d) array, or a (T,) array as it is."""
+    arr = _data(name, value, (1, 2), T, f"(T,) or (T, d) with d > {component}")
+    if arr.ndim == 1:
+        return arr
+    if not -arr.shape[1] <= component < arr.shape[1]:
+        raise shape_error(name, f"(T,) or (T, d) with d > {component} (the component drawn)", arr.shape)
+    return arr[:, component]
+
+
+def _points(name: str, value) -> np.ndarray:
+    """A (K, d >= 2) array of positions."""
+    arr = _data(name, value, (2,), None, "(K, d) with d >= 2, positions (x, y) first")
+    if arr.shape[1] < 2:
+        raise shape_error(name, "(K, d) with d >= 2, positions (x, y) first", arr.shape)
+    return arr
+
+
+def _positive(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(value) or value <= 0:
+        raise ValueError(f"`{name}` must be a positive number; got {value!r}.")
+    return float(value)
+
+
+def _nanmean(values: np.ndarray, axis: int) -> np.ndarray:
+    """Mean ignoring NaN; NaN (without a warning) where every value is NaN."""
+    seen = np.isfinite(values)
+    count = seen.sum(axis=axis)
+    total = np.where(seen, values, 0.0).sum(axis=axis)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def _band(ax: Axes, times: np.ndarray, mean: np.ndarray, std: np.ndarray | None, label: str,
+          k: float = 2.0) -> None:
+    """A line for `mean` and a shaded band of ±k `std` in the same colour."""
     (line,) = ax.plot(times, mean, label=label)
-    ax.fill_between(times, mean - 2 * std, mean + 2 * std, color=line.get_color(),
-                    alpha=0.2, linewidth=0, label=f"{label} ±2σ")
+    if std is not None:
+        ax.fill_between(times, mean - k * std, mean + k * std, color=line.get_color(),
+                        alpha=0.2, linewidth=0, label=f"{label} ±{k:g}σ")
+
+
+def _ellipses(ax: Axes, centres: np.ndarray, covs: np.ndarray, k: float, color, label: str) -> None:
+    """k-sigma ellipses of 2 × 2 covariances (non-finite ones are skipped)."""
+    from matplotlib.patches import Ellipse
+
+    ok = np.isfinite(centres).all(axis=1) & np.isfinite(covs).all(axis=(1, 2))
+    centres, covs = centres[ok], covs[ok]
+    if not len(centres):
+        return
+    vals, vecs = np.linalg.eigh(0.5 * (covs + np.swapaxes(covs, -1, -2)))  # ascending eigenvalues
+    semi = k * np.sqrt(np.maximum(vals, 0.0))
+    angles = np.degrees(np.arctan2(vecs[:, 1, 1], vecs[:, 0, 1]))  # of the major axis
+    for i, centre in enumerate(centres):
+        ax.add_patch(Ellipse(tuple(centre), width=2 * semi[i, 1], height=2 * semi[i, 0],
+                             angle=angles[i], fill=False, edgecolor=color, linewidth=0.8,
+                             label=label if i == 0 else None))

@@ -1,0 +1,280 @@
+r"""Is the filter consistent? NIS, NEES, innovation whiteness, RMSE.
+
+A filter whose model is right produces
+
+* innovations :math:`v_k \sim N(0, S_k)`, independent over time, so the
+  normalised innovation squared :math:`\epsilon_v = v_k^\top S_k^{-1} v_k` is
+  :math:`\chi^2_{m}`;
+* estimation errors :math:`e_k = x_k - \hat x_k \sim N(0, P_k)`, so the
+  normalised estimation error squared :math:`\epsilon_x = e_k^\top P_k^{-1}
+  e_k` is :math:`\chi^2_{n}` (needs the truth: simulations).
+
+An average of :math:`K` independent :math:`\chi^2_d` values times
+:math:`K` is :math:`\chi^2_{Kd}`, which gives the two-sided confidence
+interval of the average (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4):
+over time (one run), across Monte Carlo runs (at each step), or both. An
+average above the interval means the filter is overconfident (for example Q
+too small); below, too cautious. Whiteness is tested on the innovations
+whitened by :math:`S_k^{-1/2}`: their sample autocorrelations at lags
+1..L should lie within :math:`\pm z_{1-\alpha/2}/\sqrt{T}`, summarised by
+the Ljung–Box statistic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validation import as_array, shape_error
+
+__all__ = ["nis", "nees", "chi2_interval", "whiteness", "rmse", "consistency", "ConsistencyReport",
+           "Whiteness"]
+
+
+def _quadratic(name: str, errors, covs) -> tuple[np.ndarray, np.ndarray]:
+    """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number."""
+    e = as_array(name, errors, allow_nan=True)
+    C = as_array(f"{name} covariances", covs, allow_nan=True)
+    if e.ndim < 1 or C.shape != e.shape + e.shape[-1:]:
+        raise shape_error(f"{name} covariances", f"{e.shape + e.shape[-1:]} to match `{name}`", C.shape)
+    flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
+    out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=int)
+    observed = ~np.isnan(flat_e)
+    full = observed.all(axis=1)
+    if full.any():
+        L = np.linalg.cholesky(flat_C[full])
+        w = np.linalg.solve(L, flat_e[full][..., None])[..., 0]
+        out[full], dof[full] = np.sum(w * w, axis=-1), e.shape[-1]
+    for i in np.flatnonzero(observed.any(axis=1) & ~full):
+        o = observed[i]
+        L = np.linalg.cholesky(flat_C[i][np.ix_(o, o)])
+        w = np.linalg.solve(L, flat_e[i][o])
+        out[i], dof[i] = w @ w, o.sum()
+    return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
+
+
+def nis(innovations, innovation_covs) -> np.ndarray:
+    """Normalised innovation squared ``vᵀ S⁻¹ v`` at each step.
+
+    Parameters
+    ----------
+    innovations : array_like of shape (..., T, m)
+        ``res.innovations``; NaN components (missing data) are left out.
+    innovation_covs : array_like of shape (..., T, m, m)
+        ``res.innovation_covs``.
+
+    Returns
+    -------
+    ndarray of shape (..., T)
+        NaN where nothing was observed. Each value is χ² with as many degrees
+        of freedom as observed components.
+    """
+    return _quadratic("innovations", innovations, innovation_covs)[0]
+
+
+def nees(errors, covs) -> np.ndarray:
+    """Normalised estimation error squared ``eᵀ P⁻¹ e`` at each step.
+
+    Parameters
+    ----------
+    errors : array_like of shape (..., T, n)
+        ``truth - estimate``.
+    covs : array_like of shape (..., T, n, n)
+        The estimate's covariances.
+
+    Returns
+    -------
+    ndarray of shape (..., T)
+        Each value χ²_n for a consistent filter.
+    """
+    return _quadratic("errors", errors, covs)[0]
+
+
+def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[float, float]:
+    """Two-sided interval for the average of `count` independent χ²_dof values.
+
+    Returns
+    -------
+    (low, high) : tuple of float
+        ``χ²_{count·dof}`` quantiles at (1 ∓ confidence)/2, divided by `count`.
+
+    Examples
+    --------
+    >>> lo, hi = chi2_interval(2, count=100)
+    >>> round(lo, 3), round(hi, 3)
+    (1.63, 2.41)
+    """
+    from scipy.stats import chi2
+
+    if not 0 < confidence < 1:
+        raise ValueError(f"`confidence` must be in (0, 1); got {confidence!r}.")
+    k = count * dof
+    alpha = 1.0 - confidence
+    return float(chi2.ppf(alpha / 2, k) / count), float(chi2.ppf(1 - alpha / 2, k) / count)
+
+
+@dataclass(frozen=True)
+class Whiteness:
+    """Whiteness of the normalised innovations.
+
+    Attributes
+    ----------
+    autocorrelation : ndarray of shape (lags,)
+        Sample autocorrelation of the whitened innovations (pooled over
+        components) at lags 1..lags.
+    bound : float
+        ``z_{1-α/2} / sqrt(T)``: a white sequence stays within ±bound.
+    statistic : float
+        Ljung–Box ``T (T + 2) Σ ρ_j² / (T - j)``, χ² with `lags` × m
+        degrees of freedom summed over components.
+    p_value : float
+    white : bool
+        ``p_value >= 1 - confidence``.
+    """
+
+    autocorrelation: np.ndarray
+    bound: float
+    statistic: float
+    p_value: float
+    white: bool
+
+
+def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 0.95) -> Whiteness:
+    """Test one series' innovations (T, m) for whiteness (see the module notes).
+
+    Steps with a missing component are left out.
+    """
+    from scipy.stats import chi2, norm
+
+    v = as_array("innovations", innovations, allow_nan=True)
+    S = as_array("innovation_covs", innovation_covs)
+    if v.ndim != 2 or S.shape != v.shape + v.shape[-1:]:
+        raise shape_error("innovations", "(T, m) with `innovation_covs` (T, m, m)", v.shape)
+    keep = ~np.isnan(v).any(axis=1)
+    w = np.linalg.solve(np.linalg.cholesky(S[keep]), v[keep][..., None])[..., 0]  # (T', m) whitened
+    T, m = w.shape
+    if not isinstance(lags, (int, np.integer)) or not 1 <= lags < T:
+        raise ValueError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")
+    w = w - w.mean(axis=0)
+    denom = np.sum(w * w, axis=0)
+    rho = np.array([np.sum(w[j:] * w[:-j], axis=0) / denom for j in range(1, lags + 1)])  # (lags, m)
+    q = T * (T + 2) * np.sum(rho**2 / (T - np.arange(1, lags + 1))[:, None])
+    p = float(chi2.sf(q, lags * m))
+    bound = float(norm.ppf(1 - (1 - confidence) / 2) / np.sqrt(T))
+    return Whiteness(rho.mean(axis=1), bound, float(q), p, p >= 1 - confidence)
+
+
+def rmse(estimates, truth, axis=None) -> np.ndarray | float:
+    """Root mean squared error ``sqrt(mean(sum((estimate - truth)², -1)))``.
+
+    Parameters
+    ----------
+    estimates, truth : array_like of shape (..., T, d)
+    axis : int or tuple, optional
+        Axes of the mean (over the leading axes, after summing over the
+        last); all by default.
+    """
+    a, b = as_array("estimates", estimates), as_array("truth", truth)
+    if a.shape != b.shape:
+        raise shape_error("truth", f"{a.shape}, that of `estimates`", b.shape)
+    out = np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1), axis=axis))
+    return float(out) if np.ndim(out) == 0 else out
+
+
+@dataclass(frozen=True)
+class ConsistencyReport:
+    """What :func:`consistency` finds; ``str(report)`` is a short table.
+
+    Attributes
+    ----------
+    nis, nis_interval, nis_ok
+        Average NIS over every step and run, its χ² interval, and whether
+        it lies inside.
+    nees, nees_interval, nees_ok
+        The same for NEES (None without the truth).
+    whiteness : Whiteness or None
+        Of the first run's innovations.
+    rmse : float or None
+        Of the means, with the truth.
+    runs : int
+    """
+
+    nis: float
+    nis_interval: tuple[float, float]
+    nis_ok: bool
+    nees: float | None
+    nees_interval: tuple[float, float] | None
+    nees_ok: bool | None
+    whiteness: Whiteness | None
+    rmse: float | None
+    runs: int
+
+    @property
+    def consistent(self) -> bool:
+        """NIS (and NEES, when known) inside their intervals."""
+        return self.nis_ok and self.nees_ok is not False
+
+    def __str__(self) -> str:
+        lines = [f"{'statistic':<10} {'average':>10} {'95% interval':>22}  verdict"]
+
+        def row(name, value, interval, ok):
+            verdict = "consistent" if ok else ("overconfident" if value > interval[1] else "too cautious")
+            lines.append(f"{name:<10} {value:>10.3f} {f'[{interval[0]:.3f}, {interval[1]:.3f}]':>22}  {verdict}")
+
+        row("NIS", self.nis, self.nis_interval, self.nis_ok)
+        if self.nees is not None:
+            row("NEES", self.nees, self.nees_interval, self.nees_ok)
+        if self.whiteness is not None:
+            w = self.whiteness
+            lines.append(f"{'whiteness':<10} {'p = ' + format(w.p_value, '.3f'):>10} "
+                         f"{'Ljung-Box':>22}  {'white' if w.white else 'correlated'}")
+        if self.rmse is not None:
+            lines.append(f"{'RMSE':<10} {self.rmse:>10.4g}")
+        return "\n".join(lines)
+
+
+def consistency(result, truth=None, confidence: float = 0.95, lags: int | None = None) -> ConsistencyReport:
+    """One-call consistency report of a filter result (one series or N runs).
+
+    Parameters
+    ----------
+    result : FilterResult
+        From :func:`gaussfuse.filter`, with a leading axis for N Monte Carlo
+        runs or series.
+    truth : array_like of shape ([N,] T, n), optional
+        True states (simulation): adds NEES and RMSE.
+    confidence : float, default 0.95
+    lags : int, optional
+        Whiteness lags (default min(10, T // 5)); the test needs T >= 10.
+
+    Returns
+    -------
+    ConsistencyReport
+    """
+    q, dof = _quadratic("innovations", result.innovations, result.innovation_covs)
+    seen = ~np.isnan(q)
+    runs = 1 if np.ndim(result.innovations) == 2 else np.shape(result.innovations)[0]
+    # the sum of the K observed NIS values is χ² with their total degrees of freedom
+    lo, hi = chi2_interval(int(dof[seen].sum()), 1, confidence)
+    nis_interval = (lo / seen.sum(), hi / seen.sum())
+    nis_avg = float(np.mean(q[seen]))
+    nees_avg = nees_interval = nees_ok = err = None
+    if truth is not None:
+        truth = as_array("truth", truth)
+        if truth.shape != np.shape(result.means):
+            raise shape_error("truth", f"{np.shape(result.means)}, that of the filtered means", truth.shape)
+        e = nees(truth - result.means, result.covs)
+        nees_avg = float(np.mean(e))
+        nees_interval = chi2_interval(truth.shape[-1], e.size, confidence)
+        nees_ok = nees_interval[0] <= nees_avg <= nees_interval[1]
+        err = rmse(result.means, truth)
+    batch = np.ndim(result.innovations) == 3
+    first_v = result.innovations[0] if batch else result.innovations
+    first_S = result.innovation_covs[0] if batch else result.innovation_covs
+    complete = int(np.sum(~np.isnan(first_v).any(axis=1)))
+    white = None
+    if complete >= 10:
+        white = whiteness(first_v, first_S, lags or min(10, complete // 5), confidence)
+    return ConsistencyReport(nis_avg, nis_interval, nis_interval[0] <= nis_avg <= nis_interval[1],
+                             nees_avg, nees_interval, nees_ok, white, err, runs)

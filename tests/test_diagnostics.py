@@ -1,0 +1,96 @@
+"""Consistency diagnostics: NEES/NIS intervals catch a mistuned filter, whiteness, RMSE."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import gaussfuse as gf
+from gaussfuse import diagnostics as dg
+
+MODEL = gf.constant_velocity(dt=0.5, q=0.2, r=1.0, dim=2)
+PRIOR = gf.Gaussian([0.0, 0.0, 1.0, 0.5], np.eye(4))
+
+
+def simulate(model, prior, runs, T, seed):
+    rng = np.random.default_rng(seed)
+    x = rng.multivariate_normal(prior.mean, prior.cov, size=runs)
+    truth, zs = np.empty((runs, T, model.n)), np.empty((runs, T, model.m))
+    for k in range(T):
+        x = x @ model.F.T + rng.multivariate_normal(np.zeros(model.n), model.Q, size=runs)
+        truth[:, k] = x
+        zs[:, k] = x @ model.H.T + rng.multivariate_normal(np.zeros(model.m), model.R, size=runs)
+    return truth, zs
+
+
+@pytest.fixture(scope="module")
+def monte_carlo():
+    return simulate(MODEL, PRIOR, runs=100, T=60, seed=1)
+
+
+def test_tuned_filter_is_consistent_over_100_runs(monte_carlo):
+    truth, zs = monte_carlo
+    res = gf.filter(MODEL, PRIOR, zs, engine="python")
+    report = dg.consistency(res, truth)
+    assert report.runs == 100
+    assert report.nees_interval[0] <= report.nees <= report.nees_interval[1]
+    assert report.nis_ok and report.nees_ok and report.consistent
+    # across runs, at each step: the average NEES stays within its interval at ~95% of steps
+    lo, hi = dg.chi2_interval(4, count=100)
+    per_step = dg.nees(truth - res.means, res.covs).mean(axis=0)
+    assert np.mean((per_step >= lo) & (per_step <= hi)) > 0.85
+    assert "consistent" in str(report)
+
+
+def test_q_100_times_too_small_is_flagged(monte_carlo):
+    truth, zs = monte_carlo
+    small = gf.LinearModel(MODEL.F, MODEL.H, MODEL.Q / 100, MODEL.R)
+    report = dg.consistency(gf.filter(small, PRIOR, zs, engine="python"), truth)
+    assert not report.nees_ok and report.nees > report.nees_interval[1]
+    assert not report.nis_ok and not report.consistent
+    assert "overconfident" in str(report)
+    big = gf.LinearModel(MODEL.F, MODEL.H, MODEL.Q, MODEL.R * 100)
+    assert "too cautious" in str(dg.consistency(gf.filter(big, PRIOR, zs, engine="python"), truth))
+
+
+def test_nis_and_nees_against_direct_formulas():
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((5, 3, 3))
+    C = A @ np.swapaxes(A, -1, -2) + np.eye(3)
+    e = rng.standard_normal((5, 3))
+    direct = np.array([ei @ np.linalg.solve(Ci, ei) for ei, Ci in zip(e, C)])
+    np.testing.assert_allclose(dg.nees(e, C), direct, rtol=1e-12)
+    e[1, 0] = np.nan  # a missing component: the others' χ²_2
+    e[2, :] = np.nan
+    got = dg.nis(e, C)
+    o = [1, 2]
+    assert got[1] == pytest.approx(e[1, o] @ np.linalg.solve(C[1][np.ix_(o, o)], e[1, o]), rel=1e-12)
+    assert np.isnan(got[2])
+
+
+def test_chi2_interval_matches_scipy():
+    lo, hi = dg.chi2_interval(3, count=50, confidence=0.99)
+    assert lo == pytest.approx(stats.chi2.ppf(0.005, 150) / 50)
+    assert hi == pytest.approx(stats.chi2.ppf(0.995, 150) / 50)
+    with pytest.raises(ValueError, match=r"`confidence` must be in \(0, 1\); got 1.5"):
+        dg.chi2_interval(3, confidence=1.5)
+
+
+def test_whiteness_detects_correlated_innovations():
+    truth, zs = simulate(MODEL, PRIOR, runs=1, T=400, seed=4)
+    good = gf.filter(MODEL, PRIOR, zs[0])
+    w = dg.whiteness(good.innovations, good.innovation_covs)
+    assert w.white and np.all(np.abs(w.autocorrelation) < 3 * w.bound)
+    # a random-walk model for a moving target leaves a trend in the innovations
+    rw = gf.LinearModel(np.eye(4), MODEL.H, MODEL.Q, MODEL.R)
+    bad = gf.filter(rw, PRIOR, zs[0])
+    wb = dg.whiteness(bad.innovations, bad.innovation_covs)
+    assert not wb.white and wb.autocorrelation[0] > wb.bound
+    with pytest.raises(ValueError, match=r"`lags` must be an integer in \[1, 399\]"):
+        dg.whiteness(good.innovations, good.innovation_covs, lags=400)
+
+
+def test_rmse():
+    assert dg.rmse([[3.0, 4.0], [0.0, 0.0]], [[0.0, 0.0], [0.0, 0.0]]) == pytest.approx(np.sqrt(12.5))
+    np.testing.assert_allclose(dg.rmse(np.ones((2, 3, 1)), np.zeros((2, 3, 1)), axis=1), [1.0, 1.0])
+    with pytest.raises(ValueError, match=r"`truth` must have shape \(2, 2\), that of `estimates`"):
+        dg.rmse(np.ones((2, 2)), np.ones((3, 2)))
