@@ -437,6 +437,24 @@ if numba is not None:
         out[1] = math.atan2(x[1], x[0])
         return out
 
+    @numba.njit(cache=True)
+    def f_nb_vec(X):
+        out = np.empty_like(X)
+        for i in range(X.shape[0]):
+            out[i, 0] = X[i, 0] + UKF_DT * X[i, 2]
+            out[i, 1] = X[i, 1] + UKF_DT * X[i, 3]
+            out[i, 2] = X[i, 2]
+            out[i, 3] = X[i, 3]
+        return out
+
+    @numba.njit(cache=True)
+    def h_nb_vec(X):
+        out = np.empty((X.shape[0], 2))
+        for i in range(X.shape[0]):
+            out[i, 0] = math.hypot(X[i, 0], X[i, 1])
+            out[i, 1] = math.atan2(X[i, 1], X[i, 0])
+        return out
+
 
 def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
     base = gf.constant_velocity(dt=UKF_DT, q=UKF_Q, r=1.0, dim=2)
@@ -485,6 +503,10 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
                        mode="python"))
         E.append(Entry("gaussfuse engine=\"numba\", numba.njit f, h", "gaussfuse",
                        gaussfuse_ukf(compiled, "numba"), T, T, goal=100.0, compiled=True,
+                       mode="compiled"))
+        compiled_vec = gf.NonlinearModel(f_nb_vec, h_nb_vec, Q, R, vectorized=True)
+        E.append(Entry("gaussfuse engine=\"numba\", numba.njit vectorized f, h", "gaussfuse",
+                       gaussfuse_ukf(compiled_vec, "numba"), T, T, goal=100.0, compiled=True,
                        mode="compiled"))
     E.append(Entry("gaussfuse engine=\"python\", plain Python f, h", "gaussfuse",
                    gaussfuse_ukf(plain, "python"), T, T))

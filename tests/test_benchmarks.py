@@ -40,6 +40,7 @@ EXPECTED_ROWS = [
     ("W4", 'gaussfuse engine="numba", plain Python f, h'),
     ("W4", 'gaussfuse engine="numba", vectorized f, h'),
     ("W4", 'gaussfuse engine="numba", numba.njit f, h'),
+    ("W4", 'gaussfuse engine="numba", numba.njit vectorized f, h'),
     ("W4", 'gaussfuse engine="python", plain Python f, h'),
 ]
 

@@ -38,10 +38,9 @@ import math
 import numba
 import numpy as np
 from numba import njit, prange
-from numba.core import cgutils
-from numba.extending import intrinsic
 
 from ..inference import FilterResult, SmoothResult
+from ._nrt import borrow as _borrow
 
 __all__ = ["filter", "smooth"]
 
@@ -50,38 +49,6 @@ _INLINE = dict(_JIT, inline="always")  # the step helpers are inlined into the l
 _LOG_2PI = math.log(2.0 * math.pi)
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 _CHUNKS_PER_THREAD = 16  # chunks of series per thread, handed out dynamically, for balance
-
-# ---------------------------------------------------------------------------
-# Borrowed views
-# ---------------------------------------------------------------------------
-
-
-@intrinsic
-def _borrow(typingctx, arr):
-    """A view of `arr` that does not own a reference to its memory.
-
-    Numba reference-counts every array a function is given or makes (a
-    view per step, the arguments of every inlined helper) with atomic
-    increments and decrements, and its pruning of those pairs gives up on
-    functions with loops and branches like the ones below: dozens of atomic
-    operations a step, costing more than the algebra and contending between
-    threads on the shared inputs. A loop function therefore borrows its own
-    array arguments, which its caller keeps alive for the whole call, and
-    views of a borrowed array are borrowed too. A borrowed view must never
-    outlive the call that borrowed it.
-    """
-
-    def codegen(context, builder, signature, args):
-        src = context.make_array(signature.args[0])(context, builder, args[0])
-        view = context.make_array(signature.return_type)(context, builder)
-        for field in ("data", "shape", "strides", "itemsize", "nitems"):
-            setattr(view, field, getattr(src, field))
-        view.meminfo = cgutils.get_null_value(view.meminfo.type)
-        view.parent = cgutils.get_null_value(view.parent.type)
-        return view._getvalue()
-
-    return arr(arr), codegen
-
 
 # ---------------------------------------------------------------------------
 # Small dense algebra: explicit loops over a handful of rows and columns.

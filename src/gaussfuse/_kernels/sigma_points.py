@@ -77,15 +77,17 @@ failed factorisations raise the same :class:`ModelFunctionError` /
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 from numba import njit, types
-from numba.core.errors import NumbaError
+from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload
 
 from ..inference import METHODS, FilterResult, SmoothResult
 from ..linearize.sigma_points import sqrt_cov
 from ..models.nonlinear import ModelFunctionError, call_checked
+from ._nrt import borrow
 
 __all__ = ["filter", "smooth", "execution_mode"]
 
@@ -135,7 +137,7 @@ def _copy(dst, src):
                 dst[a, b] = src[a, b]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _cholesky_in_place(L, p):
     """Overwrite the lower triangle of ``L[:p, :p]`` by its Cholesky factor; False if not PD."""
     for j in range(p):
@@ -146,27 +148,34 @@ def _cholesky_in_place(L, p):
             return False
         d = math.sqrt(s)
         L[j, j] = d
+        inv = 1.0 / d
         for i in range(j + 1, p):
             t = L[i, j]
             for q in range(j):
                 t -= L[i, q] * L[j, q]
-            L[i, j] = t / d
+            L[i, j] = t * inv
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _points(mean, L, pts, X, full):
-    """``X = mean + pts @ L.T``; L lower triangular unless `full`."""
+    """``X = mean + pts @ L.T``; L lower triangular unless `full`.
+
+    Column by column, skipping the zeros of `pts`: the unscented and
+    cubature points have one nonzero coordinate each.
+    """
     n = mean.shape[0]
     for i in range(pts.shape[0]):
         for a in range(n):
-            acc = 0.0
-            for b in range(n if full else a + 1):
-                acc += pts[i, b] * L[a, b]
-            X[i, a] = mean[a] + acc
+            X[i, a] = mean[a]
+        for b in range(n):
+            c = pts[i, b]
+            if c != 0.0:
+                for a in range(0 if full else b, n):
+                    X[i, a] += c * L[a, b]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _draw(mean, cov, pts, X, L):
     """Sigma points of ``N(mean, cov)`` into X, through the Cholesky factor (in L).
 
@@ -183,7 +192,7 @@ def _draw(mean, cov, pts, X, L):
     return OK
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _moments(Y, d, wm, wc, angles, ybar, dY, S):
     """Weighted mean (circular for angles), wrapped residuals and ``S = Σ wc dY dYᵀ`` of ``Y[:, :d]``."""
     k = Y.shape[0]
@@ -213,7 +222,7 @@ def _moments(Y, d, wm, wc, angles, ybar, dY, S):
             S[b, a] = acc
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _cross(X, center, dY, d, wc, C):
     """``C = Σ wc (X - center) dYᵀ``, shape (n, d)."""
     n = X.shape[1]
@@ -225,7 +234,7 @@ def _cross(X, center, dY, d, wc, C):
             C[a, b] = acc
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _predict(X, Y, mean, wm, wc, xang, Q, pmean, pcov, cross, with_cross, scr):
     """Prediction ``(m⁻, P⁻)`` from the f-outputs Y at the points X of the belief with mean `mean`."""
     n = Y.shape[1]
@@ -243,7 +252,7 @@ def _predict(X, Y, mean, wm, wc, xang, Q, pmean, pcov, cross, with_cross, scr):
         _cross(X, mean, dY, n, wc, cross)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _update(Xh, Z, pmean, pcov, wm, wc, zang, xang, R, z, mean, cov, innov, Sfull, iwork, errval, scr):
     """Condition ``N(m⁻, P⁻)`` on z through the h-outputs Z at its points Xh; returns (status, loglik)."""
     n = Xh.shape[1]
@@ -287,16 +296,17 @@ def _update(Xh, Z, pmean, pcov, wm, wc, zang, xang, R, z, mean, cov, innov, Sful
     # W = L⁻¹ C_oᵀ (stored transposed, n × p) and ω = L⁻¹ v_o, by forward substitution.
     ll = 0.0
     for r in range(p):
+        inv = 1.0 / L[r, r]
         t = innov[obs[r]]
         for q in range(r):
             t -= L[r, q] * wv[q]
-        wv[r] = t / L[r, r]
+        wv[r] = t * inv
         ll += wv[r] * wv[r] + 2.0 * math.log(L[r, r])
         for a in range(n):
             t = C[a, obs[r]]
             for q in range(r):
                 t -= L[r, q] * Wt[a, q]
-            Wt[a, r] = t / L[r, r]
+            Wt[a, r] = t * inv
     for a in range(n):
         acc = 0.0
         for r in range(p):
@@ -322,7 +332,6 @@ def _finite_rows(Y):
     return -1
 
 
-@njit(cache=True, error_model="numpy")
 def _scratch(k, n, m):
     """Work space of the compiled steps, d = max(n, m) wide: rows L (d) | S (d) | C (n) | Wᵀ (n) | dY (k) | ȳ | ω."""
     d = max(n, m)
@@ -339,6 +348,8 @@ def _rts(means, covs, pmeans, pcovs, cross, xang, sm_means, sm_covs, gains, pos,
     caller computes that gain by least squares (as the readable path) and
     resumes; 0 when done.
     """
+    means, covs, pmeans, pcovs, cross = borrow(means), borrow(covs), borrow(pmeans), borrow(pcovs), borrow(cross)
+    sm_means, sm_covs, gains = borrow(sm_means), borrow(sm_covs), borrow(gains)
     N, T, n = means.shape
     L = np.empty((n, n))
     Gt = np.empty((n, n))
@@ -487,26 +498,29 @@ def _apply_overload(fn, X, us, s, k, Y, iwork):
 
 
 def _filter_loop(f, h, us, zs, Q3, R3, pts, w, xang, zang, m0, P0, means, covs, pmeans, pcovs,
-                 innov, icovs, cross, loglik, last_mean, last_cov, iwork, errval):
+                 innov, icovs, cross, loglik, last_mean, last_cov, iwork, errval,
+                 X, Y, Xh, Z, pmean, pcov, Cf, Sfull, v, scr):
     """The forward pass over all series, f and h called in the loop; a status code.
 
     On a status other than OK, ``iwork`` holds the series, step and point
-    (and `errval` the matrix that failed to factorise).
+    (and `errval` the matrix that failed to factorise). The last ten
+    arguments are scratch. Every array is borrowed (see :mod:`._nrt`): the
+    caller holds them for the whole call.
     """
+    zs, Q3, R3, pts, w, xang, zang, m0, P0 = (borrow(zs), borrow(Q3), borrow(R3), borrow(pts), borrow(w),
+                                              borrow(xang), borrow(zang), borrow(m0), borrow(P0))
+    means, covs, pmeans, pcovs, innov, icovs, cross = (borrow(means), borrow(covs), borrow(pmeans),
+                                                       borrow(pcovs), borrow(innov), borrow(icovs),
+                                                       borrow(cross))
+    loglik, last_mean, last_cov, iwork, errval = (borrow(loglik), borrow(last_mean), borrow(last_cov),
+                                                  borrow(iwork), borrow(errval))
+    X, Y, Xh, Z, pmean, pcov, Cf, Sfull, v, scr = (borrow(X), borrow(Y), borrow(Xh), borrow(Z),
+                                                   borrow(pmean), borrow(pcov), borrow(Cf),
+                                                   borrow(Sfull), borrow(v), borrow(scr))
     N, T, m = zs.shape
     k, n = pts.shape
     wm = w[0]
     wc = w[1]
-    X = np.empty((k, n))
-    Y = np.empty((k, n))
-    Xh = np.empty((k, n))
-    Z = np.empty((k, m))
-    pmean = np.empty(n)
-    pcov = np.empty((n, n))
-    Cf = np.empty((n, n))
-    Sfull = np.empty((m, m))
-    v = np.empty(m)
-    scr = _scratch(k, n, m)
     L = scr[0:n]
     rows = means.shape[1]
     crows = covs.shape[1]
@@ -578,6 +592,9 @@ _C2 = types.float64[:, ::1]
 _C3 = types.float64[:, :, ::1]
 _C4 = types.float64[:, :, :, ::1]
 _LOOPS: dict = {}
+# Reassociation and fused multiply-adds let LLVM vectorise the sums over sigma
+# points; NaN and inf keep their IEEE meaning, so the finiteness checks stand.
+_LOOP_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"reassoc", "contract", "arcp"}}
 
 
 def _loop_for(f_sig, h_sig, with_u: bool):
@@ -588,9 +605,19 @@ def _loop_for(f_sig, h_sig, with_u: bool):
             types.FunctionType(f_sig), types.FunctionType(h_sig), _C3 if with_u else types.none,
             _C3, _C3, _C3, _C2, _C2, types.boolean[::1], types.boolean[::1], _C1, _C2,
             _C3, _C4, _C3, _C4, _C3, _C4, _C4, _C1, _C2, _C3, types.int64[::1], _C1,
+            _C2, _C2, _C2, _C2, _C1, _C2, _C2, _C2, _C1, _C2,  # scratch
         )
-        _LOOPS[key] = njit(sig, cache=True, error_model="numpy")(_filter_loop)
+        with warnings.catch_warnings():  # first-class function types are "experimental" in numba
+            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+            _LOOPS[key] = njit(sig, **_LOOP_JIT)(_filter_loop)
     return _LOOPS[key]
+
+
+def _loop_scratch(k, n, m):
+    """The scratch arrays of :func:`_filter_loop`: X, Y, Xh, Z, m⁻, P⁻, Cᶠ, S, v and the work rows."""
+    return (np.empty((k, n)), np.empty((k, n)), np.empty((k, n)), np.empty((k, m)),
+            np.empty(n), np.empty((n, n)), np.empty((n, n)), np.empty((m, m)), np.empty(m),
+            _scratch(k, n, m))
 
 
 def _jitted_signatures(model, prior, us):
@@ -841,7 +868,7 @@ def _forward(method, model, prior, zs, us, options, keep, with_cross):
         iwork[_STAGE] = _BEFORE
         try:
             status = loop(model.f, model.h, us, zs, Q3, R3, pts, w, xang, zang, m0, P0, *outs,
-                          loglik, last_mean, last_cov, iwork, errval)
+                          loglik, last_mean, last_cov, iwork, errval, *_loop_scratch(k, n, m))
         except Exception as exc:
             stage = iwork[_STAGE]
             if not (stage == _BEFORE and isinstance(exc, (TypeError, NumbaError))):
