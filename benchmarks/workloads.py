@@ -171,6 +171,21 @@ def gaussfuse_linear(model, prior, zs, engine, smooth=False):
     return run
 
 
+def _per_series(one, zs):
+    """``run(n)`` for a library that filters one series at a time: `one(z)` -> (means, covs).
+
+    A (T, m) input is cut to its first n steps; an (N, T, m) one to its first
+    n series, looped over.
+    """
+    def run(n):
+        if zs.ndim == 3:
+            out = [one(z) for z in zs[:n]]
+            return {"means": np.stack([o[0] for o in out]), "covs": np.stack([o[1] for o in out])}
+        mu, cov = one(zs[:n])
+        return {"means": mu, "covs": cov}
+    return run
+
+
 def filterpy_batch(model, prior, zs, smooth=False):
     """filterpy KalmanFilter.batch_filter (+ rts_smoother); (T, m) or a loop over (N, T, m)."""
     from filterpy.kalman import KalmanFilter
@@ -185,13 +200,7 @@ def filterpy_batch(model, prior, zs, smooth=False):
             mu, cov, _, _ = kf.rts_smoother(mu, cov)
         return mu, cov
 
-    def run(n):
-        if zs.ndim == 3:
-            out = [one(z) for z in zs[:n]]
-            return {"means": np.stack([o[0] for o in out]), "covs": np.stack([o[1] for o in out])}
-        mu, cov = one(zs[:n])
-        return {"means": mu, "covs": cov}
-    return run
+    return _per_series(one, zs)
 
 
 def filterpy_functions(model, prior, zs):
@@ -210,13 +219,7 @@ def filterpy_functions(model, prior, zs):
             means[k], covs[k] = x, P
         return means, covs
 
-    def run(n):
-        if zs.ndim == 3:
-            out = [one(z) for z in zs[:n]]
-            return {"means": np.stack([o[0] for o in out]), "covs": np.stack([o[1] for o in out])}
-        mu, cov = one(zs[:n])
-        return {"means": mu, "covs": cov}
-    return run
+    return _per_series(one, zs)
 
 
 def pykalman_run(model, prior, zs, smooth=False):
@@ -264,6 +267,7 @@ def statsmodels_run(model, prior, zs, smooth=False):
 
     m1, P1 = first_prediction(model, prior)
     n_x, m = model.n, model.m
+
     def one(z):
         # A new KalmanSmoother per series: re-binding data to one object reuses its
         # compiled filter, which keeps the old data (wrong results, or an IndexError
@@ -280,13 +284,7 @@ def statsmodels_run(model, prior, zs, smooth=False):
         r = kf.filter()
         return r.filtered_state.T, np.moveaxis(r.filtered_state_cov, -1, 0)
 
-    def run(n):
-        if zs.ndim == 3:
-            out = [one(z) for z in zs[:n]]
-            return {"means": np.stack([o[0] for o in out]), "covs": np.stack([o[1] for o in out])}
-        mu, cov = one(zs[:n])
-        return {"means": mu, "covs": cov}
-    return run
+    return _per_series(one, zs)
 
 
 # ---------------------------------------------------------------------------
