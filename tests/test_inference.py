@@ -357,3 +357,18 @@ def test_car_track_against_dense_oracle(car_track):
     assert_close(sm.means, ref["smoothed_means"], "smoothed means")
     assert_close(sm.covs, ref["smoothed_covs"], "smoothed covs")
     assert_filter_matches(sm.filtered, ref, Y)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("writeable", [True, False])
+def test_measurements_are_read_not_changed(engine, writeable):
+    model = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    zs = np.random.default_rng(2).normal(size=(50, 2))
+    zs[3, 1] = zs[7] = np.nan
+    given = zs.copy()
+    zs.setflags(write=writeable)
+    nonlinear = gf.NonlinearModel(lambda x: model.F @ x, lambda x: model.H @ x, model.Q, model.R)
+    for m, method in ((model, "kf"), (nonlinear, "ukf")):
+        gf.smooth(m, prior, zs, method=method, engine=engine)
+        np.testing.assert_array_equal(zs, given)

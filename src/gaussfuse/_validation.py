@@ -24,8 +24,13 @@ def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
     return ValueError(f"`{name}` must have shape {expected}; got shape {tuple(got)}.")
 
 
-def as_array(name: str, value, *, allow_nan: bool = False) -> np.ndarray:
-    """Return `value` as a float64 array, rejecting non-numeric and non-finite input."""
+def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) -> np.ndarray:
+    """Return `value` as a float64 array, rejecting non-numeric and non-finite input.
+
+    With ``copy=False`` a float64 array is used as it is (a long series, or a
+    memory-mapped one, is not duplicated); the check allocates nothing the
+    size of `value` unless it finds a bad entry.
+    """
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(f"`{name}` must be an array of numbers; got {type(value).__name__}.")
     try:
@@ -38,14 +43,18 @@ def as_array(name: str, value, *, allow_nan: bool = False) -> np.ndarray:
     if kind == "b":
         raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
     try:
-        arr = np.array(value, dtype=np.float64)
+        arr = np.array(value, dtype=np.float64, copy=copy or None)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`{name}` must be an array of real numbers; got {value!r:.80}.") from exc
-    bad = ~np.isfinite(arr) if not allow_nan else np.isinf(arr)
-    if bad.any():
-        what = "an infinite" if allow_nan else "a non-finite (NaN or inf)"
-        index = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"`{name}` must be finite; got {what} value at index {index}.")
+    # The extremes are ±inf if any entry is, and NaN if any is (fmin/fmax skip NaN):
+    # a check without a temporary the size of arr; the entry is looked for only then.
+    lo, hi = (np.fmin, np.fmax) if allow_nan else (np.minimum, np.maximum)
+    if arr.size and not (np.isfinite(lo.reduce(arr, axis=None)) and np.isfinite(hi.reduce(arr, axis=None))):
+        bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
+        if bad.any():
+            what = "an infinite" if allow_nan else "a non-finite (NaN or inf)"
+            index = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(f"`{name}` must be finite; got {what} value at index {index}.")
     return arr
 
 

@@ -381,7 +381,7 @@ def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
 
 def check_measurements(zs, m: int) -> np.ndarray:
     """Return `zs` as an array (N, T, m); NaN marks a missing component."""
-    arr = as_array("zs", zs, allow_nan=True)
+    arr = as_array("zs", zs, allow_nan=True, copy=False)
     given = arr.shape
     if arr.ndim == 1 and m == 1:
         arr = arr[:, None]

@@ -261,9 +261,9 @@ def test_keep_last_allocates_nothing_per_step():
         finally:
             tracemalloc.stop()
 
-    # The validated copy of `zs` (and its NaN scan) is all that grows with T;
-    # the per-step arrays of keep="all" are 23 times the size of `zs`.
-    assert peak("last") < 1.25 * zs.nbytes + 100_000 < T * 4 * 8
+    # A float64 `zs` is neither copied nor scanned through a temporary, so
+    # nothing grows with T; the per-step arrays of keep="all" are 23 times `zs`.
+    assert peak("last") < 100_000 < zs.nbytes
     assert peak("all") > T * (4 + 16) * 8 * 2
 
 
