@@ -372,3 +372,24 @@ def test_measurements_are_read_not_changed(engine, writeable):
     for m, method in ((model, "kf"), (nonlinear, "ukf")):
         gf.smooth(m, prior, zs, method=method, engine=engine)
         np.testing.assert_array_equal(zs, given)
+
+
+@pytest.mark.parametrize("method", ["kf", "ukf"])
+def test_keep_last_reads_a_read_only_series_in_place(method):
+    """A read-only float64 series (say np.load(..., mmap_mode="r")) is not copied."""
+    import tracemalloc
+
+    linear = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
+    model = linear if method == "kf" else gf.NonlinearModel(
+        lambda x: linear.F @ x, lambda x: linear.H @ x, linear.Q, linear.R)
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    zs = np.random.default_rng(3).normal(size=(20_000, 2)).cumsum(axis=0)
+    zs.setflags(write=False)
+    gf.filter(model, prior, zs[:5], method=method, engine="numba", keep="last")  # compile first
+    tracemalloc.start()
+    try:
+        gf.filter(model, prior, zs, method=method, engine="numba", keep="last")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < zs.nbytes / 4

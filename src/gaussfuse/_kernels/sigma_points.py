@@ -591,6 +591,7 @@ _C1 = types.float64[::1]
 _C2 = types.float64[:, ::1]
 _C3 = types.float64[:, :, ::1]
 _C4 = types.float64[:, :, :, ::1]
+_R3 = types.Array(types.float64, 3, "C", readonly=True)  # zs: read in place, never copied
 _LOOPS: dict = {}
 # Reassociation and fused multiply-adds let LLVM vectorise the sums over sigma
 # points; NaN and inf keep their IEEE meaning, so the finiteness checks stand.
@@ -603,7 +604,7 @@ def _loop_for(f_sig, h_sig, with_u: bool):
     if key not in _LOOPS:
         sig = types.int64(
             types.FunctionType(f_sig), types.FunctionType(h_sig), _C3 if with_u else types.none,
-            _C3, _C3, _C3, _C2, _C2, types.boolean[::1], types.boolean[::1], _C1, _C2,
+            _R3, _C3, _C3, _C2, _C2, types.boolean[::1], types.boolean[::1], _C1, _C2,
             _C3, _C4, _C3, _C4, _C3, _C4, _C4, _C1, _C2, _C3, types.int64[::1], _C1,
             _C2, _C2, _C2, _C2, _C1, _C2, _C2, _C2, _C1, _C2,  # scratch
         )
@@ -852,7 +853,8 @@ def _forward(method, model, prior, zs, us, options, keep, with_cross):
     cross = np.empty((N, T if with_cross else 0, n, n))
     loglik, last_mean, last_cov = np.zeros(N), np.empty((N, n)), np.empty((N, n, n))
     outs = (means, covs, pmeans, pcovs, innov, icovs, cross)
-    zs = np.require(zs, np.float64, ["C", "W"])
+    zs = np.require(zs, np.float64, ["C"]).view()
+    zs.setflags(write=False)  # one compiled type, whether or not the caller's array is writable
     us = None if us is None else np.require(us, np.float64, ["C", "W"])
     Q3, R3 = _stacked(model.Q), _stacked(model.R)
     xang = np.array(model.state_angles, dtype=np.bool_)  # writable copies: numba types read-only arrays apart
