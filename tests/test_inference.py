@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import tracemalloc
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -359,29 +361,31 @@ def test_car_track_against_dense_oracle(car_track):
     assert_filter_matches(sm.filtered, ref, Y)
 
 
+def _cv_model(method: str):
+    """A 2-D constant-velocity model, as a LinearModel for "kf" or the same functions for "ukf"."""
+    linear = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
+    if method == "kf":
+        return linear
+    return gf.NonlinearModel(lambda x: linear.F @ x, lambda x: linear.H @ x, linear.Q, linear.R)
+
+
 @pytest.mark.parametrize("engine", ["python", "numba"])
 @pytest.mark.parametrize("writeable", [True, False])
 def test_measurements_are_read_not_changed(engine, writeable):
-    model = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
     prior = gf.Gaussian(np.zeros(4), np.eye(4))
     zs = np.random.default_rng(2).normal(size=(50, 2))
     zs[3, 1] = zs[7] = np.nan
     given = zs.copy()
     zs.setflags(write=writeable)
-    nonlinear = gf.NonlinearModel(lambda x: model.F @ x, lambda x: model.H @ x, model.Q, model.R)
-    for m, method in ((model, "kf"), (nonlinear, "ukf")):
-        gf.smooth(m, prior, zs, method=method, engine=engine)
+    for method in ("kf", "ukf"):
+        gf.smooth(_cv_model(method), prior, zs, method=method, engine=engine)
         np.testing.assert_array_equal(zs, given)
 
 
 @pytest.mark.parametrize("method", ["kf", "ukf"])
 def test_keep_last_reads_a_read_only_series_in_place(method):
     """A read-only float64 series (say np.load(..., mmap_mode="r")) is not copied."""
-    import tracemalloc
-
-    linear = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
-    model = linear if method == "kf" else gf.NonlinearModel(
-        lambda x: linear.F @ x, lambda x: linear.H @ x, linear.Q, linear.R)
+    model = _cv_model(method)
     prior = gf.Gaussian(np.zeros(4), np.eye(4))
     zs = np.random.default_rng(3).normal(size=(20_000, 2)).cumsum(axis=0)
     zs.setflags(write=False)

@@ -1,11 +1,12 @@
-"""Borrowed array views for the compiled loops (numba's reference counting, bypassed)."""
+"""How arrays are handed to the compiled loops: read-only views in, borrowed views inside."""
 
 from __future__ import annotations
 
+import numpy as np
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["borrow"]
+__all__ = ["borrow", "readonly"]
 
 
 @intrinsic
@@ -33,3 +34,14 @@ def borrow(typingctx, arr):
         return view._getvalue()
 
     return arr(arr), codegen
+
+
+def readonly(a: np.ndarray) -> np.ndarray:
+    """A read-only C-contiguous float64 view (a copy only when needed).
+
+    Every input is passed read-only, so the kernels see one array type
+    whatever the caller's flags (numba types read-only arrays separately).
+    """
+    a = np.ascontiguousarray(a, dtype=np.float64).view()
+    a.setflags(write=False)
+    return a

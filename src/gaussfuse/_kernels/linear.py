@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..inference import FilterResult, SmoothResult
-from ._nrt import borrow as _borrow
+from ._nrt import borrow as _borrow, readonly as _readonly
 
 __all__ = ["filter", "smooth"]
 
@@ -511,17 +511,6 @@ forward and backward kernels for one chunk of series, and their parallel forms."
 # ---------------------------------------------------------------------------
 # Python side: arrange the arguments, call the kernels, raise errors
 # ---------------------------------------------------------------------------
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    """A read-only C-contiguous float64 view (a copy only when needed).
-
-    Every input is passed read-only, so the kernels see one array type
-    whatever the caller's flags (numba types read-only arrays separately).
-    """
-    a = np.ascontiguousarray(a, dtype=np.float64).view()
-    a.setflags(write=False)
-    return a
 
 
 def _matrices(model) -> tuple[np.ndarray, ...]:

@@ -87,7 +87,7 @@ from numba.extending import is_jitted, overload
 from ..inference import METHODS, FilterResult, SmoothResult
 from ..linearize.sigma_points import sqrt_cov
 from ..models.nonlinear import ModelFunctionError, call_checked
-from ._nrt import borrow
+from ._nrt import borrow, readonly
 
 __all__ = ["filter", "smooth", "execution_mode"]
 
@@ -853,8 +853,7 @@ def _forward(method, model, prior, zs, us, options, keep, with_cross):
     cross = np.empty((N, T if with_cross else 0, n, n))
     loglik, last_mean, last_cov = np.zeros(N), np.empty((N, n)), np.empty((N, n, n))
     outs = (means, covs, pmeans, pcovs, innov, icovs, cross)
-    zs = np.require(zs, np.float64, ["C"]).view()
-    zs.setflags(write=False)  # one compiled type, whether or not the caller's array is writable
+    zs = readonly(zs)  # read in place, one compiled type whether or not the caller's is writable
     us = None if us is None else np.require(us, np.float64, ["C", "W"])
     Q3, R3 = _stacked(model.Q), _stacked(model.R)
     xang = np.array(model.state_angles, dtype=np.bool_)  # writable copies: numba types read-only arrays apart
