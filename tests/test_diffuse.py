@@ -58,19 +58,61 @@ def test_local_linear_trend_with_missing_data_against_statsmodels():
 
 
 def test_diffuse_is_the_limit_of_a_wide_prior():
-    """ℓ_κ + (n/2) log κ → ℓ_d, and the beliefs converge, as the prior N(0, κ I) widens."""
+    """ℓ_κ + (n/2) log κ → ℓ_d, and the beliefs converge, as a prior N(0, κ I) on x_1 widens.
+
+    x_1 is the diffuse state: a prior on x_0 of N(0, κ F⁻¹ F⁻ᵀ) gives x_1 a
+    covariance κ I + Q, whatever F.
+    """
     rng = np.random.default_rng(0)
-    model = gf.LinearModel(F=[[1, 0.5], [0, 0.9]], H=[[1, 0], [0.3, 1]], Q=np.diag([0.2, 0.1]), R=np.eye(2),
-                           B=[[0.5], [1.0]])
+    F = np.array([[1, 0.5], [0, 0.9]])
+    model = gf.LinearModel(F=F, H=[[1, 0], [0.3, 1]], Q=np.diag([0.2, 0.1]), R=np.eye(2), B=[[0.5], [1.0]])
     zs, us = rng.standard_normal((25, 2)), rng.standard_normal((25, 1))
     zs[3, 1] = np.nan
     exact = gf.smooth(model, "diffuse", zs, us)
     kappa = 1e7
-    wide = gf.smooth(model, gf.Gaussian([0, 0], kappa * np.eye(2)), zs, us)
+    F_inv = np.linalg.solve(F, np.eye(2))
+    x0 = gf.Gaussian(-F_inv @ model.B[:, 0] * us[0, 0], kappa * F_inv @ F_inv.T)
+    wide = gf.smooth(model, x0, zs, us)
     assert wide.loglik + np.log(kappa) == pytest.approx(exact.loglik, abs=1e-5)
     np.testing.assert_allclose(wide.means, exact.means, atol=1e-5)
     np.testing.assert_allclose(wide.covs, exact.covs, atol=1e-5)
     np.testing.assert_allclose(wide.filtered.means[1:], exact.filtered.means[1:], atol=1e-5)
+
+
+@pytest.mark.parametrize("ar", [[0.5], [2.0], [-1.3], [0.0], [0.5, 0.2], [0.3, 0.0]])
+def test_first_state_is_diffuse_as_in_statsmodels_for_every_f(ar):
+    """x_1 is diffuse: the log-likelihood equals statsmodels' exact diffuse one whether
+    |det F| is 1 or not, and for a singular F (an AR(p) in companion form, φ_p = 0 or p = 1, φ = 0)."""
+    rng = np.random.default_rng(1)
+    y = np.cumsum(rng.standard_normal(120)) * 0.1 + rng.standard_normal(120)
+    y[[4, 50]] = np.nan
+    p, r, q = len(ar), 0.6, 1.0
+    ref = sm.tsa.SARIMAX(y, order=(p, 0, 0), measurement_error=True, initialization="diffuse")
+    F = np.zeros((p, p))
+    F[:, 0], F[:-1, 1:] = ar, np.eye(p)[:-1, :-1]
+    Q = np.zeros((p, p))
+    Q[0, 0] = q
+    model = gf.LinearModel(F=F, H=np.eye(p)[0], Q=Q, R=r)
+    assert gf.filter(model, "diffuse", y).loglik == pytest.approx(ref.loglike([*ar, r, q]), rel=1e-10)
+    # the transition into x_1 plays no part
+    changed = gf.LinearModel(F=np.ones((120, p, p)) * F, H=model.H, Q=np.ones((120, p, p)) * Q, R=r)
+    first = np.array(changed.F)
+    first[0] = 7 * np.eye(p)
+    again = gf.LinearModel(F=first, H=model.H, Q=changed.Q, R=r)
+    assert gf.filter(again, "diffuse", y).loglik == pytest.approx(gf.filter(model, "diffuse", y).loglik,
+                                                                  rel=1e-12)
+
+
+def test_noise_free_first_measurement():
+    """R = 0 and no noise into the measured state: the first innovation covariance of the
+    augmented runs would be singular; the result still equals statsmodels'."""
+    rng = np.random.default_rng(4)
+    y = np.cumsum(np.cumsum(0.1 * rng.standard_normal(40)))
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([0.0, 0.1]), R=0.0)
+    ref = sm.tsa.UnobservedComponents(y, "smooth trend", use_exact_diffuse=True)
+    sm_res = gf.smooth(model, "diffuse", y)
+    assert sm_res.loglik == pytest.approx(ref.loglike([0.0, 0.1]), rel=1e-10)
+    np.testing.assert_allclose(sm_res.means[:, 0], y, rtol=1e-9, atol=1e-9)
 
 
 def test_batch_and_keep():

@@ -1,16 +1,21 @@
-r"""Exact diffuse initialisation: a flat prior on the initial state.
+r"""Exact diffuse initialisation: a flat prior on the first state.
 
-``prior="diffuse"`` says nothing is known about :math:`x_0`, the state one
-step before the first measurement: :math:`x_0 \sim N(0, \kappa I)` with
-:math:`\kappa \to \infty`. The limit is computed exactly, not with a large
+``prior="diffuse"`` says nothing is known about :math:`x_1`, the state at the
+first measurement: :math:`x_1 \sim N(0, \kappa I)` with :math:`\kappa \to \infty`,
+the convention of Durbin & Koopman (2012, ch. 5), KFAS and statsmodels'
+exact diffuse filter. The transition into :math:`x_1` (``F_1``, ``B_1 u_1``,
+``Q_1``) plays no part. The limit is computed exactly, not with a large
 :math:`\kappa`, by the augmentation argument of de Jong (1991), which gives the
 same filter, smoother and likelihood as the exact diffuse Kalman filter of
-Koopman (1997) and Durbin & Koopman (2012, ch. 5):
+Koopman (1997):
 
-Write :math:`x_0 = \delta`. Given :math:`\delta`, the model is an ordinary
-linear-Gaussian one with a *known* initial state, and every mean the Kalman
-filter and RTS smoother produce is affine in :math:`\delta` while no
-covariance depends on it:
+Write :math:`x_1 = \delta + w`, :math:`w \sim N(0, P_*)` for any fixed
+:math:`P_* \succeq 0`: a flat :math:`\delta` makes :math:`x_1` flat whatever
+:math:`P_*`, with the same normalisation, so the diffuse results do not depend
+on it (it is taken as :math:`Q_1`, widened only if the first innovation
+covariance would be singular). Given :math:`\delta`, the model is an ordinary
+linear-Gaussian one, and every mean the Kalman filter and RTS smoother produce
+is affine in :math:`\delta` while no covariance depends on it:
 
 .. math::
 
@@ -19,7 +24,7 @@ covariance depends on it:
     m^s_t(\delta) = m_t^{s(0)} + N_t \delta .
 
 The columns of :math:`M_t, V_t, N_t` are the same filter and smoother run from
-:math:`x_0 = e_i` on zero data. The likelihood of the measurements up to t is
+:math:`\delta = e_i` on zero data. The likelihood of the measurements up to t is
 then a Gaussian in :math:`\delta` with information and score
 
 .. math::
@@ -50,12 +55,10 @@ The diffuse log-likelihood is
 with :math:`m_t` the number of observed components at step t: every
 observation, including those that identify the initial state, carries the
 :math:`\log 2\pi` constant, as in Durbin & Koopman (2012, eq. 7.4), and the
-flat prior contributes no constant. Because the diffuse state is
-:math:`x_0`, for a transition matrix with :math:`|\det F_1| \ne 1` this
-differs by :math:`\log|\det F_1|` from the convention that makes :math:`x_1`
-diffuse; for the local level and trend models (:math:`\det F = 1`) the two
-agree. Filtered and predicted beliefs before the state is identified are
-NaN.
+flat prior contributes no constant. It equals statsmodels' and KFAS's exact
+diffuse log-likelihood for every transition matrix, singular ones included.
+Filtered and predicted beliefs before the state is identified are NaN; the
+prediction for step 1 always is.
 
 References
 ----------
@@ -76,20 +79,57 @@ from . import kalman
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult, smooth_from_prior
 from .inference import filter as inference_filter
+from .models.linear import LinearModel
 
-__all__ = ["DIFFUSE", "diffuse_filter", "diffuse_smooth", "diffuse_moments"]
+__all__ = ["DIFFUSE", "diffuse_filter", "diffuse_smooth", "diffuse_moments", "augmented_runs", "AugmentedRuns"]
 
 DIFFUSE = "diffuse"
 
 
-class _Runs(NamedTuple):
+class AugmentedRuns(NamedTuple):
+    """The filter runs of the augmentation (see the module notes)."""
+
+    model: LinearModel            # the model with x_1 = x_0 + w (see _first_state_diffuse)
     base: FilterResult            # from x_0 = 0, on the data
     sens: list[FilterResult]      # from x_0 = e_i, on zero data, no controls
     smoothed: list | None         # (means, covs, gains) from time 0 of base and sens, when asked
 
 
-def _runs(model, zs: np.ndarray, us: np.ndarray | None, engine: str, smooth: bool = False) -> _Runs:
+def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | None):
+    """The model and controls whose step 1 is ``x_1 = x_0 + w``, ``w ~ N(0, P_*)``.
+
+    With ``x_0 = δ`` flat, ``x_1`` is flat (see the module notes), so the
+    augmentation over ``x_0`` below is the exact diffuse treatment of ``x_1``.
+    ``P_* = Q_1`` keeps the first innovation covariance ``H_1 P_* H_1ᵀ + R_1``
+    as the model makes it; where that is singular on the observed
+    components (noise-free sensors on a noise-free state), ``P_*`` is widened
+    by a multiple of the identity on the scale of ``Q_1`` and ``R_1``.
+    """
+    T, n = zs.shape[0], model.n
+    F1, H1, Q1, R1, _ = model.at(0)
+    observed = ~np.isnan(zs[0])
+    P_star = np.array(Q1)
+    if observed.any():
+        S1 = (H1 @ P_star @ H1.T + R1)[np.ix_(observed, observed)]
+        try:
+            np.linalg.cholesky(S1)
+        except np.linalg.LinAlgError:
+            scale = max(np.max(np.diag(Q1)), np.max(np.diag(R1)))
+            P_star = P_star + (scale if scale > 0 else 1.0) * np.eye(n)
+    F = np.array(np.broadcast_to(model.F, (T, n, n)))
+    Q = np.array(np.broadcast_to(model.Q, (T, n, n)))
+    F[0], Q[0] = np.eye(n), P_star
+    if us is not None:
+        us = us.copy()
+        us[0] = 0.0
+    return LinearModel(F, model.H, Q, model.R, model.B), us
+
+
+def augmented_runs(model, zs: np.ndarray, us: np.ndarray | None, engine: str,
+                   smooth: bool = False) -> AugmentedRuns:
+    """The base run and the n sensitivity runs of one series, filtered (and smoothed when asked)."""
     n = model.n
+    model, us = _first_state_diffuse(model, zs, us)
     zero_data = np.where(np.isnan(zs), np.nan, 0.0)
     zero_controls = None if us is None else np.zeros_like(us)
     jobs = [(np.zeros(n), zs, us)] + [(np.eye(n)[i], zero_data, zero_controls) for i in range(n)]
@@ -102,7 +142,7 @@ def _runs(model, zs: np.ndarray, us: np.ndarray | None, engine: str, smooth: boo
         else:
             filt = inference_filter(model, known, data, controls, engine=engine)
         filtered.append(filt)
-    return _Runs(filtered[0], filtered[1:], smoothed if smooth else None)
+    return AugmentedRuns(model, filtered[0], filtered[1:], smoothed if smooth else None)
 
 
 class _Information(NamedTuple):
@@ -111,7 +151,7 @@ class _Information(NamedTuple):
     loglik0: float        # the sum of the known-x_0 contributions
 
 
-def _information(model, runs: _Runs) -> _Information:
+def _information(model, runs: AugmentedRuns) -> _Information:
     base = runs.base
     T, n = base.means.shape
     V = _innovation_sensitivity(model, runs)
@@ -133,12 +173,12 @@ def _information(model, runs: _Runs) -> _Information:
     return _Information(np.cumsum(terms, axis=0), np.cumsum(scores, axis=0), base.loglik)
 
 
-def _predicted_sensitivity(runs: _Runs) -> np.ndarray:
+def _predicted_sensitivity(runs: AugmentedRuns) -> np.ndarray:
     """``Mp[t]``: how the prediction at step t moves with x_0, (T, n, n)."""
     return np.stack([r.predicted_means for r in runs.sens], axis=-1)
 
 
-def _innovation_sensitivity(model, runs: _Runs) -> np.ndarray:
+def _innovation_sensitivity(model, runs: AugmentedRuns) -> np.ndarray:
     """``V[t] = -H_t Mp[t]`` over all m components, (T, m, n)."""
     Mp = _predicted_sensitivity(runs)
     H = model.H if model.H.ndim == 3 else model.H[None]
@@ -158,7 +198,7 @@ def _spread(L: np.ndarray, score: np.ndarray, M: np.ndarray) -> tuple[np.ndarray
     return (M @ delta)[..., 0], np.swapaxes(W, -1, -2) @ W
 
 
-def _not_identified() -> ValueError:
+def not_identified() -> ValueError:
     return ValueError(
         "the diffuse initial state is not identified by the measurements: "
         "no combination of them determines every component of x_0; "
@@ -183,11 +223,11 @@ def diffuse_filter(model, zs: np.ndarray, us: np.ndarray | None = None, engine: 
         With NaN beliefs at the steps before x_0 is identified and the
         diffuse log-likelihood.
     """
-    runs = _runs(model, zs, us, engine)
+    runs = augmented_runs(model, zs, us, engine)
     return _filter(model, runs, _information(model, runs))
 
 
-def _filter(model, runs: _Runs, inf: _Information) -> FilterResult:
+def _filter(model, runs: AugmentedRuns, inf: _Information) -> FilterResult:
     base = runs.base
     M = np.stack([r.means for r in runs.sens], axis=-1)            # (T, n, n)
     Mp = _predicted_sensitivity(runs)
@@ -196,7 +236,7 @@ def _filter(model, runs: _Runs, inf: _Information) -> FilterResult:
            ("means", "covs", "predicted_means", "predicted_covs", "innovations", "innovation_covs")}
     ok = _identified(inf.info)
     if not ok[-1]:
-        raise _not_identified()
+        raise not_identified()
     d = int(np.argmax(ok))  # the information only grows: identified from step d on
     L = np.linalg.cholesky(inf.info[d:])
     shift, spread = _spread(L, inf.score[d:], M[d:])
@@ -231,6 +271,10 @@ class Moments(NamedTuple):
     filtered : FilterResult
     gains : ndarray of shape (T, n, n)
         Smoother gains from time t to t + 1, t = 0..T-1.
+    first : int
+        The first transition that is part of the model: 0 (from the prior's
+        time into x_1), or 1 for a diffuse x_1, whose time 0 is only the
+        device of the module notes.
     """
 
     means: np.ndarray
@@ -239,11 +283,12 @@ class Moments(NamedTuple):
     loglik: float
     filtered: FilterResult
     gains: np.ndarray
+    first: int = 0
 
 
 def diffuse_moments(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> Moments:
     """Exact diffuse smoothed moments of one series, from the prior's time on."""
-    runs = _runs(model, zs, us, engine, smooth=True)
+    runs = augmented_runs(model, zs, us, engine, smooth=True)
     inf = _information(model, runs)
     filt = _filter(model, runs, inf)
     L = np.linalg.cholesky(inf.info[-1])
@@ -254,7 +299,7 @@ def diffuse_moments(model, zs: np.ndarray, us: np.ndarray | None = None, engine:
     means = base_m + N @ delta
     covs = kalman.symmetrize(base_P + np.swapaxes(W, -1, -2) @ W)
     cross = base_P[1:] @ np.swapaxes(gains, -1, -2) + np.swapaxes(W[1:], -1, -2) @ W[:-1]
-    return Moments(means, covs, cross, filt.loglik, filt, gains)
+    return Moments(means, covs, cross, filt.loglik, filt, gains, first=1)
 
 
 def diffuse_smooth(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> SmoothResult:

@@ -507,9 +507,12 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     prior : Gaussian or "diffuse"
         Belief about the state one step *before* the first measurement;
         every step is predict (with ``u_k``), then update (with ``z_k``).
-        ``"diffuse"`` (linear models) is a flat prior, handled exactly
-        (:mod:`gaussfuse.diffuse`): beliefs are NaN until the measurements
-        identify the state, and `loglik` is the diffuse log-likelihood.
+        ``"diffuse"`` (linear models) makes the first state x₁ diffuse (a
+        flat prior, handled exactly: :mod:`gaussfuse.diffuse`), as Durbin &
+        Koopman, KFAS and statsmodels do, so the transition into x₁ plays no
+        part; beliefs are NaN until the measurements identify the state,
+        and `loglik` is the exact diffuse log-likelihood, equal to theirs
+        for every F.
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
         Measurements; a NaN component is missing. A leading axis holds N
         independent series, and every result then gains that axis.
