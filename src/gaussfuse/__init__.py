@@ -37,6 +37,7 @@ from .models import (
 from .online import KalmanFilter
 from .fusion import Fused, Fuser, Measurement, fuse_timeline
 from .imm import IMMResult, imm_filter
+from .errors import ConvergenceWarning
 
 __version__ = "0.1.0"
 
@@ -81,4 +82,5 @@ __all__ = [
     "IMMResult",
     "fit",
     "FitResult",
+    "ConvergenceWarning",
 ]
