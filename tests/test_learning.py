@@ -99,7 +99,9 @@ def test_pooled_series_share_parameters():
     rng = np.random.default_rng(5)
     zs = _simulate(TRUE, PRIOR, 150, rng, N=4)
     start = gf.LinearModel(TRUE.F, TRUE.H, np.eye(2), 1.0)
-    res = gf.fit(start, PRIOR, zs, iterations=30)
+    with pytest.warns(gf.ConvergenceWarning, match=r"EM did not converge: stopped at the limit of 30 iterations"):
+        res = gf.fit(start, PRIOR, zs, iterations=30)
+    assert not res.converged
     per_series = sum(gf.filter(res.model, PRIOR, z).loglik for z in zs)
     assert res.loglik == pytest.approx(per_series, rel=1e-12)
     assert np.all(np.diff(res.history) >= -1e-9 * abs(res.history[-1]))
@@ -160,6 +162,11 @@ CASES = dict(
 @settings(max_examples=25, deadline=None)
 @given(**CASES)
 def test_em_never_lowers_the_likelihood(seed, n, m, learn, missing, controls, diffuse):
+    """`tol=0` runs exactly `iterations` EM iterations, and none lowers the likelihood.
+
+    (The count is the contract of tol=0, so an EM that reaches an exact fixed
+    point early, as seed 312 with n=1, m=2, learn=("F",) does, still runs them.)
+    """
     model, prior, zs, us, learn = _random_case(seed, n, m, learn, missing, controls, diffuse)
     if diffuse and m < n:
         prior = gf.Gaussian(np.zeros(n), np.eye(n))
@@ -167,6 +174,26 @@ def test_em_never_lowers_the_likelihood(seed, n, m, learn, missing, controls, di
     steps = np.diff(res.history)
     assert np.all(steps >= -1e-8 * (1 + abs(res.history[-1]))), (learn, res.history)
     assert len(res.history) == 13
+    for name in ("Q", "R"):
+        assert np.linalg.eigvalsh(getattr(res.model, name)).min() >= 0.0
+    if "P0" in learn:
+        assert np.linalg.eigvalsh(res.prior.cov).min() >= 0.0
+
+
+def test_em_at_an_exact_fixed_point_still_runs_every_iteration():
+    """The case that made the property test above flaky: EM reaches an exact fixed point."""
+    model, prior, zs, us, learn = _random_case(312, 1, 2, ("F",), True, False, False)
+    res = gf.fit(model, prior, zs, us, learn=learn, iterations=12, tol=0.0)
+    assert len(res.history) == 13 and not res.converged
+    with pytest.warns(gf.ConvergenceWarning, match="EM did not converge: stopped at the limit of 3 iterations"):
+        gf.fit(model, prior, zs, us, learn=learn, iterations=3, tol=1e-300)
+
+
+def _gradients(model, prior, zs, us, learn, structures, theta):
+    param = learning._Parametrisation(model, prior, learn, structures)
+    mdl, pri = param(theta)
+    zs3, us3 = zs[None], None if us is None else us[None]
+    return param, learning._loglik_and_gradient(mdl, pri, zs3, us3, param.directions(theta), "auto")
 
 
 @settings(max_examples=20, deadline=None)
@@ -177,23 +204,34 @@ def test_gradient_matches_finite_differences(seed, n, m, learn, missing, control
         prior = gf.Gaussian(np.zeros(n), np.eye(n))
     learn, structures = learning._check_learn(model, prior, learn, {"Q": structure, "R": structure})
     param = learning._Parametrisation(model, prior, learn, structures)
-    zs3, us3 = zs[None], None if us is None else us[None]
-
-    def loglik_and_grad(theta):
-        mdl, pri = param(theta)
-        ll, stats = learning._e_step(mdl, pri, zs3, us3)
-        return ll, param.chain(theta, learning._summed(learning._matrix_gradients(mdl, pri, stats), mdl))
-
     theta = param.encode() + 0.1 * np.random.default_rng(seed).standard_normal(param.encode().size)
-    _, grad = loglik_and_grad(theta)
+    _, (_, grad) = _gradients(model, prior, zs, us, learn, structures, theta)
     fd = np.zeros_like(theta)
     for j in range(theta.size):
         h = 1e-5
         up, down = theta.copy(), theta.copy()
         up[j] += h
         down[j] -= h
-        fd[j] = (loglik_and_grad(up)[0] - loglik_and_grad(down)[0]) / (2 * h)
+        fd[j] = (_gradients(model, prior, zs, us, learn, structures, up)[1][0]
+                 - _gradients(model, prior, zs, us, learn, structures, down)[1][0]) / (2 * h)
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-5 * (1 + np.abs(fd).max()))
+
+
+@settings(max_examples=30, deadline=None)
+@given(**CASES, structure=st.sampled_from(["full", "diagonal", "scalar"]))
+def test_filter_score_equals_fishers_identity(seed, n, m, learn, missing, controls, diffuse, structure):
+    """The two exact gradients, by Fisher's identity and by differentiating the filter, agree."""
+    model, prior, zs, us, learn = _random_case(seed, n, m, learn, missing, controls, diffuse)
+    if diffuse and m < n:
+        prior = gf.Gaussian(np.zeros(n), np.eye(n))
+    learn, structures = learning._check_learn(model, prior, learn, {"Q": structure, "R": structure})
+    param = learning._Parametrisation(model, prior, learn, structures)
+    theta = param.encode()
+    fisher_ll, fisher = _gradients(model, prior, zs, us, learn, structures, theta)[1]
+    mdl, pri = param(theta)
+    tangent_ll, tangent = learning._tangent_score(mdl, pri, zs, us, param.directions(theta), "python")
+    assert tangent_ll == pytest.approx(fisher_ll, rel=1e-10, abs=1e-10)
+    np.testing.assert_allclose(tangent, fisher, rtol=1e-7, atol=1e-8 * (1 + np.abs(fisher).max()))
 
 
 # ---------------------------------------------------------------------------
@@ -229,11 +267,33 @@ def test_ctrl_c_returns_the_best_model_so_far(method):
         (dict(params=lambda t: None), ValueError, r"`params` \(a structured model\) needs method='mle'"),
         (dict(params=lambda t: None, method="mle"), ValueError, r"`x0`, the starting parameters, is required"),
         (dict(params=lambda t: 1, method="mle", x0=[0.0]), TypeError, r"`params` must return a LinearModel"),
+        (dict(params=3, method="mle", x0=[0.0]), TypeError, r"`params` must be callable"),
+        (dict(params=lambda t: None, method="mle", x0=[np.nan]), ValueError, r"`x0` must be finite"),
+        (dict(x0=[1.0]), ValueError, r"`x0` is the starting point of `params` and is used only with it"),
+        (dict(structure=["Q"]), TypeError, r"`structure` must be a dict such as \{'Q': 'diagonal'\}"),
+        (dict(callback=3), TypeError, r"`callback` must be callable as callback\(iteration, loglik\); got int"),
+        (dict(tol="small"), ValueError, r"`tol` must be a non-negative finite number; got 'small'"),
+        (dict(tol=-1.0), ValueError, r"`tol` must be a non-negative finite number"),
+        (dict(learn=("Q", 3)), ValueError, r"`learn` must name distinct entries"),
+        (dict(learn=5), TypeError, r"`learn` must be a sequence of names"),
     ],
 )
 def test_errors(kwargs, error, match):
     with pytest.raises(error, match=match):
         gf.fit(_nile_start(), gf.Gaussian(0.0, 1.0), np.ones(5), **kwargs)
+
+
+def test_data_with_nothing_observed_is_an_error():
+    with pytest.raises(ValueError, match=r"`zs` has no observed value \(every entry is NaN\)"):
+        gf.fit(_nile_start(), gf.Gaussian(0.0, 1.0), np.full(5, np.nan))
+    with pytest.raises(ValueError, match=r"`zs` has no observed value"):
+        gf.fit(_nile_start(), "diffuse", np.full((2, 5, 1), np.nan), method="mle")
+
+
+def test_mle_needs_a_learned_full_covariance_positive_definite_on_its_variances():
+    start = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.ones((2, 2)), R=np.eye(2))
+    with pytest.raises(ValueError, match=r"`Q` must be positive definite on its non-zero variances"):
+        gf.fit(start, gf.Gaussian([0, 0], np.eye(2)), np.ones((5, 2)), learn=("Q",), method="mle")
 
 
 def test_learning_needs_time_invariant_matrices_and_a_proper_prior():
@@ -244,3 +304,193 @@ def test_learning_needs_time_invariant_matrices_and_a_proper_prior():
         gf.fit(gf.LinearModel(F=1, H=1, Q=np.ones((5, 1, 1)), R=1.0), gf.Gaussian(0.0, 1.0), np.ones(5), learn=("F",))
     with pytest.raises(ValueError, match=r"`learn` cannot include 'm0' with a diffuse prior"):
         gf.fit(_nile_start(), "diffuse", np.ones(5), learn=("m0",))
+
+
+# ---------------------------------------------------------------------------
+# Singular covariances (noise-free states and sensors, known constants, ARMA)
+# ---------------------------------------------------------------------------
+
+_TREND = dict(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0])
+
+
+def _trend_data(seed=0, T=100):
+    """A local linear trend seen with noise: every variance the tests learn is inside (0, ∞),
+    where EM converges (at a boundary it crawls)."""
+    rng = np.random.default_rng(seed)
+    slope = np.cumsum(0.3 * rng.normal(size=T))
+    return np.cumsum(slope + rng.normal(size=T)) + rng.normal(size=T)
+
+
+@pytest.mark.parametrize("case", ["Q singular, learn R", "R = 0, learn Q", "P0 singular, learn Q and R"])
+def test_mle_with_a_singular_covariance_that_is_not_learned_reaches_the_em_maximum(case):
+    y = _trend_data()
+    model, prior, learn = {
+        "Q singular, learn R": (gf.LinearModel(**_TREND, Q=np.diag([0.0, 0.1]), R=1.0), "diffuse", ("R",)),
+        "R = 0, learn Q": (gf.LinearModel(**_TREND, Q=np.diag([0.3, 0.1]), R=0.0), "diffuse", ("Q",)),
+        "P0 singular, learn Q and R": (gf.LinearModel(**_TREND, Q=np.diag([0.3, 0.1]), R=1.0),
+                                       gf.Gaussian([0.0, 0.0], np.diag([10.0, 0.0])), ("Q", "R")),
+    }[case]
+    structure = {"Q": "diagonal"}
+    mle = gf.fit(model, prior, y, learn=learn, method="mle", structure=structure)
+    em = gf.fit(model, prior, y, learn=learn, structure=structure, iterations=20000, tol=1e-12)
+    assert mle.converged and em.converged
+    assert mle.loglik == pytest.approx(em.loglik, abs=1e-6)
+    assert mle.loglik >= em.loglik - 1e-9
+    for name in learn:
+        np.testing.assert_allclose(getattr(mle.model, name), getattr(em.model, name), rtol=2e-3, atol=1e-6)
+    assert mle.model.Q[0, 1] == 0.0 and em.model.Q[0, 1] == 0.0
+
+
+def test_mle_learns_f_with_a_noise_free_state():
+    """A learned F row whose state has no process noise: Fisher's identity has no Q⁻¹ to use,
+    the filter's own score does; the optimum matches the finite-difference maximum."""
+    rng = np.random.default_rng(7)
+    x, ys = np.zeros(2), []
+    for _ in range(200):
+        x = np.array([0.9 * x[0] + 0.5 * x[1], x[1] + 0.3 * rng.standard_normal()])
+        ys.append(x[0] + 0.5 * rng.standard_normal())
+    model = gf.LinearModel(F=[[0.5, 0.5], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.0, 0.09]), R=0.25)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    res = gf.fit(model, prior, np.array(ys), learn=("F",), method="mle")
+    assert res.converged
+    # the gradient at the optimum, by central differences of the filter's log-likelihood, is zero
+    F = np.array(res.model.F)
+    for i, j in np.ndindex(2, 2):
+        h = 1e-6
+        up, down = F.copy(), F.copy()
+        up[i, j] += h
+        down[i, j] -= h
+        ll = [gf.filter(gf.LinearModel(M, model.H, model.Q, model.R), prior, ys).loglik for M in (up, down)]
+        assert abs(ll[0] - ll[1]) / (2 * h) < 1e-3
+    truth = gf.LinearModel([[0.9, 0.5], [0.0, 1.0]], model.H, model.Q, model.R)
+    assert res.loglik >= gf.filter(truth, prior, ys).loglik
+
+
+def test_arma_in_state_space_form_matches_statsmodels():
+    """ARMA(1, 1) with a rank-one Q (Harvey's form), learned through `params`."""
+    import statsmodels.api as sm
+
+    rng = np.random.default_rng(3)
+    e = rng.standard_normal(301)
+    y = np.zeros(300)
+    for t in range(1, 300):
+        y[t] = 0.6 * y[t - 1] + e[t] + 0.3 * e[t - 1]
+    ref = sm.tsa.SARIMAX(y, order=(1, 0, 1), initialization="diffuse")
+
+    def arma(theta):
+        phi, th, log_s2 = theta
+        g = np.array([1.0, th])
+        return gf.LinearModel(F=[[phi, 1.0], [0.0, 0.0]], H=[1.0, 0.0], Q=np.exp(log_s2) * np.outer(g, g), R=0.0)
+
+    start = np.array([0.2, 0.0, 0.0])
+    assert gf.filter(arma(start), "diffuse", y).loglik == pytest.approx(ref.loglike([0.2, 0.0, 1.0]), rel=1e-10)
+    res = gf.fit(arma(start), "diffuse", y, method="mle", params=arma, x0=start)
+    assert res.converged
+    expected = ref.fit(disp=False, start_params=[0.5, 0.2, 1.0])
+    phi, th, log_s2 = res.params["theta[0]"], res.params["theta[1]"], res.params["theta[2]"]
+    np.testing.assert_allclose([phi, th, np.exp(log_s2)], expected.params, rtol=2e-3)
+    assert res.loglik >= expected.llf - 1e-6
+    assert set(res.bse) == {"theta[0]", "theta[1]", "theta[2]"} and all(np.isfinite(list(res.bse.values())))
+
+
+def test_ar1_plus_noise_diffuse_mle_matches_statsmodels():
+    """Learning F with a diffuse prior has a maximum (x_1 is diffuse), statsmodels' one."""
+    import statsmodels.api as sm
+
+    rng = np.random.default_rng(1)
+    x, y = 0.0, []
+    for _ in range(300):
+        x = 0.5 * x + rng.standard_normal()
+        y.append(x + np.sqrt(0.6) * rng.standard_normal())
+    y = np.array(y)
+    res = gf.fit(gf.LinearModel(F=0.2, H=1.0, Q=1.0, R=1.0), "diffuse", y, learn=("F", "Q", "R"), method="mle")
+    ref = sm.tsa.SARIMAX(y, order=(1, 0, 0), measurement_error=True, initialization="diffuse").fit(disp=False)
+    np.testing.assert_allclose([res.params["F"], res.params["R"], res.params["Q"]], ref.params, rtol=5e-3)
+    assert res.loglik == pytest.approx(ref.llf, abs=1e-4)
+    assert res.loglik >= ref.llf - 1e-8
+
+
+# ---------------------------------------------------------------------------
+# Learned covariances stay positive semi-definite; zeros stay zero
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("structure", ["diagonal", "full"])
+@pytest.mark.parametrize("method", ["em", "mle"])
+def test_a_variance_held_at_zero_stays_exactly_zero(structure, method):
+    rng = np.random.default_rng(0)
+    zs = _simulate(TRUE, PRIOR, 200, rng)
+    start = gf.LinearModel(TRUE.F, TRUE.H, np.diag([1.0, 0.0]), 1.0)
+    res = gf.fit(start, PRIOR, zs, learn=("Q", "R"), structure={"Q": structure}, method=method)
+    assert res.model.Q[1, 1] == 0.0 and res.model.Q[0, 1] == 0.0 and res.model.Q[1, 0] == 0.0
+    assert res.model.Q[0, 0] > 0
+    assert "Q[1,1]" not in res.params and ("Q[0,0]" in res.params or "Q" in res.params)
+
+
+def test_em_diagonal_variances_are_never_negative():
+    """A component that really is constant: EM drives its variance toward zero, never below."""
+    rng = np.random.default_rng(2)
+    T = 300
+    level = np.cumsum(0.5 * rng.standard_normal(T))
+    zs = np.column_stack([level + rng.standard_normal(T), 3.0 + 1e-3 * rng.standard_normal(T)])
+    start = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2))
+    history = []
+    res = gf.fit(start, PRIOR, zs, learn=("Q", "R"), structure={"Q": "diagonal", "R": "diagonal"},
+                 iterations=3000, tol=0.0, callback=lambda it, ll: history.append(ll))
+    assert np.all(np.diag(res.model.Q) >= 0.0) and np.all(np.diag(res.model.R) >= 0.0)
+    assert res.model.Q[1, 1] < 1e-4
+    assert np.all(np.diff(history) >= -1e-8 * abs(history[-1]))
+
+
+# ---------------------------------------------------------------------------
+# Convergence, the fit's figures
+# ---------------------------------------------------------------------------
+
+
+def test_non_convergence_warns():
+    _, flow = nile()
+    with pytest.warns(gf.ConvergenceWarning, match="EM did not converge: stopped at the limit of 5 iterations"):
+        em = gf.fit(_nile_start(), "diffuse", flow, iterations=5)
+    assert not em.converged
+    with pytest.warns(gf.ConvergenceWarning, match="maximum likelihood did not converge"):
+        mle = gf.fit(_nile_start(), "diffuse", flow, method="mle", iterations=2)
+    assert not mle.converged
+    assert issubclass(gf.ConvergenceWarning, UserWarning)
+
+
+def test_params_information_criteria_and_summary_match_statsmodels(nile_mle):
+    import statsmodels.api as sm
+
+    _, flow = nile()
+    res = nile_mle
+    assert list(res.params) == ["Q", "R"] and res.params["R"] == res.model.R[0, 0]
+    assert res.nobs == 100 and res.df_model == 3  # two variances and the diffuse level
+    ref = sm.tsa.UnobservedComponents(flow, "local level", use_exact_diffuse=True).smooth(
+        [res.params["R"], res.params["Q"]])
+    assert res.loglik == pytest.approx(ref.llf, rel=1e-12)
+    assert res.aic == pytest.approx(ref.aic, rel=1e-12)
+    assert res.bic == pytest.approx(ref.bic, rel=1e-12)
+    assert res.bse["Q"] == pytest.approx(res.standard_errors["Q"][0, 0])
+    text = res.summary()
+    assert "converged" in text and "AIC 1272.929" in text and "BIC 1280.74" in text
+    assert text.splitlines()[3].split()[:3] == ["Q", "1469.2", "1280.4"]
+
+
+def test_standard_errors_are_the_observed_information():
+    """At the Nile optimum, the standard errors equal those of a direct finite-difference Hessian."""
+    _, flow = nile()
+    res = gf.fit(_nile_start(), "diffuse", flow, method="mle")
+    x = np.array([res.params["Q"], res.params["R"]])
+
+    def ll(v):
+        return gf.filter(gf.LinearModel(F=1, H=1, Q=v[0], R=v[1]), "diffuse", flow).loglik
+
+    h = np.array([5.0, 20.0])
+    hess = np.zeros((2, 2))
+    for i, j in np.ndindex(2, 2):
+        ei, ej = np.eye(2)[i] * h[i], np.eye(2)[j] * h[j]
+        hess[i, j] = (ll(x + ei + ej) - ll(x + ei - ej) - ll(x - ei + ej) + ll(x - ei - ej)) / (4 * h[i] * h[j])
+    se = np.sqrt(np.diag(np.linalg.solve(-hess, np.eye(2))))
+    np.testing.assert_allclose([res.bse["Q"], res.bse["R"]], se, rtol=1e-3)
+    em = gf.fit(_nile_start(), "diffuse", flow, iterations=5000, tol=1e-13)
+    np.testing.assert_allclose([em.bse["Q"], em.bse["R"]], se, rtol=5e-3)

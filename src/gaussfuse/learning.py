@@ -11,40 +11,99 @@ With them every expectation of the complete-data log-likelihood
       + \sum_t \log N(x_t; F_t x_{t-1} + B_t u_t, Q_t)
       + \sum_t \log N(z_t; H_t x_t, R_t)
 
-is a quadratic form in the second moments :math:`\Phi_t = E[s_t s_t^\top]` of
-:math:`s_t = (x_t, x_{t-1}, u_t, 1)` and :math:`\Psi_t = E[r_t r_t^\top]` of
-:math:`r_t = (z_t, x_t, 1)`: the transition residual is
-:math:`w_t = [I, -F_t, -B_t, 0]\, s_t` and the measurement residual
-:math:`v_t = [I, -H_t, 0]\, r_t`. A missing component of :math:`z_t` is part of
-the complete data; its moments given the observed ones are exact:
+is a quadratic form in the moments of
+:math:`s_t = (x_t, x_{t-1}, u_t, 1)` and :math:`r_t = (z_t, x_t, 1)`: the
+transition residual is :math:`w_t = [I, -F_t, -B_t, 0]\, s_t` and the
+measurement residual :math:`v_t = [I, -H_t, 0]\, r_t`, so that
+:math:`E[w_t w_t^\top] = W_t \operatorname{Cov}[s_t] W_t^\top + W_t E[s_t] (W_t E[s_t])^\top`.
+A missing component of :math:`z_t` is part of the complete data; its moments
+given the observed ones are exact:
 :math:`z_\mu = (H_\mu - L H_o) x + L z_o + e`,
-:math:`L = R_{\mu o} R_{oo}^{-1}`, :math:`e \sim N(0, R_{\mu\mu} - L R_{o\mu})`.
+:math:`L = R_{\mu o} R_{oo}^{+}`, :math:`e \sim N(0, R_{\mu\mu} - L R_{o\mu})`.
+With a diffuse prior the first state :math:`x_1` is diffuse (see
+:mod:`gaussfuse.diffuse`): there is no :math:`x_0` and no first transition,
+so the sums over transitions start at :math:`t = 2`.
 
 * **EM** (Shumway & Stoffer 1982) maximises :math:`E[\ell_c]`: :math:`[F, B]`
   by regression of :math:`x_t` on :math:`(x_{t-1}, u_t)`,
   :math:`H = \sum E[z x^\top] (\sum E[x x^\top])^{-1}`, then
-  :math:`Q = \frac1T \sum E[w w^\top]`, :math:`R = \frac1T \sum E[v v^\top]`,
+  :math:`Q = \frac1{T_w} \sum E[w w^\top]` over the :math:`T_w` transitions,
+  :math:`R = \frac1T \sum E[v v^\top]`,
   :math:`m_0 = E[x_0]`, :math:`P_0 = \operatorname{Cov}[x_0]`. A diagonal
   or scalar covariance keeps the diagonal or its mean. Each step is an
-  exact maximisation, so the likelihood never decreases.
+  exact maximisation, so the likelihood never decreases. A learned
+  covariance is projected onto the positive semi-definite matrices (its
+  round-off negative eigenvalues set to zero), and a variance that starts at
+  exactly zero stays exactly zero, with its row and column: EM cannot move
+  it (the posterior of a noise-free component has no residual), and the
+  maximum-likelihood parametrisation below holds it fixed for the same
+  reason.
 * **Maximum likelihood** optimises :math:`\log p(z \mid \theta)` with
-  scipy.optimize over unconstrained parameters (a covariance through its
-  Cholesky factor with a log diagonal, or log variances). Its gradient is
-  exact, by Fisher's identity :math:`\nabla \log p(z) = E[\nabla \ell_c \mid z]`:
-  for example :math:`\partial/\partial Q = \tfrac12 Q^{-1}(\sum E[w w^\top] - T Q) Q^{-1}`
-  and :math:`\partial/\partial F = Q^{-1} \sum E[w x_{t-1}^\top]`.
+  scipy.optimize (BFGS) over unconstrained parameters :math:`\theta`: the
+  entries of F, H, B and m0; a learned covariance on its non-zero variances
+  through log variances (diagonal), the log of the common variance
+  (scalar), or its Cholesky factor with a log diagonal (full). Its gradient
+  is exact, and is computed one of two ways. Where every covariance it
+  needs is non-singular, by Fisher's identity
+  :math:`\nabla \log p(z) = E[\nabla \ell_c \mid z]` from the smoother's
+  moments: for example
+  :math:`\partial/\partial Q = \tfrac12 Q^{-1}(\sum E[w w^\top] - T_w Q) Q^{-1}`
+  and :math:`\partial/\partial F = Q^{-1} \sum E[w x_{t-1}^\top]`. Where one
+  is singular (a noise-free state or sensor, a known constant, an ARMA
+  model in state-space form), the complete-data density has no inverse to
+  offer, and the gradient is the derivative of the filter's own
+  log-likelihood :math:`\sum_t -\tfrac12 (v_t^\top S_t^{-1} v_t + \log|S_t|)`,
+  propagated along each parameter direction :math:`\dot\theta` with the
+  filter (Harvey 1989, sec. 3.4.6):
+
+  .. math::
+
+      \dot m^-_t &= \dot F m_{t-1} + F \dot m_{t-1} + \dot B u_t, \qquad
+      \dot P^-_t = \dot F P_{t-1} F^\top + F P_{t-1} \dot F^\top + F \dot P_{t-1} F^\top + \dot Q, \\
+      \dot v_t &= -\dot H m^-_t - H \dot m^-_t, \qquad
+      \dot S_t = \dot H P^-_t H^\top + H P^-_t \dot H^\top + H \dot P^-_t H^\top + \dot R, \\
+      \dot K_t^\top &= S_t^{-1} (\dot H P^-_t + H \dot P^-_t - \dot S_t K_t^\top), \qquad
+      \dot m_t = \dot m^-_t + \dot K_t v_t + K_t \dot v_t, \\
+      \dot P_t &= (I - K_t H) \dot P^-_t (I - K_t H)^\top - X_t - X_t^\top + K_t \dot R K_t^\top,
+      \quad X_t = K_t \dot H P^-_t (I - K_t H)^\top, \\
+      \dot\ell_t &= -\tfrac12 \operatorname{tr}(S_t^{-1} \dot S_t) - v_t^\top S_t^{-1} \dot v_t
+      + \tfrac12 v_t^\top S_t^{-1} \dot S_t S_t^{-1} v_t .
+
+  :math:`\dot P_t` has no :math:`\dot K_t` term because the Joseph form is
+  stationary in the gain at the optimal gain. With a diffuse prior the same
+  recursion carries the sensitivity columns of :mod:`gaussfuse.diffuse`,
+  and the diffuse terms are differentiated through their information
+  :math:`\mathcal S_T` and score :math:`s_T`.
+
+Standard errors, for both methods, come from the observed information: the
+Hessian of the log-likelihood at the estimate, by central differences of
+the exact gradient, and the delta method for the learned matrices' entries.
+
+References
+----------
+.. [1] R. H. Shumway and D. S. Stoffer, "An approach to time series smoothing
+   and forecasting using the EM algorithm", J. Time Series Analysis 3(4), 1982.
+.. [2] A. C. Harvey, *Forecasting, Structural Time Series Models and the
+   Kalman Filter*, Cambridge University Press, 1989.
 """
 
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from .diffuse import Moments, diffuse_moments
+
+from . import kalman
+from ._validation import as_vector
+from .diffuse import Moments, augmented_runs, diffuse_moments, not_identified
+from .errors import ConvergenceWarning
 from .gaussian import Gaussian
 from .inference import ENGINES, _check_steps, check_controls, check_measurements, check_prior, smooth_from_prior
+from .inference import filter as _filter_series
 from .kalman import symmetrize
 from .models.linear import LinearModel
 
@@ -54,6 +113,8 @@ LEARNABLE = ("F", "H", "Q", "R", "B", "m0", "P0")
 COVARIANCES = ("Q", "R", "P0")
 STRUCTURES = ("full", "diagonal", "scalar")
 METHODS = ("em", "mle")
+_MATRICES = ("F", "H", "Q", "R", "B")
+_LOG_2PI = np.log(2.0 * np.pi)
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,14 +134,27 @@ class FitResult:
     method : str
         "em" or "mle".
     converged : bool
-        Whether the tolerance was met (False after `iterations` or Ctrl-C).
+        Whether the tolerance was met (False after `iterations`, with a
+        :class:`~gaussfuse.ConvergenceWarning`, or after Ctrl-C).
     message : str
         How the fit ended.
     standard_errors : dict of str to ndarray, or None
-        For "mle": standard errors of every learned matrix (same shape),
-        from the inverse of the observed information (the Hessian of the
-        log-likelihood at the optimum), or of the user's parameters under
-        ``"params"``. None for "em".
+        Standard errors of every learned matrix (same shape; zero where an
+        entry is held fixed), from the observed information (the Hessian of
+        the log-likelihood at the estimate), or of the user's parameters
+        under ``"params"``. None when the information could not be computed.
+    params : dict of str to float
+        The learned values by name: ``"R"`` for a 1 x 1 matrix, ``"Q[0,1]"``
+        for an entry (the lower triangle of a full covariance, the diagonal
+        of a diagonal one, the common variance ``"Q"`` of a scalar one),
+        ``"theta[i]"`` for the user's parameters of ``params=``. Variances
+        held at zero are not parameters.
+    bse : dict of str to float
+        The standard error of each of `params` (NaN when the observed
+        information is not positive definite at the estimate).
+    nobs : int
+        The number of observed measurement components (NaN ones excluded),
+        over all series.
     """
 
     model: LinearModel
@@ -91,6 +165,67 @@ class FitResult:
     converged: bool
     message: str
     standard_errors: dict | None = None
+    params: dict = field(default_factory=dict)
+    bse: dict = field(default_factory=dict)
+    nobs: int = 0
+
+    @property
+    def df_model(self) -> int:
+        """The number of estimated quantities: `params`, and the diffuse states when the prior is diffuse.
+
+        A diffuse state is estimated from the data too, and counts in the
+        information criteria, as in Harvey (1989) and statsmodels.
+        """
+        return len(self.params) + (self.model.n if isinstance(self.prior, str) else 0)
+
+    @property
+    def aic(self) -> float:
+        """Akaike's information criterion, ``-2 loglik + 2 df_model``."""
+        return -2.0 * self.loglik + 2.0 * self.df_model
+
+    @property
+    def bic(self) -> float:
+        """The Bayesian information criterion, ``-2 loglik + df_model log(nobs)``."""
+        return -2.0 * self.loglik + self.df_model * np.log(self.nobs)
+
+    def summary(self) -> str:
+        """A table of the estimates with standard errors and 95% intervals, and the fit's figures.
+
+        Examples
+        --------
+        >>> import gaussfuse as gf
+        >>> from gaussfuse.datasets import nile
+        >>> res = gf.fit(gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0), "diffuse", nile()[1], method="mle")
+        >>> print(res.summary())  # doctest: +NORMALIZE_WHITESPACE
+        gaussfuse fit: maximum likelihood, converged
+        log-likelihood -633.4646   AIC 1272.9291   BIC 1280.7446   observations 100 (with 1 diffuse state)
+        parameter         estimate      std err       [0.025        0.975]
+        Q                   1469.2       1280.4      -1040.3       3978.7
+        R                  15098.5       3145.5       8933.4      21263.7
+        """
+        how = {"em": "EM", "mle": "maximum likelihood"}[self.method]
+        state = "converged" if self.converged else f"NOT converged ({self.message})"
+        after = f" (with {self.model.n} diffuse state{'s' * (self.model.n > 1)})" if isinstance(self.prior, str) else ""
+        lines = [f"gaussfuse fit: {how}, {state}",
+                 f"log-likelihood {self.loglik:.4f}   AIC {self.aic:.4f}   BIC {self.bic:.4f}   "
+                 f"observations {self.nobs}{after}",
+                 f"{'parameter':<14} {'estimate':>11} {'std err':>12} {'[0.025':>12} {'0.975]':>13}"]
+        for name, value in self.params.items():
+            se = self.bse.get(name, np.nan)
+            lines.append(f"{name:<14} {_fmt(value):>11} {_fmt(se):>12} {_fmt(value - 1.959963984540054 * se):>12} "
+                         f"{_fmt(value + 1.959963984540054 * se):>12}")
+        return "\n".join(lines)
+
+
+def _fmt(x: float) -> str:
+    """A figure for the summary table: 1 decimal in [1e3, 1e7), 4 significant digits otherwise."""
+    if not np.isfinite(x):
+        return "nan"
+    if x == 0 or 1e-4 <= abs(x) < 1e3:
+        return f"{x:.4g}"
+    if abs(x) < 1e7:
+        return f"{x:.1f}"
+    return f"{x:.4e}"
 
 
 # ---------------------------------------------------------------------------
@@ -115,14 +250,17 @@ def _per_step(a: np.ndarray | None, T: int) -> np.ndarray | None:
 
 
 class Statistics:
-    """Expected second moments of one series (see the module notes).
+    """Expected first and second moments of one series (see the module notes).
 
     Attributes
     ----------
-    Phi : ndarray of shape (T, d, d)
-        ``E[s_t s_tᵀ]``, s_t = (x_t, x_{t-1}, u_t, 1), d = 2n + p + 1.
-    Psi : ndarray of shape (T, e, e)
-        ``E[r_t r_tᵀ]``, r_t = (z_t, x_t, 1), e = m + n + 1.
+    mu, sig : ndarray of shape (T_w, d), (T_w, d, d)
+        Mean and covariance of s_t = (x_t, x_{t-1}, u_t, 1), d = 2n + p + 1,
+        over the T_w = T - `start` transitions of the model.
+    nu, tau : ndarray of shape (T, e), (T, e, e)
+        Mean and covariance of r_t = (z_t, x_t, 1), e = m + n + 1.
+    start : int
+        The first transition that is part of the model (1 for a diffuse x_1).
     x0_mean, x0_cov : ndarray
         Smoothed moments of x_0.
     """
@@ -130,6 +268,7 @@ class Statistics:
     def __init__(self, model: LinearModel, mom: Moments, zs: np.ndarray, us: np.ndarray | None):
         T, n, m = zs.shape[0], model.n, model.m
         p = 0 if us is None else us.shape[1]
+        a = self.start = mom.first
         mean, cov, cross = mom.means, mom.covs, mom.cross
         d = 2 * n + p + 1
         mu = np.zeros((T, d))
@@ -139,7 +278,7 @@ class Statistics:
         sig[:, :n, :n], sig[:, n:2 * n, n:2 * n] = cov[1:], cov[:-1]
         sig[:, :n, n:2 * n] = cross
         sig[:, n:2 * n, :n] = np.swapaxes(cross, -1, -2)
-        self.Phi = sig + mu[:, :, None] * mu[:, None, :]
+        self.mu, self.sig = mu[a:], sig[a:]
 
         H, R = _per_step(model.H, T), _per_step(model.R, T)
         e = m + n + 1
@@ -153,7 +292,8 @@ class Statistics:
             o = ~np.isnan(zs[t])
             mis = ~o
             A, c, E = np.zeros((m, n)), np.where(o, zs[t], 0.0), np.zeros((m, m))
-            L = np.linalg.solve(R[t][np.ix_(o, o)], R[t][np.ix_(o, mis)]).T if o.any() else np.zeros((mis.sum(), 0))
+            L = (np.linalg.lstsq(R[t][np.ix_(o, o)], R[t][np.ix_(o, mis)], rcond=None)[0].T if o.any()
+                 else np.zeros((mis.sum(), 0)))
             A[mis] = H[t][mis] - L @ H[t][o]
             c[mis] = L @ zs[t][o]
             E[np.ix_(mis, mis)] = R[t][np.ix_(mis, mis)] - L @ R[t][np.ix_(o, mis)]
@@ -161,19 +301,29 @@ class Statistics:
             tau[t, :m, :m] = A @ cov[t + 1] @ A.T + E
             tau[t, :m, m:m + n] = A @ cov[t + 1]
             tau[t, m:m + n, :m] = tau[t, :m, m:m + n].T
-        self.Psi = tau + nu[:, :, None] * nu[:, None, :]
+        self.nu, self.tau = nu, tau
         self.x0_mean, self.x0_cov = mean[0], cov[0]
         self.n, self.m, self.p, self.T = n, m, p, T
 
+    @property
+    def Phi(self) -> np.ndarray:
+        """``E[s_t s_tᵀ]`` over the transitions, (T_w, d, d)."""
+        return self.sig + self.mu[:, :, None] * self.mu[:, None, :]
+
+    @property
+    def Psi(self) -> np.ndarray:
+        """``E[r_t r_tᵀ]``, (T, e, e)."""
+        return self.tau + self.nu[:, :, None] * self.nu[:, None, :]
+
     # selectors into s_t = (x_t, x_{t-1}, u_t, 1) and r_t = (z_t, x_t, 1)
     def w_map(self, F: np.ndarray, B: np.ndarray | None) -> np.ndarray:
-        """``[I, -F_t, -B_t, 0]`` of shape (T, n, d)."""
-        n, p, T = self.n, self.p, self.T
-        W = np.zeros((T, n, 2 * n + p + 1))
+        """``[I, -F_t, -B_t, 0]`` over the transitions, shape (T_w, n, d)."""
+        n, p, T, a = self.n, self.p, self.T, self.start
+        W = np.zeros((T - a, n, 2 * n + p + 1))
         W[:, :, :n] = np.eye(n)
-        W[:, :, n:2 * n] = -_per_step(F, T)
+        W[:, :, n:2 * n] = -_per_step(F, T)[a:]
         if p:
-            W[:, :, 2 * n:2 * n + p] = -_per_step(B, T)
+            W[:, :, 2 * n:2 * n + p] = -_per_step(B, T)[a:]
         return W
 
     def v_map(self, H: np.ndarray) -> np.ndarray:
@@ -184,63 +334,20 @@ class Statistics:
         V[:, :, m:m + n] = -_per_step(H, T)
         return V
 
+    def residual_second_moment(self, which: str, M: np.ndarray) -> np.ndarray:
+        """``E[w_t w_tᵀ]`` (which="w", M = W_t) or ``E[v_t v_tᵀ]`` (which="v", M = V_t), per step.
+
+        Covariance part plus mean part: the mean part is an exact outer
+        product, which keeps round-off out of a small residual variance.
+        """
+        mean, cov = (self.mu, self.sig) if which == "w" else (self.nu, self.tau)
+        r = (M @ mean[:, :, None])[..., 0]
+        return _quad(M, cov) + r[:, :, None] * r[:, None, :]
+
 
 def _quad(M: np.ndarray, S: np.ndarray, N: np.ndarray | None = None) -> np.ndarray:
     """``M_t S_t N_tᵀ`` for each t (N defaults to M)."""
     return M @ S @ np.swapaxes(M if N is None else N, -1, -2)
-
-
-# ---------------------------------------------------------------------------
-# EM
-# ---------------------------------------------------------------------------
-
-
-def _structured(cov: np.ndarray, structure: str) -> np.ndarray:
-    if structure == "diagonal":
-        return np.diag(np.diag(cov))
-    if structure == "scalar":
-        return np.mean(np.diag(cov)) * np.eye(cov.shape[0])
-    return symmetrize(cov)
-
-
-def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, structure: dict):
-    n, p = model.n, model.p
-    F, H, Q, R, B = model.F, model.H, model.Q, model.R, model.B
-    T_all = sum(s.T for s in stats)
-    Phi = [s.Phi for s in stats]
-    if "F" in learn or "B" in learn:
-        # Regress x_t on the learned regressors, the known parts moved to the target.
-        rows = ([np.arange(n, 2 * n)] if "F" in learn else []) + \
-               ([np.arange(2 * n, 2 * n + p)] if "B" in learn else [])
-        sel = np.concatenate(rows)
-        Fk = np.zeros_like(F) if "F" in learn else F
-        Bk = (np.zeros_like(B) if "B" in learn else B) if p else None
-        lhs = sum(np.sum((s.w_map(Fk, Bk) @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
-        gram = sum(np.sum(ph[:, sel][:, :, sel], axis=0) for ph in Phi)
-        coef = np.linalg.solve(gram, lhs.T).T
-        if "F" in learn:
-            F, coef = coef[:, :n], coef[:, n:]
-        if "B" in learn:
-            B = coef
-    if "Q" in learn:
-        Q = _structured(sum(np.sum(_quad(s.w_map(F, B), ph), axis=0) for s, ph in zip(stats, Phi)) / T_all,
-                        structure["Q"])
-    m = model.m
-    if "H" in learn:
-        zx = sum(np.sum(s.Psi[:, :m, m:m + n], axis=0) for s in stats)
-        xx = sum(np.sum(s.Psi[:, m:m + n, m:m + n], axis=0) for s in stats)
-        H = np.linalg.solve(xx, zx.T).T
-    if "R" in learn:
-        R = _structured(sum(np.sum(_quad(s.v_map(H), s.Psi), axis=0) for s in stats) / T_all, structure["R"])
-    new_prior = prior
-    if "m0" in learn or "P0" in learn:
-        m0 = np.mean([s.x0_mean for s in stats], axis=0) if "m0" in learn else prior.mean
-        P0 = prior.cov
-        if "P0" in learn:
-            P0 = np.mean([s.x0_cov + np.outer(s.x0_mean - m0, s.x0_mean - m0) for s in stats], axis=0)
-            P0 = _structured(P0, structure["P0"])
-        new_prior = Gaussian(m0, P0)
-    return LinearModel(F, H, Q, R, B), new_prior
 
 
 def _e_step(model, prior, zs, us, engine: str = "auto") -> tuple[float, list[Statistics]]:
@@ -253,10 +360,84 @@ def _e_step(model, prior, zs, us, engine: str = "auto") -> tuple[float, list[Sta
     return loglik, stats
 
 
+# ---------------------------------------------------------------------------
+# EM
+# ---------------------------------------------------------------------------
+
+
+def _structured(cov: np.ndarray, structure: str, fixed: np.ndarray) -> np.ndarray:
+    """`cov` with the structure imposed, projected onto the PSD matrices, rows and columns `fixed` zero."""
+    if structure == "diagonal":
+        out = np.diag(np.clip(np.diag(cov), 0.0, None))
+    elif structure == "scalar":
+        out = max(float(np.mean(np.diag(cov))), 0.0) * np.eye(cov.shape[0])
+    else:
+        vals, vecs = np.linalg.eigh(symmetrize(cov))
+        out = cov if vals[0] >= 0 else symmetrize((vecs * np.clip(vals, 0.0, None)) @ vecs.T)
+        out = symmetrize(out)
+    if fixed.any():
+        out = out.copy()
+        out[fixed], out[:, fixed] = 0.0, 0.0
+    return out
+
+
+def _fixed_zeros(cov: np.ndarray, structure: str) -> np.ndarray:
+    """The components held at zero variance: those at zero now (all or none for a scalar covariance)."""
+    zero = np.diag(cov) == 0.0
+    if structure == "scalar":
+        zero[:] = zero.all()
+    return zero
+
+
+def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, structure: dict, fixed: dict):
+    n, p = model.n, model.p
+    F, H, Q, R, B = model.F, model.H, model.Q, model.R, model.B
+    T_w = sum(s.T - s.start for s in stats)
+    T_v = sum(s.T for s in stats)
+    if "F" in learn or "B" in learn:
+        # Regress x_t on the learned regressors, the known parts moved to the target.
+        rows = ([np.arange(n, 2 * n)] if "F" in learn else []) + \
+               ([np.arange(2 * n, 2 * n + p)] if "B" in learn else [])
+        sel = np.concatenate(rows)
+        Fk = np.zeros_like(F) if "F" in learn else F
+        Bk = (np.zeros_like(B) if "B" in learn else B) if p else None
+        Phi = [s.Phi for s in stats]
+        lhs = sum(np.sum((s.w_map(Fk, Bk) @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
+        gram = sum(np.sum(ph[:, sel][:, :, sel], axis=0) for ph in Phi)
+        coef = np.linalg.solve(gram, lhs.T).T
+        if "F" in learn:
+            F, coef = coef[:, :n], coef[:, n:]
+        if "B" in learn:
+            B = coef
+    if "Q" in learn:
+        second = sum(np.sum(s.residual_second_moment("w", s.w_map(F, B)), axis=0) for s in stats)
+        Q = _structured(second / T_w, structure["Q"], fixed["Q"])
+    m = model.m
+    if "H" in learn:
+        Psi = [s.Psi for s in stats]
+        zx = sum(np.sum(ps[:, :m, m:m + n], axis=0) for ps in Psi)
+        xx = sum(np.sum(ps[:, m:m + n, m:m + n], axis=0) for ps in Psi)
+        H = np.linalg.solve(xx, zx.T).T
+    if "R" in learn:
+        second = sum(np.sum(s.residual_second_moment("v", s.v_map(H)), axis=0) for s in stats)
+        R = _structured(second / T_v, structure["R"], fixed["R"])
+    new_prior = prior
+    if "m0" in learn or "P0" in learn:
+        m0 = np.mean([s.x0_mean for s in stats], axis=0) if "m0" in learn else prior.mean
+        P0 = prior.cov
+        if "P0" in learn:
+            P0 = np.mean([s.x0_cov + np.outer(s.x0_mean - m0, s.x0_mean - m0) for s in stats], axis=0)
+            P0 = _structured(P0, structure["P0"], fixed["P0"])
+        new_prior = Gaussian(m0, P0)
+    return LinearModel(F, H, Q, R, B), new_prior
+
+
 def _em(model, prior, zs, us, learn, structure, iterations, tol, callback, engine):
     history: list[float] = []
+    fixed = {name: (_fixed_zeros(_current(model, prior, name), structure[name]) if name in learn else None)
+             for name in COVARIANCES}
     best = (model, prior)
-    message, converged = f"stopped after {iterations} iterations", False
+    message, converged = f"stopped at the limit of {iterations} iterations", False
     try:
         for it in range(iterations + 1):
             loglik, stats = _e_step(model, prior, zs, us, engine)
@@ -264,69 +445,110 @@ def _em(model, prior, zs, us, learn, structure, iterations, tol, callback, engin
             best = (model, prior)
             if callback is not None:
                 callback(it, loglik)
-            if it > 0 and abs(history[-1] - history[-2]) <= tol * (1.0 + abs(history[-1])):
+            if tol > 0 and it > 0 and abs(history[-1] - history[-2]) <= tol * (1.0 + abs(history[-1])):
                 message, converged = "converged: the log-likelihood changed by less than `tol`", True
                 break
             if it == iterations:
                 break
-            model, prior = _m_step(model, prior, stats, learn, structure)
+            model, prior = _m_step(model, prior, stats, learn, structure, fixed)
     except KeyboardInterrupt:
         if not history:
             raise
         message = "interrupted: the best model so far"
     model, prior = best
-    return FitResult(model, prior, history[-1], np.array(history), "em", converged, message)
+    return model, prior, np.array(history), converged, message
+
+
+def _current(model: LinearModel, prior, name: str) -> np.ndarray:
+    """The value of a learnable quantity."""
+    if name == "m0":
+        return prior.mean
+    if name == "P0":
+        return prior.cov
+    return getattr(model, name)
 
 
 # ---------------------------------------------------------------------------
-# Maximum likelihood
+# Parameters and their directions
 # ---------------------------------------------------------------------------
 
 
 class _Parametrisation:
-    """Unconstrained parameters θ ↔ the learned matrices."""
+    """Unconstrained parameters θ ↔ the learned matrices (see the module notes).
+
+    A learned covariance is parametrised on its free components, those with
+    a positive variance at the start; the others stay at zero.
+    """
 
     def __init__(self, model: LinearModel, prior, learn: tuple, structure: dict):
         self.model, self.prior, self.learn, self.structure = model, prior, learn, structure
-        self.sizes = [self._encode(name, self._current(name)).size for name in learn]
-
-    def _current(self, name: str) -> np.ndarray:
-        if name == "m0":
-            return self.prior.mean
-        if name == "P0":
-            return self.prior.cov
-        return getattr(self.model, name)
+        self.free = {name: ~_fixed_zeros(_current(model, prior, name), structure[name])
+                     for name in learn if name in COVARIANCES}
+        for name, free in self.free.items():
+            if structure[name] == "full" and free.any():
+                block = _current(model, prior, name)[np.ix_(free, free)]
+                try:
+                    np.linalg.cholesky(block)
+                except np.linalg.LinAlgError:
+                    raise ValueError(
+                        f"`{name}` must be positive definite on its non-zero variances to be learned by "
+                        f"maximum likelihood (through its Cholesky factor); got {name} = "
+                        f"{np.array2string(_current(model, prior, name), separator=', ')}. Start from a "
+                        "positive definite value, hold a component at zero by giving it zero variance, "
+                        "or use method='em'."
+                    ) from None
+        self.sizes = [self._encode(name, _current(model, prior, name)).size for name in learn]
 
     def _encode(self, name: str, value: np.ndarray) -> np.ndarray:
         if name not in COVARIANCES:
             return value.ravel()
-        kind = self.structure[name]
+        free, kind = self.free[name], self.structure[name]
+        if not free.any():
+            return np.zeros(0)
+        sub = value[np.ix_(free, free)]
         if kind == "scalar":
-            return np.array([np.log(np.mean(np.diag(value)))])
+            return np.array([np.log(np.mean(np.diag(sub)))])
         if kind == "diagonal":
-            return np.log(np.diag(value))
-        L = np.linalg.cholesky(value)
-        rows, cols = np.tril_indices(value.shape[0])
+            return np.log(np.diag(sub))
+        L = np.linalg.cholesky(sub)
+        rows, cols = np.tril_indices(sub.shape[0])
         out = L[rows, cols].copy()
         out[rows == cols] = np.log(out[rows == cols])
         return out
 
-    def _decode(self, name: str, theta: np.ndarray) -> np.ndarray:
-        shape = self._current(name).shape
-        if name not in COVARIANCES:
-            return theta.reshape(shape)
-        kind, k = self.structure[name], shape[0]
-        if kind == "scalar":
-            return np.exp(theta[0]) * np.eye(k)
-        if kind == "diagonal":
-            return np.diag(np.exp(theta))
-        L = np.zeros(shape)
+    def _factor(self, name: str, theta: np.ndarray) -> np.ndarray:
+        """The Cholesky factor of a full covariance's free block."""
+        k = int(self.free[name].sum())
+        L = np.zeros((k, k))
         rows, cols = np.tril_indices(k)
         L[rows, cols] = np.where(rows == cols, np.exp(theta), theta)
-        return L @ L.T
+        return L
+
+    def _place(self, name: str, sub: np.ndarray) -> np.ndarray:
+        """A covariance with block `sub` on its free components and zeros elsewhere."""
+        free = self.free[name]
+        out = np.zeros((free.size, free.size))
+        out[np.ix_(free, free)] = sub
+        return out
+
+    def _decode(self, name: str, theta: np.ndarray) -> np.ndarray:
+        shape = _current(self.model, self.prior, name).shape
+        if name not in COVARIANCES:
+            return theta.reshape(shape)
+        kind, k = self.structure[name], int(self.free[name].sum())
+        if k == 0:
+            return np.zeros(shape)
+        if kind == "scalar":
+            sub = np.exp(theta[0]) * np.eye(k)
+        elif kind == "diagonal":
+            sub = np.diag(np.exp(theta))
+        else:
+            L = self._factor(name, theta)
+            sub = L @ L.T
+        return self._place(name, sub)
 
     def encode(self) -> np.ndarray:
-        return np.concatenate([self._encode(n, self._current(n)) for n in self.learn])
+        return np.concatenate([self._encode(n, _current(self.model, self.prior, n)) for n in self.learn])
 
     def split(self, theta: np.ndarray) -> dict:
         out, start = {}, 0
@@ -338,60 +560,152 @@ class _Parametrisation:
     def __call__(self, theta: np.ndarray):
         parts = {name: self._decode(name, t) for name, t in self.split(theta).items()}
         model = self.model
-        mats = {k: parts.get(k, getattr(model, k)) for k in ("F", "H", "Q", "R", "B")}
+        mats = {k: parts.get(k, getattr(model, k)) for k in _MATRICES}
         prior = self.prior
         if "m0" in parts or "P0" in parts:
             prior = Gaussian(parts.get("m0", prior.mean), parts.get("P0", prior.cov))
         return LinearModel(**mats), prior
 
-    def chain(self, theta: np.ndarray, grads: dict) -> np.ndarray:
-        """dℓ/dθ from the matrix gradients dℓ/dM (symmetric for covariances)."""
+    def directions(self, theta: np.ndarray) -> list[dict]:
+        """``∂(learned matrices)/∂θ_j`` for each j: a dict of the one matrix θ_j moves."""
         out = []
         for name, t in self.split(theta).items():
-            G = grads[name]
+            shape = _current(self.model, self.prior, name).shape
             if name not in COVARIANCES:
-                out.append(G.ravel())
+                for j in range(t.size):
+                    d = np.zeros(t.size)
+                    d[j] = 1.0
+                    out.append({name: d.reshape(shape)})
                 continue
-            kind = self.structure[name]
+            kind, k = self.structure[name], int(self.free[name].sum())
             if kind == "scalar":
-                out.append(np.array([np.trace(G) * np.exp(t[0])]))
+                out.extend([{name: self._place(name, np.exp(t[0]) * np.eye(k))}] if k else [])
             elif kind == "diagonal":
-                out.append(np.diag(G) * np.exp(t))
+                for j in range(k):
+                    sub = np.zeros((k, k))
+                    sub[j, j] = np.exp(t[j])
+                    out.append({name: self._place(name, sub)})
             else:
-                k = G.shape[0]
-                rows, cols = np.tril_indices(k)
-                L = np.zeros((k, k))
-                L[rows, cols] = np.where(rows == cols, np.exp(t), t)
-                dL = 2.0 * G @ L
-                g = dL[rows, cols]
-                g[rows == cols] *= np.diag(L)
-                out.append(g)
-        return np.concatenate(out)
+                L = self._factor(name, t)
+                for r, c in zip(*np.tril_indices(k)):
+                    dL = np.zeros((k, k))
+                    dL[r, c] = L[r, c] if r == c else 1.0  # d exp(θ)/dθ = exp(θ) on the diagonal
+                    X = dL @ L.T
+                    out.append({name: self._place(name, X + X.T)})
+        return out
+
+    def names(self) -> list[str]:
+        """Names of the learned values (see FitResult.params)."""
+        out = []
+        for name in self.learn:
+            value = _current(self.model, self.prior, name)
+            if name not in COVARIANCES:
+                out.extend(_entry_names(name, value.shape))
+                continue
+            free, kind = np.flatnonzero(self.free[name]), self.structure[name]
+            if kind == "scalar" or value.shape == (1, 1):
+                out.extend([name] if free.size else [])
+            elif kind == "diagonal":
+                out.extend(f"{name}[{i},{i}]" for i in free)
+            else:
+                out.extend(f"{name}[{free[r]},{free[c]}]" for r, c in zip(*np.tril_indices(free.size)))
+        return out
+
+    def natural(self, theta: np.ndarray) -> np.ndarray:
+        """The learned values named by :meth:`names`, at θ."""
+        model, prior = self(theta)
+        out = []
+        for name in self.learn:
+            value = _current(model, prior, name)
+            if name not in COVARIANCES:
+                out.append(value.ravel())
+                continue
+            free, kind = np.flatnonzero(self.free[name]), self.structure[name]
+            if not free.size:
+                continue
+            if kind == "scalar":
+                out.append(value[free[:1], free[:1]])
+            elif kind == "diagonal":
+                out.append(value[free, free])
+            else:
+                rows, cols = np.tril_indices(free.size)
+                out.append(value[free[rows], free[cols]])
+        return np.concatenate(out) if out else np.zeros(0)
 
 
-def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics]) -> dict:
-    """dℓ/dM for every matrix M, per step (T, ...) summed over series, by Fisher's identity."""
-    n, m = model.n, model.m
-    T = stats[0].T
-    Q, R = _per_step(model.Q, T), _per_step(model.R, T)
-    g = {k: 0.0 for k in ("F", "H", "Q", "R", "B")}
-    for s in stats:
-        W = s.w_map(model.F, model.B)
-        g["Q"] = g["Q"] + _covariance_gradient(Q, _quad(W, s.Phi))
-        wS = (W @ s.Phi)                                          # E[w sᵀ], (T, n, d)
-        g["F"] = g["F"] + np.linalg.solve(Q, wS[:, :, n:2 * n])
-        if model.B is not None:
-            g["B"] = g["B"] + np.linalg.solve(Q, wS[:, :, 2 * n:2 * n + s.p])
-        V = s.v_map(model.H)
-        g["R"] = g["R"] + _covariance_gradient(R, _quad(V, s.Psi))
-        g["H"] = g["H"] + np.linalg.solve(R, (V @ s.Psi)[:, :, m:m + n])
-    if not isinstance(prior, str):
-        dev = [s.x0_mean - prior.mean for s in stats]
-        g["m0"] = sum(np.linalg.solve(prior.cov, d) for d in dev)
-        second = sum(s.x0_cov + np.outer(d, d) for s, d in zip(stats, dev))
-        P = prior.cov
-        g["P0"] = _covariance_gradient(P, second, count=len(stats))
-    return g
+def _entry_names(name: str, shape: tuple) -> list[str]:
+    if int(np.prod(shape)) == 1:
+        return [name]
+    return [f"{name}[{','.join(str(i) for i in idx)}]" for idx in np.ndindex(*shape)]
+
+
+class _UserParams:
+    """A user's function θ → model (or (model, prior)); its directions by central differences."""
+
+    def __init__(self, fn: Callable, prior, size: int):
+        self.fn, self.prior, self.size = fn, prior, size
+
+    def __call__(self, theta: np.ndarray):
+        out = self.fn(theta.copy())
+        model, prior = (out if isinstance(out, tuple) else (out, self.prior))
+        if not isinstance(model, LinearModel):
+            raise TypeError(f"`params` must return a LinearModel (or (LinearModel, Gaussian)); "
+                            f"got {type(model).__name__}.")
+        return model, check_prior(prior, model.n, diffuse_ok=True)
+
+    def directions(self, theta: np.ndarray) -> list[dict]:
+        out = []
+        for j in range(theta.size):
+            h = 1e-6 * max(1.0, abs(theta[j]))
+            up, down = theta.copy(), theta.copy()
+            up[j] += h
+            down[j] -= h
+            (m1, p1), (m2, p2) = self(up), self(down)
+            d = {}
+            for k in _MATRICES:
+                a, b = getattr(m1, k), getattr(m2, k)
+                if a is not None and np.any(a != b):
+                    d[k] = (a - b) / (2 * h)
+            if not isinstance(p1, str):
+                for k, a, b in (("m0", p1.mean, p2.mean), ("P0", p1.cov, p2.cov)):
+                    if np.any(a != b):
+                        d[k] = (a - b) / (2 * h)
+            out.append(d)
+        return out
+
+    def names(self) -> list[str]:
+        return [f"theta[{i}]" for i in range(self.size)]
+
+    def natural(self, theta: np.ndarray) -> np.ndarray:
+        return theta
+
+
+# ---------------------------------------------------------------------------
+# The exact gradient
+# ---------------------------------------------------------------------------
+
+
+def _needed(directions: list[dict]) -> set:
+    return {name for d in directions for name in d}
+
+
+def _well_conditioned(a: np.ndarray) -> bool:
+    """Whether the covariance `a` (or each of a stack) is safely invertible: condition number below 1e8.
+
+    Fisher's identity inverts it, with round-off amplified by its condition
+    number; a singular covariance that round-off has made barely positive
+    definite (a rank-one Q of an ARMA model, say) must not pass.
+    """
+    vals = np.linalg.eigvalsh(a)
+    return bool(np.all(vals[..., 0] > 1e-8 * vals[..., -1]))
+
+
+def _fisher_applies(model: LinearModel, prior, needed: set, start: int) -> bool:
+    """Whether every covariance Fisher's identity inverts for `needed` is well conditioned."""
+    Q = model.Q[start:] if model.Q.ndim == 3 else model.Q
+    return ((not needed & {"F", "B", "Q"} or _well_conditioned(Q))
+            and (not needed & {"H", "R"} or _well_conditioned(model.R))
+            and (not needed & {"m0", "P0"} or isinstance(prior, str) or _well_conditioned(prior.cov)))
 
 
 def _covariance_gradient(C: np.ndarray, second: np.ndarray, count: int = 1) -> np.ndarray:
@@ -400,37 +714,182 @@ def _covariance_gradient(C: np.ndarray, second: np.ndarray, count: int = 1) -> n
     return 0.5 * np.linalg.solve(C, np.swapaxes(inner, -1, -2))
 
 
-def _summed(g: dict, model: LinearModel) -> dict:
-    """Per-step gradients summed for the time-invariant matrices."""
-    out = dict(g)
-    for k in ("F", "H", "Q", "R", "B"):
-        a = getattr(model, k)
-        if a is not None and a.ndim == 2 and np.ndim(g[k]) == 3:
-            out[k] = symmetrize(g[k].sum(axis=0)) if k in COVARIANCES else g[k].sum(axis=0)
-    return out
+def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics], needed: set) -> dict:
+    """dℓ/dM for each `needed` M, per step (T, ...) summed over series, by Fisher's identity."""
+    n, m = model.n, model.m
+    T = stats[0].T
+    g: dict = {}
+
+    def add(name, value, start=0):
+        full = np.zeros((T, *value.shape[1:]))
+        full[start:] = value
+        g[name] = g.get(name, 0.0) + full
+
+    for s in stats:
+        if needed & {"F", "B", "Q"}:
+            Q = _per_step(model.Q, T)[s.start:]
+            W = s.w_map(model.F, model.B)
+            if "Q" in needed:
+                add("Q", _covariance_gradient(Q, s.residual_second_moment("w", W)), s.start)
+            Qi_wS = np.linalg.solve(Q, W @ s.Phi)                   # Q⁻¹ E[w sᵀ], (T_w, n, d)
+            if "F" in needed:
+                add("F", Qi_wS[:, :, n:2 * n], s.start)
+            if "B" in needed and model.B is not None:
+                add("B", Qi_wS[:, :, 2 * n:2 * n + s.p], s.start)
+        if needed & {"H", "R"}:
+            R = _per_step(model.R, T)
+            V = s.v_map(model.H)
+            if "R" in needed:
+                add("R", _covariance_gradient(R, s.residual_second_moment("v", V)))
+            if "H" in needed:
+                add("H", np.linalg.solve(R, (V @ s.Psi)[:, :, m:m + n]))
+    if needed & {"m0", "P0"} and not isinstance(prior, str):
+        dev = [s.x0_mean - prior.mean for s in stats]
+        g["m0"] = sum(np.linalg.solve(prior.cov, d) for d in dev)
+        second = sum(s.x0_cov + np.outer(d, d) for s, d in zip(stats, dev))
+        g["P0"] = _covariance_gradient(prior.cov, second, count=len(stats))
+    return g
 
 
-def _mle(model, prior, zs, us, learn, structure, iterations, tol, callback, engine, params=None, x0=None):
-    if params is None:
-        param = _Parametrisation(model, prior, learn, structure)
-        theta0 = param.encode()
-        build = param
+def _contract(G: np.ndarray, D: np.ndarray) -> float:
+    """``Σ G ⊙ D``: a per-step gradient (T, ...) or a matrix one against a direction."""
+    if G.ndim == D.ndim + 1:
+        G = G.sum(axis=0)
+    return float(np.sum(G * D))
+
+
+def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | None,
+                   directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
+    """``log p(z)`` of one series and its derivative along each direction (see the module notes).
+
+    The values (means, covariances, innovations) come from the filter; the
+    tangents are propagated alongside them, stacked over the directions.
+    """
+    T, n, p = zs.shape[0], model.n, len(directions)
+    if isinstance(prior, str):
+        runs = augmented_runs(model, zs, us, engine)
+        mdl, results, first = runs.model, [runs.base, *runs.sens], 1
+        us = None if us is None else np.vstack([np.zeros_like(us[:1]), us[1:]])
+        M_prev, P_prev = np.hstack([np.zeros((n, 1)), np.eye(n)]), np.zeros((n, n))
     else:
-        theta0 = np.asarray(x0, dtype=np.float64).ravel()
-        build = _UserParams(params, prior)
-    n_obs = max(int(np.sum(~np.isnan(zs))), 1)
+        mdl, results, first = model, [_filter_series(model, prior, zs, us, engine=engine)], 0
+        M_prev, P_prev = prior.mean[:, None], prior.cov
+    c = len(results)
+    Mp = np.stack([r.predicted_means for r in results], axis=-1)      # (T, n, c)
+    Mf = np.stack([r.means for r in results], axis=-1)
+    U = np.stack([r.innovations for r in results], axis=-1)          # (T, m, c)
+    base = results[0]
+
+    def tangent(name, k, shape):
+        out = np.zeros((p, *shape))
+        for j, d in enumerate(directions):
+            if name in d:
+                out[j] = d[name][k] if d[name].ndim == len(shape) + 1 else d[name]
+        return out
+
+    dM = np.zeros((p, n, c))
+    dP = np.zeros((p, n, n))
+    if first == 0:
+        dM[:, :, 0] = tangent("m0", 0, (n,))
+        dP = tangent("P0", 0, (n, n))
+    G, dG = np.zeros((c, c)), np.zeros((p, c, c))
+    logdet, dlogdet, observed = 0.0, np.zeros(p), 0
+    I = np.eye(n)
+    for k in range(T):
+        F, H, _, R, B = mdl.at(k)
+        if k >= first:
+            dF = tangent("F", k, (n, n))
+            X = dF @ P_prev @ F.T
+            dMp = dF @ M_prev + F @ dM
+            dPp = X + np.swapaxes(X, -1, -2) + F @ dP @ F.T + tangent("Q", k, (n, n))
+            if B is not None:
+                dMp[:, :, 0] += tangent("B", k, B.shape) @ us[k]
+        else:
+            dMp, dPp = F @ dM, F @ dP @ F.T
+        M_prev, P_prev = Mf[k], base.covs[k]
+        o = ~np.isnan(zs[k])
+        if not o.any():
+            dM, dP = dMp, dPp
+            continue
+        Ho, Pk, Uk = H[o], base.predicted_covs[k], U[k][o]
+        dH = tangent("H", k, H.shape)[:, o]
+        dR = tangent("R", k, R.shape)[:, o][:, :, o]
+        L = kalman.cholesky(base.innovation_covs[k][np.ix_(o, o)], f"at step {k}: the innovation covariance S")
+        dHP = dH @ Pk
+        dS = dHP @ Ho.T
+        dS = dS + np.swapaxes(dS, -1, -2) + Ho @ dPp @ Ho.T + dR
+        dU = -(dH @ Mp[k]) - Ho @ dMp
+        SiU = kalman.cho_solve(L, Uk)
+        G += Uk.T @ SiU
+        t = np.swapaxes(dU, -1, -2) @ SiU
+        dG += t + np.swapaxes(t, -1, -2) - SiU.T @ dS @ SiU
+        logdet += 2.0 * np.sum(np.log(np.diag(L)))
+        dlogdet += np.trace(_cho_solve_stack(L, dS), axis1=-2, axis2=-1)
+        observed += int(o.sum())
+        Kt = kalman.cho_solve(L, Ho @ Pk)                              # Kᵀ, (m_o, n)
+        dKt = _cho_solve_stack(L, Ho @ dPp + dHP - dS @ Kt)
+        dM = dMp + np.swapaxes(dKt, -1, -2) @ Uk + Kt.T @ dU
+        IKH = I - Kt.T @ Ho
+        X = Kt.T @ dHP @ IKH.T
+        dP = IKH @ dPp @ IKH.T - X - np.swapaxes(X, -1, -2) + Kt.T @ dR @ Kt
+    loglik = -0.5 * (G[0, 0] + logdet + observed * _LOG_2PI)
+    grad = -0.5 * (dG[:, 0, 0] + dlogdet)
+    if c > 1:  # the diffuse terms: ½ sᵀ 𝒮⁻¹ s - ½ log|𝒮|, 𝒮 = G[1:, 1:], s = -G[1:, 0]
+        info, score = G[1:, 1:], -G[1:, 0]
+        try:
+            LI = np.linalg.cholesky(info)
+        except np.linalg.LinAlgError:
+            raise not_identified() from None
+        a = kalman.cho_solve(LI, score)
+        d_info, d_score = dG[:, 1:, 1:], -dG[:, 1:, 0]
+        loglik += 0.5 * score @ a - np.sum(np.log(np.diag(LI)))
+        grad += d_score @ a - 0.5 * np.einsum("i,pij,j->p", a, d_info, a) \
+            - 0.5 * np.trace(_cho_solve_stack(LI, d_info), axis1=-2, axis2=-1)
+    return float(loglik), grad
+
+
+def _cho_solve_stack(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``(L Lᵀ)⁻¹ B_j`` for a stack B of shape (p, k, r)."""
+    return np.linalg.solve(L.T, np.linalg.solve(L, B))
+
+
+def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
+    """``log p(z)`` over the series and its exact derivative along each direction."""
+    needed = _needed(directions)
+    start = 1 if isinstance(prior, str) else 0
+    if _fisher_applies(model, prior, needed, start):
+        ll, stats = _e_step(model, prior, zs, us, engine)
+        G = _matrix_gradients(model, prior, stats, needed)
+        return ll, np.array([sum(_contract(G[k], D) for k, D in d.items()) for d in directions])
+    ll, grad = 0.0, np.zeros(len(directions))
+    for i, z in enumerate(zs):
+        li, gi = _tangent_score(model, prior, z, None if us is None else us[i], directions, engine)
+        ll, grad = ll + li, grad + gi
+    return ll, grad
+
+
+# ---------------------------------------------------------------------------
+# Maximum likelihood and the observed information
+# ---------------------------------------------------------------------------
+
+
+def _evaluator(build, zs, us, engine):
+    """``theta -> (loglik, gradient)``, cached on θ."""
     cache: dict[bytes, tuple[float, np.ndarray]] = {}
 
     def evaluate(theta: np.ndarray) -> tuple[float, np.ndarray]:
         key = theta.tobytes()
         if key not in cache:
             mdl, pri = build(theta)
-            ll, stats = _e_step(mdl, pri, zs, us, engine)
-            g = _matrix_gradients(mdl, pri, stats)
-            grad = build.chain(theta, _summed(g, mdl) if params is None else g)
-            cache[key] = (ll, grad)
+            cache[key] = _loglik_and_gradient(mdl, pri, zs, us, build.directions(theta), engine)
         return cache[key]
 
+    return evaluate
+
+
+def _mle(build, theta0, zs, us, iterations, tol, callback, engine):
+    n_obs = max(int(np.sum(~np.isnan(zs))), 1)
+    evaluate = _evaluator(build, zs, us, engine)
     history: list[float] = []
     best = [theta0, -np.inf]
 
@@ -443,7 +902,7 @@ def _mle(model, prior, zs, us, learn, structure, iterations, tol, callback, engi
     def on_iteration(theta):
         history.append(evaluate(theta)[0])
         if callback is not None:
-            callback(len(history), history[-1])
+            callback(len(history) - 1, history[-1])
 
     history.append(evaluate(theta0)[0])
     if callback is not None:
@@ -456,54 +915,20 @@ def _mle(model, prior, zs, us, learn, structure, iterations, tol, callback, engi
         theta, converged, message = res.x, bool(res.success), str(res.message)
         if evaluate(theta)[0] < best[1]:
             theta = best[0]
+        if res.status == 2:  # BFGS's line search stalled near the optimum: finish with Newton steps
+            theta, converged = _newton(evaluate, theta, tol * n_obs)
+            if converged:
+                message = "converged: the gradient is below `tol` after Newton steps with the observed information"
     except KeyboardInterrupt:
         theta, converged, message = best[0], False, "interrupted: the best model so far"
-    mdl, pri = build(theta)
     ll = evaluate(theta)[0]
     if not history or history[-1] != ll:
         history.append(ll)
-    errors = _standard_errors(evaluate, build, theta, learn if params is None else None)
-    return FitResult(mdl, pri, ll, np.array(history), "mle", converged, message, errors)
+    return theta, np.array(history), converged, message, evaluate
 
 
-class _UserParams:
-    """A user's function θ → model (or (model, prior)), with its chain rule by central differences."""
-
-    def __init__(self, fn: Callable, prior):
-        self.fn, self.prior = fn, prior
-
-    def __call__(self, theta: np.ndarray):
-        out = self.fn(theta.copy())
-        model, prior = (out if isinstance(out, tuple) else (out, self.prior))
-        if not isinstance(model, LinearModel):
-            raise TypeError(f"`params` must return a LinearModel (or (LinearModel, Gaussian)); "
-                            f"got {type(model).__name__}.")
-        return model, check_prior(prior, model.n, diffuse_ok=True)
-
-    def chain(self, theta: np.ndarray, grads: dict) -> np.ndarray:
-        out = np.zeros_like(theta)
-        for j in range(theta.size):
-            h = 1e-6 * max(1.0, abs(theta[j]))
-            up, down = theta.copy(), theta.copy()
-            up[j] += h
-            down[j] -= h
-            (m1, p1), (m2, p2) = self(up), self(down)
-            total = 0.0
-            for k in ("F", "H", "Q", "R", "B"):
-                a, b = getattr(m1, k), getattr(m2, k)
-                if a is not None:
-                    G = grads[k]
-                    dM = (a - b) / (2 * h)
-                    total += np.sum(G * (dM if dM.ndim == np.ndim(G) else np.broadcast_to(dM, np.shape(G))))
-            if not isinstance(p1, str) and "m0" in grads:
-                total += grads["m0"] @ (p1.mean - p2.mean) / (2 * h)
-                total += np.sum(grads["P0"] * (p1.cov - p2.cov)) / (2 * h)
-            out[j] = total
-        return out
-
-
-def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> dict | None:
-    """Standard errors from the observed information, by central differences of the exact gradient."""
+def _hessian(evaluate, theta: np.ndarray) -> np.ndarray:
+    """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised)."""
     k = theta.size
     hess = np.zeros((k, k))
     for j in range(k):
@@ -512,35 +937,77 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> dict | None:
         up[j] += h
         down[j] -= h
         hess[:, j] = (evaluate(up)[1] - evaluate(down)[1]) / (2 * h)
-    hess = 0.5 * (hess + hess.T)
-    try:
-        cov_theta = np.linalg.solve(-hess, np.eye(k))
-    except np.linalg.LinAlgError:
-        return None
-    if learn is None:
-        return {"params": np.sqrt(np.clip(np.diag(cov_theta), 0, None))}
-    # Delta method: the learned matrices' entries as functions of θ.
-    def natural(t):
-        mdl, pri = build(t)
-        return np.concatenate([(getattr(pri, {"m0": "mean", "P0": "cov"}[n]) if n in ("m0", "P0")
-                                else getattr(mdl, n)).ravel() for n in learn])
+    return 0.5 * (hess + hess.T)
 
-    J = np.zeros((natural(theta).size, k))
-    for j in range(k):
-        h = 1e-6 * max(1.0, abs(theta[j]))
-        up, down = theta.copy(), theta.copy()
-        up[j] += h
-        down[j] -= h
-        J[:, j] = (natural(up) - natural(down)) / (2 * h)
-    se = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, cov_theta, J), 0, None))
+
+def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[np.ndarray, bool]:
+    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; whether ``max|∇ℓ| <= gtol``.
+
+    Near the optimum the log-likelihood is flat to round-off, so a step that
+    lowers it by no more than round-off still counts as a rise.
+    """
+    for _ in range(steps):
+        ll, grad = evaluate(theta)
+        if np.max(np.abs(grad), initial=0.0) <= gtol:
+            return theta, True
+        try:
+            L = np.linalg.cholesky(-_hessian(evaluate, theta))
+        except np.linalg.LinAlgError:
+            break
+        step = theta + kalman.cho_solve(L, grad)
+        if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
+            break
+        theta = step
+    return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
+
+
+def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | None, np.ndarray]:
+    """Standard errors from the observed information, by central differences of the exact gradient.
+
+    Returns the per-matrix standard errors (None if the information is not
+    positive definite) and those of ``build.natural`` (NaN then).
+    """
+    k = theta.size
+    natural = build.natural
+    nan = np.full(natural(theta).size, np.nan)
+    if k == 0:
+        return None, nan
+    try:
+        L = np.linalg.cholesky(-_hessian(evaluate, theta))  # positive definite at a maximum
+    except np.linalg.LinAlgError:
+        return None, nan
+    cov_theta = kalman.cho_solve(L, np.eye(k))
+
+    def jacobian(fn) -> np.ndarray:
+        J = np.zeros((fn(theta).size, k))
+        for j in range(k):
+            h = 1e-6 * max(1.0, abs(theta[j]))
+            up, down = theta.copy(), theta.copy()
+            up[j] += h
+            down[j] -= h
+            J[:, j] = (fn(up) - fn(down)) / (2 * h)
+        return J
+
+    def delta(J):
+        return np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, cov_theta, J), 0, None))
+
+    bse = delta(jacobian(natural))
+    if learn is None:
+        return {"params": bse}, bse
+
+    def entries(t):  # every entry of the learned matrices
+        mdl, pri = build(t)
+        return np.concatenate([_current(mdl, pri, name).ravel() for name in learn])
+
+    se = delta(jacobian(entries))
     out, start = {}, 0
     mdl, pri = build(theta)
     for name in learn:
-        shape = (pri.mean if name == "m0" else pri.cov if name == "P0" else getattr(mdl, name)).shape
+        shape = _current(mdl, pri, name).shape
         size = int(np.prod(shape))
         out[name] = se[start:start + size].reshape(shape)
         start += size
-    return out
+    return out, bse
 
 
 # ---------------------------------------------------------------------------
@@ -551,8 +1018,12 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> dict | None:
 def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, dict]:
     if isinstance(learn, str):
         learn = (learn,)
-    learn = tuple(learn)
-    unknown = [k for k in learn if k not in LEARNABLE]
+    try:
+        learn = tuple(learn)
+    except TypeError:
+        raise TypeError(f"`learn` must be a sequence of names from {list(LEARNABLE)}; "
+                        f"got {type(learn).__name__}.") from None
+    unknown = [k for k in learn if not isinstance(k, str) or k not in LEARNABLE]
     if unknown or not learn or len(set(learn)) != len(learn):
         raise ValueError(f"`learn` must name distinct entries of {list(LEARNABLE)}; got {list(learn)}.")
     for name in learn:
@@ -562,7 +1033,7 @@ def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, di
             continue
         a = getattr(model, name)
         if a is None:
-            raise ValueError(f"`learn` includes 'B' but the model has no control input; give it an initial `B`.")
+            raise ValueError("`learn` includes 'B' but the model has no control input; give it an initial `B`.")
         if a.ndim == 3:
             raise ValueError(f"`learn` includes {name!r}, which is time-varying in the model; "
                              "only time-invariant matrices can be learned.")
@@ -570,12 +1041,23 @@ def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, di
         raise ValueError("learning F or B needs a time-invariant `Q`.")
     if "H" in learn and model.R.ndim == 3:
         raise ValueError("learning H needs a time-invariant `R`.")
-    structure = {} if structure is None else dict(structure)
+    if structure is None:
+        structure = {}
+    if not isinstance(structure, Mapping):
+        raise TypeError(f"`structure` must be a dict such as {{'Q': 'diagonal'}}, mapping {list(COVARIANCES)} "
+                        f"to one of {list(STRUCTURES)}; got {type(structure).__name__} {structure!r:.60}.")
     for name, kind in structure.items():
         if name not in COVARIANCES or kind not in STRUCTURES:
             raise ValueError(f"`structure` maps {list(COVARIANCES)} to one of {list(STRUCTURES)}; "
                              f"got {name!r}: {kind!r}.")
     return learn, {k: structure.get(k, "full") for k in COVARIANCES}
+
+
+def _check_tol(tol) -> float:
+    if isinstance(tol, bool) or not isinstance(tol, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(tol) or tol < 0:
+        raise ValueError(f"`tol` must be a non-negative finite number; got {tol!r}.")
+    return float(tol)
 
 
 def fit(
@@ -600,9 +1082,11 @@ def fit(
     ----------
     model : LinearModel
         The starting point; matrices not learned stay as they are (they may
-        be time-varying).
+        be time-varying, and singular).
     prior : Gaussian or "diffuse"
-        The prior, one step before the first measurement (see :func:`filter`).
+        The prior, one step before the first measurement (see :func:`filter`);
+        ``"diffuse"`` makes the first state x₁ diffuse, as Durbin & Koopman,
+        KFAS and statsmodels do, so the log-likelihood is theirs.
     zs : array_like of shape (T, m), (T,) or (N, T, m)
         Measurements; NaN = missing. N series share one set of parameters
         and are pooled.
@@ -617,18 +1101,22 @@ def fit(
     structure : dict, optional
         ``{"Q" | "R" | "P0": "full" | "diagonal" | "scalar"}``: how a
         learned covariance is constrained (default full). Learned
-        covariances stay symmetric positive definite.
+        covariances stay symmetric positive semi-definite; a variance that
+        starts at exactly 0 stays at 0 (a noise-free component), with its
+        row and column.
     iterations : int, optional
         Maximum iterations (EM: 500; MLE: 1000).
     tol : float, optional
         EM stops when the log-likelihood changes by less than
-        ``tol * (1 + |loglik|)`` (default 1e-10); MLE when the gradient norm
-        per observation is below `tol` (default 1e-8).
+        ``tol * (1 + |loglik|)`` (default 1e-10); ``tol=0`` runs exactly
+        `iterations` EM iterations, without the convergence test and
+        without a warning. MLE stops when the gradient's largest component,
+        per observation, is below `tol` (default 1e-8).
     params : callable, optional
         For structured models (MLE only): ``params(theta) -> LinearModel`` or
         ``(LinearModel, Gaussian)``; `learn` and `structure` are then ignored.
-    x0 : array_like, optional
-        Starting `theta` for `params`.
+    x0 : array_like of shape (k,), optional
+        Starting `theta` for `params` (required with it, refused without it).
     callback : callable, optional
         ``callback(iteration, loglik)`` after each iteration (progress).
     engine : {"auto", "python", "numba"}, default "auto"
@@ -638,8 +1126,23 @@ def fit(
     Returns
     -------
     FitResult
-        ``.model``, ``.prior``, ``.loglik``, ``.history``; Ctrl-C during the
-        fit returns the best model so far with ``converged=False``.
+        ``.model``, ``.prior``, ``.loglik``, ``.history``, ``.params`` and
+        their standard errors ``.bse``, ``.aic``, ``.bic`` and
+        ``.summary()``; Ctrl-C during the fit returns the best model so far
+        with ``converged=False``.
+
+    Warns
+    -----
+    ConvergenceWarning
+        When the fit stops at its iteration limit (EM) or the optimiser
+        reports a failure (MLE) before meeting `tol`; the result is the best
+        model found, with ``converged=False``.
+
+    Raises
+    ------
+    ValueError, TypeError
+        For invalid arguments, data with no observed value, or a diffuse
+        state the data do not identify.
 
     Examples
     --------
@@ -659,6 +1162,9 @@ def fit(
         raise ValueError(f"`method` must be one of {list(METHODS)}; got {method!r}.")
     prior = check_prior(prior, model.n, diffuse_ok=True)
     zs = check_measurements(zs, model.m)
+    nobs = int(np.sum(~np.isnan(zs)))
+    if nobs == 0:
+        raise ValueError("`zs` has no observed value (every entry is NaN): there is nothing to learn from.")
     _check_steps(model, zs.shape[1])
     us = check_controls(us, model, zs.shape[0], zs.shape[1])
     if iterations is None:
@@ -669,16 +1175,52 @@ def fit(
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
     if engine == "auto":
         engine = "numba" if importlib.util.find_spec("numba") is not None else "python"
-    if tol is None:
-        tol = 1e-10 if method == "em" else 1e-8
-    if not np.isfinite(tol) or tol < 0:
-        raise ValueError(f"`tol` must be a non-negative number; got {tol!r}.")
+    tol = _check_tol((1e-10 if method == "em" else 1e-8) if tol is None else tol)
+    if callback is not None and not callable(callback):
+        raise TypeError(f"`callback` must be callable as callback(iteration, loglik); got {type(callback).__name__}.")
     if params is not None:
+        if not callable(params):
+            raise TypeError(f"`params` must be callable as params(theta); got {type(params).__name__}.")
         if method != "mle":
             raise ValueError("`params` (a structured model) needs method='mle'.")
         if x0 is None:
             raise ValueError("`x0`, the starting parameters, is required with `params`.")
-        return _mle(model, prior, zs, us, (), {}, iterations, tol, callback, engine, params, x0)
-    learn, structure = _check_learn(model, prior, learn, structure)
-    run = _em if method == "em" else _mle
-    return run(model, prior, zs, us, learn, structure, iterations, tol, callback, engine)
+        theta0 = as_vector("x0", x0)
+        build, learn = _UserParams(params, prior, theta0.size), None
+        build(theta0)  # a bad `params` fails here, with its own message
+    else:
+        if x0 is not None:
+            raise ValueError("`x0` is the starting point of `params` and is used only with it; "
+                             "the starting point of a fit without `params` is `model` (and `prior`).")
+        learn, structure = _check_learn(model, prior, learn, structure)
+        if method == "mle":
+            build = _Parametrisation(model, prior, learn, structure)
+            theta0 = build.encode()
+    if method == "em":
+        model, prior, history, converged, message = _em(model, prior, zs, us, learn, structure, iterations,
+                                                        tol, callback, engine)
+        try:
+            build = _Parametrisation(model, prior, learn, structure)
+        except ValueError:  # a learned full covariance became singular: no information matrix
+            build = None
+        if build is not None:
+            theta = build.encode()
+            evaluate = _evaluator(build, zs, us, engine)
+    else:
+        theta, history, converged, message, evaluate = _mle(build, theta0, zs, us, iterations, tol, callback,
+                                                            engine)
+        model, prior = build(theta)
+    if build is not None:
+        errors, bse = _standard_errors(evaluate, build, theta, learn)
+        names, values = build.names(), build.natural(theta)
+    else:
+        errors, names = None, []
+        values = bse = np.zeros(0)
+    if not converged and not message.startswith("interrupted") and not (method == "em" and tol == 0):
+        how = "EM" if method == "em" else "maximum likelihood"
+        warnings.warn(ConvergenceWarning(
+            f"{how} did not converge: {message}. The result is the best model found (loglik "
+            f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model."), stacklevel=2)
+    return FitResult(model, prior, float(history[-1]), history, method, converged, message, errors,
+                     params=dict(zip(names, map(float, values))), bse=dict(zip(names, map(float, bse))),
+                     nobs=nobs)
