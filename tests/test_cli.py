@@ -333,6 +333,9 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
          r"data\.csv: line 4: column `t`: times must be strictly increasing"),
         ("t,x,y\n1,2,3\n2,inf,4\n", GOOD_TOML, [], r"data\.csv: line 3: column `x`: 'inf' is not finite"),
         (GOOD_CSV, "[model]\nkind = \n", [], r"model\.toml: invalid TOML: .*\(at line 2, column \d+\)"),
+        (GOOD_CSV, "a = " + "[" * 5000 + "]" * 5000, [],
+         r"model\.toml: invalid TOML: tables and arrays nested more than 16 levels deep\.$"),
+        ("t,x,y\n1,2,\x003\n", GOOD_TOML, [], r"data\.csv: line 2: a NUL character: not a text file\.$"),
         (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0, 0]]\nQ = [[1, 0], [0, 1]]\nR = 1\n", [],
          r"model\.toml: \[model\] H: `H` must have shape"),
         (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0], [0, 1]]\nQ = [[1, 0], [0, -1]]\nR = 1\n",
@@ -354,6 +357,7 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
     ids=[
         "missing-data-file", "missing-model-file", "no-time-column", "wrong-column-count",
         "non-numeric-cell", "ragged-row", "non-increasing-time", "infinite-value", "toml-syntax",
+        "toml-nested-5000-deep", "nul-in-data",
         "wrong-matrix-shape", "non-psd-Q", "unknown-kind", "unknown-key", "unknown-table",
         "B-given", "prior-mean-size", "filter-fails", "plot-format", "plot-dir-missing",
     ],

@@ -4,6 +4,8 @@ import doctest
 import io as stdio
 import os
 import stat
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -322,3 +324,102 @@ def test_open_atomic_missing_directory_names_the_target(tmp_path):
 def test_docstring_examples():
     result = doctest.testmod(gaussfuse.io, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+# ---------------------------------------------------------------------------
+# Pathological input files: bounded memory, one-line errors
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "a = " + "[" * 5000 + "]" * 5000 + "\n",                            # arrays, 5000 deep
+        "a = " + "{b = " * 5000 + "1" + "}" * 5000 + "\n",                   # inline tables
+        "[model]\nF = " + "[" * 490 + "1.0" + "]" * 490 + "\nH = 1\nQ = 1\nR = 1\n",  # parses, then recursed
+        "[model]\nF = " + "[" * 17 + "1.0" + "]" * 17 + "\nH = 1\nQ = 1\nR = 1\n",    # just over the limit
+        "[prior]\na" + ".b" * 40 + " = 1\n",                                # dotted keys
+    ],
+    ids=["arrays-5000", "inline-tables-5000", "arrays-490", "arrays-17", "dotted-keys-40"],
+)
+def test_read_model_rejects_deep_nesting_in_one_line(tmp_path, text):
+    path = write(tmp_path / "m.toml", text)
+    with pytest.raises(InputFileError, match=r"m\.toml: invalid TOML: tables and arrays nested more than "
+                                             r"16 levels deep") as info:
+        read_model(path)
+    assert "\n" not in str(info.value)
+
+
+def test_read_model_accepts_the_nesting_limit(tmp_path):
+    # 15 arrays inside [model] make 16 levels: not rejected for its depth (but not a matrix either)
+    path = write(tmp_path / "m.toml", "[model]\nF = " + "[" * 15 + "1.0" + "]" * 15 + "\nH = 1\nQ = 1\nR = 1\n")
+    with pytest.raises(InputFileError, match=r"\[model\] F: `F` must have shape"):
+        read_model(path)
+
+
+def test_read_model_rejects_a_file_over_the_size_limit(tmp_path):
+    limit = gaussfuse.io.MAX_MODEL_BYTES
+    path = tmp_path / "m.toml"
+    path.write_bytes(NAMED.encode() + b"#" * (limit - len(NAMED)))  # exactly the limit: read
+    assert read_model(path).model.n == 2
+    with open(path, "ab") as f:
+        f.write(b"#")
+    with pytest.raises(InputFileError, match=rf"m\.toml: larger than {limit} bytes; not a model file\."):
+        read_model(path)
+
+
+def test_read_measurements_rejects_a_nul_character(tmp_path):
+    path = tmp_path / "data.csv"
+    path.write_bytes(b"t,x\n1,2\n2,\x003\n")
+    with pytest.raises(InputFileError, match=r"data\.csv: line 3: a NUL character: not a text file\.") as info:
+        read_measurements(path)
+    assert info.value.line == 3
+
+
+def test_read_measurements_rejects_an_overlong_line(tmp_path):
+    limit = gaussfuse.io.MAX_LINE_CHARS
+    path = tmp_path / "data.csv"
+    path.write_text("t,x\n1,2\n" + "1," * (limit // 2 + 1) + "\n")
+    with pytest.raises(InputFileError, match=rf"data\.csv: line 3: longer than {limit} characters\.$") as info:
+        read_measurements(path)
+    assert info.value.line == 3
+
+
+def test_read_measurements_line_limit_excludes_the_line_ending(tmp_path, monkeypatch):
+    monkeypatch.setattr(gaussfuse.io, "MAX_LINE_CHARS", 8)
+    path = tmp_path / "data.csv"
+    path.write_text("t,x\r\n1,2.5e-6\r\n2,2.5e-6\n3,2.5e-6", newline="")  # 8 characters each
+    np.testing.assert_array_equal(read_measurements(path).zs, [[2.5e-6]] * 3)
+    path.write_text("t,x\n1,2.5e-6\n2,2.5e-06\n", newline="")
+    with pytest.raises(InputFileError, match=r"data\.csv: line 3: longer than 8 characters\.$"):
+        read_measurements(path)
+
+
+ENDLESS = """\
+import resource, sys
+import gaussfuse.io
+from gaussfuse.cli import main
+with open("/proc/self/status") as f:
+    vm = next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmSize:"))
+limit = vm + 512 * 2**20  # what the process has, plus 512 MiB
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+for read in (gaussfuse.io.read_model, gaussfuse.io.read_measurements):
+    try:
+        read("/dev/zero")
+    except gaussfuse.io.InputFileError as exc:
+        print(exc)
+sys.exit(main(["filter", "/dev/zero", "--model", sys.argv[1]]))
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/zero") or sys.platform != "linux", reason="needs Linux /dev/zero")
+def test_endless_files_fail_fast_in_bounded_memory(tmp_path):
+    model = write(tmp_path / "m.toml", NAMED)
+    proc = subprocess.run([sys.executable, "-c", ENDLESS, str(model)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.stdout.splitlines() == [
+        f"/dev/zero: larger than {gaussfuse.io.MAX_MODEL_BYTES} bytes; not a model file.",
+        "/dev/zero: line 1: a NUL character: not a text file.",
+    ], proc.stderr
+    assert (proc.returncode, proc.stderr) == (2, "gaussfuse: error: /dev/zero: line 1: a NUL character: "
+                                                 "not a text file.\n")

@@ -54,6 +54,18 @@ The time column, the state means (one column per state name), then
 ``std_<name>`` for each state; floats are written with ``repr`` so they read
 back exactly.
 
+Limits
+------
+So that a file that is not what it should be (``/dev/zero``, a binary file,
+a generated file gone wrong) fails at once in bounded memory:
+
+* a measurement file must be text: a NUL character is an error, and so is a
+  line longer than :data:`MAX_LINE_CHARS` (1 Mi characters, enough for some
+  40 000 columns);
+* a model file may be at most :data:`MAX_MODEL_BYTES` (8 MiB, enough for
+  explicit matrices of a few hundred states), and its tables and arrays may
+  be nested at most :data:`MAX_NESTING` (16) levels deep; a model needs 4.
+
 Every error about a file's content is an :class:`InputFileError` whose message
 starts with the file, then the line or field, e.g.
 ``model.toml: [model] Q: `Q` must be positive semi-definite; ...``.
@@ -89,10 +101,22 @@ __all__ = [
     "write_model",
     "open_atomic",
     "DEFAULT_PRIOR_VAR",
+    "MAX_LINE_CHARS",
+    "MAX_MODEL_BYTES",
+    "MAX_NESTING",
 ]
 
 DEFAULT_PRIOR_VAR = 1e6
 """Variance of each state in the default prior ``N(0, 1e6 I)``."""
+
+MAX_LINE_CHARS = 2**20
+"""Longest line of a measurement file, in characters (the line ending not counted)."""
+
+MAX_MODEL_BYTES = 8 * 2**20
+"""Largest model file, in bytes."""
+
+MAX_NESTING = 16
+"""Deepest nesting of tables and arrays in a model file (``[model]`` and ``F = [[1.0]]`` make 3)."""
 
 TIME_COLUMNS = ("t", "time")
 
@@ -179,13 +203,15 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
     InputFileError
         For a missing or repeated time column, a wrong number of columns or
         cells, a cell that is not a number, an infinite value, a missing or
-        non-increasing time, or no data rows; the message names the file and
-        the line and column.
+        non-increasing time, or no data rows; for a file that is not text (a
+        NUL character, bytes that are not UTF-8, a line longer than
+        :data:`MAX_LINE_CHARS`); the message names the file and the line and
+        column.
     OSError
         When the file cannot be read.
     """
     with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f, strict=True)
+        reader = csv.reader(_text_lines(path, f), strict=True)
         try:
             header = [name.strip() for name in next(reader, [])]
             time_col = _time_column(path, header)
@@ -219,6 +245,16 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
             line=lines[k], field=f"column `{names[0]}`",
         )
     return Measurements(times, zs, names)
+
+
+def _text_lines(path, f: IO[str]) -> Iterator[str]:
+    """The lines of `f`, each read in bounded memory and checked to be text."""
+    for number, line in enumerate(iter(lambda: f.readline(MAX_LINE_CHARS + 2), ""), start=1):
+        if "\0" in line:
+            raise InputFileError(path, "a NUL character: not a text file.", line=number)
+        if len(line.rstrip("\r\n")) > MAX_LINE_CHARS:
+            raise InputFileError(path, f"longer than {MAX_LINE_CHARS} characters.", line=number)
+        yield line
 
 
 def _time_column(path, header: list[str]) -> int:
@@ -298,16 +334,28 @@ def read_model(path: StrPath) -> ModelFile:
     ------
     InputFileError
         For a TOML syntax error, an unknown table or key, a missing key, a
-        control input ``B``, or a value that gaussfuse rejects; the message
-        names the file and the field, followed by gaussfuse's own message.
+        control input ``B``, or a value that gaussfuse rejects; for a file
+        larger than :data:`MAX_MODEL_BYTES` or nested deeper than
+        :data:`MAX_NESTING`; the message names the file and the field,
+        followed by gaussfuse's own message.
     OSError
         When the file cannot be read.
     """
     with open(path, "rb") as f:
-        try:
-            doc = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputFileError(path, f"invalid TOML: {exc}") from None
+        data = f.read(MAX_MODEL_BYTES + 1)
+    if len(data) > MAX_MODEL_BYTES:
+        raise InputFileError(path, f"larger than {MAX_MODEL_BYTES} bytes; not a model file.")
+    too_deep = f"invalid TOML: tables and arrays nested more than {MAX_NESTING} levels deep."
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputFileError(path, f"not UTF-8 text: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputFileError(path, f"invalid TOML: {exc}") from None
+    except RecursionError:  # tomllib recurses once per level: no other way to stop it
+        raise InputFileError(path, too_deep) from None
+    if _depth(doc) > MAX_NESTING:
+        raise InputFileError(path, too_deep)
     _check_keys(path, None, doc, _TABLES)
     table = _table(path, doc, "model")
     if table is None:
@@ -319,6 +367,17 @@ def read_model(path: StrPath) -> ModelFile:
     names = _state_names(path, table.get("states"), names)
     prior = _prior(path, _table(path, doc, "prior") or {}, model.n)
     return ModelFile(model, prior, names)
+
+
+def _depth(doc: dict) -> int:
+    """How deep tables and arrays are nested in `doc` (the document itself is level 0)."""
+    deepest, todo = 0, [(doc, 0)]
+    while todo:
+        value, level = todo.pop()
+        deepest = max(deepest, level)
+        children = value.values() if isinstance(value, dict) else value
+        todo.extend((child, level + 1) for child in children if isinstance(child, (dict, list)))
+    return deepest
 
 
 def _table(path, doc: dict, name: str) -> dict | None:
