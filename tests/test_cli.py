@@ -504,3 +504,18 @@ def test_diffuse_prior_in_a_model_file(tmp_path, capsys):
     header, values = read_csv(out)
     assert code == 0 and header == ["t", "level", "std_level"]
     assert values[0, 1] == 1120.0 and values[0, 2] == pytest.approx(100.0)  # y_1, sqrt(R)
+
+
+def test_fit_writes_a_model_that_reads_back_whatever_the_names(tmp_path, capsys):
+    data = tmp_path / 'ni"le\n\\data\t.csv'  # a line break, a quote, a backslash and a tab
+    data.write_text((EXAMPLES / "data" / "nile.csv").read_text())
+    model = tmp_path / "model.toml"
+    model.write_text('[model]\nF = 1.0\nH = 1.0\nQ = 1000.0\nR = 10000.0\nstates = ["le\\nvel \\"\\\\ \\u0000"]\n'
+                     "[prior]\ndiffuse = true\n")
+    out = tmp_path / "fitted.toml"
+    code, stdout, err = run(capsys, "fit", data, "--model", model, "--iterations", "3", "--out", out)
+    assert (code, stdout) == (0, ""), err
+    fitted = gfio.read_model(out)
+    assert fitted.state_names == ['le\nvel "\\ \x00']
+    first = out.read_text(encoding="utf-8").splitlines()[0]
+    assert first.startswith('# fitted by gaussfuse') and 'ni"le\\n\\data\t.csv' in first

@@ -423,3 +423,105 @@ def test_endless_files_fail_fast_in_bounded_memory(tmp_path):
     ], proc.stderr
     assert (proc.returncode, proc.stderr) == (2, "gaussfuse: error: /dev/zero: line 1: a NUL character: "
                                                  "not a text file.\n")
+
+
+# ---------------------------------------------------------------------------
+# write_model: every file written reads back to the same model
+# ---------------------------------------------------------------------------
+
+from hypothesis import HealthCheck, assume, given, settings, strategies as st  # noqa: E402
+
+finite = st.floats(allow_nan=False, allow_infinity=False)  # with -0.0, subnormals and ±1.8e308
+nonnegative = st.floats(min_value=0.0, max_value=1e300)  # validation symmetrises: (Q + Qᵀ) / 2 must not overflow
+# any text: newlines, quotes, backslashes, control characters, all of Unicode but surrogates
+names_of = st.text(min_size=1, max_size=12)
+
+
+def psd(draw, n):
+    """A covariance that LinearModel/Gaussian may accept: diagonal, or B Bᵀ scaled by a power of 2."""
+    if draw(st.booleans()):
+        return np.diag(draw(st.lists(nonnegative, min_size=n, max_size=n)))
+    B = np.array(draw(st.lists(st.floats(-1e3, 1e3), min_size=n * n, max_size=n * n))).reshape(n, n)
+    return (B @ B.T) * 2.0 ** draw(st.integers(-1000, 960))
+
+
+@st.composite
+def model_files(draw):
+    n, m = draw(st.integers(1, 3)), draw(st.integers(1, 2))
+
+    def matrix(rows, cols):
+        return np.array(draw(st.lists(finite, min_size=rows * cols, max_size=rows * cols))).reshape(rows, cols)
+
+    try:
+        model = gf.LinearModel(matrix(n, n), matrix(m, n), psd(draw, n), psd(draw, m))
+        prior = "diffuse" if draw(st.booleans()) else gf.Gaussian(matrix(n, 1)[:, 0], psd(draw, n))
+    except ValueError:  # e.g. B Bᵀ overflowed, or rounding made it slightly indefinite
+        assume(False)
+    names = draw(st.lists(names_of, min_size=n, max_size=n, unique=True))
+    comments = draw(st.lists(st.text(), max_size=3))
+    return model, prior, names, comments
+
+
+def same_bits(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(model_files())
+def test_write_model_reads_back_bit_for_bit(tmp_path_factory, case):
+    model, prior, names, comments = case
+    path = tmp_path_factory.mktemp("model") / "m.toml"
+    with open(path, "w", encoding="utf-8") as f:
+        gaussfuse.io.write_model(f, model, prior, names, comments)
+    back = read_model(path)
+    assert back.state_names == names
+    for name in ("F", "H", "Q", "R"):
+        assert same_bits(getattr(back.model, name), getattr(model, name)), name
+    if prior == "diffuse":
+        assert back.prior == "diffuse"
+    else:
+        assert same_bits(back.prior.mean, prior.mean) and same_bits(back.prior.cov, prior.cov)
+    lines = path.read_text(encoding="utf-8").split("\n")
+    assert [line.startswith("# ") for line in lines[:len(comments) + 1]] == [True] * len(comments) + [False]
+
+
+@pytest.mark.parametrize(
+    "names, comments",
+    [
+        (['a\nb'], []),
+        (['"quoted"\\'], []),
+        (['\x00\x1f\x7f\r\t\b\f'], []),
+        (['ok'], ["gaussfuse fit da\nta.csv", "carriage\rreturn", "nul\x00 and del\x7f"]),
+    ],
+    ids=["newline", "quote-backslash", "control-characters", "comments"],
+)
+def test_write_model_escapes_what_toml_cannot_hold_raw(tmp_path, names, comments):
+    model = gf.LinearModel(1.0, 1.0, 0.5, 2.0)
+    path = tmp_path / "m.toml"
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        gaussfuse.io.write_model(f, model, gf.Gaussian([-0.0], [[1e-310]]), names, comments)
+    back = read_model(path)
+    assert back.state_names == names
+    assert same_bits(back.prior.mean, [-0.0]) and same_bits(back.prior.cov, [[1e-310]])
+    lines = path.read_text(encoding="utf-8").split("\n")
+    assert len(lines) == len(comments) + 11  # [model], F, H, Q, R, states, "", [prior], mean, cov, ""
+    assert all(line.startswith("# ") for line in lines[:len(comments)])
+
+
+@pytest.mark.parametrize(
+    "names, match",
+    [
+        (["a"], r"`names` must be 2 distinct non-empty strings, one per state; got \['a'\]"),
+        (["a", "a"], r"`names` must be 2 distinct non-empty strings"),
+        (["a", ""], r"`names` must be 2 distinct non-empty strings"),
+        (["a", 1], r"`names` must be 2 distinct non-empty strings"),
+        (["a", "\udcff"], r"`names` must be Unicode text"),
+    ],
+)
+def test_write_model_rejects_names_that_would_not_read_back(names, match):
+    model = gf.LinearModel(np.eye(2), [[1.0, 0.0]], np.eye(2), 1.0)
+    out = stdio.StringIO()
+    with pytest.raises(ValueError, match=match):
+        gaussfuse.io.write_model(out, model, "diffuse", names)
+    assert out.getvalue() == ""

@@ -566,14 +566,37 @@ def write_model(out: IO[str], model: LinearModel, prior: Gaussian | str, names: 
         A time-invariant model without control input.
     prior : Gaussian or "diffuse"
     names : sequence of str
-        State names.
+        State names: ``model.n`` distinct, non-empty strings. Any Unicode
+        text is written escaped as TOML needs it (quotes, backslashes, line
+        breaks and other control characters).
     comments : sequence of str
-        Lines written first, as TOML comments.
+        Lines written first, as TOML comments; a control character in one
+        (a line break, say) is written as its escape, ``\\n``, so that each
+        stays one comment line.
+
+    Raises
+    ------
+    ValueError
+        If the model is time-varying or has a control input, or if `names`
+        would not read back (wrong number, repeated or empty names, or
+        surrogate code points, which are not Unicode text).
+
+    Notes
+    -----
+    Floats are written with ``repr``, which reads back to the same float64,
+    including ``-0.0`` and subnormal numbers.
     """
     if model.steps is not None or model.B is not None:
         raise ValueError("only a time-invariant model without control input can be written as a model file.")
+    names = list(names)
+    if (len(names) != model.n or not all(isinstance(name, str) and name for name in names)
+            or len(set(names)) != model.n):
+        raise ValueError(f"`names` must be {model.n} distinct non-empty strings, one per state; "
+                         f"got {names!r:.80}.")
+    if any(_SURROGATE.search(name) for name in names):
+        raise ValueError(f"`names` must be Unicode text, without surrogate code points; got {names!r:.80}.")
     for line in comments:
-        out.write(f"# {line}\n")
+        out.write(f"# {_COMMENT_ESCAPES.sub(_escape, line)}\n")
     out.write("[model]\n")
     for name in ("F", "H", "Q", "R"):
         out.write(f"{name} = {_toml_array(getattr(model, name))}\n")
@@ -590,8 +613,22 @@ def _toml_array(a: np.ndarray) -> str:
     return "[" + ", ".join(_toml_array(x) for x in a) + "]"
 
 
+# What a TOML basic string cannot hold as it is: control characters, the quote and the backslash.
+_STRING_ESCAPES = re.compile(r'[\x00-\x1f\x7f"\\]')
+# What a TOML comment cannot hold (every control character but tab), and what UTF-8 cannot encode.
+_COMMENT_ESCAPES = re.compile(r"[\x00-\x08\x0a-\x1f\x7f\ud800-\udfff]")
+_SURROGATE = re.compile(r"[\ud800-\udfff]")
+_SHORT_ESCAPES = {"\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r", '"': '\\"',
+                  "\\": "\\\\"}
+
+
+def _escape(match: re.Match) -> str:
+    char = match.group()
+    return _SHORT_ESCAPES.get(char) or f"\\u{ord(char):04X}"
+
+
 def _toml_string(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return '"' + _STRING_ESCAPES.sub(_escape, text) + '"'
 
 
 @contextmanager
