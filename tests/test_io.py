@@ -1,8 +1,10 @@
 """Tests of gaussfuse.io: measurement CSV, model TOML, estimates CSV, atomic writes."""
 
 import doctest
+import errno
 import io as stdio
 import os
+import socket
 import stat
 import subprocess
 import sys
@@ -525,3 +527,141 @@ def test_write_model_rejects_names_that_would_not_read_back(names, match):
     with pytest.raises(ValueError, match=match):
         gaussfuse.io.write_model(out, model, "diffuse", names)
     assert out.getvalue() == ""
+
+
+# ---------------------------------------------------------------------------
+# open_atomic never destroys what is at the path
+# ---------------------------------------------------------------------------
+
+
+def test_open_atomic_writes_through_a_symlink(tmp_path):
+    (tmp_path / "real").mkdir()
+    target = tmp_path / "real" / "out.txt"
+    target.write_text("old")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    with open_atomic(link) as f:
+        f.write("new")
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert target.read_text() == "new"
+    assert sorted(os.listdir(tmp_path)) == ["link.txt", "real"] and os.listdir(tmp_path / "real") == ["out.txt"]
+
+
+def test_open_atomic_creates_the_target_of_a_dangling_symlink(tmp_path):
+    link = tmp_path / "link.txt"
+    link.symlink_to("target.txt")
+    with open_atomic(link) as f:
+        f.write("new")
+    assert link.is_symlink() and (tmp_path / "target.txt").read_text() == "new"
+
+
+def read_all(fd):
+    """Everything readable from `fd` (non-blocking) until its writers have closed it."""
+    chunks = []
+    while chunk := os.read(fd, 65536):
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def test_open_atomic_writes_a_fifo_in_place(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader: the writer's open does not block
+    try:
+        with open_atomic(fifo, "w", encoding="utf-8") as f:
+            f.write("through the pipe\n")
+        assert read_all(reader) == b"through the pipe\n"
+    finally:
+        os.close(reader)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert os.listdir(tmp_path) == ["pipe"]
+
+
+def test_open_atomic_writes_a_fifo_nothing_on_error(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="bad"):  # with no reader, opening the FIFO would block
+        with open_atomic(fifo) as f:
+            f.write("partial")
+            raise ValueError("bad")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and os.listdir(tmp_path) == ["pipe"]
+
+
+def test_open_atomic_writes_a_character_device_in_place(monkeypatch):
+    def no_replace(*args):
+        raise AssertionError(f"os.replace{args}")  # before the fix, /dev/null would have been replaced
+
+    monkeypatch.setattr(os, "replace", no_replace)
+    before = set(os.listdir("/dev"))
+    with open_atomic("/dev/null", "wb") as f:
+        f.write(b"gone")
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert set(os.listdir("/dev")) <= before  # no temporary file beside it
+
+
+def test_open_atomic_keeps_the_permissions_of_an_existing_file(tmp_path):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    path.chmod(0o640)
+    with open_atomic(path) as f:
+        f.write("new")
+    assert path.read_text() == "new"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="only root can give a file away")
+def test_open_atomic_keeps_the_owner_of_an_existing_file(tmp_path):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    os.chown(path, 12345, 23456)
+    path.chmod(0o4750)  # setuid survives the chown
+    with open_atomic(path) as f:
+        f.write("new")
+    st_ = path.stat()
+    assert (st_.st_uid, st_.st_gid, stat.S_IMODE(st_.st_mode)) == (12345, 23456, 0o4750)
+
+
+def test_open_atomic_refuses_a_read_only_file(tmp_path, monkeypatch):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    path.chmod(0o444)
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False)  # root may write anything: pretend
+    with pytest.raises(PermissionError) as info:
+        with open_atomic(path) as f:
+            f.write("new")
+    assert info.value.filename == str(path)
+    assert path.read_text() == "old" and os.listdir(tmp_path) == ["out.txt"]
+
+
+def test_open_atomic_refuses_a_directory_naming_it(tmp_path):
+    path = tmp_path / "dir"
+    path.mkdir()
+    with pytest.raises(IsADirectoryError) as info:
+        with open_atomic(path) as f:
+            f.write("new")
+    assert info.value.filename == str(path)
+    assert os.listdir(tmp_path) == ["dir"] and path.is_dir()
+
+
+def test_open_atomic_refuses_a_socket(tmp_path):
+    path = tmp_path / "sock"
+    with socket.socket(socket.AF_UNIX) as server:
+        server.bind(str(path))
+        with pytest.raises(ValueError, match=r"sock: a socket; gaussfuse writes to a regular file, a new path, "
+                                             r"a FIFO or a character device\."):
+            with open_atomic(path) as f:
+                f.write("new")
+        assert stat.S_ISSOCK(os.lstat(path).st_mode) and os.listdir(tmp_path) == ["sock"]
+
+
+def test_open_atomic_errors_name_the_path_never_the_temporary_file(tmp_path, monkeypatch):
+    def cross_device(src, dst):
+        raise OSError(errno.EXDEV, os.strerror(errno.EXDEV), src, dst)
+
+    monkeypatch.setattr(os, "replace", cross_device)
+    path = tmp_path / "out.txt"
+    with pytest.raises(OSError) as info:
+        with open_atomic(path) as f:
+            f.write("new")
+    assert (info.value.errno, info.value.filename, info.value.filename2) == (errno.EXDEV, str(path), None)
+    assert os.listdir(tmp_path) == []

@@ -74,10 +74,13 @@ starts with the file, then the line or field, e.g.
 from __future__ import annotations
 
 import csv
+import errno
+import io as stdio
 import math
 import os
 import re
 import secrets
+import stat
 import sys
 import tomllib
 from collections.abc import Iterator, Sequence
@@ -633,12 +636,24 @@ def _toml_string(text: str) -> str:
 
 @contextmanager
 def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
-    """Open a file for writing that appears at `path` only if the block succeeds.
+    """Open a file for writing, never destroying what is at `path`.
 
-    The data go to a hidden temporary file in the same directory, which
-    replaces `path` (``os.replace``) when the block ends without an
-    exception; on an exception it is removed and `path` is left untouched.
-    The file gets the usual permissions (``0o666`` less the umask).
+    What is written appears only if the block ends without an exception; how
+    depends on what `path` is:
+
+    * A regular file or a new path: the data go to a hidden temporary file in
+      the same directory, which then replaces the file (``os.replace``); on an
+      exception the temporary file is removed and the file is left as it was.
+      An existing file keeps its permission bits (and, where allowed, its
+      owner and group); one the user may not write is refused, as the shell
+      would refuse it. A new file gets ``0o666`` less the umask.
+    * A symbolic link: the same for the file it points to (created if the
+      link dangles); the link stays a link.
+    * A FIFO or a character device (a named pipe, a terminal, ``/dev/null``):
+      the data are kept in memory, then written to it, opened in place (the
+      open waits for a FIFO's reader, as the shell's ``>`` does).
+    * Anything else (a directory, a socket, a block device) is refused
+      before the block runs.
 
     Parameters
     ----------
@@ -648,19 +663,91 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
         Text or binary.
     **kwargs
         Passed to :func:`open` (e.g. ``newline=""``, ``encoding``).
+
+    Raises
+    ------
+    OSError
+        When `path` cannot be written: its directory is missing, it is a
+        directory, it may not be written... The error names `path`, never
+        the temporary file.
+    ValueError
+        When `path` is a socket or a block device, or for an unknown `mode`.
     """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"`mode` must be 'w' or 'wb'; got {mode!r}.")
     path = os.fspath(path)
-    directory, name = os.path.split(os.path.abspath(path))
+    try:
+        info = os.stat(path)  # of the file a symlink points to
+    except FileNotFoundError:
+        info = None
+    except OSError as exc:
+        raise _naming(exc, path) from None
+    if info is None or stat.S_ISREG(info.st_mode):
+        writer = _write_replacing(path, info, mode, kwargs)
+    elif stat.S_ISFIFO(info.st_mode) or stat.S_ISCHR(info.st_mode):
+        writer = _write_in_place(path, mode, kwargs)
+    elif stat.S_ISDIR(info.st_mode):
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
+    else:
+        kind = "a socket" if stat.S_ISSOCK(info.st_mode) else "a block device" if stat.S_ISBLK(
+            info.st_mode) else "not a regular file"
+        raise ValueError(f"{path}: {kind}; gaussfuse writes to a regular file, a new path, a FIFO or a "
+                         "character device.")
+    with writer as f:
+        yield f
+
+
+@contextmanager
+def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: dict) -> Iterator[IO]:
+    """Write a temporary file beside the file `path` names, then put it in that file's place."""
+    target = os.path.realpath(path)  # through symlinks: the link stays, its file is replaced
+    if info is not None and not os.access(target, os.W_OK):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+    directory, name = os.path.split(target)
     tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     except OSError as exc:
-        raise type(exc)(exc.errno, exc.strerror, path) from None
+        raise _naming(exc, path) from None
+    f = None
     try:
-        with open(fd, mode, **kwargs) as f:
-            yield f
-        os.replace(tmp, path)
-    except BaseException:
+        if info is not None:  # keep what the user had; chown first, as it clears set-user-ID bits
+            with suppress(OSError):  # only root may give a file away
+                os.fchown(fd, info.st_uid, info.st_gid)
+            os.fchmod(fd, stat.S_IMODE(info.st_mode))
+        f = open(fd, mode, **kwargs)
+        yield f
+        try:
+            f.close()
+            os.replace(tmp, target)
+        except OSError as exc:
+            raise _naming(exc, path) from None
+    except BaseException:  # includes KeyboardInterrupt and SIGTERM turned into an exception
+        if f is None:
+            os.close(fd)
+        else:
+            with suppress(OSError):
+                f.close()
         with suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+@contextmanager
+def _write_in_place(path: str, mode: str, kwargs: dict) -> Iterator[IO]:
+    """Collect the data in memory, then write them to the FIFO or device `path`, opened in place."""
+    buffer = stdio.BytesIO()
+    f = buffer if mode == "wb" else stdio.TextIOWrapper(buffer, **kwargs)
+    yield f
+    f.flush()
+    try:
+        fd = os.open(path, os.O_WRONLY | getattr(os, "O_BINARY", 0))  # never O_CREAT: if it went, create nothing
+        with open(fd, "wb") as out:
+            out.write(buffer.getvalue())
+    except OSError as exc:
+        raise _naming(exc, path) from None
+
+
+def _naming(exc: OSError, path: str) -> OSError:
+    """`exc` about `path`, as the user named it (not the temporary file, not the link's target)."""
+    return type(exc)(exc.errno, exc.strerror, path) if exc.errno is not None else exc
