@@ -359,6 +359,13 @@ def test_read_model_accepts_the_nesting_limit(tmp_path):
         read_model(path)
 
 
+def test_read_model_not_utf8_names_the_file(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_bytes(b"[model]\nkind = \"\xff\"\n")
+    with pytest.raises(InputFileError, match=r"m\.toml: not UTF-8 text: 'utf-8' codec can't decode byte 0xff"):
+        read_model(path)
+
+
 def test_read_model_rejects_a_file_over_the_size_limit(tmp_path):
     limit = gaussfuse.io.MAX_MODEL_BYTES
     path = tmp_path / "m.toml"

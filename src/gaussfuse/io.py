@@ -338,9 +338,9 @@ def read_model(path: StrPath) -> ModelFile:
     InputFileError
         For a TOML syntax error, an unknown table or key, a missing key, a
         control input ``B``, or a value that gaussfuse rejects; for a file
-        larger than :data:`MAX_MODEL_BYTES` or nested deeper than
-        :data:`MAX_NESTING`; the message names the file and the field,
-        followed by gaussfuse's own message.
+        that is not UTF-8, larger than :data:`MAX_MODEL_BYTES` or nested
+        deeper than :data:`MAX_NESTING`; the message names the file and the
+        field, followed by gaussfuse's own message.
     OSError
         When the file cannot be read.
     """
@@ -667,8 +667,8 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
     Raises
     ------
     OSError
-        When `path` cannot be written: its directory is missing, it is a
-        directory, it may not be written... The error names `path`, never
+        When `path` cannot be written (its directory is missing, it is a
+        directory, the user may not write it); the error names `path`, never
         the temporary file.
     ValueError
         When `path` is a socket or a block device, or for an unknown `mode`.
