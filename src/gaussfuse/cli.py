@@ -401,7 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="maximum iterations (default: 500 for em, 1000 for mle)")
     fit.add_argument("--tol", type=float, metavar="TOL", help="convergence tolerance (see gaussfuse.fit)")
     fit.add_argument("-o", "--out", metavar="FITTED.toml",
-                     help="write the fitted model to this file (default: standard output)")
+                     help="write the fitted model to this file (default: standard output); "
+                          "not DATA.csv or MODEL.toml")
     fit.set_defaults(run=_run_fit)
     return parser
 
