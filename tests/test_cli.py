@@ -1,9 +1,12 @@
 """Tests of the `gaussfuse` command: demo, filter, help, version and error handling."""
 
 import csv
+import errno
 import importlib.metadata
 import os
 import re
+import signal
+import stat
 import subprocess
 import sys
 import time
@@ -333,6 +336,9 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
          r"data\.csv: line 4: column `t`: times must be strictly increasing"),
         ("t,x,y\n1,2,3\n2,inf,4\n", GOOD_TOML, [], r"data\.csv: line 3: column `x`: 'inf' is not finite"),
         (GOOD_CSV, "[model]\nkind = \n", [], r"model\.toml: invalid TOML: .*\(at line 2, column \d+\)"),
+        (GOOD_CSV, "a = " + "[" * 5000 + "]" * 5000, [],
+         r"model\.toml: invalid TOML: tables and arrays nested more than 16 levels deep\.$"),
+        ("t,x,y\n1,2,\x003\n", GOOD_TOML, [], r"data\.csv: line 2: a NUL character: not a text file\.$"),
         (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0, 0]]\nQ = [[1, 0], [0, 1]]\nR = 1\n", [],
          r"model\.toml: \[model\] H: `H` must have shape"),
         (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0], [0, 1]]\nQ = [[1, 0], [0, -1]]\nR = 1\n",
@@ -354,6 +360,7 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
     ids=[
         "missing-data-file", "missing-model-file", "no-time-column", "wrong-column-count",
         "non-numeric-cell", "ragged-row", "non-increasing-time", "infinite-value", "toml-syntax",
+        "toml-nested-5000-deep", "nul-in-data",
         "wrong-matrix-shape", "non-psd-Q", "unknown-kind", "unknown-key", "unknown-table",
         "B-given", "prior-mean-size", "filter-fails", "plot-format", "plot-dir-missing",
     ],
@@ -500,3 +507,246 @@ def test_diffuse_prior_in_a_model_file(tmp_path, capsys):
     header, values = read_csv(out)
     assert code == 0 and header == ["t", "level", "std_level"]
     assert values[0, 1] == 1120.0 and values[0, 2] == pytest.approx(100.0)  # y_1, sqrt(R)
+
+
+def test_fit_writes_a_model_that_reads_back_whatever_the_names(tmp_path, capsys):
+    data = tmp_path / 'ni"le\n\\data\t.csv'  # a line break, a quote, a backslash and a tab
+    data.write_text((EXAMPLES / "data" / "nile.csv").read_text())
+    model = tmp_path / "model.toml"
+    model.write_text('[model]\nF = 1.0\nH = 1.0\nQ = 1000.0\nR = 10000.0\nstates = ["le\\nvel \\"\\\\ \\u0000"]\n'
+                     "[prior]\ndiffuse = true\n")
+    out = tmp_path / "fitted.toml"
+    code, stdout, err = run(capsys, "fit", data, "--model", model, "--iterations", "3", "--out", out)
+    assert (code, stdout) == (0, ""), err
+    fitted = gfio.read_model(out)
+    assert fitted.state_names == ['le\nvel "\\ \x00']
+    first = out.read_text(encoding="utf-8").splitlines()[0]
+    assert first.startswith('# fitted by gaussfuse') and 'ni"le\\n\\data\t.csv' in first
+
+
+# ---------------------------------------------------------------------------
+# outputs: never destroy a user's file
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture
+def inputs(tmp_path):
+    data = tmp_path / "data.csv"
+    data.write_text(GOOD_CSV)
+    model = tmp_path / "model.toml"
+    model.write_text(GOOD_TOML)
+    (tmp_path / "link.csv").symlink_to("data.csv")
+    return data, model
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["filter", "{data}", "-m", "{model}", "--out", "{data}"],
+         r"`--out` \S+/data\.csv is the same file as the data file \S+/data\.csv; choose another path\.$"),
+        (["filter", "{data}", "-m", "{model}", "--out", "{tmp}/./data.csv"], r"`--out` \S+/\./data\.csv is the "
+                                                                           r"same file as the data file"),
+        (["filter", "{data}", "-m", "{model}", "--out", "{tmp}/link.csv"], r"`--out` \S+/link\.csv is the same "
+                                                                         r"file as the data file"),
+        (["filter", "{tmp}/link.csv", "-m", "{model}", "--plot", "{data}"],
+         r"`--plot` \S+/data\.csv is the same file as the data file \S+/link\.csv"),
+        (["filter", "{data}", "-m", "{model}", "--out", "{model}"], r"`--out` \S+/model\.toml is the same file "
+                                                                  r"as the model file \S+/model\.toml"),
+        (["filter", "{data}", "-m", "{model}", "--out", "{tmp}/new.png", "--plot", "{tmp}/../{name}/new.png"],
+         r"`--plot` \S+/new\.png is the same file as `--out` \S+/new\.png; choose another path\.$"),
+        (["fit", "{data}", "-m", "{model}", "--out", "{model}"], r"`--out` \S+/model\.toml is the same file "
+                                                               r"as the model file"),
+        (["fit", "{data}", "-m", "{model}", "--out", "{tmp}/link.csv"], r"`--out` \S+/link\.csv is the same file "
+                                                                      r"as the data file"),
+    ],
+    ids=["filter-out-data", "filter-out-data-respelled", "filter-out-link-to-data", "filter-plot-data",
+         "filter-out-model", "filter-out-plot", "fit-out-model", "fit-out-data"],
+)
+def test_an_output_that_is_an_input_or_the_other_output_is_refused(tmp_path, capsys, inputs, argv, match):
+    before = {name: (tmp_path / name).read_bytes() for name in ("data.csv", "model.toml")}
+    argv = [a.format(data=inputs[0], model=inputs[1], tmp=tmp_path, name=tmp_path.name) for a in argv]
+    code, out, err = run(capsys, *argv)
+    assert (code, out) == (2, "")
+    assert_one_line_error(err, match)
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
+    assert sorted(os.listdir(tmp_path)) == ["data.csv", "link.csv", "model.toml"]
+    assert (tmp_path / "link.csv").is_symlink()
+
+
+def test_filter_writes_through_symlinks(tmp_path, capsys, inputs):
+    data, model = inputs
+    (tmp_path / "real").mkdir()
+    out, fig = tmp_path / "real" / "out.csv", tmp_path / "real" / "fig.png"
+    out.write_text("old")
+    (tmp_path / "out-link").symlink_to(out)
+    (tmp_path / "fig-link").symlink_to(fig)  # dangling: its file is created
+    code, stdout, err = run(capsys, "filter", data, "-m", model, "--out", tmp_path / "out-link",
+                            "--plot", tmp_path / "fig-link")
+    assert (code, stdout, err) == (0, "", "")
+    assert (tmp_path / "out-link").is_symlink() and (tmp_path / "fig-link").is_symlink()
+    assert out.read_text().startswith("t,x,y,vx,vy,") and fig.read_bytes()[:8] == PNG_SIGNATURE
+
+
+def test_filter_writes_a_fifo_in_place(tmp_path, capsys, inputs):
+    data, model = inputs
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader: the writer's open does not block
+    try:
+        code, stdout, err = run(capsys, "filter", data, "-m", model, "--out", fifo)
+        chunks = []
+        while chunk := os.read(reader, 65536):
+            chunks.append(chunk)
+    finally:
+        os.close(reader)
+    assert (code, stdout, err) == (0, "", "")
+    assert b"".join(chunks).decode().startswith("t,x,y,vx,vy,std_x")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_filter_writes_dev_null_in_place(capsys, inputs, monkeypatch):
+    def no_replace(*args):
+        raise AssertionError(f"os.replace{args}")  # before the fix, /dev/null would have been replaced
+
+    monkeypatch.setattr(os, "replace", no_replace)
+    data, model = inputs
+    code, stdout, err = run(capsys, "filter", data, "-m", model, "--out", "/dev/null", "--plot", "/dev/null")
+    assert (code, stdout, err) == (0, "", "")  # the same character device twice is no clash
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+
+def test_fit_keeps_the_permissions_of_the_file_it_replaces(tmp_path, capsys):
+    out = tmp_path / "fitted.toml"
+    out.write_text("old")
+    out.chmod(0o600)
+    code, stdout, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model",
+                            EXAMPLES / "models" / "local_level.toml", "--iterations", "2", "--out", out)
+    assert (code, stdout) == (0, ""), err
+    assert gfio.read_model(out).state_names == ["level"]
+    assert stat.S_IMODE(out.stat().st_mode) == 0o600
+
+
+def test_demo_writes_through_a_symlinked_figure(tmp_path, capsys):
+    (tmp_path / "elsewhere").mkdir()
+    target = tmp_path / "elsewhere" / "figure.png"
+    target.write_text("old")
+    target.chmod(0o640)
+    (tmp_path / "figs").mkdir()
+    (tmp_path / "figs" / "gaussfuse-demo.png").symlink_to(target)
+    code, out, err = run(capsys, "demo", "--out", tmp_path / "figs")
+    assert (code, err) == (0, "")
+    assert (tmp_path / "figs" / "gaussfuse-demo.png").is_symlink()
+    assert target.read_bytes()[:8] == PNG_SIGNATURE and stat.S_IMODE(target.stat().st_mode) == 0o640
+    assert f"figure: {tmp_path / 'figs' / 'gaussfuse-demo.png'}" in out
+
+
+# ---------------------------------------------------------------------------
+# signals and a closed standard output
+# ---------------------------------------------------------------------------
+
+
+def gaussfuse_process(*argv, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "gaussfuse", *map(str, argv)], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+def test_sigterm_exits_143_in_one_line_leaving_no_temporary_file(tmp_path, inputs):
+    data, model = inputs
+    figure = tmp_path / "fig.fifo"
+    os.mkfifo(figure)  # no reader: the process waits to open it, with the CSV in its temporary file
+    proc = gaussfuse_process("filter", data, "-m", model, "--out", tmp_path / "out.csv", "--plot", figure)
+    try:
+        while not any(name.startswith(".out.csv.") for name in os.listdir(tmp_path)):
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert (proc.returncode, stdout, stderr) == (143, "", "gaussfuse: terminated\n")
+    assert sorted(os.listdir(tmp_path)) == ["data.csv", "fig.fifo", "link.csv", "model.toml"]
+
+
+def test_sigterm_while_reading_a_fifo(tmp_path):
+    data = tmp_path / "data.fifo"
+    os.mkfifo(data)
+    proc = gaussfuse_process("fit", data, "-m", EXAMPLES / "models" / "local_level.toml",
+                             "--out", tmp_path / "fitted.toml")
+    writer = None
+    try:
+        while writer is None:  # until gaussfuse has opened the FIFO to read it
+            try:
+                writer = os.open(data, os.O_WRONLY | os.O_NONBLOCK)
+            except OSError as exc:
+                assert exc.errno == errno.ENXIO and proc.poll() is None, (exc, proc.communicate())
+                time.sleep(0.01)
+        os.write(writer, b"t,flow\n1871,1120\n")
+        proc.send_signal(signal.SIGTERM)  # the data never end
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        if writer is not None:
+            os.close(writer)
+    assert (proc.returncode, stdout, stderr) == (143, "", "gaussfuse: terminated\n")
+    assert os.listdir(tmp_path) == ["data.fifo"]
+
+
+def test_sigterm_during_fit_writes_the_best_model_so_far(tmp_path, capsys, monkeypatch):
+    real_fit = gf.learning.fit
+
+    def terminated_fit(*args, callback=None, **kwargs):
+        def stop(iteration, loglik):
+            callback(iteration, loglik)
+            if iteration == 2:
+                os.kill(os.getpid(), signal.SIGTERM)  # handled at once, in this thread
+        return real_fit(*args, callback=stop, **kwargs)
+
+    monkeypatch.setattr(gf.learning, "fit", terminated_fit)
+    out = tmp_path / "fitted.toml"
+
+    def unhandled(signum, frame):  # instead of killing pytest, if main does not handle SIGTERM
+        raise AssertionError("main did not handle SIGTERM")
+
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        code, stdout, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model",
+                                EXAMPLES / "models" / "local_level.toml", "--out", out)
+        assert signal.getsignal(signal.SIGTERM) is unhandled  # main restores the handler it replaced
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert (code, stdout) == (143, "")
+    assert err.count("\n") == 1 and "interrupted: the best model so far" in err and f"wrote {out}" in err
+    assert gfio.read_model(out).model.Q[0, 0] != 1000.0
+
+
+def test_a_closed_pipe_on_stdout_exits_141_quietly(inputs):
+    data, model = inputs
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # as `| head -0` does
+    try:
+        proc = subprocess.run([sys.executable, "-m", "gaussfuse", "filter", str(data), "-m", str(model)],
+                              stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(write_end)
+    assert (proc.returncode, proc.stderr) == (141, "")
+
+
+def test_a_closed_stdout_is_one_line_error(tmp_path, inputs):
+    data, model = inputs
+    shell = 'exec "$@" >&-'  # start gaussfuse with no standard output at all
+    proc = subprocess.run(["sh", "-c", shell, "sh", sys.executable, "-m", "gaussfuse", "filter", str(data),
+                           "-m", str(model)], capture_output=True, text=True, timeout=60)
+    assert (proc.returncode, proc.stderr) == (2, "gaussfuse: error: standard output is closed; "
+                                                 "name an output file with `--out`.\n")
+    proc = subprocess.run(["sh", "-c", shell, "sh", sys.executable, "-m", "gaussfuse", "filter", str(data),
+                           "-m", str(model), "--out", str(tmp_path / "out.csv")], capture_output=True,
+                          text=True, timeout=60)
+    assert (proc.returncode, proc.stderr) == (0, "")
+    assert (tmp_path / "out.csv").read_text().startswith("t,x,y")
+
+
+def test_help_lists_the_exit_statuses(capsys):
+    code, out, err = run(capsys, "--help")
+    assert code == 0
+    statuses = re.findall(r"^  (\d+) +\S", out.split("exit status:")[1], re.M)
+    assert statuses == ["0", "2", "130", "141", "143"]

@@ -1,9 +1,13 @@
 """Tests of gaussfuse.io: measurement CSV, model TOML, estimates CSV, atomic writes."""
 
 import doctest
+import errno
 import io as stdio
 import os
+import socket
 import stat
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -322,3 +326,349 @@ def test_open_atomic_missing_directory_names_the_target(tmp_path):
 def test_docstring_examples():
     result = doctest.testmod(gaussfuse.io, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+# ---------------------------------------------------------------------------
+# Pathological input files: bounded memory, one-line errors
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "a = " + "[" * 5000 + "]" * 5000 + "\n",                            # arrays, 5000 deep
+        "a = " + "{b = " * 5000 + "1" + "}" * 5000 + "\n",                   # inline tables
+        "[model]\nF = " + "[" * 490 + "1.0" + "]" * 490 + "\nH = 1\nQ = 1\nR = 1\n",  # parses, then recursed
+        "[model]\nF = " + "[" * 17 + "1.0" + "]" * 17 + "\nH = 1\nQ = 1\nR = 1\n",    # just over the limit
+        "[prior]\na" + ".b" * 40 + " = 1\n",                                # dotted keys
+    ],
+    ids=["arrays-5000", "inline-tables-5000", "arrays-490", "arrays-17", "dotted-keys-40"],
+)
+def test_read_model_rejects_deep_nesting_in_one_line(tmp_path, text):
+    path = write(tmp_path / "m.toml", text)
+    with pytest.raises(InputFileError, match=r"m\.toml: invalid TOML: tables and arrays nested more than "
+                                             r"16 levels deep") as info:
+        read_model(path)
+    assert "\n" not in str(info.value)
+
+
+def test_read_model_accepts_the_nesting_limit(tmp_path):
+    # 15 arrays inside [model] make 16 levels: not rejected for its depth (but not a matrix either)
+    path = write(tmp_path / "m.toml", "[model]\nF = " + "[" * 15 + "1.0" + "]" * 15 + "\nH = 1\nQ = 1\nR = 1\n")
+    with pytest.raises(InputFileError, match=r"\[model\] F: `F` must have shape"):
+        read_model(path)
+
+
+def test_read_model_not_utf8_names_the_file(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_bytes(b"[model]\nkind = \"\xff\"\n")
+    with pytest.raises(InputFileError, match=r"m\.toml: not UTF-8 text: 'utf-8' codec can't decode byte 0xff"):
+        read_model(path)
+
+
+def test_read_model_rejects_a_file_over_the_size_limit(tmp_path):
+    limit = gaussfuse.io.MAX_MODEL_BYTES
+    path = tmp_path / "m.toml"
+    path.write_bytes(NAMED.encode() + b"#" * (limit - len(NAMED)))  # exactly the limit: read
+    assert read_model(path).model.n == 2
+    with open(path, "ab") as f:
+        f.write(b"#")
+    with pytest.raises(InputFileError, match=rf"m\.toml: larger than {limit} bytes; not a model file\."):
+        read_model(path)
+
+
+def test_read_measurements_rejects_a_nul_character(tmp_path):
+    path = tmp_path / "data.csv"
+    path.write_bytes(b"t,x\n1,2\n2,\x003\n")
+    with pytest.raises(InputFileError, match=r"data\.csv: line 3: a NUL character: not a text file\.") as info:
+        read_measurements(path)
+    assert info.value.line == 3
+
+
+def test_read_measurements_rejects_an_overlong_line(tmp_path):
+    limit = gaussfuse.io.MAX_LINE_CHARS
+    path = tmp_path / "data.csv"
+    path.write_text("t,x\n1,2\n" + "1," * (limit // 2 + 1) + "\n")
+    with pytest.raises(InputFileError, match=rf"data\.csv: line 3: longer than {limit} characters\.$") as info:
+        read_measurements(path)
+    assert info.value.line == 3
+
+
+def test_read_measurements_line_limit_excludes_the_line_ending(tmp_path, monkeypatch):
+    monkeypatch.setattr(gaussfuse.io, "MAX_LINE_CHARS", 8)
+    path = tmp_path / "data.csv"
+    path.write_text("t,x\r\n1,2.5e-6\r\n2,2.5e-6\n3,2.5e-6", newline="")  # 8 characters each
+    np.testing.assert_array_equal(read_measurements(path).zs, [[2.5e-6]] * 3)
+    path.write_text("t,x\n1,2.5e-6\n2,2.5e-06\n", newline="")
+    with pytest.raises(InputFileError, match=r"data\.csv: line 3: longer than 8 characters\.$"):
+        read_measurements(path)
+
+
+ENDLESS = """\
+import resource, sys
+import gaussfuse.io
+from gaussfuse.cli import main
+with open("/proc/self/status") as f:
+    vm = next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmSize:"))
+limit = vm + 512 * 2**20  # what the process has, plus 512 MiB
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+for read in (gaussfuse.io.read_model, gaussfuse.io.read_measurements):
+    try:
+        read("/dev/zero")
+    except gaussfuse.io.InputFileError as exc:
+        print(exc)
+sys.exit(main(["filter", "/dev/zero", "--model", sys.argv[1]]))
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/zero") or sys.platform != "linux", reason="needs Linux /dev/zero")
+def test_endless_files_fail_fast_in_bounded_memory(tmp_path):
+    model = write(tmp_path / "m.toml", NAMED)
+    proc = subprocess.run([sys.executable, "-c", ENDLESS, str(model)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.stdout.splitlines() == [
+        f"/dev/zero: larger than {gaussfuse.io.MAX_MODEL_BYTES} bytes; not a model file.",
+        "/dev/zero: line 1: a NUL character: not a text file.",
+    ], proc.stderr
+    assert (proc.returncode, proc.stderr) == (2, "gaussfuse: error: /dev/zero: line 1: a NUL character: "
+                                                 "not a text file.\n")
+
+
+# ---------------------------------------------------------------------------
+# write_model: every file written reads back to the same model
+# ---------------------------------------------------------------------------
+
+from hypothesis import HealthCheck, assume, given, settings, strategies as st  # noqa: E402
+
+finite = st.floats(allow_nan=False, allow_infinity=False)  # with -0.0, subnormals and ±1.8e308
+nonnegative = st.floats(min_value=0.0, max_value=1e300)  # validation symmetrises: (Q + Qᵀ) / 2 must not overflow
+# any text: newlines, quotes, backslashes, control characters, all of Unicode but surrogates
+names_of = st.text(min_size=1, max_size=12)
+
+
+def psd(draw, n):
+    """A covariance that LinearModel/Gaussian may accept: diagonal, or B Bᵀ scaled by a power of 2."""
+    if draw(st.booleans()):
+        return np.diag(draw(st.lists(nonnegative, min_size=n, max_size=n)))
+    B = np.array(draw(st.lists(st.floats(-1e3, 1e3), min_size=n * n, max_size=n * n))).reshape(n, n)
+    return (B @ B.T) * 2.0 ** draw(st.integers(-1000, 960))
+
+
+@st.composite
+def model_files(draw):
+    n, m = draw(st.integers(1, 3)), draw(st.integers(1, 2))
+
+    def matrix(rows, cols):
+        return np.array(draw(st.lists(finite, min_size=rows * cols, max_size=rows * cols))).reshape(rows, cols)
+
+    try:
+        model = gf.LinearModel(matrix(n, n), matrix(m, n), psd(draw, n), psd(draw, m))
+        prior = "diffuse" if draw(st.booleans()) else gf.Gaussian(matrix(n, 1)[:, 0], psd(draw, n))
+    except ValueError:  # e.g. B Bᵀ overflowed, or rounding made it slightly indefinite
+        assume(False)
+    names = draw(st.lists(names_of, min_size=n, max_size=n, unique=True))
+    comments = draw(st.lists(st.text(), max_size=3))
+    return model, prior, names, comments
+
+
+def same_bits(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(model_files())
+def test_write_model_reads_back_bit_for_bit(tmp_path_factory, case):
+    model, prior, names, comments = case
+    path = tmp_path_factory.mktemp("model") / "m.toml"
+    with open(path, "w", encoding="utf-8") as f:
+        gaussfuse.io.write_model(f, model, prior, names, comments)
+    back = read_model(path)
+    assert back.state_names == names
+    for name in ("F", "H", "Q", "R"):
+        assert same_bits(getattr(back.model, name), getattr(model, name)), name
+    if prior == "diffuse":
+        assert back.prior == "diffuse"
+    else:
+        assert same_bits(back.prior.mean, prior.mean) and same_bits(back.prior.cov, prior.cov)
+    lines = path.read_text(encoding="utf-8").split("\n")
+    assert [line.startswith("# ") for line in lines[:len(comments) + 1]] == [True] * len(comments) + [False]
+
+
+@pytest.mark.parametrize(
+    "names, comments",
+    [
+        (['a\nb'], []),
+        (['"quoted"\\'], []),
+        (['\x00\x1f\x7f\r\t\b\f'], []),
+        (['ok'], ["gaussfuse fit da\nta.csv", "carriage\rreturn", "nul\x00 and del\x7f"]),
+    ],
+    ids=["newline", "quote-backslash", "control-characters", "comments"],
+)
+def test_write_model_escapes_what_toml_cannot_hold_raw(tmp_path, names, comments):
+    model = gf.LinearModel(1.0, 1.0, 0.5, 2.0)
+    path = tmp_path / "m.toml"
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        gaussfuse.io.write_model(f, model, gf.Gaussian([-0.0], [[1e-310]]), names, comments)
+    back = read_model(path)
+    assert back.state_names == names
+    assert same_bits(back.prior.mean, [-0.0]) and same_bits(back.prior.cov, [[1e-310]])
+    lines = path.read_text(encoding="utf-8").split("\n")
+    assert len(lines) == len(comments) + 11  # [model], F, H, Q, R, states, "", [prior], mean, cov, ""
+    assert all(line.startswith("# ") for line in lines[:len(comments)])
+
+
+@pytest.mark.parametrize(
+    "names, match",
+    [
+        (["a"], r"`names` must be 2 distinct non-empty strings, one per state; got \['a'\]"),
+        (["a", "a"], r"`names` must be 2 distinct non-empty strings"),
+        (["a", ""], r"`names` must be 2 distinct non-empty strings"),
+        (["a", 1], r"`names` must be 2 distinct non-empty strings"),
+        (["a", "\udcff"], r"`names` must be Unicode text"),
+    ],
+)
+def test_write_model_rejects_names_that_would_not_read_back(names, match):
+    model = gf.LinearModel(np.eye(2), [[1.0, 0.0]], np.eye(2), 1.0)
+    out = stdio.StringIO()
+    with pytest.raises(ValueError, match=match):
+        gaussfuse.io.write_model(out, model, "diffuse", names)
+    assert out.getvalue() == ""
+
+
+# ---------------------------------------------------------------------------
+# open_atomic never destroys what is at the path
+# ---------------------------------------------------------------------------
+
+
+def test_open_atomic_writes_through_a_symlink(tmp_path):
+    (tmp_path / "real").mkdir()
+    target = tmp_path / "real" / "out.txt"
+    target.write_text("old")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    with open_atomic(link) as f:
+        f.write("new")
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert target.read_text() == "new"
+    assert sorted(os.listdir(tmp_path)) == ["link.txt", "real"] and os.listdir(tmp_path / "real") == ["out.txt"]
+
+
+def test_open_atomic_creates_the_target_of_a_dangling_symlink(tmp_path):
+    link = tmp_path / "link.txt"
+    link.symlink_to("target.txt")
+    with open_atomic(link) as f:
+        f.write("new")
+    assert link.is_symlink() and (tmp_path / "target.txt").read_text() == "new"
+
+
+def read_all(fd):
+    """Everything readable from `fd` (non-blocking) until its writers have closed it."""
+    chunks = []
+    while chunk := os.read(fd, 65536):
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def test_open_atomic_writes_a_fifo_in_place(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader: the writer's open does not block
+    try:
+        with open_atomic(fifo, "w", encoding="utf-8") as f:
+            f.write("through the pipe\n")
+        assert read_all(reader) == b"through the pipe\n"
+    finally:
+        os.close(reader)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert os.listdir(tmp_path) == ["pipe"]
+
+
+def test_open_atomic_writes_a_fifo_nothing_on_error(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="bad"):  # with no reader, opening the FIFO would block
+        with open_atomic(fifo) as f:
+            f.write("partial")
+            raise ValueError("bad")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and os.listdir(tmp_path) == ["pipe"]
+
+
+def test_open_atomic_writes_a_character_device_in_place(monkeypatch):
+    def no_replace(*args):
+        raise AssertionError(f"os.replace{args}")  # before the fix, /dev/null would have been replaced
+
+    monkeypatch.setattr(os, "replace", no_replace)
+    before = set(os.listdir("/dev"))
+    with open_atomic("/dev/null", "wb") as f:
+        f.write(b"gone")
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert set(os.listdir("/dev")) <= before  # no temporary file beside it
+
+
+def test_open_atomic_keeps_the_permissions_of_an_existing_file(tmp_path):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    path.chmod(0o640)
+    with open_atomic(path) as f:
+        f.write("new")
+    assert path.read_text() == "new"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="only root can give a file away")
+def test_open_atomic_keeps_the_owner_of_an_existing_file(tmp_path):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    os.chown(path, 12345, 23456)
+    path.chmod(0o4750)  # setuid survives the chown
+    with open_atomic(path) as f:
+        f.write("new")
+    st_ = path.stat()
+    assert (st_.st_uid, st_.st_gid, stat.S_IMODE(st_.st_mode)) == (12345, 23456, 0o4750)
+
+
+def test_open_atomic_refuses_a_read_only_file(tmp_path, monkeypatch):
+    path = tmp_path / "out.txt"
+    path.write_text("old")
+    path.chmod(0o444)
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False)  # root may write anything: pretend
+    with pytest.raises(PermissionError) as info:
+        with open_atomic(path) as f:
+            f.write("new")
+    assert info.value.filename == str(path)
+    assert path.read_text() == "old" and os.listdir(tmp_path) == ["out.txt"]
+
+
+def test_open_atomic_refuses_a_directory_naming_it(tmp_path):
+    path = tmp_path / "dir"
+    path.mkdir()
+    with pytest.raises(IsADirectoryError) as info:
+        with open_atomic(path) as f:
+            f.write("new")
+    assert info.value.filename == str(path)
+    assert os.listdir(tmp_path) == ["dir"] and path.is_dir()
+
+
+def test_open_atomic_refuses_a_socket(tmp_path):
+    path = tmp_path / "sock"
+    with socket.socket(socket.AF_UNIX) as server:
+        server.bind(str(path))
+        with pytest.raises(ValueError, match=r"sock: a socket; gaussfuse writes to a regular file, a new path, "
+                                             r"a FIFO or a character device\."):
+            with open_atomic(path) as f:
+                f.write("new")
+        assert stat.S_ISSOCK(os.lstat(path).st_mode) and os.listdir(tmp_path) == ["sock"]
+
+
+def test_open_atomic_errors_name_the_path_never_the_temporary_file(tmp_path, monkeypatch):
+    def cross_device(src, dst):
+        raise OSError(errno.EXDEV, os.strerror(errno.EXDEV), src, dst)
+
+    monkeypatch.setattr(os, "replace", cross_device)
+    path = tmp_path / "out.txt"
+    with pytest.raises(OSError) as info:
+        with open_atomic(path) as f:
+            f.write("new")
+    assert (info.value.errno, info.value.filename, info.value.filename2) == (errno.EXDEV, str(path), None)
+    assert os.listdir(tmp_path) == []

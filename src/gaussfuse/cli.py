@@ -1,17 +1,24 @@
-"""The ``gaussfuse`` command: ``gaussfuse demo`` and ``gaussfuse filter``.
+"""The ``gaussfuse`` command: ``gaussfuse demo``, ``gaussfuse filter`` and ``gaussfuse fit``.
 
 The work is done by :mod:`gaussfuse.io`, the filters and
 :mod:`gaussfuse.plotting`; this module parses arguments, prints, and turns a
 bad-input error into one line ``gaussfuse: error: <message>`` on stderr and
-exit status 2.
+exit status 2. Outputs are written with :func:`gaussfuse.io.open_atomic`, so
+that no user's file is ever destroyed; an output that is the same file as an
+input, or as another output, is refused before any work. SIGTERM stops the
+program as Ctrl-C does (exit status 143 instead of 130), and a standard
+output closed early (``| head``) ends it quietly with status 141.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
+import stat
 import sys
-from contextlib import nullcontext
+import threading
+from contextlib import nullcontext, suppress
 from io import StringIO
 from typing import NamedTuple
 
@@ -56,7 +63,26 @@ the time column only labels the rows. A control input (B) is not supported
 yet.
 
 Output CSV: the time column, the state means, then std_<state> for each
-state, written with full float precision."""
+state, written with full float precision.
+
+Limits, so that a wrong file fails at once: DATA.csv must be text (no NUL
+character) with lines of at most 1 Mi characters; MODEL.toml at most 8 MiB,
+its tables and arrays nested at most 16 levels deep."""
+
+_OUTPUTS = """\
+Output files are written whole or not at all: an existing file is replaced
+only once the output is complete, keeping its permissions; a symlink is
+written through to its file and stays a link; a FIFO or a character device
+(/dev/null, a terminal) is written in place. An output that is the same file
+as an input, or as another output, is refused (exit status 2)."""
+
+_EXIT_STATUSES = """\
+exit status:
+  0    success
+  2    bad arguments or bad input; one line `gaussfuse: error: ...` on stderr
+  130  interrupted by Ctrl-C (`fit` first writes the best model so far)
+  141  standard output closed early, e.g. by `| head`
+  143  terminated by SIGTERM, as by Ctrl-C"""
 
 
 # ---------------------------------------------------------------------------
@@ -173,6 +199,7 @@ def _run_demo(args: argparse.Namespace) -> int:
 
 
 def _run_filter(args: argparse.Namespace) -> int:
+    _check_paths(args, {"--out": args.out, "--plot": args.plot})
     spec = gfio.read_model(args.model)
     data = gfio.read_measurements(args.data, m=spec.model.m)
     run = inference.smooth if args.smooth else inference.filter
@@ -189,6 +216,35 @@ def _run_filter(args: argparse.Namespace) -> int:
     if not args.out:
         sys.stdout.write(out.getvalue())
     return 0
+
+
+def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
+    """Refuse, before any work, outputs that would destroy an input or each other.
+
+    Also refuses to write to a closed standard output, which would lose the
+    results of the work.
+    """
+    if not outputs["--out"] and sys.stdout is None:
+        raise ValueError("standard output is closed; name an output file with `--out`.")
+    earlier = [("the data file", args.data), ("the model file", args.model)]
+    for option, path in outputs.items():
+        if path is None:
+            continue
+        for what, other in earlier:
+            if _same_file(path, other):
+                raise ValueError(f"`{option}` {path} is the same file as {what} {other}; choose another path.")
+        earlier.append((f"`{option}`", path))
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether paths `a` and `b` name one file that writing one would clobber.
+
+    A character device such as /dev/null may be named twice.
+    """
+    try:
+        return os.path.samefile(a, b) and not stat.S_ISCHR(os.stat(a).st_mode)
+    except OSError:  # one does not exist (yet): the same file only if the same path
+        return os.path.realpath(a) == os.path.realpath(b)
 
 
 # ---------------------------------------------------------------------------
@@ -239,6 +295,7 @@ class _Progress:
 
 
 def _run_fit(args: argparse.Namespace) -> int:
+    _check_paths(args, {"--out": args.out})
     spec = gfio.read_model(args.model)
     data = gfio.read_measurements(args.data, m=spec.model.m)
     learn = _names(args.learn, "--learn", learning.LEARNABLE)
@@ -277,6 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Kalman filtering and smoothing of measurement files.",
         epilog="examples:\n  gaussfuse demo --out figures\n"
                "  gaussfuse filter track.csv --model cv2d.toml --smooth --out track-smoothed.csv\n\n"
+               f"{_EXIT_STATUSES}\n\n"
                "Run `gaussfuse COMMAND --help` for the details of a command.",
         formatter_class=raw,
     )
@@ -299,7 +357,8 @@ def build_parser() -> argparse.ArgumentParser:
     filt = commands.add_parser(
         "filter", help="filter (or smooth) a CSV file of measurements with a TOML model",
         description="Filter (or, with --smooth, smooth) the measurements in DATA.csv with the\n"
-                    "model in MODEL.toml and write the state estimates as CSV.\n\n" + _FORMATS,
+                    "model in MODEL.toml and write the state estimates as CSV.\n\n" + _FORMATS
+                    + "\n\n" + _OUTPUTS,
         epilog="example:\n  gaussfuse filter track.csv --model cv2d.toml --smooth "
                "--out track-smoothed.csv --plot track.png",
         formatter_class=raw,
@@ -309,7 +368,8 @@ def build_parser() -> argparse.ArgumentParser:
     filt.add_argument("--smooth", action="store_true",
                       help="write smoothed estimates (RTS smoother) instead of filtered ones")
     filt.add_argument("-o", "--out", metavar="OUT.csv",
-                      help="write the estimates to this file (default: standard output)")
+                      help="write the estimates to this file (default: standard output); "
+                           "not DATA.csv, MODEL.toml or FIG.png")
     filt.add_argument("--plot", metavar="FIG.png",
                       help="also draw measurements against the estimates with ±2σ bands "
                            "(needs matplotlib)")
@@ -321,7 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "from the measurements in DATA.csv, starting from MODEL.toml, by EM or by\n"
                     "maximum likelihood, and write the fitted model as a TOML model file.\n"
                     "A prior `diffuse = true` in MODEL.toml is handled exactly. Ctrl-C stops the\n"
-                    "fit and writes the best model so far (exit status 130).\n\n" + _FORMATS,
+                    "fit and writes the best model so far (exit status 130; 143 for SIGTERM).\n\n"
+                    + _FORMATS + "\n\n" + _OUTPUTS,
         epilog="example:\n  gaussfuse fit examples/data/nile.csv --model examples/models/local_level.toml "
                "--learn Q,R --method mle --out nile-fitted.toml",
         formatter_class=raw,
@@ -340,9 +401,14 @@ def build_parser() -> argparse.ArgumentParser:
                      help="maximum iterations (default: 500 for em, 1000 for mle)")
     fit.add_argument("--tol", type=float, metavar="TOL", help="convergence tolerance (see gaussfuse.fit)")
     fit.add_argument("-o", "--out", metavar="FITTED.toml",
-                     help="write the fitted model to this file (default: standard output)")
+                     help="write the fitted model to this file (default: standard output); "
+                          "not DATA.csv or MODEL.toml")
     fit.set_defaults(run=_run_fit)
     return parser
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is, so that it stops as it does on Ctrl-C."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -357,20 +423,57 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         Exit status: 0 on success, 2 for bad arguments or bad input (after
-        printing one line ``gaussfuse: error: <message>`` to stderr).
+        printing one line ``gaussfuse: error: <message>`` to stderr), 130 on
+        Ctrl-C, 141 when standard output was closed early (a broken pipe),
+        143 on SIGTERM.
+
+    Notes
+    -----
+    While it runs (in the main thread), SIGTERM raises a
+    :class:`KeyboardInterrupt`, so that it stops the work as Ctrl-C does:
+    temporary files are removed and ``fit`` writes the best model so far.
     """
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else 2
+    terminated = []
+
+    def on_sigterm(signum, frame):
+        terminated.append(signum)
+        raise _Terminated
+
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, on_sigterm) if in_main_thread else None
     try:
-        return args.run(args)
+        code = args.run(args)
+        if sys.stdout is not None:
+            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return 143 if code == 130 and terminated else code
+    except BrokenPipeError as exc:
+        if exc.filename is not None:  # a FIFO given as an output, not standard output
+            print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
+            return 2
+        _silence_stdout()
+        return 141
     except (ValueError, TypeError, OSError) as exc:  # includes InputFileError and LinAlgError
         print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("gaussfuse: interrupted", file=sys.stderr)
-        return 130
+        print(f"gaussfuse: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+        return 143 if terminated else 130
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _silence_stdout() -> None:
+    """Point standard output at the null device, so that Python's final flush cannot fail again."""
+    with suppress(AttributeError, ValueError, OSError):  # e.g. a test's capture, which has no descriptor
+        fd = sys.stdout.fileno()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
 
 
 def _message(exc: Exception) -> str:

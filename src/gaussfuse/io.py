@@ -54,6 +54,18 @@ The time column, the state means (one column per state name), then
 ``std_<name>`` for each state; floats are written with ``repr`` so they read
 back exactly.
 
+Limits
+------
+So that a file that is not what it should be (``/dev/zero``, a binary file,
+a generated file gone wrong) fails at once in bounded memory:
+
+* a measurement file must be text: a NUL character is an error, and so is a
+  line longer than :data:`MAX_LINE_CHARS` (1 Mi characters, enough for some
+  40 000 columns);
+* a model file may be at most :data:`MAX_MODEL_BYTES` (8 MiB, enough for
+  explicit matrices of a few hundred states), and its tables and arrays may
+  be nested at most :data:`MAX_NESTING` (16) levels deep; a model needs 4.
+
 Every error about a file's content is an :class:`InputFileError` whose message
 starts with the file, then the line or field, e.g.
 ``model.toml: [model] Q: `Q` must be positive semi-definite; ...``.
@@ -62,10 +74,13 @@ starts with the file, then the line or field, e.g.
 from __future__ import annotations
 
 import csv
+import errno
+import io as stdio
 import math
 import os
 import re
 import secrets
+import stat
 import sys
 import tomllib
 from collections.abc import Iterator, Sequence
@@ -89,10 +104,22 @@ __all__ = [
     "write_model",
     "open_atomic",
     "DEFAULT_PRIOR_VAR",
+    "MAX_LINE_CHARS",
+    "MAX_MODEL_BYTES",
+    "MAX_NESTING",
 ]
 
 DEFAULT_PRIOR_VAR = 1e6
 """Variance of each state in the default prior ``N(0, 1e6 I)``."""
+
+MAX_LINE_CHARS = 2**20
+"""Longest line of a measurement file, in characters (the line ending not counted)."""
+
+MAX_MODEL_BYTES = 8 * 2**20
+"""Largest model file, in bytes."""
+
+MAX_NESTING = 16
+"""Deepest nesting of tables and arrays in a model file (``[model]`` and ``F = [[1.0]]`` make 3)."""
 
 TIME_COLUMNS = ("t", "time")
 
@@ -179,13 +206,15 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
     InputFileError
         For a missing or repeated time column, a wrong number of columns or
         cells, a cell that is not a number, an infinite value, a missing or
-        non-increasing time, or no data rows; the message names the file and
-        the line and column.
+        non-increasing time, or no data rows; for a file that is not text (a
+        NUL character, bytes that are not UTF-8, a line longer than
+        :data:`MAX_LINE_CHARS`); the message names the file and the line and
+        column.
     OSError
         When the file cannot be read.
     """
     with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f, strict=True)
+        reader = csv.reader(_text_lines(path, f), strict=True)
         try:
             header = [name.strip() for name in next(reader, [])]
             time_col = _time_column(path, header)
@@ -219,6 +248,16 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
             line=lines[k], field=f"column `{names[0]}`",
         )
     return Measurements(times, zs, names)
+
+
+def _text_lines(path, f: IO[str]) -> Iterator[str]:
+    """The lines of `f`, each read in bounded memory and checked to be text."""
+    for number, line in enumerate(iter(lambda: f.readline(MAX_LINE_CHARS + 2), ""), start=1):
+        if "\0" in line:
+            raise InputFileError(path, "a NUL character: not a text file.", line=number)
+        if len(line.rstrip("\r\n")) > MAX_LINE_CHARS:
+            raise InputFileError(path, f"longer than {MAX_LINE_CHARS} characters.", line=number)
+        yield line
 
 
 def _time_column(path, header: list[str]) -> int:
@@ -298,16 +337,28 @@ def read_model(path: StrPath) -> ModelFile:
     ------
     InputFileError
         For a TOML syntax error, an unknown table or key, a missing key, a
-        control input ``B``, or a value that gaussfuse rejects; the message
-        names the file and the field, followed by gaussfuse's own message.
+        control input ``B``, or a value that gaussfuse rejects; for a file
+        that is not UTF-8, larger than :data:`MAX_MODEL_BYTES` or nested
+        deeper than :data:`MAX_NESTING`; the message names the file and the
+        field, followed by gaussfuse's own message.
     OSError
         When the file cannot be read.
     """
     with open(path, "rb") as f:
-        try:
-            doc = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputFileError(path, f"invalid TOML: {exc}") from None
+        data = f.read(MAX_MODEL_BYTES + 1)
+    if len(data) > MAX_MODEL_BYTES:
+        raise InputFileError(path, f"larger than {MAX_MODEL_BYTES} bytes; not a model file.")
+    too_deep = f"invalid TOML: tables and arrays nested more than {MAX_NESTING} levels deep."
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputFileError(path, f"not UTF-8 text: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputFileError(path, f"invalid TOML: {exc}") from None
+    except RecursionError:  # tomllib recurses once per level: no other way to stop it
+        raise InputFileError(path, too_deep) from None
+    if _depth(doc) > MAX_NESTING:
+        raise InputFileError(path, too_deep)
     _check_keys(path, None, doc, _TABLES)
     table = _table(path, doc, "model")
     if table is None:
@@ -319,6 +370,17 @@ def read_model(path: StrPath) -> ModelFile:
     names = _state_names(path, table.get("states"), names)
     prior = _prior(path, _table(path, doc, "prior") or {}, model.n)
     return ModelFile(model, prior, names)
+
+
+def _depth(doc: dict) -> int:
+    """How deep tables and arrays are nested in `doc` (the document itself is level 0)."""
+    deepest, todo = 0, [(doc, 0)]
+    while todo:
+        value, level = todo.pop()
+        deepest = max(deepest, level)
+        children = value.values() if isinstance(value, dict) else value
+        todo.extend((child, level + 1) for child in children if isinstance(child, (dict, list)))
+    return deepest
 
 
 def _table(path, doc: dict, name: str) -> dict | None:
@@ -507,14 +569,37 @@ def write_model(out: IO[str], model: LinearModel, prior: Gaussian | str, names: 
         A time-invariant model without control input.
     prior : Gaussian or "diffuse"
     names : sequence of str
-        State names.
+        State names: ``model.n`` distinct, non-empty strings. Any Unicode
+        text is written escaped as TOML needs it (quotes, backslashes, line
+        breaks and other control characters).
     comments : sequence of str
-        Lines written first, as TOML comments.
+        Lines written first, as TOML comments; a control character in one
+        (a line break, say) is written as its escape, ``\\n``, so that each
+        stays one comment line.
+
+    Raises
+    ------
+    ValueError
+        If the model is time-varying or has a control input, or if `names`
+        would not read back (wrong number, repeated or empty names, or
+        surrogate code points, which are not Unicode text).
+
+    Notes
+    -----
+    Floats are written with ``repr``, which reads back to the same float64,
+    including ``-0.0`` and subnormal numbers.
     """
     if model.steps is not None or model.B is not None:
         raise ValueError("only a time-invariant model without control input can be written as a model file.")
+    names = list(names)
+    if (len(names) != model.n or not all(isinstance(name, str) and name for name in names)
+            or len(set(names)) != model.n):
+        raise ValueError(f"`names` must be {model.n} distinct non-empty strings, one per state; "
+                         f"got {names!r:.80}.")
+    if any(_SURROGATE.search(name) for name in names):
+        raise ValueError(f"`names` must be Unicode text, without surrogate code points; got {names!r:.80}.")
     for line in comments:
-        out.write(f"# {line}\n")
+        out.write(f"# {_COMMENT_ESCAPES.sub(_escape, line)}\n")
     out.write("[model]\n")
     for name in ("F", "H", "Q", "R"):
         out.write(f"{name} = {_toml_array(getattr(model, name))}\n")
@@ -531,18 +616,44 @@ def _toml_array(a: np.ndarray) -> str:
     return "[" + ", ".join(_toml_array(x) for x in a) + "]"
 
 
+# What a TOML basic string cannot hold as it is: control characters, the quote and the backslash.
+_STRING_ESCAPES = re.compile(r'[\x00-\x1f\x7f"\\]')
+# What a TOML comment cannot hold (every control character but tab), and what UTF-8 cannot encode.
+_COMMENT_ESCAPES = re.compile(r"[\x00-\x08\x0a-\x1f\x7f\ud800-\udfff]")
+_SURROGATE = re.compile(r"[\ud800-\udfff]")
+_SHORT_ESCAPES = {"\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r", '"': '\\"',
+                  "\\": "\\\\"}
+
+
+def _escape(match: re.Match) -> str:
+    char = match.group()
+    return _SHORT_ESCAPES.get(char) or f"\\u{ord(char):04X}"
+
+
 def _toml_string(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return '"' + _STRING_ESCAPES.sub(_escape, text) + '"'
 
 
 @contextmanager
 def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
-    """Open a file for writing that appears at `path` only if the block succeeds.
+    """Open a file for writing, never destroying what is at `path`.
 
-    The data go to a hidden temporary file in the same directory, which
-    replaces `path` (``os.replace``) when the block ends without an
-    exception; on an exception it is removed and `path` is left untouched.
-    The file gets the usual permissions (``0o666`` less the umask).
+    What is written appears only if the block ends without an exception; how
+    depends on what `path` is:
+
+    * A regular file or a new path: the data go to a hidden temporary file in
+      the same directory, which then replaces the file (``os.replace``); on an
+      exception the temporary file is removed and the file is left as it was.
+      An existing file keeps its permission bits (and, where allowed, its
+      owner and group); one the user may not write is refused, as the shell
+      would refuse it. A new file gets ``0o666`` less the umask.
+    * A symbolic link: the same for the file it points to (created if the
+      link dangles); the link stays a link.
+    * A FIFO or a character device (a named pipe, a terminal, ``/dev/null``):
+      the data are kept in memory, then written to it, opened in place (the
+      open waits for a FIFO's reader, as the shell's ``>`` does).
+    * Anything else (a directory, a socket, a block device) is refused
+      before the block runs.
 
     Parameters
     ----------
@@ -552,19 +663,91 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
         Text or binary.
     **kwargs
         Passed to :func:`open` (e.g. ``newline=""``, ``encoding``).
+
+    Raises
+    ------
+    OSError
+        When `path` cannot be written (its directory is missing, it is a
+        directory, the user may not write it); the error names `path`, never
+        the temporary file.
+    ValueError
+        When `path` is a socket or a block device, or for an unknown `mode`.
     """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"`mode` must be 'w' or 'wb'; got {mode!r}.")
     path = os.fspath(path)
-    directory, name = os.path.split(os.path.abspath(path))
+    try:
+        info = os.stat(path)  # of the file a symlink points to
+    except FileNotFoundError:
+        info = None
+    except OSError as exc:
+        raise _naming(exc, path) from None
+    if info is None or stat.S_ISREG(info.st_mode):
+        writer = _write_replacing(path, info, mode, kwargs)
+    elif stat.S_ISFIFO(info.st_mode) or stat.S_ISCHR(info.st_mode):
+        writer = _write_in_place(path, mode, kwargs)
+    elif stat.S_ISDIR(info.st_mode):
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
+    else:
+        kind = "a socket" if stat.S_ISSOCK(info.st_mode) else "a block device" if stat.S_ISBLK(
+            info.st_mode) else "not a regular file"
+        raise ValueError(f"{path}: {kind}; gaussfuse writes to a regular file, a new path, a FIFO or a "
+                         "character device.")
+    with writer as f:
+        yield f
+
+
+@contextmanager
+def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: dict) -> Iterator[IO]:
+    """Write a temporary file beside the file `path` names, then put it in that file's place."""
+    target = os.path.realpath(path)  # through symlinks: the link stays, its file is replaced
+    if info is not None and not os.access(target, os.W_OK):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+    directory, name = os.path.split(target)
     tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     except OSError as exc:
-        raise type(exc)(exc.errno, exc.strerror, path) from None
+        raise _naming(exc, path) from None
+    f = None
     try:
-        with open(fd, mode, **kwargs) as f:
-            yield f
-        os.replace(tmp, path)
-    except BaseException:
+        if info is not None:  # keep what the user had; chown first, as it clears set-user-ID bits
+            with suppress(OSError):  # only root may give a file away
+                os.fchown(fd, info.st_uid, info.st_gid)
+            os.fchmod(fd, stat.S_IMODE(info.st_mode))
+        f = open(fd, mode, **kwargs)
+        yield f
+        try:
+            f.close()
+            os.replace(tmp, target)
+        except OSError as exc:
+            raise _naming(exc, path) from None
+    except BaseException:  # includes KeyboardInterrupt and SIGTERM turned into an exception
+        if f is None:
+            os.close(fd)
+        else:
+            with suppress(OSError):
+                f.close()
         with suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+@contextmanager
+def _write_in_place(path: str, mode: str, kwargs: dict) -> Iterator[IO]:
+    """Collect the data in memory, then write them to the FIFO or device `path`, opened in place."""
+    buffer = stdio.BytesIO()
+    f = buffer if mode == "wb" else stdio.TextIOWrapper(buffer, **kwargs)
+    yield f
+    f.flush()
+    try:
+        fd = os.open(path, os.O_WRONLY | getattr(os, "O_BINARY", 0))  # never O_CREAT: if it went, create nothing
+        with open(fd, "wb") as out:
+            out.write(buffer.getvalue())
+    except OSError as exc:
+        raise _naming(exc, path) from None
+
+
+def _naming(exc: OSError, path: str) -> OSError:
+    """`exc` about `path`, as the user named it (not the temporary file, not the link's target)."""
+    return type(exc)(exc.errno, exc.strerror, path) if exc.errno is not None else exc
