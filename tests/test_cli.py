@@ -17,7 +17,7 @@ import pytest
 
 import gaussfuse as gf
 import gaussfuse.learning
-from gaussfuse import datasets, io as gfio
+from gaussfuse import cli, datasets, io as gfio
 from gaussfuse.cli import main, textbook_example, tracking_demo
 from gaussfuse.io import DEFAULT_PRIOR_VAR
 
@@ -431,11 +431,21 @@ def test_fit_em_to_stdout_with_structure(tmp_path, capsys, series):
     toml.write_text(explicit_toml(model))
     code, stdout, err = run(capsys, "fit", data, "--model", toml, "--learn", "Q,R", "--structure",
                             "R=scalar", "--iterations", "5")
-    assert code == 0, err
     doc = gfio.tomllib.loads(stdout)
     R = np.array(doc["model"]["R"])
     assert R[0, 1] == 0.0 and R[0, 0] == R[1, 1]
     assert "after 5 iterations" in err
+    # five EM iterations do not converge: the model is written, with a warning and exit status 3
+    assert code == cli.NOT_CONVERGED == 3
+    assert err.splitlines()[-1].startswith("gaussfuse: warning: EM did not converge: stopped at the limit of 5 ")
+    assert "Warning" not in err  # no Python warning text, no traceback
+    code, _, err = run(capsys, "fit", data, "--model", toml, "--learn", "Q,R", "--iterations", "5", "--tol", "0")
+    assert code == 0 and "gaussfuse: warning" not in err  # tol=0: exactly the iterations asked
+
+
+def test_help_documents_the_non_convergence_status(capsys):
+    code, stdout, _ = run(capsys, "--help")
+    assert code == 0 and "3    `fit` did not converge" in stdout
 
 
 @pytest.mark.parametrize(
@@ -516,7 +526,7 @@ def test_fit_writes_a_model_that_reads_back_whatever_the_names(tmp_path, capsys)
     model.write_text('[model]\nF = 1.0\nH = 1.0\nQ = 1000.0\nR = 10000.0\nstates = ["le\\nvel \\"\\\\ \\u0000"]\n'
                      "[prior]\ndiffuse = true\n")
     out = tmp_path / "fitted.toml"
-    code, stdout, err = run(capsys, "fit", data, "--model", model, "--iterations", "3", "--out", out)
+    code, stdout, err = run(capsys, "fit", data, "--model", model, "--iterations", "3", "--tol", "0", "--out", out)
     assert (code, stdout) == (0, ""), err
     fitted = gfio.read_model(out)
     assert fitted.state_names == ['le\nvel "\\ \x00']
@@ -620,7 +630,7 @@ def test_fit_keeps_the_permissions_of_the_file_it_replaces(tmp_path, capsys):
     out.write_text("old")
     out.chmod(0o600)
     code, stdout, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model",
-                            EXAMPLES / "models" / "local_level.toml", "--iterations", "2", "--out", out)
+                            EXAMPLES / "models" / "local_level.toml", "--iterations", "2", "--tol", "0", "--out", out)
     assert (code, stdout) == (0, ""), err
     assert gfio.read_model(out).state_names == ["level"]
     assert stat.S_IMODE(out.stat().st_mode) == 0o600
@@ -749,4 +759,4 @@ def test_help_lists_the_exit_statuses(capsys):
     code, out, err = run(capsys, "--help")
     assert code == 0
     statuses = re.findall(r"^  (\d+) +\S", out.split("exit status:")[1], re.M)
-    assert statuses == ["0", "2", "130", "141", "143"]
+    assert statuses == ["0", "2", "3", "130", "141", "143"]

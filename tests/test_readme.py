@@ -18,7 +18,10 @@ def test_readme_python_example_runs(capsys):
     assert blocks, "the README has no python example"
     for code in blocks:
         exec(compile(code, "README.md", "exec"), {})
-    assert "Gaussian(mean=" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "Gaussian(mean=" in out
+    for shown in _blocks("text"):  # the output the README shows is what the examples print
+        assert shown in out
 
 
 def test_readme_commands(tmp_path):

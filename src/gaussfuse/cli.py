@@ -18,6 +18,7 @@ import signal
 import stat
 import sys
 import threading
+import warnings
 from contextlib import nullcontext, suppress
 from io import StringIO
 from typing import NamedTuple
@@ -26,6 +27,7 @@ import numpy as np
 
 from . import __version__, inference, learning, plotting
 from . import io as gfio
+from .errors import ConvergenceWarning
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .models import LinearModel, constant_velocity
@@ -33,6 +35,8 @@ from .models import LinearModel, constant_velocity
 __all__ = ["main", "build_parser", "textbook_example", "tracking_demo", "TrackingDemo"]
 
 DEMO_FIGURE = "gaussfuse-demo.png"
+NOT_CONVERGED = 3
+"""Exit status of ``gaussfuse fit`` when the fit stopped before converging."""
 
 _FORMATS = """\
 DATA.csv: a header row; one column named `t` or `time` (any case), strictly
@@ -80,6 +84,8 @@ _EXIT_STATUSES = """\
 exit status:
   0    success
   2    bad arguments or bad input; one line `gaussfuse: error: ...` on stderr
+  3    `fit` did not converge: the best model found is written all the same,
+       and one line `gaussfuse: warning: ...` on stderr says so
   130  interrupted by Ctrl-C (`fit` first writes the best model so far)
   141  standard output closed early, e.g. by `| head`
   143  terminated by SIGTERM, as by Ctrl-C"""
@@ -302,23 +308,32 @@ def _run_fit(args: argparse.Namespace) -> int:
     iterations = args.iterations if args.iterations is not None else (500 if args.method == "em" else 1000)
     progress = _Progress(args.method, iterations)
     try:
-        res = learning.fit(spec.model, spec.prior, data.zs, learn=learn, method=args.method,
-                           structure=_structure(args.structure), iterations=iterations, tol=args.tol,
-                           callback=progress)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ConvergenceWarning)
+            res = learning.fit(spec.model, spec.prior, data.zs, learn=learn, method=args.method,
+                               structure=_structure(args.structure), iterations=iterations, tol=args.tol,
+                               callback=progress)
     finally:
         progress.close()
+    unconverged = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+    for w in caught:
+        if w not in unconverged:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     comments = [f"fitted by gaussfuse {__version__}: gaussfuse fit {os.path.basename(args.data)} "
                 f"--learn {','.join(learn)} --method {args.method}",
-                f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {res.message}"]
-    if res.standard_errors:
-        for name, se in res.standard_errors.items():
-            comments.append(f"standard errors of {name}: {np.array2string(se, separator=', ').replace(chr(10), '')}")
+                f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {res.message}",
+                *res.summary().splitlines()]
     sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(sys.stdout)
     with sink as out:
         gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
     print(f"{args.method}: {res.message}; log-likelihood {res.loglik:.6f} after {len(res.history) - 1} "
           f"iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
-    return 130 if res.message.startswith("interrupted") else 0
+    if res.message.startswith("interrupted"):
+        return 130
+    if unconverged:
+        print(f"gaussfuse: warning: {unconverged[0].message}", file=sys.stderr)
+        return NOT_CONVERGED
+    return 0
 
 
 # ---------------------------------------------------------------------------
@@ -423,7 +438,8 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         Exit status: 0 on success, 2 for bad arguments or bad input (after
-        printing one line ``gaussfuse: error: <message>`` to stderr), 130 on
+        printing one line ``gaussfuse: error: <message>`` to stderr), 3 when
+        ``fit`` did not converge (the best model is written), 130 on
         Ctrl-C, 141 when standard output was closed early (a broken pipe),
         143 on SIGTERM.
 
