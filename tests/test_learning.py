@@ -189,31 +189,34 @@ def test_em_at_an_exact_fixed_point_still_runs_every_iteration():
         gf.fit(model, prior, zs, us, learn=learn, iterations=3, tol=1e-300)
 
 
-def _gradients(model, prior, zs, us, learn, structures, theta):
-    param = learning._Parametrisation(model, prior, learn, structures)
-    mdl, pri = param(theta)
-    zs3, us3 = zs[None], None if us is None else us[None]
-    return param, learning._loglik_and_gradient(mdl, pri, zs3, us3, param.directions(theta), "auto")
-
-
-@settings(max_examples=20, deadline=None)
-@given(**CASES, structure=st.sampled_from(["full", "diagonal", "scalar"]))
-def test_gradient_matches_finite_differences(seed, n, m, learn, missing, controls, diffuse, structure):
+def _parametrised_case(seed, n, m, learn, missing, controls, diffuse, structure):
+    """A random case, its parametrisation, and the series with a leading series axis."""
     model, prior, zs, us, learn = _random_case(seed, n, m, learn, missing, controls, diffuse)
     if diffuse and m < n:
         prior = gf.Gaussian(np.zeros(n), np.eye(n))
     learn, structures = learning._check_learn(model, prior, learn, {"Q": structure, "R": structure})
     param = learning._Parametrisation(model, prior, learn, structures)
+    return param, zs[None], None if us is None else us[None]
+
+
+def _score(param, zs, us, theta, how=learning._loglik_and_gradient):
+    mdl, pri = param(theta)
+    return how(mdl, pri, zs, us, param.directions(theta), "auto")
+
+
+@settings(max_examples=20, deadline=None)
+@given(**CASES, structure=st.sampled_from(["full", "diagonal", "scalar"]))
+def test_gradient_matches_finite_differences(seed, n, m, learn, missing, controls, diffuse, structure):
+    param, zs, us = _parametrised_case(seed, n, m, learn, missing, controls, diffuse, structure)
     theta = param.encode() + 0.1 * np.random.default_rng(seed).standard_normal(param.encode().size)
-    _, (_, grad) = _gradients(model, prior, zs, us, learn, structures, theta)
+    _, grad = _score(param, zs, us, theta)
     fd = np.zeros_like(theta)
     for j in range(theta.size):
         h = 1e-5
         up, down = theta.copy(), theta.copy()
         up[j] += h
         down[j] -= h
-        fd[j] = (_gradients(model, prior, zs, us, learn, structures, up)[1][0]
-                 - _gradients(model, prior, zs, us, learn, structures, down)[1][0]) / (2 * h)
+        fd[j] = (_score(param, zs, us, up)[0] - _score(param, zs, us, down)[0]) / (2 * h)
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-5 * (1 + np.abs(fd).max()))
 
 
@@ -221,15 +224,10 @@ def test_gradient_matches_finite_differences(seed, n, m, learn, missing, control
 @given(**CASES, structure=st.sampled_from(["full", "diagonal", "scalar"]))
 def test_filter_score_equals_fishers_identity(seed, n, m, learn, missing, controls, diffuse, structure):
     """The two exact gradients, by Fisher's identity and by differentiating the filter, agree."""
-    model, prior, zs, us, learn = _random_case(seed, n, m, learn, missing, controls, diffuse)
-    if diffuse and m < n:
-        prior = gf.Gaussian(np.zeros(n), np.eye(n))
-    learn, structures = learning._check_learn(model, prior, learn, {"Q": structure, "R": structure})
-    param = learning._Parametrisation(model, prior, learn, structures)
+    param, zs, us = _parametrised_case(seed, n, m, learn, missing, controls, diffuse, structure)
     theta = param.encode()
-    fisher_ll, fisher = _gradients(model, prior, zs, us, learn, structures, theta)[1]
-    mdl, pri = param(theta)
-    tangent_ll, tangent = learning._tangent_score(mdl, pri, zs, us, param.directions(theta), "python")
+    fisher_ll, fisher = _score(param, zs, us, theta, learning._fisher_score)
+    tangent_ll, tangent = _score(param, zs[0], None if us is None else us[0], theta, learning._tangent_score)
     assert tangent_ll == pytest.approx(fisher_ll, rel=1e-10, abs=1e-10)
     np.testing.assert_allclose(tangent, fisher, rtol=1e-7, atol=1e-8 * (1 + np.abs(fisher).max()))
 

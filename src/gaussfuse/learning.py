@@ -853,14 +853,21 @@ def _cho_solve_stack(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     return np.linalg.solve(L.T, np.linalg.solve(L, B))
 
 
+def _fisher_score(model, prior, zs, us, directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
+    """``log p(z)`` over the series and its derivative along each direction, by Fisher's identity."""
+    ll, stats = _e_step(model, prior, zs, us, engine)
+    G = _matrix_gradients(model, prior, stats, _needed(directions))
+    return ll, np.array([sum(_contract(G[k], D) for k, D in d.items()) for d in directions])
+
+
 def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
-    """``log p(z)`` over the series and its exact derivative along each direction."""
-    needed = _needed(directions)
-    start = 1 if isinstance(prior, str) else 0
-    if _fisher_applies(model, prior, needed, start):
-        ll, stats = _e_step(model, prior, zs, us, engine)
-        G = _matrix_gradients(model, prior, stats, needed)
-        return ll, np.array([sum(_contract(G[k], D) for k, D in d.items()) for d in directions])
+    """``log p(z)`` over the series and its exact derivative along each direction.
+
+    By Fisher's identity where it applies (one smoother pass, compiled), by
+    the filter's own score otherwise.
+    """
+    if _fisher_applies(model, prior, _needed(directions), 1 if isinstance(prior, str) else 0):
+        return _fisher_score(model, prior, zs, us, directions, engine)
     ll, grad = 0.0, np.zeros(len(directions))
     for i, z in enumerate(zs):
         li, gi = _tangent_score(model, prior, z, None if us is None else us[i], directions, engine)
