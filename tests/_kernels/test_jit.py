@@ -1,10 +1,14 @@
-"""How the kernels are compiled: cached on disk when numba can, in memory when it cannot.
+"""How the kernels are compiled and launched.
 
-Numba raises ``RuntimeError: cannot cache function ...: no locator available``
+Compiled: cached on disk when numba can, in memory when it cannot. Numba raises ``RuntimeError: cannot cache function ...: no locator available``
 when a function with ``cache=True`` is created and no cache directory is
 writable. The tests take that condition into a subprocess by emptying
 numba's list of cache locators before gaussfuse imports its kernels: as
 root, file permissions would not stop the writes.
+
+Launched: threads may call the batched (parallel) kernels at once on every
+threading layer; numba's ``workqueue`` layer aborts the process when two
+parallel regions start at once, so those tests run in a subprocess too.
 """
 
 import json
@@ -14,6 +18,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 # Run first in every child: no cache locator can be found, as with a
 # read-only site-packages and home and no NUMBA_CACHE_DIR.
@@ -99,3 +104,76 @@ def test_without_a_cache_location_the_cli_filters_a_long_file(tmp_path):
     assert child.stderr.count("CacheUnavailableWarning") == 1, child.stderr
     assert len(child.stdout.splitlines()) == 1201  # the header and one row a step
 
+
+# ---------------------------------------------------------------------------
+# Launching: concurrent calls from threads, on every threading layer
+# ---------------------------------------------------------------------------
+
+THREADS = textwrap.dedent("""
+    import sys, threading
+    import numpy as np
+    import gaussfuse as gf
+
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
+    prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = np.random.default_rng(0).normal(size=(64, 200, 1))  # many series: the parallel kernels
+
+
+    def f(x):
+        return np.array([x[0] + 0.01 * x[1], x[1] - 0.0981 * np.sin(x[0])])
+
+
+    def h(x):
+        return np.sin(x[:1])
+
+
+    pendulum = gf.NonlinearModel(f, h, 1e-4 * np.eye(2), 0.1)
+    start = gf.Gaussian([0.0, 0.0], 0.1 * np.eye(2))
+    calls = {
+        "filter": lambda: gf.filter(model, prior, zs, engine="numba"),
+        "smooth": lambda: gf.smooth(model, prior, zs, engine="numba"),
+        "ukf": lambda: gf.smooth(pendulum, start, zs[:4, :50], engine="numba"),
+    }
+    reference = {name: call() for name, call in calls.items()}  # one thread
+
+
+    def same(a, b):
+        if hasattr(a, "filtered"):
+            return same(a.filtered, b.filtered) and all(
+                np.array_equal(getattr(a, k), getattr(b, k)) for k in ("means", "covs", "gains"))
+        return all(np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True)
+                   for k in ("means", "covs", "predicted_means", "predicted_covs", "innovations",
+                             "innovation_covs", "loglik", "last_mean", "last_cov"))
+
+
+    start_together = threading.Barrier(4)
+    differ = []
+
+
+    def work():
+        start_together.wait()
+        for _ in range(8):
+            for name, call in calls.items():
+                if not same(call(), reference[name]):
+                    differ.append(name)
+
+
+    threads = [threading.Thread(target=work) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    import numba
+    print(numba.threading_layer(), sorted(set(differ)))
+""")
+
+
+@pytest.mark.parametrize("layer", ["workqueue", "default"])
+def test_threads_calling_batched_filters_at_once_get_the_single_thread_results(layer):
+    child = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True, timeout=900,
+                           env={**os.environ, "NUMBA_THREADING_LAYER": layer})
+    assert child.returncode == 0, child.stderr  # the workqueue layer aborted (SIGABRT: -6)
+    used, differ = child.stdout.split(maxsplit=1)
+    if layer != "default":
+        assert used == layer
+    assert differ.strip() == "[]"

@@ -1,20 +1,24 @@
-"""How the kernels are compiled: one place for numba's process-wide settings.
+"""How the kernels are compiled and launched: one place for numba's process-wide settings.
 
-:func:`jit` is :func:`numba.njit` with ``cache=True``: compiled kernels are
-saved to disk and a new process loads them. When numba finds nowhere to save
-them (a read-only install and home, no ``NUMBA_CACHE_DIR``) it compiles them
-in memory instead, with one :class:`CacheUnavailableWarning` per process.
+* :func:`jit` is :func:`numba.njit` with ``cache=True``: compiled kernels
+  are saved to disk and a new process loads them. When numba finds nowhere
+  to save them (a read-only install and home, no ``NUMBA_CACHE_DIR``) it
+  compiles them in memory instead, with one :class:`CacheUnavailableWarning`
+  per process.
+* :func:`parallel_launch` lets one thread at a time launch a
+  ``parallel=True`` kernel; the others run the serial kernel meanwhile.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import warnings
-from typing import Callable
+from typing import Callable, Iterator
 
 import numba
 
-__all__ = ["CacheUnavailableWarning", "jit"]
+__all__ = ["CacheUnavailableWarning", "jit", "parallel_launch"]
 
 
 class CacheUnavailableWarning(RuntimeWarning):
@@ -66,3 +70,31 @@ def jit(*signature, **options) -> Callable[[Callable], numba.core.registry.CPUDi
         return numba.njit(*signature, **options)(fn)
 
     return decorate
+
+
+_parallel = threading.Lock()
+
+
+@contextlib.contextmanager
+def parallel_launch() -> Iterator[bool]:
+    """Whether this thread may launch a parallel kernel, for the duration of the block.
+
+    Yields True to one thread at a time and False, at once and without
+    waiting, to any other: that thread runs its serial kernel instead, so
+    concurrent callers neither block each other nor launch two parallel
+    regions at once. Numba's ``workqueue`` threading layer (the one used
+    when neither OpenMP nor TBB is installed) is not thread-safe: two
+    threads launching parallel regions at once abort the process. On the
+    other layers two such launches would only share the same cores.
+
+    Yields
+    ------
+    bool
+        True if this thread holds the right to launch until the block ends.
+    """
+    mine = _parallel.acquire(blocking=False)
+    try:
+        yield mine
+    finally:
+        if mine:
+            _parallel.release()

@@ -40,7 +40,7 @@ import numpy as np
 from numba import prange
 
 from ..inference import FilterResult, SmoothResult
-from ._jit import jit
+from ._jit import jit, parallel_launch
 from ._nrt import borrow as _borrow, readonly as _readonly
 
 __all__ = ["filter", "smooth"]
@@ -535,17 +535,21 @@ def _run(serial, parallel, items: int, *args) -> None:
 
     Chunks are handed to the threads one at a time as they finish (numba's
     parallel chunk size 1), so a thread slowed down by other work on the
-    machine takes fewer of them.
+    machine takes fewer of them. One call at a time runs in parallel
+    (:func:`._jit.parallel_launch`): a call made while another thread's
+    runs takes the serial kernel, which gives the same numbers.
     """
     chunks = max(1, min(items, _CHUNKS_PER_THREAD * numba.get_num_threads()))
-    if chunks == 1:
-        serial(0, items, *args)
-        return
-    previous = numba.set_parallel_chunksize(1)
-    try:
-        parallel(chunks, *args)
-    finally:
-        numba.set_parallel_chunksize(previous)
+    if chunks > 1:
+        with parallel_launch() as mine:
+            if mine:
+                previous = numba.set_parallel_chunksize(1)
+                try:
+                    parallel(chunks, *args)
+                finally:
+                    numba.set_parallel_chunksize(previous)
+                return
+    serial(0, items, *args)
 
 
 def _raise_not_pd(err: np.ndarray, err_S: np.ndarray) -> None:
