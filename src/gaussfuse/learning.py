@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from ._frozen import reduce_frozen
 from .diffuse import Moments, diffuse_moments
 from .gaussian import Gaussian
 from .inference import ENGINES, _check_steps, check_controls, check_measurements, check_prior, smooth_from_prior
@@ -91,6 +92,8 @@ class FitResult:
     converged: bool
     message: str
     standard_errors: dict | None = None
+
+    __reduce__ = reduce_frozen
 
 
 # ---------------------------------------------------------------------------
