@@ -110,7 +110,8 @@ def test_without_a_cache_location_the_cli_filters_a_long_file(tmp_path):
 # ---------------------------------------------------------------------------
 
 THREADS = textwrap.dedent("""
-    import sys, threading
+    import threading
+    import numba
     import numpy as np
     import gaussfuse as gf
 
@@ -163,7 +164,6 @@ THREADS = textwrap.dedent("""
         t.start()
     for t in threads:
         t.join()
-    import numba
     print(numba.threading_layer(), sorted(set(differ)))
 """)
 
