@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import doctest
+import pickle
 import re
 
 import numpy as np
@@ -387,3 +389,20 @@ def test_scalar_sensor_and_nan_component():
 def test_docstring_examples():
     result = doctest.testmod(gaussfuse.fusion, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_a_pickled_or_copied_fuser_carries_on_where_the_original_left_off(method):
+    sensors = {"gps": gf.Position(dim=2, r=0.5), "radar": gf.RangeBearing(r_range=0.1, r_bearing=1e-3)}
+    fuser = gf.Fuser(gf.ConstantVelocity(dim=2, q=0.1), sensors,
+                     gf.Gaussian([1.0, 0.0, 1.0, 1.0], 4.0 * np.eye(4)), 0.0, method=method)
+    fuser.update(1.0, "radar", [1.9, 0.5])
+    others = [pickle.loads(pickle.dumps(fuser)), copy.copy(fuser), copy.deepcopy(fuser)]
+    for f in [fuser, *others]:
+        f.update(1.5, "gps", [2.4, 0.9])
+        f.update(2.0, "radar", [2.9, 0.6])
+    for other in others:
+        assert other.t == fuser.t == 2.0
+        np.testing.assert_array_equal(other.belief.mean, fuser.belief.mean)
+        np.testing.assert_array_equal(other.belief.cov, fuser.belief.cov)
+        assert other.loglik == fuser.loglik

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -160,3 +163,21 @@ def test_singular_innovation_names_the_step():
     kf.predict()
     with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: the innovation covariance S"):
         kf.update(1.0)
+
+
+def test_a_pickled_or_copied_filter_carries_on_where_the_original_left_off():
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=2.0, B=[[0.5], [1.0]])
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 1.0], 10.0 * np.eye(2)))
+    for z in (1.0, 2.5):
+        kf.predict([0.1])
+        kf.update(z)
+    others = [pickle.loads(pickle.dumps(kf)), copy.copy(kf), copy.deepcopy(kf)]
+    for f in [kf, *others]:
+        f.predict([0.2])
+        f.update(3.0)
+    for other in others:
+        assert other.step == kf.step == 3
+        np.testing.assert_array_equal(other.x, kf.x)
+        np.testing.assert_array_equal(other.P, kf.P)
+        assert other.loglik == kf.loglik
+        assert not other.x.flags.writeable

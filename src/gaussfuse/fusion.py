@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import inference, kalman
+from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult, check_prior
@@ -87,6 +88,8 @@ class Fused:
     sources: list
     loglik: float
     result: FilterResult | SmoothResult
+
+    __reduce__ = reduce_frozen  # pickles and copies keep the arrays read-only
 
     def at(self, times) -> tuple[np.ndarray, np.ndarray]:
         """The beliefs at the given times, after every measurement at each.
@@ -580,10 +583,17 @@ class Fuser:
                 f"`method` {method!r} iterates over the whole series; the online Fuser takes "
                 "'kf', 'ekf', 'ukf', 'ckf' or 'ghkf'."
             )
-        self._options = options
+        self._method, self._options = method, options
         self._measure = self._strategy(probe, np.zeros(1))
         self._state_angles = getattr(probe, "state_angles", None)
         self._measurement_angles = getattr(probe, "measurement_angles", None)
+
+    def __getstate__(self) -> dict:
+        # The method's registry entry holds lambdas, which do not pickle: its name does.
+        return {**self.__dict__, "_spec": None}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _spec=inference.METHODS[state["_method"]])
 
     def _strategy(self, model, dts):
         us = None if self._stack.linear else np.asarray(dts, dtype=float).reshape(-1, 1)

@@ -53,6 +53,11 @@ class Gaussian:
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "cov", cov)
 
+    def __reduce__(self):
+        # Pickled and copied by its arguments: the constructor makes the arrays read-only
+        # again, which a pickle (protocol < 5) or a deep copy of the arrays would not.
+        return type(self), (self.mean, self.cov)
+
     @property
     def dim(self) -> int:
         """Dimension n of the variable."""

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
+from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
 from .gaussian import Gaussian
 from .inference import (_check_steps, _linearisation, _resolve_method, check_controls,
@@ -65,6 +66,8 @@ class IMMResult:
     mode_means: np.ndarray
     mode_covs: np.ndarray
     loglik: float
+
+    __reduce__ = reduce_frozen  # pickles and copies keep the arrays read-only
 
 
 class _at:

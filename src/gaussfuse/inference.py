@@ -15,6 +15,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from . import kalman
+from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
 from .gaussian import Gaussian
 from .linearize import Exact, Nominal, SigmaPoints, Taylor
@@ -71,6 +72,8 @@ class FilterResult:
     last_mean: np.ndarray
     last_cov: np.ndarray
 
+    __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
+
     @property
     def last(self) -> Gaussian:
         """The final filtered belief, to continue filtering from (one series only)."""
@@ -99,6 +102,8 @@ class SmoothResult:
     covs: np.ndarray
     gains: np.ndarray
     filtered: FilterResult
+
+    __reduce__ = reduce_frozen
 
     @property
     def loglik(self) -> float | np.ndarray:

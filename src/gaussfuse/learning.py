@@ -98,6 +98,7 @@ from typing import Callable
 import numpy as np
 
 from . import kalman
+from ._frozen import reduce_frozen
 from ._validation import as_vector
 from .diffuse import Moments, augmented_runs, diffuse_moments, not_identified
 from .errors import ConvergenceWarning
@@ -168,6 +169,8 @@ class FitResult:
     params: dict = field(default_factory=dict)
     bse: dict = field(default_factory=dict)
     nobs: int = 0
+
+    __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
 
     @property
     def df_model(self) -> int:

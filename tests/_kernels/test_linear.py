@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
 import tracemalloc
 from dataclasses import fields
 
@@ -23,7 +24,7 @@ from numba.core.runtime import _nrt_python, rtsys
 
 import _oracle
 import gaussfuse as gf
-from gaussfuse._kernels import linear
+from gaussfuse._kernels import _jit, linear
 
 TOL = 1e-10
 PER_STEP = ("means", "covs", "predicted_means", "predicted_covs", "innovations", "innovation_covs")
@@ -296,7 +297,7 @@ CACHE_PROBE = textwrap.dedent("""
     import json
     import numpy as np
     import gaussfuse as gf
-    from gaussfuse._kernels import linear
+    from gaussfuse._kernels import _jit, linear
 
     model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
     gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
@@ -345,3 +346,60 @@ def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
     assert len(calls) == 1
     run(model, prior, zs.reshape(1000, 1))
     assert calls[-1] == (1, 1000, 1)
+
+
+# ---------------------------------------------------------------------------
+# Threads: one parallel launch at a time; the others run the serial kernel
+# ---------------------------------------------------------------------------
+
+
+def assert_identical(got, want) -> None:
+    """Every field of two Filter/SmoothResults is bit for bit the same."""
+    for field in fields(want):
+        a, b = getattr(got, field.name), getattr(want, field.name)
+        if field.name == "filtered":
+            assert_identical(a, b)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=field.name)
+
+
+@pytest.mark.parametrize("front", ["filter", "smooth"])
+def test_a_batch_run_while_another_runs_in_parallel_runs_serially_with_the_same_numbers(
+        monkeypatch, front):
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
+    prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = np.random.default_rng(5).normal(size=(40, 30, 1))
+    run = getattr(gf, front)
+    launched = []
+    for name in ("_filter_parallel", "_backward_parallel"):
+        kernel = getattr(linear, name)
+        monkeypatch.setattr(linear, name, lambda *args, _k=kernel: launched.append(_k) or _k(*args))
+
+    parallel = run(model, prior, zs, engine="numba")
+    assert len(launched) == (1 if front == "filter" else 2)
+    launched.clear()
+    with _jit.parallel_launch() as mine:  # as if another thread were running a parallel kernel
+        assert mine
+        serial = run(model, prior, zs, engine="numba")
+    assert launched == []
+    assert_identical(serial, parallel)
+
+
+def test_parallel_launch_goes_to_one_thread_at_a_time_and_others_do_not_wait():
+    def other_thread() -> bool:
+        got = []
+
+        def take():
+            with _jit.parallel_launch() as mine:
+                got.append(mine)
+
+        thread = threading.Thread(target=take)
+        thread.start()
+        thread.join(timeout=300)  # a guard only: the thread does not wait for the launch
+        assert not thread.is_alive()
+        return got[0]
+
+    with _jit.parallel_launch() as mine:
+        assert mine
+        assert other_thread() is False
+    assert other_thread() is True  # released

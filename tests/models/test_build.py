@@ -6,6 +6,7 @@ import contextlib
 import doctest
 import importlib
 import io
+import pickle
 
 import numpy as np
 import pytest
@@ -260,3 +261,80 @@ def test_docstring_examples():
         result = doctest.testmod(build_module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted >= 2
     assert result.failed == 0, out.getvalue()
+
+
+# ---------------------------------------------------------------------------
+# Built models pickle: f, h and their Jacobians are no closures
+# ---------------------------------------------------------------------------
+
+
+class Heading(gf.NonlinearSensor):
+    """A user's sensor: the heading of a 2-D constant-velocity state, atan2(vy, vx)."""
+
+    __slots__ = ("r",)
+
+    def __init__(self, r: float = 1e-3) -> None:
+        self._set(r=r)
+
+    m = property(lambda self: 1)
+    names = property(lambda self: ("heading",))
+    measurement_angles = property(lambda self: (0,))
+    R = property(lambda self: np.array([[self.r]]))
+
+    def h(self, x):
+        x = np.asarray(x)
+        return np.arctan2(x[..., 3], x[..., 2])[..., None]
+
+    def jacobian(self, x):
+        v2 = x[2] ** 2 + x[3] ** 2
+        return np.array([[0.0, 0.0, -x[3] / v2, x[2] / v2]])
+
+
+class Drift(gf.NonlinearMotion):
+    """A user's motion: a level that decays towards 1, x' = 1 + (x - 1) e^{-dt}."""
+
+    __slots__ = ()
+    n = property(lambda self: 1)
+    names = property(lambda self: ("level",))
+
+    def f(self, x, dt):
+        return 1.0 + (np.asarray(x) - 1.0) * np.exp(-dt)
+
+    def jacobian(self, x, dt):
+        return np.array([[np.exp(-dt)]])
+
+    def noise(self, dt):
+        return np.array([[0.1 * dt]])
+
+
+BUILT = {
+    "cv+range-bearing": (gf.ConstantVelocity(dim=2, q=0.5), gf.RangeBearing(origin=(-3.0, 1.0)), None),
+    "cv+bearing-only": (gf.ConstantVelocity(dim=2, q=0.5), gf.BearingOnly(origin=(-3.0, 1.0)), None),
+    "ca+range-bearing-elevation": (gf.ConstantAcceleration(dim=3, q=0.5), gf.RangeBearingElevation(), None),
+    "force-input+range-bearing": (gf.ForceInput(q=0.1, dim=2), gf.RangeBearing(origin=(-3.0, 1.0)), 2),
+    "cv+user-sensor": (gf.ConstantVelocity(dim=2, q=0.5), Heading(), None),
+    "turn+position": (gf.CoordinatedTurn(), gf.Position(dim=2, r=0.1), None),
+    "turn+range-bearing": (gf.CoordinatedTurn(), gf.RangeBearing(origin=(-3.0, 1.0)), None),
+    "user-motion+position": (Drift(), gf.Position(dim=1, r=0.1), None),
+}
+
+
+@pytest.mark.parametrize("name", list(BUILT))
+def test_nonlinear_built_models_pickle_and_filter_the_same(name):
+    motion, sensor, p = BUILT[name]
+    built = gf.model(motion, sensor, dt=0.5)
+    assert isinstance(built, gf.NonlinearModel)
+    back = pickle.loads(pickle.dumps(built))
+    for attr in ("Q", "R", "state_angles", "measurement_angles"):
+        np.testing.assert_array_equal(getattr(back, attr), getattr(built, attr))
+        assert not getattr(back, attr).flags.writeable
+    assert back.vectorized is built.vectorized is True
+    rng = np.random.default_rng(4)
+    prior = gf.Gaussian(np.full(built.n, 2.0), 0.1 * np.eye(built.n))
+    zs = built.measurement(np.full(built.n, 2.0)) + 0.01 * rng.normal(size=(10, built.m))
+    us = None if p is None else rng.normal(size=(10, p))
+    for method in ("ekf", "ukf"):
+        want = gf.filter(built, prior, zs, us, method)
+        got = gf.filter(back, prior, zs, us, method)
+        np.testing.assert_array_equal(got.means, want.means)
+        np.testing.assert_array_equal(got.covs, want.covs)

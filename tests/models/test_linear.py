@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 
@@ -119,3 +122,15 @@ def test_invalid_model(changes, error, match):
 def test_psd_singular_noise_is_allowed():
     model = gf.LinearModel(F=F2, H=[1.0, 0.0], Q=np.zeros((2, 2)), R=0.0)
     np.testing.assert_array_equal(model.Q, np.zeros((2, 2)))
+
+
+def test_pickles_and_copies_as_an_equal_immutable_model():
+    model = gf.LinearModel(F=np.stack([F2, 2 * F2]), H=[1.0, 0.0], Q=np.eye(2), R=1.0, B=[1.0, 0.0])
+    copies = [pickle.loads(pickle.dumps(model, p)) for p in range(2, pickle.HIGHEST_PROTOCOL + 1)]
+    for back in copies + [copy.copy(model), copy.deepcopy(model)]:
+        assert type(back) is gf.LinearModel and back.steps == 2
+        for name in ("F", "H", "Q", "R", "B"):
+            np.testing.assert_array_equal(getattr(back, name), getattr(model, name))
+            assert not getattr(back, name).flags.writeable
+        with pytest.raises(AttributeError, match="immutable"):
+            back.F = np.eye(2)

@@ -1,5 +1,8 @@
 """NonlinearModel: construction, validation and checked evaluation."""
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 
@@ -65,3 +68,24 @@ def test_checked_evaluation():
     raising = gf.NonlinearModel(lambda x, u: x + u, h, np.eye(2), 1.0)
     with pytest.raises(ModelFunctionError, match=r"`f` raised TypeError on an input of shape \(2,\)"):
         raising.transition(np.zeros(2))  # called without the control it requires
+
+
+def test_pickles_and_copies_as_an_equal_immutable_model():
+    model = gf.NonlinearModel(f, h, np.stack([np.eye(2)] * 3), 0.5, f_jacobian=None, h_jacobian=h,
+                              vectorized=True, state_angles=[1], measurement_angles=(0,))
+    for back in (pickle.loads(pickle.dumps(model)), copy.copy(model), copy.deepcopy(model)):
+        assert (back.f, back.h, back.f_jacobian, back.h_jacobian) == (f, h, None, h)
+        assert back.vectorized is True
+        for name in ("Q", "R", "state_angles", "measurement_angles"):
+            np.testing.assert_array_equal(getattr(back, name), getattr(model, name))
+            assert not getattr(back, name).flags.writeable
+        with pytest.raises(AttributeError, match="immutable"):
+            back.Q = np.eye(2)
+
+
+def test_a_lambda_model_copies_but_does_not_pickle_and_says_why():
+    model = gf.NonlinearModel(lambda x: 2 * x, h, np.eye(2), 1.0)
+    assert copy.deepcopy(model).f is model.f  # functions are copied by reference
+    with pytest.raises((pickle.PicklingError, AttributeError)) as info:  # pickle's own error
+        pickle.dumps(model)
+    assert "lambda" in str(info.value) and "immutable" not in str(info.value)

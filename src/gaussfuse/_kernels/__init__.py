@@ -2,7 +2,9 @@
 
 Each module implements, for the methods that name it in
 :data:`gaussfuse.inference.METHODS`, the same equations as the readable
-path (:mod:`gaussfuse.kalman`), compiled with numba and cached on disk:
+path (:mod:`gaussfuse.kalman`), compiled with numba and cached on disk
+(through :func:`._jit.jit`, which compiles in memory when nothing can be
+cached):
 
 * ``filter(method, model, prior, zs, us, options, keep) -> FilterResult``
 * ``smooth(method, model, prior, zs, us, options) -> SmoothResult``

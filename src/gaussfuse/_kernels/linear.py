@@ -27,8 +27,8 @@ The forward kernel filters and, when smoothing, computes each gain
 ``G_{k-1}`` at step k from the prediction's ``F_k P_{k-1}``; the backward
 kernel is the RTS recursion. Series run in parallel (``prange`` over chunks
 of series, one set of scratch arrays per chunk, nothing allocated per step).
-Every kernel is compiled with ``cache=True``, so a new process loads it from
-disk instead of compiling it again.
+Every kernel is compiled with :func:`._jit.jit`, cached on disk, so a new
+process loads it instead of compiling it again.
 """
 
 from __future__ import annotations
@@ -37,14 +37,15 @@ import math
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..inference import FilterResult, SmoothResult
+from ._jit import jit, parallel_launch
 from ._nrt import borrow as _borrow, readonly as _readonly
 
 __all__ = ["filter", "smooth"]
 
-_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+_JIT = {"nogil": True, "error_model": "numpy"}  # and cached on disk (see _jit.jit)
 _INLINE = dict(_JIT, inline="always")  # the step helpers are inlined into the loops
 _LOG_2PI = math.log(2.0 * math.pi)
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
@@ -63,7 +64,7 @@ _CHUNKS_PER_THREAD = 16  # chunks of series per thread, handed out dynamically, 
 # ---------------------------------------------------------------------------
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def cholesky(S, L, size):
     """Lower Cholesky factor of ``S[:size, :size]`` into `L` (kalman.cholesky).
 
@@ -87,7 +88,7 @@ def cholesky(S, L, size):
     return True
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def cho_solve(L, X, size, ncols):
     """In place ``X[:size, :ncols] = (L Lᵀ)⁻¹ X`` (scipy.linalg.cho_solve), row by row."""
     for a in range(size):
@@ -113,7 +114,7 @@ def cho_solve(L, X, size, ncols):
 # ---------------------------------------------------------------------------
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def predict(mean, cov, A, Q, b, pred_mean, pred_cov, AP):
     r"""kalman.predict: :math:`m^- = A m + b`, :math:`P^- = \mathrm{sym}(A P A^\top + Q)`.
 
@@ -140,7 +141,7 @@ def predict(mean, cov, A, Q, b, pred_mean, pred_cov, AP):
             pred_cov[j, i] = s
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def update_scalar(mean, cov, z, H, R, post_mean, post_cov, innovation, S_full, S, HP, K, IKH, IKHP):
     r"""kalman.update for a single measurement component (m = 1), as :func:`update`.
 
@@ -198,7 +199,7 @@ def update_scalar(mean, cov, z, H, R, post_mean, post_cov, innovation, S_full, S
     return True, -0.5 * (v * v * inv + math.log(s) + _LOG_2PI), np.int64(1)
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def update(mean, cov, z, H, R, post_mean, post_cov, innovation, S_full,
            obs, HP, Ho, Ro, S, L, Kt, K, KR, IKH, IKHP, v, white):
     r"""kalman.update: condition on the observed components of `z` (Joseph form).
@@ -309,7 +310,7 @@ def update(mean, cov, z, H, R, post_mean, post_cov, innovation, S_full,
     return True, -0.5 * (quad + 2.0 * logdet + mo * _LOG_2PI), mo
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def smoother_gain(CT, pred_cov, gain, L):
     r"""The RTS gain of kalman.rts_step: :math:`G = C (P^-)^{-1}`, :math:`C = P A^\top`.
 
@@ -330,7 +331,7 @@ def smoother_gain(CT, pred_cov, gain, L):
     return ok
 
 
-@njit(**_INLINE)
+@jit(**_INLINE)
 def rts_step(filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, gain,
              mean, cov, diff, GD):
     r"""kalman.rts_step, given the gain :math:`G_k`.
@@ -369,7 +370,7 @@ def rts_step(filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, gain
 # ---------------------------------------------------------------------------
 
 
-@njit(**_JIT)
+@jit(**_JIT)
 def _filter_loop(lo, hi, F, H, Q, R, b, zs, m0, P0,
                  means, covs, pmeans, pcovs, innov, icovs, gains, failed,
                  loglik, last_mean, last_cov, err, err_S,
@@ -440,7 +441,7 @@ def _filter_loop(lo, hi, F, H, Q, R, b, zs, m0, P0,
                 last_cov[s, i, j] = cov[i, j]
 
 
-@njit(**_JIT)
+@jit(**_JIT)
 def _filter_series(lo, hi, F, H, Q, R, b, zs, m0, P0, means, covs, pmeans, pcovs, innov, icovs,
                    gains, failed, loglik, last_mean, last_cov, err, err_S):
     """Filter series ``lo..hi-1`` with one set of scratch arrays (nothing is allocated per step)."""
@@ -457,7 +458,7 @@ def _filter_series(lo, hi, F, H, Q, R, b, zs, m0, P0, means, covs, pmeans, pcovs
                  np.empty((n, n)), np.empty((n, n)), np.empty(m), np.empty(m))  # IKH, IKHP, v, white
 
 
-@njit(parallel=True, **_JIT)
+@jit(parallel=True, **_JIT)
 def _filter_parallel(chunks, F, H, Q, R, b, zs, m0, P0, means, covs, pmeans, pcovs, innov, icovs,
                      gains, failed, loglik, last_mean, last_cov, err, err_S):
     """:func:`_filter_series` over `chunks` contiguous groups of series, in parallel."""
@@ -468,7 +469,7 @@ def _filter_parallel(chunks, F, H, Q, R, b, zs, m0, P0, means, covs, pmeans, pco
                        loglik, last_mean, last_cov, err, err_S)
 
 
-@njit(**_JIT)
+@jit(**_JIT)
 def _backward_loop(lo, hi, means, covs, pmeans, pcovs, gains, sm_means, sm_covs, diff, GD):
     """The RTS backward pass of inference.run_smoother over series ``lo..hi-1``."""
     means, covs, pmeans, pcovs = _borrow(means), _borrow(covs), _borrow(pmeans), _borrow(pcovs)
@@ -487,7 +488,7 @@ def _backward_loop(lo, hi, means, covs, pmeans, pcovs, gains, sm_means, sm_covs,
                      sm_means[s, j], sm_covs[s, j], diff, GD)
 
 
-@njit(**_JIT)
+@jit(**_JIT)
 def _backward(lo, hi, means, covs, pmeans, pcovs, gains, sm_means, sm_covs):
     """:func:`_backward_loop` with its scratch."""
     n = means.shape[2]
@@ -495,7 +496,7 @@ def _backward(lo, hi, means, covs, pmeans, pcovs, gains, sm_means, sm_covs):
                    np.empty(n), np.empty((n, n)))
 
 
-@njit(parallel=True, **_JIT)
+@jit(parallel=True, **_JIT)
 def _backward_parallel(chunks, means, covs, pmeans, pcovs, gains, sm_means, sm_covs):
     """:func:`_backward` over `chunks` groups of series, in parallel."""
     N = means.shape[0]
@@ -534,17 +535,21 @@ def _run(serial, parallel, items: int, *args) -> None:
 
     Chunks are handed to the threads one at a time as they finish (numba's
     parallel chunk size 1), so a thread slowed down by other work on the
-    machine takes fewer of them.
+    machine takes fewer of them. One call at a time runs in parallel
+    (:func:`._jit.parallel_launch`): a call made while another thread's
+    runs takes the serial kernel, which gives the same numbers.
     """
     chunks = max(1, min(items, _CHUNKS_PER_THREAD * numba.get_num_threads()))
-    if chunks == 1:
-        serial(0, items, *args)
-        return
-    previous = numba.set_parallel_chunksize(1)
-    try:
-        parallel(chunks, *args)
-    finally:
-        numba.set_parallel_chunksize(previous)
+    if chunks > 1:
+        with parallel_launch() as mine:
+            if mine:
+                previous = numba.set_parallel_chunksize(1)
+                try:
+                    parallel(chunks, *args)
+                finally:
+                    numba.set_parallel_chunksize(previous)
+                return
+    serial(0, items, *args)
 
 
 def _raise_not_pd(err: np.ndarray, err_S: np.ndarray) -> None:

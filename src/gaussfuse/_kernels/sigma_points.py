@@ -80,13 +80,14 @@ import math
 import warnings
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload
 
 from ..inference import METHODS, FilterResult, SmoothResult
 from ..linearize.sigma_points import sqrt_cov
 from ..models.nonlinear import ModelFunctionError, call_checked
+from ._jit import jit
 from ._nrt import borrow, readonly
 
 __all__ = ["filter", "smooth", "execution_mode"]
@@ -112,7 +113,7 @@ last_mode: str | None = None
 # ---------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _wrap(a):
     """``(a + π) % 2π - π`` as NumPy computes it, skipping the fmod when ``a + π`` is in [0, 2π)."""
     x = a + math.pi
@@ -121,7 +122,7 @@ def _wrap(a):
     return x - math.pi
 
 
-@njit(cache=True, error_model="numpy")
+@jit(error_model="numpy")
 def _copy(dst, src):
     """``dst[...] = src`` for equal shapes (1-D or 2-D), as a plain loop.
 
@@ -137,7 +138,7 @@ def _copy(dst, src):
                 dst[a, b] = src[a, b]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _cholesky_in_place(L, p):
     """Overwrite the lower triangle of ``L[:p, :p]`` by its Cholesky factor; False if not PD."""
     for j in range(p):
@@ -157,7 +158,7 @@ def _cholesky_in_place(L, p):
     return True
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _points(mean, L, pts, X, full):
     """``X = mean + pts @ L.T``; L lower triangular unless `full`.
 
@@ -175,7 +176,7 @@ def _points(mean, L, pts, X, full):
                     X[i, a] += c * L[a, b]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _draw(mean, cov, pts, X, L):
     """Sigma points of ``N(mean, cov)`` into X, through the Cholesky factor (in L).
 
@@ -192,7 +193,7 @@ def _draw(mean, cov, pts, X, L):
     return OK
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _moments(Y, d, wm, wc, angles, ybar, dY, S):
     """Weighted mean (circular for angles), wrapped residuals and ``S = Σ wc dY dYᵀ`` of ``Y[:, :d]``."""
     k = Y.shape[0]
@@ -222,7 +223,7 @@ def _moments(Y, d, wm, wc, angles, ybar, dY, S):
             S[b, a] = acc
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _cross(X, center, dY, d, wc, C):
     """``C = Σ wc (X - center) dYᵀ``, shape (n, d)."""
     n = X.shape[1]
@@ -234,7 +235,7 @@ def _cross(X, center, dY, d, wc, C):
             C[a, b] = acc
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _predict(X, Y, mean, wm, wc, xang, Q, pmean, pcov, cross, with_cross, scr):
     """Prediction ``(m⁻, P⁻)`` from the f-outputs Y at the points X of the belief with mean `mean`."""
     n = Y.shape[1]
@@ -252,7 +253,7 @@ def _predict(X, Y, mean, wm, wc, xang, Q, pmean, pcov, cross, with_cross, scr):
         _cross(X, mean, dY, n, wc, cross)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@jit(error_model="numpy", inline="always")
 def _update(Xh, Z, pmean, pcov, wm, wc, zang, xang, R, z, mean, cov, innov, Sfull, iwork, errval, scr):
     """Condition ``N(m⁻, P⁻)`` on z through the h-outputs Z at its points Xh; returns (status, loglik)."""
     n = Xh.shape[1]
@@ -322,7 +323,7 @@ def _update(Xh, Z, pmean, pcov, wm, wc, zang, xang, R, z, mean, cov, innov, Sful
     return OK, -0.5 * (ll + p * _LOG_2PI)
 
 
-@njit(cache=True, error_model="numpy")
+@jit(error_model="numpy")
 def _finite_rows(Y):
     """Index of the first row of Y with a non-finite value, or -1."""
     for i in range(Y.shape[0]):
@@ -338,7 +339,7 @@ def _scratch(k, n, m):
     return np.empty((2 * d + 2 * n + k + 2, d))
 
 
-@njit(cache=True, error_model="numpy")
+@jit(error_model="numpy")
 def _rts(means, covs, pmeans, pcovs, cross, xang, sm_means, sm_covs, gains, pos, given):
     """The RTS backward pass over N filtered series (see the module notes).
 
@@ -427,7 +428,7 @@ def _call(fn, x, us, s, k):  # pragma: no cover - replaced by the overload in co
     raise NotImplementedError
 
 
-@overload(_call, jit_options={"cache": True})
+@overload(_call)  # compiled into, and cached with, the loop that calls it
 def _call_overload(fn, x, us, s, k):
     """``fn(x)``, or ``fn(x, u)`` with the control of series s at step k."""
     if not isinstance(fn, types.FunctionType):
@@ -441,7 +442,7 @@ def _apply(fn, X, us, s, k, Y, iwork):  # pragma: no cover - replaced by the ove
     raise NotImplementedError
 
 
-@overload(_apply, jit_options={"cache": True})
+@overload(_apply)  # compiled into, and cached with, the loop that calls it
 def _apply_overload(fn, X, us, s, k, Y, iwork):
     """Evaluate a first-class model function at the points X into Y; a status code.
 
@@ -595,7 +596,7 @@ _R3 = types.Array(types.float64, 3, "C", readonly=True)  # zs: read in place, ne
 _LOOPS: dict = {}
 # Reassociation and fused multiply-adds let LLVM vectorise the sums over sigma
 # points; NaN and inf keep their IEEE meaning, so the finiteness checks stand.
-_LOOP_JIT = {"cache": True, "error_model": "numpy", "fastmath": {"reassoc", "contract", "arcp"}}
+_LOOP_JIT = {"error_model": "numpy", "fastmath": {"reassoc", "contract", "arcp"}}
 
 
 def _loop_for(f_sig, h_sig, with_u: bool):
@@ -610,7 +611,7 @@ def _loop_for(f_sig, h_sig, with_u: bool):
         )
         with warnings.catch_warnings():  # first-class function types are "experimental" in numba
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-            _LOOPS[key] = njit(sig, **_LOOP_JIT)(_filter_loop)
+            _LOOPS[key] = jit(sig, **_LOOP_JIT)(_filter_loop)
     return _LOOPS[key]
 
 
@@ -659,7 +660,7 @@ def _jitted_signatures(model, prior, us):
 #             | 2n+2..3n+1 a square root | 3n+2..4n+1 the cross-covariance C^f
 
 
-@njit(cache=True, error_model="numpy")
+@jit(error_model="numpy")
 def _py_start(m0, P0, pts, bel, X):
     n = m0.shape[0]
     _copy(bel[0], m0)
@@ -667,7 +668,7 @@ def _py_start(m0, P0, pts, bel, X):
     return _draw(bel[0], bel[1:n + 1], pts, X, bel[2 * n + 2:3 * n + 2])
 
 
-@njit(cache=True, error_model="numpy")
+@jit(error_model="numpy")
 def _py_after_f(t, Y, X, Q3, pts, w, angles, bel, Xh, pmeans, pcovs, cross, scr, iwork):
     """Check f's outputs, predict, store, and draw the points for h."""
     n = X.shape[1]
@@ -689,7 +690,7 @@ def _py_after_f(t, Y, X, Q3, pts, w, angles, bel, Xh, pmeans, pcovs, cross, scr,
     return _draw(pmean, pcov, pts, Xh, bel[2 * n + 2:3 * n + 2])
 
 
-@njit(cache=True, error_model="numpy")
+@jit(error_model="numpy")
 def _py_after_h(t, Z, Xh, R3, zs, pts, w, angles, bel, X, means, covs, innov, icovs, scr, iwork, errval):
     """Check h's outputs, update, store, and draw the points for the next step's f."""
     n = X.shape[1]

@@ -2,6 +2,10 @@ r"""Combining a motion and a sensor into a state-space model for a time step."""
 
 from __future__ import annotations
 
+from functools import partial
+
+import numpy as np
+
 from .linear import LinearModel
 from .motion import LinearMotion, NonlinearMotion
 from .nonlinear import NonlinearModel
@@ -90,40 +94,24 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
         H, R = sensor.linear(n)
         return LinearModel(F=F, H=H, Q=Q, R=R, B=B)
 
+    # f, h and their Jacobians are partials of module-level functions (or a sensor's
+    # bound methods), not closures, so that the model pickles.
     if isinstance(motion, LinearMotion):
         F.setflags(write=False)
-        FT = F.T
+        f_jacobian = partial(_constant, F)
         if B is None:
-            def f(x):
-                return x @ FT
-
-            def f_jacobian(x):
-                return F
+            f = partial(_linear, F)
         else:
             B.setflags(write=False)
-
-            def f(x, u):
-                return x @ FT + B @ u
-
-            def f_jacobian(x, u):
-                return F
+            f = partial(_linear_with_control, F, B)
     else:
-        def f(x):
-            return motion.f(x, dt)
-
-        def f_jacobian(x):
-            return motion.jacobian(x, dt)
+        f = partial(_over_dt, motion.f, dt)
+        f_jacobian = partial(_over_dt, motion.jacobian, dt)
 
     if isinstance(sensor, LinearSensor):
         H, R = sensor.linear(n)
         H.setflags(write=False)
-        HT = H.T
-
-        def h(x):
-            return x @ HT
-
-        def h_jacobian(x):
-            return H
+        h, h_jacobian = partial(_linear, H), partial(_constant, H)
     else:
         R = sensor.R
         h, h_jacobian = sensor.h, sensor.jacobian
@@ -131,6 +119,26 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
     return NonlinearModel(f, h, Q, R, f_jacobian=f_jacobian, h_jacobian=h_jacobian, vectorized=True,
                           state_angles=motion.state_angles,
                           measurement_angles=sensor.measurement_angles)
+
+
+def _linear(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``M x`` for a state (n,), or for each row of a stack of states (k, n)."""
+    return x @ M.T
+
+
+def _linear_with_control(F: np.ndarray, B: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``F x + B u`` for a state (n,) or each row of a stack (k, n)."""
+    return x @ F.T + B @ u
+
+
+def _constant(M: np.ndarray, *x) -> np.ndarray:
+    """The Jacobian of a linear map: M, wherever it is taken."""
+    return M
+
+
+def _over_dt(fn, dt: float, x: np.ndarray) -> np.ndarray:
+    """``fn(x, dt)``: a nonlinear motion's f or Jacobian over the model's time step."""
+    return fn(x, dt)
 
 
 def _check_fit(motion, sensor, n: int) -> None:

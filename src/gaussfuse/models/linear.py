@@ -38,7 +38,8 @@ class LinearModel:
     state). All time-varying matrices must have the same number of steps T,
     and a series filtered with the model must have T steps.
 
-    The model is immutable: its arrays are read-only.
+    The model is immutable: its arrays are read-only. It pickles and copies
+    (``copy.copy``, ``copy.deepcopy``) as a new, equally immutable model.
 
     Examples
     --------
@@ -83,6 +84,11 @@ class LinearModel:
 
     def __setattr__(self, name, value):
         raise AttributeError("LinearModel is immutable; build a new one instead.")
+
+    def __reduce__(self):
+        # Pickled and copied by its arguments: the constructor validates them again and
+        # makes the arrays read-only, which the default protocol (setattr) cannot.
+        return type(self), (self.F, self.H, self.Q, self.R, self.B)
 
     @property
     def n(self) -> int:

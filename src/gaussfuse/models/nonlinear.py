@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import numpy as np
@@ -69,6 +70,11 @@ class NonlinearModel:
     variables: functions using ``abs``, ``np.maximum`` or comparisons give
     wrong complex-step derivatives silently; pass analytic Jacobians for them.
 
+    The model is immutable. It copies (``copy.copy``, ``copy.deepcopy``)
+    whatever its functions, and pickles when they do: module-level
+    functions, :func:`functools.partial` of them, or instances of
+    module-level classes with ``__call__``; not lambdas or closures.
+
     Examples
     --------
     >>> import numpy as np, gaussfuse as gf
@@ -131,6 +137,15 @@ class NonlinearModel:
 
     def __setattr__(self, name, value):
         raise AttributeError("NonlinearModel is immutable; build a new one instead.")
+
+    def __reduce__(self):
+        # Pickled and copied by its arguments, rebuilt (validated, read-only) by the constructor.
+        # f, h and the Jacobians pickle as themselves: a lambda or a closure raises pickle's own
+        # error; a module-level function, a partial of one or a picklable callable object works.
+        angles = {name: tuple(np.flatnonzero(getattr(self, name)).tolist())
+                  for name in ("state_angles", "measurement_angles")}
+        return (functools.partial(type(self), **angles),
+                (self.f, self.h, self.Q, self.R, self.f_jacobian, self.h_jacobian, self.vectorized))
 
     @property
     def n(self) -> int:

@@ -1,0 +1,179 @@
+"""How the kernels are compiled and launched.
+
+Compiled: cached on disk when numba can, in memory when it cannot. Numba raises ``RuntimeError: cannot cache function ...: no locator available``
+when a function with ``cache=True`` is created and no cache directory is
+writable. The tests take that condition into a subprocess by emptying
+numba's list of cache locators before gaussfuse imports its kernels: as
+root, file permissions would not stop the writes.
+
+Launched: threads may call the batched (parallel) kernels at once on every
+threading layer; numba's ``workqueue`` layer aborts the process when two
+parallel regions start at once, so those tests run in a subprocess too.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+# Run first in every child: no cache locator can be found, as with a
+# read-only site-packages and home and no NUMBA_CACHE_DIR.
+NO_CACHE = textwrap.dedent("""
+    import numba.core.caching as caching
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+    impl._locator_classes = []
+""")
+
+FILTERS = NO_CACHE + textwrap.dedent("""
+    import json, warnings
+    import numba
+    import numpy as np
+    import gaussfuse as gf
+
+    out = {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")  # record every warning, not one per location
+        model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
+        prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+        zs = np.sin(np.arange(1500) / 40.0)
+        for front in ("filter", "smooth"):
+            run = getattr(gf, front)
+            got, want = run(model, prior, zs), run(model, prior, zs, engine="python")
+            out[front] = float(np.max(np.abs(got.means - want.means)))
+
+        @numba.njit
+        def f(x):
+            return np.array([x[0] + 0.01 * x[1], x[1] - 0.0981 * np.sin(x[0])])
+
+        @numba.njit
+        def h(x):
+            return np.array([np.sin(x[0])])
+
+        pendulum = gf.NonlinearModel(f, h, 1e-4 * np.eye(2), 0.1)
+        start = gf.Gaussian([0.0, 0.0], 0.1 * np.eye(2))  # narrow: sin(x) is ambiguous
+        got = gf.filter(pendulum, start, zs, method="ukf", engine="numba")
+        from gaussfuse._kernels import sigma_points
+        out["mode"] = sigma_points.last_mode
+        want = gf.filter(pendulum, start, zs, method="ukf", engine="python")
+        out["ukf"] = float(np.max(np.abs(got.means - want.means)))
+    out["warnings"] = [f"{w.category.__name__}: {w.message}" for w in caught]
+    print(json.dumps(out))
+""")
+
+
+def run_child(code: str, *args: str) -> subprocess.CompletedProcess:
+    """Run `code` in a new interpreter, without a NUMBA_CACHE_DIR that would provide a cache."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("NUMBA_CACHE_DIR", "NUMBA_CACHE_LOCATOR_CLASSES")}
+    return subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
+                          text=True, timeout=900)
+
+
+def test_without_a_cache_location_kernels_compile_in_memory_with_one_warning():
+    child = run_child(FILTERS)
+    assert child.returncode == 0, child.stderr
+    out = json.loads(child.stdout.strip().splitlines()[-1])
+    assert out["filter"] < 1e-10 and out["smooth"] < 1e-10
+    assert out["mode"] == "compiled" and out["ukf"] < 1e-10
+    assert len(out["warnings"]) == 1, out["warnings"]
+    warning = out["warnings"][0]
+    assert warning.startswith("CacheUnavailableWarning: ")
+    assert "NUMBA_CACHE_DIR" in warning
+
+
+CLI = NO_CACHE + textwrap.dedent("""
+    import runpy, sys
+    sys.argv = ["gaussfuse", *sys.argv[1:]]
+    runpy.run_module("gaussfuse", run_name="__main__")
+""")
+
+
+def test_without_a_cache_location_the_cli_filters_a_long_file(tmp_path):
+    t = np.arange(1200)
+    data = tmp_path / "data.csv"
+    np.savetxt(data, np.column_stack([t, np.sin(t / 30.0)]), delimiter=",", header="t,z", comments="")
+    model = tmp_path / "model.toml"
+    model.write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.01\nr = 0.5\n')
+    child = run_child(CLI, "filter", str(data), "--model", str(model))
+    assert child.returncode == 0, child.stderr
+    assert "Traceback" not in child.stderr
+    assert child.stderr.count("CacheUnavailableWarning") == 1, child.stderr
+    assert len(child.stdout.splitlines()) == 1201  # the header and one row a step
+
+
+# ---------------------------------------------------------------------------
+# Launching: concurrent calls from threads, on every threading layer
+# ---------------------------------------------------------------------------
+
+THREADS = textwrap.dedent("""
+    import threading
+    import numba
+    import numpy as np
+    import gaussfuse as gf
+
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
+    prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = np.random.default_rng(0).normal(size=(64, 200, 1))  # many series: the parallel kernels
+
+
+    def f(x):
+        return np.array([x[0] + 0.01 * x[1], x[1] - 0.0981 * np.sin(x[0])])
+
+
+    def h(x):
+        return np.sin(x[:1])
+
+
+    pendulum = gf.NonlinearModel(f, h, 1e-4 * np.eye(2), 0.1)
+    start = gf.Gaussian([0.0, 0.0], 0.1 * np.eye(2))
+    calls = {
+        "filter": lambda: gf.filter(model, prior, zs, engine="numba"),
+        "smooth": lambda: gf.smooth(model, prior, zs, engine="numba"),
+        "ukf": lambda: gf.smooth(pendulum, start, zs[:4, :50], engine="numba"),
+    }
+    reference = {name: call() for name, call in calls.items()}  # one thread
+
+
+    def same(a, b):
+        if hasattr(a, "filtered"):
+            return same(a.filtered, b.filtered) and all(
+                np.array_equal(getattr(a, k), getattr(b, k)) for k in ("means", "covs", "gains"))
+        return all(np.array_equal(getattr(a, k), getattr(b, k), equal_nan=True)
+                   for k in ("means", "covs", "predicted_means", "predicted_covs", "innovations",
+                             "innovation_covs", "loglik", "last_mean", "last_cov"))
+
+
+    start_together = threading.Barrier(4)
+    differ = []
+
+
+    def work():
+        start_together.wait()
+        for _ in range(8):
+            for name, call in calls.items():
+                if not same(call(), reference[name]):
+                    differ.append(name)
+
+
+    threads = [threading.Thread(target=work) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    print(numba.threading_layer(), sorted(set(differ)))
+""")
+
+
+@pytest.mark.parametrize("layer", ["workqueue", "default"])
+def test_threads_calling_batched_filters_at_once_get_the_single_thread_results(layer):
+    child = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True, timeout=900,
+                           env={**os.environ, "NUMBA_THREADING_LAYER": layer})
+    assert child.returncode == 0, child.stderr  # the workqueue layer aborted (SIGABRT: -6)
+    used, differ = child.stdout.split(maxsplit=1)
+    if layer != "default":
+        assert used == layer
+    assert differ.strip() == "[]"
