@@ -119,18 +119,21 @@ def test_demo_out_is_a_file(tmp_path, capsys):
     assert blocker.read_text() == "keep"
 
 
-def test_demo_as_a_subprocess_is_fast(tmp_path):
-    import matplotlib.font_manager  # noqa: F401  (builds matplotlib's font cache once, untimed)
+def test_demo_as_a_subprocess_compiles_nothing(tmp_path):
+    """`python -m gaussfuse demo` works and never loads numba: nothing to compile on a first run.
 
-    start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "gaussfuse", "demo", "--out", str(tmp_path)],
-                          capture_output=True, text=True, cwd=tmp_path, timeout=60)
-    elapsed = time.perf_counter() - start
+    (Its speed is a matter for benchmarks/, not for a timed test.)
+    """
+    code = ("import runpy, sys; sys.argv = ['gaussfuse', 'demo', '--out', sys.argv[1]]\n"
+            "try:\n    runpy.run_module('gaussfuse', run_name='__main__')\n"
+            "except SystemExit as exc:\n    assert not exc.code, exc.code\n"
+            "print('numba loaded:', 'numba' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == ""
-    assert "smoother" in proc.stdout
+    assert "smoother" in proc.stdout and "numba loaded: False" in proc.stdout
     assert (tmp_path / "gaussfuse-demo.png").stat().st_size > 10_000
-    assert elapsed < 5.0
 
 
 # ---------------------------------------------------------------------------

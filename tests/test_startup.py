@@ -1,23 +1,24 @@
-"""Start-up: `import gaussfuse` is quick and loads neither numba nor matplotlib."""
+"""Start-up: `import gaussfuse` loads NumPy and nothing else outside the standard library.
+
+What makes an import slow is what it loads (numba and matplotlib take
+seconds, SciPy's submodules a large fraction of one), so that is what is
+checked; a timing would depend on the machine's load. The import's speed is
+measured in ``benchmarks/``.
+"""
 
 import subprocess
 import sys
 
 CODE = """
-import time, sys
-t = time.perf_counter()
+import sys
+before = set(sys.modules)
 import gaussfuse
-elapsed = time.perf_counter() - t
-print(elapsed, "numba" in sys.modules, "matplotlib" in sys.modules)
+print(" ".join(sorted({m.split(".")[0] for m in set(sys.modules) - before})))
 """
 
 
-def test_import_is_fast_and_lazy():
-    runs = []
-    for _ in range(3):
-        out = subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, check=True)
-        elapsed, numba_loaded, mpl_loaded = out.stdout.split()
-        runs.append(float(elapsed))
-        assert numba_loaded == "False"
-        assert mpl_loaded == "False"
-    assert min(runs) < 0.5, runs
+def test_import_loads_only_numpy_besides_the_standard_library():
+    out = subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, check=True)
+    loaded = set(out.stdout.split())
+    third_party = {m for m in loaded - {"gaussfuse"} if m not in sys.stdlib_module_names and not m.startswith("_")}
+    assert third_party == {"numpy"}, third_party
