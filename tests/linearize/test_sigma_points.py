@@ -120,3 +120,23 @@ def test_sqrt_cov_of_singular_covariance():
     np.testing.assert_allclose(L @ L.T, cov, atol=1e-12)
     with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
         sqrt_cov(np.array([[1.0, 0.0], [0.0, -1.0]]))
+
+
+def test_slr_with_a_round_off_variance_stays_of_the_size_of_the_slope():
+    """A component whose variance is round-off (1e-32) at a mean of 2: its points are quantised to ulps.
+
+    The regression in the unit points keeps A of the size of g's slope, and
+    it equals the regression with that variance exactly 0 (where the points
+    do not move along it). C P⁻¹ made an entry of order 1e15 here.
+    """
+    mean = np.array([0.1, 2.0])
+    near_cov, exact_cov = np.array([[1.5, 1e-32], [1e-32, 6.6e-32]]), np.diag([1.5, 0.0])
+    g = lambda X: np.stack([0.5 * X[:, 0] + 25 * X[:, 0] / (1 + X[:, 0] ** 2) + X[:, 1], X[:, 1]], axis=-1)
+    for rule in (unscented(2), cubature(2), gauss_hermite(2, 3)):
+        A, b, omega = slr(g, rule, mean, near_cov)
+        A0, b0, omega0 = slr(g, rule, mean, exact_cov)
+        assert np.abs(A).max() < 30.0
+        assert abs(omega[0, 1]) < 1e-12 and omega[1, 1] > -1e-40
+        # The prediction it gives is the one with the variance exactly 0.
+        np.testing.assert_allclose(A @ mean + b, A0 @ mean + b0, rtol=1e-14)
+        np.testing.assert_allclose(A @ near_cov @ A.T + omega, A0 @ exact_cov @ A0.T + omega0, rtol=1e-12, atol=1e-12)

@@ -5,7 +5,7 @@ The readable path (:class:`gaussfuse.linearize.SigmaPoints` feeding
 affine Kalman step. For additive noise that collapses, in exact arithmetic,
 to the classic sigma-point formulas computed here. With the points
 :math:`\mathcal X_i = m + L \xi_i` of a belief :math:`N(m, P)`, :math:`P = L L^\top`
-(the symmetric root when P is singular), and :math:`\mathcal Y_i = f(\mathcal X_i)`:
+(the semi-definite Cholesky factor when P is singular), and :math:`\mathcal Y_i = f(\mathcal X_i)`:
 
 .. math::
 
@@ -63,7 +63,7 @@ Execution modes, chosen per call:
 A covariance that is not positive definite (a state known exactly, no
 process noise on it) has no Cholesky factor: its points are then drawn in
 Python through :func:`~gaussfuse.linearize.sigma_points.sqrt_cov`, the
-readable path's symmetric root (in the compiled mode, that series and the
+readable path's semi-definite Cholesky factor (in the compiled mode, that series and the
 following ones continue in the Python mode), and a singular :math:`P^-` in
 the smoother gets the readable path's least-squares gain.
 :func:`execution_mode` tells which mode a model gets.
