@@ -136,6 +136,54 @@ def test_every_method_on_a_linear_model_equals_the_kalman_filter(seed, n, m, T, 
 
 
 # ---------------------------------------------------------------------------
+# A component known exactly: the unscented rule collapses to Gauss–Hermite
+# ---------------------------------------------------------------------------
+# The state is [x, c] with c a constant known exactly (variance 0, no process
+# noise). The unscented points along c sit on the mean, so with kappa = 3 - n
+# the unscented rule in x is the 1-D Gauss-Hermite rule of order 3 (points 0,
+# ±√3 σ; weights 2/3, 1/6, 1/6): the UKF equals the GHKF of order 3, and both
+# equal the 1-D filter with c substituted.
+
+C_KNOWN = 2.0
+KNOWN_ZS = np.array([3, 1, 0.5, 6, 2, 0.1, 4, 9, 1, 0.3])
+
+
+def known_f(x):
+    return np.array([0.5 * x[0] + 25 * x[0] / (1 + x[0] ** 2) + x[1], x[1]])
+
+
+def known_h(x):
+    return np.array([x[0] ** 2 / 20])
+
+
+def test_ukf_equals_gauss_hermite_when_a_component_is_known_exactly():
+    model = gf.NonlinearModel(known_f, known_h, np.diag([10.0, 0.0]), 1.0)
+    prior = gf.Gaussian([0.1, C_KNOWN], np.diag([1.0, 0.0]))
+    one_d = gf.NonlinearModel(lambda x: 0.5 * x + 25 * x / (1 + x**2) + C_KNOWN, lambda x: x**2 / 20, 10.0, 1.0)
+    oracle = gf.smooth(one_d, gf.Gaussian(0.1, 1.0), KNOWN_ZS, method="ghkf", order=3, engine="python")
+    runs = {(method, engine): gf.smooth(model, prior, KNOWN_ZS, method=method, engine=engine, **options)
+            for method, options in (("ukf", {}), ("ghkf", {"order": 3})) for engine in ("python", "numba")}
+    for key, sm in runs.items():
+        # Before the fix the readable UKF gave -28.680 here (the others -28.646): after the first
+        # step the variance of c was round-off (1e-32), and the regression divided by it.
+        assert sm.loglik == pytest.approx(oracle.loglik, rel=1e-10, abs=1e-10), key
+        assert sm.loglik == pytest.approx(-28.646038316756, abs=1e-9), key
+        filt = sm.filtered
+        for got, want in ((filt.means[:, 0], oracle.filtered.means[:, 0]),
+                          (filt.covs[:, 0, 0], oracle.filtered.covs[:, 0, 0]),
+                          (filt.predicted_covs[:, 0, 0], oracle.filtered.predicted_covs[:, 0, 0]),
+                          (filt.innovation_covs, oracle.filtered.innovation_covs),
+                          (sm.means[:, 0], oracle.means[:, 0]), (sm.covs[:, 0, 0], oracle.covs[:, 0, 0]),
+                          (sm.gains[:, 0, 0], oracle.gains[:, 0, 0])):
+            np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10, err_msg=str(key))
+        # c stays known exactly: no round-off variance creeps in, and the smoother never regresses on it.
+        np.testing.assert_array_equal(filt.means[:, 1], C_KNOWN)
+        for covs in (filt.covs, filt.predicted_covs, sm.covs):
+            np.testing.assert_array_equal(covs[:, 1, :], 0.0)
+        np.testing.assert_array_equal(sm.gains[:, :, 1], 0.0)
+
+
+# ---------------------------------------------------------------------------
 # Angles: a range-bearing tracker whose bearing crosses ±180°.
 # ---------------------------------------------------------------------------
 

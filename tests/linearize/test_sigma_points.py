@@ -140,3 +140,15 @@ def test_slr_with_a_round_off_variance_stays_of_the_size_of_the_slope():
         # The prediction it gives is the one with the variance exactly 0.
         np.testing.assert_allclose(A @ mean + b, A0 @ mean + b0, rtol=1e-14)
         np.testing.assert_allclose(A @ near_cov @ A.T + omega, A0 @ exact_cov @ A0.T + omega0, rtol=1e-12, atol=1e-12)
+
+
+def test_slr_of_a_component_known_exactly_has_no_spread():
+    """An output constant over the points has exactly its value as mean and exactly zero variance."""
+    mean, cov = np.array([0.3, 2.0, np.pi - 0.01]), np.diag([2.0, 0.0, 0.0])
+    g = lambda X: np.stack([np.sin(X[:, 0]), X[:, 1], X[:, 2] + 0.02], axis=-1)  # the last: an angle
+    for rule in (unscented(3), cubature(3), gauss_hermite(3, 3)):
+        A, b, omega = slr(g, rule, mean, cov, angles=np.array([False, False, True]))
+        y = A @ mean + b
+        assert y[1] == 2.0 and y[2] == (np.pi - 0.01) + 0.02
+        np.testing.assert_array_equal(omega[1:], 0.0)
+        np.testing.assert_array_equal(A[1:], 0.0)

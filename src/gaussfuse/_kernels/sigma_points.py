@@ -9,7 +9,7 @@ to the classic sigma-point formulas computed here. With the points
 
 .. math::
 
-    m^- = \textstyle\sum_i w^m_i \mathcal Y_i, \qquad
+    m^- = \mathcal Y_0 + \textstyle\sum_i w^m_i (\mathcal Y_i - \mathcal Y_0), \qquad
     P^- = \textstyle\sum_i w^c_i\, \delta\mathcal Y_i \delta\mathcal Y_i^\top + Q, \qquad
     C^f = \textstyle\sum_i w^c_i\, (\mathcal X_i - m) \delta\mathcal Y_i^\top,
 
@@ -18,19 +18,21 @@ and with the points :math:`\mathcal X^-_i` of :math:`N(m^-, P^-)` and
 
 .. math::
 
-    \bar z &= \textstyle\sum_i w^m_i \mathcal Z_i, \quad
+    \bar z &= \mathcal Z_0 + \textstyle\sum_i w^m_i (\mathcal Z_i - \mathcal Z_0), \quad
     S = \textstyle\sum_i w^c_i\, \delta\mathcal Z_i \delta\mathcal Z_i^\top + R, \quad
     C = \textstyle\sum_i w^c_i\, (\mathcal X^-_i - m^-) \delta\mathcal Z_i^\top, \\
     S_o &= L_S L_S^\top, \quad W = L_S^{-1} C_o^\top, \quad \omega = L_S^{-1} v_o, \\
     m &= m^- + W^\top \omega, \quad P = P^- - W^\top W, \quad
     \ell = -\tfrac12 \left(\omega^\top \omega + 2 \textstyle\sum \log\operatorname{diag} L_S + |o| \log 2\pi\right),
 
-i.e. :math:`K = C_o S_o^{-1}`, :math:`P = P^- - K S_o K^\top`. The readable
-path's regression matrices :math:`A = C^\top P^{-1}` cancel out of every one of
-these (its Joseph form, with :math:`H = C^\top (P^-)^{-1}` and
-:math:`R + \Omega`, expands to :math:`P^- - K S_o K^\top`), so the two agree
-to round-off, amplified at most by the condition number of the covariance
-being inverted; :math:`P^- - W^\top W` is used because it is symmetric by
+i.e. :math:`K = C_o S_o^{-1}`, :math:`P = P^- - K S_o K^\top`. (The means are
+centred on the first point, as the readable path's, so that a component
+known exactly keeps a variance of exactly 0.) The readable path's regression
+matrices :math:`A = C^\top P^{-1}` (computed as :math:`\Xi^\top L^{-1}` in the
+unit points) cancel out of every one of these (its Joseph form, with
+:math:`H = C^\top (P^-)^{-1}` and :math:`R + \Omega`, expands to
+:math:`P^- - K S_o K^\top`), so the two agree to round-off;
+:math:`P^- - W^\top W` is used because it is symmetric by
 construction and costs one triangular solve. The RTS pass reuses the
 filter's :math:`m^-, P^-, C^f` (the readable smoother re-draws the points at
 each filtered belief, which gives the same numbers):
@@ -197,19 +199,20 @@ def _moments(Y, d, wm, wc, angles, ybar, dY, S):
     """Weighted mean (circular for angles), wrapped residuals and ``S = Σ wc dY dYᵀ`` of ``Y[:, :d]``."""
     k = Y.shape[0]
     for a in range(d):
-        if angles[a]:
+        if angles[a]:  # the circular mean, centred on the first point as the readable path
             s = 0.0
             c = 0.0
             for i in range(k):
-                s += wm[i] * math.sin(Y[i, a])
-                c += wm[i] * math.cos(Y[i, a])
-            mu = math.atan2(s, c)
+                s += wm[i] * math.sin(Y[i, a] - Y[0, a])
+                c += wm[i] * math.cos(Y[i, a] - Y[0, a])
+            mu = Y[0, a] + math.atan2(s, c)
             for i in range(k):
                 dY[i, a] = _wrap(Y[i, a] - mu)
-        else:
-            mu = 0.0
-            for i in range(k):
-                mu += wm[i] * Y[i, a]
+        else:  # centred on the first point, as linearize.sigma_points.weighted_mean
+            acc = 0.0
+            for i in range(1, k):
+                acc += wm[i] * (Y[i, a] - Y[0, a])
+            mu = Y[0, a] + acc
             for i in range(k):
                 dY[i, a] = Y[i, a] - mu
         ybar[a] = mu

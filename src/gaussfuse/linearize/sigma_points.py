@@ -48,6 +48,14 @@ is quantised to 0 or one ulp, and :math:`C^\top P^{-1}` divided that
 quantisation by :math:`10^{-32}`, putting :math:`10^{15}` into :math:`A`
 and leaving :math:`\Omega` to cancel two huge terms. In the unit points the
 regression stays of the size of :math:`g`'s slope.
+
+The mean :math:`\bar y` is computed centred on the first point,
+:math:`\mathcal Y_0 + \sum_i w^m_i (\mathcal Y_i - \mathcal Y_0)` (and the
+circular mean of an angle likewise, on :math:`\mathcal Y_i - \mathcal Y_0`),
+so that an output that is the same at every point (a state component known
+exactly) has exactly that mean and exactly zero spread, although the
+weights' sum carries round-off: such a component keeps a variance of exactly
+0, not one of :math:`10^{-32}`.
 """
 
 from __future__ import annotations
@@ -167,6 +175,18 @@ def sqrt_cov(cov: np.ndarray) -> np.ndarray:
     return _root(cov)[0]
 
 
+def weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``Σ_i w_i values_i`` along axis 0, centred on the first row.
+
+    Computed as ``values_0 + Σ_i w_i (values_i - values_0)``: the plain sum
+    when the weights sum to 1, but exact for a component that is the same
+    at every point. The weights' sum carries round-off, and a constant
+    output must keep a mean equal to it and a spread of exactly 0, so that a
+    state component known exactly stays known exactly.
+    """
+    return values[0] + weights @ (values - values[0])
+
+
 def circular_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Weighted mean of angles along axis 0: ``atan2(Σ w sin, Σ w cos)``."""
     return np.arctan2(weights @ np.sin(values), weights @ np.cos(values))
@@ -220,10 +240,11 @@ def slr(
     L, keep = _root(cov)
     X = mean + rule.points @ L.T
     Y = g(X)
-    y_mean = rule.wm @ Y
+    y_mean = weighted_mean(Y, rule.wm)
     dY = Y - y_mean
     if angles is not None and angles.any():
-        y_mean[angles] = circular_mean(Y[:, angles], rule.wm)
+        ref = Y[0, angles]  # centred, as weighted_mean: a constant angle is its own mean, exactly
+        y_mean[angles] = ref + circular_mean(Y[:, angles] - ref, rule.wm)
         dY[:, angles] = wrap_angle(Y[:, angles] - y_mean[angles])
     S = (dY * rule.wc[:, None]).T @ dY
     Xi = (rule.points[:, keep] * rule.wc[:, None]).T @ dY  # C = L Ξ, over the nonzero columns
