@@ -196,17 +196,23 @@ def test_fuse_moments_is_the_update_with_identity_measurement():
 # ---------------------------------------------------------------------------
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=60, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 4), rank=st.integers(0, 4))
 def test_semidefinite_cholesky(seed, n, rank):
-    """L Lᵀ = cov, lower triangular, a zero column for each component that depends on earlier ones."""
+    """L Lᵀ = cov, lower triangular, a column of round-off at most for each component that depends on earlier ones.
+
+    A pivot of exactly 0 gives a zero column; one of round-off may stay, at
+    about its square root (1e-7 here), which is harmless (see the next test).
+    """
     rng = np.random.default_rng(seed)
     B = rng.standard_normal((n, min(rank, n)))
     cov = B @ B.T
     L = kalman.semidefinite_cholesky(cov)
     np.testing.assert_array_equal(L, np.tril(L))
     np.testing.assert_allclose(L @ L.T, cov, atol=1e-12 * max(1.0, np.abs(cov).max()))
-    assert np.count_nonzero(np.diag(L)) == min(rank, n)
+    assert np.count_nonzero(np.diag(L) > 1e-6 * np.sqrt(np.diag(cov))) == min(rank, n)
+    exact = np.diag(np.arange(n) % 2 * 1.0)  # every other component known exactly: exact zero columns
+    np.testing.assert_array_equal(np.diag(kalman.semidefinite_cholesky(exact)) > 0, np.diag(exact) > 0)
     # On a positive definite matrix it is the Cholesky factor.
     spd = cov + np.eye(n)
     np.testing.assert_allclose(kalman.semidefinite_cholesky(spd), np.linalg.cholesky(spd), rtol=1e-12, atol=1e-12)
