@@ -30,6 +30,11 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
     With ``copy=False`` a float64 array is used as it is (a long series, or a
     memory-mapped one, is not duplicated); the check allocates nothing the
     size of `value` unless it finds a bad entry.
+
+    A masked array's masked entries are missing values: NaN where `allow_nan`
+    (in a new array; the caller's is not modified), an error otherwise.
+    Dates and times (``datetime64``, ``timedelta64``) are not numbers here:
+    their cast would silently give counts of days or nanoseconds.
     """
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(f"`{name}` must be an array of numbers; got {type(value).__name__}.")
@@ -42,6 +47,22 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
         raise TypeError(f"`{name}` must be real; got complex values.")
     if kind == "b":
         raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
+    if kind in ("M", "m"):
+        what = "datetime64" if kind == "M" else "timedelta64"
+        raise TypeError(f"`{name}` must be an array of numbers; got {what} values (dates and times "
+                        "are not numbers here, and are not converted to counts of days or seconds).")
+    if np.ma.isMaskedArray(value):
+        masked = np.ma.getmaskarray(value)
+        if masked.any():
+            if not allow_nan:
+                index = tuple(int(i) for i in np.argwhere(masked)[0])
+                raise ValueError(f"`{name}` must not have masked entries (only measurements may be "
+                                 f"missing); got a masked entry at index {index}.")
+            value = np.ma.getdata(value).astype(np.float64)  # a copy: the caller's array stays as it was
+            value[masked] = np.nan
+            copy = False
+        else:
+            value = np.ma.getdata(value)
     try:
         arr = np.array(value, dtype=np.float64, copy=copy or None)
     except (TypeError, ValueError) as exc:

@@ -511,7 +511,14 @@ def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
 
 
 def check_measurements(zs, m: int) -> np.ndarray:
-    """Return `zs` as an array (N, T, m); NaN marks a missing component."""
+    """Return `zs` as an array (N, T, m); NaN (or a masked entry of a masked array) marks a missing component."""
+    try:
+        kind = np.asarray(zs).dtype.kind
+    except ValueError:  # ragged: as_array says so
+        kind = None
+    if kind in ("M", "m"):
+        raise TypeError(f"`zs` must be an array of numbers; got {np.asarray(zs).dtype} values: "
+                        "datetimes are not measurements.")
     arr = as_array("zs", zs, allow_nan=True, copy=False)
     given = arr.shape
     if arr.ndim == 1 and m == 1:
@@ -644,8 +651,9 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         (:mod:`gaussfuse.diffuse`): beliefs are NaN until the measurements
         identify the state, and `loglik` is the diffuse log-likelihood.
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
-        Measurements; a NaN component is missing. A leading axis holds N
-        independent series, and every result then gains that axis.
+        Measurements; a NaN component (or a masked entry of a masked array)
+        is missing. A leading axis holds N independent series, and every
+        result then gains that axis.
     us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
         Control inputs: required exactly when a LinearModel has ``B``;
         passed to a NonlinearModel's ``f(x, u_k)`` when given.

@@ -650,3 +650,20 @@ def test_scalar_outputs_from_plain_functions_are_accepted():
     model = gf.NonlinearModel(lambda x: 0.9 * x, lambda x: float(np.sin(x[0])), 0.01, 0.1)
     res, ref, _ = both(gf.smooth, model, gf.Gaussian(0.5, 1.0), np.sin(np.linspace(0, 1, 6)), method="ukf")
     assert_same(res, ref)
+
+
+h_complex_jit = numba.njit(cache=True)(lambda x: x[:1] + 0j)
+h_bool_jit = numba.njit(cache=True)(lambda x: x[:1] > 0.0)
+
+
+@pytest.mark.parametrize("h, what", [(lambda x: x[:1] + 0j, "complex"), (h_complex_jit, "complex"),
+                                     (lambda x: x[:1] > 0.0, "boolean"), (h_bool_jit, "boolean")],
+                         ids=["complex", "complex-jitted", "bool", "bool-jitted"])
+def test_complex_or_boolean_outputs_are_refused(h, what):
+    f = identity_jit if numba.extending.is_jitted(h) else identity
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
+        gf.filter(model, gf.Gaussian([0.5, 0.0], np.eye(2)), np.zeros(3), method="ukf", engine="numba")
+    assert sp.last_mode == "python"  # such a jitted h does not fit the compiled loop
+    with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
+        gf.filter(model, gf.Gaussian([0.5, 0.0], np.eye(2)), np.zeros(3), method="ukf", engine="python")

@@ -17,15 +17,35 @@ class ModelFunctionError(ValueError):
 
 
 def _indices(name: str, value, size: int) -> np.ndarray:
-    """A boolean mask of length `size` from a sequence of component indices."""
-    idx = np.asarray(value if value is not None else (), dtype=object).reshape(-1)
-    mask = np.zeros(size, dtype=bool)
-    for i in idx:
-        if not isinstance(i, (int, np.integer)) or not -size <= i < size:
+    """A read-only boolean mask of length `size` from a boolean mask or a sequence of component indices.
+
+    A sequence of booleans is a mask and must have length `size`; a sequence of
+    integers lists components (negative ones count from the end). A mix of the
+    two is ambiguous (True is also the index 1) and is refused.
+    """
+    items = list(np.asarray(value if value is not None else (), dtype=object).reshape(-1))
+    flags = [isinstance(i, (bool, np.bool_)) for i in items]
+    if items and all(flags):
+        if len(items) != size:
             raise ValueError(
-                f"`{name}` must hold component indices in [0, {size}); got {list(idx)}."
+                f"`{name}` as a boolean mask must have length {size}, one entry per component; "
+                f"got length {len(items)}."
             )
-        mask[i] = True
+        mask = np.array(items, dtype=bool)
+    elif any(flags):
+        raise ValueError(
+            f"`{name}` must be a boolean mask of length {size} or a sequence of component indices, "
+            f"not a mix of booleans and numbers; got {items}."
+        )
+    else:
+        mask = np.zeros(size, dtype=bool)
+        for i in items:
+            if not isinstance(i, (int, np.integer)) or not -size <= i < size:
+                raise ValueError(
+                    f"`{name}` must hold component indices in [0, {size}) or be a boolean mask of "
+                    f"length {size}; got {items}."
+                )
+            mask[i] = True
     mask.setflags(write=False)
     return mask
 
@@ -59,9 +79,11 @@ class NonlinearModel:
     vectorized : bool, default False
         If True, f and h take a stack of states of shape (k, n) and return
         (k, n) and (k, m), so sigma-point filters call each once per step.
-    state_angles, measurement_angles : sequence of int, optional
+    state_angles, measurement_angles : sequence of int or of bool, optional
         Components that are angles in radians: their residuals are wrapped
-        to [-π, π), and means over sigma points are circular means.
+        to [-π, π), and means over sigma points are circular means. Either
+        the components' indices, or a boolean mask with one entry per
+        component.
 
     Notes
     -----
@@ -194,6 +216,16 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
         raise ModelFunctionError(
             f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}"
         ) from exc
+    try:
+        kind = np.asarray(out).dtype.kind
+    except (TypeError, ValueError):  # ragged: the cast below says so
+        kind = None
+    if kind in ("c", "b", "M", "m"):
+        # Before the cast, which would drop an imaginary part or turn True into 1.0.
+        what = {"c": "complex", "b": "boolean", "M": "datetime64", "m": "timedelta64"}[kind]
+        raise ModelFunctionError(
+            f"`{name}` must return an array of real numbers; got {what} values for an input of shape {x.shape}."
+        )
     try:
         out = np.asarray(out, dtype=np.float64)
     except (TypeError, ValueError):
