@@ -223,10 +223,11 @@ def _filter_pass(lin, prior: Gaussian, zs: np.ndarray, iterations: int, tol: flo
     loglik = 0.0
     mean, cov = prior.mean, prior.cov
     for k in range(T):
-        with _at_step(k):
+        with _at_step(k), np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
             A, b, Q = lin.transition(k, mean, cov)
             mean, cov = kalman.predict(mean, cov, A, Q, b)
             mean = kalman.wrap_components(mean, state_angles)
+            check_finite(k, "predicted", mean, cov)
             if rows:
                 pmeans[k] = mean
             if crows:
@@ -236,6 +237,7 @@ def _filter_pass(lin, prior: Gaussian, zs: np.ndarray, iterations: int, tol: flo
             unconverged += not converged
             if used.shape[0]:
                 used[k] = passes
+            check_finite(k, "filtered", post.mean, post.cov, post.loglik)
         mean, cov = kalman.wrap_components(post.mean, state_angles), post.cov
         if rows:
             means[k], innov[k] = mean, post.innovation
@@ -272,7 +274,7 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
     sm_means, sm_covs = means.copy(), covs.copy()
     gains = np.empty((max(means.shape[0] - 1, 0), *covs.shape[1:]))
     for j in range(means.shape[0] - 2, -1, -1):
-        with _at_step(j + first):
+        with _at_step(j + first), np.errstate(over="ignore", invalid="ignore"):
             A, b, Q = lin.transition(j + first, means[j], covs[j])
             pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)
             sm_means[j], sm_covs[j], gains[j] = kalman.rts_step(
@@ -280,7 +282,44 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
                 sm_means[j + 1], sm_covs[j + 1], covs[j] @ A.T, angles=state_angles,
             )
             sm_means[j] = kalman.wrap_components(sm_means[j], state_angles)
+        check_finite(j + first, "smoothed", sm_means[j], sm_covs[j])
     return sm_means, sm_covs, gains
+
+
+def not_finite(stage: str, k: int, series: int | None = None) -> FloatingPointError:
+    """The error for a belief that overflowed: the same words from every engine.
+
+    `stage` is "predicted", "filtered" (whose log-likelihood term is checked
+    too) or "smoothed"; `series` is named for a batch of series.
+    """
+    what = "mean, covariance or log-likelihood" if stage == "filtered" else "mean or covariance"
+    where = f"at step {k}" if series is None else f"in series {series}, at step {k}"
+    return FloatingPointError(
+        f"{where}: the {stage} {what} is not finite (inf or NaN): the computation overflowed; "
+        "check the scale of the model, the prior and the measurements."
+    )
+
+
+def check_smoothed(means: np.ndarray, covs: np.ndarray) -> None:
+    """:func:`check_finite` for the smoothed beliefs (N, T, n) of a compiled engine, after its backward pass.
+
+    Names the step the readable backward pass would have stopped at: in the
+    first series that overflowed, the latest step.
+    """
+    bad = ~(np.isfinite(means).all(axis=-1) & np.isfinite(np.diagonal(covs, axis1=-2, axis2=-1)).all(axis=-1))
+    if bad.any():
+        s = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise not_finite("smoothed", int(np.flatnonzero(bad[s])[-1]), s if means.shape[0] > 1 else None)
+
+
+def check_finite(k: int, stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
+    """Raise :func:`not_finite` when the mean, the diagonal of the covariance or `loglik` is inf or NaN.
+
+    The diagonal stands for the whole matrix (an infinite or NaN covariance
+    has one there), so the check is O(n) a step.
+    """
+    if not (np.isfinite(mean).all() and np.isfinite(np.diagonal(cov)).all() and np.isfinite(loglik)):
+        raise not_finite(stage, k)
 
 
 class _at_step:
@@ -684,6 +723,26 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     -------
     FilterResult
 
+    Raises
+    ------
+    ValueError, TypeError
+        For input that cannot be right, naming the argument: shapes, non-finite
+        model matrices, complex, boolean or datetime values, unknown options.
+        A masked array's masked entries are not an error: they are missing.
+    ModelFunctionError
+        (a ValueError) When f, h or a Jacobian raises, or returns a wrong
+        shape, a non-finite value, or complex or boolean values; the message
+        names the function and the step.
+    numpy.linalg.LinAlgError
+        When an innovation covariance is not positive definite (at step k).
+    FloatingPointError
+        When a step's predicted or filtered mean, covariance or log-likelihood
+        term is not finite: the computation overflowed (say a transition of
+        1e200, or measurements near 1e308). The message names the step ("in
+        series s, at step k" for a batch in the compiled linear engine).
+        Both engines check the same values: the mean, the diagonal of the
+        covariance and the log-likelihood term.
+
     Warns
     -----
     ConvergenceWarning
@@ -790,6 +849,13 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     SmoothResult
         ``.means`` (T, n), ``.covs`` (T, n, n), ``.gains`` (T-1, n, n) and
         ``.filtered``, the forward pass.
+
+    Raises
+    ------
+    ValueError, TypeError, ModelFunctionError, numpy.linalg.LinAlgError, FloatingPointError
+        As :func:`filter`; FloatingPointError also when a smoothed mean or
+        covariance is not finite (at step k, the latest one of the backward
+        pass).
 
     Warns
     -----

@@ -652,6 +652,45 @@ def test_scalar_outputs_from_plain_functions_are_accepted():
     assert_same(res, ref)
 
 
+def f_huge(x):
+    return np.array([1e120 * x[0], x[1]])
+
+
+def f_huge_vec(X):
+    return X * np.array([1e120, 1.0])
+
+
+f_huge_jit = numba.njit(cache=True)(f_huge)
+
+
+def second(x):
+    return x[1:].copy()
+
+
+second_jit = numba.njit(cache=True)(second)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_overflow_names_the_step(mode):
+    """x0 is not measured and grows by 1e120 a step: its variance is 1e240, then inf. f's values stay finite."""
+    f, h = {"plain": (f_huge, second), "vectorized": (f_huge_vec, lambda X: X[:, 1:]),
+            "jitted": (f_huge_jit, second_jit)}[mode]
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0, vectorized=mode == "vectorized")
+    for method in ("ukf", "ckf"):
+        same_error(FloatingPointError, model, gf.Gaussian([1.0, 0.0], np.eye(2)), np.zeros(4), method=method,
+                   match=r"^at step 1: the predicted mean or covariance is not finite \(inf or NaN\)")
+    with pytest.raises(FloatingPointError, match=r"^at step 1: the predicted"):
+        gf.smooth(model, gf.Gaussian([1.0, 0.0], np.eye(2)), np.zeros(4), method="ukf", engine="numba")
+
+
+@pytest.mark.parametrize("mode", ["plain", "jitted"])
+def test_overflow_of_the_log_likelihood_names_the_step(mode):
+    f, h = (identity, first) if mode == "plain" else (identity_jit, first_jit)
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+    same_error(FloatingPointError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), [0.0, 1e300, 0.0], method="ukf",
+               match=r"^at step 1: the filtered mean, covariance or log-likelihood is not finite")
+
+
 h_complex_jit = numba.njit(cache=True)(lambda x: x[:1] + 0j)
 h_bool_jit = numba.njit(cache=True)(lambda x: x[:1] > 0.0)
 

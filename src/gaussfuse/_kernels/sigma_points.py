@@ -86,7 +86,7 @@ from numba import njit, types
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload
 
-from ..inference import METHODS, FilterResult, SmoothResult
+from ..inference import METHODS, FilterResult, SmoothResult, check_smoothed, not_finite
 from ..linearize.sigma_points import sqrt_cov
 from ..models.nonlinear import ModelFunctionError, call_checked
 from ._nrt import borrow, readonly
@@ -98,7 +98,7 @@ _TWO_PI = 2.0 * math.pi
 _F64 = np.dtype(np.float64)
 
 # Status codes returned by the compiled code; details go to `iwork` and `errval`.
-OK, F_SHAPE, F_NONFINITE, H_SHAPE, H_NONFINITE, NEED_ROOT, S_NOT_PD = range(7)
+OK, F_SHAPE, F_NONFINITE, H_SHAPE, H_NONFINITE, NEED_ROOT, S_NOT_PD, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE = range(9)
 # iwork: [code, series, step, stage, point, got0, got1, got_ndim, observed indices (m)...]
 _CODE, _SERIES, _STEP, _STAGE, _POINT, _GOT = 0, 1, 2, 3, 4, 5
 _NINFO = 8
@@ -322,7 +322,21 @@ def _update(Xh, Z, pmean, pcov, wm, wc, zang, xang, R, z, mean, cov, innov, Sful
                 acc += Wt[a, r] * Wt[b, r]
             cov[a, b] = pcov[a, b] - acc
             cov[b, a] = cov[a, b]
-    return OK, -0.5 * (ll + p * _LOG_2PI)
+    lk = -0.5 * (ll + p * _LOG_2PI)
+    if _not_finite(mean, cov, lk):
+        return FILTERED_NOT_FINITE, lk
+    return OK, lk
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _not_finite(mean, cov, loglik):
+    """True when the mean, the diagonal of the covariance or `loglik` is inf or NaN (inference.check_finite)."""
+    if not math.isfinite(loglik):
+        return True
+    for a in range(mean.shape[0]):
+        if not (math.isfinite(mean[a]) and math.isfinite(cov[a, a])):
+            return True
+    return False
 
 
 @njit(cache=True, error_model="numpy")
@@ -550,6 +564,9 @@ def _filter_loop(f, h, us, zs, Q3, R3, pts, w, xang, zang, m0, P0, means, covs, 
                 return iwork[_CODE]
             _predict(X, Y, mean, wm, wc, xang, Q3[t if Q3.shape[0] > 1 else 0], pmean, pcov, Cf,
                      srows > 0, scr)
+            if _not_finite(pmean, pcov, 0.0):
+                iwork[_CODE] = PREDICTED_NOT_FINITE
+                return PREDICTED_NOT_FINITE
             for a in range(n):
                 if rows:
                     pmeans[s, t, a] = pmean[a]
@@ -683,6 +700,8 @@ def _py_after_f(t, Y, X, Q3, pts, w, angles, bel, Xh, pmeans, pcovs, cross, scr,
     Cf = bel[3 * n + 2:4 * n + 2]
     _predict(X, Y, bel[0], w[0], w[1], angles[:n], Q3[t if Q3.shape[0] > 1 else 0], pmean, pcov, Cf,
              cross.shape[0] > 0, scr)
+    if _not_finite(pmean, pcov, 0.0):
+        return PREDICTED_NOT_FINITE
     if pmeans.shape[0]:
         _copy(pmeans[t], pmean)
     if pcovs.shape[0]:
@@ -805,6 +824,8 @@ def _raise_status(status, t, iwork, errval, X, d, model):
             raise ModelFunctionError(
                 f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."
             )
+        if status in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):  # inference.check_finite's error
+            raise not_finite("predicted" if status == PREDICTED_NOT_FINITE else "filtered", t)
         if status == S_NOT_PD:  # kalman.cholesky's message, for the observed block of S
             p = int(iwork[_GOT])
             with np.printoptions(precision=4, threshold=36):
@@ -969,4 +990,5 @@ def smooth(method, model, prior, zs, us, options) -> SmoothResult:
         s, j = pos[0], pos[1]  # a singular prediction: the minimum-norm gain, as kalman.rts_step
         given[:] = np.linalg.lstsq(pcovs[s, j + 1], cross[s, j + 1].T, rcond=None)[0].T
         pos[2] = 1
+    check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, gains, _result(fields))
