@@ -368,13 +368,15 @@ def rts_step(filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, gain
 
 @njit(**_INLINE)
 def nonfinite(mean, cov, loglik):
-    """True when the mean, the diagonal of the covariance or `loglik` is inf or NaN (inference.check_finite)."""
-    if not math.isfinite(loglik):
-        return True
+    """True when the mean, the diagonal of the covariance or `loglik` is inf or NaN (inference.check_finite).
+
+    Branch-free: ``x * 0`` is 0 for a finite x and NaN for inf or NaN, and the
+    sum of those cannot overflow.
+    """
+    acc = loglik * 0.0
     for i in range(mean.shape[0]):
-        if not (math.isfinite(mean[i]) and math.isfinite(cov[i, i])):
-            return True
-    return False
+        acc += mean[i] * 0.0 + cov[i, i] * 0.0
+    return acc != acc
 
 
 # ---------------------------------------------------------------------------
