@@ -142,14 +142,17 @@ PRIOR = gf.Gaussian([0.0, 0.0], np.eye(2))
 @pytest.mark.parametrize(
     ("m", "zs", "match"),
     [
-        (1, np.ones((3, 2)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(3, 2\)\.$"),
-        (1, np.ones((0, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(0, 1\)\.$"),
-        (1, np.ones(0), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(0,\)\.$"),
-        (1, 5.0, r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(\)\.$"),
-        (1, np.ones((2, 3, 4, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(2, 3, 4, 1\)\.$"),
-        (2, np.ones(4), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(4,\)\.$"),
-        (2, np.ones((4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(4, 3\)\.$"),
-        (2, np.ones((2, 4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(2, 4, 3\)\.$"),
+        (1, np.ones((3, 2)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(3, 2\)\.$"),
+        (1, np.ones((0, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(0, 1\)\.$"),
+        (1, np.ones(0), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(0,\)\.$"),
+        (1, 5.0, r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(\)\.$"),
+        (1, np.ones((2, 3, 4, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(2, 3, 4, 1\)\.$"),
+        (2, np.ones(4), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(4,\)\.$"),
+        (2, np.ones((4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(4, 3\)\.$"),
+        (2, np.ones((2, 4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(2, 4, 3\)\.$"),
+        # an empty batch (it raised IndexError)
+        (1, np.ones((0, 5, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(0, 5, 1\)\.$"),
+        (2, np.ones((0, 0, 2)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(0, 0, 2\)\.$"),
     ],
 )
 def test_measurements_of_wrong_shape(run, m, zs, match):

@@ -564,8 +564,8 @@ def check_measurements(zs, m: int) -> np.ndarray:
         arr = arr[:, None]
     if arr.ndim == 2 and arr.shape[1] == m:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0:
-        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1"
+    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0 or arr.shape[0] == 0:
+        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1 and N >= 1"
         raise shape_error("zs", expected, given)
     return arr
 
