@@ -152,3 +152,38 @@ def test_slr_of_a_component_known_exactly_has_no_spread():
         assert y[1] == 2.0 and y[2] == (np.pi - 0.01) + 0.02
         np.testing.assert_array_equal(omega[1:], 0.0)
         np.testing.assert_array_equal(A[1:], 0.0)
+
+
+def test_gauss_hermite_refuses_rules_too_large_to_build():
+    """order**n points beyond 10**6, or an order beyond 200, are refused before anything is allocated."""
+    assert gauss_hermite(3, 100).points.shape == (10**6, 3)  # at the limit
+    with pytest.raises(ValueError, match=r"^`order` = 101 in n = 3 dimensions would give order\*\*n = 1,030,301 "
+                                         r"sigma points, more than the limit of 1,000,000; use a smaller `order`, or the "
+                                         r"unscented or cubature rule \(2n \+ 1 or 2n points\)\.$"):
+        gauss_hermite(3, 101)
+    with pytest.raises(ValueError, match=r"order\*\*n = 1,594,323 sigma points"):
+        gauss_hermite(13, 3)  # the default order, in 13 dimensions
+    with pytest.raises(ValueError, match=r"order\*\*n = 5.15e\+47 sigma points"):
+        gauss_hermite(100, 3)
+    with pytest.raises(ValueError, match=r"^`order` must be at most 200 \(the 1-D Gauss–Hermite rule is not accurate "
+                                         r"beyond\); got 1000000\.$"):
+        gauss_hermite(1, 10**6)  # NumPy would build a 10**6 x 10**6 matrix: 8 TB
+    with pytest.raises(ValueError, match=r"`order` must be a positive integer; got True"):
+        gauss_hermite(1, True)
+    rule = gauss_hermite(1, 200)
+    assert rule.points.shape == (200, 1) and np.all(np.isfinite(rule.wm))
+    assert rule.wm @ rule.points[:, 0] ** 2 == pytest.approx(1.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["ghkf", "iplf"])
+def test_filters_refuse_a_gauss_hermite_order_too_large(method):
+    import gaussfuse as gf
+
+    model = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(4), 1.0)
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    with pytest.raises(ValueError, match=r"^`order` must be at most 200 \(the 1-D Gauss–Hermite rule is not accurate "
+                                         r"beyond\); got 1000000\.$"):
+        gf.filter(model, prior, [1.0], method=method, order=10**6)
+    with pytest.raises(ValueError, match=r"^`order` = 100 in n = 4 dimensions would give order\*\*n = 100,000,000 "
+                                         r"sigma points"):
+        gf.smooth(model, prior, [1.0], method=method, order=100)

@@ -131,6 +131,14 @@ def cubature(n: int) -> SigmaRule:
     return SigmaRule(points, w, w)
 
 
+MAX_GAUSS_HERMITE_ORDER = 200
+"""The largest `order` of the 1-D Gauss–Hermite rule: NumPy's rule is tested to degree
+100 and its weights overflow to NaN past 371."""
+MAX_SIGMA_POINTS = 10**6
+"""The most points a Gauss–Hermite rule may have (order**n): each is a call of f or h
+at every step."""
+
+
 def gauss_hermite(n: int, order: int = 3) -> SigmaRule:
     """The tensor-product Gauss–Hermite rule: order**n points.
 
@@ -138,9 +146,30 @@ def gauss_hermite(n: int, order: int = 3) -> SigmaRule:
     (:func:`numpy.polynomial.hermite_e.hermegauss`), exact for polynomials
     of degree up to 2·order − 1 under a standard normal; its weights are
     normalised to sum to 1.
+
+    Raises
+    ------
+    ValueError
+        When `order` is not a positive integer, exceeds
+        ``MAX_GAUSS_HERMITE_ORDER`` (200), or gives more than
+        ``MAX_SIGMA_POINTS`` (10**6) points in n dimensions; the message
+        says how many points that would be.
     """
-    if not isinstance(order, (int, np.integer)) or order < 1:
+    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order < 1:
         raise ValueError(f"`order` must be a positive integer; got {order!r}.")
+    if order > MAX_GAUSS_HERMITE_ORDER:
+        raise ValueError(
+            f"`order` must be at most {MAX_GAUSS_HERMITE_ORDER} (the 1-D Gauss–Hermite rule is not "
+            f"accurate beyond); got {order}."
+        )
+    points = int(order) ** int(n)
+    if points > MAX_SIGMA_POINTS:
+        shown = f"{points:,}" if points < 10**15 else f"{float(points):.3g}"
+        raise ValueError(
+            f"`order` = {order} in n = {n} dimensions would give order**n = {shown} sigma points, more "
+            f"than the limit of {MAX_SIGMA_POINTS:,}; use a smaller `order`, or the unscented or cubature "
+            f"rule (2n + 1 or 2n points)."
+        )
     x, w = hermegauss(order)
     w = w / w.sum()
     grids = np.meshgrid(*([x] * n), indexing="ij")
