@@ -384,7 +384,8 @@ def test_unknown_or_bad_option_is_rejected():
 def test_model_function_errors_name_function_step_and_shapes(method):
     prior = gf.Gaussian([0.0, 0.0], np.eye(2))
     wrong_shape = gf.NonlinearModel(lambda x: x, lambda x: np.ones(3), np.eye(2), 1.0)
-    with pytest.raises(ModelFunctionError, match=r"at step 0: `h` must return shape \(1,\) for an input of shape \(2,\); got shape \(3,\)"):
+    with pytest.raises(ModelFunctionError, match=r"at step 0: `h` must return shape \(1,\) for an input of shape \(2,\), "
+                                                 r"because `R` is 1 × 1; got shape \(3,\)"):
         gf.filter(wrong_shape, prior, np.zeros(3), method=method)
 
     def f_nan_later(x):
@@ -404,7 +405,8 @@ def test_model_function_errors_name_function_step_and_shapes(method):
 
 def test_vectorized_function_returning_wrong_shape():
     model = gf.NonlinearModel(lambda X: X[0], lambda X: X[:, :1], np.eye(2), 1.0, vectorized=True)
-    with pytest.raises(ModelFunctionError, match=r"`f` must return shape \(5, 2\) for an input of shape \(5, 2\); got shape \(2,\)"):
+    with pytest.raises(ModelFunctionError, match=r"`f` must return shape \(5, 2\) for an input of shape \(5, 2\), "
+                                                 r"because `Q` is 2 × 2; got shape \(2,\)"):
         gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf")
 
 

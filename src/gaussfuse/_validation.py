@@ -103,6 +103,7 @@ def as_matrix(
     row_name: str = "m",
     col_name: str = "n",
     time_varying: bool = True,
+    because: str | None = None,
 ) -> np.ndarray:
     """Return `value` as a matrix (rows, cols) or a time-varying stack (T, rows, cols).
 
@@ -112,6 +113,8 @@ def as_matrix(
     leading time axis must have. `row_name` and `col_name` stand for a
     dimension left free (None) in the message; with ``time_varying=False``
     only a single matrix is accepted. Every dimension must be at least 1.
+    `because` names what fixed the expected shape (another argument), for
+    the message: "... (2, 2), because `H` has 2 rows; got ...".
     """
     arr = as_array(name, value)
     given = arr.shape
@@ -126,6 +129,8 @@ def as_matrix(
     c = col_name if cols is None else cols
     t = "T" if steps is None else steps
     expected = f"({r}, {c}) or, time-varying, ({t}, {r}, {c})" if time_varying else f"({r}, {c})"
+    if because:
+        expected += f", because {because}"
     if arr.ndim not in ((2, 3) if time_varying else (2,)) or 0 in arr.shape:
         raise shape_error(name, expected, given)
     if (rows is not None and arr.shape[-2] != rows) or (cols is not None and arr.shape[-1] != cols):

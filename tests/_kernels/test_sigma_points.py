@@ -597,7 +597,8 @@ def test_wrong_output_shape_names_the_function(mode):
     given_shape, want = (r"\(5, 2\)", r"\(5, 1\)") if mode == "vectorized" else (r"\(2,\)", r"\(1,\)")
     got = r"\(5, 3\)" if mode == "vectorized" else r"\(3,\)"
     same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf",
-               match=rf"at step 0: `h` must return shape {want} for an input of shape {given_shape}; got shape {got}")
+               match=rf"at step 0: `h` must return shape {want} for an input of shape {given_shape}, because `R` is "
+                     rf"1 × 1; got shape {got}")
 
 
 @pytest.mark.parametrize("mode", ["plain", "jitted"])

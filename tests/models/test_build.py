@@ -260,3 +260,8 @@ def test_docstring_examples():
         result = doctest.testmod(build_module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted >= 2
     assert result.failed == 0, out.getvalue()
+
+
+def test_a_linear_sensor_whose_R_does_not_fit_its_H_names_both():
+    with pytest.raises(ValueError, match=r"^`R` must have shape \(2, 2\), because `H` has 2 rows; got shape \(\)\.$"):
+        gf.model(gf.ConstantVelocity(dim=1, q=1.0), gf.LinearSensor(H=[[1, 0], [0, 1]], R=1.0), dt=1.0)

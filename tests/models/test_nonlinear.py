@@ -115,3 +115,19 @@ def test_complex_or_boolean_outputs_are_refused(out, what):
     model = gf.NonlinearModel(lambda x: np.where(x > 0, x, x + 0j), h, np.eye(2), 1.0)
     with pytest.raises(ModelFunctionError, match=r"`f` must return an array of real numbers; got complex values"):
         model.transition(np.zeros(2))
+
+
+def test_wrong_output_size_names_the_noise_that_fixes_it():
+    """h returning 2 values with a scalar R: the message names both h and R (f and Q likewise)."""
+    model = gf.NonlinearModel(lambda x: x[:1], lambda x: x.copy(), np.eye(2), 1.0,
+                              h_jacobian=lambda x: np.eye(2))
+    with pytest.raises(ModelFunctionError, match=r"^`h` must return shape \(1,\) for an input of shape \(2,\), "
+                                                 r"because `R` is 1 × 1; got shape \(2,\)\.$"):
+        model.measurement(np.zeros(2))
+    with pytest.raises(ModelFunctionError, match=r"^`f` must return shape \(2,\) for an input of shape \(2,\), "
+                                                 r"because `Q` is 2 × 2; got shape \(1,\)\.$"):
+        model.transition(np.zeros(2))
+    fine = gf.NonlinearModel(f, h, np.eye(2), 1.0, h_jacobian=lambda x: np.eye(2))
+    with pytest.raises(ModelFunctionError, match=r"^at step 0: `h_jacobian` must return shape \(1, 2\) for an input of "
+                                                 r"shape \(2,\), because `R` is 1 × 1 and `Q` is 2 × 2; got shape \(2, 2\)"):
+        gf.filter(fine, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0], method="ekf")

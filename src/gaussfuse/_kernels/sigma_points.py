@@ -88,7 +88,7 @@ from numba.extending import is_jitted, overload
 
 from ..inference import METHODS, FilterResult, SmoothResult, check_smoothed, not_finite
 from ..linearize.sigma_points import sqrt_cov
-from ..models.nonlinear import ModelFunctionError, call_checked
+from ..models.nonlinear import ModelFunctionError, call_checked, size_reason
 from ._nrt import borrow, readonly
 
 __all__ = ["filter", "smooth", "execution_mode"]
@@ -753,7 +753,7 @@ def _evaluate(name, fn, X, Y, u, vectorized):
         except Exception as exc:
             _raise_call(name, exc, X)
         if type(out) is not np.ndarray or out.shape != Y.shape or out.dtype is not _F64:
-            out = call_checked(name, lambda *_: out, X, (), Y.shape)
+            out = call_checked(name, lambda *_: out, X, (), Y.shape, size_reason(name, Y.shape[1]))
         if out.strides != Y.strides:  # a view (say X[:, :1]): copy, rather than compile for its layout
             Y[...] = out
             return Y
@@ -784,7 +784,7 @@ def _check_each(name, outs, X, Y):
     """Each output through call_checked, in order, into Y: raises at the first bad one."""
     shape = (Y.shape[1],)
     for i, out in enumerate(outs):
-        Y[i] = call_checked(name, lambda *_: out, X[i], (), shape)
+        Y[i] = call_checked(name, lambda *_: out, X[i], (), shape, size_reason(name, shape[0]))
 
 
 def _raise_call(name, exc, x):
@@ -819,7 +819,8 @@ def _raise_status(status, t, iwork, errval, X, d, model):
             if status in (F_SHAPE, H_SHAPE):
                 got = tuple(int(g) for g in iwork[_GOT:_GOT + iwork[_GOT + 2]])
                 raise ModelFunctionError(
-                    f"`{name}` must return shape {shape} for an input of shape {x.shape}; got shape {got}."
+                    f"`{name}` must return shape {shape} for an input of shape {x.shape}, "
+                    f"because {size_reason(name, d)}; got shape {got}."
                 )
             raise ModelFunctionError(
                 f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."

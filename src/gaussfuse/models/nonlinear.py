@@ -9,7 +9,7 @@ import numpy as np
 from .._validation import as_matrix, check_psd
 from ..kalman import wrap_angle
 
-__all__ = ["NonlinearModel", "ModelFunctionError", "wrap_angle"]
+__all__ = ["NonlinearModel", "ModelFunctionError", "wrap_angle", "call_checked", "size_reason"]
 
 
 class ModelFunctionError(ValueError):
@@ -193,22 +193,45 @@ class NonlinearModel:
 
 def _evaluate(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, vectorized: bool) -> np.ndarray:
     """Call a model function on one state or a stack, checking what comes back."""
+    because = size_reason(name, size)
     if X.ndim == 1:
         if vectorized:
-            return call_checked(name, fn, X[None], args, (1, size))[0]
-        return call_checked(name, fn, X, args, (size,))
+            return call_checked(name, fn, X[None], args, (1, size), because)[0]
+        return call_checked(name, fn, X, args, (size,), because)
     if vectorized:
-        return call_checked(name, fn, X, args, (X.shape[0], size))
-    return np.stack([call_checked(name, fn, x, args, (size,)) for x in X])
+        return call_checked(name, fn, X, args, (X.shape[0], size), because)
+    return np.stack([call_checked(name, fn, x, args, (size,), because) for x in X])
 
 
-def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...]) -> np.ndarray:
+def size_reason(name: str, size: int, n: int | None = None) -> str | None:
+    """What fixes the size of f's or h's output (or their Jacobians'), for the shape messages.
+
+    f returns n values because `Q` is n × n, h returns m because `R` is m × m;
+    a Jacobian's n columns also come from `Q` (give `n`).
+    """
+    base = name.removesuffix("_jacobian")
+    if base not in ("f", "h"):
+        return None
+    noise = "Q" if base == "f" else "R"
+    reason = f"`{noise}` is {size} × {size}"
+    if name.endswith("_jacobian") and n is not None and base == "h":
+        reason += f" and `Q` is {n} × {n}"
+    return reason
+
+
+def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...],
+                 because: str | None = None) -> np.ndarray:
     """Call ``fn(x, *args)`` and check that it returns a finite array of `shape`.
+
+    `because` says what fixed `shape` (see :func:`size_reason`), for the
+    message of a wrong shape.
 
     Raises
     ------
     ModelFunctionError
-        Naming the function, the input shape and what went wrong.
+        Naming the function, the input shape and what went wrong: an
+        exception, a wrong shape, values that are complex, boolean or dates,
+        or a non-finite value.
     """
     try:
         out = fn(x, *args)
@@ -236,8 +259,9 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
         if out.size == int(np.prod(shape)) and out.ndim <= 1 and len(shape) == 1:
             out = out.reshape(shape)
         else:
+            reason = f", because {because}" if because else ""
             raise ModelFunctionError(
-                f"`{name}` must return shape {shape} for an input of shape {x.shape}; "
+                f"`{name}` must return shape {shape} for an input of shape {x.shape}{reason}; "
                 f"got shape {out.shape}."
             )
     if not np.all(np.isfinite(out)):
