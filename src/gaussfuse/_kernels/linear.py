@@ -21,7 +21,11 @@ filtering or smoothing):
   filtering;
 * a failure (an innovation covariance that is not positive definite) stops
   that series and is reported in ``err`` (step, size) and ``err_S`` (the
-  matrix), and the Python side raises ``numpy.linalg.LinAlgError``.
+  matrix), and the Python side raises ``numpy.linalg.LinAlgError``; a
+  predicted or filtered belief that is not finite (an overflow) is reported
+  in ``err`` (step, a negative code), and the Python side raises the readable
+  path's ``FloatingPointError`` (:func:`gaussfuse.inference.check_finite`);
+  the smoothed beliefs are checked after the backward pass.
 
 The forward kernel filters and, when smoothing, computes each gain
 ``G_{k-1}`` at step k from the prediction's ``F_k P_{k-1}``; the backward

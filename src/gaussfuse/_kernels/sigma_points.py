@@ -73,7 +73,9 @@ the smoother gets the readable path's least-squares gain.
 Model-function errors (an exception, a wrong shape, a non-finite value) and
 failed factorisations raise the same :class:`ModelFunctionError` /
 :class:`numpy.linalg.LinAlgError` messages as the readable path, prefixed by
-"at step k: ".
+"at step k: ", and a predicted, filtered or smoothed belief that is not finite
+(an overflow) the same :class:`FloatingPointError`
+(:func:`gaussfuse.inference.check_finite`).
 """
 
 from __future__ import annotations
