@@ -276,3 +276,14 @@ def test_fuse_rejects_beliefs_both_certain_in_the_same_direction():
     b = gf.Gaussian([2.0, 0.0], np.diag([0.0, 3.0]))
     with pytest.raises(ValueError, match=r"^`a\.cov \+ b\.cov` must be positive definite: the two beliefs are both certain"):
         gf.fuse(a, b)
+
+
+def test_sample_size_must_be_none_or_a_non_negative_integer():
+    g = gf.Gaussian([0.0, 1.0, 2.0], np.eye(3))
+    assert g.sample(0, rng=0).shape == (0, 3)
+    assert g.sample(np.int64(2), rng=0).shape == (2, 3)
+    with pytest.raises(ValueError, match=r"^`size` must be None or a non-negative integer; got -1\.$"):
+        g.sample(-1)
+    for bad in (2.5, "3", True, (2, 3), 2.0):
+        with pytest.raises(TypeError, match=r"^`size` must be None or a non-negative integer; got "):
+            g.sample(bad)

@@ -397,3 +397,59 @@ def test_keep_last_reads_a_read_only_series_in_place(method):
     finally:
         tracemalloc.stop()
     assert peak < zs.nbytes / 4
+
+
+# ---------------------------------------------------------------------------
+# Overflow: a non-finite belief is an error naming the step, in both engines
+# ---------------------------------------------------------------------------
+
+
+def _overflow(run, *args, match, **kwargs):
+    """Both engines raise the same FloatingPointError, matching `match`; numpy's own warnings stay quiet."""
+    messages = []
+    for engine in ("python", "numba"):
+        with pytest.raises(FloatingPointError, match=match) as err:  # -W error: a RuntimeWarning would fail
+            run(*args, engine=engine, **kwargs)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+
+
+@pytest.mark.parametrize("run", [gf.filter, gf.smooth], ids=["filter", "smooth"])
+def test_overflow_in_the_prediction_names_the_step(run):
+    model = gf.LinearModel(F=[[1e120, 0.0], [0.0, 1.0]], H=[0.0, 1.0], Q=np.eye(2), R=1.0)
+    prior = gf.Gaussian([1.0, 0.0], np.eye(2))  # x0 is not measured: variance 1e240 at step 0, inf at step 1
+    _overflow(run, model, prior, [1.0, 2.0, 3.0],
+              match=r"^at step 1: the predicted mean or covariance is not finite \(inf or NaN\): the computation "
+                    r"overflowed; check the scale of the model, the prior and the measurements\.$")
+
+
+def test_overflow_of_the_log_likelihood_names_the_step():
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    zs = [0.0, 1.0, 1e300, 1.0]  # finite, but its squared innovation is not
+    _overflow(gf.filter, model, gf.Gaussian(0.0, 1.0), zs,
+              match=r"^at step 2: the filtered mean, covariance or log-likelihood is not finite")
+
+
+def test_overflow_names_the_series_of_a_batch_in_the_compiled_engine():
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    zs = np.zeros((3, 4, 1))
+    zs[2, 1] = zs[1, 3] = 1e300  # series 1 overflows at step 3, series 2 at step 1: series 1 is named
+    for run in (gf.filter, gf.smooth):
+        with pytest.raises(FloatingPointError, match=r"^in series 1, at step 3: the filtered mean, covariance or "
+                                                     r"log-likelihood is not finite"):
+            run(model, gf.Gaussian(0.0, 1.0), zs, engine="numba")
+        with pytest.raises(FloatingPointError, match=r"^at step 3: the filtered"):
+            run(model, gf.Gaussian(0.0, 1.0), zs, engine="python")
+
+
+def test_smoothed_beliefs_are_checked_after_a_compiled_backward_pass():
+    from gaussfuse.inference import check_smoothed
+
+    means, covs = np.zeros((2, 5, 2)), np.tile(np.eye(2), (2, 5, 1, 1))
+    check_smoothed(means, covs)
+    covs[1, 1, 0, 0] = covs[1, 3, 1, 1] = np.inf
+    with pytest.raises(FloatingPointError, match=r"^in series 1, at step 3: the smoothed mean or covariance is not "
+                                                 r"finite"):
+        check_smoothed(means, covs)  # the backward pass would have met step 3 first
+    with pytest.raises(FloatingPointError, match=r"^at step 2: the smoothed"):
+        check_smoothed(np.where(np.arange(5)[None, :, None] == 2, np.nan, 0.0)[:1], covs[:1])

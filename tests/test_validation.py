@@ -142,14 +142,17 @@ PRIOR = gf.Gaussian([0.0, 0.0], np.eye(2))
 @pytest.mark.parametrize(
     ("m", "zs", "match"),
     [
-        (1, np.ones((3, 2)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(3, 2\)\.$"),
-        (1, np.ones((0, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(0, 1\)\.$"),
-        (1, np.ones(0), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(0,\)\.$"),
-        (1, 5.0, r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(\)\.$"),
-        (1, np.ones((2, 3, 4, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1; got shape \(2, 3, 4, 1\)\.$"),
-        (2, np.ones(4), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(4,\)\.$"),
-        (2, np.ones((4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(4, 3\)\.$"),
-        (2, np.ones((2, 4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1; got shape \(2, 4, 3\)\.$"),
+        (1, np.ones((3, 2)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(3, 2\)\.$"),
+        (1, np.ones((0, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(0, 1\)\.$"),
+        (1, np.ones(0), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(0,\)\.$"),
+        (1, 5.0, r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(\)\.$"),
+        (1, np.ones((2, 3, 4, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(2, 3, 4, 1\)\.$"),
+        (2, np.ones(4), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(4,\)\.$"),
+        (2, np.ones((4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(4, 3\)\.$"),
+        (2, np.ones((2, 4, 3)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(2, 4, 3\)\.$"),
+        # an empty batch (it raised IndexError)
+        (1, np.ones((0, 5, 1)), r"^`zs` must have shape \(T, 1\) or \(T,\), or \(N, T, 1\) for N series, with T >= 1 and N >= 1; got shape \(0, 5, 1\)\.$"),
+        (2, np.ones((0, 0, 2)), r"^`zs` must have shape \(T, 2\), or \(N, T, 2\) for N series, with T >= 1 and N >= 1; got shape \(0, 0, 2\)\.$"),
     ],
 )
 def test_measurements_of_wrong_shape(run, m, zs, match):
@@ -298,3 +301,79 @@ def test_booleans_are_not_numbers(value):
 def test_motion_parameters_must_be_numbers(bad):
     with pytest.raises(TypeError, match=r"`dt` must be a number"):
         gf.constant_velocity(dt=bad, q=1.0, r=1.0)
+
+
+# ---------------------------------------------------------------------------
+# Masked arrays and dates
+# ---------------------------------------------------------------------------
+
+
+def test_as_array_masked_entries_are_missing():
+    src = np.ma.array([[1, 2], [3, 4]], mask=[[0, 1], [0, 0]])
+    out = as_array("zs", src, allow_nan=True, copy=False)
+    np.testing.assert_array_equal(out, [[1.0, np.nan], [3.0, 4.0]])
+    assert src.data[0, 1] == 2 and src.mask[0, 1]  # the caller's array is untouched
+    unmasked = np.ma.array([1.0, 2.0], mask=False)
+    np.testing.assert_array_equal(as_array("F", unmasked), [1.0, 2.0])
+    with pytest.raises(ValueError, match=r"^`F` must not have masked entries \(only measurements may be missing\); "
+                                         r"got a masked entry at index \(0, 1\)\.$"):
+        as_array("F", src)
+
+
+@pytest.mark.parametrize("value", [np.array(["2024-01-01", "2024-01-02"], dtype="datetime64[D]"),
+                                   np.array([1, 2], dtype="timedelta64[s]"),
+                                   [np.datetime64("2024-01-01T00:00")]])
+def test_as_array_refuses_dates_and_times(value):
+    """Not cast to counts of days, seconds or nanoseconds."""
+    with pytest.raises(TypeError, match=r"^`F` must be an array of numbers; got (datetime64|timedelta64) values"):
+        as_array("F", value)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@front
+def test_masked_measurements_are_missing(run, engine):
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=np.eye(2), Q=0.1 * np.eye(2), R=np.eye(2))
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    data = np.array([[1.0, 1.1], [2.1, 0.9], [3.0, 1.0], [3.9, 1.2]])
+    mask = np.zeros_like(data, dtype=bool)
+    mask[1, 0] = mask[2] = True
+    zs = np.ma.array(data, mask=mask)
+    got = run(model, prior, zs, engine=engine)
+    want = run(model, prior, np.where(mask, np.nan, data), engine=engine)
+    np.testing.assert_array_equal(got.means, want.means)
+    assert got.loglik == want.loglik
+    np.testing.assert_array_equal(zs.data, data)  # not modified
+    np.testing.assert_array_equal(zs.mask, mask)
+    batch = run(model, prior, np.ma.stack([zs, zs]), engine=engine)
+    np.testing.assert_array_equal(batch.means[1], want.means)
+
+
+def test_masked_measurements_in_fit_and_online_filter():
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    prior = gf.Gaussian(0.0, 10.0)
+    data = np.array([1.0, 1e6, 2.0, 2.5, 1.5, 3.0])  # the masked outlier would dominate if it were used
+    zs = np.ma.array(data, mask=[0, 1, 0, 0, 0, 0])
+    nan = np.where(zs.mask, np.nan, data)
+    fitted, ref = gf.fit(model, prior, zs, iterations=5, tol=0.0), gf.fit(model, prior, nan, iterations=5, tol=0.0)
+    assert fitted.loglik == pytest.approx(ref.loglik, rel=1e-12)
+    kf = gf.KalmanFilter(model, prior)
+    kf.predict()
+    kf.update(np.ma.array([5.0], mask=[True]))
+    np.testing.assert_array_equal(kf.belief.mean, [0.0])  # nothing observed
+
+
+@front
+def test_datetimes_are_not_measurements(run):
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    times = np.array(["2024-01-01", "2024-01-02"], dtype="datetime64[D]")
+    with pytest.raises(TypeError, match=r"^`zs` must be an array of numbers; got datetime64\[D\] values: "
+                                        r"datetimes are not measurements\.$"):
+        run(model, gf.Gaussian(0.0, 1.0), times)
+    with pytest.raises(TypeError, match=r"^`us` must be an array of numbers; got timedelta64 values"):
+        run(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, B=1.0), gf.Gaussian(0.0, 1.0), [1.0, 2.0],
+            np.array([1, 2], dtype="timedelta64[s]"))
+    for name, kwargs in (("F", {"F": times[:1].reshape(1, 1)}), ("Q", {"Q": np.array([[1]], dtype="m8[s]")})):
+        with pytest.raises(TypeError, match=rf"^`{name}` must be an array of numbers; got"):
+            gf.LinearModel(**({"F": 1.0, "H": 1.0, "Q": 1.0, "R": 1.0} | kwargs))
+    with pytest.raises(TypeError, match=r"^`mean` must be an array of numbers; got datetime64"):
+        gf.Gaussian(times, np.eye(2))

@@ -5,6 +5,7 @@ Gaussians. The equations live in :mod:`gaussfuse.kalman`; the drivers in
 :mod:`gaussfuse.inference`.
 """
 
+from .errors import ConvergenceWarning
 from .gaussian import Gaussian, fuse
 from .inference import METHODS, FilterResult, SmoothResult, filter, smooth
 from .learning import FitResult, fit

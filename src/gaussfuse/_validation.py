@@ -30,6 +30,11 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
     With ``copy=False`` a float64 array is used as it is (a long series, or a
     memory-mapped one, is not duplicated); the check allocates nothing the
     size of `value` unless it finds a bad entry.
+
+    A masked array's masked entries are missing values: NaN where `allow_nan`
+    (in a new array; the caller's is not modified), an error otherwise.
+    Dates and times (``datetime64``, ``timedelta64``) are not numbers here:
+    their cast would silently give counts of days or nanoseconds.
     """
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(f"`{name}` must be an array of numbers; got {type(value).__name__}.")
@@ -42,6 +47,22 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
         raise TypeError(f"`{name}` must be real; got complex values.")
     if kind == "b":
         raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
+    if kind in ("M", "m"):
+        what = "datetime64" if kind == "M" else "timedelta64"
+        raise TypeError(f"`{name}` must be an array of numbers; got {what} values (dates and times "
+                        "are not numbers here, and are not converted to counts of days or seconds).")
+    if np.ma.isMaskedArray(value):
+        masked = np.ma.getmaskarray(value)
+        if masked.any():
+            if not allow_nan:
+                index = tuple(int(i) for i in np.argwhere(masked)[0])
+                raise ValueError(f"`{name}` must not have masked entries (only measurements may be "
+                                 f"missing); got a masked entry at index {index}.")
+            value = np.ma.getdata(value).astype(np.float64)  # a copy: the caller's array stays as it was
+            value[masked] = np.nan
+            copy = False
+        else:
+            value = np.ma.getdata(value)
     try:
         arr = np.array(value, dtype=np.float64, copy=copy or None)
     except (TypeError, ValueError) as exc:
@@ -82,6 +103,7 @@ def as_matrix(
     row_name: str = "m",
     col_name: str = "n",
     time_varying: bool = True,
+    because: str | None = None,
 ) -> np.ndarray:
     """Return `value` as a matrix (rows, cols) or a time-varying stack (T, rows, cols).
 
@@ -91,6 +113,8 @@ def as_matrix(
     leading time axis must have. `row_name` and `col_name` stand for a
     dimension left free (None) in the message; with ``time_varying=False``
     only a single matrix is accepted. Every dimension must be at least 1.
+    `because` names what fixed the expected shape (another argument), for
+    the message: "... (2, 2), because `H` has 2 rows; got ...".
     """
     arr = as_array(name, value)
     given = arr.shape
@@ -105,6 +129,8 @@ def as_matrix(
     c = col_name if cols is None else cols
     t = "T" if steps is None else steps
     expected = f"({r}, {c}) or, time-varying, ({t}, {r}, {c})" if time_varying else f"({r}, {c})"
+    if because:
+        expected += f", because {because}"
     if arr.ndim not in ((2, 3) if time_varying else (2,)) or 0 in arr.shape:
         raise shape_error(name, expected, given)
     if (rows is not None and arr.shape[-2] != rows) or (cols is not None and arr.shape[-1] != cols):

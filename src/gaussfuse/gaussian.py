@@ -92,9 +92,23 @@ class Gaussian:
     def sample(self, size: int | None = None, rng=None) -> np.ndarray:
         """Draw samples: array of shape (n,) for ``size=None``, else (size, n).
 
-        A singular covariance (a belief certain in some direction) is
-        factorised by its eigendecomposition instead of Cholesky.
+        `size` is None or a non-negative integer (0 gives an empty (0, n)
+        array). A singular covariance (a belief certain in some direction)
+        is factorised by its eigendecomposition instead of Cholesky.
+
+        Raises
+        ------
+        TypeError
+            When `size` is neither None nor an integer.
+        ValueError
+            When `size` is negative.
         """
+        if size is not None:
+            if isinstance(size, (bool, np.bool_)) or not isinstance(size, (int, np.integer)):
+                raise TypeError(f"`size` must be None or a non-negative integer; got {size!r}.")
+            if size < 0:
+                raise ValueError(f"`size` must be None or a non-negative integer; got {size}.")
+            size = int(size)
         rng = np.random.default_rng(rng)
         try:
             np.linalg.cholesky(self.cov)

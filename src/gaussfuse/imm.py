@@ -28,7 +28,7 @@ from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
 from .gaussian import Gaussian
 from .inference import (_check_steps, _linearisation, _resolve_method, check_controls,
-                        check_measurements, check_prior)
+                        check_measurements, check_prior, iterated_update)
 from .linearize.sigma_points import circular_mean
 from .models.linear import LinearModel
 from .models.nonlinear import ModelFunctionError, NonlinearModel
@@ -286,7 +286,7 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
         "mode_probs", mode_probs, M, matrix=False)
     angles = _state_angles(models)
     any_nonlinear = any(isinstance(model, NonlinearModel) for model in models)
-    strategies, iterations, z_angles = [], [], []
+    strategies, iterations, tols, z_angles = [], [], [], []
     for j, model in enumerate(models):
         _check_steps(model, T)
         controls = check_controls(us, model, 1, T)
@@ -298,6 +298,7 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
         lin, its = _linearisation(spec, model, controls, opts)
         strategies.append(lin)
         iterations.append(its)
+        tols.append(opts.get("tol"))
         z_angles.append(getattr(model, "measurement_angles", None))
 
     means, covs = np.empty((T, n)), np.empty((T, n, n))
@@ -323,11 +324,9 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
                 A, b, Q = strategies[j].transition(k, mean, cov)
                 mean, cov = kalman.predict(mean, cov, A, Q, b)
                 mean = kalman.wrap_components(mean, angles)
-                post_mean, post_cov = mean, cov
-                for _ in range(iterations[j]):
-                    H, d, R = strategies[j].measurement(k, post_mean, post_cov)
-                    post = kalman.update(mean, cov, zs[k], H, R, d, angles=z_angles[j])
-                    post_mean, post_cov = kalman.wrap_components(post.mean, angles), post.cov
+                post = iterated_update(strategies[j], k, mean, cov, zs[k], iterations[j], tols[j], angles,
+                                       z_angles[j])[0]
+                post_mean, post_cov = kalman.wrap_components(post.mean, angles), post.cov
             mode_means[k, j], mode_covs[k, j], logl[j] = post_mean, post_cov, post.loglik
         # 3. Mode probabilities, in log space.
         with np.errstate(divide="ignore"):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import warnings
 from dataclasses import dataclass, fields, replace
 from typing import Callable, NamedTuple
 
@@ -17,13 +18,15 @@ import numpy as np
 from . import kalman
 from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
+from .errors import ConvergenceWarning
 from .gaussian import Gaussian
 from .linearize import Exact, Nominal, SigmaPoints, Taylor
 from .linearize.sigma_points import cubature, gauss_hermite, unscented
 from .models.linear import LinearModel
 from .models.nonlinear import ModelFunctionError, NonlinearModel
 
-__all__ = ["filter", "smooth", "run_filter", "run_smoother", "FilterResult", "SmoothResult", "METHODS"]
+__all__ = ["filter", "smooth", "run_filter", "run_smoother", "iterated_update", "FilterResult", "SmoothResult",
+           "METHODS"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,12 +57,17 @@ class FilterResult:
         The final filtered mean (the belief to continue from).
     last_cov : ndarray of shape (n, n)
         The final filtered covariance.
+    iterations : ndarray of int, shape (T,), or None
+        For the iterated methods ("iekf", "iplf"): the number of
+        linearise-and-update passes made at each step, at most the option
+        `iterations` (see `tol` in :func:`filter`). None for the other
+        methods.
 
     Notes
     -----
     With ``keep="means"`` the covariance fields are None; with
-    ``keep="last"`` every per-step field is None, so that a long series
-    filters in memory independent of its length.
+    ``keep="last"`` every per-step field (`iterations` too) is None, so that
+    a long series filters in memory independent of its length.
     """
 
     means: np.ndarray | None
@@ -71,6 +79,7 @@ class FilterResult:
     loglik: float | np.ndarray
     last_mean: np.ndarray
     last_cov: np.ndarray
+    iterations: np.ndarray | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
 
@@ -96,12 +105,17 @@ class SmoothResult:
         Smoother gains ``G_k``, k = 0..T-2.
     filtered : FilterResult
         The forward pass.
+    iterations : int or None
+        For the iterated smoothers ("iekf", "iplf"): the number of passes
+        made, at most the option `iterations` (see `tol` in :func:`smooth`).
+        None for the other methods.
     """
 
     means: np.ndarray
     covs: np.ndarray
     gains: np.ndarray
     filtered: FilterResult
+    iterations: int | np.ndarray | None = None
 
     __reduce__ = reduce_frozen
 
@@ -119,7 +133,7 @@ class SmoothResult:
 KEEP = ("all", "means", "last")
 
 
-def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1,
+def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol: float | None = None,
                state_angles=None, measurement_angles=None, keep: str = "all") -> FilterResult:
     """Filter one series (T, m) with a linearisation strategy (see :mod:`gaussfuse.linearize`).
 
@@ -127,38 +141,118 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1,
     ``lin.measurement``. With ``iterations > 1`` the update is repeated,
     each time re-linearising the measurement at the latest posterior and
     conditioning the *prediction* again (the iterated EKF's Gauss–Newton
-    steps, or posterior linearisation). `keep` is one of ``KEEP``.
+    steps, or posterior linearisation), at most `iterations` times, and
+    fewer when `tol` is given and met (see :func:`iterated_update`).
+    `keep` is one of ``KEEP``.
     """
+    return _filter_pass(lin, prior, zs, iterations, tol, state_angles, measurement_angles, keep)[0]
+
+
+def iterate_changed(cov: np.ndarray):
+    r"""The change of an iterate in the norm of `cov`: a function ``(new, old) -> float``.
+
+    .. math::
+
+        \lVert x_i - x_{i-1} \rVert_{P} = \sqrt{(x_i - x_{i-1})^\top P^{-1} (x_i - x_{i-1})},
+
+    with ``P = L Lᵀ`` (Cholesky, or the semi-definite factor of
+    :func:`gaussfuse.kalman.semidefinite_cholesky` on the range of a singular
+    P, where the iterates move). It is scale-free: the change in standard
+    deviations of P. A component that changed by no more than its round-off,
+    ``4 ε max(|new|, |old|)``, counts as unchanged, so that a component whose
+    variance is itself round-off does not keep the iteration going.
+    """
+    try:
+        L = np.linalg.cholesky(cov)
+        rows = slice(None)
+    except np.linalg.LinAlgError:
+        L = kalman.semidefinite_cholesky(cov)
+        rows = np.diag(L) > 0.0
+        L = L[np.ix_(rows, rows)]
+    eps4 = 4.0 * np.finfo(np.float64).eps
+
+    def changed(new: np.ndarray, old: np.ndarray, angles=None) -> float:
+        delta = kalman.wrap_components(new - old, angles)
+        delta = np.where(np.abs(delta) <= eps4 * np.maximum(np.abs(new), np.abs(old)), 0.0, delta)[rows]
+        if not delta.any():
+            return 0.0
+        white = np.linalg.solve(L, delta)
+        return float(np.sqrt(white @ white))
+
+    return changed
+
+
+def iterated_update(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
+                    tol: float | None = None, state_angles=None, measurement_angles=None):
+    """The update of step k, repeated: the loop body of every driver of the iterated methods.
+
+    Pass i linearises the measurement (``lin.measurement``) at the previous
+    posterior ``x_{i-1}`` (``x_0`` the prediction `mean`) and conditions the
+    prediction ``N(mean, cov)`` on `z` again. With one iteration this is the
+    plain update. With more, it stops after the first pass whose change
+    ``‖x_i - x_{i-1}‖`` in the norm of `cov` (:func:`iterate_changed`) is at
+    most `tol`, or after `iterations` passes.
+
+    Returns
+    -------
+    post : kalman.Update
+        The last pass's update (its mean not yet wrapped to the state angles).
+    passes : int
+        The passes made.
+    converged : bool
+        False when `iterations` > 1 passes were made without meeting `tol`
+        (given); True otherwise.
+    """
+    post_mean, post_cov = mean, cov
+    changed = iterate_changed(cov) if iterations > 1 and tol is not None else None
+    for i in range(iterations):
+        H, d, R = lin.measurement(k, post_mean, post_cov)
+        post = kalman.update(mean, cov, z, H, R, d, angles=measurement_angles)
+        previous, post_mean, post_cov = post_mean, kalman.wrap_components(post.mean, state_angles), post.cov
+        if changed is not None and changed(post_mean, previous, state_angles) <= tol:
+            return post, i + 1, True
+    return post, iterations, changed is None
+
+
+def _filter_pass(lin, prior: Gaussian, zs: np.ndarray, iterations: int, tol: float | None, state_angles,
+                 measurement_angles, keep: str) -> tuple[FilterResult, int]:
+    """:func:`run_filter`, and the number of steps that made `iterations` passes without meeting `tol`."""
     T, n, m = zs.shape[0], prior.dim, zs.shape[1]
     rows = 0 if keep == "last" else T
     crows = T if keep == "all" else 0
     means, covs = np.empty((rows, n)), np.empty((crows, n, n))
     pmeans, pcovs = np.empty((rows, n)), np.empty((crows, n, n))
     innov, icovs = np.empty((rows, m)), np.empty((crows, m, m))
+    used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
+    unconverged = 0
     loglik = 0.0
     mean, cov = prior.mean, prior.cov
     for k in range(T):
-        with _at_step(k):
+        with _at_step(k), np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
             A, b, Q = lin.transition(k, mean, cov)
             mean, cov = kalman.predict(mean, cov, A, Q, b)
             mean = kalman.wrap_components(mean, state_angles)
+            check_finite(k, "predicted", mean, cov)
             if rows:
                 pmeans[k] = mean
             if crows:
                 pcovs[k] = cov
-            post_mean, post_cov = mean, cov
-            for _ in range(iterations):
-                H, d, R = lin.measurement(k, post_mean, post_cov)
-                post = kalman.update(mean, cov, zs[k], H, R, d, angles=measurement_angles)
-                post_mean, post_cov = kalman.wrap_components(post.mean, state_angles), post.cov
-        mean, cov = post_mean, post_cov
+            post, passes, converged = iterated_update(lin, k, mean, cov, zs[k], iterations, tol, state_angles,
+                                                      measurement_angles)
+            unconverged += not converged
+            if used.shape[0]:
+                used[k] = passes
+            check_finite(k, "filtered", post.mean, post.cov, post.loglik)
+        mean, cov = kalman.wrap_components(post.mean, state_angles), post.cov
         if rows:
             means[k], innov[k] = mean, post.innovation
         if crows:
             covs[k], icovs[k] = cov, post.innovation_cov
         loglik += post.loglik
-    return FilterResult(*(a if a.shape[0] else None for a in (means, covs, pmeans, pcovs, innov, icovs)),
-                        loglik, mean, cov)
+    per_step = (means, covs, pmeans, pcovs, innov, icovs)
+    result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean, cov,
+                          used if used.shape[0] else None)
+    return result, unconverged
 
 
 def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
@@ -185,7 +279,7 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
     sm_means, sm_covs = means.copy(), covs.copy()
     gains = np.empty((max(means.shape[0] - 1, 0), *covs.shape[1:]))
     for j in range(means.shape[0] - 2, -1, -1):
-        with _at_step(j + first):
+        with _at_step(j + first), np.errstate(over="ignore", invalid="ignore"):
             A, b, Q = lin.transition(j + first, means[j], covs[j])
             pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)
             sm_means[j], sm_covs[j], gains[j] = kalman.rts_step(
@@ -193,7 +287,44 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
                 sm_means[j + 1], sm_covs[j + 1], covs[j] @ A.T, angles=state_angles,
             )
             sm_means[j] = kalman.wrap_components(sm_means[j], state_angles)
+        check_finite(j + first, "smoothed", sm_means[j], sm_covs[j])
     return sm_means, sm_covs, gains
+
+
+def not_finite(stage: str, k: int, series: int | None = None) -> FloatingPointError:
+    """The error for a belief that overflowed: the same words from every engine.
+
+    `stage` is "predicted", "filtered" (whose log-likelihood term is checked
+    too) or "smoothed"; `series` is named for a batch of series.
+    """
+    what = "mean, covariance or log-likelihood" if stage == "filtered" else "mean or covariance"
+    where = f"at step {k}" if series is None else f"in series {series}, at step {k}"
+    return FloatingPointError(
+        f"{where}: the {stage} {what} is not finite (inf or NaN): the computation overflowed; "
+        "check the scale of the model, the prior and the measurements."
+    )
+
+
+def check_smoothed(means: np.ndarray, covs: np.ndarray) -> None:
+    """:func:`check_finite` for the smoothed beliefs (N, T, n) of a compiled engine, after its backward pass.
+
+    Names the step the readable backward pass would have stopped at: in the
+    first series that overflowed, the latest step.
+    """
+    bad = ~(np.isfinite(means).all(axis=-1) & np.isfinite(np.diagonal(covs, axis1=-2, axis2=-1)).all(axis=-1))
+    if bad.any():
+        s = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise not_finite("smoothed", int(np.flatnonzero(bad[s])[-1]), s if means.shape[0] > 1 else None)
+
+
+def check_finite(k: int, stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
+    """Raise :func:`not_finite` when the mean, the diagonal of the covariance or `loglik` is inf or NaN.
+
+    The diagonal stands for the whole matrix (an infinite or NaN covariance
+    has one there), so the check is O(n) a step.
+    """
+    if not (np.isfinite(mean).all() and np.isfinite(np.diagonal(cov)).all() and np.isfinite(loglik)):
+        raise not_finite(stage, k)
 
 
 class _at_step:
@@ -222,12 +353,12 @@ def _positive_int(name: str, value) -> int:
     return int(value)
 
 
-def _real(name: str, value, *, positive: bool = False, optional: bool = False):
+def _real(name: str, value, *, positive: bool = False, nonnegative: bool = False, optional: bool = False):
     if optional and value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(value) or (positive and value <= 0):
-        kind = "a positive" if positive else "a finite"
+            or not np.isfinite(value) or (positive and value <= 0) or (nonnegative and value < 0):
+        kind = "a positive" if positive else "a non-negative finite" if nonnegative else "a finite"
         raise ValueError(f"`{name}` must be {kind} number{' or None' if optional else ''}; got {value!r}.")
     return float(value)
 
@@ -238,6 +369,7 @@ OPTION_CHECKS: dict[str, Callable] = {
     "alpha": lambda name, v: _real(name, v, positive=True),
     "beta": _real,
     "kappa": lambda name, v: _real(name, v, optional=True),
+    "tol": lambda name, v: _real(name, v, nonnegative=True),
 }
 
 
@@ -252,10 +384,12 @@ class Method(NamedTuple):
         Accepted keyword options and their defaults.
     strategy : callable
         ``(model, us, **options) -> strategy``: how the model is linearised
-        (see :mod:`gaussfuse.linearize`); ``iterations`` is not passed.
+        (see :mod:`gaussfuse.linearize`); ``iterations`` and ``tol`` are not
+        passed.
     iterated : bool
         Whether ``iterations`` repeats the update (filter) and the whole
-        linearise-filter-smooth pass (smoother).
+        linearise-filter-smooth pass (smoother), at most that many times:
+        the repetition stops when the change is at most ``tol``.
     description : str
         One line for listings.
     compiled : str or None
@@ -274,12 +408,19 @@ class Method(NamedTuple):
     compiled: str | None = None
 
 
+DEFAULT_TOL = 1e-9
+"""Default `tol` of the iterated methods: the iterate moved less than 1e-9 predicted standard deviations."""
+DEFAULT_ITERATIONS = 50
+"""Default `iterations` of the iterated methods: a limit; Gauss-Newton and posterior linearisation
+converge linearly, and on Särkkä and Svensson's pendulum reach `tol` in 3-21 updates per step and
+11 smoother passes."""
+
 METHODS: dict[str, Method] = {
     "kf": Method((LinearModel,), {}, lambda model, us: Exact(model, us), False,
                  "Kalman filter / Rauch-Tung-Striebel smoother (exact for linear models)", "linear"),
     "ekf": Method((NonlinearModel,), {}, lambda model, us: Taylor(model, us), False,
                   "extended Kalman filter / extended RTS smoother"),
-    "iekf": Method((NonlinearModel,), {"iterations": 10},
+    "iekf": Method((NonlinearModel,), {"iterations": DEFAULT_ITERATIONS, "tol": DEFAULT_TOL},
                    lambda model, us: Taylor(model, us), True,
                    "iterated EKF / iterated extended (Gauss-Newton) smoother"),
     "ukf": Method((NonlinearModel,), {"alpha": 1.0, "beta": 0.0, "kappa": None},
@@ -291,7 +432,7 @@ METHODS: dict[str, Method] = {
     "ghkf": Method((NonlinearModel,), {"order": 3},
                    lambda model, us, order: SigmaPoints(model, gauss_hermite(model.n, order), us),
                    False, "Gauss-Hermite Kalman filter / RTS smoother", "sigma_points"),
-    "iplf": Method((NonlinearModel,), {"iterations": 10, "order": 3},
+    "iplf": Method((NonlinearModel,), {"iterations": DEFAULT_ITERATIONS, "order": 3, "tol": DEFAULT_TOL},
                    lambda model, us, order: SigmaPoints(model, gauss_hermite(model.n, order), us),
                    True, "iterated posterior-linearisation filter / smoother (Gauss-Hermite)"),
 }
@@ -336,32 +477,61 @@ def _linearisation(spec: Method, model, us, options: dict):
     """The method's strategy for one series, and its ``iterations`` (1 if it has none)."""
     options = dict(options)
     iterations = options.pop("iterations", 1)
+    options.pop("tol", None)
     return spec.strategy(model, us, **options), iterations
 
 
-def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all") -> FilterResult:
+def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all") -> tuple[FilterResult, int]:
+    """The filter for one series, and how many of its steps stopped at the iteration limit."""
     lin, iterations = _linearisation(spec, model, us, options)
     xa, za = _angles(model)
-    return run_filter(lin, prior, zs, iterations=iterations, state_angles=xa, measurement_angles=za,
-                      keep=keep)
+    return _filter_pass(lin, prior, zs, iterations, options.get("tol"), xa, za, keep)
 
 
-def _method_smooth(spec: Method, model, prior, zs, us, options) -> SmoothResult:
-    filt = _method_filter(spec, model, prior, zs, us, options)
+def _method_smooth(spec: Method, model, prior, zs, us, options) -> tuple[SmoothResult, int, bool]:
+    """The smoother for one series; its filter's steps at the iteration limit; whether its passes did."""
+    filt, unconverged = _method_filter(spec, model, prior, zs, us, options)
     lin, passes = _linearisation(spec, model, us, options)
     xa, za = _angles(model)
     if not spec.iterated:
         means, covs, gains = run_smoother(lin, filt, state_angles=xa)
-        return SmoothResult(means, covs, gains, filt)
+        return SmoothResult(means, covs, gains, filt), unconverged, False
     # Iterated smoothers: each pass linearises about the previous pass's smoothed
-    # trajectory (the first about the iterated filter's), from the prior's time on.
+    # trajectory (the first about the iterated filter's), from the prior's time on,
+    # until the trajectory moves by at most `tol` (in the pass's predicted covariances).
+    tol = options["tol"]
     means = np.concatenate([prior.mean[None], filt.means])
     covs = np.concatenate([prior.cov[None], filt.covs])
-    for _ in range(passes):
+    converged = False
+    for used in range(1, passes + 1):
         nominal = Nominal(lin, means, covs)
         last = run_filter(nominal, prior, zs, state_angles=xa, measurement_angles=za)
-        means, covs, gains = run_smoother(nominal, last, prior, state_angles=xa)
-    return SmoothResult(means[1:], covs[1:], gains[1:], filt)
+        new_means, covs, gains = run_smoother(nominal, last, prior, state_angles=xa)
+        norms = (prior.cov, *last.predicted_covs)
+        change = max(iterate_changed(P)(new, old, xa) for P, new, old in zip(norms, new_means, means))
+        means = new_means
+        if change <= tol:
+            converged = True
+            break
+    return SmoothResult(means[1:], covs[1:], gains[1:], filt, used), unconverged, not converged
+
+
+def _warn_unconverged(method: str, options: dict, steps: int, total: int, passes: int = 0, series: int = 1) -> None:
+    """One ConvergenceWarning for a call: the steps (and smoother passes) that stopped at the limit."""
+    if not steps and not passes:
+        return
+    limit, tol = options["iterations"], options["tol"]
+    what = []
+    if steps:
+        what.append(f"{steps} of {total} steps of the filter made {limit} iterations")
+    if passes:
+        where = f" in {passes} of {series} series" if series > 1 else ""
+        what.append(f"the smoother made {limit} passes{where}")
+    warnings.warn(
+        f"method {method!r}: {' and '.join(what)} (the limit, `iterations`={limit}) without the change "
+        f"falling to `tol`={tol:g}; raise `iterations` or `tol`, or check the model.",
+        ConvergenceWarning, stacklevel=3,
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -385,15 +555,22 @@ def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
 
 
 def check_measurements(zs, m: int) -> np.ndarray:
-    """Return `zs` as an array (N, T, m); NaN marks a missing component."""
+    """Return `zs` as an array (N, T, m); NaN (or a masked entry of a masked array) marks a missing component."""
+    try:
+        kind = np.asarray(zs).dtype.kind
+    except ValueError:  # ragged: as_array says so
+        kind = None
+    if kind in ("M", "m"):
+        raise TypeError(f"`zs` must be an array of numbers; got {np.asarray(zs).dtype} values: "
+                        "datetimes are not measurements.")
     arr = as_array("zs", zs, allow_nan=True, copy=False)
     given = arr.shape
     if arr.ndim == 1 and m == 1:
         arr = arr[:, None]
     if arr.ndim == 2 and arr.shape[1] == m:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0:
-        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1"
+    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0 or arr.shape[0] == 0:
+        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1 and N >= 1"
         raise shape_error("zs", expected, given)
     return arr
 
@@ -467,6 +644,8 @@ def _first(result):
             values[f.name] = _first(item)
         elif f.name == "loglik":
             values[f.name] = float(item[0])
+        elif f.name == "iterations" and np.ndim(item) == 1 and isinstance(result, SmoothResult):
+            values[f.name] = int(item[0])
         else:
             values[f.name] = None if item is None else item[0]
     return type(result)(**values)
@@ -503,7 +682,7 @@ def _compiled_engine(spec: Method, method: str, engine: str, steps: int):
 
 def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
            engine: str = "auto", keep: str = "all", **options) -> FilterResult:
-    """Filter a series of measurements: the belief about each state given the past.
+    r"""Filter a series of measurements: the belief about each state given the past.
 
     Parameters
     ----------
@@ -519,8 +698,9 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         and `loglik` is the exact diffuse log-likelihood, equal to theirs
         for every F.
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
-        Measurements; a NaN component is missing. A leading axis holds N
-        independent series, and every result then gains that axis.
+        Measurements; a NaN component (or a masked entry of a masked array)
+        is missing. A leading axis holds N independent series, and every
+        result then gains that axis.
     us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
         Control inputs: required exactly when a LinearModel has ``B``;
         passed to a NonlinearModel's ``f(x, u_k)`` when given.
@@ -529,10 +709,11 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         for a NonlinearModel, ``"ekf"``, ``"iekf"``, ``"ukf"`` (default),
         ``"ckf"``, ``"ghkf"`` or ``"iplf"``.
     **options
-        Method options: ``iterations`` (iekf, iplf: update iterations per
-        step); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0, 3 - n);
-        ``order`` (ghkf, iplf: Gauss–Hermite points per axis, default 3).
-        An unknown one is rejected with the list of valid ones.
+        Method options: ``iterations`` (iekf, iplf: the most update
+        iterations per step, default 50) and ``tol`` (iekf, iplf: default
+        1e-9; see Notes); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0,
+        3 - n); ``order`` (ghkf, iplf: Gauss–Hermite points per axis,
+        default 3). An unknown one is rejected with the list of valid ones.
     engine : {"auto", "python", "numba"}, default "auto"
         ``"python"`` is the readable implementation, the specification;
         ``"numba"`` runs compiled kernels (methods "kf", with series in
@@ -549,6 +730,52 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     Returns
     -------
     FilterResult
+
+    Raises
+    ------
+    ValueError, TypeError
+        For input that cannot be right, naming the argument: shapes, non-finite
+        model matrices, complex, boolean or datetime values, unknown options.
+        A masked array's masked entries are not an error: they are missing.
+    ModelFunctionError
+        (a ValueError) When f, h or a Jacobian raises, or returns a wrong
+        shape, a non-finite value, or complex or boolean values; the message
+        names the function and the step.
+    numpy.linalg.LinAlgError
+        When an innovation covariance is not positive definite (at step k).
+    FloatingPointError
+        When a step's predicted or filtered mean, covariance or log-likelihood
+        term is not finite: the computation overflowed (say a transition of
+        1e200, or measurements near 1e308). The message names the step ("in
+        series s, at step k" for a batch in the compiled linear engine).
+        Both engines check the same values: the mean, the diagonal of the
+        covariance and the log-likelihood term.
+
+    Warns
+    -----
+    ConvergenceWarning
+        Once per call, when steps of an iterated method made `iterations`
+        passes without meeting `tol`; it says how many.
+
+    Notes
+    -----
+    The iterated methods ("iekf", "iplf") repeat the update of each step:
+    pass i linearises the measurement at the previous posterior mean
+    :math:`x_{i-1}` (:math:`x_0` the prediction :math:`m^-`) and conditions
+    the prediction again, giving :math:`x_i`. They stop after the first pass
+    with
+
+    .. math::
+
+        \lVert x_i - x_{i-1} \rVert_{P^-} =
+        \sqrt{(x_i - x_{i-1})^\top (P^-)^{-1} (x_i - x_{i-1})} \le \mathrm{tol},
+
+    the change in predicted standard deviations (scale-free; on the range of
+    :math:`P^-` when it is singular, and a component changing by no more than
+    its round-off, :math:`4 \varepsilon |x|`, counts as unchanged), or after
+    `iterations` passes. ``tol=0`` makes every step run to a fixed point or
+    the limit. ``FilterResult.iterations`` holds the passes made at each
+    step.
 
     Examples
     --------
@@ -572,10 +799,11 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     if compiled is not None:
         result = compiled.filter(method, model, prior, zs, us, options, keep)
         return result if batch else _first(result)
-    results = [
-        _method_filter(spec, model, prior, z, None if us is None else us[i], options, keep)
-        for i, z in enumerate(zs)
-    ]
+    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep)
+            for i, z in enumerate(zs)]
+    if spec.iterated:
+        _warn_unconverged(method, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
+    results = [r[0] for r in runs]
     return _stack(results) if batch else results[0]
 
 
@@ -616,16 +844,32 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     Rauch–Tung–Striebel backward pass (:func:`gaussfuse.kalman.rts_step`):
     exact for ``"kf"``; with the transition re-linearised at each filtered
     belief for ``"ekf"``, ``"ukf"``, ``"ckf"`` and ``"ghkf"``. The iterated
-    smoothers ``"iekf"`` and ``"iplf"`` make `iterations` passes, each a
-    filter and RTS pass linearised about the previous pass's smoothed
+    smoothers ``"iekf"`` and ``"iplf"`` make at most `iterations` passes,
+    each a filter and RTS pass linearised about the previous pass's smoothed
     trajectory (the first about the iterated filter's), reaching back to the
-    prior's time; their ``.filtered`` is the iterated filter.
+    prior's time; they stop after the first pass in which no smoothed mean
+    moved by more than `tol`, measured as in :func:`filter` (Notes) in the
+    pass's predicted covariance of its step (the prior's at time 0). Their
+    ``.filtered`` is the iterated filter, and ``.iterations`` the passes made.
 
     Returns
     -------
     SmoothResult
         ``.means`` (T, n), ``.covs`` (T, n, n), ``.gains`` (T-1, n, n) and
         ``.filtered``, the forward pass.
+
+    Raises
+    ------
+    ValueError, TypeError, ModelFunctionError, numpy.linalg.LinAlgError, FloatingPointError
+        As :func:`filter`; FloatingPointError also when a smoothed mean or
+        covariance is not finite (at step k, the latest one of the backward
+        pass).
+
+    Warns
+    -----
+    ConvergenceWarning
+        Once per call, when the iterated filter's steps or the smoother's
+        passes stopped at `iterations` without meeting `tol`.
 
     Examples
     --------
@@ -645,8 +889,10 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     if compiled is not None:
         result = compiled.smooth(method, model, prior, zs, us, options)
         return result if batch else _first(result)
-    results = [
-        _method_smooth(spec, model, prior, z, None if us is None else us[i], options)
-        for i, z in enumerate(zs)
-    ]
+    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options)
+            for i, z in enumerate(zs)]
+    if spec.iterated:
+        _warn_unconverged(method, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],
+                          passes=sum(r[2] for r in runs), series=zs.shape[0])
+    results = [r[0] for r in runs]
     return _stack(results) if batch else results[0]

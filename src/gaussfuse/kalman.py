@@ -22,7 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "cholesky", "wrap_angle", "wrap_components"]
+__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "cholesky", "semidefinite_cholesky",
+           "wrap_angle", "wrap_components"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
 
@@ -97,6 +98,48 @@ def cholesky(mat: np.ndarray, name: str) -> np.ndarray:
         raise np.linalg.LinAlgError(
             f"{name} is not positive definite, so it cannot be factorised: {shown}"
         ) from None
+
+
+def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
+    r"""Lower-triangular L with ``L Lᵀ = cov`` for a positive semi-definite `cov`.
+
+    The Cholesky recursion, column by column, in which a pivot (the variance
+    of component j left after conditioning on components 0..j-1) at most
+    ``n ε cov[j, j]`` is zero: component j is, to round-off, an affine
+    function of the earlier ones, and column j of L is zero. The test is
+    relative to each component's own variance, so it does not depend on
+    units.
+
+    Where ``numpy.linalg.cholesky`` just succeeds or just fails (a pivot at
+    round-off level, of either sign), the two factors differ only in that
+    column, by about the square root of the round-off: sigma points drawn
+    from either agree to second order. (A root from the eigendecomposition
+    would turn every point.) For a positive definite `cov` it is the
+    Cholesky factor.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When `cov` has an eigenvalue below ``-1e-9 λ_max``: it is not
+        positive semi-definite.
+    """
+    vals = np.linalg.eigvalsh(cov)
+    top = max(vals[-1], 0.0)
+    if vals[0] < -1e-9 * max(top, 1e-300):
+        raise np.linalg.LinAlgError(
+            f"the covariance is not positive semi-definite (smallest eigenvalue {vals[0]:.3g}), "
+            "so it has no square root"
+        )
+    n = cov.shape[0]
+    tol = n * np.finfo(np.float64).eps
+    L = np.zeros_like(cov, dtype=np.float64)
+    for j in range(n):
+        pivot = cov[j, j] - L[j, :j] @ L[j, :j]
+        if pivot <= tol * cov[j, j]:
+            continue
+        L[j, j] = np.sqrt(pivot)
+        L[j + 1:, j] = (cov[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
+    return L
 
 
 def predict(

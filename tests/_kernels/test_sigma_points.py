@@ -354,6 +354,134 @@ def test_state_angles_are_wrapped():
 
 
 # ---------------------------------------------------------------------------
+# Singular and nearly singular covariances, with tolerances scaled to the problem
+# ---------------------------------------------------------------------------
+
+VARIANCES = [0.0, 1e-30, 1e-4, 1.0, 1e4]
+
+
+def scaled_cov(rng, variances):
+    """A covariance with the given variances: correlated where they are ordinary, diagonal where tiny."""
+    n = len(variances)
+    A = rng.standard_normal((n, n))
+    corr = A @ A.T / n + 0.2 * np.eye(n)
+    corr /= np.sqrt(np.outer(np.diag(corr), np.diag(corr)))
+    tiny = variances < 1e-20
+    corr[tiny], corr[:, tiny] = 0.0, 0.0
+    corr[tiny, tiny] = 1.0
+    sd = np.sqrt(variances)
+    return sd[:, None] * corr * sd[None, :]
+
+
+def degenerate_problem(seed, mode, *, N=1, T=6, q_kind="full"):
+    """The toy model with a degenerate prior (variances from VARIANCES) and process noise of `q_kind`.
+
+    Returns the problem and whether its smoothers can be compared (see
+    test_singular_and_nearly_singular_covariances).
+    """
+    rng = np.random.default_rng(seed)
+    f, _, h = TOY[mode]
+    variances = rng.choice(VARIANCES, 3)
+    Q = _spd(rng, 3, 0.01)
+    if q_kind == "zero rows":  # some components without process noise
+        still = rng.random(3) < 0.5
+        Q[still], Q[:, still] = 0.0, 0.0
+    elif q_kind == "low rank":
+        B = rng.standard_normal((3, int(rng.integers(1, 3))))
+        Q = 0.01 * B @ B.T
+    elif q_kind == "zero":
+        Q = np.zeros((3, 3))
+    model = gf.NonlinearModel(f, h, Q, _spd(rng, 2, 0.05), vectorized=mode.endswith("vectorized"),
+                              state_angles=[1], measurement_angles=[1])
+    prior = gf.Gaussian(rng.normal(0.0, 0.3, 3) + [0.0, 3.0, 1.0], scaled_cov(rng, variances))
+    zs = np.stack([toy_h(x) for x in rng.normal(0.0, 1.0, (N * T, 3))]).reshape(N, T, 2)
+    zs += rng.normal(0.0, 0.2, zs.shape)
+    unresolved = np.any((variances == 1e-30) & (np.diag(Q) == 0.0))
+    return model, prior, zs, not unresolved
+
+
+def equilibrated_condition(cov):
+    """The condition number of `cov` scaled to unit diagonal, on its numerical range.
+
+    Scaling makes it blind to units (variances of 1e-30 next to 1e4 alone are
+    harmless); components of zero variance and eigenvalues of the scaled matrix
+    below ``n ε λ_max`` (exact rank deficiency, which the smoothers treat as
+    such) do not count.
+    """
+    d = np.diag(cov)
+    keep = d > 0
+    if not keep.any():
+        return 1.0
+    sd = np.sqrt(d[keep])
+    lam = np.linalg.eigvalsh(cov[np.ix_(keep, keep)] / np.outer(sd, sd))
+    lam = lam[lam > keep.sum() * np.finfo(float).eps * lam[-1]]
+    return float(lam[-1] / lam[0])
+
+
+def assert_agree(got, want, tol=TOL):
+    """Two Filter/SmoothResults agree to `tol` relative to the scale of the quantities.
+
+    With M the largest |mean| and V the largest |variance| of the forward pass
+    (filtered and predicted), means are compared to ``tol (M + √V)`` and
+    covariances to ``tol (V + 10⁻³ M √V)``: sigma points sit at ``m ± σ``, so
+    every spread they measure carries the round-off of the mean, about
+    ``ε |m| σ`` (a covariance of 1e-30 at a mean of 1 is round-off), and
+    10⁻³ × 1e-10 allows 450 ε. Smoothed values are differences of the
+    filtered ones, and are held to the same scale, times
+    ``max(1, 10⁻⁴ κ)`` with κ the largest :func:`equilibrated_condition` of the
+    predictions (10⁻⁴ × 1e-10 allows 45 ε κ). The log-likelihood is
+    compared relative (and absolute) to `tol`.
+    """
+    filt = want.filtered if isinstance(want, gf.SmoothResult) else want
+    M = max(np.max(np.abs(filt.means)), np.max(np.abs(filt.predicted_means)))
+    V = max(np.max(np.abs(filt.covs)), np.max(np.abs(filt.predicted_covs)))
+    mean_atol, cov_atol = tol * (M + np.sqrt(V)), tol * (V + 1e-3 * M * np.sqrt(V))
+
+    def close(name, atol, a, b):
+        np.testing.assert_allclose(a, b, rtol=0, atol=max(atol, 1e-300), err_msg=name)
+
+    if isinstance(want, gf.SmoothResult):
+        assert_agree(got.filtered, want.filtered, tol)
+        # The gains G = C (P⁻)⁻¹ carry round-off times the condition of P⁻.
+        n = filt.means.shape[-1]
+        factor = max(1.0, 1e-4 * max(map(equilibrated_condition, filt.predicted_covs.reshape(-1, n, n))))
+        close("smoothed means", factor * mean_atol, got.means, want.means)
+        close("smoothed covs", factor * cov_atol, got.covs, want.covs)
+        return
+    for name in ("means", "predicted_means"):
+        close(name, mean_atol, getattr(got, name), getattr(want, name))
+    for name in ("covs", "predicted_covs"):
+        close(name, cov_atol, getattr(got, name), getattr(want, name))
+    S = want.innovation_covs
+    v = np.nan_to_num(want.innovations)
+    close("innovations", tol * (np.max(np.abs(v)) + np.sqrt(np.max(np.abs(S)))), np.nan_to_num(got.innovations), v)
+    close("innovation_covs", tol * np.max(np.abs(S)), got.innovation_covs, S)
+    np.testing.assert_allclose(got.loglik, want.loglik, rtol=tol, atol=tol, err_msg="loglik")
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**32 - 1), mode=st.sampled_from(list(TOY)),
+       method=st.sampled_from(["ukf", "ckf", "ghkf"]), T=st.integers(1, 7),
+       q_kind=st.sampled_from(["full", "zero rows", "low rank", "zero"]))
+def test_singular_and_nearly_singular_covariances(seed, mode, method, T, q_kind):
+    """Zero variances, variances of 1e-30 next to 1e4, process noise missing on some components or all.
+
+    The filters always agree. The smoothers are compared unless a component
+    keeps a tiny nonzero variance without process noise: its spread is then a
+    few units in the last place of its mean, the sigma points along it are
+    quantised, and the smoother gains of *both* engines divide that
+    round-off by a variance of 1e-30 (on the toy model the engines then differ
+    by 1e-6 relative in the smoothed covariances; neither is right).
+    """
+    model, prior, zs, smoothable = degenerate_problem(seed, mode, T=T, q_kind=q_kind)
+    res, ref, _ = both(gf.filter, model, prior, zs, method=method)
+    assert_agree(res, ref)
+    if smoothable:
+        sm, ref, _ = both(gf.smooth, model, prior, zs, method=method)
+        assert_agree(sm, ref)
+
+
+# ---------------------------------------------------------------------------
 # Singular covariances, odd functions, the automatic engine
 # ---------------------------------------------------------------------------
 
@@ -469,7 +597,8 @@ def test_wrong_output_shape_names_the_function(mode):
     given_shape, want = (r"\(5, 2\)", r"\(5, 1\)") if mode == "vectorized" else (r"\(2,\)", r"\(1,\)")
     got = r"\(5, 3\)" if mode == "vectorized" else r"\(3,\)"
     same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf",
-               match=rf"at step 0: `h` must return shape {want} for an input of shape {given_shape}; got shape {got}")
+               match=rf"at step 0: `h` must return shape {want} for an input of shape {given_shape}, because `R` is "
+                     rf"1 × 1; got shape {got}")
 
 
 @pytest.mark.parametrize("mode", ["plain", "jitted"])
@@ -522,3 +651,59 @@ def test_scalar_outputs_from_plain_functions_are_accepted():
     model = gf.NonlinearModel(lambda x: 0.9 * x, lambda x: float(np.sin(x[0])), 0.01, 0.1)
     res, ref, _ = both(gf.smooth, model, gf.Gaussian(0.5, 1.0), np.sin(np.linspace(0, 1, 6)), method="ukf")
     assert_same(res, ref)
+
+
+def f_huge(x):
+    return np.array([1e120 * x[0], x[1]])
+
+
+def f_huge_vec(X):
+    return X * np.array([1e120, 1.0])
+
+
+f_huge_jit = numba.njit(cache=True)(f_huge)
+
+
+def second(x):
+    return x[1:].copy()
+
+
+second_jit = numba.njit(cache=True)(second)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_overflow_names_the_step(mode):
+    """x0 is not measured and grows by 1e120 a step: its variance is 1e240, then inf. f's values stay finite."""
+    f, h = {"plain": (f_huge, second), "vectorized": (f_huge_vec, lambda X: X[:, 1:]),
+            "jitted": (f_huge_jit, second_jit)}[mode]
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0, vectorized=mode == "vectorized")
+    for method in ("ukf", "ckf"):
+        same_error(FloatingPointError, model, gf.Gaussian([1.0, 0.0], np.eye(2)), np.zeros(4), method=method,
+                   match=r"^at step 1: the predicted mean or covariance is not finite \(inf or NaN\)")
+    with pytest.raises(FloatingPointError, match=r"^at step 1: the predicted"):
+        gf.smooth(model, gf.Gaussian([1.0, 0.0], np.eye(2)), np.zeros(4), method="ukf", engine="numba")
+
+
+@pytest.mark.parametrize("mode", ["plain", "jitted"])
+def test_overflow_of_the_log_likelihood_names_the_step(mode):
+    f, h = (identity, first) if mode == "plain" else (identity_jit, first_jit)
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+    same_error(FloatingPointError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), [0.0, 1e300, 0.0], method="ukf",
+               match=r"^at step 1: the filtered mean, covariance or log-likelihood is not finite")
+
+
+h_complex_jit = numba.njit(cache=True)(lambda x: x[:1] + 0j)
+h_bool_jit = numba.njit(cache=True)(lambda x: x[:1] > 0.0)
+
+
+@pytest.mark.parametrize("h, what", [(lambda x: x[:1] + 0j, "complex"), (h_complex_jit, "complex"),
+                                     (lambda x: x[:1] > 0.0, "boolean"), (h_bool_jit, "boolean")],
+                         ids=["complex", "complex-jitted", "bool", "bool-jitted"])
+def test_complex_or_boolean_outputs_are_refused(h, what):
+    f = identity_jit if numba.extending.is_jitted(h) else identity
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
+        gf.filter(model, gf.Gaussian([0.5, 0.0], np.eye(2)), np.zeros(3), method="ukf", engine="numba")
+    assert sp.last_mode == "python"  # such a jitted h does not fit the compiled loop
+    with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
+        gf.filter(model, gf.Gaussian([0.5, 0.0], np.eye(2)), np.zeros(3), method="ukf", engine="python")

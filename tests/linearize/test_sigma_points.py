@@ -120,3 +120,70 @@ def test_sqrt_cov_of_singular_covariance():
     np.testing.assert_allclose(L @ L.T, cov, atol=1e-12)
     with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
         sqrt_cov(np.array([[1.0, 0.0], [0.0, -1.0]]))
+
+
+def test_slr_with_a_round_off_variance_stays_of_the_size_of_the_slope():
+    """A component whose variance is round-off (1e-32) at a mean of 2: its points are quantised to ulps.
+
+    The regression in the unit points keeps A of the size of g's slope, and
+    it equals the regression with that variance exactly 0 (where the points
+    do not move along it). C P⁻¹ made an entry of order 1e15 here.
+    """
+    mean = np.array([0.1, 2.0])
+    near_cov, exact_cov = np.array([[1.5, 1e-32], [1e-32, 6.6e-32]]), np.diag([1.5, 0.0])
+    g = lambda X: np.stack([0.5 * X[:, 0] + 25 * X[:, 0] / (1 + X[:, 0] ** 2) + X[:, 1], X[:, 1]], axis=-1)
+    for rule in (unscented(2), cubature(2), gauss_hermite(2, 3)):
+        A, b, omega = slr(g, rule, mean, near_cov)
+        A0, b0, omega0 = slr(g, rule, mean, exact_cov)
+        assert np.abs(A).max() < 30.0
+        assert abs(omega[0, 1]) < 1e-12 and omega[1, 1] > -1e-40
+        # The prediction it gives is the one with the variance exactly 0.
+        np.testing.assert_allclose(A @ mean + b, A0 @ mean + b0, rtol=1e-14)
+        np.testing.assert_allclose(A @ near_cov @ A.T + omega, A0 @ exact_cov @ A0.T + omega0, rtol=1e-12, atol=1e-12)
+
+
+def test_slr_of_a_component_known_exactly_has_no_spread():
+    """An output constant over the points has exactly its value as mean and exactly zero variance."""
+    mean, cov = np.array([0.3, 2.0, np.pi - 0.01]), np.diag([2.0, 0.0, 0.0])
+    g = lambda X: np.stack([np.sin(X[:, 0]), X[:, 1], X[:, 2] + 0.02], axis=-1)  # the last: an angle
+    for rule in (unscented(3), cubature(3), gauss_hermite(3, 3)):
+        A, b, omega = slr(g, rule, mean, cov, angles=np.array([False, False, True]))
+        y = A @ mean + b
+        assert y[1] == 2.0 and y[2] == (np.pi - 0.01) + 0.02
+        np.testing.assert_array_equal(omega[1:], 0.0)
+        np.testing.assert_array_equal(A[1:], 0.0)
+
+
+def test_gauss_hermite_refuses_rules_too_large_to_build():
+    """order**n points beyond 10**6, or an order beyond 200, are refused before anything is allocated."""
+    assert gauss_hermite(3, 100).points.shape == (10**6, 3)  # at the limit
+    with pytest.raises(ValueError, match=r"^`order` = 101 in n = 3 dimensions would give order\*\*n = 1,030,301 "
+                                         r"sigma points, more than the limit of 1,000,000; use a smaller `order`, or the "
+                                         r"unscented or cubature rule \(2n \+ 1 or 2n points\)\.$"):
+        gauss_hermite(3, 101)
+    with pytest.raises(ValueError, match=r"order\*\*n = 1,594,323 sigma points"):
+        gauss_hermite(13, 3)  # the default order, in 13 dimensions
+    with pytest.raises(ValueError, match=r"order\*\*n = 5.15e\+47 sigma points"):
+        gauss_hermite(100, 3)
+    with pytest.raises(ValueError, match=r"^`order` must be at most 200 \(the 1-D Gauss–Hermite rule is not accurate "
+                                         r"beyond\); got 1000000\.$"):
+        gauss_hermite(1, 10**6)  # NumPy would build a 10**6 x 10**6 matrix: 8 TB
+    with pytest.raises(ValueError, match=r"`order` must be a positive integer; got True"):
+        gauss_hermite(1, True)
+    rule = gauss_hermite(1, 200)
+    assert rule.points.shape == (200, 1) and np.all(np.isfinite(rule.wm))
+    assert rule.wm @ rule.points[:, 0] ** 2 == pytest.approx(1.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["ghkf", "iplf"])
+def test_filters_refuse_a_gauss_hermite_order_too_large(method):
+    import gaussfuse as gf
+
+    model = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(4), 1.0)
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    with pytest.raises(ValueError, match=r"^`order` must be at most 200 \(the 1-D Gauss–Hermite rule is not accurate "
+                                         r"beyond\); got 1000000\.$"):
+        gf.filter(model, prior, [1.0], method=method, order=10**6)
+    with pytest.raises(ValueError, match=r"^`order` = 100 in n = 4 dimensions would give order\*\*n = 100,000,000 "
+                                         r"sigma points"):
+        gf.smooth(model, prior, [1.0], method=method, order=100)

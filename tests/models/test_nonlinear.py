@@ -48,7 +48,8 @@ def test_immutable():
         (dict(Q=np.stack([np.eye(2)] * 3), R=np.ones((4, 1, 1))), ValueError,
          r"same number of steps; `Q` has 3, `R` has 4"),
         (dict(vectorized="yes"), TypeError, r"`vectorized` must be True or False; got 'yes'"),
-        (dict(state_angles=[2]), ValueError, r"`state_angles` must hold component indices in \[0, 2\); got \[2\]"),
+        (dict(state_angles=[2]), ValueError,
+         r"`state_angles` must hold component indices in \[0, 2\) or be a boolean mask of length 2; got \[2\]"),
         (dict(measurement_angles=[0.5]), ValueError, r"`measurement_angles` must hold component indices in \[0, 1\)"),
     ],
 )
@@ -89,3 +90,68 @@ def test_a_lambda_model_copies_but_does_not_pickle_and_says_why():
     with pytest.raises((pickle.PicklingError, AttributeError)) as info:  # pickle's own error
         pickle.dumps(model)
     assert "lambda" in str(info.value) and "immutable" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "angles, mask",
+    [([True, False, False], [1, 0, 0]), (np.array([False, True, True]), [0, 1, 1]), ([1], [0, 1, 0]),
+     ((0, -1), [1, 0, 1]), ([], [0, 0, 0]), (None, [0, 0, 0]), (np.array([2]), [0, 0, 1]),
+     ([np.True_, np.False_, np.True_], [1, 0, 1])],
+)
+def test_angles_are_a_boolean_mask_or_indices(angles, mask):
+    """[True, False, False] marks component 0 only: a mask, not the indices 1 and 0."""
+    model = gf.NonlinearModel(f, lambda x: x.copy(), np.eye(3), np.eye(3), state_angles=angles,
+                              measurement_angles=angles)
+    np.testing.assert_array_equal(model.state_angles, np.array(mask, dtype=bool))
+    np.testing.assert_array_equal(model.measurement_angles, np.array(mask, dtype=bool))
+    # A model's own mask is accepted back.
+    again = gf.NonlinearModel(f, lambda x: x.copy(), np.eye(3), np.eye(3), state_angles=model.state_angles)
+    np.testing.assert_array_equal(again.state_angles, model.state_angles)
+
+
+@pytest.mark.parametrize(
+    "angles, match",
+    [([True, False], r"`state_angles` as a boolean mask must have length 3, one entry per component; got length 2"),
+     ([True, 2], r"`state_angles` must be a boolean mask of length 3 or a sequence of component indices, "
+                 r"not a mix of booleans and numbers; got \[True, 2\]"),
+     ([1.0], r"`state_angles` must hold component indices in \[0, 3\) or be a boolean mask of length 3; got \[1.0\]"),
+     ([3], r"`state_angles` must hold component indices in \[0, 3\)")],
+)
+def test_ambiguous_angles_are_refused(angles, match):
+    with pytest.raises(ValueError, match=match):
+        gf.NonlinearModel(f, h, np.eye(3), 1.0, state_angles=angles)
+
+
+@pytest.mark.parametrize(
+    "out, what",
+    [(np.array([1.0 + 0.0j]), "complex"), (np.array([True]), "boolean"), (True, "boolean"), (1j, "complex"),
+     (np.array(["2020-01-01"], dtype="datetime64[D]"), "datetime64")],
+)
+def test_complex_or_boolean_outputs_are_refused(out, what):
+    """Not cast: a complex output would lose its imaginary part, a boolean become 0.0 or 1.0."""
+    model = gf.NonlinearModel(f, lambda x: out, np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError,
+                       match=rf"`h` must return an array of real numbers; got {what} values for an input of shape \(2,\)"):
+        model.measurement(np.zeros(2))
+    for method in ("ekf", "ukf"):
+        with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
+            gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0], method=method)
+    model = gf.NonlinearModel(lambda x: np.where(x > 0, x, x + 0j), h, np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError, match=r"`f` must return an array of real numbers; got complex values"):
+        model.transition(np.zeros(2))
+
+
+def test_wrong_output_size_names_the_noise_that_fixes_it():
+    """h returning 2 values with a scalar R: the message names both h and R (f and Q likewise)."""
+    model = gf.NonlinearModel(lambda x: x[:1], lambda x: x.copy(), np.eye(2), 1.0,
+                              h_jacobian=lambda x: np.eye(2))
+    with pytest.raises(ModelFunctionError, match=r"^`h` must return shape \(1,\) for an input of shape \(2,\), "
+                                                 r"because `R` is 1 × 1; got shape \(2,\)\.$"):
+        model.measurement(np.zeros(2))
+    with pytest.raises(ModelFunctionError, match=r"^`f` must return shape \(2,\) for an input of shape \(2,\), "
+                                                 r"because `Q` is 2 × 2; got shape \(1,\)\.$"):
+        model.transition(np.zeros(2))
+    fine = gf.NonlinearModel(f, h, np.eye(2), 1.0, h_jacobian=lambda x: np.eye(2))
+    with pytest.raises(ModelFunctionError, match=r"^at step 0: `h_jacobian` must return shape \(1, 2\) for an input of "
+                                                 r"shape \(2,\), because `R` is 1 × 1 and `Q` is 2 × 2; got shape \(2, 2\)"):
+        gf.filter(fine, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0], method="ekf")

@@ -64,7 +64,7 @@ def test_linear_sensor():
         (lambda: gf.Position(dim=2).linear(1), ValueError, r"^`n` must be an integer >= 2; got 1\.$"),
         (lambda: gf.Position(dim=2, n=4).linear(6), ValueError, r"^`n` must be 4, as given to `Position`; got 6\.$"),
         (lambda: gf.LinearSensor([[1, 0]], [[1, 0], [0, 1]]), ValueError,
-         r"^`R` must have shape \(1, 1\); got shape \(2, 2\)\.$"),
+         r"^`R` must have shape \(1, 1\), because `H` has 1 row; got shape \(2, 2\)\.$"),
         (lambda: gf.LinearSensor([[1, 0]], -1.0), ValueError, r"^`R` must be positive semi-definite"),
         (lambda: gf.LinearSensor(np.zeros((2, 2, 2)), np.eye(2)), ValueError, r"^`H` must have shape \(m, n\)"),
         (lambda: gf.LinearSensor([[1, 0]], 1.0, names=("a", "b")), ValueError,

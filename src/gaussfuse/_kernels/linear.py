@@ -21,7 +21,11 @@ filtering or smoothing):
   filtering;
 * a failure (an innovation covariance that is not positive definite) stops
   that series and is reported in ``err`` (step, size) and ``err_S`` (the
-  matrix), and the Python side raises ``numpy.linalg.LinAlgError``.
+  matrix), and the Python side raises ``numpy.linalg.LinAlgError``; a
+  predicted or filtered belief that is not finite (an overflow) is reported
+  in ``err`` (step, a negative code), and the Python side raises the readable
+  path's ``FloatingPointError`` (:func:`gaussfuse.inference.check_finite`);
+  the smoothed beliefs are checked after the backward pass.
 
 The forward kernel filters and, when smoothing, computes each gain
 ``G_{k-1}`` at step k from the prediction's ``F_k P_{k-1}``; the backward
@@ -39,7 +43,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..inference import FilterResult, SmoothResult
+from ..inference import FilterResult, SmoothResult, check_smoothed, not_finite
 from ._jit import jit, parallel_launch
 from ._nrt import borrow as _borrow, readonly as _readonly
 
@@ -50,6 +54,8 @@ _INLINE = dict(_JIT, inline="always")  # the step helpers are inlined into the l
 _LOG_2PI = math.log(2.0 * math.pi)
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 _CHUNKS_PER_THREAD = 16  # chunks of series per thread, handed out dynamically, for balance
+# err[s, 1] when a belief overflowed (otherwise the size of the S that could not be factorised)
+PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE = -1, -2
 
 # ---------------------------------------------------------------------------
 # Small dense algebra: explicit loops over a handful of rows and columns.
@@ -365,6 +371,19 @@ def rts_step(filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, gain
             cov[j, i] = s
 
 
+@jit(**_INLINE)
+def nonfinite(mean, cov, loglik):
+    """True when the mean, the diagonal of the covariance or `loglik` is inf or NaN (inference.check_finite).
+
+    Branch-free: ``x * 0`` is 0 for a finite x and NaN for inf or NaN, and the
+    sum of those cannot overflow.
+    """
+    acc = loglik * 0.0
+    for i in range(mean.shape[0]):
+        acc += mean[i] * 0.0 + cov[i, i] * 0.0
+    return acc != acc
+
+
 # ---------------------------------------------------------------------------
 # Loops over steps and series
 # ---------------------------------------------------------------------------
@@ -416,6 +435,10 @@ def _filter_loop(lo, hi, F, H, Q, R, b, zs, m0, P0,
             pred_cov = pcovs[s, k] if keep_covs else pP0
             predict(mean, cov, F[k if F.shape[0] > 1 else 0], Q[k if Q.shape[0] > 1 else 0],
                     b[bs, k if b.shape[1] > 1 else 0], pred_mean, pred_cov, AP)
+            if nonfinite(pred_mean, pred_cov, 0.0):  # an overflow: inference.check_finite
+                err[s, 0] = k
+                err[s, 1] = PREDICTED_NOT_FINITE
+                break
             if keep_gains and k > 0:
                 failed[s, k - 1] = not smoother_gain(AP, pred_cov, gains[s, k - 1], Ln)
             # The posterior overwrites the previous one in scratch: predict has used it.
@@ -432,6 +455,10 @@ def _filter_loop(lo, hi, F, H, Q, R, b, zs, m0, P0,
                 for a in range(mo):
                     for c in range(mo):
                         err_S[s, a, c] = S[a, c]
+                break
+            if nonfinite(mean, cov, ll):
+                err[s, 0] = k
+                err[s, 1] = FILTERED_NOT_FINITE
                 break
             total += ll
         loglik[s] = total
@@ -553,12 +580,20 @@ def _run(serial, parallel, items: int, *args) -> None:
 
 
 def _raise_not_pd(err: np.ndarray, err_S: np.ndarray) -> None:
-    """Raise the readable path's LinAlgError for the first series that failed."""
+    """Raise the readable path's error for the first series that failed.
+
+    A LinAlgError for an innovation covariance that is not positive definite;
+    a FloatingPointError (:func:`gaussfuse.inference.not_finite`) for a
+    belief that overflowed.
+    """
     failed = np.flatnonzero(err[:, 0] >= 0)
     if failed.size == 0:
         return
     s = int(failed[0])
     k, mo = (int(x) for x in err[s])
+    if mo < 0:
+        stage = "predicted" if mo == PREDICTED_NOT_FINITE else "filtered"
+        raise not_finite(stage, k, s if err.shape[0] > 1 else None)
     with np.printoptions(precision=4, threshold=36):
         shown = np.array2string(err_S[s, :mo, :mo], separator=", ").replace("\n", "")
     where = f"in series {s}, at step {k}" if err.shape[0] > 1 else f"at step {k}"
@@ -617,4 +652,5 @@ def smooth(method, model, prior, zs, us, options) -> SmoothResult:
     sm_means, sm_covs = np.empty((N, T, n)), np.empty((N, T, n, n))
     args = (filt.means, filt.covs, filt.predicted_means, filt.predicted_covs, gains, sm_means, sm_covs)
     _run(_backward, _backward_parallel, N, *args)
+    check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, gains, filt)

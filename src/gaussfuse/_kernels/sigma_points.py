@@ -5,11 +5,11 @@ The readable path (:class:`gaussfuse.linearize.SigmaPoints` feeding
 affine Kalman step. For additive noise that collapses, in exact arithmetic,
 to the classic sigma-point formulas computed here. With the points
 :math:`\mathcal X_i = m + L \xi_i` of a belief :math:`N(m, P)`, :math:`P = L L^\top`
-(the symmetric root when P is singular), and :math:`\mathcal Y_i = f(\mathcal X_i)`:
+(the semi-definite Cholesky factor when P is singular), and :math:`\mathcal Y_i = f(\mathcal X_i)`:
 
 .. math::
 
-    m^- = \textstyle\sum_i w^m_i \mathcal Y_i, \qquad
+    m^- = \mathcal Y_0 + \textstyle\sum_i w^m_i (\mathcal Y_i - \mathcal Y_0), \qquad
     P^- = \textstyle\sum_i w^c_i\, \delta\mathcal Y_i \delta\mathcal Y_i^\top + Q, \qquad
     C^f = \textstyle\sum_i w^c_i\, (\mathcal X_i - m) \delta\mathcal Y_i^\top,
 
@@ -18,19 +18,21 @@ and with the points :math:`\mathcal X^-_i` of :math:`N(m^-, P^-)` and
 
 .. math::
 
-    \bar z &= \textstyle\sum_i w^m_i \mathcal Z_i, \quad
+    \bar z &= \mathcal Z_0 + \textstyle\sum_i w^m_i (\mathcal Z_i - \mathcal Z_0), \quad
     S = \textstyle\sum_i w^c_i\, \delta\mathcal Z_i \delta\mathcal Z_i^\top + R, \quad
     C = \textstyle\sum_i w^c_i\, (\mathcal X^-_i - m^-) \delta\mathcal Z_i^\top, \\
     S_o &= L_S L_S^\top, \quad W = L_S^{-1} C_o^\top, \quad \omega = L_S^{-1} v_o, \\
     m &= m^- + W^\top \omega, \quad P = P^- - W^\top W, \quad
     \ell = -\tfrac12 \left(\omega^\top \omega + 2 \textstyle\sum \log\operatorname{diag} L_S + |o| \log 2\pi\right),
 
-i.e. :math:`K = C_o S_o^{-1}`, :math:`P = P^- - K S_o K^\top`. The readable
-path's regression matrices :math:`A = C^\top P^{-1}` cancel out of every one of
-these (its Joseph form, with :math:`H = C^\top (P^-)^{-1}` and
-:math:`R + \Omega`, expands to :math:`P^- - K S_o K^\top`), so the two agree
-to round-off, amplified at most by the condition number of the covariance
-being inverted; :math:`P^- - W^\top W` is used because it is symmetric by
+i.e. :math:`K = C_o S_o^{-1}`, :math:`P = P^- - K S_o K^\top`. (The means are
+centred on the first point, as the readable path's, so that a component
+known exactly keeps a variance of exactly 0.) The readable path's regression
+matrices :math:`A = C^\top P^{-1}` (computed as :math:`\Xi^\top L^{-1}` in the
+unit points) cancel out of every one of these (its Joseph form, with
+:math:`H = C^\top (P^-)^{-1}` and :math:`R + \Omega`, expands to
+:math:`P^- - K S_o K^\top`), so the two agree to round-off;
+:math:`P^- - W^\top W` is used because it is symmetric by
 construction and costs one triangular solve. The RTS pass reuses the
 filter's :math:`m^-, P^-, C^f` (the readable smoother re-draws the points at
 each filtered belief, which gives the same numbers):
@@ -63,7 +65,7 @@ Execution modes, chosen per call:
 A covariance that is not positive definite (a state known exactly, no
 process noise on it) has no Cholesky factor: its points are then drawn in
 Python through :func:`~gaussfuse.linearize.sigma_points.sqrt_cov`, the
-readable path's symmetric root (in the compiled mode, that series and the
+readable path's semi-definite Cholesky factor (in the compiled mode, that series and the
 following ones continue in the Python mode), and a singular :math:`P^-` in
 the smoother gets the readable path's least-squares gain.
 :func:`execution_mode` tells which mode a model gets.
@@ -71,7 +73,9 @@ the smoother gets the readable path's least-squares gain.
 Model-function errors (an exception, a wrong shape, a non-finite value) and
 failed factorisations raise the same :class:`ModelFunctionError` /
 :class:`numpy.linalg.LinAlgError` messages as the readable path, prefixed by
-"at step k: ".
+"at step k: ", and a predicted, filtered or smoothed belief that is not finite
+(an overflow) the same :class:`FloatingPointError`
+(:func:`gaussfuse.inference.check_finite`).
 """
 
 from __future__ import annotations
@@ -84,9 +88,9 @@ from numba import types
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload
 
-from ..inference import METHODS, FilterResult, SmoothResult
+from ..inference import METHODS, FilterResult, SmoothResult, check_smoothed, not_finite
 from ..linearize.sigma_points import sqrt_cov
-from ..models.nonlinear import ModelFunctionError, call_checked
+from ..models.nonlinear import ModelFunctionError, call_checked, size_reason
 from ._jit import jit
 from ._nrt import borrow, readonly
 
@@ -97,7 +101,7 @@ _TWO_PI = 2.0 * math.pi
 _F64 = np.dtype(np.float64)
 
 # Status codes returned by the compiled code; details go to `iwork` and `errval`.
-OK, F_SHAPE, F_NONFINITE, H_SHAPE, H_NONFINITE, NEED_ROOT, S_NOT_PD = range(7)
+OK, F_SHAPE, F_NONFINITE, H_SHAPE, H_NONFINITE, NEED_ROOT, S_NOT_PD, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE = range(9)
 # iwork: [code, series, step, stage, point, got0, got1, got_ndim, observed indices (m)...]
 _CODE, _SERIES, _STEP, _STAGE, _POINT, _GOT = 0, 1, 2, 3, 4, 5
 _NINFO = 8
@@ -198,19 +202,20 @@ def _moments(Y, d, wm, wc, angles, ybar, dY, S):
     """Weighted mean (circular for angles), wrapped residuals and ``S = Σ wc dY dYᵀ`` of ``Y[:, :d]``."""
     k = Y.shape[0]
     for a in range(d):
-        if angles[a]:
+        if angles[a]:  # the circular mean, centred on the first point as the readable path
             s = 0.0
             c = 0.0
             for i in range(k):
-                s += wm[i] * math.sin(Y[i, a])
-                c += wm[i] * math.cos(Y[i, a])
-            mu = math.atan2(s, c)
+                s += wm[i] * math.sin(Y[i, a] - Y[0, a])
+                c += wm[i] * math.cos(Y[i, a] - Y[0, a])
+            mu = Y[0, a] + math.atan2(s, c)
             for i in range(k):
                 dY[i, a] = _wrap(Y[i, a] - mu)
-        else:
-            mu = 0.0
-            for i in range(k):
-                mu += wm[i] * Y[i, a]
+        else:  # centred on the first point, as linearize.sigma_points.weighted_mean
+            acc = 0.0
+            for i in range(1, k):
+                acc += wm[i] * (Y[i, a] - Y[0, a])
+            mu = Y[0, a] + acc
             for i in range(k):
                 dY[i, a] = Y[i, a] - mu
         ybar[a] = mu
@@ -320,7 +325,21 @@ def _update(Xh, Z, pmean, pcov, wm, wc, zang, xang, R, z, mean, cov, innov, Sful
                 acc += Wt[a, r] * Wt[b, r]
             cov[a, b] = pcov[a, b] - acc
             cov[b, a] = cov[a, b]
-    return OK, -0.5 * (ll + p * _LOG_2PI)
+    lk = -0.5 * (ll + p * _LOG_2PI)
+    if _not_finite(mean, cov, lk):
+        return FILTERED_NOT_FINITE, lk
+    return OK, lk
+
+
+@jit(error_model="numpy", inline="always")
+def _not_finite(mean, cov, loglik):
+    """True when the mean, the diagonal of the covariance or `loglik` is inf or NaN (inference.check_finite)."""
+    if not math.isfinite(loglik):
+        return True
+    for a in range(mean.shape[0]):
+        if not (math.isfinite(mean[a]) and math.isfinite(cov[a, a])):
+            return True
+    return False
 
 
 @jit(error_model="numpy")
@@ -548,6 +567,9 @@ def _filter_loop(f, h, us, zs, Q3, R3, pts, w, xang, zang, m0, P0, means, covs, 
                 return iwork[_CODE]
             _predict(X, Y, mean, wm, wc, xang, Q3[t if Q3.shape[0] > 1 else 0], pmean, pcov, Cf,
                      srows > 0, scr)
+            if _not_finite(pmean, pcov, 0.0):
+                iwork[_CODE] = PREDICTED_NOT_FINITE
+                return PREDICTED_NOT_FINITE
             for a in range(n):
                 if rows:
                     pmeans[s, t, a] = pmean[a]
@@ -681,6 +703,8 @@ def _py_after_f(t, Y, X, Q3, pts, w, angles, bel, Xh, pmeans, pcovs, cross, scr,
     Cf = bel[3 * n + 2:4 * n + 2]
     _predict(X, Y, bel[0], w[0], w[1], angles[:n], Q3[t if Q3.shape[0] > 1 else 0], pmean, pcov, Cf,
              cross.shape[0] > 0, scr)
+    if _not_finite(pmean, pcov, 0.0):
+        return PREDICTED_NOT_FINITE
     if pmeans.shape[0]:
         _copy(pmeans[t], pmean)
     if pcovs.shape[0]:
@@ -732,7 +756,7 @@ def _evaluate(name, fn, X, Y, u, vectorized):
         except Exception as exc:
             _raise_call(name, exc, X)
         if type(out) is not np.ndarray or out.shape != Y.shape or out.dtype is not _F64:
-            out = call_checked(name, lambda *_: out, X, (), Y.shape)
+            out = call_checked(name, lambda *_: out, X, (), Y.shape, size_reason(name, Y.shape[1]))
         if out.strides != Y.strides:  # a view (say X[:, :1]): copy, rather than compile for its layout
             Y[...] = out
             return Y
@@ -763,7 +787,7 @@ def _check_each(name, outs, X, Y):
     """Each output through call_checked, in order, into Y: raises at the first bad one."""
     shape = (Y.shape[1],)
     for i, out in enumerate(outs):
-        Y[i] = call_checked(name, lambda *_: out, X[i], (), shape)
+        Y[i] = call_checked(name, lambda *_: out, X[i], (), shape, size_reason(name, shape[0]))
 
 
 def _raise_call(name, exc, x):
@@ -798,11 +822,14 @@ def _raise_status(status, t, iwork, errval, X, d, model):
             if status in (F_SHAPE, H_SHAPE):
                 got = tuple(int(g) for g in iwork[_GOT:_GOT + iwork[_GOT + 2]])
                 raise ModelFunctionError(
-                    f"`{name}` must return shape {shape} for an input of shape {x.shape}; got shape {got}."
+                    f"`{name}` must return shape {shape} for an input of shape {x.shape}, "
+                    f"because {size_reason(name, d)}; got shape {got}."
                 )
             raise ModelFunctionError(
                 f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."
             )
+        if status in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):  # inference.check_finite's error
+            raise not_finite("predicted" if status == PREDICTED_NOT_FINITE else "filtered", t)
         if status == S_NOT_PD:  # kalman.cholesky's message, for the observed block of S
             p = int(iwork[_GOT])
             with np.printoptions(precision=4, threshold=36):
@@ -967,4 +994,5 @@ def smooth(method, model, prior, zs, us, options) -> SmoothResult:
         s, j = pos[0], pos[1]  # a singular prediction: the minimum-norm gain, as kalman.rts_step
         given[:] = np.linalg.lstsq(pcovs[s, j + 1], cross[s, j + 1].T, rcond=None)[0].T
         pos[2] = 1
+    check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, gains, _result(fields))

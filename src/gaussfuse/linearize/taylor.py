@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..models.nonlinear import ModelFunctionError, call_checked
+from ..models.nonlinear import ModelFunctionError, call_checked, size_reason
 
 __all__ = ["Taylor", "jacobian", "complex_step_jacobian", "finite_difference_jacobian"]
 
@@ -86,7 +86,7 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     def stacked(xi: np.ndarray) -> np.ndarray:
         # scipy passes shape (n, ...) and expects (size, ...).
         flat = xi.reshape(n, -1).T
-        out = np.stack([call_checked(name, fn, p, args, (size,)) for p in flat], axis=-1)
+        out = np.stack([call_checked(name, fn, p, args, (size,), size_reason(name, size)) for p in flat], axis=-1)
         return out.reshape(size, *xi.shape[1:])
 
     # Steps scale with each component (so domains like log(x) hold) and with
@@ -116,7 +116,8 @@ class Taylor:
     def _affine(self, name, fn, jac, x, args, size, vectorized):
         y = (self.model.transition(x, *args) if name == "f" else self.model.measurement(x))
         if jac is not None:
-            A = call_checked(f"{name}_jacobian", jac, x, args, (size, x.shape[0]))
+            A = call_checked(f"{name}_jacobian", jac, x, args, (size, x.shape[0]),
+                             size_reason(f"{name}_jacobian", size, x.shape[0]))
         else:
             A = jacobian(name, fn, x, args, size, vectorized)
         return A, y - A @ x

@@ -64,12 +64,14 @@ class LinearModel:
                 f"`F` must be square, of shape (n, n) or (T, n, n); got shape {F.shape}."
             )
         n = F.shape[-1]
-        H = as_matrix("H", H, None, n, row_vector_ok=True)
+        states = f"`F` is {n} × {n} ({n} state component{'s' if n > 1 else ''})"
+        H = as_matrix("H", H, None, n, row_vector_ok=True, because=states)
         m = H.shape[-2]
-        Q = check_psd("Q", as_matrix("Q", Q, n, n))
-        R = check_psd("R", as_matrix("R", R, m, m))
+        Q = check_psd("Q", as_matrix("Q", Q, n, n, because=states))
+        R = check_psd("R", as_matrix("R", R, m, m, because=f"`H` has {m} row{'s' if m > 1 else ''} "
+                                                         f"({m} measurement component{'s' if m > 1 else ''})"))
         if B is not None:
-            B = as_matrix("B", B, n, None, column_vector_ok=True, col_name="p")
+            B = as_matrix("B", B, n, None, column_vector_ok=True, col_name="p", because=states)
         given = {"F": F, "H": H, "Q": Q, "R": R, "B": B}
         steps = {name: a.shape[0] for name, a in given.items() if a is not None and a.ndim == 3}
         if len(set(steps.values())) > 1:

@@ -10,7 +10,7 @@ import numpy as np
 from .._validation import as_matrix, check_psd
 from ..kalman import wrap_angle
 
-__all__ = ["NonlinearModel", "ModelFunctionError", "wrap_angle"]
+__all__ = ["NonlinearModel", "ModelFunctionError", "wrap_angle", "call_checked", "size_reason"]
 
 
 class ModelFunctionError(ValueError):
@@ -18,15 +18,35 @@ class ModelFunctionError(ValueError):
 
 
 def _indices(name: str, value, size: int) -> np.ndarray:
-    """A boolean mask of length `size` from a sequence of component indices."""
-    idx = np.asarray(value if value is not None else (), dtype=object).reshape(-1)
-    mask = np.zeros(size, dtype=bool)
-    for i in idx:
-        if not isinstance(i, (int, np.integer)) or not -size <= i < size:
+    """A read-only boolean mask of length `size` from a boolean mask or a sequence of component indices.
+
+    A sequence of booleans is a mask and must have length `size`; a sequence of
+    integers lists components (negative ones count from the end). A mix of the
+    two is ambiguous (True is also the index 1) and is refused.
+    """
+    items = list(np.asarray(value if value is not None else (), dtype=object).reshape(-1))
+    flags = [isinstance(i, (bool, np.bool_)) for i in items]
+    if items and all(flags):
+        if len(items) != size:
             raise ValueError(
-                f"`{name}` must hold component indices in [0, {size}); got {list(idx)}."
+                f"`{name}` as a boolean mask must have length {size}, one entry per component; "
+                f"got length {len(items)}."
             )
-        mask[i] = True
+        mask = np.array(items, dtype=bool)
+    elif any(flags):
+        raise ValueError(
+            f"`{name}` must be a boolean mask of length {size} or a sequence of component indices, "
+            f"not a mix of booleans and numbers; got {items}."
+        )
+    else:
+        mask = np.zeros(size, dtype=bool)
+        for i in items:
+            if not isinstance(i, (int, np.integer)) or not -size <= i < size:
+                raise ValueError(
+                    f"`{name}` must hold component indices in [0, {size}) or be a boolean mask of "
+                    f"length {size}; got {items}."
+                )
+            mask[i] = True
     mask.setflags(write=False)
     return mask
 
@@ -60,9 +80,11 @@ class NonlinearModel:
     vectorized : bool, default False
         If True, f and h take a stack of states of shape (k, n) and return
         (k, n) and (k, m), so sigma-point filters call each once per step.
-    state_angles, measurement_angles : sequence of int, optional
+    state_angles, measurement_angles : sequence of int or of bool, optional
         Components that are angles in radians: their residuals are wrapped
-        to [-π, π), and means over sigma points are circular means.
+        to [-π, π), and means over sigma points are circular means. Either
+        the components' indices, or a boolean mask with one entry per
+        component.
 
     Notes
     -----
@@ -186,22 +208,45 @@ class NonlinearModel:
 
 def _evaluate(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, vectorized: bool) -> np.ndarray:
     """Call a model function on one state or a stack, checking what comes back."""
+    because = size_reason(name, size)
     if X.ndim == 1:
         if vectorized:
-            return call_checked(name, fn, X[None], args, (1, size))[0]
-        return call_checked(name, fn, X, args, (size,))
+            return call_checked(name, fn, X[None], args, (1, size), because)[0]
+        return call_checked(name, fn, X, args, (size,), because)
     if vectorized:
-        return call_checked(name, fn, X, args, (X.shape[0], size))
-    return np.stack([call_checked(name, fn, x, args, (size,)) for x in X])
+        return call_checked(name, fn, X, args, (X.shape[0], size), because)
+    return np.stack([call_checked(name, fn, x, args, (size,), because) for x in X])
 
 
-def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...]) -> np.ndarray:
+def size_reason(name: str, size: int, n: int | None = None) -> str | None:
+    """What fixes the size of f's or h's output (or their Jacobians'), for the shape messages.
+
+    f returns n values because `Q` is n × n, h returns m because `R` is m × m;
+    a Jacobian's n columns also come from `Q` (give `n`).
+    """
+    base = name.removesuffix("_jacobian")
+    if base not in ("f", "h"):
+        return None
+    noise = "Q" if base == "f" else "R"
+    reason = f"`{noise}` is {size} × {size}"
+    if name.endswith("_jacobian") and n is not None and base == "h":
+        reason += f" and `Q` is {n} × {n}"
+    return reason
+
+
+def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...],
+                 because: str | None = None) -> np.ndarray:
     """Call ``fn(x, *args)`` and check that it returns a finite array of `shape`.
+
+    `because` says what fixed `shape` (see :func:`size_reason`), for the
+    message of a wrong shape.
 
     Raises
     ------
     ModelFunctionError
-        Naming the function, the input shape and what went wrong.
+        Naming the function, the input shape and what went wrong: an
+        exception, a wrong shape, values that are complex, boolean or dates,
+        or a non-finite value.
     """
     try:
         out = fn(x, *args)
@@ -209,6 +254,16 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
         raise ModelFunctionError(
             f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}"
         ) from exc
+    try:
+        kind = np.asarray(out).dtype.kind
+    except (TypeError, ValueError):  # ragged: the cast below says so
+        kind = None
+    if kind in ("c", "b", "M", "m"):
+        # Before the cast, which would drop an imaginary part or turn True into 1.0.
+        what = {"c": "complex", "b": "boolean", "M": "datetime64", "m": "timedelta64"}[kind]
+        raise ModelFunctionError(
+            f"`{name}` must return an array of real numbers; got {what} values for an input of shape {x.shape}."
+        )
     try:
         out = np.asarray(out, dtype=np.float64)
     except (TypeError, ValueError):
@@ -219,8 +274,9 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
         if out.size == int(np.prod(shape)) and out.ndim <= 1 and len(shape) == 1:
             out = out.reshape(shape)
         else:
+            reason = f", because {because}" if because else ""
             raise ModelFunctionError(
-                f"`{name}` must return shape {shape} for an input of shape {x.shape}; "
+                f"`{name}` must return shape {shape} for an input of shape {x.shape}{reason}; "
                 f"got shape {out.shape}."
             )
     if not np.all(np.isfinite(out)):

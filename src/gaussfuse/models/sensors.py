@@ -61,7 +61,8 @@ class LinearSensor(_Frozen):
     def __init__(self, H, R, names=None) -> None:
         H = as_matrix("H", H, None, None, row_vector_ok=True, time_varying=False)
         m = H.shape[0]
-        R = check_psd("R", as_matrix("R", R, m, m, time_varying=False))
+        R = check_psd("R", as_matrix("R", R, m, m, time_varying=False,
+                                     because=f"`H` has {m} row{'s' if m > 1 else ''}"))
         self._set(H=H, R=R, names=_names(names, m, tuple(f"z{i}" for i in range(m))))
 
     @property
