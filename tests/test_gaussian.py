@@ -287,3 +287,10 @@ def test_sample_size_must_be_none_or_a_non_negative_integer():
     for bad in (2.5, "3", True, (2, 3), 2.0):
         with pytest.raises(TypeError, match=r"^`size` must be None or a non-negative integer; got "):
             g.sample(bad)
+
+
+def test_covariances_near_the_largest_float_do_not_overflow():
+    """Symmetrising halves before adding: (P + Pᵀ) / 2 of 1e308 would overflow to inf."""
+    g = gf.Gaussian([0.0, 1.0], [[1e308, 1e308], [1e308, 1.7e308]])
+    assert np.isfinite(g.cov).all() and g.cov[1, 1] == 1.7e308
+    assert gf.Gaussian(0.0, 1e308).cov[0, 0] == 1e308

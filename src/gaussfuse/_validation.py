@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .kalman import symmetrize
+
 __all__ = [
     "as_array",
     "as_vector",
@@ -153,7 +155,7 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
     if asym.any():
         where = _where(np.argwhere(asym)[0], cov.ndim)
         raise ValueError(f"`{name}` must be symmetric; it is not{where}.")
-    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    sym = symmetrize(cov)
     low = np.linalg.eigvalsh(sym)[..., 0] < -rtol * scale[..., 0, 0]
     if np.any(low):
         where = _where(np.argwhere(np.atleast_1d(low))[0], cov.ndim) if cov.ndim > 2 else ""
