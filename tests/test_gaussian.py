@@ -294,3 +294,8 @@ def test_covariances_near_the_largest_float_do_not_overflow():
     g = gf.Gaussian([0.0, 1.0], [[1e308, 1e308], [1e308, 1.7e308]])
     assert np.isfinite(g.cov).all() and g.cov[1, 1] == 1.7e308
     assert gf.Gaussian(0.0, 1e308).cov[0, 0] == 1e308
+
+
+def test_a_symmetric_covariance_is_kept_bit_for_bit():
+    cov = np.array([[1e-310, 5e-324], [5e-324, 3.0]])
+    assert np.array_equal(gf.Gaussian([0.0, 0.0], cov).cov, cov)

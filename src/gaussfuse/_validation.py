@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kalman import symmetrize
-
 __all__ = [
     "as_array",
     "as_vector",
@@ -155,7 +153,10 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
     if asym.any():
         where = _where(np.argwhere(asym)[0], cov.ndim)
         raise ValueError(f"`{name}` must be symmetric; it is not{where}.")
-    sym = symmetrize(cov)
+    # The user's symmetric entries are kept bit for bit (subnormals too); the others are
+    # averaged halves first, so that entries near the largest float do not overflow.
+    cov_t = np.swapaxes(cov, -1, -2)
+    sym = np.where(cov == cov_t, cov, 0.5 * cov + 0.5 * cov_t)
     low = np.linalg.eigvalsh(sym)[..., 0] < -rtol * scale[..., 0, 0]
     if np.any(low):
         where = _where(np.argwhere(np.atleast_1d(low))[0], cov.ndim) if cov.ndim > 2 else ""

@@ -68,12 +68,8 @@ def wrap_components(diff: np.ndarray, angles: np.ndarray | None) -> np.ndarray:
 
 
 def symmetrize(cov: np.ndarray) -> np.ndarray:
-    """Return ``(P + Pᵀ) / 2``, removing round-off asymmetry.
-
-    Halved before the sum, so that entries near the largest float (1e308)
-    do not overflow.
-    """
-    return 0.5 * cov + 0.5 * cov.swapaxes(-1, -2)
+    """Return ``(P + Pᵀ) / 2``, removing round-off asymmetry."""
+    return 0.5 * (cov + cov.swapaxes(-1, -2))
 
 
 def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
