@@ -143,18 +143,17 @@ def compare(out: dict, ref: dict) -> dict:
     return diffs
 
 
-def check_mode(expected: str) -> str | None:
-    """For sigma-point numba entries: did the engine run in the mode the row is about?
+def check_mode(entry) -> str | None:
+    """For sigma-point numba entries: does the engine run in the mode the row is about?
 
     The compiled engine falls back from its fully compiled loop to a Python
     loop when f and h do not fit it; a silent fallback would time the wrong
-    thing, so it fails the run. (Checked only if the engine reports its mode.)
+    thing, so it fails the run.
     """
-    kernels = sys.modules.get("gaussfuse._kernels.sigma_points")
-    mode = getattr(kernels, "last_mode", None)
-    if mode is None or mode == expected:
+    mode = entry.run.actual_mode()
+    if mode == entry.mode:
         return None
-    return f"engine ran in its {mode!r} mode, not {expected!r}"
+    return f"engine runs in its {mode!r} mode, not {entry.mode!r}"
 
 
 def _failure(row: Row, exc: Exception) -> None:
@@ -188,7 +187,7 @@ def run_workload(wl: workloads.Workload, sizes: workloads.Sizes) -> list[Row]:
                 done.append(t)
                 if len(done) == 1:
                     if row.entry.mode is not None:
-                        row.problem = check_mode(row.entry.mode)
+                        row.problem = check_mode(row.entry)
                     if row.is_reference:
                         wl.reference.cache[row.entry.n] = out
                     row.diffs = compare(out, wl.reference(row.entry.n))

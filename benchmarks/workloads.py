@@ -474,6 +474,12 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
         def run(n):
             r = gf.filter(model, prior, zs[:n], engine=eng, **opts)
             return {"means": r.means, "covs": r.covs}
+
+        def actual_mode():  # the sigma-point engine's mode for this model ("compiled" or "python")
+            from gaussfuse._kernels.sigma_points import execution_mode
+            return execution_mode(model, prior)
+
+        run.actual_mode = actual_mode
         return run
 
     E = []

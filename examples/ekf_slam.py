@@ -29,7 +29,7 @@ import numpy as np
 
 import gaussfuse as gf
 from gaussfuse.diagnostics import rmse
-from gaussfuse.kalman import wrap_angle
+from gaussfuse import wrap_angle
 
 DT = 0.1  # s
 STEPS = 800  # 80 s, about one and a half loops

@@ -21,7 +21,7 @@ import numpy as np
 
 import gaussfuse as gf
 from gaussfuse.diagnostics import consistency, rmse
-from gaussfuse.kalman import wrap_angle
+from gaussfuse import wrap_angle
 
 DT = 0.1  # s
 STEPS = 600  # 60 s

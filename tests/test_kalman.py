@@ -119,18 +119,6 @@ def test_filter_names_the_step_of_a_singular_innovation_covariance():
     assert np.isfinite(res.loglik)
 
 
-def test_cholesky_names_the_matrix():
-    with pytest.raises(np.linalg.LinAlgError, match=r"^`P` is not positive definite"):
-        kalman.cholesky(np.array([[1.0, 2.0], [2.0, 1.0]]), "`P`")
-    L = kalman.cholesky(np.array([[4.0, 2.0], [2.0, 5.0]]), "`P`")
-    np.testing.assert_allclose(L @ L.T, [[4.0, 2.0], [2.0, 5.0]], rtol=1e-15)
-
-
-# ---------------------------------------------------------------------------
-# predict
-# ---------------------------------------------------------------------------
-
-
 def test_predict_is_affine_propagation():
     rng = np.random.default_rng(4)
     mean, cov = rng.normal(size=3), _oracle.random_spd(rng, 3)
@@ -189,47 +177,3 @@ def test_fuse_moments_is_the_update_with_identity_measurement():
     post = kalman.update(a, A, b, np.eye(2), B)
     np.testing.assert_array_equal(mean, post.mean)
     np.testing.assert_array_equal(cov, post.cov)
-
-
-# ---------------------------------------------------------------------------
-# semidefinite_cholesky
-# ---------------------------------------------------------------------------
-
-
-@settings(max_examples=60, deadline=None, derandomize=True)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 4), rank=st.integers(0, 4))
-def test_semidefinite_cholesky(seed, n, rank):
-    """L Lᵀ = cov, lower triangular, a column of round-off at most for each component that depends on earlier ones.
-
-    A pivot of exactly 0 gives a zero column; one of round-off may stay, at
-    about its square root (1e-7 here), which is harmless (see the next test).
-    """
-    rng = np.random.default_rng(seed)
-    B = rng.standard_normal((n, min(rank, n)))
-    cov = B @ B.T
-    L = kalman.semidefinite_cholesky(cov)
-    np.testing.assert_array_equal(L, np.tril(L))
-    np.testing.assert_allclose(L @ L.T, cov, atol=1e-12 * max(1.0, np.abs(cov).max()))
-    assert np.count_nonzero(np.diag(L) > 1e-6 * np.sqrt(np.diag(cov))) == min(rank, n)
-    exact = np.diag(np.arange(n) % 2 * 1.0)  # every other component known exactly: exact zero columns
-    np.testing.assert_array_equal(np.diag(kalman.semidefinite_cholesky(exact)) > 0, np.diag(exact) > 0)
-    # On a positive definite matrix it is the Cholesky factor.
-    spd = cov + np.eye(n)
-    np.testing.assert_allclose(kalman.semidefinite_cholesky(spd), np.linalg.cholesky(spd), rtol=1e-12, atol=1e-12)
-
-
-def test_semidefinite_cholesky_is_continuous_at_a_round_off_pivot():
-    """A pivot of round-off, of either sign, moves one column by about its square root: nothing else."""
-    base = np.array([[4.0, 2.0, 1.0], [2.0, 1.0, 0.5], [1.0, 0.5, 3.0]])  # x1 = x0 / 2: pivot 0
-    for pivot in (0.0, -1e-16, 1e-16):
-        cov = base.copy()
-        cov[1, 1] += pivot
-        try:
-            L = np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:
-            L = kalman.semidefinite_cholesky(cov)
-        np.testing.assert_allclose(np.delete(L, 1, axis=1), np.delete(kalman.semidefinite_cholesky(base), 1, axis=1),
-                                   atol=1e-15)
-        assert L[1, 1] < 1e-7 and np.all(np.abs(L[:, 1]) < 1e-7)
-    with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
-        kalman.semidefinite_cholesky(np.array([[1.0, 2.0], [2.0, 1.0]]))

@@ -299,7 +299,7 @@ def test_booleans_are_not_numbers(value):
 
 @pytest.mark.parametrize("bad", ["0.5", True, None, [0.5]])
 def test_motion_parameters_must_be_numbers(bad):
-    with pytest.raises(TypeError, match=r"`dt` must be a number"):
+    with pytest.raises(TypeError, match=r"`dt` must be a positive number"):
         gf.constant_velocity(dt=bad, q=1.0, r=1.0)
 
 

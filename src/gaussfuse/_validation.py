@@ -8,15 +8,14 @@ backticks, the expected shape and what was given (the style of SciPy's
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
-__all__ = [
-    "as_array",
-    "as_vector",
-    "as_matrix",
-    "check_psd",
-    "shape_error",
-]
+from .errors import ModelFunctionError
+
+__all__ = ["as_array", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
+           "size_reason"]
 
 
 def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
@@ -170,3 +169,121 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
 def _where(index, ndim: int) -> str:
     """' at time step k' for a time-varying stack, '' for a single matrix."""
     return f" at time step {int(index[0])}" if ndim == 3 else ""
+
+
+def real(name: str, value, *, positive: bool = False, nonnegative: bool = False, optional: bool = False):
+    """`value` as a float: finite, and > 0 or >= 0 when asked; None passes when `optional`.
+
+    One message for every invalid value: "`name` must be a positive number;
+    got -1.0." (a number is shown as a float, anything else by its repr).
+
+    Raises
+    ------
+    TypeError
+        When `value` is not a real number (a bool, a string, an array, ...).
+    ValueError
+        When it is not finite, or out of range.
+    """
+    if optional and value is None:
+        return None
+    number = not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
+    kind = "a positive" if positive else "a non-negative" if nonnegative else "a finite"
+    shown = float(value) if number else repr(value)
+    expected = f"`{name}` must be {kind} number{' or None' if optional else ''}; got {shown}."
+    if not number:
+        raise TypeError(expected)
+    if not np.isfinite(value) or (positive and value <= 0) or (nonnegative and value < 0):
+        raise ValueError(expected)
+    return float(value)
+
+
+def integer(name: str, value, minimum: int = 1) -> int:
+    """`value` as an int >= `minimum`.
+
+    Raises
+    ------
+    TypeError
+        When `value` is not an integer (a bool, a float, ...).
+    ValueError
+        When it is below `minimum`.
+    """
+    kind = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
+    expected = f"`{name}` must be {kind}; got {value!r}."
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(expected)
+    if value < minimum:
+        raise ValueError(expected)
+    return int(value)
+
+
+# ---------------------------------------------------------------------------
+# What a user's model function returns
+# ---------------------------------------------------------------------------
+
+
+def size_reason(name: str, size: int, n: int | None = None) -> str | None:
+    """What fixes the size of f's or h's output (or their Jacobians'), for the shape messages.
+
+    f returns n values because `Q` is n × n, h returns m because `R` is m × m;
+    a Jacobian's n columns also come from `Q` (give `n`).
+    """
+    base = name.removesuffix("_jacobian")
+    if base not in ("f", "h"):
+        return None
+    noise = "Q" if base == "f" else "R"
+    reason = f"`{noise}` is {size} × {size}"
+    if name.endswith("_jacobian") and n is not None and base == "h":
+        reason += f" and `Q` is {n} × {n}"
+    return reason
+
+
+def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...],
+                 because: str | None = None) -> np.ndarray:
+    """Call ``fn(x, *args)`` and check that it returns a finite array of `shape`.
+
+    `because` says what fixed `shape` (see :func:`size_reason`), for the
+    message of a wrong shape.
+
+    Raises
+    ------
+    ModelFunctionError
+        Naming the function, the input shape and what went wrong: an
+        exception, a wrong shape, values that are complex, boolean or dates,
+        or a non-finite value.
+    """
+    try:
+        out = fn(x, *args)
+    except Exception as exc:  # a user's function may raise anything
+        raise ModelFunctionError(
+            f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}"
+        ) from exc
+    try:
+        kind = np.asarray(out).dtype.kind
+    except (TypeError, ValueError):  # ragged: the cast below says so
+        kind = None
+    if kind in ("c", "b", "M", "m"):
+        # Before the cast, which would drop an imaginary part or turn True into 1.0.
+        what = {"c": "complex", "b": "boolean", "M": "datetime64", "m": "timedelta64"}[kind]
+        raise ModelFunctionError(
+            f"`{name}` must return an array of real numbers; got {what} values for an input of shape {x.shape}."
+        )
+    try:
+        out = np.asarray(out, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelFunctionError(
+            f"`{name}` must return an array of real numbers; got {type(out).__name__} {out!r:.60}."
+        ) from None
+    if out.shape != shape:
+        if out.size == int(np.prod(shape)) and out.ndim <= 1 and len(shape) == 1:
+            out = out.reshape(shape)
+        else:
+            reason = f", because {because}" if because else ""
+            raise ModelFunctionError(
+                f"`{name}` must return shape {shape} for an input of shape {x.shape}{reason}; "
+                f"got shape {out.shape}."
+            )
+    if not np.all(np.isfinite(out)):
+        raise ModelFunctionError(
+            f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."
+        )
+    return out

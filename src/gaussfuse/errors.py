@@ -1,8 +1,8 @@
-"""Warnings that gaussfuse emits."""
+"""The warnings and errors of gaussfuse that are not Python's own."""
 
 from __future__ import annotations
 
-__all__ = ["ConvergenceWarning"]
+__all__ = ["ConvergenceWarning", "ModelFunctionError", "not_finite"]
 
 
 class ConvergenceWarning(UserWarning):
@@ -12,3 +12,22 @@ class ConvergenceWarning(UserWarning):
     trustworthy: raise the iteration limit, loosen the tolerance, or check
     the model.
     """
+
+
+class ModelFunctionError(ValueError):
+    """A model function (f, h or a Jacobian) raised, or returned a bad value.
+
+    The message names the function, the input's shape and, from a filter,
+    the step.
+    """
+
+
+def not_finite(stage: str) -> str:
+    """The message for a belief that overflowed, the same from every engine.
+
+    `stage` is "predicted", "filtered" (whose log-likelihood term is checked
+    too) or "smoothed"; the caller prefixes where (the step, the series).
+    """
+    what = "mean, covariance or log-likelihood" if stage == "filtered" else "mean or covariance"
+    return (f"the {stage} {what} is not finite (inf or NaN): the computation overflowed; "
+            "check the scale of the model, the prior and the measurements.")

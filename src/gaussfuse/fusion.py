@@ -26,12 +26,14 @@ import numpy as np
 
 from . import inference, kalman
 from ._frozen import reduce_frozen
-from ._validation import as_array, shape_error
+from ._validation import as_array, call_checked, shape_error
 from .gaussian import Gaussian
-from .inference import FilterResult, SmoothResult, check_prior
+from .inference import FilterResult, SmoothResult
+from .inference.registry import resolve_method
+from .inference.validation import check_prior
 from .models.linear import LinearModel
 from .models.motion import LinearMotion, NonlinearMotion
-from .models.nonlinear import NonlinearModel, call_checked
+from .models.nonlinear import NonlinearModel
 from .models.sensors import LinearSensor, NonlinearSensor, Position
 
 __all__ = ["Measurement", "Fused", "fuse_timeline", "Fuser"]
@@ -547,8 +549,8 @@ class Fuser:
     linearisation strategy of `method` (:class:`gaussfuse.linearize.Exact`,
     :class:`~gaussfuse.linearize.Taylor` or
     :class:`~gaussfuse.linearize.SigmaPoints`) and
-    :func:`gaussfuse.kalman.predict`; :meth:`update` conditions it with
-    :func:`gaussfuse.kalman.update`. The same steps as :func:`fuse_timeline`
+    :func:`gaussfuse.kalman.forecast`; :meth:`update` conditions it with
+    :func:`gaussfuse.kalman.correct`: the two halves of :func:`gaussfuse.kalman.step`. The same steps as :func:`fuse_timeline`
     on the same (time-ordered) measurements give the same beliefs. Several
     sensors at one time are updated one after another: for linear sensors
     that equals their joint update; for nonlinear ones each update is
@@ -577,7 +579,7 @@ class Fuser:
         self.loglik = 0.0
         probe, _ = self._stack.model(np.zeros(1))
         method = self._stack.default_method() if method is None else method
-        self._spec, options = inference._resolve_method(probe, method, options)
+        self._spec, options = resolve_method(probe, method, options)
         if self._spec.iterated:
             raise ValueError(
                 f"`method` {method!r} iterates over the whole series; the online Fuser takes "
@@ -585,15 +587,9 @@ class Fuser:
             )
         self._method, self._options = method, options
         self._measure = self._strategy(probe, np.zeros(1))
-        self._state_angles = getattr(probe, "state_angles", None)
-        self._measurement_angles = getattr(probe, "measurement_angles", None)
-
-    def __getstate__(self) -> dict:
-        # The method's registry entry holds lambdas, which do not pickle: its name does.
-        return {**self.__dict__, "_spec": None}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state, _spec=inference.METHODS[state["_method"]])
+        self._state_angles, self._measurement_angles = (
+            mask if mask is not None and mask.any() else None
+            for mask in (getattr(probe, "state_angles", None), getattr(probe, "measurement_angles", None)))
 
     def _strategy(self, model, dts):
         us = None if self._stack.linear else np.asarray(dts, dtype=float).reshape(-1, 1)
@@ -610,11 +606,7 @@ class Fuser:
         if dt > 0.0:
             model, _ = self._stack.model(np.array([dt]))
             lin = self._strategy(model, [dt])
-            mean, cov = self.belief.mean, self.belief.cov
-            A, b, Q = lin.transition(0, mean, cov)
-            mean, cov = kalman.predict(mean, cov, A, Q, b)
-            mean = kalman.wrap_components(mean, self._state_angles)
-            self.belief = Gaussian(mean, cov)
+            self.belief = Gaussian(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov, self._state_angles))
         self.t = t
 
     def predict(self, t: float) -> Gaussian:
@@ -638,9 +630,8 @@ class Fuser:
         name = self._stack.check_name(sensor, "sensor")
         z = self._stack.measurement_vector(name, z)
         self._advance(t, "t")
-        mean, cov = self.belief.mean, self.belief.cov
-        H, d, R = self._measure.measurement(0, mean, cov)
-        post = kalman.update(mean, cov, z, H, R, d, angles=self._measurement_angles)
-        self.belief = Gaussian(kalman.wrap_components(post.mean, self._state_angles), post.cov)
+        post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
+                              state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
+        self.belief = Gaussian(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief

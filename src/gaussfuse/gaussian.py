@@ -1,4 +1,4 @@
-"""The Gaussian belief and the fusion (product) of two Gaussians."""
+"""The Gaussian belief, the fusion (product) of two Gaussians, and the moments of a mixture."""
 
 from __future__ import annotations
 
@@ -7,9 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
+from ._linalg import circular_mean, cholesky, is_positive_definite, log_density, symmetrize, whiten, wrap_components
 from ._validation import as_array, as_matrix, as_vector, check_psd
 
-__all__ = ["Gaussian", "fuse"]
+__all__ = ["Gaussian", "fuse", "moment_match"]
 
 
 @dataclass(frozen=True, eq=False, init=False)
@@ -82,11 +83,8 @@ class Gaussian:
             raise ValueError(f"`x` must have shape ({self.dim},) or (k, {self.dim}); got shape {x.shape}.")
         if self.dim == 1 and x.shape[-1:] != (1,):
             x = x[..., None]
-        L = kalman.cholesky(self.cov, "`cov`")
-        white = np.linalg.solve(L, (x - self.mean).T)
-        quad = np.sum(white**2, axis=0)
-        logdet = 2.0 * np.sum(np.log(np.diag(L)))
-        out = -0.5 * (quad + logdet + self.dim * np.log(2.0 * np.pi))
+        L = cholesky(self.cov, "`cov`")
+        out = log_density(whiten(L, (x - self.mean).T).T, L)
         return float(out) if np.ndim(out) == 0 else out
 
     def sample(self, size: int | None = None, rng=None) -> np.ndarray:
@@ -110,11 +108,7 @@ class Gaussian:
                 raise ValueError(f"`size` must be None or a non-negative integer; got {size}.")
             size = int(size)
         rng = np.random.default_rng(rng)
-        try:
-            np.linalg.cholesky(self.cov)
-            method = "cholesky"
-        except np.linalg.LinAlgError:
-            method = "eigh"
+        method = "cholesky" if is_positive_definite(self.cov) else "eigh"
         return rng.multivariate_normal(
             self.mean, self.cov, size=size, method=method, check_valid="ignore"
         )
@@ -172,3 +166,39 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
             "in a common direction, so their product is not a Gaussian."
         ) from None
     return Gaussian(mean, cov)
+
+
+def moment_match(weights: np.ndarray, means: np.ndarray, covs: np.ndarray,
+                 angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    r"""The Gaussian with the mean and covariance of a Gaussian mixture.
+
+    Parameters
+    ----------
+    weights : array of shape (M,)
+        Mixture weights, summing to 1.
+    means : array of shape (M, n)
+        Component means.
+    covs : array of shape (M, n, n)
+        Component covariances.
+    angles : array of bool, shape (n,), optional
+        Components that are angles: their mean is circular and their spread
+        is measured with wrapped differences.
+
+    Returns
+    -------
+    mean : array of shape (n,)
+    cov : array of shape (n, n)
+
+    Notes
+    -----
+    .. math::
+
+        \bar m = \sum_i w_i m_i, \qquad
+        \bar P = \sum_i w_i \left[ P_i + (m_i - \bar m)(m_i - \bar m)^\top \right].
+    """
+    mean = weights @ means
+    if angles is not None and angles.any():
+        mean[angles] = circular_mean(means[:, angles], weights)
+    diff = wrap_components(means - mean, angles)
+    cov = np.einsum("i,ijk->jk", weights, covs) + (diff * weights[:, None]).T @ diff
+    return mean, symmetrize(cov)

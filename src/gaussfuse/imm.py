@@ -26,12 +26,12 @@ import numpy as np
 from . import kalman
 from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
-from .gaussian import Gaussian
-from .inference import (_check_steps, _linearisation, _resolve_method, check_controls,
-                        check_measurements, check_prior, iterated_update)
-from .linearize.sigma_points import circular_mean
+from .errors import ModelFunctionError
+from .gaussian import Gaussian, moment_match
+from .inference.registry import linearisation, resolve_method
+from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.linear import LinearModel
-from .models.nonlinear import ModelFunctionError, NonlinearModel
+from .models.nonlinear import NonlinearModel
 
 __all__ = ["imm_filter", "IMMResult"]
 
@@ -68,57 +68,6 @@ class IMMResult:
     loglik: float
 
     __reduce__ = reduce_frozen  # pickles and copies keep the arrays read-only
-
-
-class _at:
-    """Prefix the step and the model to an error raised by the algebra or a model function."""
-
-    def __init__(self, k: int, j: int) -> None:
-        self.k, self.j = k, j
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None and issubclass(exc_type, (np.linalg.LinAlgError, ModelFunctionError)):
-            raise exc_type(f"at step {self.k}, in `models[{self.j}]`: {exc}") from exc
-        return False
-
-
-def moment_match(weights: np.ndarray, means: np.ndarray, covs: np.ndarray,
-                 angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    r"""The Gaussian with the mean and covariance of a Gaussian mixture.
-
-    Parameters
-    ----------
-    weights : array of shape (M,)
-        Mixture weights, summing to 1.
-    means : array of shape (M, n)
-        Component means.
-    covs : array of shape (M, n, n)
-        Component covariances.
-    angles : array of bool, shape (n,), optional
-        Components that are angles: their mean is circular and their spread
-        is measured with wrapped differences.
-
-    Returns
-    -------
-    mean : array of shape (n,)
-    cov : array of shape (n, n)
-
-    Notes
-    -----
-    .. math::
-
-        \bar m = \sum_i w_i m_i, \qquad
-        \bar P = \sum_i w_i \left[ P_i + (m_i - \bar m)(m_i - \bar m)^\top \right].
-    """
-    mean = weights @ means
-    if angles is not None and angles.any():
-        mean[angles] = circular_mean(means[:, angles], weights)
-    diff = kalman.wrap_components(means - mean, angles)
-    cov = np.einsum("i,ijk->jk", weights, covs) + (diff * weights[:, None]).T @ diff
-    return mean, kalman.symmetrize(cov)
 
 
 def _probabilities(name: str, value, M: int, *, matrix: bool) -> np.ndarray:
@@ -282,64 +231,84 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
     zs = arr[0]
     T = zs.shape[0]
     P = _probabilities("transition", transition, M, matrix=True)
-    mu = np.full(M, 1.0 / M) if mode_probs is None else _probabilities(
-        "mode_probs", mode_probs, M, matrix=False)
-    angles = _state_angles(models)
-    any_nonlinear = any(isinstance(model, NonlinearModel) for model in models)
-    strategies, iterations, tols, z_angles = [], [], [], []
-    for j, model in enumerate(models):
-        _check_steps(model, T)
-        controls = check_controls(us, model, 1, T)
-        controls = None if controls is None else controls[0]
-        if isinstance(model, LinearModel) and any_nonlinear:
-            spec, opts = _resolve_method(model, "kf", {})
-        else:
-            spec, opts = _resolve_method(model, method, options)
-        lin, its = _linearisation(spec, model, controls, opts)
-        strategies.append(lin)
-        iterations.append(its)
-        tols.append(opts.get("tol"))
-        z_angles.append(getattr(model, "measurement_angles", None))
-
-    means, covs = np.empty((T, n)), np.empty((T, n, n))
-    probs = np.empty((T, M))
-    mode_means, mode_covs = np.empty((T, M, n)), np.empty((T, M, n, n))
-    prev_means = np.broadcast_to(prior.mean, (M, n))
-    prev_covs = np.broadcast_to(prior.cov, (M, n, n))
+    mu = np.full(M, 1.0 / M) if mode_probs is None else _probabilities("mode_probs", mode_probs, M, matrix=False)
+    modes = _modes(models, us, T, method, options)
+    angles = modes[0].state_angles
+    out = IMMResult(np.empty((T, n)), np.empty((T, n, n)), np.empty((T, M)), np.empty((T, M, n)),
+                    np.empty((T, M, n, n)), 0.0)
+    prev_means, prev_covs = np.broadcast_to(prior.mean, (M, n)), np.broadcast_to(prior.cov, (M, n, n))
     logl = np.empty(M)
     loglik = 0.0
     for k in range(T):
-        # 1. Mixing.
-        c = mu @ P
-        weights = P * mu[:, None]
-        for j in range(M):
-            if c[j] > 0.0:
-                w = weights[:, j] / c[j]
-            else:  # an unreachable mode: keep its own belief (its probability stays 0)
-                w = np.zeros(M)
-                w[j] = 1.0
-            mean, cov = moment_match(w, prev_means, prev_covs, angles)
-            # 2. Mode-matched filtering.
-            with _at(k, j):
-                A, b, Q = strategies[j].transition(k, mean, cov)
-                mean, cov = kalman.predict(mean, cov, A, Q, b)
-                mean = kalman.wrap_components(mean, angles)
-                post = iterated_update(strategies[j], k, mean, cov, zs[k], iterations[j], tols[j], angles,
-                                       z_angles[j])[0]
-                post_mean, post_cov = kalman.wrap_components(post.mean, angles), post.cov
-            mode_means[k, j], mode_covs[k, j], logl[j] = post_mean, post_cov, post.loglik
-        # 3. Mode probabilities, in log space.
-        with np.errstate(divide="ignore"):
-            a = logl + np.log(c)
-        top = a.max()
-        w = np.exp(a - top)
-        total = w.sum()
-        mu = w / total
-        loglik += float(top + np.log(total))
-        probs[k] = mu
-        # 4. Combination.
-        means[k], covs[k] = moment_match(mu, mode_means[k], mode_covs[k], angles)
-        prev_means, prev_covs = mode_means[k], mode_covs[k]
-    for a in (means, covs, probs, mode_means, mode_covs):
+        c, starts = _mix(mu, P, prev_means, prev_covs, angles)
+        for j, mode in enumerate(modes):
+            post = mode.step(k, *starts[j], zs[k])
+            out.mode_means[k, j], out.mode_covs[k, j], logl[j] = post.mean, post.cov, post.loglik
+        mu, step_loglik = _reweight(logl, c)
+        loglik += step_loglik
+        out.mode_probs[k] = mu
+        out.means[k], out.covs[k] = moment_match(mu, out.mode_means[k], out.mode_covs[k], angles)
+        prev_means, prev_covs = out.mode_means[k], out.mode_covs[k]
+    fields = (out.means, out.covs, out.mode_probs, out.mode_means, out.mode_covs)
+    for a in fields:
         a.setflags(write=False)
-    return IMMResult(means, covs, probs, mode_means, mode_covs, loglik)
+    return IMMResult(*fields, loglik)
+
+
+class _Mode:
+    """One model of the IMM filter: its linearisation, and :func:`gaussfuse.kalman.step` through it."""
+
+    def __init__(self, j: int, lin, iterations: int, tol, state_angles, measurement_angles) -> None:
+        self.j, self.lin, self.iterations, self.tol = j, lin, iterations, tol
+        self.state_angles, self.measurement_angles = state_angles, measurement_angles
+
+    def step(self, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> kalman.Update:
+        try:
+            return kalman.step(self.lin, k, mean, cov, z, self.iterations, self.tol, self.state_angles,
+                               self.measurement_angles).update
+        except (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError) as exc:
+            raise type(exc)(f"at step {k}, in `models[{self.j}]`: {exc}") from exc
+
+
+def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[_Mode]:
+    """Each model's mode: LinearModels exact ("kf"), NonlinearModels by `method`."""
+    angles = _state_angles(models)
+    any_nonlinear = any(isinstance(model, NonlinearModel) for model in models)
+    modes = []
+    for j, model in enumerate(models):
+        check_steps(model, T)
+        controls = check_controls(us, model, 1, T)
+        if isinstance(model, LinearModel) and any_nonlinear:
+            spec, opts = resolve_method(model, "kf", {})
+        else:
+            spec, opts = resolve_method(model, method, options)
+        lin, iterations, tol = linearisation(spec, model, None if controls is None else controls[0], opts)
+        z_angles = getattr(model, "measurement_angles", None)
+        modes.append(_Mode(j, lin, iterations, tol, angles,
+                           z_angles if z_angles is not None and z_angles.any() else None))
+    return modes
+
+
+def _mix(mu: np.ndarray, P: np.ndarray, means: np.ndarray, covs: np.ndarray, angles):
+    """Step 1, mixing: the predicted mode probabilities c and each mode's moment-matched start."""
+    c = mu @ P
+    weights = P * mu[:, None]
+    starts = []
+    for j in range(P.shape[0]):
+        if c[j] > 0.0:
+            w = weights[:, j] / c[j]
+        else:  # an unreachable mode: keep its own belief (its probability stays 0)
+            w = np.zeros(P.shape[0])
+            w[j] = 1.0
+        starts.append(moment_match(w, means, covs, angles))
+    return c, starts
+
+
+def _reweight(logl: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, float]:
+    """Step 3: the posterior mode probabilities and ``log Σ_j Λ_j c_j``, in log space."""
+    with np.errstate(divide="ignore"):
+        a = logl + np.log(c)
+    top = a.max()
+    w = np.exp(a - top)
+    total = w.sum()
+    return w / total, float(top + np.log(total))

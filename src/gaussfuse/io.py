@@ -44,7 +44,7 @@ and optionally the belief one step before the first measurement::
     var = 100.0                  # var * I; or cov = [[...]]; default 1e6 * I
 
 or ``diffuse = true`` alone: a flat prior, handled exactly (see
-:mod:`gaussfuse.diffuse`).
+:mod:`gaussfuse.inference.diffuse`).
 
 A control input ``B`` is not supported in model files yet.
 
@@ -92,7 +92,8 @@ import numpy as np
 from ._validation import as_array, as_vector, shape_error
 from .gaussian import Gaussian
 from .models.linear import LinearModel
-from .models.motion import constant_acceleration, constant_velocity, state_names
+from .models.compose import constant_acceleration, constant_velocity
+from .models.motion import state_names
 
 __all__ = [
     "InputFileError",

@@ -22,10 +22,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "cholesky", "semidefinite_cholesky",
-           "wrap_angle", "wrap_components"]
+from ._linalg import (cho_solve, cholesky, log_density, psd_solve, semidefinite_cholesky, symmetrize, whiten,
+                      wrap_components)
+from .errors import not_finite
 
-_LOG_2PI = np.log(2.0 * np.pi)
+__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "Step", "step", "forecast", "correct", "check_finite",
+           "iterate_changed"]
+
+_S_NAME = "the innovation covariance S = H P Hᵀ + R"
 
 
 class Update(NamedTuple):
@@ -51,95 +55,6 @@ class Update(NamedTuple):
     innovation: np.ndarray
     innovation_cov: np.ndarray
     loglik: float
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Wrap angles in radians to [-π, π)."""
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def wrap_components(diff: np.ndarray, angles: np.ndarray | None) -> np.ndarray:
-    """`diff` with its angle components wrapped (a copy when any are)."""
-    if angles is None or not angles.any():
-        return diff
-    diff = diff.copy()
-    diff[angles] = wrap_angle(diff[angles])
-    return diff
-
-
-def symmetrize(cov: np.ndarray) -> np.ndarray:
-    """Return ``(P + Pᵀ) / 2``, removing round-off asymmetry."""
-    return 0.5 * (cov + cov.swapaxes(-1, -2))
-
-
-def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``A⁻¹ b`` for ``A = L Lᵀ``: two solves with the Cholesky factor, no inverse.
-
-    (NumPy's solver on the small triangular factors; SciPy's triangular
-    solvers cost more in call overhead than they save at these sizes.)
-    """
-    return np.linalg.solve(L.T, np.linalg.solve(L, b))
-
-
-def cholesky(mat: np.ndarray, name: str) -> np.ndarray:
-    """Lower Cholesky factor of `mat`, or a ``LinAlgError`` naming the matrix.
-
-    Raises
-    ------
-    numpy.linalg.LinAlgError
-        When `mat` is not positive definite; the message names `name` and
-        shows the matrix, so a driver can prefix the time step.
-    """
-    try:
-        return np.linalg.cholesky(mat)
-    except np.linalg.LinAlgError:
-        with np.printoptions(precision=4, threshold=36):
-            shown = np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
-        raise np.linalg.LinAlgError(
-            f"{name} is not positive definite, so it cannot be factorised: {shown}"
-        ) from None
-
-
-def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
-    r"""Lower-triangular L with ``L Lᵀ = cov`` for a positive semi-definite `cov`.
-
-    The Cholesky recursion, column by column, in which a pivot (the variance
-    of component j left after conditioning on components 0..j-1) at most
-    ``n ε cov[j, j]`` is zero: component j is, to round-off, an affine
-    function of the earlier ones, and column j of L is zero. The test is
-    relative to each component's own variance, so it does not depend on
-    units.
-
-    Where ``numpy.linalg.cholesky`` just succeeds or just fails (a pivot at
-    round-off level, of either sign), the two factors differ only in that
-    column, by about the square root of the round-off: sigma points drawn
-    from either agree to second order. (A root from the eigendecomposition
-    would turn every point.) For a positive definite `cov` it is the
-    Cholesky factor.
-
-    Raises
-    ------
-    numpy.linalg.LinAlgError
-        When `cov` has an eigenvalue below ``-1e-9 λ_max``: it is not
-        positive semi-definite.
-    """
-    vals = np.linalg.eigvalsh(cov)
-    top = max(vals[-1], 0.0)
-    if vals[0] < -1e-9 * max(top, 1e-300):
-        raise np.linalg.LinAlgError(
-            f"the covariance is not positive semi-definite (smallest eigenvalue {vals[0]:.3g}), "
-            "so it has no square root"
-        )
-    n = cov.shape[0]
-    tol = n * np.finfo(np.float64).eps
-    L = np.zeros_like(cov, dtype=np.float64)
-    for j in range(n):
-        pivot = cov[j, j] - L[j, :j] @ L[j, :j]
-        if pivot <= tol * cov[j, j]:
-            continue
-        L[j, j] = np.sqrt(pivot)
-        L[j + 1:, j] = (cov[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
-    return L
 
 
 def predict(
@@ -239,21 +154,21 @@ def update(
     if d is not None:
         pred_z = pred_z + d
     innovation = wrap_components(z - pred_z, angles)
-    S_full = symmetrize(H @ cov @ H.T + R)
-    observed = ~np.isnan(z)
-    if not observed.any():
-        return Update(mean, cov, innovation, S_full, 0.0)
+    HP = H @ cov
+    S_full = symmetrize(HP @ H.T + R)
+    observed = z == z  # not NaN
     if observed.all():
-        H_o, R_o, v, S = H, R, innovation, S_full
+        H_o, R_o, v, S, HP_o = H, R, innovation, S_full, HP
+    elif not observed.any():
+        return Update(mean, cov, innovation, S_full, 0.0)
     else:
-        H_o, R_o, v = H[observed], R[np.ix_(observed, observed)], innovation[observed]
+        H_o, R_o, v, HP_o = H[observed], R[np.ix_(observed, observed)], innovation[observed], HP[observed]
         S = S_full[np.ix_(observed, observed)]
-    L = cholesky(S, "the innovation covariance S = H P Hᵀ + R")
-    K = cho_solve(L, H_o @ cov).T
+    L = cholesky(S, _S_NAME)
+    K = cho_solve(L, HP_o).T                      # Kᵀ = S⁻¹ H_o P⁻
     I_KH = np.eye(mean.shape[0]) - K @ H_o
     post_cov = symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T)
-    white = np.linalg.solve(L, v)
-    loglik = -0.5 * (white @ white + 2.0 * np.sum(np.log(np.diag(L))) + v.shape[0] * _LOG_2PI)
+    loglik = log_density(whiten(L, v), L)
     return Update(mean + K @ v, post_cov, innovation, S_full, float(loglik))
 
 
@@ -303,11 +218,7 @@ def rts_step(
     minimum-norm least-squares solution, which is still the exact
     conditional.
     """
-    try:
-        L = np.linalg.cholesky(pred_cov)
-        gain = cho_solve(L, cross_cov.T).T
-    except np.linalg.LinAlgError:
-        gain = np.linalg.lstsq(pred_cov, cross_cov.T, rcond=None)[0].T
+    gain = psd_solve(pred_cov, cross_cov.T).T
     mean = filt_mean + gain @ wrap_components(next_mean - pred_mean, angles)
     cov = symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T)
     return mean, cov, gain
@@ -334,3 +245,162 @@ def fuse_moments(
     """
     post = update(mean_a, cov_a, mean_b, np.eye(mean_a.shape[0]), cov_b)
     return post.mean, post.cov
+
+
+# ---------------------------------------------------------------------------
+# The step every driver calls: predict, then update, through a linearisation
+# ---------------------------------------------------------------------------
+
+
+class Step(NamedTuple):
+    """What one :func:`step` returns.
+
+    Attributes
+    ----------
+    predicted_mean, predicted_cov : ndarray of shape (n,), (n, n)
+        The prediction :math:`(m^-_k, P^-_k)`.
+    update : Update
+        The posterior, innovation and log-likelihood term of step k.
+    passes : int
+        The updates made (1 unless iterated).
+    converged : bool
+        False when an iterated update made all its passes without meeting its tolerance.
+    """
+
+    predicted_mean: np.ndarray
+    predicted_cov: np.ndarray
+    update: Update
+    passes: int
+    converged: bool
+
+
+def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
+         tol: float | None = None, state_angles=None, measurement_angles=None) -> Step:
+    r"""Step k of a filter: :func:`forecast`, then :func:`correct`.
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        ``lin.transition(k, m, P) -> (A, b, Q)`` and
+        ``lin.measurement(k, m, P) -> (H, d, R)``: step k's model made affine
+        around a belief (see :mod:`gaussfuse.linearize`).
+    k : int
+        The step: the transition into the k-th state, and its measurement.
+    mean, cov : ndarray of shape (n,), (n, n)
+        The belief after step k - 1.
+    z : ndarray of shape (m,)
+        The measurement; NaN components are missing.
+    iterations, tol :
+        See :func:`correct`.
+    state_angles, measurement_angles : ndarray of bool, optional
+        Components that are angles: wrapped to [-π, π).
+
+    Returns
+    -------
+    Step
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the innovation covariance is not positive definite.
+    FloatingPointError
+        When the prediction or the posterior is not finite (an overflow).
+    """
+    pm, pc = forecast(lin, k, mean, cov, state_angles)
+    post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles)
+    return Step(pm, pc, post, passes, converged)
+
+
+def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction of step k: :func:`predict` through ``lin.transition`` (see :func:`step`)."""
+    A, b, Q = lin.transition(k, mean, cov)
+    m, P = predict(mean, cov, A, Q, b)
+    if angles is not None:
+        m = wrap_components(m, angles)
+    check_finite("predicted", m, P)
+    return m, P
+
+
+def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
+            tol: float | None = None, state_angles=None, measurement_angles=None) -> tuple[Update, int, bool]:
+    """The update of step k through ``lin.measurement``, iterated when asked.
+
+    Pass i linearises the measurement at the previous posterior ``x_{i-1}``
+    (``x_0`` the prediction `mean`) and conditions the prediction
+    ``N(mean, cov)`` on `z` again: the iterated EKF's Gauss–Newton steps, or
+    posterior linearisation. With one iteration this is the plain update.
+    With more, it stops after the first pass whose change
+    ``‖x_i - x_{i-1}‖`` in the norm of `cov` (:func:`iterate_changed`) is at
+    most `tol`, or after `iterations` passes.
+
+    Returns
+    -------
+    post : Update
+        The last pass's update, its mean wrapped to the state angles.
+    passes : int
+    converged : bool
+        False when `iterations` > 1 passes were made without meeting `tol`
+        (given); True otherwise.
+    """
+    post_mean, post_cov = mean, cov
+    changed = iterate_changed(cov) if iterations > 1 and tol is not None else None
+    passes, converged = iterations, changed is None
+    for i in range(iterations):
+        H, d, R = lin.measurement(k, post_mean, post_cov)
+        post = update(mean, cov, z, H, R, d, measurement_angles)
+        previous, post_mean, post_cov = post_mean, post.mean, post.cov
+        if state_angles is not None:
+            post_mean = wrap_components(post_mean, state_angles)
+        if changed is not None and changed(post_mean, previous, state_angles) <= tol:
+            passes, converged = i + 1, True
+            break
+    if post_mean is not post.mean:
+        post = post._replace(mean=post_mean)
+    check_finite("filtered", post.mean, post.cov, post.loglik)
+    return post, passes, converged
+
+
+def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
+    """Raise FloatingPointError when the mean, the covariance or `loglik` is inf or NaN.
+
+    ``x · 0`` is 0 for a finite x and NaN otherwise, so two dot products with
+    zeros test every entry without a temporary (and huge finite entries
+    cannot overflow into a false alarm).
+    """
+    if not np.isfinite(np.dot(mean, np.zeros(mean.shape[0])) + np.dot(cov.ravel(), np.zeros(cov.size))
+                       + 0.0 * loglik):
+        raise FloatingPointError(not_finite(stage))
+
+
+def iterate_changed(cov: np.ndarray):
+    r"""The change of an iterate in the norm of `cov`: a function ``(new, old, angles) -> float``.
+
+    .. math::
+
+        \lVert x_i - x_{i-1} \rVert_{P} = \sqrt{(x_i - x_{i-1})^\top P^{-1} (x_i - x_{i-1})},
+
+    with ``P = L Lᵀ`` (Cholesky, or the semi-definite factor of
+    :func:`gaussfuse._linalg.semidefinite_cholesky` on the range of a singular
+    P, where the iterates move). It is scale-free: the change in standard
+    deviations of P. A component that changed by no more than its round-off,
+    ``4 ε max(|new|, |old|)``, counts as unchanged, so that a component whose
+    variance is itself round-off does not keep the iteration going.
+    """
+    try:
+        L = np.linalg.cholesky(cov)
+        rows = slice(None)
+    except np.linalg.LinAlgError:
+        L = semidefinite_cholesky(cov)
+        rows = np.diag(L) > 0.0
+        L = L[np.ix_(rows, rows)]
+    eps4 = 4.0 * np.finfo(np.float64).eps
+
+    def changed(new: np.ndarray, old: np.ndarray, angles=None) -> float:
+        delta = wrap_components(new - old, angles)
+        delta = np.where(np.abs(delta) <= eps4 * np.maximum(np.abs(new), np.abs(old)), 0.0, delta)[rows]
+        if not delta.any():
+            return 0.0
+        white = whiten(L, delta)
+        return float(np.sqrt(white @ white))
+
+    return changed

@@ -21,7 +21,7 @@ given the observed ones are exact:
 :math:`z_\mu = (H_\mu - L H_o) x + L z_o + e`,
 :math:`L = R_{\mu o} R_{oo}^{+}`, :math:`e \sim N(0, R_{\mu\mu} - L R_{o\mu})`.
 With a diffuse prior the first state :math:`x_1` is diffuse (see
-:mod:`gaussfuse.diffuse`): there is no :math:`x_0` and no first transition,
+:mod:`gaussfuse.inference.diffuse`): there is no :math:`x_0` and no first transition,
 so the sums over transitions start at :math:`t = 2`.
 
 * **EM** (Shumway & Stoffer 1982) maximises :math:`E[\ell_c]`: :math:`[F, B]`
@@ -71,7 +71,7 @@ so the sums over transitions start at :math:`t = 2`.
 
   :math:`\dot P_t` has no :math:`\dot K_t` term because the Joseph form is
   stationary in the gain at the optimal gain. With a diffuse prior the same
-  recursion carries the sensitivity columns of :mod:`gaussfuse.diffuse`,
+  recursion carries the sensitivity columns of :mod:`gaussfuse.inference.diffuse`,
   and the diffuse terms are differentiated through their information
   :math:`\mathcal S_T` and score :math:`s_T`.
 
@@ -97,15 +97,16 @@ from typing import Callable
 
 import numpy as np
 
-from . import kalman
 from ._frozen import reduce_frozen
+from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize
 from ._validation import as_vector
-from .diffuse import Moments, augmented_runs, diffuse_moments, not_identified
 from .errors import ConvergenceWarning
 from .gaussian import Gaussian
-from .inference import ENGINES, _check_steps, check_controls, check_measurements, check_prior, smooth_from_prior
-from .inference import filter as _filter_series
-from .kalman import symmetrize
+from .inference.diffuse import Moments, augmented_runs, diffuse_moments, not_identified
+from .inference.drivers import ENGINES, filter_batch, smooth_batch
+from .inference.registry import METHODS as _METHODS
+from .inference.results import first
+from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.linear import LinearModel
 
 __all__ = ["fit", "FitResult", "LEARNABLE", "STRUCTURES"]
@@ -115,7 +116,6 @@ COVARIANCES = ("Q", "R", "P0")
 STRUCTURES = ("full", "diagonal", "scalar")
 METHODS = ("em", "mle")
 _MATRICES = ("F", "H", "Q", "R", "B")
-_LOG_2PI = np.log(2.0 * np.pi)
 
 
 @dataclass(frozen=True, eq=False)
@@ -240,9 +240,10 @@ def moments(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | None, en
     """Smoothed moments of one series from time 0 (the prior's) to T, with lag-one covariances."""
     if isinstance(prior, str):
         return diffuse_moments(model, zs, us, engine)
-    means, covs, gains, filt = smooth_from_prior(model, prior, zs, us, engine)
-    cross = covs[1:] @ np.swapaxes(gains, -1, -2)
-    return Moments(means, covs, cross, filt.loglik, filt, gains)
+    sm = first(smooth_batch(_METHODS["kf"], model, prior, zs[None], None if us is None else us[None], {}, engine,
+                            to_prior=True))
+    cross = sm.covs[1:] @ np.swapaxes(sm.gains, -1, -2)
+    return Moments(sm.means, sm.covs, cross, sm.filtered.loglik, sm.filtered, sm.gains)
 
 
 def _per_step(a: np.ndarray | None, T: int) -> np.ndarray | None:
@@ -295,8 +296,7 @@ class Statistics:
             o = ~np.isnan(zs[t])
             mis = ~o
             A, c, E = np.zeros((m, n)), np.where(o, zs[t], 0.0), np.zeros((m, m))
-            L = (np.linalg.lstsq(R[t][np.ix_(o, o)], R[t][np.ix_(o, mis)], rcond=None)[0].T if o.any()
-                 else np.zeros((mis.sum(), 0)))
+            L = psd_solve(R[t][np.ix_(o, o)], R[t][np.ix_(o, mis)]).T if o.any() else np.zeros((mis.sum(), 0))
             A[mis] = H[t][mis] - L @ H[t][o]
             c[mis] = L @ zs[t][o]
             E[np.ix_(mis, mis)] = R[t][np.ix_(mis, mis)] - L @ R[t][np.ix_(o, mis)]
@@ -407,7 +407,7 @@ def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, st
         Phi = [s.Phi for s in stats]
         lhs = sum(np.sum((s.w_map(Fk, Bk) @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
         gram = sum(np.sum(ph[:, sel][:, :, sel], axis=0) for ph in Phi)
-        coef = np.linalg.solve(gram, lhs.T).T
+        coef = psd_solve(gram, lhs.T).T
         if "F" in learn:
             F, coef = coef[:, :n], coef[:, n:]
         if "B" in learn:
@@ -420,7 +420,7 @@ def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, st
         Psi = [s.Psi for s in stats]
         zx = sum(np.sum(ps[:, :m, m:m + n], axis=0) for ps in Psi)
         xx = sum(np.sum(ps[:, m:m + n, m:m + n], axis=0) for ps in Psi)
-        H = np.linalg.solve(xx, zx.T).T
+        H = psd_solve(xx, zx.T).T
     if "R" in learn:
         second = sum(np.sum(s.residual_second_moment("v", s.v_map(H)), axis=0) for s in stats)
         R = _structured(second / T_v, structure["R"], fixed["R"])
@@ -490,16 +490,14 @@ class _Parametrisation:
         for name, free in self.free.items():
             if structure[name] == "full" and free.any():
                 block = _current(model, prior, name)[np.ix_(free, free)]
-                try:
-                    np.linalg.cholesky(block)
-                except np.linalg.LinAlgError:
+                if not is_positive_definite(block):
                     raise ValueError(
                         f"`{name}` must be positive definite on its non-zero variances to be learned by "
                         f"maximum likelihood (through its Cholesky factor); got {name} = "
                         f"{np.array2string(_current(model, prior, name), separator=', ')}. Start from a "
                         "positive definite value, hold a component at zero by giving it zero variance, "
                         "or use method='em'."
-                    ) from None
+                    )
         self.sizes = [self._encode(name, _current(model, prior, name)).size for name in learn]
 
     def _encode(self, name: str, value: np.ndarray) -> np.ndarray:
@@ -513,7 +511,7 @@ class _Parametrisation:
             return np.array([np.log(np.mean(np.diag(sub)))])
         if kind == "diagonal":
             return np.log(np.diag(sub))
-        L = np.linalg.cholesky(sub)
+        L = cholesky(sub)
         rows, cols = np.tril_indices(sub.shape[0])
         out = L[rows, cols].copy()
         out[rows == cols] = np.log(out[rows == cols])
@@ -713,8 +711,9 @@ def _fisher_applies(model: LinearModel, prior, needed: set, start: int) -> bool:
 
 def _covariance_gradient(C: np.ndarray, second: np.ndarray, count: int = 1) -> np.ndarray:
     """``½ C⁻¹ (E[e eᵀ] - count·C) C⁻¹``: dℓ/dC of ``count`` Gaussian terms with residual second moment `second`."""
-    inner = np.linalg.solve(C, second - count * C)
-    return 0.5 * np.linalg.solve(C, np.swapaxes(inner, -1, -2))
+    L = cholesky(C)
+    inner = cho_solve(L, second - count * C)
+    return 0.5 * cho_solve(L, np.swapaxes(inner, -1, -2))
 
 
 def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics], needed: set) -> dict:
@@ -734,7 +733,7 @@ def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics], needed
             W = s.w_map(model.F, model.B)
             if "Q" in needed:
                 add("Q", _covariance_gradient(Q, s.residual_second_moment("w", W)), s.start)
-            Qi_wS = np.linalg.solve(Q, W @ s.Phi)                   # Q⁻¹ E[w sᵀ], (T_w, n, d)
+            Qi_wS = cho_solve(cholesky(Q), W @ s.Phi)               # Q⁻¹ E[w sᵀ], (T_w, n, d)
             if "F" in needed:
                 add("F", Qi_wS[:, :, n:2 * n], s.start)
             if "B" in needed and model.B is not None:
@@ -745,10 +744,10 @@ def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics], needed
             if "R" in needed:
                 add("R", _covariance_gradient(R, s.residual_second_moment("v", V)))
             if "H" in needed:
-                add("H", np.linalg.solve(R, (V @ s.Psi)[:, :, m:m + n]))
+                add("H", cho_solve(cholesky(R), (V @ s.Psi)[:, :, m:m + n]))
     if needed & {"m0", "P0"} and not isinstance(prior, str):
         dev = [s.x0_mean - prior.mean for s in stats]
-        g["m0"] = sum(np.linalg.solve(prior.cov, d) for d in dev)
+        g["m0"] = cho_solve(cholesky(prior.cov), sum(dev))
         second = sum(s.x0_cov + np.outer(d, d) for s, d in zip(stats, dev))
         g["P0"] = _covariance_gradient(prior.cov, second, count=len(stats))
     return g
@@ -771,11 +770,13 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
     T, n, p = zs.shape[0], model.n, len(directions)
     if isinstance(prior, str):
         runs = augmented_runs(model, zs, us, engine)
-        mdl, results, first = runs.model, [runs.base, *runs.sens], 1
+        mdl, results, first_step = runs.model, [runs.base, *runs.sens], 1
         us = None if us is None else np.vstack([np.zeros_like(us[:1]), us[1:]])
         M_prev, P_prev = np.hstack([np.zeros((n, 1)), np.eye(n)]), np.zeros((n, n))
     else:
-        mdl, results, first = model, [_filter_series(model, prior, zs, us, engine=engine)], 0
+        filt = first(filter_batch(_METHODS["kf"], model, prior, zs[None], None if us is None else us[None], {},
+                                  engine, "all"))
+        mdl, results, first_step = model, [filt], 0
         M_prev, P_prev = prior.mean[:, None], prior.cov
     c = len(results)
     Mp = np.stack([r.predicted_means for r in results], axis=-1)      # (T, n, c)
@@ -792,7 +793,7 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
 
     dM = np.zeros((p, n, c))
     dP = np.zeros((p, n, n))
-    if first == 0:
+    if first_step == 0:
         dM[:, :, 0] = tangent("m0", 0, (n,))
         dP = tangent("P0", 0, (n, n))
     G, dG = np.zeros((c, c)), np.zeros((p, c, c))
@@ -800,7 +801,7 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
     I = np.eye(n)
     for k in range(T):
         F, H, _, R, B = mdl.at(k)
-        if k >= first:
+        if k >= first_step:
             dF = tangent("F", k, (n, n))
             X = dF @ P_prev @ F.T
             dMp = dF @ M_prev + F @ dM
@@ -817,43 +818,37 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
         Ho, Pk, Uk = H[o], base.predicted_covs[k], U[k][o]
         dH = tangent("H", k, H.shape)[:, o]
         dR = tangent("R", k, R.shape)[:, o][:, :, o]
-        L = kalman.cholesky(base.innovation_covs[k][np.ix_(o, o)], f"at step {k}: the innovation covariance S")
+        L = cholesky(base.innovation_covs[k][np.ix_(o, o)], f"at step {k}: the innovation covariance S")
         dHP = dH @ Pk
         dS = dHP @ Ho.T
         dS = dS + np.swapaxes(dS, -1, -2) + Ho @ dPp @ Ho.T + dR
         dU = -(dH @ Mp[k]) - Ho @ dMp
-        SiU = kalman.cho_solve(L, Uk)
+        SiU = cho_solve(L, Uk)
         G += Uk.T @ SiU
         t = np.swapaxes(dU, -1, -2) @ SiU
         dG += t + np.swapaxes(t, -1, -2) - SiU.T @ dS @ SiU
         logdet += 2.0 * np.sum(np.log(np.diag(L)))
-        dlogdet += np.trace(_cho_solve_stack(L, dS), axis1=-2, axis2=-1)
+        dlogdet += np.trace(cho_solve(L, dS), axis1=-2, axis2=-1)
         observed += int(o.sum())
-        Kt = kalman.cho_solve(L, Ho @ Pk)                              # Kᵀ, (m_o, n)
-        dKt = _cho_solve_stack(L, Ho @ dPp + dHP - dS @ Kt)
+        Kt = cho_solve(L, Ho @ Pk)                              # Kᵀ, (m_o, n)
+        dKt = cho_solve(L, Ho @ dPp + dHP - dS @ Kt)
         dM = dMp + np.swapaxes(dKt, -1, -2) @ Uk + Kt.T @ dU
         IKH = I - Kt.T @ Ho
         X = Kt.T @ dHP @ IKH.T
         dP = IKH @ dPp @ IKH.T - X - np.swapaxes(X, -1, -2) + Kt.T @ dR @ Kt
-    loglik = -0.5 * (G[0, 0] + logdet + observed * _LOG_2PI)
+    loglik = -0.5 * (G[0, 0] + logdet + observed * LOG_2PI)
     grad = -0.5 * (dG[:, 0, 0] + dlogdet)
     if c > 1:  # the diffuse terms: ½ sᵀ 𝒮⁻¹ s - ½ log|𝒮|, 𝒮 = G[1:, 1:], s = -G[1:, 0]
         info, score = G[1:, 1:], -G[1:, 0]
-        try:
-            LI = np.linalg.cholesky(info)
-        except np.linalg.LinAlgError:
-            raise not_identified() from None
-        a = kalman.cho_solve(LI, score)
+        if not is_positive_definite(info):
+            raise not_identified()
+        LI = cholesky(info)
+        a = cho_solve(LI, score)
         d_info, d_score = dG[:, 1:, 1:], -dG[:, 1:, 0]
         loglik += 0.5 * score @ a - np.sum(np.log(np.diag(LI)))
         grad += d_score @ a - 0.5 * np.einsum("i,pij,j->p", a, d_info, a) \
-            - 0.5 * np.trace(_cho_solve_stack(LI, d_info), axis1=-2, axis2=-1)
+            - 0.5 * np.trace(cho_solve(LI, d_info), axis1=-2, axis2=-1)
     return float(loglik), grad
-
-
-def _cho_solve_stack(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``(L Lᵀ)⁻¹ B_j`` for a stack B of shape (p, k, r)."""
-    return np.linalg.solve(L.T, np.linalg.solve(L, B))
 
 
 def _fisher_score(model, prior, zs, us, directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
@@ -960,11 +955,11 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
         ll, grad = evaluate(theta)
         if np.max(np.abs(grad), initial=0.0) <= gtol:
             return theta, True
-        try:
-            L = np.linalg.cholesky(-_hessian(evaluate, theta))
-        except np.linalg.LinAlgError:
+        information = -_hessian(evaluate, theta)
+        if not is_positive_definite(information):
             break
-        step = theta + kalman.cho_solve(L, grad)
+        L = cholesky(information)
+        step = theta + cho_solve(L, grad)
         if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
             break
         theta = step
@@ -982,11 +977,11 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     nan = np.full(natural(theta).size, np.nan)
     if k == 0:
         return None, nan
-    try:
-        L = np.linalg.cholesky(-_hessian(evaluate, theta))  # positive definite at a maximum
-    except np.linalg.LinAlgError:
+    information = -_hessian(evaluate, theta)
+    if not is_positive_definite(information):  # it is at a maximum
         return None, nan
-    cov_theta = kalman.cho_solve(L, np.eye(k))
+    L = cholesky(information)
+    cov_theta = cho_solve(L, np.eye(k))
 
     def jacobian(fn) -> np.ndarray:
         J = np.zeros((fn(theta).size, k))
@@ -1175,7 +1170,7 @@ def fit(
     nobs = int(np.sum(~np.isnan(zs)))
     if nobs == 0:
         raise ValueError("`zs` has no observed value (every entry is NaN): there is nothing to learn from.")
-    _check_steps(model, zs.shape[1])
+    check_steps(model, zs.shape[1])
     us = check_controls(us, model, zs.shape[0], zs.shape[1])
     if iterations is None:
         iterations = 500 if method == "em" else 1000

@@ -6,8 +6,10 @@ import numpy as np
 
 from . import kalman
 from ._validation import as_array, shape_error
+from .errors import ModelFunctionError
 from .gaussian import Gaussian
-from .inference import _at_step, check_prior
+from .inference.validation import check_prior
+from .linearize import Exact
 from .models.linear import LinearModel
 
 __all__ = ["KalmanFilter"]
@@ -41,8 +43,9 @@ class KalmanFilter:
     Notes
     -----
     ``predict(u_k)`` then ``update(z_k)`` for k = 0..T-1 is exactly
-    :func:`gaussfuse.filter` on the same series; both call
-    :func:`gaussfuse.kalman.predict` and :func:`gaussfuse.kalman.update`.
+    :func:`gaussfuse.filter` on the same series: the two halves of
+    :func:`gaussfuse.kalman.step`, :func:`~gaussfuse.kalman.forecast` and
+    :func:`~gaussfuse.kalman.correct`.
 
     Examples
     --------
@@ -72,39 +75,46 @@ class KalmanFilter:
     def P(self) -> np.ndarray:
         return self.belief.cov
 
-    def _matrices(self, k: int):
+    def _check_step(self, k: int) -> None:
         steps = self.model.steps
         if steps is not None and not 0 <= k < steps:
             raise ValueError(f"the time-varying model has {steps} steps; step {k} is beyond it.")
-        return self.model.at(k)
 
     def predict(self, u=None) -> Gaussian:
         """Advance the belief one step, with control input `u` of shape (p,) when the model has B."""
-        F, _, Q, _, B = self._matrices(self.step)
-        if B is None and u is not None:
+        k = self.step
+        self._check_step(k)
+        p = self.model.p
+        if not p and u is not None:
             raise ValueError("`u` was given but the model has no control input; give the model `B`.")
-        b = None
-        if B is not None:
+        if p:
             if u is None:
-                raise ValueError(f"`u` is required: the model has a control input with p = {B.shape[-1]}.")
+                raise ValueError(f"`u` is required: the model has a control input with p = {p}.")
             u = np.atleast_1d(as_array("u", u))
-            if u.shape != (B.shape[-1],):
-                raise shape_error("u", f"({B.shape[-1]},)", u.shape)
-            b = B @ u
-        with _at_step(self.step):
-            mean, cov = kalman.predict(self.belief.mean, self.belief.cov, F, Q, b)
+            if u.shape != (p,):
+                raise shape_error("u", f"({p},)", u.shape)
+        mean, cov = self._run(kalman.forecast, Exact(self.model, {k: u}), k, self.belief.mean, self.belief.cov)
         self.belief = Gaussian(mean, cov)
         self.step += 1
         return self.belief
 
     def update(self, z) -> Gaussian:
         """Condition the belief on measurement `z` of shape (m,) (a scalar when m = 1); NaN = missing."""
-        _, H, _, R, _ = self._matrices(max(self.step - 1, 0))
+        k = max(self.step - 1, 0)
+        self._check_step(k)
+        m = self.model.m
         z = np.atleast_1d(as_array("z", z, allow_nan=True))
-        if z.shape != (H.shape[0],):
-            raise shape_error("z", f"({H.shape[0]},)", z.shape)
-        with _at_step(max(self.step - 1, 0)):
-            post = kalman.update(self.belief.mean, self.belief.cov, z, H, R)
+        if z.shape != (m,):
+            raise shape_error("z", f"({m},)", z.shape)
+        post = self._run(kalman.correct, Exact(self.model), k, self.belief.mean, self.belief.cov, z)[0]
         self.belief = Gaussian(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief
+
+    @staticmethod
+    def _run(half, lin, k: int, *args):
+        """A half of :func:`gaussfuse.kalman.step`, with the step named in its errors."""
+        try:
+            return half(lin, k, *args)
+        except (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError) as exc:
+            raise type(exc)(f"at step {k}: {exc}") from exc

@@ -57,7 +57,7 @@ FILTERS = NO_CACHE + textwrap.dedent("""
         start = gf.Gaussian([0.0, 0.0], 0.1 * np.eye(2))  # narrow: sin(x) is ambiguous
         got = gf.filter(pendulum, start, zs, method="ukf", engine="numba")
         from gaussfuse._kernels import sigma_points
-        out["mode"] = sigma_points.last_mode
+        out["mode"] = sigma_points.execution_mode(pendulum, start)
         want = gf.filter(pendulum, start, zs, method="ukf", engine="python")
         out["ukf"] = float(np.max(np.abs(got.means - want.means)))
     out["warnings"] = [f"{w.category.__name__}: {w.message}" for w in caught]

@@ -17,8 +17,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import gaussfuse as gf
+from gaussfuse.inference import drivers
 from gaussfuse._kernels import sigma_points as sp
-from gaussfuse.models.nonlinear import ModelFunctionError
+from gaussfuse.errors import ModelFunctionError
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 TOL = 1e-10
@@ -43,7 +44,7 @@ def assert_same(got, want, tol=TOL):
 def both(fn, *args, **kwargs):
     """``fn`` with the compiled and the readable engine: (numba result, python result, mode used)."""
     got = fn(*args, engine="numba", **kwargs)
-    mode = sp.last_mode
+    mode = sp.execution_mode(args[0], args[1], kwargs.get("us", args[3] if len(args) > 3 else None))
     return got, fn(*args, engine="python", **kwargs), mode
 
 
@@ -514,9 +515,9 @@ def test_auto_engine_compiles_long_series(pendulum):
     model = pendulum_model("jitted")
     prior = gf.Gaussian([0.0, 0.0], np.eye(2))
     zz = np.concatenate([zs, zs])  # 1000 steps
-    sp.last_mode = None
+    assert drivers.compiled_engine(gf.METHODS["ckf"], "auto", zz.shape[0]) is sp
+    assert sp.execution_mode(model, prior) == "compiled"
     res = gf.filter(model, prior, zz, method="ckf")
-    assert sp.last_mode == "compiled"
     assert_same(res, gf.filter(model, prior, zz, method="ckf", engine="python"))
 
 
@@ -532,7 +533,8 @@ def same_error(exc_type, model, *args, match, **kwargs):
     """
     with pytest.raises(exc_type, match=match) as got:
         gf.filter(model, *args, engine="numba", **kwargs)
-    assert sp.last_mode == ("compiled" if numba.extending.is_jitted(model.f) else "python")
+    expected = "compiled" if numba.extending.is_jitted(model.f) and numba.extending.is_jitted(model.h) else "python"
+    assert sp.execution_mode(model, args[0]) == expected
     with pytest.raises(exc_type) as want:
         gf.filter(model, *args, engine="python", **kwargs)
     assert str(got.value) == str(want.value)
@@ -704,6 +706,6 @@ def test_complex_or_boolean_outputs_are_refused(h, what):
     model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
     with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
         gf.filter(model, gf.Gaussian([0.5, 0.0], np.eye(2)), np.zeros(3), method="ukf", engine="numba")
-    assert sp.last_mode == "python"  # such a jitted h does not fit the compiled loop
+    assert sp.execution_mode(model, gf.Gaussian([0.5, 0.0], np.eye(2))) == "python"  # such an h does not fit
     with pytest.raises(ModelFunctionError, match=rf"^at step 0: `h` must return an array of real numbers; got {what}"):
         gf.filter(model, gf.Gaussian([0.5, 0.0], np.eye(2)), np.zeros(3), method="ukf", engine="python")

@@ -11,7 +11,8 @@ from gaussfuse.linearize.taylor import (
     finite_difference_jacobian,
     jacobian,
 )
-from gaussfuse.models.nonlinear import ModelFunctionError, NonlinearModel
+from gaussfuse.errors import ModelFunctionError
+from gaussfuse.models.nonlinear import NonlinearModel
 
 
 def smooth(x):

@@ -187,9 +187,9 @@ def test_van_loan_is_exported():
         (([[0, 1], [0, 0]], [[0, 1], [1, 0]], [[1, 2], [0, 1]], 1.0), ValueError, r"^`Qc` must be symmetric"),
         (([[0, 1], [0, np.nan]], [0, 1], 1.0, 1.0), ValueError, r"^`A` must be finite"),
         (([[0, 1], [0, 0]], "L", 1.0, 1.0), TypeError, r"^`L` must be an array of numbers; got str\.$"),
-        (([[0, 1], [0, 0]], [0, 1], 1.0, 0.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
-        (([[0, 1], [0, 0]], [0, 1], 1.0, -1), ValueError, r"^`dt` must be positive; got -1\.0\.$"),
-        (([[0, 1], [0, 0]], [0, 1], 1.0, "1"), TypeError, r"^`dt` must be a number; got '1'\.$"),
+        (([[0, 1], [0, 0]], [0, 1], 1.0, 0.0), ValueError, r"^`dt` must be a positive number; got 0\.0\.$"),
+        (([[0, 1], [0, 0]], [0, 1], 1.0, -1), ValueError, r"^`dt` must be a positive number; got -1\.0\.$"),
+        (([[0, 1], [0, 0]], [0, 1], 1.0, "1"), TypeError, r"^`dt` must be a positive number; got '1'\.$"),
     ],
 )
 def test_van_loan_validation(args, error, match):
@@ -202,11 +202,11 @@ def test_van_loan_validation(args, error, match):
     ("args", "error", "match"),
     [
         ((-1, 1.0, 1.0), ValueError, r"^`order` must be a non-negative integer; got -1\.$"),
-        ((1.0, 1.0, 1.0), ValueError, r"^`order` must be a non-negative integer; got 1\.0\.$"),
-        ((True, 1.0, 1.0), ValueError, r"^`order` must be a non-negative integer; got True\.$"),
-        ((1, 0.0, 1.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
-        ((1, np.inf, 1.0), ValueError, r"^`dt` must be positive; got inf\.$"),
-        ((1, None, 1.0), TypeError, r"^`dt` must be a number; got None\.$"),
+        ((1.0, 1.0, 1.0), TypeError, r"^`order` must be a non-negative integer; got 1\.0\.$"),
+        ((True, 1.0, 1.0), TypeError, r"^`order` must be a non-negative integer; got True\.$"),
+        ((1, 0.0, 1.0), ValueError, r"^`dt` must be a positive number; got 0\.0\.$"),
+        ((1, np.inf, 1.0), ValueError, r"^`dt` must be a positive number; got inf\.$"),
+        ((1, None, 1.0), TypeError, r"^`dt` must be a positive number; got None\.$"),
     ],
 )
 def test_white_noise_validation(fn, args, error, match):
@@ -215,11 +215,11 @@ def test_white_noise_validation(fn, args, error, match):
 
 
 def test_white_noise_intensity_validation():
-    with pytest.raises(ValueError, match=r"^`q` must be non-negative; got -1\.0\.$"):
+    with pytest.raises(ValueError, match=r"^`q` must be a non-negative number; got -1\.0\.$"):
         continuous_white_noise(1, 1.0, -1.0)
-    with pytest.raises(ValueError, match=r"^`var` must be non-negative; got nan\.$"):
+    with pytest.raises(ValueError, match=r"^`var` must be a non-negative number; got nan\.$"):
         piecewise_white_noise(1, 1.0, np.nan)
-    with pytest.raises(TypeError, match=r"^`var` must be a number; got \[1\.0\]\.$"):
+    with pytest.raises(TypeError, match=r"^`var` must be a non-negative number; got \[1\.0\]\.$"):
         piecewise_white_noise(1, 1.0, [1.0])
 
 

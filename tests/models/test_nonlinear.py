@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import gaussfuse as gf
-from gaussfuse.models.nonlinear import ModelFunctionError
+from gaussfuse.errors import ModelFunctionError
 
 
 def f(x):

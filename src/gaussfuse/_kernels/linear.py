@@ -43,7 +43,8 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..inference import FilterResult, SmoothResult, check_smoothed, not_finite
+from ..errors import not_finite
+from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ._jit import jit, parallel_launch
 from ._nrt import borrow as _borrow, readonly as _readonly
 
@@ -583,7 +584,7 @@ def _raise_not_pd(err: np.ndarray, err_S: np.ndarray) -> None:
     """Raise the readable path's error for the first series that failed.
 
     A LinAlgError for an innovation covariance that is not positive definite;
-    a FloatingPointError (:func:`gaussfuse.inference.not_finite`) for a
+    a FloatingPointError (:func:`gaussfuse.errors.not_finite`) for a
     belief that overflowed.
     """
     failed = np.flatnonzero(err[:, 0] >= 0)
@@ -593,7 +594,8 @@ def _raise_not_pd(err: np.ndarray, err_S: np.ndarray) -> None:
     k, mo = (int(x) for x in err[s])
     if mo < 0:
         stage = "predicted" if mo == PREDICTED_NOT_FINITE else "filtered"
-        raise not_finite(stage, k, s if err.shape[0] > 1 else None)
+        where = f"in series {s}, at step {k}" if err.shape[0] > 1 else f"at step {k}"
+        raise FloatingPointError(f"{where}: {not_finite(stage)}")
     with np.printoptions(precision=4, threshold=36):
         shown = np.array2string(err_S[s, :mo, :mo], separator=", ").replace("\n", "")
     where = f"in series {s}, at step {k}" if err.shape[0] > 1 else f"at step {k}"
@@ -636,7 +638,7 @@ def _forward(model, prior, zs, us, keep: str, smoothing: bool):
     return filt, gains
 
 
-def filter(method, model, prior, zs, us, options, keep) -> FilterResult:
+def filter(lin, model, prior, zs, us, keep) -> FilterResult:
     """The Kalman filter over N series: `zs` (N, T, m), `us` (N, T, p) or None.
 
     Returns a FilterResult whose fields all carry the leading N axis; fields
@@ -645,7 +647,7 @@ def filter(method, model, prior, zs, us, options, keep) -> FilterResult:
     return _forward(model, prior, zs, us, keep, smoothing=False)[0]
 
 
-def smooth(method, model, prior, zs, us, options) -> SmoothResult:
+def smooth(lin, model, prior, zs, us) -> SmoothResult:
     """The Kalman filter and RTS smoother over N series (see :func:`filter`)."""
     filt, gains = _forward(model, prior, zs, us, "all", smoothing=True)
     N, T, n = filt.means.shape

@@ -64,7 +64,7 @@ Execution modes, chosen per call:
 
 A covariance that is not positive definite (a state known exactly, no
 process noise on it) has no Cholesky factor: its points are then drawn in
-Python through :func:`~gaussfuse.linearize.sigma_points.sqrt_cov`, the
+Python through :func:`~gaussfuse._linalg.sqrt_cov`, the
 readable path's semi-definite Cholesky factor (in the compiled mode, that series and the
 following ones continue in the Python mode), and a singular :math:`P^-` in
 the smoother gets the readable path's least-squares gain.
@@ -88,9 +88,10 @@ from numba import types
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload
 
-from ..inference import METHODS, FilterResult, SmoothResult, check_smoothed, not_finite
-from ..linearize.sigma_points import sqrt_cov
-from ..models.nonlinear import ModelFunctionError, call_checked, size_reason
+from .._linalg import sqrt_cov
+from .._validation import call_checked, size_reason
+from ..errors import ModelFunctionError, not_finite
+from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ._jit import jit
 from ._nrt import borrow, readonly
 
@@ -108,8 +109,6 @@ _NINFO = 8
 # stage: what the compiled loop is doing (to name the function behind an exception)
 _BEFORE, _IN_F, _IN_H, _ALGEBRA = -1, 0, 1, 2
 
-#: The mode of the last run ("compiled" or "python"): a hook for the tests.
-last_mode: str | None = None
 
 
 # ---------------------------------------------------------------------------
@@ -185,7 +184,7 @@ def _draw(mean, cov, pts, X, L):
     """Sigma points of ``N(mean, cov)`` into X, through the Cholesky factor (in L).
 
     NEED_ROOT when cov is not positive definite: the caller then draws them
-    with :func:`gaussfuse.linearize.sigma_points.sqrt_cov`, as the readable path.
+    with :func:`gaussfuse._linalg.sqrt_cov`, as the readable path.
     """
     n = mean.shape[0]
     for a in range(n):
@@ -801,7 +800,7 @@ def _raise_call(name, exc, x):
 def _root_points(t, mean, cov, pts, X):
     """Sigma points through the readable path's square root (for a singular covariance)."""
     try:
-        L = sqrt_cov(cov)
+        L = sqrt_cov(cov)[0]
     except np.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(f"at step {t}: {exc}") from exc
     _points(mean, np.ascontiguousarray(L), pts, X, True)
@@ -829,7 +828,7 @@ def _raise_status(status, t, iwork, errval, X, d, model):
                 f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."
             )
         if status in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):  # inference.check_finite's error
-            raise not_finite("predicted" if status == PREDICTED_NOT_FINITE else "filtered", t)
+            raise FloatingPointError(f"at step {t}: {not_finite('predicted' if status == PREDICTED_NOT_FINITE else 'filtered')}")
         if status == S_NOT_PD:  # kalman.cholesky's message, for the observed block of S
             p = int(iwork[_GOT])
             with np.printoptions(precision=4, threshold=36):
@@ -856,8 +855,8 @@ def execution_mode(model, prior, us=None) -> str:
     return "python" if _jitted_signatures(model, prior, us) is None else "compiled"
 
 
-def _rule(method, model, options):
-    rule = METHODS[method].strategy(model, None, **options).rule
+def _rule(lin):
+    rule = lin.rule
     return (np.ascontiguousarray(rule.points, dtype=np.float64),
             np.ascontiguousarray(np.stack([rule.wm, rule.wc]), dtype=np.float64))
 
@@ -867,12 +866,11 @@ def _stacked(a):
     return np.array(a[None] if a.ndim == 2 else a, dtype=np.float64, order="C")
 
 
-def _forward(method, model, prior, zs, us, options, keep, with_cross):
+def _forward(lin, model, prior, zs, us, keep, with_cross):
     """The forward pass: the FilterResult fields (with the N axis) and the cross-covariances."""
-    global last_mode
     N, T, m = zs.shape
     n = model.n
-    pts, w = _rule(method, model, options)
+    pts, w = _rule(lin)
     k = pts.shape[0]
     rows = 0 if keep == "last" else T
     crows = T if keep == "all" else 0
@@ -891,7 +889,6 @@ def _forward(method, model, prior, zs, us, options, keep, with_cross):
     errval = np.zeros(m * m + 1)
     first = 0  # the first series left to the Python mode
     sigs = _jitted_signatures(model, prior, us)
-    last_mode = "python" if sigs is None else "compiled"
     if sigs is not None:
         loop = _loop_for(sigs[0], sigs[1], us is not None)
         iwork[_STAGE] = _BEFORE
@@ -908,7 +905,7 @@ def _forward(method, model, prior, zs, us, options, keep, with_cross):
                     _raise_call(name, exc, np.empty((k, n)) if model.vectorized else np.empty(n))
                 except ModelFunctionError as err:
                     raise ModelFunctionError(f"at step {iwork[_STEP]}: {err}") from err
-            last_mode = "python"  # f or h do not convert to the signature: the Python mode runs them
+            # otherwise f or h do not convert to the signature: the Python mode runs them
         else:
             if status == NEED_ROOT:  # a singular covariance: this series on in the Python mode
                 first = int(iwork[_SERIES])
@@ -975,14 +972,14 @@ def _result(fields):
     return FilterResult(*kept, loglik, last_mean, last_cov)
 
 
-def filter(method, model, prior, zs, us, options, keep) -> FilterResult:
+def filter(lin, model, prior, zs, us, keep) -> FilterResult:
     """The sigma-point filter over N series (see the module notes); results carry the N axis."""
-    return _result(_forward(method, model, prior, zs, us, options, keep, with_cross=False))
+    return _result(_forward(lin, model, prior, zs, us, keep, with_cross=False))
 
 
-def smooth(method, model, prior, zs, us, options) -> SmoothResult:
+def smooth(lin, model, prior, zs, us) -> SmoothResult:
     """The sigma-point RTS smoother over N series; results carry the N axis."""
-    fields = _forward(method, model, prior, zs, us, options, "all", with_cross=True)
+    fields = _forward(lin, model, prior, zs, us, "all", with_cross=True)
     means, covs, pmeans, pcovs, _, _, cross = fields[:7]
     N, T, n = means.shape
     sm_means, sm_covs = np.empty_like(means), np.empty_like(covs)

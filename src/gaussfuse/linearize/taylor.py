@@ -18,7 +18,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..models.nonlinear import ModelFunctionError, call_checked, size_reason
+from .._validation import call_checked, size_reason
+from ..errors import ModelFunctionError
 
 __all__ = ["Taylor", "jacobian", "complex_step_jacobian", "finite_difference_jacobian"]
 

@@ -5,63 +5,16 @@
 - :mod:`~gaussfuse.models.motion`: motion models (constant velocity, Singer,
   coordinated turn, ...), :mod:`~gaussfuse.models.sensors`: sensor models
   (position, range-bearing, ...), :mod:`~gaussfuse.models.noise`: their
-  discretisation; :func:`model` combines a motion and a sensor.
+  discretisation; :mod:`~gaussfuse.models.compose`: :func:`model` combines a
+  motion and a sensor.
 """
 
-from .linear import LinearModel
-from .nonlinear import NonlinearModel
-from .noise import continuous_white_noise, piecewise_white_noise, van_loan
-from .motion import (
-    ConstantAcceleration,
-    ConstantPosition,
-    ConstantVelocity,
-    CoordinatedTurn,
-    ForceInput,
-    LinearMotion,
-    LinearSDE,
-    LocalLevel,
-    LocalLinearTrend,
-    NonlinearMotion,
-    RandomWalk,
-    Singer,
-    constant_acceleration,
-    constant_velocity,
-)
-from .sensors import (
-    BearingOnly,
-    LinearSensor,
-    NonlinearSensor,
-    Position,
-    RangeBearing,
-    RangeBearingElevation,
-)
-from .build import model
+from . import compose, linear, motion, noise, nonlinear, sensors
+from .compose import *  # noqa: F403
+from .linear import *  # noqa: F403
+from .motion import *  # noqa: F403
+from .noise import *  # noqa: F403
+from .nonlinear import *  # noqa: F403
+from .sensors import *  # noqa: F403
 
-__all__ = [
-    "LinearModel",
-    "NonlinearModel",
-    "constant_velocity",
-    "constant_acceleration",
-    "model",
-    "van_loan",
-    "continuous_white_noise",
-    "piecewise_white_noise",
-    "LinearMotion",
-    "NonlinearMotion",
-    "ConstantPosition",
-    "ConstantVelocity",
-    "ConstantAcceleration",
-    "ForceInput",
-    "Singer",
-    "RandomWalk",
-    "LocalLevel",
-    "LocalLinearTrend",
-    "LinearSDE",
-    "CoordinatedTurn",
-    "LinearSensor",
-    "Position",
-    "NonlinearSensor",
-    "RangeBearing",
-    "RangeBearingElevation",
-    "BearingOnly",
-]
+__all__ = [*linear.__all__, *nonlinear.__all__, *compose.__all__, *noise.__all__, *motion.__all__, *sensors.__all__]

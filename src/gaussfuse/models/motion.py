@@ -12,11 +12,7 @@ the process noise:
 Kinematic states list all positions first (x, y[, z]), then all velocities
 (vx, vy[, vz]), then all accelerations; the axes are independent and share
 the noise settings. Combine a motion with a sensor into a filterable model
-with :func:`gaussfuse.model`.
-
-The functions :func:`constant_velocity` and :func:`constant_acceleration`
-build such a model (measuring the positions) in one call.
-"""
+with :func:`gaussfuse.model`."""
 
 from __future__ import annotations
 
@@ -24,8 +20,10 @@ from math import factorial
 
 import numpy as np
 
+from .._validation import integer, real
+from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state
 from .linear import LinearModel
-from .noise import _real, continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan
+from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan
 
 __all__ = [
     "LinearMotion",
@@ -40,93 +38,12 @@ __all__ = [
     "LocalLinearTrend",
     "LinearSDE",
     "CoordinatedTurn",
-    "constant_velocity",
-    "constant_acceleration",
-    "state_names",
 ]
 
 _AXES = ("x", "y", "z")
 _PREFIX = ("", "v", "a")
 
-# ---------------------------------------------------------------------------
-# Validators and the immutable base
-# ---------------------------------------------------------------------------
-
-
-def _dim(value) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 3:
-        raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
-    return int(value)
-
-
-def _count(name: str, value, minimum: int = 1) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"`{name}` must be an integer >= {minimum}; got {value!r}.")
-    return int(value)
-
-
-def _noise_kind(value) -> str:
-    if not isinstance(value, str) or value not in ("continuous", "piecewise"):
-        raise ValueError(f"`noise` must be 'continuous' or 'piecewise'; got {value!r}.")
-    return value
-
-
-def _names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
-    """A tuple of n strings (component names), or `default` for None."""
-    if value is None:
-        return default
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
-        raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
-    names = tuple(value)
-    if not all(isinstance(s, str) for s in names):
-        raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
-    if len(names) != n:
-        raise ValueError(f"`names` must have {n} entries, one per component; got {len(names)}.")
-    return names
-
-
-def check_state(x, n: int, name: str = "x") -> np.ndarray:
-    """`x` as an array of shape (n,) or (k, n), real or complex (for complex-step derivatives)."""
-    arr = np.asarray(x)
-    if arr.dtype.kind not in "biufc" or arr.dtype.kind == "b":
-        raise TypeError(f"`{name}` must be an array of numbers; got {arr.dtype} values.")
-    if arr.ndim not in (1, 2) or arr.shape[-1] != n:
-        raise ValueError(f"`{name}` must have shape ({n},) or (k, {n}); got shape {arr.shape}.")
-    if arr.dtype.kind in "iu":
-        arr = arr.astype(np.float64)
-    return arr
-
-
-class _Frozen:
-    """Immutable value: slots set once in ``__init__`` through `_set`; pickles by its arguments."""
-
-    __slots__ = ()
-
-    def _set(self, **values) -> None:
-        for name, value in values.items():
-            if isinstance(value, np.ndarray):
-                value.setflags(write=False)
-            object.__setattr__(self, name, value)
-
-    def __setattr__(self, name, value):
-        raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
-
-    def __delattr__(self, name):
-        raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
-
-    def _fields(self) -> tuple[str, ...]:
-        """The constructor's arguments, in order: the slots of the class and its bases."""
-        return tuple(s for cls in reversed(type(self).__mro__) for s in cls.__dict__.get("__slots__", ()))
-
-    def __reduce__(self):
-        return type(self), tuple(getattr(self, s) for s in self._fields())
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{s}={getattr(self, s)!r}" for s in self._fields())
-        return f"{type(self).__name__}({args})"
-
-
-class LinearMotion(_Frozen):
+class LinearMotion(Frozen):
     r"""Base class of linear motion models, :math:`x_k = F x_{k-1} + B u_k + w_k`.
 
     Subclasses give the state size `n`, the component `names` and
@@ -158,11 +75,11 @@ class LinearMotion(_Frozen):
 
     def control(self, dt: float) -> np.ndarray | None:
         """The control matrix B of shape (n, p) over a time step ``dt > 0``; None without control."""
-        _real("dt", dt, positive=True)
+        real("dt", dt, positive=True)
         return None
 
 
-class NonlinearMotion(_Frozen):
+class NonlinearMotion(Frozen):
     r"""Base class of nonlinear motion models, :math:`x_k = f(x_{k-1}; \Delta t) + w_k`.
 
     Attributes
@@ -222,7 +139,7 @@ class _IntegratedWhiteNoise(LinearMotion):
     _order: int = 0
 
     def __init__(self, dim: int = 1, q: float = 1.0, noise: str = "continuous") -> None:
-        self._set(dim=_dim(dim), q=_real("q", q, positive=False), noise=_noise_kind(noise))
+        self._set(dim=check_dim(dim), q=real("q", q, nonnegative=True), noise=check_noise_kind(noise))
 
     @property
     def n(self) -> int:
@@ -236,7 +153,7 @@ class _IntegratedWhiteNoise(LinearMotion):
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         K = self._order
         noise = continuous_white_noise if self.noise == "continuous" else piecewise_white_noise
         eye = np.eye(self.dim)
@@ -396,7 +313,7 @@ class ForceInput(LinearMotion):
     __slots__ = ("q", "dim")
 
     def __init__(self, q: float = 0.0, dim: int = 1) -> None:
-        self._set(q=_real("q", q, positive=False), dim=_dim(dim))
+        self._set(q=real("q", q, nonnegative=True), dim=check_dim(dim))
 
     @property
     def n(self) -> int:
@@ -410,14 +327,14 @@ class ForceInput(LinearMotion):
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (2·dim, 2·dim), over a time step ``dt > 0``."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         eye = np.eye(self.dim)
         return (np.kron(_kinematic_transition(1, dt), eye),
                 np.kron(piecewise_white_noise(1, dt, self.q), eye))
 
     def control(self, dt: float) -> np.ndarray:
         """B of shape (2·dim, dim): ``[dt²/2, dt]`` per axis."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         return np.kron(np.array([[dt**2 / 2], [dt]]), np.eye(self.dim))
 
 
@@ -473,8 +390,8 @@ class Singer(LinearMotion):
     __slots__ = ("dim", "tau", "sigma")
 
     def __init__(self, dim: int = 1, tau: float = 1.0, sigma: float = 1.0) -> None:
-        self._set(dim=_dim(dim), tau=_real("tau", tau, positive=True),
-                  sigma=_real("sigma", sigma, positive=False))
+        self._set(dim=check_dim(dim), tau=real("tau", tau, positive=True),
+                  sigma=real("sigma", sigma, nonnegative=True))
 
     @property
     def n(self) -> int:
@@ -488,7 +405,7 @@ class Singer(LinearMotion):
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (3·dim, 3·dim), over a time step ``dt > 0``."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / self.tau]])
         F1, Q1 = van_loan(A, [0.0, 0.0, 1.0], 2.0 * self.sigma**2 / self.tau, dt)
         eye = np.eye(self.dim)
@@ -521,7 +438,7 @@ class RandomWalk(LinearMotion):
     __slots__ = ("n", "q")
 
     def __init__(self, n: int = 1, q: float = 1.0) -> None:
-        self._set(n=_count("n", n), q=_real("q", q, positive=False))
+        self._set(n=integer("n", n), q=real("q", q, nonnegative=True))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -530,7 +447,7 @@ class RandomWalk(LinearMotion):
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(I, q·dt·I)`` of shape (n, n)."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         return np.eye(self.n), self.q * dt * np.eye(self.n)
 
 
@@ -562,14 +479,14 @@ class LocalLevel(LinearMotion):
     __slots__ = ("q",)
 
     def __init__(self, q: float = 1.0) -> None:
-        self._set(q=_real("q", q, positive=False))
+        self._set(q=real("q", q, nonnegative=True))
 
     n = property(lambda self: 1, doc="State dimension, 1.")
     names = property(lambda self: ("level",), doc="``('level',)``.")
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``([[1]], [[q·dt]])``."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         return np.ones((1, 1)), np.full((1, 1), self.q * dt)
 
 
@@ -604,15 +521,15 @@ class LocalLinearTrend(LinearMotion):
     __slots__ = ("q_level", "q_slope")
 
     def __init__(self, q_level: float = 1.0, q_slope: float = 1.0) -> None:
-        self._set(q_level=_real("q_level", q_level, positive=False),
-                  q_slope=_real("q_slope", q_slope, positive=False))
+        self._set(q_level=real("q_level", q_level, nonnegative=True),
+                  q_slope=real("q_slope", q_slope, nonnegative=True))
 
     n = property(lambda self: 2, doc="State dimension, 2.")
     names = property(lambda self: ("level", "slope"), doc="``('level', 'slope')``.")
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)`` of shape (2, 2)."""
-        dt = _real("dt", dt, positive=True)
+        dt = real("dt", dt, positive=True)
         return (np.array([[1.0, dt], [0.0, 1.0]]),
                 np.diag([self.q_level * dt, self.q_slope * dt]))
 
@@ -653,7 +570,7 @@ class LinearSDE(LinearMotion):
     def __init__(self, A, L, Qc, names=None) -> None:
         A, L, Qc = sde_arrays(A, L, Qc)
         n = A.shape[0]
-        self._set(A=A, L=L, Qc=Qc, names=_names(names, n, tuple(f"x{i}" for i in range(n))))
+        self._set(A=A, L=L, Qc=Qc, names=check_names(names, n, tuple(f"x{i}" for i in range(n))))
 
     @property
     def n(self) -> int:
@@ -781,8 +698,8 @@ class CoordinatedTurn(NonlinearMotion):
     __slots__ = ("q_acc", "q_turn")
 
     def __init__(self, q_acc: float = 1.0, q_turn: float = 0.01) -> None:
-        self._set(q_acc=_real("q_acc", q_acc, positive=False),
-                  q_turn=_real("q_turn", q_turn, positive=False))
+        self._set(q_acc=real("q_acc", q_acc, nonnegative=True),
+                  q_turn=real("q_turn", q_turn, nonnegative=True))
 
     n = property(lambda self: 5, doc="State dimension, 5.")
     dim = property(lambda self: 2, doc="Number of spatial axes, 2.")
@@ -792,7 +709,7 @@ class CoordinatedTurn(NonlinearMotion):
     def f(self, x, dt: float) -> np.ndarray:
         """The state after dt: x of shape (5,) or (k, 5), real or complex; dt >= 0 (0 is the identity)."""
         x = check_state(x, 5)
-        dt = _real("dt", dt, positive=False)
+        dt = real("dt", dt, nonnegative=True)
         px, py, vx, vy, w = (x[..., i] for i in range(5))
         theta = w * dt
         s, c, _, _ = _turn_functions(theta)
@@ -807,7 +724,7 @@ class CoordinatedTurn(NonlinearMotion):
     def jacobian(self, x, dt: float) -> np.ndarray:
         """∂f/∂x of shape (5, 5) (or (k, 5, 5) for a stack of states)."""
         x = check_state(x, 5)
-        dt = _real("dt", dt, positive=False)
+        dt = real("dt", dt, nonnegative=True)
         vx, vy, w = x[..., 2], x[..., 3], x[..., 4]
         theta = w * dt
         s, c, ds, dc = _turn_functions(theta)
@@ -824,7 +741,7 @@ class CoordinatedTurn(NonlinearMotion):
 
     def noise(self, dt: float) -> np.ndarray:
         """Q of shape (5, 5): the CV block for x, y, vx, vy and q_turn·dt for omega (dt >= 0)."""
-        dt = _real("dt", dt, positive=False)
+        dt = real("dt", dt, nonnegative=True)
         Q = np.zeros((5, 5))
         if dt > 0:
             Q[:4, :4] = np.kron(continuous_white_noise(1, dt, self.q_acc), np.eye(2))
@@ -835,62 +752,6 @@ class CoordinatedTurn(NonlinearMotion):
 # ---------------------------------------------------------------------------
 # One-call models (kept for backwards compatibility)
 # ---------------------------------------------------------------------------
-
-
-def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
-    """Nearly-constant-velocity model (white-noise acceleration) measuring position.
-
-    Parameters
-    ----------
-    dt : float
-        Time step, > 0.
-    q : float
-        Spectral density of the white-noise acceleration, >= 0.
-    r : float
-        Variance of each position measurement, > 0.
-    dim : {1, 2, 3}
-        Number of spatial axes.
-
-    Returns
-    -------
-    LinearModel
-        State ``[x, (y, z,) vx, (vy, vz)]`` of size 2·dim; measurement the positions.
-
-    Notes
-    -----
-    ``model(ConstantVelocity(dim, q), Position(dim, r), dt)``: per axis
-    :math:`F = [[1, Δt], [0, 1]]` and
-    :math:`Q = q [[Δt^3/3, Δt^2/2], [Δt^2/2, Δt]]`.
-
-    Examples
-    --------
-    >>> import gaussfuse as gf
-    >>> gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
-    LinearModel(n=4, m=2, p=0)
-    """
-    from .build import model
-    from .sensors import Position
-
-    return model(ConstantVelocity(dim=dim, q=q), Position(dim=dim, r=r), dt)
-
-
-def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
-    """Nearly-constant-acceleration model (white-noise jerk) measuring position.
-
-    Parameters are those of :func:`constant_velocity`, with `q` the spectral
-    density of the jerk. The state is positions, then velocities, then
-    accelerations (size 3·dim).
-
-    Notes
-    -----
-    ``model(ConstantAcceleration(dim, q), Position(dim, r), dt)``: per axis
-    :math:`F = [[1, Δt, Δt^2/2], [0, 1, Δt], [0, 0, 1]]` and
-    :math:`Q = q [[Δt^5/20, Δt^4/8, Δt^3/6], [Δt^4/8, Δt^3/3, Δt^2/2], [Δt^3/6, Δt^2/2, Δt]]`.
-    """
-    from .build import model
-    from .sensors import Position
-
-    return model(ConstantAcceleration(dim=dim, q=q), Position(dim=dim, r=r), dt)
 
 
 def state_names(order: int, dim: int) -> list[str]:

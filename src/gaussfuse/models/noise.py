@@ -27,26 +27,9 @@ from math import ceil, factorial, log2
 
 import numpy as np
 
-from .._validation import as_matrix, check_psd
+from .._validation import as_matrix, check_psd, integer, real
 
 __all__ = ["van_loan", "continuous_white_noise", "piecewise_white_noise"]
-
-
-def _real(name: str, value, *, positive: bool) -> float:
-    """`value` as a finite float, > 0 (`positive`) or >= 0; TypeError for a non-number."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"`{name}` must be a number; got {value!r}.")
-    value = float(value)
-    if not np.isfinite(value) or value < 0 or (positive and value == 0):
-        raise ValueError(f"`{name}` must be {'positive' if positive else 'non-negative'}; got {value}.")
-    return value
-
-
-def _order(value) -> int:
-    """`order` as a non-negative int."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise ValueError(f"`order` must be a non-negative integer; got {value!r}.")
-    return int(value)
 
 
 def sde_arrays(A, L, Qc) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -123,7 +106,7 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     from scipy.linalg import expm  # imported here: scipy.linalg is slow to import
 
     A, L, Qc = sde_arrays(A, L, Qc)
-    dt = _real("dt", dt, positive=True)
+    dt = real("dt", dt, positive=True)
     n = A.shape[0]
     W = L @ Qc @ L.T
     norm = np.max(np.sum(np.abs(A), axis=0)) * dt
@@ -182,9 +165,9 @@ def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     array([[8., 6.],
            [6., 6.]])
     """
-    K = _order(order)
-    dt = _real("dt", dt, positive=True)
-    q = _real("q", q, positive=False)
+    K = integer("order", order, minimum=0)
+    dt = real("dt", dt, positive=True)
+    q = real("q", q, nonnegative=True)
     idx = np.arange(K + 1)
     i, j = np.meshgrid(idx, idx, indexing="ij")
     fact = np.array([float(factorial(k)) for k in range(K + 1)])
@@ -230,8 +213,8 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
     array([[2., 2.],
            [2., 2.]])
     """
-    K = _order(order)
-    dt = _real("dt", dt, positive=True)
-    var = _real("var", var, positive=False)
+    K = integer("order", order, minimum=0)
+    dt = real("dt", dt, positive=True)
+    var = real("var", var, nonnegative=True)
     g = np.array([dt ** (K + 1 - i) / factorial(K + 1 - i) for i in range(K + 1)])
     return var * np.outer(g, g)

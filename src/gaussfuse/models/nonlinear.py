@@ -7,14 +7,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, check_psd
-from ..kalman import wrap_angle
+from .._validation import as_matrix, call_checked, check_psd, size_reason
 
-__all__ = ["NonlinearModel", "ModelFunctionError", "wrap_angle", "call_checked", "size_reason"]
-
-
-class ModelFunctionError(ValueError):
-    """A model function (f, h or a Jacobian) raised, or returned a bad value."""
+__all__ = ["NonlinearModel"]
 
 
 def _indices(name: str, value, size: int) -> np.ndarray:
@@ -216,71 +211,3 @@ def _evaluate(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, ve
     if vectorized:
         return call_checked(name, fn, X, args, (X.shape[0], size), because)
     return np.stack([call_checked(name, fn, x, args, (size,), because) for x in X])
-
-
-def size_reason(name: str, size: int, n: int | None = None) -> str | None:
-    """What fixes the size of f's or h's output (or their Jacobians'), for the shape messages.
-
-    f returns n values because `Q` is n × n, h returns m because `R` is m × m;
-    a Jacobian's n columns also come from `Q` (give `n`).
-    """
-    base = name.removesuffix("_jacobian")
-    if base not in ("f", "h"):
-        return None
-    noise = "Q" if base == "f" else "R"
-    reason = f"`{noise}` is {size} × {size}"
-    if name.endswith("_jacobian") and n is not None and base == "h":
-        reason += f" and `Q` is {n} × {n}"
-    return reason
-
-
-def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...],
-                 because: str | None = None) -> np.ndarray:
-    """Call ``fn(x, *args)`` and check that it returns a finite array of `shape`.
-
-    `because` says what fixed `shape` (see :func:`size_reason`), for the
-    message of a wrong shape.
-
-    Raises
-    ------
-    ModelFunctionError
-        Naming the function, the input shape and what went wrong: an
-        exception, a wrong shape, values that are complex, boolean or dates,
-        or a non-finite value.
-    """
-    try:
-        out = fn(x, *args)
-    except Exception as exc:  # a user's function may raise anything
-        raise ModelFunctionError(
-            f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}"
-        ) from exc
-    try:
-        kind = np.asarray(out).dtype.kind
-    except (TypeError, ValueError):  # ragged: the cast below says so
-        kind = None
-    if kind in ("c", "b", "M", "m"):
-        # Before the cast, which would drop an imaginary part or turn True into 1.0.
-        what = {"c": "complex", "b": "boolean", "M": "datetime64", "m": "timedelta64"}[kind]
-        raise ModelFunctionError(
-            f"`{name}` must return an array of real numbers; got {what} values for an input of shape {x.shape}."
-        )
-    try:
-        out = np.asarray(out, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ModelFunctionError(
-            f"`{name}` must return an array of real numbers; got {type(out).__name__} {out!r:.60}."
-        ) from None
-    if out.shape != shape:
-        if out.size == int(np.prod(shape)) and out.ndim <= 1 and len(shape) == 1:
-            out = out.reshape(shape)
-        else:
-            reason = f", because {because}" if because else ""
-            raise ModelFunctionError(
-                f"`{name}` must return shape {shape} for an input of shape {x.shape}{reason}; "
-                f"got shape {out.shape}."
-            )
-    if not np.all(np.isfinite(out)):
-        raise ModelFunctionError(
-            f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."
-        )
-    return out

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector, check_psd
-from .motion import _count, _dim, _Frozen, _names
-from .noise import _real
+from .._validation import as_matrix, as_vector, check_psd, integer, real
+from ._base import Frozen, check_dim, check_names
 
 __all__ = [
     "LinearSensor",
@@ -28,7 +27,7 @@ __all__ = [
 ]
 
 
-class LinearSensor(_Frozen):
+class LinearSensor(Frozen):
     r"""A linear sensor :math:`z = H x + v`, :math:`v \sim N(0, R)`.
 
     Parameters
@@ -63,7 +62,7 @@ class LinearSensor(_Frozen):
         m = H.shape[0]
         R = check_psd("R", as_matrix("R", R, m, m, time_varying=False,
                                      because=f"`H` has {m} row{'s' if m > 1 else ''}"))
-        self._set(H=H, R=R, names=_names(names, m, tuple(f"z{i}" for i in range(m))))
+        self._set(H=H, R=R, names=check_names(names, m, tuple(f"z{i}" for i in range(m))))
 
     @property
     def m(self) -> int:
@@ -77,7 +76,7 @@ class LinearSensor(_Frozen):
 
     def linear(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``(H, R)`` for a state of n components; H has shape (m, n), R (m, m)."""
-        n = _count("n", n)
+        n = integer("n", n)
         if self.H.shape[1] != n:
             raise ValueError(f"`n` must be {self.H.shape[1]}, the number of columns of `H`; got {n}.")
         return self.H, self.R
@@ -120,10 +119,10 @@ class Position(LinearSensor):
     __slots__ = ("dim", "r", "n")
 
     def __init__(self, dim: int = 1, r: float = 1.0, n: int | None = None) -> None:
-        dim = _dim(dim)
-        r = _real("r", r, positive=True)
+        dim = check_dim(dim)
+        r = real("r", r, positive=True)
         if n is not None:
-            n = _count("n", n, minimum=dim)
+            n = integer("n", n, minimum=dim)
         self._set(dim=dim, r=r, n=n)
 
     def __reduce__(self):
@@ -146,7 +145,7 @@ class Position(LinearSensor):
 
     def linear(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``(H, R)`` for a state of n >= dim components (n as given at construction, if it was)."""
-        n = _count("n", n, minimum=self.dim)
+        n = integer("n", n, minimum=self.dim)
         if self.n is not None and n != self.n:
             raise ValueError(f"`n` must be {self.n}, as given to `Position`; got {n}.")
         return np.eye(self.dim, n), self.R
@@ -155,7 +154,7 @@ class Position(LinearSensor):
         return f"Position(dim={self.dim}, r={self.r!r}, n={self.n!r})"
 
 
-class NonlinearSensor(_Frozen):
+class NonlinearSensor(Frozen):
     r"""Base class of nonlinear sensors :math:`z = h(x) + v`, :math:`v \sim N(0, R)`.
 
     Attributes
@@ -256,8 +255,8 @@ class RangeBearing(NonlinearSensor):
     __slots__ = ("r_range", "r_bearing", "origin")
 
     def __init__(self, r_range: float = 1.0, r_bearing: float = 1e-4, origin=(0.0, 0.0)) -> None:
-        self._set(r_range=_real("r_range", r_range, positive=True),
-                  r_bearing=_real("r_bearing", r_bearing, positive=True),
+        self._set(r_range=real("r_range", r_range, positive=True),
+                  r_bearing=real("r_bearing", r_bearing, positive=True),
                   origin=_origin(origin, 2))
 
     m = property(lambda self: 2, doc="Measurement dimension, 2.")
@@ -339,9 +338,9 @@ class RangeBearingElevation(NonlinearSensor):
 
     def __init__(self, r_range: float = 1.0, r_bearing: float = 1e-4, r_elevation: float = 1e-4,
                  origin=(0.0, 0.0, 0.0)) -> None:
-        self._set(r_range=_real("r_range", r_range, positive=True),
-                  r_bearing=_real("r_bearing", r_bearing, positive=True),
-                  r_elevation=_real("r_elevation", r_elevation, positive=True),
+        self._set(r_range=real("r_range", r_range, positive=True),
+                  r_bearing=real("r_bearing", r_bearing, positive=True),
+                  r_elevation=real("r_elevation", r_elevation, positive=True),
                   origin=_origin(origin, 3))
 
     m = property(lambda self: 3, doc="Measurement dimension, 3.")
@@ -412,7 +411,7 @@ class BearingOnly(NonlinearSensor):
     __slots__ = ("r_bearing", "origin")
 
     def __init__(self, r_bearing: float = 1e-4, origin=(0.0, 0.0)) -> None:
-        self._set(r_bearing=_real("r_bearing", r_bearing, positive=True), origin=_origin(origin, 2))
+        self._set(r_bearing=real("r_bearing", r_bearing, positive=True), origin=_origin(origin, 2))
 
     m = property(lambda self: 1, doc="Measurement dimension, 1.")
     dim = property(lambda self: 2, doc="Position components read, 2.")

@@ -75,15 +75,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import kalman
-from .gaussian import Gaussian
-from .inference import FilterResult, SmoothResult, smooth_from_prior
-from .inference import filter as inference_filter
-from .models.linear import LinearModel
+from .._linalg import cho_solve, cholesky, is_positive_definite, observed_gram, symmetrize, whiten
+from ..gaussian import Gaussian
+from ..models.linear import LinearModel
+from .drivers import filter_batch, smooth_batch
+from .registry import METHODS
+from .results import FilterResult, SmoothResult, first
 
-__all__ = ["DIFFUSE", "diffuse_filter", "diffuse_smooth", "diffuse_moments", "augmented_runs", "AugmentedRuns"]
-
-DIFFUSE = "diffuse"
+__all__ = ["diffuse_filter", "diffuse_smooth", "diffuse_moments", "augmented_runs", "AugmentedRuns",
+           "not_identified"]
 
 
 class AugmentedRuns(NamedTuple):
@@ -111,9 +111,7 @@ def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | No
     P_star = np.array(Q1)
     if observed.any():
         S1 = (H1 @ P_star @ H1.T + R1)[np.ix_(observed, observed)]
-        try:
-            np.linalg.cholesky(S1)
-        except np.linalg.LinAlgError:
+        if not is_positive_definite(S1):
             scale = max(np.max(np.diag(Q1)), np.max(np.diag(R1)))
             P_star = P_star + (scale if scale > 0 else 1.0) * np.eye(n)
     F = np.array(np.broadcast_to(model.F, (T, n, n)))
@@ -134,13 +132,16 @@ def augmented_runs(model, zs: np.ndarray, us: np.ndarray | None, engine: str,
     zero_controls = None if us is None else np.zeros_like(us)
     jobs = [(np.zeros(n), zs, us)] + [(np.eye(n)[i], zero_data, zero_controls) for i in range(n)]
     filtered, smoothed = [], []
+    kf = METHODS["kf"]
     for x0, data, controls in jobs:
         known = Gaussian(x0, np.zeros((n, n)))
+        controls = None if controls is None else controls[None]
         if smooth:
-            means, covs, gains, filt = smooth_from_prior(model, known, data, controls, engine)
-            smoothed.append((means, covs, gains))
+            sm = first(smooth_batch(kf, model, known, data[None], controls, {}, engine, to_prior=True))
+            smoothed.append((sm.means, sm.covs, sm.gains))
+            filt = sm.filtered
         else:
-            filt = inference_filter(model, known, data, controls, engine=engine)
+            filt = first(filter_batch(kf, model, known, data[None], controls, {}, engine, "all"))
         filtered.append(filt)
     return AugmentedRuns(model, filtered[0], filtered[1:], smoothed if smooth else None)
 
@@ -153,24 +154,11 @@ class _Information(NamedTuple):
 
 def _information(model, runs: AugmentedRuns) -> _Information:
     base = runs.base
-    T, n = base.means.shape
-    V = _innovation_sensitivity(model, runs)
-    v0, S = base.innovations, base.innovation_covs
-    observed = ~np.isnan(v0)
-    terms, scores = np.zeros((T, n, n)), np.zeros((T, n))
-    full = observed.all(axis=1)
-    if full.any():  # the common case, all at once
-        L = np.linalg.cholesky(S[full])
-        WV = np.linalg.solve(L, V[full])
-        wv = np.linalg.solve(L, v0[full][..., None])
-        terms[full] = np.swapaxes(WV, -1, -2) @ WV
-        scores[full] = -(np.swapaxes(WV, -1, -2) @ wv)[..., 0]
-    for t in np.flatnonzero(observed.any(axis=1) & ~full):
-        o = observed[t]
-        L = kalman.cholesky(S[t][np.ix_(o, o)], f"at step {t}: the innovation covariance S")
-        WV = np.linalg.solve(L, V[t][o])
-        terms[t], scores[t] = WV.T @ WV, -WV.T @ np.linalg.solve(L, v0[t][o])
-    return _Information(np.cumsum(terms, axis=0), np.cumsum(scores, axis=0), base.loglik)
+    V = _innovation_sensitivity(model, runs)                                  # (T, m, n)
+    X = np.concatenate([V, np.nan_to_num(base.innovations)[..., None]], axis=-1)  # [V | v0]
+    gram, _ = observed_gram(base.innovation_covs, X, ~np.isnan(base.innovations),
+                            "the innovation covariance S")
+    return _Information(np.cumsum(gram[:, :-1, :-1], axis=0), -np.cumsum(gram[:, :-1, -1], axis=0), base.loglik)
 
 
 def _predicted_sensitivity(runs: AugmentedRuns) -> np.ndarray:
@@ -193,8 +181,8 @@ def _identified(info: np.ndarray) -> np.ndarray:
 
 def _spread(L: np.ndarray, score: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``M δ̂`` and ``M S⁻¹ Mᵀ`` for δ ~ N(S⁻¹ s, S⁻¹), S = L Lᵀ; stacked over a leading axis."""
-    delta = np.linalg.solve(np.swapaxes(L, -1, -2), np.linalg.solve(L, score[..., None]))
-    W = np.linalg.solve(L, np.swapaxes(M, -1, -2))  # L⁻¹ Mᵀ
+    delta = cho_solve(L, score[..., None])
+    W = whiten(L, np.swapaxes(M, -1, -2))  # L⁻¹ Mᵀ
     return (M @ delta)[..., 0], np.swapaxes(W, -1, -2) @ W
 
 
@@ -238,23 +226,23 @@ def _filter(model, runs: AugmentedRuns, inf: _Information) -> FilterResult:
     if not ok[-1]:
         raise not_identified()
     d = int(np.argmax(ok))  # the information only grows: identified from step d on
-    L = np.linalg.cholesky(inf.info[d:])
+    L = cholesky(inf.info[d:], "the information about the diffuse state")
     shift, spread = _spread(L, inf.score[d:], M[d:])
     out["means"][d:] = base.means[d:] + shift
-    out["covs"][d:] = kalman.symmetrize(base.covs[d:] + spread)
+    out["covs"][d:] = symmetrize(base.covs[d:] + spread)
     # predictions and innovations at step t use what is known after step t - 1
     L, sc = L[:-1], inf.score[d:-1]
     for name, base_name, sens in (("predicted_means", "predicted_covs", Mp), ("innovations", "innovation_covs", V)):
         shift, spread = _spread(L, sc, sens[d + 1:])
         out[name][d + 1:] = getattr(base, name)[d + 1:] + shift
-        out[base_name][d + 1:] = kalman.symmetrize(getattr(base, base_name)[d + 1:] + spread)
-    loglik = _diffuse_loglik(inf, (np.linalg.cholesky(inf.info[-1]), inf.score[-1]))
+        out[base_name][d + 1:] = symmetrize(getattr(base, base_name)[d + 1:] + spread)
+    loglik = _diffuse_loglik(inf, (cholesky(inf.info[-1]), inf.score[-1]))
     return FilterResult(**out, loglik=loglik, last_mean=out["means"][-1], last_cov=out["covs"][-1])
 
 
 def _diffuse_loglik(inf: _Information, final: tuple[np.ndarray, np.ndarray]) -> float:
     L, s = final
-    white = np.linalg.solve(L, s)
+    white = whiten(L, s)
     return float(inf.loglik0 + 0.5 * white @ white - np.sum(np.log(np.diag(L))))
 
 
@@ -291,13 +279,13 @@ def diffuse_moments(model, zs: np.ndarray, us: np.ndarray | None = None, engine:
     runs = augmented_runs(model, zs, us, engine, smooth=True)
     inf = _information(model, runs)
     filt = _filter(model, runs, inf)
-    L = np.linalg.cholesky(inf.info[-1])
+    L = cholesky(inf.info[-1], "the information about the diffuse state")
     base_m, base_P, gains = runs.smoothed[0]
     N = np.stack([means for means, _, _ in runs.smoothed[1:]], axis=-1)   # (T + 1, n, n)
-    delta = kalman.cho_solve(L, inf.score[-1])
-    W = np.linalg.solve(L, np.swapaxes(N, -1, -2))                  # L⁻¹ N_tᵀ, (T + 1, n, n)
+    delta = cho_solve(L, inf.score[-1])
+    W = whiten(L, np.swapaxes(N, -1, -2))                           # L⁻¹ N_tᵀ, (T + 1, n, n)
     means = base_m + N @ delta
-    covs = kalman.symmetrize(base_P + np.swapaxes(W, -1, -2) @ W)
+    covs = symmetrize(base_P + np.swapaxes(W, -1, -2) @ W)
     cross = base_P[1:] @ np.swapaxes(gains, -1, -2) + np.swapaxes(W[1:], -1, -2) @ W[:-1]
     return Moments(means, covs, cross, filt.loglik, filt, gains, first=1)
 

@@ -443,7 +443,7 @@ def test_overflow_names_the_series_of_a_batch_in_the_compiled_engine():
 
 
 def test_smoothed_beliefs_are_checked_after_a_compiled_backward_pass():
-    from gaussfuse.inference import check_smoothed
+    from gaussfuse.inference.results import check_smoothed
 
     means, covs = np.zeros((2, 5, 2)), np.tile(np.eye(2), (2, 5, 1, 1))
     check_smoothed(means, covs)

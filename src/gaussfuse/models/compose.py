@@ -1,4 +1,8 @@
-r"""Combining a motion and a sensor into a state-space model for a time step."""
+r"""Combining a motion and a sensor into a state-space model for a time step.
+
+:func:`constant_velocity` and :func:`constant_acceleration` build such a
+model, measuring the positions, in one call.
+"""
 
 from __future__ import annotations
 
@@ -6,12 +10,13 @@ from functools import partial
 
 import numpy as np
 
+from .._validation import real
 from .linear import LinearModel
-from .motion import LinearMotion, NonlinearMotion
+from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
 from .nonlinear import NonlinearModel
-from .sensors import LinearSensor, NonlinearSensor
+from .sensors import LinearSensor, NonlinearSensor, Position
 
-__all__ = ["model"]
+__all__ = ["model", "constant_velocity", "constant_acceleration"]
 
 
 def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
@@ -86,9 +91,7 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
         F, Q = motion.transition(dt)
         B = motion.control(dt)
     else:
-        Q = motion.noise(dt)
-        if not dt > 0:  # noise() accepts dt = 0; a model's step must be positive
-            raise ValueError(f"`dt` must be positive; got {float(dt)}.")
+        Q = motion.noise(real("dt", dt, positive=True))  # noise() accepts dt = 0; a model's step must be positive
 
     if isinstance(motion, LinearMotion) and isinstance(sensor, LinearSensor):
         H, R = sensor.linear(n)
@@ -161,3 +164,53 @@ def _check_fit(motion, sensor, n: int) -> None:
         raise ValueError(
             f"`sensor` reads {reads} position components but the state of `motion` has only {n}."
         )
+
+
+def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
+    """Nearly-constant-velocity model (white-noise acceleration) measuring position.
+
+    Parameters
+    ----------
+    dt : float
+        Time step, > 0.
+    q : float
+        Spectral density of the white-noise acceleration, >= 0.
+    r : float
+        Variance of each position measurement, > 0.
+    dim : {1, 2, 3}
+        Number of spatial axes.
+
+    Returns
+    -------
+    LinearModel
+        State ``[x, (y, z,) vx, (vy, vz)]`` of size 2·dim; measurement the positions.
+
+    Notes
+    -----
+    ``model(ConstantVelocity(dim, q), Position(dim, r), dt)``: per axis
+    :math:`F = [[1, Δt], [0, 1]]` and
+    :math:`Q = q [[Δt^3/3, Δt^2/2], [Δt^2/2, Δt]]`.
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
+    LinearModel(n=4, m=2, p=0)
+    """
+    return model(ConstantVelocity(dim=dim, q=q), Position(dim=dim, r=r), dt)
+
+
+def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
+    """Nearly-constant-acceleration model (white-noise jerk) measuring position.
+
+    Parameters are those of :func:`constant_velocity`, with `q` the spectral
+    density of the jerk. The state is positions, then velocities, then
+    accelerations (size 3·dim).
+
+    Notes
+    -----
+    ``model(ConstantAcceleration(dim, q), Position(dim, r), dt)``: per axis
+    :math:`F = [[1, Δt, Δt^2/2], [0, 1, Δt], [0, 0, 1]]` and
+    :math:`Q = q [[Δt^5/20, Δt^4/8, Δt^3/6], [Δt^4/8, Δt^3/3, Δt^2/2], [Δt^3/6, Δt^2/2, Δt]]`.
+    """
+    return model(ConstantAcceleration(dim=dim, q=q), Position(dim=dim, r=r), dt)

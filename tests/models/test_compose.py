@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 import gaussfuse as gf
+import gaussfuse._linalg
 from gaussfuse.linearize.taylor import jacobian
 
-build_module = importlib.import_module("gaussfuse.models.build")
+compose_module = importlib.import_module("gaussfuse.models.compose")
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
@@ -133,7 +134,7 @@ def simulate(motion, sensor, dt, T, x0, seed):
         x = motion.f(x, dt) + rng.multivariate_normal(np.zeros(5), Q)
         xs[k] = x
         zs[k] = sensor.h(x) + rng.multivariate_normal(np.zeros(sensor.m), sensor.R)
-    zs[:, 1] = gf.models.nonlinear.wrap_angle(zs[:, 1])
+    zs[:, 1] = gf._linalg.wrap_angle(zs[:, 1])
     return xs, zs
 
 
@@ -228,10 +229,10 @@ def test_sigma_point_filters_run_on_built_models(turn_track):
          r"`H` must have 4 columns\.$"),
         ((gf.ConstantVelocity(dim=2), gf.Position(dim=2, n=6), 1.0), ValueError,
          r"^`sensor` has `H` of shape \(2, 6\)"),
-        ((gf.ConstantVelocity(), gf.Position(), 0.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
-        ((gf.CoordinatedTurn(), gf.RangeBearing(), 0.0), ValueError, r"^`dt` must be positive; got 0\.0\.$"),
-        ((gf.CoordinatedTurn(), gf.RangeBearing(), -1.0), ValueError, r"^`dt` must be non-negative; got -1\.0\.$"),
-        ((gf.CoordinatedTurn(), gf.RangeBearing(), "1"), TypeError, r"^`dt` must be a number; got '1'\.$"),
+        ((gf.ConstantVelocity(), gf.Position(), 0.0), ValueError, r"^`dt` must be a positive number; got 0\.0\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearing(), 0.0), ValueError, r"^`dt` must be a positive number; got 0\.0\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearing(), -1.0), ValueError, r"^`dt` must be a positive number; got -1\.0\.$"),
+        ((gf.CoordinatedTurn(), gf.RangeBearing(), "1"), TypeError, r"^`dt` must be a positive number; got '1'\.$"),
     ],
 )
 def test_model_validation(args, error, match):
@@ -258,7 +259,7 @@ def test_exported():
 def test_docstring_examples():
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        result = doctest.testmod(build_module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
+        result = doctest.testmod(compose_module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted >= 2
     assert result.failed == 0, out.getvalue()
 

@@ -1,0 +1,107 @@
+"""The cost of the first call in a fresh process: import, compilation or cache loading, warm-up.
+
+    python benchmarks/first_call.py [--cache cold,warm] [--steps 5000] [--repeats 3] [--engine auto]
+
+For each call (filter, smooth, fit by maximum likelihood, an unscented
+filter, each on one series of `--steps` steps) a fresh Python process
+imports gaussfuse, makes the call, and makes it again. The **first-call
+overhead** is the time of the first call, ``import gaussfuse`` included,
+minus the time of the repeated call: what a new user, or a new process of a
+pipeline, pays once. `--cache cold` gives each process an empty
+``NUMBA_CACHE_DIR``; `--cache warm` one that a previous process of the same
+call has filled. The report is the median over `--repeats` processes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+CHILD = r"""
+import sys, time, json
+t0 = time.perf_counter()
+import gaussfuse as gf
+t_import = time.perf_counter() - t0
+import numpy as np
+call, steps, engine = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+rng = np.random.default_rng(0)
+if call in ("filter", "smooth", "fit"):
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], np.eye(4))
+    zs = np.cumsum(rng.normal(size=(steps, 2)), axis=0) * 0.1 + rng.normal(size=(steps, 2)) * 0.5
+    if call == "fit":
+        local = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+        y = np.cumsum(rng.normal(size=steps)) + rng.normal(size=steps)
+        run = lambda: gf.fit(local, gf.Gaussian(0.0, 10.0), y, method="mle", engine=engine)
+    else:
+        fn = getattr(gf, call)
+        run = lambda: fn(model, prior, zs, engine=engine)
+else:
+    dt = 0.1
+    F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    def f(x):
+        return F @ x
+    def h(x):
+        return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+    model = gf.NonlinearModel(f, h, 0.01 * np.eye(4), np.diag([0.25, 2.5e-5]))
+    prior = gf.Gaussian([10.0, 5.0, 1.0, 0.5], np.eye(4))
+    truth = prior.mean + np.arange(1, steps + 1)[:, None] * np.array([dt, dt * 0.5, 0, 0]) * 1.0
+    zs = np.array([h(x) for x in truth]) + rng.normal(size=(steps, 2)) * [0.5, 0.005]
+    run = lambda: gf.filter(model, prior, zs, method="ukf", alpha=1.0, beta=0.0, kappa=-1.0, engine=engine)
+t1 = time.perf_counter()
+run()
+first = time.perf_counter() - t1
+t2 = time.perf_counter()
+run()
+again = time.perf_counter() - t2
+print(json.dumps({"import": t_import, "first": first, "again": again,
+                  "overhead": t_import + first - again, "numba": "numba" in sys.modules}))
+"""
+
+CALLS = ("filter", "smooth", "fit", "ukf")
+
+
+def run_child(call: str, steps: int, engine: str, cache_dir: str) -> dict:
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+    out = subprocess.run([sys.executable, "-c", CHILD, call, str(steps), engine], env=env,
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def measure(call: str, cache: str, steps: int, engine: str, repeats: int) -> list[dict]:
+    runs = []
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory() as cache_dir:
+            if cache == "warm":
+                run_child(call, steps, engine, cache_dir)  # fills the cache
+            runs.append(run_child(call, steps, engine, cache_dir))
+            print(f"  {call} {cache}: {runs[-1]}", file=sys.stderr)
+    return runs
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cache", default="cold,warm", help="cold, warm or both (default)")
+    parser.add_argument("--steps", type=int, default=5000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--engine", default="auto")
+    parser.add_argument("--only", default=",".join(CALLS), help=f"some of {','.join(CALLS)}")
+    args = parser.parse_args(argv)
+    print(f"| call | cache | import (s) | first call (s) | repeated call (s) | overhead (s) | numba loaded |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for call in args.only.split(","):
+        for cache in args.cache.split(","):
+            runs = measure(call, cache, args.steps, args.engine, args.repeats)
+            med = {k: statistics.median(r[k] for r in runs) for k in ("import", "first", "again", "overhead")}
+            print(f"| {call} | {cache} | {med['import']:.3f} | {med['first']:.3f} | {med['again']:.3f} | "
+                  f"{med['overhead']:.3f} | {runs[0]['numba']} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,223 @@
+r"""Linear algebra for covariances: the one home of matrix factorisations.
+
+Every covariance that gaussfuse inverts is factorised here, by Cholesky, and
+used through its factor :math:`L` (:math:`C = L L^\top`): a solve is two
+triangular solves, never an explicit inverse; a quadratic form is the squared
+norm of a whitened vector :math:`L^{-1} x`; a log-determinant is
+:math:`2 \sum \log L_{ii}`. Functions take a single matrix or a stack of them
+(a leading axis), as NumPy's do.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "LOG_2PI", "symmetrize", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
+    "psd_solve", "sqrt_cov", "weighted_mean", "circular_mean", "whiten", "log_density", "observed_gram", "wrap_angle",
+    "wrap_components",
+]
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def symmetrize(cov: np.ndarray) -> np.ndarray:
+    """``(P + Pᵀ) / 2``: removes round-off asymmetry (a stack too)."""
+    return 0.5 * (cov + cov.swapaxes(-1, -2))
+
+
+def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
+    """Lower Cholesky factor of `mat` (or of each of a stack).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When `mat` is not positive definite; the message names `name` and
+        shows the matrix, so that a driver can prefix the time step.
+    """
+    try:
+        return np.linalg.cholesky(mat)
+    except np.linalg.LinAlgError:
+        with np.printoptions(precision=4, threshold=36):
+            shown = np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
+        raise np.linalg.LinAlgError(f"{name} is not positive definite, so it cannot be factorised: {shown}") from None
+
+
+def is_positive_definite(mat: np.ndarray) -> bool:
+    """Whether `mat` (each of a stack) has a Cholesky factor."""
+    try:
+        np.linalg.cholesky(mat)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
+    r"""Lower-triangular L with ``L Lᵀ = cov`` for a positive semi-definite `cov`.
+
+    The Cholesky recursion, column by column, in which a pivot (the variance
+    of component j left after conditioning on components 0..j-1) at most
+    ``n ε cov[j, j]`` is zero: component j is, to round-off, an affine
+    function of the earlier ones, and column j of L is zero. The test is
+    relative to each component's own variance, so it does not depend on
+    units.
+
+    Where ``numpy.linalg.cholesky`` just succeeds or just fails (a pivot at
+    round-off level, of either sign), the two factors differ only in that
+    column, by about the square root of the round-off: sigma points drawn
+    from either agree to second order. (A root from the eigendecomposition
+    would turn every point.) For a positive definite `cov` it is the
+    Cholesky factor.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When `cov` has an eigenvalue below ``-1e-9 λ_max``: it is not
+        positive semi-definite.
+    """
+    vals = np.linalg.eigvalsh(cov)
+    top = max(vals[-1], 0.0)
+    if vals[0] < -1e-9 * max(top, 1e-300):
+        raise np.linalg.LinAlgError(
+            f"the covariance is not positive semi-definite (smallest eigenvalue {vals[0]:.3g}), "
+            "so it has no square root"
+        )
+    n = cov.shape[0]
+    tol = n * np.finfo(np.float64).eps
+    L = np.zeros_like(cov, dtype=np.float64)
+    for j in range(n):
+        pivot = cov[j, j] - L[j, :j] @ L[j, :j]
+        if pivot <= tol * cov[j, j]:
+            continue
+        L[j, j] = np.sqrt(pivot)
+        L[j + 1:, j] = (cov[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
+    return L
+
+
+def sqrt_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The square root that draws sigma points: lower-triangular ``L Lᵀ = cov``, and its nonzero columns.
+
+    Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`.
+
+    Returns
+    -------
+    L : ndarray of shape (n, n)
+    keep : ndarray of bool, shape (n,)
+        The columns of L that are not zero.
+    """
+    try:
+        L = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        L = semidefinite_cholesky(cov)
+        return L, np.diag(L) > 0.0
+    return L, np.ones(cov.shape[0], dtype=bool)
+
+
+def weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``Σ_i w_i values_i`` along axis 0, centred on the first row.
+
+    Computed as ``values_0 + Σ_i w_i (values_i - values_0)``: the plain sum
+    when the weights sum to 1, but exact for a component that is the same
+    at every point. The weights' sum carries round-off, and a constant
+    output must keep a mean equal to it and a spread of exactly 0, so that a
+    state component known exactly stays known exactly.
+    """
+    return values[0] + weights @ (values - values[0])
+
+
+def circular_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted mean of angles along axis 0: ``atan2(Σ w sin, Σ w cos)``."""
+    return np.arctan2(weights @ np.sin(values), weights @ np.cos(values))
+
+
+def whiten(L: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``L⁻¹ x``: a forward (triangular) solve; `x` of shape (k,), (k, r) or a stack of either."""
+    return np.linalg.solve(L, x)
+
+
+def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``C⁻¹ b`` for ``C = L Lᵀ``: two triangular solves, no inverse (stacks broadcast).
+
+    (NumPy's solver on the small triangular factors: SciPy's triangular
+    solvers cost more in call overhead than they save at these sizes.)
+    """
+    return np.linalg.solve(L.swapaxes(-1, -2), np.linalg.solve(L, b))
+
+
+def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular the
+    minimum-norm least-squares solution (exact on the range of C, where B is for a conditional)."""
+    try:
+        return cho_solve(np.linalg.cholesky(C), B)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(C, B, rcond=None)[0]
+
+
+def log_density(white: np.ndarray, L: np.ndarray) -> float | np.ndarray:
+    r"""``log N(x; μ, C)`` from the whitened residual ``L⁻¹ (x - μ)`` and the factor L of C.
+
+    .. math::
+
+        -\tfrac12 \left(\lVert L^{-1} (x - \mu) \rVert^2 + 2 \textstyle\sum_i \log L_{ii}
+        + k \log 2\pi\right),
+
+    with k the dimension; over the last axis of `white` (and the last two of `L`).
+    """
+    k = white.shape[-1]
+    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    return -0.5 * (np.sum(white * white, axis=-1) + logdet + k * LOG_2PI)
+
+
+def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str = "the covariance"):
+    r"""``X_oᵀ S_oo⁻¹ X_o`` and ``log|S_oo|`` at each step, over the observed components o.
+
+    Parameters
+    ----------
+    S : ndarray of shape (T, m, m)
+        Covariances.
+    X : ndarray of shape (T, m, r)
+        Columns to whiten (residuals, sensitivities).
+    observed : ndarray of bool, shape (T, m)
+        The components that count at each step; a step with none gives zeros.
+    name : str
+        What S is, for the error when an observed block is not positive definite.
+
+    Returns
+    -------
+    gram : ndarray of shape (T, r, r)
+    logdet : ndarray of shape (T,)
+
+    Notes
+    -----
+    With :math:`S_{oo} = L L^\top` and :math:`W = L^{-1} X_o`, the gram matrix
+    is :math:`W^\top W`. Steps with every component observed are factorised
+    together, as one stack.
+    """
+    T, r = X.shape[0], X.shape[-1]
+    gram, logdet = np.zeros((T, r, r)), np.zeros(T)
+    full = observed.all(axis=1)
+    if full.any():
+        L = cholesky(S[full], name)
+        W = whiten(L, X[full])
+        gram[full] = W.swapaxes(-1, -2) @ W
+        logdet[full] = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    for t in np.flatnonzero(observed.any(axis=1) & ~full):
+        o = observed[t]
+        L = cholesky(S[t][np.ix_(o, o)], f"at step {t}: {name}")
+        W = whiten(L, X[t][o])
+        gram[t], logdet[t] = W.T @ W, 2.0 * np.sum(np.log(np.diag(L)))
+    return gram, logdet
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap angles in radians to [-π, π)."""
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def wrap_components(diff: np.ndarray, angles: np.ndarray | None) -> np.ndarray:
+    """`diff` with its angle components wrapped (a copy when any are)."""
+    if angles is None or not angles.any():
+        return diff
+    diff = diff.copy()
+    diff[..., angles] = wrap_angle(diff[..., angles])
+    return diff

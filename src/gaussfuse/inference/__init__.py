@@ -1,0 +1,188 @@
+"""Filtering and smoothing: the front functions ``filter()`` and ``smooth()``.
+
+They validate their input (:mod:`~gaussfuse.inference.validation`), pick a
+method from the registry (:mod:`~gaussfuse.inference.registry`) and run it
+over one series or, for a leading series axis, over each series
+(:mod:`~gaussfuse.inference.drivers`; a diffuse prior through
+:mod:`~gaussfuse.inference.diffuse`). The algebra of every step is in
+:mod:`gaussfuse.kalman`.
+"""
+
+from __future__ import annotations
+
+from ..gaussian import Gaussian
+from . import diffuse, drivers
+from .registry import METHODS
+from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
+from .validation import prepare
+
+__all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
+
+
+def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
+           engine: str = "auto", keep: str = "all", **options) -> FilterResult:
+    r"""Filter a series of measurements: the belief about each state given the past.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        The state-space model.
+    prior : Gaussian or "diffuse"
+        Belief about the state one step *before* the first measurement;
+        every step is predict (with ``u_k``), then update (with ``z_k``).
+        ``"diffuse"`` (linear models) makes the first state x₁ diffuse (a
+        flat prior, handled exactly: :mod:`gaussfuse.inference.diffuse`), as Durbin &
+        Koopman, KFAS and statsmodels do, so the transition into x₁ plays no
+        part; beliefs are NaN until the measurements identify the state,
+        and `loglik` is the exact diffuse log-likelihood, equal to theirs
+        for every F.
+    zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
+        Measurements; a NaN component (or a masked entry of a masked array)
+        is missing. A leading axis holds N independent series, and every
+        result then gains that axis.
+    us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
+        Control inputs: required exactly when a LinearModel has ``B``;
+        passed to a NonlinearModel's ``f(x, u_k)`` when given.
+    method : str, optional
+        One of ``METHODS``: ``"kf"`` (the default for a LinearModel) or,
+        for a NonlinearModel, ``"ekf"``, ``"iekf"``, ``"ukf"`` (default),
+        ``"ckf"``, ``"ghkf"`` or ``"iplf"``.
+    **options
+        Method options: ``iterations`` (iekf, iplf: the most update
+        iterations per step, default 50) and ``tol`` (iekf, iplf: default
+        1e-9; see Notes); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0,
+        3 - n); ``order`` (ghkf, iplf: Gauss–Hermite points per axis,
+        default 3). An unknown one is rejected with the list of valid ones.
+    engine : {"auto", "python", "numba"}, default "auto"
+        ``"python"`` is the readable implementation, the specification;
+        ``"numba"`` runs compiled kernels (methods "kf", with series in
+        parallel, and "ukf", "ckf", "ghkf", whose whole loop is compiled when
+        f and h are numba-jitted functions), equal to it to round-off; ``"auto"``
+        compiles when numba is installed and the series have at least
+        1000 steps in all.
+    keep : {"all", "means", "last"}, default "all"
+        What to return per step: everything; the means, predictions and
+        innovations but no covariances; or nothing but the final belief
+        (``last_mean``, ``last_cov``) and the log-likelihood, so memory does
+        not grow with T.
+
+    Returns
+    -------
+    FilterResult
+
+    Raises
+    ------
+    ValueError, TypeError
+        For input that cannot be right, naming the argument: shapes, non-finite
+        model matrices, complex, boolean or datetime values, unknown options.
+        A masked array's masked entries are not an error: they are missing.
+    ModelFunctionError
+        (a ValueError) When f, h or a Jacobian raises, or returns a wrong
+        shape, a non-finite value, or complex or boolean values; the message
+        names the function and the step.
+    numpy.linalg.LinAlgError
+        When an innovation covariance is not positive definite (at step k).
+    FloatingPointError
+        When a step's predicted or filtered mean, covariance or log-likelihood
+        term is not finite: the computation overflowed (say a transition of
+        1e200, or measurements near 1e308). The message names the step ("in
+        series s, at step k" for a batch in the compiled linear engine).
+        Both engines check the same values: the mean, the diagonal of the
+        covariance and the log-likelihood term.
+
+    Warns
+    -----
+    ConvergenceWarning
+        Once per call, when steps of an iterated method made `iterations`
+        passes without meeting `tol`; it says how many.
+
+    Notes
+    -----
+    The iterated methods ("iekf", "iplf") repeat the update of each step:
+    pass i linearises the measurement at the previous posterior mean
+    :math:`x_{i-1}` (:math:`x_0` the prediction :math:`m^-`) and conditions
+    the prediction again, giving :math:`x_i`. They stop after the first pass
+    with
+
+    .. math::
+
+        \lVert x_i - x_{i-1} \rVert_{P^-} =
+        \sqrt{(x_i - x_{i-1})^\top (P^-)^{-1} (x_i - x_{i-1})} \le \mathrm{tol},
+
+    the change in predicted standard deviations (scale-free; on the range of
+    :math:`P^-` when it is singular, and a component changing by no more than
+    its round-off, :math:`4 \varepsilon |x|`, counts as unchanged), or after
+    `iterations` passes. ``tol=0`` makes every step run to a fixed point or
+    the limit. ``FilterResult.iterations`` holds the passes made at each
+    step.
+
+    Examples
+    --------
+    >>> import numpy as np, gaussfuse as gf
+    >>> model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=[[1, 0], [0, 3]], R=10)
+    >>> prior = gf.Gaussian([0, 1], 500 * np.eye(2))
+    >>> res = gf.filter(model, prior, [1, 2, 3, 2, 1])
+    >>> res.means.shape, res.covs.shape
+    ((5, 2), (5, 2, 2))
+    """
+    if keep not in KEEP:
+        raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
+    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options)
+    if prior == "diffuse":
+        result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
+                        for i, z in enumerate(zs)])
+    else:
+        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep)
+    return result if batch else first(result)
+
+
+def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
+           engine: str = "auto", **options) -> SmoothResult:
+    """Smooth a series of measurements: the belief about each state given all of them.
+
+    Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
+    Rauch–Tung–Striebel backward pass (:func:`gaussfuse.kalman.rts_step`):
+    exact for ``"kf"``; with the transition re-linearised at each filtered
+    belief for ``"ekf"``, ``"ukf"``, ``"ckf"`` and ``"ghkf"``. The iterated
+    smoothers ``"iekf"`` and ``"iplf"`` make at most `iterations` passes,
+    each a filter and RTS pass linearised about the previous pass's smoothed
+    trajectory (the first about the iterated filter's), reaching back to the
+    prior's time; they stop after the first pass in which no smoothed mean
+    moved by more than `tol`, measured as in :func:`filter` (Notes) in the
+    pass's predicted covariance of its step (the prior's at time 0). Their
+    ``.filtered`` is the iterated filter, and ``.iterations`` the passes made.
+
+    Returns
+    -------
+    SmoothResult
+        ``.means`` (T, n), ``.covs`` (T, n, n), ``.gains`` (T-1, n, n) and
+        ``.filtered``, the forward pass.
+
+    Raises
+    ------
+    ValueError, TypeError, ModelFunctionError, numpy.linalg.LinAlgError, FloatingPointError
+        As :func:`filter`; FloatingPointError also when a smoothed mean or
+        covariance is not finite (at step k, the latest one of the backward
+        pass).
+
+    Warns
+    -----
+    ConvergenceWarning
+        Once per call, when the iterated filter's steps or the smoother's
+        passes stopped at `iterations` without meeting `tol`.
+
+    Examples
+    --------
+    >>> import numpy as np, gaussfuse as gf
+    >>> model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=[[1, 0], [0, 3]], R=10)
+    >>> sm = gf.smooth(model, gf.Gaussian([0, 1], 500 * np.eye(2)), [1, 2, 3, 2, 1])
+    >>> sm.means.shape, sm.filtered.means.shape
+    ((5, 2), (5, 2))
+    """
+    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options)
+    if prior == "diffuse":
+        result = stack([diffuse.diffuse_smooth(model, z, None if us is None else us[i], engine)
+                        for i, z in enumerate(zs)])
+    else:
+        result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine)
+    return result if batch else first(result)

@@ -1,0 +1,263 @@
+"""The drivers: run a method over series, on the readable path or a compiled engine.
+
+The readable path is a loop of :func:`gaussfuse.kalman.step` (forward) and
+:func:`gaussfuse.kalman.rts_step` (backward) over one series, through the
+method's linearisation strategy; the compiled engines
+(:mod:`gaussfuse._kernels`) run the same equations over a batch of series.
+:func:`filter_batch` and :func:`smooth_batch` pick the engine and return
+results with a leading series axis.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import warnings
+
+import numpy as np
+
+from .. import kalman
+from .._linalg import wrap_components
+from ..errors import ConvergenceWarning, ModelFunctionError
+from ..gaussian import Gaussian
+from ..linearize import Nominal
+from .registry import METHODS, Method, linearisation
+from .results import FilterResult, SmoothResult, stack
+
+__all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine"]
+
+ENGINES = ("auto", "python", "numba")
+AUTO_NUMBA_STEPS = 1000  # "auto" compiles from this many steps (all series together) on
+
+_STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
+
+
+def _at_step(exc: Exception, k: int) -> Exception:
+    """`exc` with the step it happened at in front of its message."""
+    return type(exc)(f"at step {k}: {exc}")
+
+
+def _angles(model):
+    """The model's angle masks, None where it has none (so that nothing is wrapped)."""
+    out = []
+    for name in ("state_angles", "measurement_angles"):
+        mask = getattr(model, name, None)
+        out.append(mask if mask is not None and mask.any() else None)
+    return out
+
+
+# ---------------------------------------------------------------------------
+# The readable path: one series
+# ---------------------------------------------------------------------------
+
+
+def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol: float | None = None,
+               state_angles=None, measurement_angles=None, keep: str = "all") -> tuple[FilterResult, int]:
+    """Filter one series (T, m): :func:`gaussfuse.kalman.step` at each step, through the strategy `lin`.
+
+    Returns the result and the number of steps whose iterated update made
+    `iterations` passes without meeting `tol`. `keep` is one of
+    :data:`gaussfuse.inference.results.KEEP`.
+    """
+    T, n, m = zs.shape[0], prior.dim, zs.shape[1]
+    rows = 0 if keep == "last" else T
+    crows = T if keep == "all" else 0
+    means, covs = np.empty((rows, n)), np.empty((crows, n, n))
+    pmeans, pcovs = np.empty((rows, n)), np.empty((crows, n, n))
+    innov, icovs = np.empty((rows, m)), np.empty((crows, m, m))
+    used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
+    unconverged, loglik = 0, 0.0
+    mean, cov = prior.mean, prior.cov
+    k = 0
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step
+            for k in range(T):
+                st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles)
+                post = st.update
+                mean, cov = post.mean, post.cov
+                if rows:
+                    pmeans[k], means[k], innov[k] = st.predicted_mean, mean, post.innovation
+                    if used.shape[0]:
+                        used[k] = st.passes
+                if crows:
+                    pcovs[k], covs[k], icovs[k] = st.predicted_cov, cov, post.innovation_cov
+                loglik += post.loglik
+                unconverged += not st.converged
+    except _STEP_ERRORS as exc:
+        raise _at_step(exc, k) from exc
+    per_step = (means, covs, pmeans, pcovs, innov, icovs)
+    result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean, cov,
+                          used if used.shape[0] else None)
+    return result, unconverged
+
+
+def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
+                 state_angles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The RTS backward pass over a filtered series, with transitions from `lin`.
+
+    The transition out of each filtered belief is re-linearised at that
+    belief (for sigma-point smoothers: points re-drawn from ``(m_k, P_k)``),
+    so ``A``, the prediction and the cross-covariance ``P_k Aᵀ`` agree. With
+    `prior`, the pass continues back to the prior's time.
+
+    Returns
+    -------
+    means : ndarray of shape (T, n), or (T + 1, n) with `prior`
+    covs : ndarray of shape (T, n, n), or (T + 1, n, n) with `prior`
+    gains : ndarray of shape (T - 1, n, n), or (T, n, n) with `prior`
+    """
+    means, covs = filt.means, filt.covs
+    first = 1
+    if prior is not None:
+        means = np.concatenate([prior.mean[None], means])
+        covs = np.concatenate([prior.cov[None], covs])
+        first = 0
+    sm_means, sm_covs = means.copy(), covs.copy()
+    gains = np.empty((max(means.shape[0] - 1, 0), *covs.shape[1:]))
+    j = means.shape[0] - 2
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            for j in range(means.shape[0] - 2, -1, -1):
+                A, b, Q = lin.transition(j + first, means[j], covs[j])
+                pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)
+                sm_means[j], sm_covs[j], gains[j] = kalman.rts_step(
+                    means[j], covs[j], wrap_components(pred_mean, state_angles), pred_cov,
+                    sm_means[j + 1], sm_covs[j + 1], covs[j] @ A.T, angles=state_angles,
+                )
+                sm_means[j] = wrap_components(sm_means[j], state_angles)
+                kalman.check_finite("smoothed", sm_means[j], sm_covs[j])
+    except _STEP_ERRORS as exc:
+        raise _at_step(exc, j + first) from exc
+    return sm_means, sm_covs, gains
+
+
+def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all") -> tuple[FilterResult, int]:
+    """The filter for one series, and how many of its steps stopped at the iteration limit."""
+    lin, iterations, tol = linearisation(spec, model, us, options)
+    xa, za = _angles(model)
+    return run_filter(lin, prior, zs, iterations=iterations, tol=tol, state_angles=xa, measurement_angles=za,
+                      keep=keep)
+
+
+def _method_smooth(spec: Method, model, prior, zs, us, options,
+                   to_prior: bool = False) -> tuple[SmoothResult, int, bool]:
+    """The smoother for one series; its filter's steps at the iteration limit; whether its passes were.
+
+    With `to_prior`, the smoothed beliefs and gains start at the prior's
+    time 0 (T + 1 beliefs, T gains).
+    """
+    filt, unconverged = _method_filter(spec, model, prior, zs, us, options)
+    lin, passes, tol = linearisation(spec, model, us, options)
+    xa, za = _angles(model)
+    if not spec.iterated:
+        means, covs, gains = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa)
+        return SmoothResult(means, covs, gains, filt), unconverged, False
+    # Iterated smoothers: each pass linearises about the previous pass's smoothed
+    # trajectory (the first about the iterated filter's), from the prior's time on,
+    # until the trajectory moves by at most `tol` (in the pass's predicted covariances).
+    means = np.concatenate([prior.mean[None], filt.means])
+    covs = np.concatenate([prior.cov[None], filt.covs])
+    converged = False
+    for used in range(1, passes + 1):
+        nominal = Nominal(lin, means, covs)
+        last = run_filter(nominal, prior, zs, state_angles=xa, measurement_angles=za)[0]
+        new_means, covs, gains = run_smoother(nominal, last, prior, state_angles=xa)
+        norms = (prior.cov, *last.predicted_covs)
+        change = max(kalman.iterate_changed(P)(new, old, xa) for P, new, old in zip(norms, new_means, means))
+        means = new_means
+        if change <= tol:
+            converged = True
+            break
+    first = 0 if to_prior else 1
+    return SmoothResult(means[first:], covs[first:], gains[first:], filt, used), unconverged, not converged
+
+
+def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes: int = 0,
+                      series: int = 1) -> None:
+    """One ConvergenceWarning for a call: the steps (and smoother passes) that stopped at the limit."""
+    if not steps and not passes:
+        return
+    limit, tol = options["iterations"], options["tol"]
+    what = []
+    if steps:
+        what.append(f"{steps} of {total} steps of the filter made {limit} iterations")
+    if passes:
+        where = f" in {passes} of {series} series" if series > 1 else ""
+        what.append(f"the smoother made {limit} passes{where}")
+    warnings.warn(
+        f"method {spec.name!r}: {' and '.join(what)} (the limit, `iterations`={limit}) without the change "
+        f"falling to `tol`={tol:g}; raise `iterations` or `tol`, or check the model.",
+        ConvergenceWarning, stacklevel=4,
+    )
+
+
+# ---------------------------------------------------------------------------
+# Batches of series, and the choice of engine
+# ---------------------------------------------------------------------------
+
+
+def compiled_engine(spec: Method, engine: str, steps: int):
+    """The compiled module to run `steps` steps (all series together) with, or None for the readable path.
+
+    Raises
+    ------
+    ValueError
+        For an unknown `engine`, or ``engine="numba"`` where it cannot run.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
+    if engine == "python" or (engine == "auto" and steps < AUTO_NUMBA_STEPS):
+        return None
+    available = importlib.util.find_spec("numba") is not None
+    if engine == "numba":
+        if spec.compiled is None:
+            fits = sorted(k for k, v in METHODS.items() if v.compiled)
+            raise ValueError(f"`engine='numba'` is not available for method {spec.name!r}; it is for {fits}.")
+        if not available:
+            raise ValueError("`engine='numba'` needs numba: pip install numba.")
+    if spec.compiled is None or not available:
+        return None
+    return importlib.import_module(f".._kernels.{spec.compiled}", __package__)
+
+
+def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
+                 keep: str) -> FilterResult:
+    """Filter N series `zs` (N, T, m), with controls `us` (N, T, p) or None; the result has the N axis."""
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1])
+    if compiled is not None:
+        lin = linearisation(spec, model, None, options)[0]
+        return compiled.filter(lin, model, prior, zs, us, keep)
+    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep)
+            for i, z in enumerate(zs)]
+    if spec.iterated:
+        _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
+    return stack([r[0] for r in runs])
+
+
+def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
+                 to_prior: bool = False) -> SmoothResult:
+    """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1])
+    if compiled is not None:
+        lin = linearisation(spec, model, None, options)[0]
+        result = compiled.smooth(lin, model, prior, zs, us)
+        return _back_to_prior(model, prior, result) if to_prior else result
+    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior)
+            for i, z in enumerate(zs)]
+    if spec.iterated:
+        _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],
+                          passes=sum(r[2] for r in runs), series=zs.shape[0])
+    return stack([r[0] for r in runs])
+
+
+def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
+    """A compiled linear smoother's result, continued one RTS step back to the prior's time 0."""
+    F = model.at(0)[0]
+    filt = sm.filtered
+    out = [], [], []
+    for i in range(sm.means.shape[0]):
+        m0, P0, G0 = kalman.rts_step(prior.mean, prior.cov, filt.predicted_means[i, 0], filt.predicted_covs[i, 0],
+                                     sm.means[i, 0], sm.covs[i, 0], prior.cov @ F.T)
+        for acc, first, rest in zip(out, (m0, P0, G0), (sm.means[i], sm.covs[i], sm.gains[i])):
+            acc.append(np.concatenate([first[None], rest]))
+    return SmoothResult(*(np.stack(a) for a in out), filt, sm.iterations)

@@ -1,0 +1,166 @@
+"""The results of the filters and smoothers, and what every engine does to them.
+
+Only NumPy and the Gaussian type are used here, so that the compiled kernels
+can build these results too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from .._frozen import reduce_frozen
+from ..errors import not_finite
+from ..gaussian import Gaussian
+
+__all__ = ["FilterResult", "SmoothResult", "KEEP", "stack", "first", "kept", "check_smoothed"]
+
+KEEP = ("all", "means", "last")
+"""What :func:`gaussfuse.filter` can keep per step: everything, no covariances, or only the final belief."""
+
+
+@dataclass(frozen=True, eq=False)
+class FilterResult:
+    """The output of :func:`filter`.
+
+    With a leading series axis on the measurements (N series), every array
+    gains that axis and `loglik` has shape (N,).
+
+    Attributes
+    ----------
+    means : ndarray of shape (T, n)
+        Filtered means ``E[x_k | z_1..z_k]``.
+    covs : ndarray of shape (T, n, n)
+        Filtered covariances.
+    predicted_means : ndarray of shape (T, n)
+        One-step predictions ``E[x_k | z_1..z_{k-1}]``.
+    predicted_covs : ndarray of shape (T, n, n)
+        Covariances of the predictions.
+    innovations : ndarray of shape (T, m)
+        ``z_k - E[z_k | z_1..z_{k-1}]``; NaN where ``z_k`` is missing.
+    innovation_covs : ndarray of shape (T, m, m)
+        Covariances of the predicted measurements.
+    loglik : float
+        ``log p(z_1..z_T)`` over the observed components, including the
+        ``-m/2 log 2π`` constants.
+    last_mean : ndarray of shape (n,)
+        The final filtered mean (the belief to continue from).
+    last_cov : ndarray of shape (n, n)
+        The final filtered covariance.
+    iterations : ndarray of int, shape (T,), or None
+        For the iterated methods ("iekf", "iplf"): the number of
+        linearise-and-update passes made at each step, at most the option
+        `iterations` (see `tol` in :func:`filter`). None for the other
+        methods.
+
+    Notes
+    -----
+    With ``keep="means"`` the covariance fields are None; with
+    ``keep="last"`` every per-step field (`iterations` too) is None, so that
+    a long series filters in memory independent of its length.
+    """
+
+    means: np.ndarray | None
+    covs: np.ndarray | None
+    predicted_means: np.ndarray | None
+    predicted_covs: np.ndarray | None
+    innovations: np.ndarray | None
+    innovation_covs: np.ndarray | None
+    loglik: float | np.ndarray
+    last_mean: np.ndarray
+    last_cov: np.ndarray
+    iterations: np.ndarray | None = None
+
+    __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
+
+    @property
+    def last(self) -> Gaussian:
+        """The final filtered belief, to continue filtering from (one series only)."""
+        if self.last_mean.ndim != 1:
+            raise ValueError("`last` is for one series; use `last_mean` and `last_cov` for a batch.")
+        return Gaussian(self.last_mean, self.last_cov)
+
+
+@dataclass(frozen=True, eq=False)
+class SmoothResult:
+    """The output of :func:`smooth`.
+
+    Attributes
+    ----------
+    means : ndarray of shape (T, n)
+        Smoothed means ``E[x_k | z_1..z_T]``.
+    covs : ndarray of shape (T, n, n)
+        Smoothed covariances.
+    gains : ndarray of shape (T - 1, n, n)
+        Smoother gains ``G_k``, k = 0..T-2.
+    filtered : FilterResult
+        The forward pass.
+    iterations : int or None
+        For the iterated smoothers ("iekf", "iplf"): the number of passes
+        made, at most the option `iterations` (see `tol` in :func:`smooth`).
+        None for the other methods.
+    """
+
+    means: np.ndarray
+    covs: np.ndarray
+    gains: np.ndarray
+    filtered: FilterResult
+    iterations: int | np.ndarray | None = None
+
+    __reduce__ = reduce_frozen
+
+    @property
+    def loglik(self) -> float | np.ndarray:
+        """The log-likelihood of the measurements (from the forward pass)."""
+        return self.filtered.loglik
+
+
+def stack(results: list):
+    """Stack per-series results along a new leading axis."""
+    cls = type(results[0])
+    values = {}
+    for f in fields(cls):
+        items = [getattr(r, f.name) for r in results]
+        if f.name == "filtered":
+            values[f.name] = stack(items)
+        else:
+            values[f.name] = None if items[0] is None else np.stack(items)
+    return cls(**values)
+
+
+def first(result):
+    """The only series of a batched result, without the leading axis."""
+    values = {}
+    for f in fields(type(result)):
+        item = getattr(result, f.name)
+        if f.name == "filtered":
+            values[f.name] = first(item)
+        elif f.name == "loglik":
+            values[f.name] = float(item[0])
+        elif f.name == "iterations" and np.ndim(item) == 1 and isinstance(result, SmoothResult):
+            values[f.name] = int(item[0])
+        else:
+            values[f.name] = None if item is None else item[0]
+    return type(result)(**values)
+
+
+def kept(result: FilterResult, keep: str) -> FilterResult:
+    """Drop what `keep` does not ask for from a full single-series result."""
+    drop = {"all": (), "means": ("covs", "predicted_covs", "innovation_covs"),
+            "last": ("means", "covs", "predicted_means", "predicted_covs", "innovations",
+                     "innovation_covs", "iterations")}[keep]
+    return replace(result, **dict.fromkeys(drop))
+
+
+def check_smoothed(means: np.ndarray, covs: np.ndarray) -> None:
+    """Raise FloatingPointError for a smoothed belief (N, T, n) of a compiled engine that is not finite.
+
+    Names the step the readable backward pass would have stopped at: in the
+    first series that overflowed, the latest step.
+    """
+    bad = ~(np.isfinite(means).all(axis=-1) & np.isfinite(np.diagonal(covs, axis1=-2, axis2=-1)).all(axis=-1))
+    if bad.any():
+        s = int(np.flatnonzero(bad.any(axis=1))[0])
+        where = f"in series {s}, " if means.shape[0] > 1 else ""
+        raise FloatingPointError(f"{where}at step {int(np.flatnonzero(bad[s])[-1])}: {not_finite('smoothed')}")

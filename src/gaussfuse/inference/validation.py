@@ -1,0 +1,100 @@
+"""Validators of the filters' and smoothers' input: each checks a value and hands it back.
+
+Messages name the argument in backticks, the expected shape and what was
+given (:func:`gaussfuse._validation.shape_error`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import as_array, shape_error
+from ..gaussian import Gaussian
+from ..models.linear import LinearModel
+from .registry import resolve_method
+
+__all__ = ["check_prior", "check_measurements", "check_controls", "check_steps", "prepare"]
+
+
+def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
+    """Check that `prior` is a Gaussian over the n-dimensional state (or "diffuse", where allowed)."""
+    if diffuse_ok and isinstance(prior, str) and prior == "diffuse":
+        return prior
+    if not isinstance(prior, Gaussian):
+        also = " or 'diffuse'" if diffuse_ok else ""
+        shown = repr(prior) if isinstance(prior, str) else type(prior).__name__
+        raise TypeError(
+            f"`prior` must be a gaussfuse.Gaussian(mean, cov){also}; got {shown}."
+        )
+    if prior.dim != n:
+        raise ValueError(f"`prior` must have dimension {n} (the model's state); got {prior.dim}.")
+    return prior
+
+
+def check_measurements(zs, m: int) -> np.ndarray:
+    """Return `zs` as an array (N, T, m); NaN (or a masked entry of a masked array) marks a missing component."""
+    try:
+        kind = np.asarray(zs).dtype.kind
+    except ValueError:  # ragged: as_array says so
+        kind = None
+    if kind in ("M", "m"):
+        raise TypeError(f"`zs` must be an array of numbers; got {np.asarray(zs).dtype} values: "
+                        "datetimes are not measurements.")
+    arr = as_array("zs", zs, allow_nan=True, copy=False)
+    given = arr.shape
+    if arr.ndim == 1 and m == 1:
+        arr = arr[:, None]
+    if arr.ndim == 2 and arr.shape[1] == m:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0 or arr.shape[0] == 0:
+        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1 and N >= 1"
+        raise shape_error("zs", expected, given)
+    return arr
+
+
+def check_controls(us, model, N: int, T: int) -> np.ndarray | None:
+    """Return `us` as an array (N, T, p), or None when there are no controls.
+
+    A LinearModel needs controls exactly when it has ``B``; for a
+    NonlinearModel they are optional and passed to ``f(x, u)``.
+    """
+    p = model.p if isinstance(model, LinearModel) else None
+    if p == 0 and us is not None:
+        raise ValueError("`us` was given but the model has no control input; give the model `B`.")
+    if us is None:
+        if p:
+            raise ValueError(f"`us` is required: the model has a control input with p = {p}.")
+        return None
+    arr = as_array("us", us)
+    if arr.ndim == 1 and p in (1, None):
+        arr = arr[:, None]
+    if arr.ndim == 2:
+        arr = arr[None]
+    shown = "p" if p is None else p
+    if arr.ndim != 3 or arr.shape[1] != T or (p is not None and arr.shape[2] != p) \
+            or arr.shape[0] not in (1, N):
+        raise shape_error("us", f"(T, p) = ({T}, {shown}) or ({N}, {T}, {shown}), matching `zs`",
+                          np.shape(us))
+    return np.broadcast_to(arr, (N, *arr.shape[1:]))
+
+
+def check_steps(model, T: int) -> None:
+    steps = getattr(model, "steps", None)
+    if steps is not None and steps != T:
+        raise ValueError(
+            f"the model is time-varying over {steps} steps but `zs` has {T} steps; they must agree."
+        )
+
+
+def prepare(model, prior, zs, us, method, options):
+    spec, options = resolve_method(model, method, options)
+    prior = check_prior(prior, model.n, diffuse_ok=spec.name == "kf")
+    checked = check_measurements(zs, model.m)
+    batch = np.ndim(zs) == 3  # only after the check: a ragged `zs` must not reach NumPy
+    zs = checked
+    N, T = zs.shape[:2]
+    check_steps(model, T)
+    us = check_controls(us, model, N, T)
+    return spec, options, prior, zs, us, batch
+
+

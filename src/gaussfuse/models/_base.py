@@ -1,0 +1,73 @@
+"""What motion and sensor models share: the immutable base and the validators of their settings."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state"]
+
+def check_dim(value) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 3:
+        raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
+    return int(value)
+
+
+def check_noise_kind(value) -> str:
+    if not isinstance(value, str) or value not in ("continuous", "piecewise"):
+        raise ValueError(f"`noise` must be 'continuous' or 'piecewise'; got {value!r}.")
+    return value
+
+
+def check_names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
+    """A tuple of n strings (component names), or `default` for None."""
+    if value is None:
+        return default
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
+    names = tuple(value)
+    if not all(isinstance(s, str) for s in names):
+        raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
+    if len(names) != n:
+        raise ValueError(f"`names` must have {n} entries, one per component; got {len(names)}.")
+    return names
+
+
+def check_state(x, n: int, name: str = "x") -> np.ndarray:
+    """`x` as an array of shape (n,) or (k, n), real or complex (for complex-step derivatives)."""
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "biufc" or arr.dtype.kind == "b":
+        raise TypeError(f"`{name}` must be an array of numbers; got {arr.dtype} values.")
+    if arr.ndim not in (1, 2) or arr.shape[-1] != n:
+        raise ValueError(f"`{name}` must have shape ({n},) or (k, {n}); got shape {arr.shape}.")
+    if arr.dtype.kind in "iu":
+        arr = arr.astype(np.float64)
+    return arr
+
+
+class Frozen:
+    """Immutable value: slots set once in ``__init__`` through `_set`; pickles by its arguments."""
+
+    __slots__ = ()
+
+    def _set(self, **values) -> None:
+        for name, value in values.items():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
+
+    def __delattr__(self, name):
+        raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
+
+    def _fields(self) -> tuple[str, ...]:
+        """The constructor's arguments, in order: the slots of the class and its bases."""
+        return tuple(s for cls in reversed(type(self).__mro__) for s in cls.__dict__.get("__slots__", ()))
+
+    def __reduce__(self):
+        return type(self), tuple(getattr(self, s) for s in self._fields())
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{s}={getattr(self, s)!r}" for s in self._fields())
+        return f"{type(self).__name__}({args})"

@@ -1,0 +1,110 @@
+"""The linear algebra of covariances: factorisations, solves, log-densities, angles."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+import _oracle
+from gaussfuse import _linalg
+
+
+def test_cholesky_names_the_matrix():
+    with pytest.raises(np.linalg.LinAlgError, match=r"^`P` is not positive definite"):
+        _linalg.cholesky(np.array([[1.0, 2.0], [2.0, 1.0]]), "`P`")
+    L = _linalg.cholesky(np.array([[4.0, 2.0], [2.0, 5.0]]), "`P`")
+    np.testing.assert_allclose(L @ L.T, [[4.0, 2.0], [2.0, 5.0]], rtol=1e-15)
+
+
+# ---------------------------------------------------------------------------
+# predict
+# ---------------------------------------------------------------------------
+
+
+# ---------------------------------------------------------------------------
+# semidefinite_cholesky
+# ---------------------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 4), rank=st.integers(0, 4))
+def test_semidefinite_cholesky(seed, n, rank):
+    """L Lᵀ = cov, lower triangular, a column of round-off at most for each component that depends on earlier ones.
+
+    A pivot of exactly 0 gives a zero column; one of round-off may stay, at
+    about its square root (1e-7 here), which is harmless (see the next test).
+    """
+    rng = np.random.default_rng(seed)
+    B = rng.standard_normal((n, min(rank, n)))
+    cov = B @ B.T
+    L = _linalg.semidefinite_cholesky(cov)
+    np.testing.assert_array_equal(L, np.tril(L))
+    np.testing.assert_allclose(L @ L.T, cov, atol=1e-12 * max(1.0, np.abs(cov).max()))
+    assert np.count_nonzero(np.diag(L) > 1e-6 * np.sqrt(np.diag(cov))) == min(rank, n)
+    exact = np.diag(np.arange(n) % 2 * 1.0)  # every other component known exactly: exact zero columns
+    np.testing.assert_array_equal(np.diag(_linalg.semidefinite_cholesky(exact)) > 0, np.diag(exact) > 0)
+    # On a positive definite matrix it is the Cholesky factor.
+    spd = cov + np.eye(n)
+    np.testing.assert_allclose(_linalg.semidefinite_cholesky(spd), np.linalg.cholesky(spd), rtol=1e-12, atol=1e-12)
+
+
+def test_semidefinite_cholesky_is_continuous_at_a_round_off_pivot():
+    """A pivot of round-off, of either sign, moves one column by about its square root: nothing else."""
+    base = np.array([[4.0, 2.0, 1.0], [2.0, 1.0, 0.5], [1.0, 0.5, 3.0]])  # x1 = x0 / 2: pivot 0
+    for pivot in (0.0, -1e-16, 1e-16):
+        cov = base.copy()
+        cov[1, 1] += pivot
+        try:
+            L = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            L = _linalg.semidefinite_cholesky(cov)
+        np.testing.assert_allclose(np.delete(L, 1, axis=1), np.delete(_linalg.semidefinite_cholesky(base), 1, axis=1),
+                                   atol=1e-15)
+        assert L[1, 1] < 1e-7 and np.all(np.abs(L[:, 1]) < 1e-7)
+    with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
+        _linalg.semidefinite_cholesky(np.array([[1.0, 2.0], [2.0, 1.0]]))
+
+
+def test_log_density_equals_scipy():
+    rng = np.random.default_rng(1)
+    C = _oracle.random_spd(rng, 3)
+    mean, x = rng.normal(size=3), rng.normal(size=(4, 3))
+    L = _linalg.cholesky(C)
+    got = _linalg.log_density(_linalg.whiten(L, (x - mean).T).T, L)
+    np.testing.assert_allclose(got, stats.multivariate_normal(mean, C).logpdf(x), rtol=1e-12)
+
+
+def test_cho_solve_and_psd_solve():
+    rng = np.random.default_rng(2)
+    C, B = _oracle.random_spd(rng, 4), rng.normal(size=(4, 2))
+    np.testing.assert_allclose(C @ _linalg.cho_solve(_linalg.cholesky(C), B), B, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(_linalg.psd_solve(C, B), np.linalg.solve(C, B), rtol=1e-10)
+    stack = np.stack([C, 2 * C])
+    np.testing.assert_allclose(_linalg.cho_solve(_linalg.cholesky(stack), B), np.linalg.solve(stack, B), rtol=1e-10)
+    # singular: the minimum-norm solution on the range
+    S = np.diag([2.0, 0.0])
+    np.testing.assert_allclose(_linalg.psd_solve(S, np.array([[4.0], [0.0]])), [[2.0], [0.0]])
+
+
+def test_observed_gram_over_the_observed_components():
+    rng = np.random.default_rng(3)
+    S = np.stack([_oracle.random_spd(rng, 3) for _ in range(3)])
+    X = rng.normal(size=(3, 3, 2))
+    observed = np.array([[True, True, True], [True, False, True], [False, False, False]])
+    gram, logdet = _linalg.observed_gram(S, X, observed)
+    np.testing.assert_allclose(gram[0], X[0].T @ np.linalg.solve(S[0], X[0]), rtol=1e-10)
+    o = observed[1]
+    np.testing.assert_allclose(gram[1], X[1][o].T @ np.linalg.solve(S[1][np.ix_(o, o)], X[1][o]), rtol=1e-10)
+    np.testing.assert_array_equal(gram[2], 0.0)
+    np.testing.assert_allclose(logdet[:2], [np.linalg.slogdet(S[0])[1], np.linalg.slogdet(S[1][np.ix_(o, o)])[1]])
+    with pytest.raises(np.linalg.LinAlgError, match="at step 1: S is not positive definite"):
+        bad = S.copy()
+        bad[1] = -np.eye(3)
+        _linalg.observed_gram(bad, X, observed, "S")
+
+
+def test_wrap_angle_and_circular_mean():
+    np.testing.assert_allclose(_linalg.wrap_angle(np.array([np.pi, -np.pi, 3 * np.pi / 2])), [-np.pi, -np.pi, -np.pi / 2])
+    mean = _linalg.circular_mean(np.array([[np.pi - 0.1], [-np.pi + 0.1]]), np.array([0.5, 0.5]))
+    assert abs(abs(mean[0]) - np.pi) < 1e-12  # the mean of 179° and -179° is 180°, not 0°
