@@ -1,6 +1,6 @@
 """Side-by-side benchmarks of gaussfuse against filterpy, pykalman, simdkalman and statsmodels.
 
-    python benchmarks/run.py [--quick] [--only W1,W2] [--skip pykalman] [--out benchmarks/results.md]
+    python benchmarks/run.py [--quick] [--only W1,W5] [--skip pykalman] [--out benchmarks/results.md]
 
 Every library runs on identical inputs; its results are checked against
 gaussfuse (relative difference <= 1e-8, see README.md) and the script exits
@@ -352,24 +352,25 @@ def main(argv=None) -> int:
     all_rows, descriptions, failed = [], [], not (kf_ok and ukf_ok)
     for key in keys:
         engine = "numba" if (ukf_ok if key == "W4" else kf_ok) else "python"
-        wl = workloads.BUILDERS[key](sizes, avail, engine)
-        descriptions.append(f"- **{wl.key}** ({wl.title}): {wl.description}.")
-        rows = run_workload(wl, sizes)
-        for row in rows:
-            entry = row.entry
-            status = row.error or (f"{fmt_speed(row.speed)} steps/s (best of {row.runs}); "
-                                   f"diff means {fmt_diff(row, 'means')}, covs {fmt_diff(row, 'covs')}"
-                                   + (f"; PROBLEM: {row.problem}" if row.problem else ""))
-            print(f"  {key} {entry.label}: {status}", file=sys.stderr, flush=True)
-        assess(wl, rows, engine == "numba", args.quick)
-        failed |= not all(r.ok for r in rows)
-        all_rows += rows
+        built = workloads.BUILDERS[key](sizes, avail, engine)
+        for wl in built if isinstance(built, list) else [built]:  # W5: one workload per state dimension
+            descriptions.append(f"- **{wl.key}** ({wl.title}): {wl.description}.")
+            rows = run_workload(wl, sizes)
+            for row in rows:
+                entry = row.entry
+                status = row.error or (f"{fmt_speed(row.speed)} steps/s (best of {row.runs}); "
+                                       f"diff means {fmt_diff(row, 'means')}, covs {fmt_diff(row, 'covs')}"
+                                       + (f"; PROBLEM: {row.problem}" if row.problem else ""))
+                print(f"  {wl.key} {entry.label}: {status}", file=sys.stderr, flush=True)
+            assess(wl, rows, engine == "numba", args.quick)
+            failed |= not all(r.ok for r in rows)
+            all_rows += rows
 
     body = ["## Results", "",
             "steps/s: measurement steps per second (W2: series x steps), best of up to "
             f"{sizes.repeats} timed runs (fewer when the runs took over {sizes.budget:g} s), "
             "after one untimed warm-up call on a small input; the runs of a workload's entries "
-            "are interleaved (one of each per round). Ratio: W1-W3, gaussfuse's "
+            "are interleaved (one of each per round). Ratio: W1-W3 and W5, gaussfuse's "
             "engine=\"numba\" row ÷ this row; W4, this row ÷ filterpy. Differences are against "
             f"gaussfuse on the same input (relative = max abs diff ÷ max abs value; must be <= {RTOL:g}).",
             "", *table(all_rows), "", "Workloads:", "", *descriptions, "",

@@ -52,6 +52,8 @@ class Sizes:
     T_batch: int         # W2 steps per series
     N_subset: int        # W2 series for the per-series loops (filterpy, statsmodels, python)
     T_ukf: int           # W4 steps
+    T_large: dict        # W5 steps of the series of each state dimension n
+    prefix_large: int    # W5 steps for the readable path
     warmup: int          # warm-up input size (steps, or series for W2)
     repeats: int         # best of this many timed runs ...
     budget: float        # ... unless the runs so far took this many seconds
@@ -59,9 +61,11 @@ class Sizes:
 
 FULL = Sizes(T_long=200_000, prefix_slow=20_000, prefix_medium=50_000,
              N_batch=2_000, T_batch=200, N_subset=200, T_ukf=5_000,
+             T_large={2: 20_000, 8: 10_000, 32: 3_000, 64: 1_000, 128: 500}, prefix_large=500,
              warmup=20, repeats=5, budget=8.0)
 QUICK = Sizes(T_long=3_000, prefix_slow=300, prefix_medium=1_000,
               N_batch=40, T_batch=50, N_subset=8, T_ukf=200,
+              T_large={2: 200, 8: 200, 32: 50, 64: 20, 128: 10}, prefix_large=10,
               warmup=5, repeats=2, budget=0.5)
 
 
@@ -528,9 +532,59 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
         peer="filterpy UnscentedKalmanFilter.batch_filter" if avail["filterpy"] else None)
 
 
+# ---------------------------------------------------------------------------
+# W5: large states, filter
+# ---------------------------------------------------------------------------
+
+W5_DIMENSIONS = (2, 8, 32, 64, 128)
+
+
+def random_linear_model(n: int, rng: np.random.Generator) -> gf.LinearModel:
+    """n states, m = n/2 measurements: a random stable F, random SPD Q and R, a random H."""
+    m = max(n // 2, 1)
+    A = rng.standard_normal((n, n))
+    F = 0.95 * A / np.max(np.abs(np.linalg.eigvals(A)))  # spectral radius 0.95
+    B = rng.standard_normal((n, n))
+    C = rng.standard_normal((m, m))
+    Q = B @ B.T / n + 0.1 * np.eye(n)
+    R = C @ C.T / m + 0.1 * np.eye(m)
+    H = rng.standard_normal((m, n)) / np.sqrt(n)
+    return gf.LinearModel(F, H, Q, R)
+
+
+def w5(sizes: Sizes, avail: dict[str, bool], engine: str) -> list[Workload]:
+    """One workload per state dimension n: the same model, prior and series for every library."""
+    out = []
+    for n in W5_DIMENSIONS:
+        rng = np.random.default_rng(500 + n)
+        model = random_linear_model(n, rng)
+        prior = gf.Gaussian(np.zeros(n), np.eye(n))
+        T = sizes.T_large[n]
+        _, zs = simulate_linear(model.F, model.H, model.Q, model.R, prior.mean, T, rng)
+        fast = engine == "numba"
+        nP = min(sizes.prefix_large, T)
+        E = [Entry(f"gaussfuse engine=\"{engine}\"", "gaussfuse", gaussfuse_linear(model, prior, zs, engine),
+                   T if fast else nP, T if fast else nP, compiled=fast, note="" if fast else "prefix")]
+        if fast:
+            E.append(Entry("gaussfuse engine=\"auto\"", "gaussfuse", gaussfuse_linear(model, prior, zs, "auto"), T, T))
+            E.append(Entry("gaussfuse engine=\"python\"", "gaussfuse", gaussfuse_linear(model, prior, zs, "python"),
+                           nP, nP, note="prefix"))
+        if avail["statsmodels"]:
+            E.append(Entry("statsmodels KalmanSmoother.filter (Cython, BLAS)", "statsmodels",
+                           statsmodels_run(model, prior, zs), T, T, goal=1.0))
+        reference = _cached(gaussfuse_linear(model, prior, zs, engine))
+        out.append(Workload(
+            f"W5 n={n}", f"filter, a state of {n} components",
+            f"n = {n} states, m = {model.m} measurements, {T:,} steps: a random stable F (spectral radius "
+            "0.95), random SPD Q and R, a random H; filter only; compared: filtered means and covariances",
+            "filtered", E, reference, E[0].label, E[0].label))
+    return out
+
+
 BUILDERS = {
     "W1": lambda s, a, e: w1_w3(s, a, e, smooth=False),
     "W2": w2,
     "W3": lambda s, a, e: w1_w3(s, a, e, smooth=True),
     "W4": w4,
+    "W5": w5,
 }

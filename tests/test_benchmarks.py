@@ -42,6 +42,9 @@ EXPECTED_ROWS = [
     ("W4", 'gaussfuse engine="numba", numba.njit f, h'),
     ("W4", 'gaussfuse engine="numba", numba.njit vectorized f, h'),
     ("W4", 'gaussfuse engine="python", plain Python f, h'),
+    *((f"W5 n={n}", label) for n in (2, 8, 32, 64, 128)
+      for label in ('gaussfuse engine="numba"', 'gaussfuse engine="auto"', 'gaussfuse engine="python"',
+                    "statsmodels KalmanSmoother.filter")),
 ]
 
 

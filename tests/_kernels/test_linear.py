@@ -24,7 +24,7 @@ from numba.core.runtime import _nrt_python, rtsys
 
 import _oracle
 import gaussfuse as gf
-from gaussfuse._kernels import _jit, linear
+from gaussfuse._kernels import _jit, _rts, linear
 
 TOL = 1e-10
 PER_STEP = ("means", "covs", "predicted_means", "predicted_covs", "innovations", "innovation_covs")
@@ -355,11 +355,11 @@ CACHE_PROBE = textwrap.dedent("""
     import json
     import numpy as np
     import gaussfuse as gf
-    from gaussfuse._kernels import _jit, linear
+    from gaussfuse._kernels import _jit, _rts, linear
 
     model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
     gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
-    stats = linear._filter_series.stats
+    stats = linear.forward.stats
     print(json.dumps({"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}))
 """)
 
@@ -429,9 +429,9 @@ def test_a_batch_run_while_another_runs_in_parallel_runs_serially_with_the_same_
     zs = np.random.default_rng(5).normal(size=(40, 30, 1))
     run = getattr(gf, front)
     launched = []
-    for name in ("_filter_parallel", "_backward_parallel"):
-        kernel = getattr(linear, name)
-        monkeypatch.setattr(linear, name, lambda *args, _k=kernel: launched.append(_k) or _k(*args))
+    for module, name in ((linear, "forward_parallel"), (_rts, "backward_parallel")):
+        kernel = getattr(module, name)
+        monkeypatch.setattr(module, name, lambda *args, _k=kernel: launched.append(_k) or _k(*args))
 
     parallel = run(model, prior, zs, engine="numba")
     assert len(launched) == (1 if front == "filter" else 2)

@@ -3,37 +3,62 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
 __all__ = ["borrow", "readonly"]
 
 
-@intrinsic
-def borrow(typingctx, arr):
-    """A view of `arr` that does not own a reference to its memory.
+def _borrowed_type(ty):
+    """The type of a borrowed `ty`: arrays writable, tuples element by element, anything else as it is."""
+    if isinstance(ty, types.Array):
+        return ty.copy(readonly=False)
+    if isinstance(ty, types.BaseTuple):
+        return types.BaseTuple.from_types([_borrowed_type(t) for t in ty], getattr(ty, "instance_class", tuple))
+    return ty
 
-    Numba reference-counts every array a function is given or makes (a
-    view per step, the arguments of every inlined helper) with atomic
-    increments and decrements, and its pruning of those pairs gives up on
-    functions with loops and branches like the ones below: dozens of atomic
-    operations a step, costing more than the algebra and contending between
-    threads on the shared inputs. A loop function therefore borrows its own
-    array arguments, which its caller keeps alive for the whole call, and
-    views of a borrowed array are borrowed too. A borrowed view must never
-    outlive the call that borrowed it.
-    """
 
-    def codegen(context, builder, signature, args):
-        src = context.make_array(signature.args[0])(context, builder, args[0])
-        view = context.make_array(signature.return_type)(context, builder)
+def _borrowed_value(context, builder, ty, value):
+    if isinstance(ty, types.Array):
+        src = context.make_array(ty)(context, builder, value)
+        view = context.make_array(_borrowed_type(ty))(context, builder)
         for field in ("data", "shape", "strides", "itemsize", "nitems"):
             setattr(view, field, getattr(src, field))
         view.meminfo = cgutils.get_null_value(view.meminfo.type)
         view.parent = cgutils.get_null_value(view.parent.type)
         return view._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        out = cgutils.get_null_value(context.get_value_type(_borrowed_type(ty)))
+        for i, t in enumerate(ty):
+            out = builder.insert_value(out, _borrowed_value(context, builder, t, builder.extract_value(value, i)), i)
+        return out
+    return value
 
-    return arr(arr), codegen
+
+@intrinsic
+def borrow(typingctx, x):
+    """A view of `x` (an array, or a tuple of them) that does not own a reference to its memory.
+
+    Numba reference-counts every array a function is given or makes (a view
+    per step, every array taken from a tuple, the arguments of every helper)
+    with atomic increments and decrements, and its pruning of those pairs
+    gives up on functions with loops and branches like the kernels': dozens
+    of atomic operations a step, costing more than the algebra and
+    contending between threads on the shared inputs. A kernel therefore
+    borrows its own array arguments, which its caller keeps alive for the
+    whole call; views of a borrowed array are borrowed too. A borrowed view
+    must never outlive the call that borrowed it.
+
+    Borrowed arrays are typed writable (their memory is not touched by
+    that): read-only inputs and writable outputs then share one array type,
+    so each helper is compiled once for them all. The kernels never write
+    to an input.
+    """
+    def codegen(context, builder, signature, args):
+        return _borrowed_value(context, builder, signature.args[0], args[0])
+
+    return _borrowed_type(x)(x), codegen
 
 
 def readonly(a: np.ndarray) -> np.ndarray:

@@ -1,0 +1,74 @@
+r"""The backward pass of every compiled smoother: :func:`gaussfuse.inference.drivers.run_smoother`'s loop.
+
+The forward kernels (:mod:`.linear`, :mod:`.sigma_points`) compute the
+smoother gains as they filter: at step k the transition out of the filtered
+belief :math:`(m_{k-1}, P_{k-1})` is the affine map :math:`A_k` they have
+just used to predict (the regression of f at that belief, for sigma
+points: exactly what run_smoother re-linearises at), so
+:math:`G_{k-1} = P_{k-1} A_k^\top (P^-_k)^{-1}` (:func:`._step.smoother_gain`).
+Where :math:`P^-_k` is singular the Cholesky solve fails; the forward kernel
+leaves the cross-covariance's transpose :math:`C_k^\top = A_k P_{k-1}` in place
+of the gain, and :func:`least_squares_gains` replaces it, in Python, by the
+readable path's minimum-norm solution (:func:`gaussfuse._linalg.psd_solve`).
+Then :func:`backward` runs the recursion (:func:`._step.rts_step`) over
+each series, in parallel over chunks of series for a batch
+(:func:`backward_parallel`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from .._linalg import psd_solve
+from ._jit import jit, launch
+from ._step import rts_step, workspace, wrap
+
+__all__ = ["backward", "backward_parallel", "least_squares_gains", "smooth"]
+
+_JIT = {"nogil": True, "error_model": "numpy"}
+
+
+@jit(**_JIT)
+def backward(lo, hi, means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs):
+    """The RTS recursion of run_smoother over series ``lo..hi-1``: (N, T, ...) arrays, gains (N, T - 1, n, n)."""
+    T = means.shape[1]
+    n = means.shape[2]
+    w = workspace(n, 1)
+    for s in range(lo, hi):
+        for i in range(n):
+            sm_means[s, T - 1, i] = means[s, T - 1, i]
+            for j in range(n):
+                sm_covs[s, T - 1, i, j] = covs[s, T - 1, i, j]
+        for j in range(T - 2, -1, -1):
+            rts_step(w, means[s, j], covs[s, j], pmeans[s, j + 1], pcovs[s, j + 1], sm_means[s, j + 1],
+                     sm_covs[s, j + 1], gains[s, j], angles, sm_means[s, j], sm_covs[s, j])
+            for i in range(n):
+                if angles[i]:
+                    sm_means[s, j, i] = wrap(sm_means[s, j, i])
+
+
+@jit(parallel=True, **_JIT)
+def backward_parallel(chunks, means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs):
+    """:func:`backward` over `chunks` contiguous groups of series, in parallel."""
+    N = means.shape[0]
+    for c in prange(chunks):
+        backward(c * N // chunks, (c + 1) * N // chunks, means, covs, pmeans, pcovs, gains, angles,
+                 sm_means, sm_covs)
+
+
+def least_squares_gains(gains: np.ndarray, failed: np.ndarray, pcovs: np.ndarray) -> None:
+    """Replace, where `failed`, the ``C_kᵀ`` left in `gains` by kalman.rts_step's gain ``(P⁻⁺ Cᵀ)ᵀ``.
+
+    `gains` is (N, T - 1, n, n), `failed` (N, T - 1) and `pcovs` the
+    predictions (N, T, n, n): gain ``G_{k-1}`` goes with ``P⁻_k``.
+    """
+    for s, j in zip(*np.nonzero(failed)):
+        gains[s, j] = psd_solve(pcovs[s, j + 1], gains[s, j]).T
+
+
+def smooth(means, covs, pmeans, pcovs, gains, angles):
+    """The smoothed means and covariances (N, T, ...) from the forward pass's arrays and gains (see the module notes)."""
+    sm_means, sm_covs = np.empty_like(means), np.empty_like(covs)
+    launch(backward, backward_parallel, means.shape[0], means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs)
+    return sm_means, sm_covs

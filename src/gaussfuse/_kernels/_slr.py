@@ -1,0 +1,207 @@
+r"""The compiled mirror of :func:`gaussfuse.linearize.sigma_points.slr`: sigma points and their regression.
+
+For a belief :math:`N(m, P)` with :math:`P = L L^\top` (the Cholesky factor,
+or the semi-definite factor of :func:`gaussfuse._linalg.sqrt_cov` with zero
+columns, given by the caller), :func:`points` draws
+:math:`\mathcal X_i = m + L \xi_i`; given the outputs
+:math:`\mathcal Y_i = g(\mathcal X_i)`, :func:`regress` computes the affine
+map :math:`g(x) \approx A x + b + e`, :math:`e \sim N(0, \Omega)` exactly as
+the readable ``slr`` does, in the points' own coordinates (see
+:mod:`gaussfuse.linearize.sigma_points` for why):
+
+.. math::
+
+    \bar y &= \mathcal Y_0 + \textstyle\sum_i w^m_i (\mathcal Y_i - \mathcal Y_0)
+        \quad\text{(centred; circular for angles)}, \qquad
+    \delta\mathcal Y_i = \mathcal Y_i - \bar y \quad\text{(wrapped for angles)}, \\
+    S &= \textstyle\sum_i w^c_i\, \delta\mathcal Y_i \delta\mathcal Y_i^\top, \qquad
+    \Xi = \textstyle\sum_i w^c_i\, \xi_{i,r}\, \delta\mathcal Y_i^\top, \qquad
+    A_{:, r} = \Xi^\top L_{rr}^{-1}, \quad A_{:, \bar r} = 0, \\
+    b &= \bar y - A m, \qquad \Omega = \mathrm{sym}(S - \Xi^\top \Xi),
+
+with r the nonzero columns of L. The filters then add :math:`\Omega` to Q
+or R and run the affine step of :mod:`._step`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba.extending import register_jitable
+
+from ._dense import cholesky
+from ._jit import jit
+from ._step import wrap
+
+__all__ = ["Rule", "Regression", "regression", "draw", "points", "regress"]
+
+_JIT = {"nogil": True, "error_model": "numpy"}
+
+
+class Rule(NamedTuple):
+    """A sigma-point rule (:class:`gaussfuse.linearize.rules.SigmaRule`) as the kernels read it."""
+
+    points: np.ndarray  # (k, n) unit points ξ_i
+    wm: np.ndarray      # (k,) weights of the mean
+    wc: np.ndarray      # (k,) weights of the covariances
+
+
+class Regression(NamedTuple):
+    """Scratch and results of the regression of a function of n states with d outputs."""
+
+    L: np.ndarray      # (n, n) the lower-triangular root that drew the points
+    keep: np.ndarray   # (n,) bool: its nonzero columns r
+    Lr: np.ndarray     # (n, n) L_rr, in the leading block
+    ybar: np.ndarray   # (d,) the mean of the outputs
+    dY: np.ndarray     # (k, d) the residuals δY_i
+    S: np.ndarray      # (d, d)
+    Xi: np.ndarray     # (n, d) Ξ, in its first |r| rows
+    A: np.ndarray      # (d, n)
+    b: np.ndarray      # (d,)
+    noise: np.ndarray  # (d, d) Ω, then the noise covariance plus Ω
+
+
+@register_jitable
+def regression(k, n, d):
+    """A :class:`Regression` for k points, n states and d outputs."""
+    return Regression(np.zeros((n, n)), np.ones(n, dtype=np.bool_), np.empty((n, n)), np.empty(d),
+                      np.empty((k, d)), np.empty((d, d)), np.empty((n, d)), np.empty((d, n)), np.empty(d),
+                      np.empty((d, d)))
+
+
+@register_jitable(**_JIT)
+def _points(mean, xi, L, X):
+    n = mean.shape[0]
+    for i in range(xi.shape[0]):
+        for a in range(n):
+            X[i, a] = 0.0
+        for b in range(n):
+            c = xi[i, b]
+            if c != 0.0:
+                for a in range(b, n):
+                    X[i, a] += c * L[a, b]
+        for a in range(n):
+            X[i, a] += mean[a]
+
+
+@jit(inline="always", **_JIT)
+def points(mean, rule, g, X):
+    """``X = mean + ξ Lᵀ`` with the lower-triangular ``g.L`` (``mean + rule.points @ L.T`` in slr).
+
+    The terms of ξ that are zero are skipped (the unscented and cubature
+    points have one nonzero coordinate each): they add exactly zero.
+    """
+    _points(mean, rule.points, g.L, X)
+
+
+@jit(inline="always", **_JIT)
+def draw(mean, cov, rule, g, X):
+    """The sigma points of ``N(mean, cov)`` into X through the Cholesky factor of cov (:func:`sqrt_cov`'s first try).
+
+    Returns False, drawing nothing, when cov is not positive definite: the
+    caller then gives :func:`gaussfuse._linalg.sqrt_cov`'s semi-definite
+    factor in ``g.L`` and ``g.keep`` and calls :func:`points`.
+    """
+    return _draw(mean, cov, rule.points, g.L, g.keep, X)
+
+
+@register_jitable(**_JIT)
+def _draw(mean, cov, xi, L, keep, X):
+    n = mean.shape[0]
+    if not cholesky(cov, L, n):
+        return False
+    for a in range(n):
+        keep[a] = True
+        for b in range(a + 1, n):
+            L[a, b] = 0.0
+    _points(mean, xi, L, X)
+    return True
+
+
+@jit(inline="always", **_JIT)
+def regress(Y, d, rule, mean, angles, g):
+    r"""linearize.sigma_points.slr on the outputs ``Y[:, :d]`` at the points of ``N(mean, L Lᵀ)``.
+
+    Writes ``g.A[:d]``, ``g.b[:d]`` and :math:`\Omega` in ``g.noise[:d, :d]``
+    (see the module notes), with the root ``g.L`` and its columns ``g.keep``
+    that drew the points.
+    """
+    _regress(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.keep, g.Lr, g.ybar, g.dY, g.S, g.Xi, g.A,
+             g.b, g.noise)
+
+
+@register_jitable(**_JIT)
+def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, offset, noise):
+    k = Y.shape[0]
+    n = mean.shape[0]
+    # ȳ centred on the first point (_linalg.weighted_mean), or the circular mean of an angle
+    for a in range(d):
+        ref = Y[0, a]
+        if angles[a]:
+            s = 0.0
+            c = 0.0
+            for i in range(k):
+                s += wm[i] * math.sin(Y[i, a] - ref)
+                c += wm[i] * math.cos(Y[i, a] - ref)
+            ybar[a] = ref + math.atan2(s, c)
+            for i in range(k):
+                dY[i, a] = wrap(Y[i, a] - ybar[a])
+        else:
+            t = 0.0
+            for i in range(k):
+                t += wm[i] * (Y[i, a] - ref)
+            ybar[a] = ref + t
+            for i in range(k):
+                dY[i, a] = Y[i, a] - ybar[a]
+    # S = (δY wc)ᵀ δY, Ξ = (ξ_r wc)ᵀ δY
+    for a in range(d):
+        for b in range(d):
+            t = 0.0
+            for i in range(k):
+                t += dY[i, a] * wc[i] * dY[i, b]
+            S[a, b] = t
+    r = 0
+    for j in range(n):
+        if keep[j]:
+            for a in range(d):
+                t = 0.0
+                for i in range(k):
+                    t += xi[i, j] * wc[i] * dY[i, a]
+                Xi[r, a] = t
+            rr = 0
+            for jj in range(n):
+                if keep[jj]:
+                    Lr[r, rr] = L[j, jj]
+                    rr += 1
+            r += 1
+    # Aᵀ_r = L_rr⁻ᵀ Ξ (back substitution), in place in Ξ; Ω = sym(S - ΞᵀΞ) first, from Ξ itself.
+    for a in range(d):
+        for b in range(a + 1):
+            t = 0.0
+            for j in range(r):
+                t += Xi[j, a] * Xi[j, b]
+            x = 0.5 * ((S[a, b] - t) + (S[b, a] - t))
+            noise[a, b] = x
+            noise[b, a] = x
+    for j in range(r - 1, -1, -1):
+        for a in range(d):
+            t = Xi[j, a]
+            for jj in range(j + 1, r):
+                t -= Lr[jj, j] * Xi[jj, a]
+            Xi[j, a] = t / Lr[j, j]
+    r = 0
+    for j in range(n):
+        if keep[j]:
+            for a in range(d):
+                A[a, j] = Xi[r, a]
+            r += 1
+        else:
+            for a in range(d):
+                A[a, j] = 0.0
+    for a in range(d):  # b = ȳ - A m
+        t = 0.0
+        for j in range(n):
+            t += A[a, j] * mean[j]
+        offset[a] = ybar[a] - t

@@ -1,0 +1,449 @@
+r"""The compiled mirror of :mod:`gaussfuse.kalman`: predict, update, the RTS step, once.
+
+Every compiled filter and smoother is a loop (:mod:`.linear`,
+:mod:`.sigma_points`) around these functions, which compute what
+:func:`gaussfuse.kalman.predict`, :func:`~gaussfuse.kalman.update`,
+:func:`~gaussfuse.kalman.rts_step` and :func:`~gaussfuse.kalman.check_finite`
+compute, in the same order of operations, so that the two paths agree to
+round-off (the tests hold them to 1e-10):
+
+* :func:`predict` -- :math:`m^- = A m + b`, :math:`P^- = \mathrm{sym}(A P A^\top + Q)`;
+* :func:`update` -- the Joseph form over the observed components, with the
+  Gaussian log-density of the innovation;
+* :func:`smoother_gain` and :func:`rts_step` -- the RTS gain
+  :math:`G = C (P^-)^{-1}` (a Cholesky solve) and the backward step;
+* :func:`not_finite` -- the overflow check.
+
+They write into arrays the caller owns: outputs passed in, and scratch in a
+:class:`Work` (made by :func:`workspace`), so that a loop allocates nothing
+per step. The products are :mod:`._dense`'s: loops for a small state, BLAS
+for a large one.
+Failures are returned, never raised (compiled code cannot raise the
+readable path's exceptions): :func:`update` returns ``ok = False`` for an
+innovation covariance that is not positive definite, :func:`smoother_gain`
+for a singular prediction (the caller then takes the least-squares gain in
+Python, as ``kalman.rts_step`` does), and :func:`not_finite` flags an
+overflow. The loops record them in a :class:`Failures` and
+:func:`raise_failure` raises what the readable path would.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba.extending import register_jitable
+
+from ..errors import not_finite as not_finite_message
+from ..inference.results import FilterResult
+from ..kalman import _S_NAME
+from ._jit import jit
+from ._dense import cho_solve, cholesky, congruence, matmul
+
+__all__ = ["Work", "workspace", "at", "predict", "update", "smoother_gain", "rts_step",
+           "wrap", "not_finite", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
+           "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
+
+LOG_2PI = math.log(2.0 * math.pi)
+_TWO_PI = 2.0 * math.pi
+_JIT = {"nogil": True, "error_model": "numpy"}
+
+
+class Work(NamedTuple):
+    """Scratch of one series' steps, for n states and m measurement components.
+
+    The names are those of kalman.update and kalman.rts_step; ``_o`` marks
+    the observed components (the first ``|o|`` rows are used).
+    """
+
+    pred_z: np.ndarray  # (m,)    H m + d
+    HP: np.ndarray      # (m, n)  H P⁻
+    obs: np.ndarray     # (m,)    int64: the observed components
+    H_o: np.ndarray     # (m, n)
+    R_o: np.ndarray     # (m, m)
+    v: np.ndarray       # (m,)    the observed innovation
+    S: np.ndarray       # (m, m)  S_oo
+    L: np.ndarray       # (m, m)  its Cholesky factor
+    Kt: np.ndarray      # (m, n)  Kᵀ = S⁻¹ H_o P⁻
+    K: np.ndarray       # (n, m)
+    KR: np.ndarray      # (n, m)  K R_oo
+    white: np.ndarray   # (m,)    L⁻¹ v
+    A1: np.ndarray      # (n, n)  I - K H_o; in predict A P; in rts_step the cross-covariance
+    A2: np.ndarray      # (n, n)  products
+    A3: np.ndarray      # (n, n)
+    Ln: np.ndarray      # (n, n)  the Cholesky factor of P⁻ (smoother gain)
+    diff: np.ndarray    # (n,)
+
+
+@register_jitable
+def workspace(n, m):
+    """A :class:`Work` for n states and m measurement components (in Python or compiled code)."""
+    return Work(np.empty(m), np.empty((m, n)), np.empty(m, dtype=np.int64), np.empty((m, n)), np.empty((m, m)),
+                np.empty(m), np.empty((m, m)), np.zeros((m, m)), np.empty((m, n)), np.empty((n, m)),
+                np.empty((n, m)), np.empty(m), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)),
+                np.zeros((n, n)), np.empty(n))
+
+
+# ---------------------------------------------------------------------------
+# _linalg.wrap_angle
+# ---------------------------------------------------------------------------
+
+
+@jit(inline="always", **_JIT)
+def at(a, k):
+    """``a[k]``, or ``a[0]`` for a model matrix in force at every step (leading axis of length 1)."""
+    return a[k if a.shape[0] > 1 else 0]
+
+
+@jit(inline="always", **_JIT)
+def wrap(a):
+    """_linalg.wrap_angle: ``(a + π) % 2π - π``, with NumPy's (Python's) floating modulo."""
+    return (a + math.pi) % _TWO_PI - math.pi
+
+
+# ---------------------------------------------------------------------------
+# kalman.predict, kalman.update, kalman.rts_step, kalman.check_finite
+# ---------------------------------------------------------------------------
+
+
+@jit(inline="always", **_JIT)
+def predict(w, mean, cov, A, Q, b, pred_mean, pred_cov):
+    r"""kalman.predict: :math:`m^- = A m + b`, :math:`P^- = \mathrm{sym}(A P A^\top + Q)`.
+
+    Parameters
+    ----------
+    w : Work
+    mean, cov : arrays of shape (n,), (n, n)
+    A, Q : arrays of shape (n, n)
+    b : array of shape (n,)
+        The offset (zeros for none: adding 0 changes nothing).
+    pred_mean, pred_cov : arrays of shape (n,), (n, n)
+        Written.
+
+    Notes
+    -----
+    .. math::
+
+        m^- = A m + b, \qquad P^- = \tfrac12 (X + X^\top), \quad X = (A P) A^\top + Q.
+
+    Leaves :math:`A P` in ``w.A1``: :math:`C^\top` of the smoother gain
+    (:func:`smoother_gain`).
+    """
+    n = mean.shape[0]
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += A[i, j] * mean[j]
+        pred_mean[i] = s + b[i]
+    congruence(A, cov, Q, pred_cov, w.A1, n, n)      # A P in w.A1 (the smoother gain's Cᵀ)
+
+
+@jit(inline="always", **_JIT)
+def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_full):
+    r"""kalman.update: condition ``N(mean, cov)`` on the observed components of z (Joseph form).
+
+    Parameters
+    ----------
+    w : Work
+    mean, cov : arrays of shape (n,), (n, n)
+        The prediction :math:`(m^-, P^-)`.
+    z : array of shape (m,)
+        NaN components are missing.
+    H, R : arrays of shape (m, n), (m, m)
+    d : array of shape (m,)
+        The measurement offset (zeros for none).
+    angles : bool array of shape (m,)
+        Components whose innovation is wrapped to [-π, π).
+    post_mean, post_cov, innovation, S_full : arrays of shape (n,), (n, n), (m,), (m, m)
+        Written: the posterior, ``z - (H m + d)`` (NaN where missing) and
+        ``S = sym(H P Hᵀ + R)`` over all m components.
+
+    Returns
+    -------
+    ok : bool
+        False when ``S_oo`` is not positive definite (``w.S`` then holds it).
+    loglik : float
+        :math:`\log N(v_o; 0, S_{oo})`, 0.0 when nothing is observed.
+    observed : int
+        :math:`|o|`.
+
+    Notes
+    -----
+    .. math::
+
+        v &= z_o - (H_o m^- + d_o), \qquad S = H_o P^- H_o^\top + R_{oo} = L L^\top, \\
+        K^\top &= S^{-1} H_o P^-, \qquad m = m^- + K v, \\
+        P &= \mathrm{sym}\left((I - K H_o) P^- (I - K H_o)^\top + K R_{oo} K^\top\right), \\
+        \ell &= -\tfrac12 \left(\lVert L^{-1} v \rVert^2 + 2 \textstyle\sum_i \log L_{ii}
+                + |o| \log 2\pi\right).
+
+    With nothing observed the prediction is returned unchanged.
+    """
+    n = mean.shape[0]
+    m = z.shape[0]
+    mo = 0
+    for a in range(m):
+        s = 0.0
+        for j in range(n):
+            s += H[a, j] * mean[j]
+        s += d[a]
+        w.pred_z[a] = s
+        diff = z[a] - s
+        innovation[a] = wrap(diff) if angles[a] else diff
+        if z[a] == z[a]:  # not NaN
+            w.obs[mo] = a
+            mo += 1
+    congruence(H, cov, R, S_full, w.HP, m, n)        # H P⁻ in w.HP, S = sym(H P⁻ Hᵀ + R)
+    if mo == 0:
+        for i in range(n):
+            post_mean[i] = mean[i]
+            for j in range(n):
+                post_cov[i, j] = cov[i, j]
+        return True, 0.0, mo
+    # The observed block: H_o, R_oo, v, S_oo, and Kᵀ ← H_o P⁻.
+    for a in range(mo):
+        oa = w.obs[a]
+        w.v[a] = innovation[oa]
+        for j in range(n):
+            w.H_o[a, j] = H[oa, j]
+            w.Kt[a, j] = w.HP[oa, j]
+        for b in range(mo):
+            w.R_o[a, b] = R[oa, w.obs[b]]
+            w.S[a, b] = S_full[oa, w.obs[b]]
+    if not cholesky(w.S, w.L, mo):
+        return False, 0.0, mo
+    cho_solve(w.L, w.Kt, mo, n)              # Kᵀ = S⁻¹ H_o P⁻
+    for i in range(n):
+        s = 0.0
+        for a in range(mo):
+            w.K[i, a] = w.Kt[a, i]
+            s += w.Kt[a, i] * w.v[a]
+        post_mean[i] = mean[i] + s              # m⁻ + K v
+    matmul(w.K, w.H_o, w.A1, n, mo, n)               # I - K H_o
+    for i in range(n):
+        for j in range(n):
+            w.A1[i, j] = (1.0 if i == j else 0.0) - w.A1[i, j]
+    congruence(w.K, w.R_o, None, w.A3, w.KR, n, mo)  # K R_oo Kᵀ
+    congruence(w.A1, cov, w.A3, post_cov, w.A2, n, n)  # (I - K H_o) P⁻ (I - K H_o)ᵀ + K R_oo Kᵀ
+    # log N(v; 0, S) through the whitened innovation L⁻¹ v (kalman: log_density(whiten(L, v), L)).
+    quad = 0.0
+    logdet = 0.0
+    for a in range(mo):
+        s = w.v[a]
+        for b in range(a):
+            s -= w.L[a, b] * w.white[b]
+        s /= w.L[a, a]
+        w.white[a] = s
+        quad += s * s
+        logdet += math.log(w.L[a, a])
+    return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI), mo
+
+
+@jit(inline="always", **_JIT)
+def smoother_gain(w, pred_cov, CT, gain):
+    r"""The gain of kalman.rts_step: :math:`G = C (P^-)^{-1}`, as :math:`G^\top = (P^-)^{-1} C^\top`.
+
+    Parameters
+    ----------
+    w : Work
+    pred_cov : array of shape (n, n)
+        :math:`P^-_{k+1}`.
+    CT : array of shape (n, n)
+        :math:`C^\top_{k+1} = A P_k` (from :func:`predict`, in ``w.A1``).
+    gain : array of shape (n, n)
+        Written.
+
+    Returns
+    -------
+    bool
+        False when :math:`P^-_{k+1}` is not positive definite: the caller
+        takes the minimum-norm least-squares gain, as kalman.rts_step does.
+    """
+    n = pred_cov.shape[0]
+    if not cholesky(pred_cov, w.Ln, n):
+        return False
+    for i in range(n):
+        for j in range(n):
+            w.A2[i, j] = CT[i, j]
+    cho_solve(w.Ln, w.A2, n, n)
+    for i in range(n):
+        for j in range(n):
+            gain[i, j] = w.A2[j, i]
+    return True
+
+
+@jit(inline="always", **_JIT)
+def rts_step(w, filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, gain, angles, mean, cov):
+    r"""kalman.rts_step, given the gain :math:`G_k` (:func:`smoother_gain`).
+
+    Parameters
+    ----------
+    w : Work
+    filt_mean, filt_cov : arrays of shape (n,), (n, n)
+        :math:`(m_k, P_k)`.
+    pred_mean, pred_cov : arrays of shape (n,), (n, n)
+        :math:`(m^-_{k+1}, P^-_{k+1})`.
+    next_mean, next_cov : arrays of shape (n,), (n, n)
+        :math:`(m^s_{k+1}, P^s_{k+1})`.
+    gain : array of shape (n, n)
+    angles : bool array of shape (n,)
+        State components whose difference :math:`m^s_{k+1} - m^-_{k+1}` is wrapped.
+    mean, cov : arrays of shape (n,), (n, n)
+        Written: :math:`(m^s_k, P^s_k)`.
+
+    Notes
+    -----
+    .. math::
+
+        m^s_k = m_k + G_k (m^s_{k+1} - m^-_{k+1}), \qquad
+        P^s_k = \mathrm{sym}\left(P_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^\top\right).
+    """
+    n = filt_mean.shape[0]
+    for j in range(n):
+        diff = next_mean[j] - pred_mean[j]
+        w.diff[j] = wrap(diff) if angles[j] else diff
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += gain[i, j] * w.diff[j]
+        mean[i] = filt_mean[i] + s
+        for j in range(n):
+            w.A1[i, j] = next_cov[i, j] - pred_cov[i, j]
+    congruence(gain, w.A1, filt_cov, cov, w.A2, n, n)  # sym(P + G (P^s - P⁻) Gᵀ)
+
+
+@jit(inline="always", **_JIT)
+def not_finite(mean, cov, loglik):
+    """kalman.check_finite's test: True when the mean, the covariance or `loglik` holds inf or NaN.
+
+    ``x · 0`` is 0 for a finite x and NaN otherwise, and a sum of zeros
+    cannot overflow.
+    """
+    acc = loglik * 0.0
+    n = mean.shape[0]
+    for i in range(n):
+        acc += mean[i] * 0.0
+        for j in range(n):
+            acc += cov[i, j] * 0.0
+    return acc != acc
+
+
+# ---------------------------------------------------------------------------
+# Failures: recorded per series by the compiled loops, raised in Python
+# ---------------------------------------------------------------------------
+
+OK, NOT_POSITIVE_DEFINITE, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE = 0, 1, 2, 3
+
+
+class Failures(NamedTuple):
+    """Why each series stopped, if it did (written by the compiled loops).
+
+    Attributes
+    ----------
+    code : int64 array of shape (N,)
+        OK, NOT_POSITIVE_DEFINITE, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE
+        (or a kernel's own codes, above these).
+    step : int64 array of shape (N,)
+        The step it stopped at.
+    size : int64 array of shape (N,)
+        For NOT_POSITIVE_DEFINITE, the observed components ``|o|``.
+    S : array of shape (N, m, m)
+        For NOT_POSITIVE_DEFINITE, ``S_oo`` in its leading block.
+    """
+
+    code: np.ndarray
+    step: np.ndarray
+    size: np.ndarray
+    S: np.ndarray
+
+
+def failures(N: int, m: int) -> Failures:
+    """An empty :class:`Failures` for N series with m measurement components."""
+    return Failures(np.zeros(N, dtype=np.int64), np.zeros(N, dtype=np.int64), np.zeros(N, dtype=np.int64),
+                    np.zeros((N, m, m)))
+
+
+@jit(inline="always", **_JIT)
+def record(fail, s, code, step):
+    """Record in `fail` that series s stopped at `step` for `code`."""
+    fail.code[s] = code
+    fail.step[s] = step
+
+
+@jit(inline="always", **_JIT)
+def record_not_pd(fail, s, step, w, size):
+    """Record an innovation covariance ``w.S[:size, :size]`` that is not positive definite."""
+    record(fail, s, NOT_POSITIVE_DEFINITE, step)
+    fail.size[s] = size
+    for a in range(size):
+        for b in range(size):
+            fail.S[s, a, b] = w.S[a, b]
+
+
+def where(s: int, step: int, series: int) -> str:
+    """"at step k", or "in series s, at step k" for a batch of `series` series."""
+    return f"in series {s}, at step {step}" if series > 1 else f"at step {step}"
+
+
+def raise_failure(fail: Failures) -> None:
+    """Raise the readable path's error for the first series that failed, if any.
+
+    numpy.linalg.LinAlgError for an innovation covariance that is not
+    positive definite (kalman.cholesky's message); FloatingPointError
+    (kalman.check_finite's) for a belief that overflowed. Kernel-specific
+    codes are the caller's to raise first.
+    """
+    stopped = np.flatnonzero(fail.code != OK)
+    if stopped.size == 0:
+        return
+    s = int(stopped[0])
+    code, step, N = int(fail.code[s]), int(fail.step[s]), fail.code.shape[0]
+    if code == NOT_POSITIVE_DEFINITE:
+        size = int(fail.size[s])
+        with np.printoptions(precision=4, threshold=36):
+            shown = np.array2string(fail.S[s, :size, :size], separator=", ").replace("\n", "")
+        raise np.linalg.LinAlgError(
+            f"{where(s, step, N)}: {_S_NAME} is not positive definite, so it cannot be factorised: {shown}")
+    if code in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):
+        stage = "predicted" if code == PREDICTED_NOT_FINITE else "filtered"
+        raise FloatingPointError(f"{where(s, step, N)}: {not_finite_message(stage)}")
+    raise RuntimeError(f"unexpected failure code {code} from a compiled kernel")  # pragma: no cover
+
+
+# ---------------------------------------------------------------------------
+# What a forward kernel writes
+# ---------------------------------------------------------------------------
+
+
+class Outputs(NamedTuple):
+    """What the forward kernel writes, per series (see the module notes)."""
+
+    means: np.ndarray            # (N, T or 0, n)
+    covs: np.ndarray             # (N, T or 0, n, n)
+    predicted_means: np.ndarray  # (N, T or 0, n)
+    predicted_covs: np.ndarray   # (N, T or 0, n, n)
+    innovations: np.ndarray      # (N, T or 0, m)
+    innovation_covs: np.ndarray  # (N, T or 0, m, m)
+    loglik: np.ndarray           # (N,)
+    last_mean: np.ndarray        # (N, n)
+    last_cov: np.ndarray         # (N, n, n)
+    gains: np.ndarray            # (N, T - 1 or 0, n, n): G_k, or C_{k+1}ᵀ where failed
+    failed: np.ndarray           # (N, T - 1 or 0) bool: P⁻_{k+1} not positive definite
+
+
+def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool) -> Outputs:
+    """The :class:`Outputs` of N series of T steps: per-step arrays of length T where `keep` keeps them, else 0."""
+    rows = 0 if keep == "last" else T
+    crows = T if keep == "all" else 0
+    grows = T - 1 if smoothing else 0
+    return Outputs(np.empty((N, rows, n)), np.empty((N, crows, n, n)), np.empty((N, rows, n)),
+                   np.empty((N, crows, n, n)), np.empty((N, rows, m)), np.empty((N, crows, m, m)),
+                   np.empty(N), np.empty((N, n)), np.empty((N, n, n)), np.empty((N, grows, n, n)),
+                   np.zeros((N, grows), dtype=np.bool_))
+
+
+def filter_result(out: Outputs) -> FilterResult:
+    """The FilterResult of a forward kernel's outputs (with the N axis); None for what was not kept."""
+    per_step = (out.means, out.covs, out.predicted_means, out.predicted_covs, out.innovations, out.innovation_covs)
+    return FilterResult(*(a if a.shape[1] else None for a in per_step), out.loglik, out.last_mean, out.last_cov)

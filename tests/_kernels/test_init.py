@@ -1,0 +1,72 @@
+"""``gaussfuse._kernels.compiled_state``: "cold", "cached" or "loaded", decided without importing numba.
+
+Each probe runs in a new interpreter with its own ``NUMBA_CACHE_DIR``, so
+the states are those a new user (an empty cache), a new process (a filled
+cache) and the same process (kernels loaded) see.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from gaussfuse._kernels import ENTRY_POINTS, compiled_state, source_stamp
+
+PROBE = textwrap.dedent("""
+    import json, sys
+    import gaussfuse._kernels as kernels
+    if sys.argv[1] == "changed":  # as if a kernel's source had changed since the cache was written
+        kernels.source_stamp = lambda: b"x" * 32
+    out = {"before": {m: kernels.compiled_state(m) for m in ("linear", "sigma_points")},
+           "numba imported": "numba" in sys.modules}
+    if sys.argv[1] == "run":
+        import numpy as np
+        import gaussfuse as gf
+        model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
+        gf.smooth(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
+        out["after"] = {m: kernels.compiled_state(m) for m in ("linear", "sigma_points")}
+    print(json.dumps(out))
+""")
+
+
+def probe(cache_dir, what: str) -> dict:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
+    child = subprocess.run([sys.executable, "-c", PROBE, what], env=env, capture_output=True, text=True,
+                           timeout=600)
+    assert child.returncode == 0, child.stderr
+    return json.loads(child.stdout.strip().splitlines()[-1])
+
+
+def test_cold_then_loaded_then_cached(tmp_path):
+    first = probe(tmp_path, "run")
+    assert first["before"] == {"linear": "cold", "sigma_points": "cold"}
+    assert not first["numba imported"]  # deciding does not import numba
+    # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only.
+    assert first["after"] == {"linear": "loaded", "sigma_points": "cold"}
+    second = probe(tmp_path, "look")
+    assert second["before"] == {"linear": "cached", "sigma_points": "cold"}
+    assert not second["numba imported"]
+    third = probe(tmp_path, "changed")
+    assert third["before"] == {"linear": "cold", "sigma_points": "cold"}
+
+
+def test_an_unknown_module_is_refused():
+    with pytest.raises(ValueError, match=r"`module` must be one of \['linear', 'sigma_points'\]; got 'kalman'"):
+        compiled_state("kalman")
+
+
+def test_every_entry_point_exists():
+    import importlib
+
+    for entries in ENTRY_POINTS.values():
+        for module, name in entries:
+            assert hasattr(importlib.import_module(f"gaussfuse._kernels.{module}"), name)
+
+
+def test_the_stamp_covers_every_kernel_source():
+    assert len(source_stamp()) == 32 and source_stamp() == source_stamp()
