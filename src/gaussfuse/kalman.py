@@ -22,9 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, log_density, psd_solve, semidefinite_cholesky, symmetrize, whiten,
-                      wrap_components)
-from .errors import not_finite
+from ._linalg import (cho_solve, cholesky, eye, log_density, psd_solve, semidefinite_cholesky,
+                      symmetrize, whiten, wrap_components)
+from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "Step", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
@@ -153,20 +153,23 @@ def update(
     pred_z = H @ mean
     if d is not None:
         pred_z = pred_z + d
-    innovation = wrap_components(z - pred_z, angles)
+    innovation = z - pred_z
+    if angles is not None:
+        innovation = wrap_components(innovation, angles)
     HP = H @ cov
     S_full = symmetrize(HP @ H.T + R)
-    observed = z == z  # not NaN
-    if observed.all():
+    total = z.sum()
+    if total == total:  # no NaN: every component observed (the common case)
         H_o, R_o, v, S, HP_o = H, R, innovation, S_full, HP
-    elif not observed.any():
-        return Update(mean, cov, innovation, S_full, 0.0)
     else:
+        observed = ~np.isnan(z)
+        if not observed.any():
+            return Update(mean, cov, innovation, S_full, 0.0)
         H_o, R_o, v, HP_o = H[observed], R[np.ix_(observed, observed)], innovation[observed], HP[observed]
         S = S_full[np.ix_(observed, observed)]
     L = cholesky(S, _S_NAME)
     K = cho_solve(L, HP_o).T                      # Kᵀ = S⁻¹ H_o P⁻
-    I_KH = np.eye(mean.shape[0]) - K @ H_o
+    I_KH = eye(mean.shape[0]) - K @ H_o
     post_cov = symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T)
     loglik = log_density(whiten(L, v), L)
     return Update(mean + K @ v, post_cov, innovation, S_full, float(loglik))
@@ -306,18 +309,28 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
     FloatingPointError
         When the prediction or the posterior is not finite (an overflow).
     """
-    pm, pc = forecast(lin, k, mean, cov, state_angles)
-    post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles)
+    pm, pc = forecast(lin, k, mean, cov, state_angles, check=False)
+    try:
+        post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles)
+    except (FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
+        check_finite("predicted", pm, pc)  # when the prediction overflowed first, that is the error
+        raise
     return Step(pm, pc, post, passes, converged)
 
 
-def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None) -> tuple[np.ndarray, np.ndarray]:
-    """The prediction of step k: :func:`predict` through ``lin.transition`` (see :func:`step`)."""
+def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None,
+             check: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction of step k: :func:`predict` through ``lin.transition`` (see :func:`step`).
+
+    With `check`, a prediction that is not finite raises FloatingPointError
+    (:func:`step` checks it only when the update fails, which it then does).
+    """
     A, b, Q = lin.transition(k, mean, cov)
     m, P = predict(mean, cov, A, Q, b)
     if angles is not None:
         m = wrap_components(m, angles)
-    check_finite("predicted", m, P)
+    if check:
+        check_finite("predicted", m, P)
     return m, P
 
 
@@ -342,8 +355,15 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         False when `iterations` > 1 passes were made without meeting `tol`
         (given); True otherwise.
     """
+    if iterations == 1:  # the plain update
+        H, d, R = lin.measurement(k, mean, cov)
+        post = update(mean, cov, z, H, R, d, measurement_angles)
+        if state_angles is not None:
+            post = post._replace(mean=wrap_components(post.mean, state_angles))
+        check_finite("filtered", post.mean, post.cov, post.loglik)
+        return post, 1, True
     post_mean, post_cov = mean, cov
-    changed = iterate_changed(cov) if iterations > 1 and tol is not None else None
+    changed = iterate_changed(cov) if tol is not None else None
     passes, converged = iterations, changed is None
     for i in range(iterations):
         H, d, R = lin.measurement(k, post_mean, post_cov)
@@ -361,14 +381,15 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
 
 
 def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
-    """Raise FloatingPointError when the mean, the covariance or `loglik` is inf or NaN.
+    """Raise FloatingPointError when the mean, the covariance's diagonal or `loglik` is inf or NaN.
 
-    ``x · 0`` is 0 for a finite x and NaN otherwise, so two dot products with
-    zeros test every entry without a temporary (and huge finite entries
-    cannot overflow into a false alarm).
+    One sum, ``Σ mean + tr P + loglik``, is checked: it is not finite exactly
+    when one of its terms is not (or, for a belief within a factor 2 of the
+    largest float, 1.8e308, when their sum overflows: then the next step
+    would). An inf or NaN covariance has one on its diagonal.
     """
-    if not np.isfinite(np.dot(mean, np.zeros(mean.shape[0])) + np.dot(cov.ravel(), np.zeros(cov.size))
-                       + 0.0 * loglik):
+    total = mean.sum() + cov.trace() + loglik
+    if total - total != 0.0:
         raise FloatingPointError(not_finite(stage))
 
 
