@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
-    "psd_solve", "sqrt_cov", "weighted_mean", "circular_mean", "whiten", "log_density", "observed_gram", "wrap_angle",
+    "psd_solve", "sqrt_cov", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det", "observed_gram", "wrap_angle",
     "wrap_components",
 ]
 
@@ -187,21 +187,30 @@ def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
     return cho_solve(L, B)
 
 
-def log_density(white: np.ndarray, L: np.ndarray) -> float | np.ndarray:
+def log_density(white: np.ndarray, L: np.ndarray, logdet: float | None = None) -> float | np.ndarray:
     r"""``log N(x; μ, C)`` from the whitened residual ``L⁻¹ (x - μ)`` and the factor L of C.
 
     .. math::
 
-        -\tfrac12 \left(\lVert L^{-1} (x - \mu) \rVert^2 + 2 \textstyle\sum_i \log L_{ii}
-        + k \log 2\pi\right),
+        -\tfrac12 \left(\lVert L^{-1} (x - \mu) \rVert^2 + \log\det C + k \log 2\pi\right),
+        \qquad \log\det C = 2 \textstyle\sum_i \log L_{ii},
 
-    with k the dimension; over the last axis of `white` (and the last two of `L`).
+    with k the dimension; over the last axis of `white` (and the last two of
+    `L`). `logdet` is :func:`log_det` of L, when already known.
     """
     k = white.shape[-1]
+    if logdet is None:
+        logdet = log_det(L)
     if white.ndim == 1:  # one density: the common case, without the stack's axis bookkeeping
-        return -0.5 * (white @ white + 2.0 * np.log(L.diagonal()).sum() + k * LOG_2PI)
-    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+        return -0.5 * (white @ white + logdet + k * LOG_2PI)
     return -0.5 * (np.sum(white * white, axis=-1) + logdet + k * LOG_2PI)
+
+
+def log_det(L: np.ndarray) -> float | np.ndarray:
+    """``log det C = 2 Σ log L_ii`` for ``C = L Lᵀ`` (each of a stack)."""
+    if L.ndim == 2:
+        return 2.0 * float(np.log(L.diagonal()).sum())
+    return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
 def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str = "the covariance"):

@@ -15,6 +15,13 @@ class Exact:
     model : LinearModel
     us : ndarray of shape (T, p), or a mapping from k to u_k, optional
         The controls, when the model has B.
+
+    Attributes
+    ----------
+    invariant : bool
+        Whether F, H, Q and R are the same at every step, so that the
+        covariance recursion can reach a fixed point (see
+        :class:`gaussfuse.kalman.SteadyState`).
     """
 
     def __init__(self, model, us=None) -> None:
@@ -22,6 +29,7 @@ class Exact:
         # the matrices, and whether each varies with the step (read once: a step asks for them)
         self._F, self._H, self._Q, self._R, self._B = model.F, model.H, model.Q, model.R, model.B
         self._varies = tuple(a is not None and a.ndim == 3 for a in (model.F, model.H, model.Q, model.R, model.B))
+        self.invariant = not any(self._varies[:4])  # A, H, Q, R the same at every step (see kalman.SteadyState)
 
     def transition(self, k: int, mean: np.ndarray, cov: np.ndarray):
         vF, _, vQ, _, vB = self._varies
