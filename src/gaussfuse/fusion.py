@@ -508,7 +508,8 @@ class Fuser:
         if dt > 0.0:
             model, _ = self._timeline.model(np.array([dt]))
             lin = self._strategy(model, [dt])
-            self.belief = Gaussian(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov, self._state_angles))
+            self.belief = Gaussian._trusted(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov,
+                                                             self._state_angles))
         self.t = t
 
     def predict(self, t: float) -> Gaussian:
@@ -534,6 +535,6 @@ class Fuser:
         self._advance(t, "t")
         post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
                               state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
-        self.belief = Gaussian(post.mean, post.cov)
+        self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief

@@ -351,7 +351,7 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
         For a strategy whose covariance recursion does not depend on the
         step or the belief (``lin.invariant``): what this step may reuse
         from the last ones (see :class:`SteadyState`); the driver keeps one
-        per series. Ignored with `iterations` > 1.
+        per series. Not used with `iterations` > 1.
 
     Returns
     -------
@@ -364,19 +364,10 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
     FloatingPointError
         When the prediction or the posterior is not finite (an overflow).
     """
-    if steady is not None and iterations == 1:
-        observed = observed_components(z)
-        if cov is steady.cov and _same(observed, steady.observed):
-            return _steady_step(lin, k, mean, z, steady, state_angles, measurement_angles)
-    pm, pc = forecast(lin, k, mean, cov, state_angles, check=False)
+    pm, pc = forecast(lin, k, mean, cov, state_angles, check=False, steady=steady)
     try:
-        if steady is None or iterations > 1:
-            post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles)
-        else:
-            post, g = _correct_once(lin, k, pm, pc, z, state_angles, measurement_angles, observed)
-            passes, converged = 1, True
-            if np.array_equal(post.cov, cov):  # a fixed point of the covariance recursion
-                steady.cov, steady.observed, steady.predicted_cov, steady.gain = post.cov, observed, pc, g
+        post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles,
+                                          steady)
     except (FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
         check_finite("predicted", pm, pc)  # when the prediction overflowed first, that is the error
         raise
@@ -384,7 +375,7 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
 
 
 class SteadyState:
-    r"""What :func:`step` reuses once the covariance recursion reaches a fixed point.
+    r"""What :func:`forecast` and :func:`correct` reuse once the covariances reach a fixed point.
 
     For a strategy whose ``A``, ``Q``, ``H`` and ``R`` depend neither on the
     step nor on the belief (``lin.invariant``: a time-invariant linear
@@ -393,60 +384,50 @@ class SteadyState:
     nothing but :math:`P_{k-1}` and which components of :math:`z_k` are
     observed. When a step leaves the posterior covariance bitwise unchanged,
     every following step with the same observed components would compute
-    exactly the same covariances, gain and factor again: :func:`step` then
-    reuses them and computes only the means (a few products instead of a
-    Cholesky factorisation and the Joseph form). The results are bitwise
-    those of the full step; this is not the approximate steady-state filter.
+    exactly the same covariances, gain and factor again: they are reused,
+    and only the means are computed (a few products instead of a Cholesky
+    factorisation and the Joseph form). The results are bitwise those of the
+    full step; this is not the approximate steady-state filter.
 
     Attributes
     ----------
     cov : ndarray or None
-        The fixed-point posterior covariance (the very object :func:`step`
+        The fixed-point posterior covariance (the very object the step
         returns while reusing it), or None before one is found.
+    predicted_cov : ndarray or None
+        Its prediction, :math:`A P A^\top + Q`.
+    gain : Gain or None
+        The update's covariance half from it.
     observed : ndarray or None
-        The observed components it holds for (None: all).
-    predicted_cov : ndarray
-    gain : Gain
+        The observed components the gain is for (None: all).
+    previous, predicted : ndarray or None
+        The covariance the last full prediction started from and the one it
+        returned (an update of `predicted` back to `previous` is a fixed
+        point).
     """
 
-    __slots__ = ("cov", "observed", "predicted_cov", "gain")
+    __slots__ = ("cov", "predicted_cov", "gain", "observed", "previous", "predicted")
 
     def __init__(self) -> None:
-        self.cov = self.observed = self.predicted_cov = self.gain = None
+        self.cov = self.predicted_cov = self.gain = self.observed = self.previous = self.predicted = None
 
 
-def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
-    return a is b or (a is not None and b is not None and np.array_equal(a, b))
-
-
-def _steady_step(lin, k: int, mean: np.ndarray, z: np.ndarray, steady: SteadyState, state_angles,
-                 measurement_angles) -> Step:
-    """:func:`step` with the covariance half reused from `steady`: the means only."""
-    pc, g = steady.predicted_cov, steady.gain
-    A, b, _ = lin.transition(k, mean, steady.cov)
-    pm = predict_mean(mean, A, b)
-    if state_angles is not None:
-        pm = wrap_components(pm, state_angles)
-    H, d, _ = lin.measurement(k, pm, pc)
-    post_mean, innovation, loglik = apply_gain(g, pm, z, H, d, measurement_angles)
-    if state_angles is not None:
-        post_mean = wrap_components(post_mean, state_angles)
-    total = post_mean.sum() + loglik
-    if total - total != 0.0:  # the covariances are the fixed point's, finite: only the means can overflow
-        check_finite("predicted", pm, pc)
-        raise FloatingPointError(not_finite("filtered"))
-    return Step(pm, pc, Update(post_mean, g.cov, innovation, g.innovation_cov, loglik), 1, True)
-
-
-def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None,
-             check: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None, check: bool = True,
+             steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The prediction of step k: :func:`predict` through ``lin.transition`` (see :func:`step`).
 
     With `check`, a prediction that is not finite raises FloatingPointError
     (:func:`step` checks it only when the update fails, which it then does).
+    With `steady` (see :class:`SteadyState`), a covariance at its fixed point
+    predicts to the fixed point's prediction, without computing it again.
     """
     A, b, Q = lin.transition(k, mean, cov)
-    m, P = predict(mean, cov, A, Q, b)
+    if steady is not None and cov is steady.cov:
+        m, P = predict_mean(mean, A, b), steady.predicted_cov
+    else:
+        m, P = predict(mean, cov, A, Q, b)
+        if steady is not None:
+            steady.previous, steady.predicted = cov, P
     if angles is not None:
         m = wrap_components(m, angles)
     if check:
@@ -455,7 +436,8 @@ def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None,
 
 
 def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
-            tol: float | None = None, state_angles=None, measurement_angles=None) -> tuple[Update, int, bool]:
+            tol: float | None = None, state_angles=None, measurement_angles=None,
+            steady: SteadyState | None = None) -> tuple[Update, int, bool]:
     """The update of step k through ``lin.measurement``, iterated when asked.
 
     Pass i linearises the measurement at the previous posterior ``x_{i-1}``
@@ -465,6 +447,11 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     With more, it stops after the first pass whose change
     ``‖x_i - x_{i-1}‖`` in the norm of `cov` (:func:`iterate_changed`) is at
     most `tol`, or after `iterations` passes.
+
+    With `steady` and one iteration (see :class:`SteadyState`), the
+    fixed point's gain is reused for the prediction it made, and a fixed
+    point is recorded when this update brings the covariance back to the
+    one the prediction started from.
 
     Returns
     -------
@@ -476,7 +463,7 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         (given); True otherwise.
     """
     if iterations == 1:  # the plain update
-        return _correct_once(lin, k, mean, cov, z, state_angles, measurement_angles)[0], 1, True
+        return _correct_once(lin, k, mean, cov, z, state_angles, measurement_angles, steady)[0], 1, True
     post_mean, post_cov = mean, cov
     changed = iterate_changed(cov) if tol is not None else None
     passes, converged = iterations, changed is None
@@ -496,19 +483,32 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
 
 
 def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, state_angles,
-                  measurement_angles, observed=False) -> tuple[Update, Gain]:
-    """The plain update of step k through ``lin.measurement``, and its :class:`Gain`.
-
-    `observed` is :func:`observed_components` of `z` when already known.
-    """
+                  measurement_angles, steady: SteadyState | None = None) -> tuple[Update, Gain]:
+    """The plain update of step k through ``lin.measurement``, and its :class:`Gain` (see :func:`correct`)."""
     H, d, R = lin.measurement(k, mean, cov)
-    g = gain(cov, H, R, observed_components(z) if observed is False else observed)
+    observed = observed_components(z)
+    reused = steady is not None and cov is steady.predicted_cov and _same(observed, steady.observed)
+    if reused:
+        g = steady.gain
+    else:
+        g = gain(cov, H, R, observed)
+        if steady is not None and cov is steady.predicted and np.array_equal(g.cov, steady.previous):
+            steady.cov, steady.predicted_cov, steady.gain, steady.observed = g.cov, cov, g, observed
     post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, measurement_angles)
     if state_angles is not None:
         post_mean = wrap_components(post_mean, state_angles)
     post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik)
-    check_finite("filtered", post.mean, post.cov, post.loglik)
+    if reused:  # the fixed point's covariance is finite: only the mean and loglik can have overflowed
+        total = post_mean.sum() + loglik
+        if total - total != 0.0:
+            raise FloatingPointError(not_finite("filtered"))
+    else:
+        check_finite("filtered", post.mean, post.cov, post.loglik)
     return post, g
+
+
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return a is b or (a is not None and b is not None and np.array_equal(a, b))
 
 
 def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
