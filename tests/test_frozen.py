@@ -116,6 +116,8 @@ EXAMPLES = {
     gf.Fuser: fuser,
     gf.IMMResult: imm_result,
     gf.FitResult: fit_result,
+    gf.Stacked: lambda: gf.stack_sensors({"gps": gf.Position(dim=2, r=0.5), "radar": gf.RangeBearing()},
+                                         gf.ConstantVelocity(dim=2)),
 }
 
 

@@ -314,7 +314,7 @@ def _call(**changes):
     (dict(motion=gf.RandomWalk(n=1), sensors={"rb": gf.RangeBearing()}), ValueError,
      "`sensors['rb']` reads 2 position components but the state of `motion` has only 1."),
     (dict(sensors={"v": gf.LinearSensor(H=[[0.0, 1.0]], R=[[1.0]])}), ValueError,
-     "`sensors['v']` must measure a state of n = 4 components (the motion's); its H has shape (1, 2)."),
+     "`sensors['v']` has `H` of shape (1, 2), which does not fit the state of `motion` (n = 4); `H` must have 4 columns."),
     (dict(prior=gf.Gaussian([0.0, 0.0], np.eye(2))), ValueError,
      "`prior` must have dimension 4 (the model's state); got 2."),
     (dict(t0="0"), TypeError, "`t0` must be a real number (a time); got '0'."),

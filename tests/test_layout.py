@@ -109,3 +109,18 @@ def test_the_graph_has_the_edges_it_should():
     assert "gaussfuse.inference.drivers" in GRAPH["gaussfuse.inference"]
     assert "gaussfuse.inference.registry" in GRAPH["gaussfuse.inference.drivers"]
     assert "gaussfuse._kernels.linear" not in GRAPH["gaussfuse.inference.drivers"]  # a computed name
+
+
+def test_covariances_are_factorised_only_in_the_linear_algebra_modules():
+    """No np.linalg.cholesky, solve, inv, lstsq or pinv outside _linalg, kalman and the kernels."""
+    allowed = {"gaussfuse._linalg", "gaussfuse.kalman"}
+    banned = {"cholesky", "solve", "inv", "lstsq", "pinv"}
+    found = []
+    for name, path in MODULES.items():
+        if name in allowed or name.startswith("gaussfuse._kernels"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (isinstance(node, ast.Attribute) and node.attr in banned and isinstance(node.value, ast.Attribute)
+                    and node.value.attr == "linalg"):
+                found.append(f"{name}:{node.lineno} linalg.{node.attr}")
+    assert found == []

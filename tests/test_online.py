@@ -181,3 +181,46 @@ def test_a_pickled_or_copied_filter_carries_on_where_the_original_left_off():
         np.testing.assert_array_equal(other.P, kf.P)
         assert other.loglik == kf.loglik
         assert not other.x.flags.writeable
+
+
+def test_online_filter_reuses_the_fixed_point_and_equals_the_batch_filter_bitwise():
+    """The online filter reaches the same covariance fixed point as gf.filter, and every belief is bitwise the same."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], np.eye(4))
+    zs = np.cumsum(np.random.default_rng(4).normal(size=(300, 2)), axis=0) * 0.1
+    zs[200, 1] = np.nan  # a partly missing step leaves the fixed point, and it is found again
+    batch = gf.filter(model, prior, zs, engine="python")
+    kf = gf.KalmanFilter(model, prior)
+    for k, z in enumerate(zs):
+        kf.predict()
+        kf.update(z)
+        np.testing.assert_array_equal(kf.x, batch.means[k])
+        np.testing.assert_array_equal(kf.P, batch.covs[k])
+    assert kf._steady.cov is kf.P  # at the fixed point, reused
+    assert kf.loglik == batch.loglik
+
+
+def test_a_belief_set_by_hand_between_predict_and_update_is_not_taken_for_a_fixed_point():
+    """After predict(), a user-set belief is updated in full, and the next steps still equal a fresh filter's."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    kf = gf.KalmanFilter(model, prior)
+    for z in np.linspace(0.0, 3.0, 200):
+        kf.predict()
+        kf.update([z])
+    assert kf._steady.cov is kf.P
+    kf.predict()
+    other = gf.Gaussian(kf.x, 2.0 * kf.P)
+    kf.belief = other
+    kf.update([3.0])
+    fresh = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
+    fresh.belief = other
+    fresh.step = kf.step
+    fresh.update([3.0])
+    np.testing.assert_array_equal(kf.P, fresh.P)
+    for z in (3.1, 3.2, 3.3):
+        for f in (kf, fresh):
+            f.predict()
+            f.update([z])
+        np.testing.assert_array_equal(kf.x, fresh.x)
+        np.testing.assert_array_equal(kf.P, fresh.P)

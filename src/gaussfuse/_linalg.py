@@ -13,17 +13,34 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "LOG_2PI", "symmetrize", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
-    "psd_solve", "sqrt_cov", "weighted_mean", "circular_mean", "whiten", "log_density", "observed_gram", "wrap_angle",
+    "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
+    "psd_solve", "sqrt_cov", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det", "observed_gram", "wrap_angle",
     "wrap_components",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
+try:  # NumPy's LAPACK gufuncs, without the Python wrapper of np.linalg (a fifth of its cost on small matrices)
+    from numpy.linalg._umath_linalg import cholesky_lo as _potrf, solve as _gesv, solve1 as _gesv1
+except ImportError:  # pragma: no cover - every NumPy since 1.8 has them
+    _potrf = _gesv = _gesv1 = None
+
 
 def symmetrize(cov: np.ndarray) -> np.ndarray:
     """``(P + Pᵀ) / 2``: removes round-off asymmetry (a stack too)."""
     return 0.5 * (cov + cov.swapaxes(-1, -2))
+
+
+_EYES: dict[int, np.ndarray] = {}
+
+
+def eye(n: int) -> np.ndarray:
+    """The n × n identity, read-only and made once (a filter step needs it every time)."""
+    out = _EYES.get(n)
+    if out is None:
+        out = _EYES[n] = np.eye(n)
+        out.setflags(write=False)
+    return out
 
 
 def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
@@ -34,19 +51,33 @@ def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
     numpy.linalg.LinAlgError
         When `mat` is not positive definite; the message names `name` and
         shows the matrix, so that a driver can prefix the time step.
+
+    Notes
+    -----
+    LAPACK's ``potrf`` through NumPy's gufunc, which leaves NaN where the
+    factorisation fails (the wrapper ``np.linalg.cholesky`` costs five times
+    as much on the small matrices of a filter step).
     """
-    try:
-        return np.linalg.cholesky(mat)
-    except np.linalg.LinAlgError:
-        with np.printoptions(precision=4, threshold=36):
-            shown = np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
-        raise np.linalg.LinAlgError(f"{name} is not positive definite, so it cannot be factorised: {shown}") from None
+    if _potrf is None:
+        try:
+            return np.linalg.cholesky(mat)
+        except np.linalg.LinAlgError:
+            pass
+    else:
+        with np.errstate(invalid="ignore"):
+            L = _potrf(mat)
+        corner = L[-1, -1] if L.ndim == 2 else L[..., -1, -1]
+        if corner.ndim == 0 and corner == corner or corner.ndim and (corner == corner).all():
+            return L  # (NaN marks a failed factorisation)
+    with np.printoptions(precision=4, threshold=36):
+        shown = np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
+    raise np.linalg.LinAlgError(f"{name} is not positive definite, so it cannot be factorised: {shown}")
 
 
 def is_positive_definite(mat: np.ndarray) -> bool:
     """Whether `mat` (each of a stack) has a Cholesky factor."""
     try:
-        np.linalg.cholesky(mat)
+        cholesky(mat)
     except np.linalg.LinAlgError:
         return False
     return True
@@ -106,7 +137,7 @@ def sqrt_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         The columns of L that are not zero.
     """
     try:
-        L = np.linalg.cholesky(cov)
+        L = cholesky(cov)
     except np.linalg.LinAlgError:
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0
@@ -132,40 +163,54 @@ def circular_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def whiten(L: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``L⁻¹ x``: a forward (triangular) solve; `x` of shape (k,), (k, r) or a stack of either."""
-    return np.linalg.solve(L, x)
+    if _gesv is None:
+        return np.linalg.solve(L, x)
+    return _gesv1(L, x) if x.ndim == 1 else _gesv(L, x)
 
 
 def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``C⁻¹ b`` for ``C = L Lᵀ``: two triangular solves, no inverse (stacks broadcast).
-
-    (NumPy's solver on the small triangular factors: SciPy's triangular
-    solvers cost more in call overhead than they save at these sizes.)
-    """
-    return np.linalg.solve(L.swapaxes(-1, -2), np.linalg.solve(L, b))
+    """``C⁻¹ b`` for ``C = L Lᵀ``: two triangular solves, no inverse (stacks broadcast)."""
+    Lt = L.T if L.ndim == 2 else L.swapaxes(-1, -2)
+    if _gesv is None:
+        return np.linalg.solve(Lt, np.linalg.solve(L, b))
+    solve = _gesv1 if b.ndim == 1 else _gesv
+    return solve(Lt, solve(L, b))
 
 
 def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular the
     minimum-norm least-squares solution (exact on the range of C, where B is for a conditional)."""
     try:
-        return cho_solve(np.linalg.cholesky(C), B)
+        L = cholesky(C)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(C, B, rcond=None)[0]
+    return cho_solve(L, B)
 
 
-def log_density(white: np.ndarray, L: np.ndarray) -> float | np.ndarray:
+def log_density(white: np.ndarray, L: np.ndarray, logdet: float | None = None) -> float | np.ndarray:
     r"""``log N(x; μ, C)`` from the whitened residual ``L⁻¹ (x - μ)`` and the factor L of C.
 
     .. math::
 
-        -\tfrac12 \left(\lVert L^{-1} (x - \mu) \rVert^2 + 2 \textstyle\sum_i \log L_{ii}
-        + k \log 2\pi\right),
+        -\tfrac12 \left(\lVert L^{-1} (x - \mu) \rVert^2 + \log\det C + k \log 2\pi\right),
+        \qquad \log\det C = 2 \textstyle\sum_i \log L_{ii},
 
-    with k the dimension; over the last axis of `white` (and the last two of `L`).
+    with k the dimension; over the last axis of `white` (and the last two of
+    `L`). `logdet` is :func:`log_det` of L, when already known.
     """
     k = white.shape[-1]
-    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    if logdet is None:
+        logdet = log_det(L)
+    if white.ndim == 1:  # one density: the common case, without the stack's axis bookkeeping
+        return -0.5 * (white @ white + logdet + k * LOG_2PI)
     return -0.5 * (np.sum(white * white, axis=-1) + logdet + k * LOG_2PI)
+
+
+def log_det(L: np.ndarray) -> float | np.ndarray:
+    """``log det C = 2 Σ log L_ii`` for ``C = L Lᵀ`` (each of a stack)."""
+    if L.ndim == 2:
+        return 2.0 * float(np.log(L.diagonal()).sum())
+    return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
 def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str = "the covariance"):

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._linalg import cholesky, observed_gram, whiten
 from ._validation import as_array, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "whiteness", "rmse", "consistency", "ConsistencyReport",
@@ -39,18 +40,10 @@ def _quadratic(name: str, errors, covs) -> tuple[np.ndarray, np.ndarray]:
     if e.ndim < 1 or C.shape != e.shape + e.shape[-1:]:
         raise shape_error(f"{name} covariances", f"{e.shape + e.shape[-1:]} to match `{name}`", C.shape)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
-    out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=int)
     observed = ~np.isnan(flat_e)
-    full = observed.all(axis=1)
-    if full.any():
-        L = np.linalg.cholesky(flat_C[full])
-        w = np.linalg.solve(L, flat_e[full][..., None])[..., 0]
-        out[full], dof[full] = np.sum(w * w, axis=-1), e.shape[-1]
-    for i in np.flatnonzero(observed.any(axis=1) & ~full):
-        o = observed[i]
-        L = np.linalg.cholesky(flat_C[i][np.ix_(o, o)])
-        w = np.linalg.solve(L, flat_e[i][o])
-        out[i], dof[i] = w @ w, o.sum()
+    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"the {name} covariance")
+    dof = observed.sum(axis=1)
+    out = np.where(dof > 0, gram[:, 0, 0], np.nan)
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
 
 
@@ -152,7 +145,7 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     if v.ndim != 2 or S.shape != v.shape + v.shape[-1:]:
         raise shape_error("innovations", "(T, m) with `innovation_covs` (T, m, m)", v.shape)
     keep = ~np.isnan(v).any(axis=1)
-    w = np.linalg.solve(np.linalg.cholesky(S[keep]), v[keep][..., None])[..., 0]  # (T', m) whitened
+    w = whiten(cholesky(S[keep], "the innovation covariance"), v[keep][..., None])[..., 0]  # (T', m) whitened
     T, m = w.shape
     if not isinstance(lags, (int, np.integer)) or not 1 <= lags < T:
         raise ValueError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")

@@ -18,7 +18,8 @@ timeline of events becomes ONE state-space model over the event steps:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
+from functools import partial
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -26,15 +27,17 @@ import numpy as np
 
 from . import inference, kalman
 from ._frozen import reduce_frozen
-from ._validation import as_array, call_checked, shape_error
+from ._validation import as_array, shape_error
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference.registry import resolve_method
 from .inference.validation import check_prior
+from .models.compose import model as compose_model
+from .models.compose import stack_sensors
 from .models.linear import LinearModel
 from .models.motion import LinearMotion, NonlinearMotion
 from .models.nonlinear import NonlinearModel
-from .models.sensors import LinearSensor, NonlinearSensor, Position
+from .models.sensors import LinearSensor
 
 __all__ = ["Measurement", "Fused", "fuse_timeline", "Fuser"]
 
@@ -130,41 +133,20 @@ class Fused:
 
 
 # ---------------------------------------------------------------------------
-# The sensors stacked into one measurement vector, and the motion between steps
+# The timeline as one model: the motion over each step, the sensors stacked
 # ---------------------------------------------------------------------------
 
 
-def _check_fit(name: str, sensor, motion) -> None:
-    """A geometric sensor must not read more position components than the motion has."""
-    reads, axes = getattr(sensor, "dim", None), getattr(motion, "dim", None)
-    if reads is None:
-        return
-    if axes is not None and reads > axes:
-        raise ValueError(
-            f"`sensors[{name!r}]` reads {reads} position components but `motion` has {axes} "
-            f"spatial {'axis' if axes == 1 else 'axes'}."
-        )
-    if reads > motion.n:
-        raise ValueError(
-            f"`sensors[{name!r}]` reads {reads} position components but the state of `motion` "
-            f"has only {motion.n}."
-        )
+class _Timeline:
+    """The motion and the stacked sensors (:func:`gaussfuse.models.compose.stack_sensors`).
 
-
-def _linear_sensor(sensor, n: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(H, R)`` of a linear sensor for an n-dimensional state, None for a nonlinear one."""
-    if isinstance(sensor, Position) and sensor.n is None:
-        return sensor.linear(n)
-    if isinstance(sensor, LinearSensor):
-        return sensor.H, sensor.R
-    return None
-
-
-class _Stack:
-    """The motion and all sensors as one model over a timeline of steps.
-
-    The measurement vector stacks the sensors' components in the order of
-    the ``sensors`` mapping; ``slots[name]`` is each sensor's slice.
+    Attributes
+    ----------
+    sensor : LinearSensor or Stacked
+        The sensors read as one; ``slots[name]`` is each one's part of the
+        stacked measurement vector.
+    linear : bool
+        Whether the motion and every sensor are linear.
     """
 
     def __init__(self, motion, sensors) -> None:
@@ -178,128 +160,38 @@ class _Stack:
                 f"`motion` has a control input ({type(motion).__name__}); fusion takes no "
                 "controls, so use a motion without one."
             )
-        if not isinstance(sensors, Mapping) or not sensors:
-            raise TypeError(
-                "`sensors` must be a non-empty dict mapping names to sensors; "
-                f"got {sensors!r:.80}."
-            )
         self.motion, self.n = motion, motion.n
+        self.sensor = stack_sensors(sensors, motion)
         self.names = tuple(sensors)
-        self.sensors = dict(sensors)
-        self.slots: dict[str, slice] = {}
-        self.linear_parts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        noises, angles, start = [], [], 0
-        for name, sensor in self.sensors.items():
-            if not isinstance(name, str):
-                raise TypeError(f"`sensors` must have str keys (sensor names); got {name!r}.")
-            if not isinstance(sensor, (LinearSensor, NonlinearSensor)):
-                raise TypeError(
-                    f"`sensors[{name!r}]` must be a sensor (a LinearSensor, Position or "
-                    f"NonlinearSensor, e.g. gaussfuse.RangeBearing); got {type(sensor).__name__}."
-                )
-            _check_fit(name, sensor, motion)
-            parts = _linear_sensor(sensor, self.n)
-            if parts is not None:
-                H, R = np.asarray(parts[0], dtype=float), np.asarray(parts[1], dtype=float)
-                if H.ndim != 2 or H.shape[1] != self.n:
-                    raise ValueError(
-                        f"`sensors[{name!r}]` must measure a state of n = {self.n} components "
-                        f"(the motion's); its H has shape {H.shape}."
-                    )
-                self.linear_parts[name] = (H, R)
-                m, sensor_angles = H.shape[0], ()
-            else:
-                R = np.asarray(sensor.R, dtype=float)
-                m, sensor_angles = sensor.m, tuple(sensor.measurement_angles)
-            self.slots[name] = slice(start, start + m)
-            noises.append(R)
-            angles.extend(start + int(i) for i in sensor_angles)
-            start += m
+        self.slots, start = {}, 0
+        for name, sensor in sensors.items():
+            self.slots[name] = slice(start, start + sensor.m)
+            start += sensor.m
         self.m = start
-        self.R = np.zeros((self.m, self.m))
-        for name, R in zip(self.names, noises):
-            self.R[self.slots[name], self.slots[name]] = R
-        self.measurement_angles = tuple(angles)
-        self.linear = isinstance(motion, LinearMotion) and len(self.linear_parts) == len(self.sensors)
-        if self.linear_parts:
-            self.H = np.zeros((self.m, self.n))
-            for name, (H, _) in self.linear_parts.items():
-                self.H[self.slots[name]] = H
-        self.state_angles = tuple(getattr(motion, "state_angles", ()))
-        self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self.linear = isinstance(motion, LinearMotion) and isinstance(self.sensor, LinearSensor)
+        self._models: dict[float, LinearModel | NonlinearModel] = {}
 
-    # -- the motion over dt ------------------------------------------------
-
-    def linear_transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)`` of a linear motion over dt (identity and zero for dt = 0), cached."""
-        if dt not in self._cache:
-            if dt == 0.0:
-                self._cache[dt] = np.eye(self.n), np.zeros((self.n, self.n))
-            else:
-                F, Q = self.motion.transition(dt)
-                self._cache[dt] = np.asarray(F, dtype=float), np.asarray(Q, dtype=float)
-        return self._cache[dt]
-
-    def noise(self, dt: float) -> np.ndarray:
-        """Process-noise covariance over dt."""
-        if isinstance(self.motion, LinearMotion):
-            return self.linear_transition(dt)[1]
-        if dt == 0.0:
-            return np.zeros((self.n, self.n))
-        return np.asarray(self.motion.noise(dt), dtype=float)
-
-    def f(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The state after ``dt = u[0]``."""
-        dt = float(u[0])
-        if isinstance(self.motion, LinearMotion):
-            return self.linear_transition(dt)[0] @ x
-        if dt == 0.0:
-            return x
-        return self.motion.f(x, dt)
-
-    def f_jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        dt = float(u[0])
-        if isinstance(self.motion, LinearMotion):
-            return self.linear_transition(dt)[0]
-        if dt == 0.0:
-            return np.eye(self.n)
-        return self.motion.jacobian(x, dt)
-
-    def h(self, x: np.ndarray) -> np.ndarray:
-        """All sensors' predicted measurements, stacked: shape (m,)."""
-        out = np.empty(self.m)
-        for name, sensor in self.sensors.items():
-            if name in self.linear_parts:
-                out[self.slots[name]] = self.linear_parts[name][0] @ x
-            else:
-                m = self.slots[name].stop - self.slots[name].start
-                out[self.slots[name]] = call_checked(f"sensors[{name!r}].h", sensor.h, x, (), (m,))
-        return out
-
-    def h_jacobian(self, x: np.ndarray) -> np.ndarray:
-        """All sensors' measurement Jacobians, stacked: shape (m, n)."""
-        out = np.empty((self.m, self.n))
-        for name, sensor in self.sensors.items():
-            if name in self.linear_parts:
-                out[self.slots[name]] = self.linear_parts[name][0]
-            else:
-                m = self.slots[name].stop - self.slots[name].start
-                out[self.slots[name]] = call_checked(
-                    f"sensors[{name!r}].jacobian", sensor.jacobian, x, (), (m, self.n))
-        return out
-
-    # -- the model over a timeline -----------------------------------------
+    def model_over(self, dt: float) -> LinearModel | NonlinearModel:
+        """:func:`gaussfuse.model` of the motion and the stacked sensors over `dt` > 0, made once per dt."""
+        if dt not in self._models:
+            self._models[dt] = compose_model(self.motion, self.sensor, dt)
+        return self._models[dt]
 
     def model(self, dts: np.ndarray) -> tuple[LinearModel | NonlinearModel, np.ndarray | None]:
-        """The model over steps with elapsed times `dts` (K,), and its controls (K, 1) or None."""
-        Q = np.stack([self.noise(float(dt)) for dt in dts])
+        """The model over steps of elapsed times `dts` (K,), and its controls (K, 1) or None.
+
+        A step of zero duration has the identity transition and no process
+        noise. A linear timeline is a time-varying LinearModel; otherwise a
+        NonlinearModel whose ``f(x, u)`` moves x over ``dt = u[0]``.
+        """
+        probe = self.model_over(1.0)
+        Q = np.stack([self.model_over(float(dt)).Q if dt > 0 else np.zeros((self.n, self.n)) for dt in dts])
         if self.linear:
-            F = np.stack([self.linear_transition(float(dt))[0] for dt in dts])
-            return LinearModel(F, self.H, Q, self.R), None
-        model = NonlinearModel(
-            self.f, self.h, Q, self.R, f_jacobian=self.f_jacobian, h_jacobian=self.h_jacobian,
-            state_angles=self.state_angles, measurement_angles=self.measurement_angles,
-        )
+            F = np.stack([self.model_over(float(dt)).F if dt > 0 else np.eye(self.n) for dt in dts])
+            return LinearModel(F, probe.H, Q, probe.R), None
+        model = NonlinearModel(partial(_moved, self), probe.h, Q, probe.R, f_jacobian=partial(_moved_jacobian, self),
+                               h_jacobian=probe.h_jacobian, vectorized=True, state_angles=probe.state_angles,
+                               measurement_angles=probe.measurement_angles)
         return model, np.asarray(dts, dtype=float).reshape(-1, 1)
 
     def default_method(self) -> str:
@@ -311,8 +203,7 @@ class _Stack:
         m = slot.stop - slot.start
         arr = as_array("z", z, allow_nan=True)
         if arr.shape != (m,) and not (m == 1 and arr.ndim == 0):
-            raise shape_error("z", f"({m},) for sensor {name!r}" + (" or a scalar" if m == 1 else ""),
-                              arr.shape)
+            raise shape_error("z", f"({m},) for sensor {name!r}" + (" or a scalar" if m == 1 else ""), arr.shape)
         full = np.full(self.m, np.nan)
         full[slot] = arr.reshape(m)
         return full
@@ -321,6 +212,17 @@ class _Stack:
         if not isinstance(name, str) or name not in self.slots:
             raise ValueError(f"`{argument}` must be one of {list(self.names)}; got {name!r}.")
         return name
+
+
+def _moved(timeline: _Timeline, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The states x (n,) or (k, n) after the motion over ``dt = u[0]`` (unchanged for dt = 0)."""
+    dt = float(u[0])
+    return x if dt == 0.0 else timeline.model_over(dt).f(x)
+
+
+def _moved_jacobian(timeline: _Timeline, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    dt = float(u[0])
+    return np.eye(timeline.n) if dt == 0.0 else timeline.model_over(dt).f_jacobian(x)
 
 
 def _time(name: str, value) -> float:
@@ -333,7 +235,7 @@ def _time(name: str, value) -> float:
     return value
 
 
-def _parse(measurements, stack: _Stack, t0: float) -> list[tuple[float, str, np.ndarray]]:
+def _parse(measurements, timeline: _Timeline, t0: float) -> list[tuple[float, str, np.ndarray]]:
     """Checked measurements as (t, sensor, stacked z), in the order given."""
     if isinstance(measurements, (str, bytes)) or not isinstance(measurements, Iterable):
         raise TypeError(
@@ -348,21 +250,21 @@ def _parse(measurements, stack: _Stack, t0: float) -> list[tuple[float, str, np.
                 f"tuple; got {item!r:.80}."
             )
         t = _time(f"measurements[{i}].t", item[0])
-        name = stack.check_name(item[1], f"measurements[{i}].sensor")
+        name = timeline.check_name(item[1], f"measurements[{i}].sensor")
         if t < t0:
             raise ValueError(
                 f"`measurements[{i}].t` must not be earlier than `t0` = {t0} (the prior's time); "
                 f"got {t}."
             )
         try:
-            z = stack.measurement_vector(name, item[2])
+            z = timeline.measurement_vector(name, item[2])
         except (TypeError, ValueError) as exc:
             raise type(exc)(str(exc).replace("`z`", f"`measurements[{i}].z`", 1)) from None
         events.append((t, name, z))
     return events
 
 
-def _steps(events, outputs: np.ndarray, stack: _Stack):
+def _steps(events, outputs: np.ndarray, timeline: _Timeline):
     """Group time-sorted events into steps; add output-only steps.
 
     Measurements at one time share a step unless a sensor repeats, which
@@ -372,7 +274,7 @@ def _steps(events, outputs: np.ndarray, stack: _Stack):
     times, zs, sources = [], [], []
     for t, name, z in sorted(events, key=lambda e: e[0]):  # sorted() is stable
         if times and times[-1] == t and sources[-1] is not None and name not in sources[-1]:
-            filled = stack.slots[name]
+            filled = timeline.slots[name]
             zs[-1][filled] = z[filled]
             sources[-1] = (*sources[-1], name)
         else:
@@ -384,10 +286,10 @@ def _steps(events, outputs: np.ndarray, stack: _Stack):
         if float(t) not in have:
             at = int(np.searchsorted(times, t, side="right"))
             times.insert(at, float(t))
-            zs.insert(at, np.full(stack.m, np.nan))
+            zs.insert(at, np.full(timeline.m, np.nan))
             sources.insert(at, None)
     sources = [s if s is None or len(s) > 1 else s[0] for s in sources]
-    return np.array(times, dtype=float), np.array(zs, dtype=float).reshape(len(times), stack.m), sources
+    return np.array(times, dtype=float), np.array(zs, dtype=float).reshape(len(times), timeline.m), sources
 
 
 def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, times=None,
@@ -480,8 +382,8 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     >>> mean.shape, cov.shape
     ((2,), (2, 2))
     """
-    stack = _Stack(motion, sensors)
-    prior = check_prior(prior, stack.n)
+    timeline = _Timeline(motion, sensors)
+    prior = check_prior(prior, timeline.n)
     t0 = _time("t0", t0)
     if not isinstance(smooth, (bool, np.bool_)):
         raise TypeError(f"`smooth` must be True or False; got {smooth!r}.")
@@ -498,13 +400,13 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
             raise ValueError(
                 f"`times` must not be earlier than `t0` = {t0} (the prior's time); got {outputs.min()}."
             )
-    events = _parse(measurements, stack, t0)
-    step_times, zs, sources = _steps(events, outputs, stack)
+    events = _parse(measurements, timeline, t0)
+    step_times, zs, sources = _steps(events, outputs, timeline)
     if step_times.size == 0:
         raise ValueError("`measurements` and `times` are both empty: there is nothing to estimate.")
     dts = np.diff(step_times, prepend=t0)
-    model, us = stack.model(dts)
-    method = stack.default_method() if method is None else method
+    model, us = timeline.model(dts)
+    method = timeline.default_method() if method is None else method
     if smooth:
         res = inference.smooth(model, prior, zs, us, method, **options)
     else:
@@ -573,12 +475,12 @@ class Fuser:
 
     def __init__(self, motion, sensors, prior: Gaussian, t0: float, method: str | None = None,
                  **options) -> None:
-        self._stack = _Stack(motion, sensors)
-        self.belief = check_prior(prior, self._stack.n)
+        self._timeline = _Timeline(motion, sensors)
+        self.belief = check_prior(prior, self._timeline.n)
         self.t = _time("t0", t0)
         self.loglik = 0.0
-        probe, _ = self._stack.model(np.zeros(1))
-        method = self._stack.default_method() if method is None else method
+        probe, _ = self._timeline.model(np.zeros(1))
+        method = self._timeline.default_method() if method is None else method
         self._spec, options = resolve_method(probe, method, options)
         if self._spec.iterated:
             raise ValueError(
@@ -592,7 +494,7 @@ class Fuser:
             for mask in (getattr(probe, "state_angles", None), getattr(probe, "measurement_angles", None)))
 
     def _strategy(self, model, dts):
-        us = None if self._stack.linear else np.asarray(dts, dtype=float).reshape(-1, 1)
+        us = None if self._timeline.linear else np.asarray(dts, dtype=float).reshape(-1, 1)
         return self._spec.strategy(model, us, **self._options)
 
     def _advance(self, t: float, argument: str) -> None:
@@ -604,9 +506,10 @@ class Fuser:
             )
         dt = t - self.t
         if dt > 0.0:
-            model, _ = self._stack.model(np.array([dt]))
+            model, _ = self._timeline.model(np.array([dt]))
             lin = self._strategy(model, [dt])
-            self.belief = Gaussian(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov, self._state_angles))
+            self.belief = Gaussian._trusted(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov,
+                                                             self._state_angles))
         self.t = t
 
     def predict(self, t: float) -> Gaussian:
@@ -627,11 +530,11 @@ class Fuser:
             The measurement (a scalar when m_s = 1); NaN components are missing.
         """
         t = _time("t", t)
-        name = self._stack.check_name(sensor, "sensor")
-        z = self._stack.measurement_vector(name, z)
+        name = self._timeline.check_name(sensor, "sensor")
+        z = self._timeline.measurement_vector(name, z)
         self._advance(t, "t")
         post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
                               state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
-        self.belief = Gaussian(post.mean, post.cov)
+        self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief

@@ -59,6 +59,21 @@ class Gaussian:
         # again, which a pickle (protocol < 5) or a deep copy of the arrays would not.
         return type(self), (self.mean, self.cov)
 
+    @classmethod
+    def _trusted(cls, mean: np.ndarray, cov: np.ndarray) -> Gaussian:
+        """A Gaussian from float64 arrays gaussfuse computed (a filter's belief), made read-only, not re-checked.
+
+        The constructor's checks (shapes, finiteness, a symmetric PSD
+        covariance by eigenvalues) are for what users give; repeating them on
+        every belief of an online filter would cost ten times the step.
+        """
+        out = object.__new__(cls)
+        mean.setflags(write=False)
+        cov.setflags(write=False)
+        object.__setattr__(out, "mean", mean)
+        object.__setattr__(out, "cov", cov)
+        return out
+
     @property
     def dim(self) -> int:
         """Dimension n of the variable."""

@@ -22,11 +22,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, log_density, psd_solve, semidefinite_cholesky, symmetrize, whiten,
-                      wrap_components)
-from .errors import not_finite
+from ._linalg import (cho_solve, cholesky, eye, log_det, log_density, psd_solve, semidefinite_cholesky,
+                      symmetrize, whiten, wrap_components)
+from .errors import ModelFunctionError, not_finite
 
-__all__ = ["predict", "update", "rts_step", "fuse_moments", "Update", "Step", "step", "forecast", "correct", "check_finite",
+__all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
+           "fuse_moments", "Update", "Gain", "Step", "SteadyState", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
 
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
@@ -90,10 +91,12 @@ def predict(
 
         m^- = A m + b, \qquad P^- = A P A^\top + Q.
     """
-    m_pred = A @ mean
-    if b is not None:
-        m_pred = m_pred + b
-    return m_pred, symmetrize(A @ cov @ A.T + Q)
+    return predict_mean(mean, A, b), symmetrize(A @ cov @ A.T + Q)
+
+
+def predict_mean(mean: np.ndarray, A: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
+    """The mean half of :func:`predict`: ``A m + b``."""
+    return A @ mean if b is None else A @ mean + b
 
 
 def update(
@@ -150,26 +153,75 @@ def update(
 
     All-missing ``z`` returns the prediction unchanged with ``loglik = 0``.
     """
-    pred_z = H @ mean
-    if d is not None:
-        pred_z = pred_z + d
-    innovation = wrap_components(z - pred_z, angles)
+    g = gain(cov, H, R, observed_components(z))
+    post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, angles)
+    return Update(post_mean, g.cov, innovation, g.innovation_cov, loglik)
+
+
+class Gain(NamedTuple):
+    """The half of an update that does not depend on the measured values.
+
+    It depends on the predicted covariance, H, R and which components are
+    observed; :func:`apply_gain` applies it to a prediction and a measurement.
+
+    Attributes
+    ----------
+    K : ndarray of shape (n, m_o), or None
+        The gain, over the observed components (None when none is).
+    cov : ndarray of shape (n, n)
+        The posterior covariance.
+    innovation_cov : ndarray of shape (m, m)
+        ``S = H P Hᵀ + R`` over all m components.
+    factor : ndarray of shape (m_o, m_o), or None
+        The Cholesky factor of the observed block of S.
+    logdet : float
+        Its log-determinant, ``log det S_oo``.
+    observed : ndarray of bool, shape (m,), or None
+        The observed components; None when all are.
+    """
+
+    K: np.ndarray | None
+    cov: np.ndarray
+    innovation_cov: np.ndarray
+    factor: np.ndarray | None
+    logdet: float
+    observed: np.ndarray | None
+
+
+def observed_components(z: np.ndarray) -> np.ndarray | None:
+    """The components of `z` that are not NaN: None when all are (the common case), else a mask."""
+    total = z.sum()
+    return None if total == total else ~np.isnan(z)
+
+
+def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | None = None) -> Gain:
+    """The covariance half of :func:`update` (see its Notes), over the `observed` components (all if None)."""
     HP = H @ cov
     S_full = symmetrize(HP @ H.T + R)
-    observed = z == z  # not NaN
-    if observed.all():
-        H_o, R_o, v, S, HP_o = H, R, innovation, S_full, HP
+    if observed is None:
+        H_o, R_o, S, HP_o = H, R, S_full, HP
     elif not observed.any():
-        return Update(mean, cov, innovation, S_full, 0.0)
+        return Gain(None, cov, S_full, None, 0.0, observed)
     else:
-        H_o, R_o, v, HP_o = H[observed], R[np.ix_(observed, observed)], innovation[observed], HP[observed]
+        H_o, R_o, HP_o = H[observed], R[np.ix_(observed, observed)], HP[observed]
         S = S_full[np.ix_(observed, observed)]
     L = cholesky(S, _S_NAME)
     K = cho_solve(L, HP_o).T                      # Kᵀ = S⁻¹ H_o P⁻
-    I_KH = np.eye(mean.shape[0]) - K @ H_o
+    I_KH = eye(cov.shape[0]) - K @ H_o
     post_cov = symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T)
-    loglik = log_density(whiten(L, v), L)
-    return Update(mean + K @ v, post_cov, innovation, S_full, float(loglik))
+    return Gain(K, post_cov, S_full, L, log_det(L), observed)
+
+
+def apply_gain(g: Gain, mean: np.ndarray, z: np.ndarray, H: np.ndarray, d: np.ndarray | None = None,
+               angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """The mean half of :func:`update`: the posterior mean, the innovation and the log-likelihood term."""
+    innovation = z - predict_mean(mean, H, d)
+    if angles is not None:
+        innovation = wrap_components(innovation, angles)
+    if g.factor is None:
+        return mean, innovation, 0.0
+    v = innovation if g.observed is None else innovation[g.observed]
+    return mean + g.K @ v, innovation, float(log_density(whiten(g.factor, v), g.factor, g.logdet))
 
 
 def rts_step(
@@ -275,7 +327,8 @@ class Step(NamedTuple):
 
 
 def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
-         tol: float | None = None, state_angles=None, measurement_angles=None) -> Step:
+         tol: float | None = None, state_angles=None, measurement_angles=None,
+         steady: SteadyState | None = None) -> Step:
     r"""Step k of a filter: :func:`forecast`, then :func:`correct`.
 
     Parameters
@@ -294,6 +347,11 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
         See :func:`correct`.
     state_angles, measurement_angles : ndarray of bool, optional
         Components that are angles: wrapped to [-π, π).
+    steady : SteadyState, optional
+        For a strategy whose covariance recursion does not depend on the
+        step or the belief (``lin.invariant``): what this step may reuse
+        from the last ones (see :class:`SteadyState`); the driver keeps one
+        per series. Not used with `iterations` > 1.
 
     Returns
     -------
@@ -306,23 +364,80 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
     FloatingPointError
         When the prediction or the posterior is not finite (an overflow).
     """
-    pm, pc = forecast(lin, k, mean, cov, state_angles)
-    post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles)
+    pm, pc = forecast(lin, k, mean, cov, state_angles, check=False, steady=steady)
+    try:
+        post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles,
+                                          steady)
+    except (FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
+        check_finite("predicted", pm, pc)  # when the prediction overflowed first, that is the error
+        raise
     return Step(pm, pc, post, passes, converged)
 
 
-def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None) -> tuple[np.ndarray, np.ndarray]:
-    """The prediction of step k: :func:`predict` through ``lin.transition`` (see :func:`step`)."""
+class SteadyState:
+    r"""What :func:`forecast` and :func:`correct` reuse once the covariances reach a fixed point.
+
+    For a strategy whose ``A``, ``Q``, ``H`` and ``R`` depend neither on the
+    step nor on the belief (``lin.invariant``: a time-invariant linear
+    model; the offsets ``b = B u_k`` and ``d`` may vary), a step's
+    covariances, :math:`P_{k-1} \to P^-_k \to (K_k, S_k, P_k)`, depend on
+    nothing but :math:`P_{k-1}` and which components of :math:`z_k` are
+    observed. When a step leaves the posterior covariance bitwise unchanged,
+    every following step with the same observed components would compute
+    exactly the same covariances, gain and factor again: they are reused,
+    and only the means are computed (a few products instead of a Cholesky
+    factorisation and the Joseph form). The results are bitwise those of the
+    full step; this is not the approximate steady-state filter.
+
+    Attributes
+    ----------
+    cov : ndarray or None
+        The fixed-point posterior covariance (the very object the step
+        returns while reusing it), or None before one is found.
+    predicted_cov : ndarray or None
+        Its prediction, :math:`A P A^\top + Q`.
+    gain : Gain or None
+        The update's covariance half from it.
+    observed : ndarray or None
+        The observed components the gain is for (None: all).
+    previous, predicted : ndarray or None
+        The covariance the last full prediction started from and the one it
+        returned (an update of `predicted` back to `previous` is a fixed
+        point).
+    """
+
+    __slots__ = ("cov", "predicted_cov", "gain", "observed", "previous", "predicted")
+
+    def __init__(self) -> None:
+        self.cov = self.predicted_cov = self.gain = self.observed = self.previous = self.predicted = None
+
+
+def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None, check: bool = True,
+             steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction of step k: :func:`predict` through ``lin.transition`` (see :func:`step`).
+
+    With `check`, a prediction that is not finite raises FloatingPointError
+    (:func:`step` checks it only when the update fails, which it then does).
+    With `steady` (see :class:`SteadyState`), a covariance at its fixed point
+    predicts to the fixed point's prediction, without computing it again.
+    """
     A, b, Q = lin.transition(k, mean, cov)
-    m, P = predict(mean, cov, A, Q, b)
+    if steady is not None and cov is steady.cov:
+        m, P = predict_mean(mean, A, b), steady.predicted_cov
+    else:
+        m, P = predict(mean, cov, A, Q, b)
+        if steady is not None:
+            steady.previous, steady.predicted = cov, P
     if angles is not None:
         m = wrap_components(m, angles)
-    check_finite("predicted", m, P)
+    if check:
+        check_finite("predicted", m, P)
     return m, P
 
 
 def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
-            tol: float | None = None, state_angles=None, measurement_angles=None) -> tuple[Update, int, bool]:
+            tol: float | None = None, state_angles=None, measurement_angles=None,
+            steady: SteadyState | None = None) -> tuple[Update, int, bool]:
     """The update of step k through ``lin.measurement``, iterated when asked.
 
     Pass i linearises the measurement at the previous posterior ``x_{i-1}``
@@ -333,6 +448,11 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     ``‖x_i - x_{i-1}‖`` in the norm of `cov` (:func:`iterate_changed`) is at
     most `tol`, or after `iterations` passes.
 
+    With `steady` and one iteration (see :class:`SteadyState`), the
+    fixed point's gain is reused for the prediction it made, and a fixed
+    point is recorded when this update brings the covariance back to the
+    one the prediction started from.
+
     Returns
     -------
     post : Update
@@ -342,8 +462,10 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         False when `iterations` > 1 passes were made without meeting `tol`
         (given); True otherwise.
     """
+    if iterations == 1:  # the plain update
+        return _correct_once(lin, k, mean, cov, z, state_angles, measurement_angles, steady)[0], 1, True
     post_mean, post_cov = mean, cov
-    changed = iterate_changed(cov) if iterations > 1 and tol is not None else None
+    changed = iterate_changed(cov) if tol is not None else None
     passes, converged = iterations, changed is None
     for i in range(iterations):
         H, d, R = lin.measurement(k, post_mean, post_cov)
@@ -360,15 +482,45 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     return post, passes, converged
 
 
-def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
-    """Raise FloatingPointError when the mean, the covariance or `loglik` is inf or NaN.
+def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, state_angles,
+                  measurement_angles, steady: SteadyState | None = None) -> tuple[Update, Gain]:
+    """The plain update of step k through ``lin.measurement``, and its :class:`Gain` (see :func:`correct`)."""
+    H, d, R = lin.measurement(k, mean, cov)
+    observed = observed_components(z)
+    reused = steady is not None and cov is steady.predicted_cov and _same(observed, steady.observed)
+    if reused:
+        g = steady.gain
+    else:
+        g = gain(cov, H, R, observed)
+        if steady is not None and cov is steady.predicted and np.array_equal(g.cov, steady.previous):
+            steady.cov, steady.predicted_cov, steady.gain, steady.observed = g.cov, cov, g, observed
+    post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, measurement_angles)
+    if state_angles is not None:
+        post_mean = wrap_components(post_mean, state_angles)
+    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik)
+    if reused:  # the fixed point's covariance is finite: only the mean and loglik can have overflowed
+        total = post_mean.sum() + loglik
+        if total - total != 0.0:
+            raise FloatingPointError(not_finite("filtered"))
+    else:
+        check_finite("filtered", post.mean, post.cov, post.loglik)
+    return post, g
 
-    ``x · 0`` is 0 for a finite x and NaN otherwise, so two dot products with
-    zeros test every entry without a temporary (and huge finite entries
-    cannot overflow into a false alarm).
+
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return a is b or (a is not None and b is not None and np.array_equal(a, b))
+
+
+def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
+    """Raise FloatingPointError when the mean, the covariance's diagonal or `loglik` is inf or NaN.
+
+    One sum, ``Σ mean + tr P + loglik``, is checked: it is not finite exactly
+    when one of its terms is not (or, for a belief within a factor 2 of the
+    largest float, 1.8e308, when their sum overflows: then the next step
+    would). An inf or NaN covariance has one on its diagonal.
     """
-    if not np.isfinite(np.dot(mean, np.zeros(mean.shape[0])) + np.dot(cov.ravel(), np.zeros(cov.size))
-                       + 0.0 * loglik):
+    total = mean.sum() + cov.trace() + loglik
+    if total - total != 0.0:
         raise FloatingPointError(not_finite(stage))
 
 

@@ -66,6 +66,10 @@ class KalmanFilter:
         self.belief = check_prior(prior, model.n)
         self.step = 0
         self.loglik = 0.0
+        self._controls: dict = {}  # u_k of the step being predicted, for the strategy
+        self._lin = Exact(model, self._controls)
+        # a time-invariant model's covariances reach a fixed point that steps then reuse, exactly
+        self._steady = kalman.SteadyState() if self._lin.invariant else None
 
     @property
     def x(self) -> np.ndarray:
@@ -93,8 +97,11 @@ class KalmanFilter:
             u = np.atleast_1d(as_array("u", u))
             if u.shape != (p,):
                 raise shape_error("u", f"({p},)", u.shape)
-        mean, cov = self._run(kalman.forecast, Exact(self.model, {k: u}), k, self.belief.mean, self.belief.cov)
-        self.belief = Gaussian(mean, cov)
+        self._controls.clear()
+        self._controls[k] = u
+        mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov, None, True,
+                              self._steady)
+        self.belief = Gaussian._trusted(mean, cov)
         self.step += 1
         return self.belief
 
@@ -106,8 +113,9 @@ class KalmanFilter:
         z = np.atleast_1d(as_array("z", z, allow_nan=True))
         if z.shape != (m,):
             raise shape_error("z", f"({m},)", z.shape)
-        post = self._run(kalman.correct, Exact(self.model), k, self.belief.mean, self.belief.cov, z)[0]
-        self.belief = Gaussian(post.mean, post.cov)
+        post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z, 1, None, None, None,
+                         self._steady)[0]
+        self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief
 

@@ -344,3 +344,43 @@ def test_nonlinear_built_models_pickle_and_filter_the_same(name):
 def test_a_linear_sensor_whose_R_does_not_fit_its_H_names_both():
     with pytest.raises(ValueError, match=r"^`R` must have shape \(2, 2\), because `H` has 2 rows; got shape \(\)\.$"):
         gf.model(gf.ConstantVelocity(dim=1, q=1.0), gf.LinearSensor(H=[[1, 0], [0, 1]], R=1.0), dt=1.0)
+
+
+# ---------------------------------------------------------------------------
+# Several sensors read as one
+# ---------------------------------------------------------------------------
+
+
+def test_stacked_linear_sensors_are_one_linear_sensor():
+    motion = gf.ConstantVelocity(dim=2, q=0.5)
+    stacked = gf.stack_sensors({"gps": gf.Position(dim=2, r=0.5), "v": gf.LinearSensor([[0, 0, 1, 0]], 0.1)}, motion)
+    assert isinstance(stacked, gf.LinearSensor) and stacked.names == ("gps.x", "gps.y", "v.z0")
+    H, R = stacked.linear(4)
+    np.testing.assert_array_equal(H, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]])
+    np.testing.assert_array_equal(R, np.diag([0.5, 0.5, 0.1]))
+
+
+def test_stacked_nonlinear_sensors_stack_h_jacobians_noise_and_angles():
+    motion = gf.ConstantVelocity(dim=2, q=0.5)
+    gps, radar = gf.Position(dim=2, r=0.5), gf.RangeBearing(r_range=0.2, r_bearing=1e-3, origin=(1.0, -1.0))
+    stacked = gf.stack_sensors({"gps": gps, "radar": radar}, motion)
+    assert isinstance(stacked, gf.Stacked) and stacked.m == 4 and stacked.measurement_angles == (3,)
+    assert stacked.slots == {"gps": slice(0, 2), "radar": slice(2, 4)}
+    x = np.array([3.0, 2.0, 1.0, -1.0])
+    np.testing.assert_allclose(stacked.h(x), np.concatenate([x[:2], radar.h(x)]))
+    np.testing.assert_allclose(stacked.h(np.stack([x, 2 * x])), [stacked.h(x), stacked.h(2 * x)])
+    np.testing.assert_allclose(stacked.jacobian(x), np.vstack([np.eye(2, 4), radar.jacobian(x)]))
+    np.testing.assert_array_equal(stacked.R, np.diag([0.5, 0.5, 0.2, 1e-3]))
+    model = gf.model(motion, stacked, dt=0.5)  # the composition takes it like any sensor
+    np.testing.assert_allclose(model.measurement(x), stacked.h(x))
+
+
+@pytest.mark.parametrize("sensors, error, match", [
+    ({}, TypeError, r"`sensors` must be a non-empty dict"),
+    ({1: gf.Position()}, TypeError, r"`sensors` must have str keys"),
+    ({"a": 3}, TypeError, r"`sensors\['a'\]` must be a sensor"),
+    ({"a": gf.Position(dim=3)}, ValueError, r"`sensors\['a'\]` reads 3 position components but `motion` has 2"),
+])
+def test_stack_sensors_validation(sensors, error, match):
+    with pytest.raises(error, match=match):
+        gf.stack_sensors(sensors, gf.ConstantVelocity(dim=2))

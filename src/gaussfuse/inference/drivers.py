@@ -68,11 +68,12 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
     unconverged, loglik = 0, 0.0
     mean, cov = prior.mean, prior.cov
+    steady = kalman.SteadyState() if getattr(lin, "invariant", False) and iterations == 1 else None
     k = 0
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step
             for k in range(T):
-                st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles)
+                st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles, steady)
                 post = st.update
                 mean, cov = post.mean, post.cov
                 if rows:

@@ -15,18 +15,31 @@ class Exact:
     model : LinearModel
     us : ndarray of shape (T, p), or a mapping from k to u_k, optional
         The controls, when the model has B.
+
+    Attributes
+    ----------
+    invariant : bool
+        Whether F, H, Q and R are the same at every step, so that the
+        covariance recursion can reach a fixed point (see
+        :class:`gaussfuse.kalman.SteadyState`).
     """
 
-    def __init__(self, model, us: np.ndarray | None = None) -> None:
+    def __init__(self, model, us=None) -> None:
         self.model, self.us = model, us
+        # the matrices, and whether each varies with the step (read once: a step asks for them)
+        self._F, self._H, self._Q, self._R, self._B = model.F, model.H, model.Q, model.R, model.B
+        self._varies = tuple(a is not None and a.ndim == 3 for a in (model.F, model.H, model.Q, model.R, model.B))
+        self.invariant = not any(self._varies[:4])  # A, H, Q, R the same at every step (see kalman.SteadyState)
 
     def transition(self, k: int, mean: np.ndarray, cov: np.ndarray):
-        F, _, Q, _, B = self.model.at(k)
-        return F, None if B is None else B @ self.us[k], Q
+        vF, _, vQ, _, vB = self._varies
+        B = self._B
+        b = None if B is None else (B[k] if vB else B) @ self.us[k]
+        return self._F[k] if vF else self._F, b, self._Q[k] if vQ else self._Q
 
     def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
-        _, H, _, R, _ = self.model.at(k)
-        return H, None, R
+        _, vH, _, vR, _ = self._varies
+        return self._H[k] if vH else self._H, None, self._R[k] if vR else self._R
 
 
 class Nominal:

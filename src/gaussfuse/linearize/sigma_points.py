@@ -64,7 +64,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._linalg import circular_mean, sqrt_cov, symmetrize, weighted_mean, wrap_angle
+from .._linalg import circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten, wrap_angle
 from .rules import SigmaRule, unscented
 
 __all__ = ["SigmaPoints", "slr"]
@@ -127,7 +127,7 @@ def slr(
     S = (dY * rule.wc[:, None]).T @ dY
     Xi = (rule.points[:, keep] * rule.wc[:, None]).T @ dY  # C = L Ξ, over the nonzero columns
     A = np.zeros((dY.shape[1], mean.shape[0]))
-    A[:, keep] = np.linalg.solve(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
+    A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
     return A, y_mean - A @ mean, symmetrize(S - Xi.T @ Xi)
 
 

@@ -6,17 +6,18 @@ model, measuring the positions, in one call.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import partial
 
 import numpy as np
 
-from .._validation import real
+from .._validation import call_checked, integer, real
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
 from .nonlinear import NonlinearModel
 from .sensors import LinearSensor, NonlinearSensor, Position
 
-__all__ = ["model", "constant_velocity", "constant_acceleration"]
+__all__ = ["model", "constant_velocity", "constant_acceleration", "stack_sensors", "Stacked"]
 
 
 def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
@@ -144,11 +145,11 @@ def _over_dt(fn, dt: float, x: np.ndarray) -> np.ndarray:
     return fn(x, dt)
 
 
-def _check_fit(motion, sensor, n: int) -> None:
-    """Raise ValueError if the sensor cannot observe the motion's state."""
+def _check_fit(motion, sensor, n: int, label: str = "`sensor`") -> None:
+    """Raise ValueError if the sensor (called `label` in messages) cannot observe the motion's state."""
     if isinstance(sensor, LinearSensor) and sensor.H is not None and sensor.H.shape[1] != n:
         raise ValueError(
-            f"`sensor` has `H` of shape {sensor.H.shape}, which does not fit the state of `motion` "
+            f"{label} has `H` of shape {sensor.H.shape}, which does not fit the state of `motion` "
             f"(n = {n}); `H` must have {n} columns."
         )
     reads = getattr(sensor, "dim", None)
@@ -157,13 +158,153 @@ def _check_fit(motion, sensor, n: int) -> None:
     axes = getattr(motion, "dim", None)
     if axes is not None and reads > axes:
         raise ValueError(
-            f"`sensor` reads {reads} position components but `motion` has {axes} spatial "
+            f"{label} reads {reads} position components but `motion` has {axes} spatial "
             f"{'axis' if axes == 1 else 'axes'}."
         )
     if reads > n:
         raise ValueError(
-            f"`sensor` reads {reads} position components but the state of `motion` has only {n}."
+            f"{label} reads {reads} position components but the state of `motion` has only {n}."
         )
+
+
+# ---------------------------------------------------------------------------
+# Several sensors read as one
+# ---------------------------------------------------------------------------
+
+
+def stack_sensors(sensors, motion) -> LinearSensor | NonlinearSensor:
+    """Several named sensors of one motion's state, read as one sensor: their measurements stacked.
+
+    Parameters
+    ----------
+    sensors : dict of str to LinearSensor or NonlinearSensor
+        The sensors by name; the stacked measurement vector holds their
+        components in this order.
+    motion : LinearMotion or NonlinearMotion
+        The motion whose state they measure.
+
+    Returns
+    -------
+    LinearSensor or Stacked
+        A LinearSensor ``(H, R)`` with H and R stacked (block-diagonal R)
+        when every sensor is linear, otherwise a :class:`Stacked` sensor.
+        Component names are ``"<sensor>.<component>"``.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For a mapping that is empty or not a dict of sensors by str name, or
+        a sensor that does not fit the motion's state, naming it.
+    """
+    checked = _check_sensors(sensors, motion)
+    if all(isinstance(sensor, LinearSensor) for sensor in checked.values()):
+        n = motion.n
+        parts = [sensor.linear(n) for sensor in checked.values()]
+        return LinearSensor(np.vstack([H for H, _ in parts]), _block_diagonal([R for _, R in parts]),
+                            names=_stacked_names(checked))
+    return Stacked(checked, motion.n)
+
+
+def _check_sensors(sensors, motion) -> dict:
+    if not isinstance(sensors, Mapping) or not sensors:
+        raise TypeError(f"`sensors` must be a non-empty dict mapping names to sensors; got {sensors!r:.80}.")
+    for name, sensor in sensors.items():
+        if not isinstance(name, str):
+            raise TypeError(f"`sensors` must have str keys (sensor names); got {name!r}.")
+        if not isinstance(sensor, (LinearSensor, NonlinearSensor)):
+            raise TypeError(
+                f"`sensors[{name!r}]` must be a sensor (a LinearSensor, Position or NonlinearSensor, "
+                f"e.g. gaussfuse.RangeBearing); got {type(sensor).__name__}."
+            )
+        _check_fit(motion, sensor, motion.n, f"`sensors[{name!r}]`")
+    return dict(sensors)
+
+
+def _stacked_names(sensors: dict) -> tuple[str, ...]:
+    return tuple(f"{name}.{component}" for name, sensor in sensors.items() for component in sensor.names)
+
+
+def _block_diagonal(blocks: list[np.ndarray]) -> np.ndarray:
+    size = sum(b.shape[0] for b in blocks)
+    out, start = np.zeros((size, size)), 0
+    for b in blocks:
+        out[start:start + b.shape[0], start:start + b.shape[0]] = b
+        start += b.shape[0]
+    return out
+
+
+class Stacked(NonlinearSensor):
+    """Several named sensors, at least one nonlinear, read as one (see :func:`stack_sensors`).
+
+    Parameters
+    ----------
+    sensors : dict of str to sensor
+    n : int
+        The state dimension of the motion they measure.
+
+    Attributes
+    ----------
+    sensors : tuple of (str, sensor)
+        The sensors by name, in order.
+    slots : dict of str to slice
+        Each sensor's components in the stacked measurement vector.
+    """
+
+    __slots__ = ("sensors", "n")
+
+    def __init__(self, sensors, n: int) -> None:
+        self._set(sensors=tuple(dict(sensors).items()), n=integer("n", n))  # (name, sensor) pairs
+
+    def __reduce__(self):
+        return Stacked, (dict(self.sensors), self.n)
+
+    @property
+    def slots(self) -> dict[str, slice]:
+        out, start = {}, 0
+        for name, sensor in self.sensors:
+            out[name] = slice(start, start + sensor.m)
+            start += sensor.m
+        return out
+
+    @property
+    def m(self) -> int:
+        return sum(sensor.m for _, sensor in self.sensors)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return _stacked_names(dict(self.sensors))
+
+    @property
+    def R(self) -> np.ndarray:
+        return _block_diagonal([np.asarray(sensor.R, dtype=float) for _, sensor in self.sensors])
+
+    @property
+    def measurement_angles(self) -> tuple[int, ...]:
+        return tuple(slot.start + int(i) for slot, (_, sensor) in zip(self.slots.values(), self.sensors)
+                     for i in sensor.measurement_angles)
+
+    def h(self, x) -> np.ndarray:
+        """Every sensor's noise-free measurement of x (n,) or of each state of a stack (k, n), stacked."""
+        x = np.asarray(x)
+        out = np.empty((*x.shape[:-1], self.m), dtype=np.result_type(x, np.float64))
+        for slot, (name, sensor) in zip(self.slots.values(), self.sensors):
+            if isinstance(sensor, LinearSensor):
+                out[..., slot] = x @ sensor.linear(self.n)[0].T
+            else:
+                shape = (*x.shape[:-1], slot.stop - slot.start)
+                out[..., slot] = call_checked(f"sensors[{name!r}].h", sensor.h, x, (), shape)
+        return out
+
+    def jacobian(self, x) -> np.ndarray:
+        """The stacked Jacobian at x (n,), shape (m, n)."""
+        out = np.empty((self.m, self.n))
+        for slot, (name, sensor) in zip(self.slots.values(), self.sensors):
+            if isinstance(sensor, LinearSensor):
+                out[slot] = sensor.linear(self.n)[0]
+            else:
+                out[slot] = call_checked(f"sensors[{name!r}].jacobian", sensor.jacobian, x, (),
+                                         (slot.stop - slot.start, self.n))
+        return out
 
 
 def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
