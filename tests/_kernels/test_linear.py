@@ -379,6 +379,10 @@ def test_compiled_kernels_are_cached_on_disk(tmp_path):
 
 @pytest.mark.parametrize("front", ["filter", "smooth"])
 def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
+    """With the kernels in memory, "auto" compiles from 1000 steps (all series together) on."""
+    from gaussfuse.inference import drivers
+
+    monkeypatch.setattr(drivers, "compiled_state", lambda *args: "loaded")
     calls = []
     original = getattr(linear, front)
 
@@ -461,3 +465,33 @@ def test_parallel_launch_goes_to_one_thread_at_a_time_and_others_do_not_wait():
         assert mine
         assert other_thread() is False
     assert other_thread() is True  # released
+
+
+@pytest.mark.parametrize("keep", ["all", "last"])
+def test_the_fixed_point_is_reused_bitwise(keep):
+    """A time-invariant model's kernel reuses the covariance fixed point: bitwise what computing every step gives.
+
+    The same matrices given per step (a time-varying model) are computed in
+    full at every step; the readable path, which reuses the fixed point too,
+    agrees to round-off. Missing components leave the fixed point and it is
+    found again.
+    """
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    T = 400
+    rng = np.random.default_rng(11)
+    zs = np.cumsum(rng.normal(size=(3, T, 2)), axis=1) * 0.1
+    zs[0, 150, 1] = np.nan
+    zs[1, 200:210] = np.nan
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], np.eye(4))
+    varying = gf.LinearModel(np.repeat(model.F[None], T, 0), model.H, model.Q, model.R)
+    fast = gf.filter(model, prior, zs, engine="numba", keep=keep)
+    full = gf.filter(varying, prior, zs, engine="numba", keep=keep)
+    for name in ("means", "covs", "predicted_means", "predicted_covs", "innovations", "innovation_covs", "loglik",
+                 "last_mean", "last_cov"):
+        a, b = getattr(fast, name), getattr(full, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+    readable = gf.filter(model, prior, zs[0], engine="python", keep=keep)
+    np.testing.assert_allclose(fast.last_cov[0], readable.last_cov, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(fast.loglik[0], readable.loglik, rtol=1e-12)

@@ -41,8 +41,9 @@ from ..kalman import _S_NAME
 from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
-__all__ = ["Work", "workspace", "at", "predict", "update", "smoother_gain", "rts_step",
-           "wrap", "not_finite", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
+__all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "Fixed", "fixed", "hold_fixed",
+           "steady_update", "same", "smoother_gain", "rts_step",
+           "wrap", "not_finite", "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
            "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -131,11 +132,7 @@ def predict(w, mean, cov, A, Q, b, pred_mean, pred_cov):
     (:func:`smoother_gain`).
     """
     n = mean.shape[0]
-    for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += A[i, j] * mean[j]
-        pred_mean[i] = s + b[i]
+    predict_mean(mean, A, b, pred_mean)
     congruence(A, cov, Q, pred_cov, w.A1, n, n)      # A P in w.A1 (the smoother gain's Cᵀ)
 
 
@@ -240,6 +237,124 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
     return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI), mo
 
 
+class Fixed(NamedTuple):
+    """kalman.SteadyState compiled: a fixed point of the covariance recursion, and what it reuses.
+
+    For a time-invariant model, once an update returns the covariance the
+    step's prediction started from (bitwise), every following step with the
+    same observed components computes the same prediction, gain and
+    posterior covariance again: :func:`steady_update` then computes the
+    means only. The results are bitwise those of :func:`predict` and
+    :func:`update`.
+    """
+
+    cov: np.ndarray       # (n, n)  the fixed-point posterior covariance
+    pred_cov: np.ndarray  # (n, n)  its prediction
+    Kt: np.ndarray        # (m, n)  Kᵀ over the observed components (leading rows)
+    L: np.ndarray         # (m, m)  the Cholesky factor of S_oo
+    S: np.ndarray         # (m, m)  S over all m components
+    obs: np.ndarray       # (m,)    bool: the observed components
+    state: np.ndarray     # (2,)    int64: |o|, and 1 once a fixed point is held
+
+
+@register_jitable
+def fixed(n, m):
+    """An empty :class:`Fixed` for n states and m measurement components."""
+    return Fixed(np.empty((n, n)), np.empty((n, n)), np.empty((m, n)), np.empty((m, m)), np.empty((m, m)),
+                 np.zeros(m, dtype=np.bool_), np.zeros(2, dtype=np.int64))
+
+
+@jit(inline="always", **_JIT)
+def hold_fixed(fx, w, post_cov, pred_cov, S_full, z, mo):
+    """Record the fixed point that :func:`update` has just reached (its scratch `w` and outputs)."""
+    n = post_cov.shape[0]
+    m = z.shape[0]
+    for i in range(n):
+        for j in range(n):
+            fx.cov[i, j] = post_cov[i, j]
+            fx.pred_cov[i, j] = pred_cov[i, j]
+    for a in range(m):
+        fx.obs[a] = z[a] == z[a]
+        for b in range(m):
+            fx.S[a, b] = S_full[a, b]
+    for a in range(mo):
+        for j in range(n):
+            fx.Kt[a, j] = w.Kt[a, j]
+        for b in range(mo):
+            fx.L[a, b] = w.L[a, b]
+    fx.state[0] = mo
+    fx.state[1] = 1
+
+
+@jit(inline="always", **_JIT)
+def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation):
+    """:func:`update` of the fixed point's prediction ``fx.pred_cov``, reusing its gain: the means only.
+
+    Returns ``(reused, loglik)``; `reused` is False, and nothing is
+    written, when the observed components of z are not the fixed point's
+    (the caller then runs :func:`update`). The posterior covariance and S
+    are ``fx.cov`` and ``fx.S``. The operations are :func:`update`'s, in its
+    order, so the results are bitwise the same.
+    """
+    n = mean.shape[0]
+    m = z.shape[0]
+    for a in range(m):
+        if (z[a] == z[a]) != fx.obs[a]:
+            return False, 0.0
+    mo = 0
+    for a in range(m):
+        s = 0.0
+        for j in range(n):
+            s += H[a, j] * mean[j]
+        s += d[a]
+        diff = z[a] - s
+        innovation[a] = wrap(diff) if angles[a] else diff
+        if fx.obs[a]:
+            w.v[mo] = innovation[a]
+            mo += 1
+    if mo == 0:
+        for i in range(n):
+            post_mean[i] = mean[i]
+        return True, 0.0
+    for i in range(n):
+        s = 0.0
+        for a in range(mo):
+            s += fx.Kt[a, i] * w.v[a]
+        post_mean[i] = mean[i] + s
+    quad = 0.0
+    logdet = 0.0
+    for a in range(mo):
+        s = w.v[a]
+        for b in range(a):
+            s -= fx.L[a, b] * w.white[b]
+        s /= fx.L[a, a]
+        w.white[a] = s
+        quad += s * s
+        logdet += math.log(fx.L[a, a])
+    return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI)
+
+
+@jit(inline="always", **_JIT)
+def predict_mean(mean, A, b, pred_mean):
+    """The mean half of :func:`predict`: :math:`m^- = A m + b`."""
+    n = mean.shape[0]
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += A[i, j] * mean[j]
+        pred_mean[i] = s + b[i]
+
+
+@jit(inline="always", **_JIT)
+def same(a, b):
+    """Whether two (n, n) arrays are equal, entry by entry (bitwise for numbers that are not NaN)."""
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            if a[i, j] != b[i, j]:
+                return False
+    return True
+
+
 @jit(inline="always", **_JIT)
 def smoother_gain(w, pred_cov, CT, gain):
     r"""The gain of kalman.rts_step: :math:`G = C (P^-)^{-1}`, as :math:`G^\top = (P^-)^{-1} C^\top`.
@@ -326,6 +441,15 @@ def not_finite(mean, cov, loglik):
         acc += mean[i] * 0.0
         for j in range(n):
             acc += cov[i, j] * 0.0
+    return acc != acc
+
+
+@jit(inline="always", **_JIT)
+def not_finite_mean(mean, loglik):
+    """:func:`not_finite` for the mean and `loglik` alone (a covariance known to be finite)."""
+    acc = loglik * 0.0
+    for i in range(mean.shape[0]):
+        acc += mean[i] * 0.0
     return acc != acc
 
 

@@ -46,8 +46,9 @@ from . import _rts
 from ._dense import BLAS_FROM
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
-from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, failures, filter_result, not_finite,
-                    outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, workspace)
+from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, failures, filter_result, fixed,
+                    hold_fixed, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure, record, record_not_pd,
+                    same, smoother_gain, steady_update, update, workspace)
 
 __all__ = ["filter", "smooth", "KERNELS"]
 
@@ -70,7 +71,9 @@ class Model(NamedTuple):
 def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     """Filter series ``lo..hi-1``: inference.drivers.run_filter's loop, with the workspace `w`.
 
-    `w` is a :func:`._step.workspace`, which the caller keeps alive.
+    `w` is a :func:`._step.workspace`, which the caller keeps alive. A
+    time-invariant model's steps reuse the covariance fixed point once it
+    is reached (:class:`._step.Fixed`, as kalman.SteadyState).
     """
     model, zs, m0, P0, out, fail, w = borrow((model, zs, m0, P0, out, fail, w))
     T = zs.shape[1]
@@ -79,44 +82,80 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     keep_means = out.means.shape[1] > 0
     keep_covs = out.covs.shape[1] > 0
     smoothing = out.gains.shape[1] > 0
-    # Where a step's belief goes when it is not kept.
-    mean0, cov0, pm0, pc0 = np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n))
+    invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and model.Q.shape[0] == 1
+                 and model.R.shape[0] == 1 and not smoothing)
+    fx = fixed(n, m)
+    # Where a step's belief goes when it is not kept: two covariances, so that the last one is still
+    # there to compare with the next (the fixed point's test).
+    mean0, pm0, pc0 = np.empty(n), np.empty(n), np.empty((n, n))
+    covs0 = np.empty((2, n, n))
     v0, S0 = np.empty(m), np.empty((m, m))
     for s in range(lo, hi):
-        mean, cov = mean0, cov0
+        mean, cov = mean0, covs0[1]
         for i in range(n):
             mean[i] = m0[i]
             for j in range(n):
                 cov[i, j] = P0[i, j]
         total = 0.0
         fail.code[s] = OK
+        fx.state[1] = 0
+        at_fixed = False  # cov is the fixed point's
         b = model.b[s if model.b.shape[0] > 1 else 0]
         for k in range(T):
             pm = out.predicted_means[s, k] if keep_means else pm0
             pc = out.predicted_covs[s, k] if keep_covs else pc0
             F = at(model.F, k)
-            predict(w, mean, cov, F, at(model.Q, k), at(b, k), pm, pc)
-            if not_finite(pm, pc, 0.0):
-                record(fail, s, PREDICTED_NOT_FINITE, k)
-                break
+            from_fixed = at_fixed
+            if from_fixed:
+                predict_mean(mean, F, at(b, k), pm)
+                for i in range(n):
+                    for j in range(n):
+                        pc[i, j] = fx.pred_cov[i, j]
+                if not_finite_mean(pm, 0.0):
+                    record(fail, s, PREDICTED_NOT_FINITE, k)
+                    break
+            else:
+                predict(w, mean, cov, F, at(model.Q, k), at(b, k), pm, pc)
+                if not_finite(pm, pc, 0.0):
+                    record(fail, s, PREDICTED_NOT_FINITE, k)
+                    break
             if smoothing and k > 0:  # G_{k-1} = C (P⁻_k)⁻¹, Cᵀ = F_k P_{k-1} from predict
                 if not smoother_gain(w, pc, w.A1, out.gains[s, k - 1]):
                     out.failed[s, k - 1] = True  # Cᵀ left for the least-squares gain
                     for i in range(n):
                         for j in range(n):
                             out.gains[s, k - 1, i, j] = w.A1[i, j]
-            # The posterior overwrites the previous one in scratch: predict has used it.
+            previous = cov
             mean = out.means[s, k] if keep_means else mean0
-            cov = out.covs[s, k] if keep_covs else cov0
-            ok, ll, mo = update(w, pm, pc, zs[s, k], at(model.H, k), at(model.R, k), model.d, model.angles,
-                                mean, cov, out.innovations[s, k] if keep_means else v0,
-                                out.innovation_covs[s, k] if keep_covs else S0)
-            if not ok:
-                record_not_pd(fail, s, k, w, mo)
-                break
-            if not_finite(mean, cov, ll):
-                record(fail, s, FILTERED_NOT_FINITE, k)
-                break
+            cov = out.covs[s, k] if keep_covs else covs0[k % 2]
+            v = out.innovations[s, k] if keep_means else v0
+            S = out.innovation_covs[s, k] if keep_covs else S0
+            H = at(model.H, k)
+            reused = False
+            if from_fixed:
+                reused, ll = steady_update(fx, w, pm, zs[s, k], H, model.d, model.angles, mean, v)
+            if reused:
+                for i in range(n):
+                    for j in range(n):
+                        cov[i, j] = fx.cov[i, j]
+                for a in range(m):
+                    for c in range(m):
+                        S[a, c] = fx.S[a, c]
+                if not_finite_mean(mean, ll):
+                    record(fail, s, FILTERED_NOT_FINITE, k)
+                    break
+            else:
+                ok, ll, mo = update(w, pm, pc, zs[s, k], H, at(model.R, k), model.d, model.angles, mean, cov, v, S)
+                if not ok:
+                    record_not_pd(fail, s, k, w, mo)
+                    break
+                if not_finite(mean, cov, ll):
+                    record(fail, s, FILTERED_NOT_FINITE, k)
+                    break
+                if invariant and not from_fixed and same(cov, previous):
+                    hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
+                    reused = True  # the posterior is the fixed point's: the next step reuses it
+            at_fixed = reused
             total += ll
         out.loglik[s] = total
         for i in range(n):
