@@ -89,7 +89,6 @@ References
 
 from __future__ import annotations
 
-import importlib.util
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -103,7 +102,7 @@ from ._validation import as_vector
 from .errors import ConvergenceWarning
 from .gaussian import Gaussian
 from .inference.diffuse import Moments, augmented_runs, diffuse_moments, not_identified
-from .inference.drivers import ENGINES, filter_batch, smooth_batch
+from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
 from .inference.registry import METHODS as _METHODS
 from .inference.results import first
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
@@ -115,6 +114,9 @@ LEARNABLE = ("F", "H", "Q", "R", "B", "m0", "P0")
 COVARIANCES = ("Q", "R", "P0")
 STRUCTURES = ("full", "diagonal", "scalar")
 METHODS = ("em", "mle")
+FIT_PASSES = 50
+"""Passes over the data a fit is expected to make (its E-steps or likelihood evaluations): what
+``engine="auto"`` weighs compiling against (:func:`gaussfuse.inference.drivers.compiled_engine`)."""
 _MATRICES = ("F", "H", "Q", "R", "B")
 
 
@@ -1178,8 +1180,10 @@ def fit(
         raise ValueError(f"`iterations` must be a positive integer; got {iterations!r}.")
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
-    if engine == "auto":
-        engine = "numba" if importlib.util.find_spec("numba") is not None else "python"
+    if engine == "auto":  # decided once for the whole fit, expecting FIT_PASSES passes over the data
+        compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1], FIT_PASSES, zs.shape[0] > 1,
+                                   smoothing=True)
+        engine = "python" if compiled is None else "numba"
     tol = _check_tol((1e-10 if method == "em" else 1e-8) if tol is None else tol)
     if callback is not None and not callable(callback):
         raise TypeError(f"`callback` must be callable as callback(iteration, loglik); got {type(callback).__name__}.")

@@ -15,7 +15,7 @@ import textwrap
 
 import pytest
 
-from gaussfuse._kernels import ENTRY_POINTS, compiled_state, source_stamp
+from gaussfuse._kernels import BATCH_ENTRY_POINTS, ENTRY_POINTS, compiled_state, source_stamp
 
 PROBE = textwrap.dedent("""
     import json, sys
@@ -30,6 +30,8 @@ PROBE = textwrap.dedent("""
         model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
         gf.smooth(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
         out["after"] = {m: kernels.compiled_state(m) for m in ("linear", "sigma_points")}
+        out["after, smoothing"] = {m: kernels.compiled_state(m, smoothing=True) for m in ("linear", "sigma_points")}
+        out["after, batch"] = kernels.compiled_state("linear", batch=True)
     print(json.dumps(out))
 """)
 
@@ -46,8 +48,11 @@ def test_cold_then_loaded_then_cached(tmp_path):
     first = probe(tmp_path, "run")
     assert first["before"] == {"linear": "cold", "sigma_points": "cold"}
     assert not first["numba imported"]  # deciding does not import numba
-    # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only.
+    # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only,
+    # and a batch of series would compile the parallel kernel.
     assert first["after"] == {"linear": "loaded", "sigma_points": "cold"}
+    assert first["after, smoothing"] == {"linear": "loaded", "sigma_points": "cold"}
+    assert first["after, batch"] == "cold"
     second = probe(tmp_path, "look")
     assert second["before"] == {"linear": "cached", "sigma_points": "cold"}
     assert not second["numba imported"]
@@ -63,7 +68,8 @@ def test_an_unknown_module_is_refused():
 def test_every_entry_point_exists():
     import importlib
 
-    for entries in ENTRY_POINTS.values():
+    for entries in [*ENTRY_POINTS.values(), *BATCH_ENTRY_POINTS.values(), (("_rts", "backward"),
+                                                                           ("_rts", "backward_parallel"))]:
         for module, name in entries:
             assert hasattr(importlib.import_module(f"gaussfuse._kernels.{module}"), name)
 

@@ -453,3 +453,51 @@ def test_smoothed_beliefs_are_checked_after_a_compiled_backward_pass():
         check_smoothed(means, covs)  # the backward pass would have met step 3 first
     with pytest.raises(FloatingPointError, match=r"^at step 2: the smoothed"):
         check_smoothed(np.where(np.arange(5)[None, :, None] == 2, np.nan, 0.0)[:1], covs[:1])
+
+
+# ---------------------------------------------------------------------------
+# engine="auto": compile only when it pays
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("state, steps, passes, compiled", [
+    ("cold", 5_000, 1, False),       # 15 s of compilation against 0.1 s of readable steps
+    ("cold", 2_000_000, 1, True),    # 40 s of readable steps
+    ("cached", 5_000, 1, False),     # loading (1 s) against 0.1 s
+    ("cached", 100_000, 1, True),
+    ("cached", 5_000, 50, True),     # a fit's fifty passes: 5 s
+    ("loaded", 1_000, 1, True),
+    ("loaded", 999, 1, False),       # short calls stay readable, the same in every process
+    ("loaded", 100, 10, True),       # ... counting every pass
+])
+def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatch, state, steps, passes, compiled):
+    from gaussfuse.inference import drivers
+    from gaussfuse.inference.registry import METHODS
+
+    seen = []
+    monkeypatch.setattr(drivers, "compiled_state", lambda *args: seen.append(args) or state)
+    chosen = drivers.compiled_engine(METHODS["kf"], "auto", steps, passes)
+    assert (chosen is not None) == compiled
+    assert seen == ([] if steps * passes < drivers.AUTO_NUMBA_STEPS else [("linear", False, False)])
+    # "numba" and "python" are not weighed
+    assert drivers.compiled_engine(METHODS["kf"], "numba", 1) is not None
+    assert drivers.compiled_engine(METHODS["kf"], "python", 10**9) is None
+    assert len(seen) <= 1
+
+
+def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
+    """A batch asks about the parallel kernels, a smoother about the backward pass, a fit about fifty passes."""
+    from gaussfuse.errors import ConvergenceWarning
+    from gaussfuse.inference import drivers
+
+    seen = []
+    monkeypatch.setattr(drivers, "compiled_state", lambda *args: seen.append(args) or "cold")
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    prior = gf.Gaussian(0.0, 1.0)
+    y = np.zeros((2, 500, 1))
+    gf.filter(model, prior, y)
+    gf.smooth(model, prior, y)
+    gf.smooth(model, prior, y[0])  # 500 steps: readable without asking
+    with pytest.warns(ConvergenceWarning):
+        gf.fit(model, prior, y[0], iterations=2)
+    assert seen == [("linear", True, False), ("linear", True, True), ("linear", False, True)]

@@ -37,18 +37,26 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["compiled_state", "source_stamp", "ENTRY_POINTS"]
+__all__ = ["compiled_state", "source_stamp", "ENTRY_POINTS", "BATCH_ENTRY_POINTS"]
 
 _HERE = Path(__file__).resolve().parent
 
 ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
-    "linear": (("linear", "forward"), ("_rts", "backward")),
-    "sigma_points": (("sigma_points", "advance"), ("_rts", "backward")),
+    "linear": (("linear", "forward"),),
+    "sigma_points": (("sigma_points", "advance"),),
 }
-"""The compiled functions a call of an engine runs on one series of a small state,
-as (module, function) pairs: what :func:`compiled_state` looks for. Batches of
-series (parallel kernels), large states (BLAS kernels) and the sigma-point
-loop compiled around numba-jitted f and h are compiled separately, when used."""
+"""The compiled functions an engine's filter runs on one series, as (module,
+function) pairs: what :func:`compiled_state` looks for. A smoother runs
+``_rts.backward`` too; a batch of series the parallel forms
+(:data:`BATCH_ENTRY_POINTS`). The sigma-point loop compiled around
+numba-jitted f and h is compiled separately, when used."""
+
+BATCH_ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
+    "linear": (("linear", "forward_parallel"),),
+    "sigma_points": (),
+}
+"""What a batch of series runs in addition (the sigma-point engine runs its
+series one after the other)."""
 
 
 @lru_cache(maxsize=None)
@@ -117,7 +125,7 @@ def _cached(module: str, function: str) -> bool:
     return False
 
 
-def compiled_state(module: str) -> str:
+def compiled_state(module: str, batch: bool = False, smoothing: bool = False) -> str:
     """Whether the kernels of an engine are compiled: "loaded", "cached" or "cold".
 
     Parameters
@@ -148,7 +156,9 @@ def compiled_state(module: str) -> str:
     """
     if module not in ENTRY_POINTS:
         raise ValueError(f"`module` must be one of {sorted(ENTRY_POINTS)}; got {module!r}.")
-    entries = ENTRY_POINTS[module]
+    entries = ENTRY_POINTS[module] + (BATCH_ENTRY_POINTS[module] if batch else ())
+    if smoothing:
+        entries += (("_rts", "backward_parallel" if batch and module == "linear" else "backward"),)
     loaded = []
     for mod, name in entries:
         imported = sys.modules.get(f"{__name__}.{mod}")

@@ -17,6 +17,7 @@ import warnings
 import numpy as np
 
 from .. import kalman
+from .._kernels import compiled_state
 from .._linalg import wrap_components
 from ..errors import ConvergenceWarning, ModelFunctionError
 from ..gaussian import Gaussian
@@ -27,7 +28,20 @@ from .results import FilterResult, SmoothResult, stack
 __all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine"]
 
 ENGINES = ("auto", "python", "numba")
-AUTO_NUMBA_STEPS = 1000  # "auto" compiles from this many steps (all series together) on
+
+# What engine="auto" weighs, in seconds on a 2-core machine (see compiled_engine):
+AUTO_NUMBA_STEPS = 1000
+"""Calls of fewer steps (all series and passes together) stay on the readable path whatever is compiled,
+so that a short call gives the same numbers, to the bit, in every process."""
+START = {"loaded": 0.0, "cached": 1.0}
+"""Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
+process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-0.8 s)."""
+COMPILE = {"linear": 15.0, "sigma_points": 25.0}
+"""Compiling an engine's kernels with an empty cache (``benchmarks/first_call.py``, cold: filter 10 s,
+smooth 13 s, an unscented filter 20 s)."""
+READABLE_STEP = {"linear": 2e-5, "sigma_points": 1e-4}
+"""What the readable path spends on a step beyond the compiled one, for a small state (``benchmarks/run.py``:
+W1 readable 47k steps/s against 1.5M compiled; an unscented filter, W4, at about 9k against 0.3M)."""
 
 _STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
 
@@ -197,8 +211,20 @@ def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passe
 # ---------------------------------------------------------------------------
 
 
-def compiled_engine(spec: Method, engine: str, steps: int):
+def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, batch: bool = False,
+                    smoothing: bool = False):
     """The compiled module to run `steps` steps (all series together) with, or None for the readable path.
+
+    With ``engine="auto"`` the compiled path is taken only for
+    :data:`AUTO_NUMBA_STEPS` steps or more, and only when it is expected to
+    cost less: starting its kernels (:data:`START`, or
+    :data:`COMPILE` when nothing is cached: :func:`gaussfuse._kernels.compiled_state`
+    tells which, without importing numba) against what the readable path
+    would spend on ``steps * passes`` steps beyond it (:data:`READABLE_STEP`).
+    `passes` is how many times the caller will run the steps (a fit's
+    filter passes); `batch` says that several series run at once (their
+    parallel kernels are compiled separately), `smoothing` that the
+    backward pass runs too.
 
     Raises
     ------
@@ -207,7 +233,7 @@ def compiled_engine(spec: Method, engine: str, steps: int):
     """
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
-    if engine == "python" or (engine == "auto" and steps < AUTO_NUMBA_STEPS):
+    if engine == "python":
         return None
     available = importlib.util.find_spec("numba") is not None
     if engine == "numba":
@@ -216,15 +242,25 @@ def compiled_engine(spec: Method, engine: str, steps: int):
             raise ValueError(f"`engine='numba'` is not available for method {spec.name!r}; it is for {fits}.")
         if not available:
             raise ValueError("`engine='numba'` needs numba: pip install numba.")
-    if spec.compiled is None or not available:
+    elif spec.compiled is None or not available or not _worth_compiling(spec.compiled, steps * passes, batch,
+                                                                        smoothing):
         return None
     return importlib.import_module(f".._kernels.{spec.compiled}", __package__)
+
+
+def _worth_compiling(module: str, steps: float, batch: bool, smoothing: bool) -> bool:
+    """Whether starting `module`'s kernels costs less than the readable path would spend on `steps` more."""
+    if steps < AUTO_NUMBA_STEPS:
+        return False
+    state = compiled_state(module, batch, smoothing)
+    start = COMPILE[module] if state == "cold" else START[state]
+    return start < steps * READABLE_STEP[module]
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
                  keep: str) -> FilterResult:
     """Filter N series `zs` (N, T, m), with controls `us` (N, T, p) or None; the result has the N axis."""
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1])
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         return compiled.filter(lin, model, prior, zs, us, keep)
@@ -238,7 +274,7 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
                  to_prior: bool = False) -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1])
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, smoothing=True)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         result = compiled.smooth(lin, model, prior, zs, us)
