@@ -763,3 +763,25 @@ def test_help_lists_the_exit_statuses(capsys):
     assert code == 0
     statuses = re.findall(r"^  (\d+) +\S", out.split("exit status:")[1], re.M)
     assert statuses == ["0", "2", "3", "130", "141", "143"]
+
+
+@pytest.mark.parametrize("command", ["filter", "fit"])
+def test_engine_option_picks_the_path_and_refuses_others(tmp_path, capsys, command):
+    """--engine python and --engine numba write the same numbers; an unknown engine is a usage error."""
+    data, model = EXAMPLES / "data" / "nile.csv", EXAMPLES / "models" / "local_level.toml"
+    outs = {}
+    for engine in ("python", "numba"):
+        code, stdout, err = run(capsys, command, data, "--model", model, "--engine", engine,
+                                *(["--method", "mle"] if command == "fit" else []))
+        assert code == 0, err
+        outs[engine] = stdout
+    if command == "filter":
+        header, a = read_csv(outs["python"])
+        _, b = read_csv(outs["numba"])
+        np.testing.assert_allclose(a, b, rtol=1e-10)
+    else:
+        numbers = [np.array(re.findall(r"-?\d+\.\d+(?:e[-+]\d+)?", outs[e]), dtype=float) for e in outs]
+        assert numbers[0].size > 0
+        np.testing.assert_allclose(numbers[0], numbers[1], rtol=1e-8)
+    code, _, err = run(capsys, command, data, "--model", model, "--engine", "gpu")
+    assert code == 2 and "argument --engine: invalid choice: 'gpu'" in err

@@ -30,6 +30,7 @@ from . import io as gfio
 from .errors import ConvergenceWarning
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
+from .inference.drivers import ENGINES
 from .models import LinearModel, constant_velocity
 
 __all__ = ["main", "build_parser", "textbook_example", "tracking_demo", "TrackingDemo"]
@@ -209,7 +210,7 @@ def _run_filter(args: argparse.Namespace) -> int:
     spec = gfio.read_model(args.model)
     data = gfio.read_measurements(args.data, m=spec.model.m)
     run = inference.smooth if args.smooth else inference.filter
-    result = run(spec.model, spec.prior, data.zs)
+    result = run(spec.model, spec.prior, data.zs, engine=args.engine)
     # The CSV file appears only once the figure is saved: on an error, neither does.
     sink = (gfio.open_atomic(args.out, "w", newline="", encoding="utf-8") if args.out
             else nullcontext(StringIO()))
@@ -312,7 +313,7 @@ def _run_fit(args: argparse.Namespace) -> int:
             warnings.simplefilter("always", ConvergenceWarning)
             res = learning.fit(spec.model, spec.prior, data.zs, learn=learn, method=args.method,
                                structure=_structure(args.structure), iterations=iterations, tol=args.tol,
-                               callback=progress)
+                               callback=progress, engine=args.engine)
     finally:
         progress.close()
     unconverged = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
@@ -388,6 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     filt.add_argument("--plot", metavar="FIG.png",
                       help="also draw measurements against the estimates with ±2σ bands "
                            "(needs matplotlib)")
+    _engine_option(filt)
     filt.set_defaults(run=_run_filter)
 
     fit = commands.add_parser(
@@ -418,8 +420,16 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("-o", "--out", metavar="FITTED.toml",
                      help="write the fitted model to this file (default: standard output); "
                           "not DATA.csv or MODEL.toml")
+    _engine_option(fit)
     fit.set_defaults(run=_run_fit)
     return parser
+
+
+def _engine_option(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--engine", choices=ENGINES, default="auto",
+                         help="numba: the compiled kernels (compiled on first use, then cached on disk); "
+                              "python: the readable path; auto (default): compiled when that is expected "
+                              "to take less time, compilation or loading included")
 
 
 class _Terminated(KeyboardInterrupt):

@@ -98,7 +98,7 @@ def test_without_a_cache_location_the_cli_filters_a_long_file(tmp_path):
     np.savetxt(data, np.column_stack([t, np.sin(t / 30.0)]), delimiter=",", header="t,z", comments="")
     model = tmp_path / "model.toml"
     model.write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.01\nr = 0.5\n')
-    child = run_child(CLI, "filter", str(data), "--model", str(model))
+    child = run_child(CLI, "filter", str(data), "--model", str(model), "--engine", "numba")
     assert child.returncode == 0, child.stderr
     assert "Traceback" not in child.stderr
     assert child.stderr.count("CacheUnavailableWarning") == 1, child.stderr
