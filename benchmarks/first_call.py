@@ -8,8 +8,8 @@ imports gaussfuse, makes the call, and makes it again. The **first-call
 overhead** is the time of the first call, ``import gaussfuse`` included,
 minus the time of the repeated call: what a new user, or a new process of a
 pipeline, pays once. `--cache cold` gives each process an empty
-``NUMBA_CACHE_DIR``; `--cache warm` one that a previous process of the same
-call has filled. The report is the median over `--repeats` processes.
+``NUMBA_CACHE_DIR``; `--cache warm` one that a previous process, making
+the same call with ``engine="numba"``, has filled with the compiled kernels. The report is the median over `--repeats` processes.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def measure(call: str, cache: str, steps: int, engine: str, repeats: int) -> lis
     for _ in range(repeats):
         with tempfile.TemporaryDirectory() as cache_dir:
             if cache == "warm":
-                run_child(call, steps, engine, cache_dir)  # fills the cache
+                run_child(call, steps, "numba", cache_dir)  # fills the cache with the compiled kernels
             runs.append(run_child(call, steps, engine, cache_dir))
             print(f"  {call} {cache}: {runs[-1]}", file=sys.stderr)
     return runs

@@ -114,8 +114,9 @@ LEARNABLE = ("F", "H", "Q", "R", "B", "m0", "P0")
 COVARIANCES = ("Q", "R", "P0")
 STRUCTURES = ("full", "diagonal", "scalar")
 METHODS = ("em", "mle")
-FIT_PASSES = 50
-"""Passes over the data a fit is expected to make (its E-steps or likelihood evaluations): what
+FIT_PASSES = 30
+"""Filter passes a fit is expected to cost (its E-steps or its likelihood and gradient evaluations;
+an MLE of a local level on 5,000 steps takes as long as 27 on the readable path): what
 ``engine="auto"`` weighs compiling against (:func:`gaussfuse.inference.drivers.compiled_engine`)."""
 _MATRICES = ("F", "H", "Q", "R", "B")
 

@@ -31,7 +31,7 @@ ENGINES = ("auto", "python", "numba")
 
 # What engine="auto" weighs, in seconds on a 2-core machine (see compiled_engine):
 AUTO_NUMBA_STEPS = 1000
-"""Calls of fewer steps (all series and passes together) stay on the readable path whatever is compiled,
+"""Calls of fewer steps (all series together) stay on the readable path whatever is compiled,
 so that a short call gives the same numbers, to the bit, in every process."""
 START = {"loaded": 0.0, "cached": 1.0}
 """Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
@@ -39,9 +39,10 @@ process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-0.
 COMPILE = {"linear": 15.0, "sigma_points": 25.0}
 """Compiling an engine's kernels with an empty cache (``benchmarks/first_call.py``, cold: filter 10 s,
 smooth 13 s, an unscented filter 20 s)."""
-READABLE_STEP = {"linear": 2e-5, "sigma_points": 1e-4}
-"""What the readable path spends on a step beyond the compiled one, for a small state (``benchmarks/run.py``:
-W1 readable 47k steps/s against 1.5M compiled; an unscented filter, W4, at about 9k against 0.3M)."""
+READABLE_STEP = {"linear": 3e-5, "sigma_points": 4e-4}
+"""What the readable path spends on a filter step beyond the compiled one, for a small state
+(``benchmarks/run.py``: W1 readable 47k steps/s against 1.5-4.8M compiled; an unscented filter with
+plain Python f and h, W4, 1.7k against 12k; a smoother counts as two passes)."""
 
 _STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
 
@@ -242,19 +243,19 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
             raise ValueError(f"`engine='numba'` is not available for method {spec.name!r}; it is for {fits}.")
         if not available:
             raise ValueError("`engine='numba'` needs numba: pip install numba.")
-    elif spec.compiled is None or not available or not _worth_compiling(spec.compiled, steps * passes, batch,
+    elif spec.compiled is None or not available or not _worth_compiling(spec.compiled, steps, passes, batch,
                                                                         smoothing):
         return None
     return importlib.import_module(f".._kernels.{spec.compiled}", __package__)
 
 
-def _worth_compiling(module: str, steps: float, batch: bool, smoothing: bool) -> bool:
-    """Whether starting `module`'s kernels costs less than the readable path would spend on `steps` more."""
+def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smoothing: bool) -> bool:
+    """Whether starting `module`'s kernels costs less than the readable path would spend on its passes."""
     if steps < AUTO_NUMBA_STEPS:
         return False
     state = compiled_state(module, batch, smoothing)
     start = COMPILE[module] if state == "cold" else START[state]
-    return start < steps * READABLE_STEP[module]
+    return start < steps * passes * READABLE_STEP[module]
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
@@ -274,7 +275,7 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
                  to_prior: bool = False) -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, smoothing=True)
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         result = compiled.smooth(lin, model, prior, zs, us)
