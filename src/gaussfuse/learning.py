@@ -114,10 +114,12 @@ LEARNABLE = ("F", "H", "Q", "R", "B", "m0", "P0")
 COVARIANCES = ("Q", "R", "P0")
 STRUCTURES = ("full", "diagonal", "scalar")
 METHODS = ("em", "mle")
-FIT_PASSES = 30
-"""Filter passes a fit is expected to cost (its E-steps or its likelihood and gradient evaluations;
-an MLE of a local level on 5,000 steps takes as long as 27 on the readable path): what
-``engine="auto"`` weighs compiling against (:func:`gaussfuse.inference.drivers.compiled_engine`)."""
+FIT_PASSES = {"em": 100, "mle": 30}
+"""Filter passes a fit is expected to cost on the readable path, by method, when it stops at its
+tolerance: on a local level with 5,000 steps, EM (its smoothers) took as long as 113 filter passes
+and MLE (its likelihoods and gradients) 36. A fit without a tolerance (``tol=0``) is expected to run
+all its iterations, each about three passes. What ``engine="auto"`` weighs compiling against
+(:func:`gaussfuse.inference.drivers.compiled_engine`)."""
 _MATRICES = ("F", "H", "Q", "R", "B")
 
 
@@ -1181,11 +1183,12 @@ def fit(
         raise ValueError(f"`iterations` must be a positive integer; got {iterations!r}.")
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
-    if engine == "auto":  # decided once for the whole fit, expecting FIT_PASSES passes over the data
-        compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1], FIT_PASSES, zs.shape[0] > 1,
-                                   smoothing=True)
-        engine = "python" if compiled is None else "numba"
     tol = _check_tol((1e-10 if method == "em" else 1e-8) if tol is None else tol)
+    if engine == "auto":  # decided once for the whole fit, on the whole work it is expected to do
+        passes = 3 * iterations if tol == 0 else min(FIT_PASSES[method], 3 * iterations)
+        compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1] * passes, 1.0,
+                                   zs.shape[0] > 1, smoothing=True)
+        engine = "python" if compiled is None else "numba"
     if callback is not None and not callable(callback):
         raise TypeError(f"`callback` must be callable as callback(iteration, loglik); got {type(callback).__name__}.")
     if params is not None:
