@@ -16,6 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from _pendulum import DT, G, PENDULUM_Q, pendulum_f, pendulum_f_vec, pendulum_h, pendulum_h_vec
 import gaussfuse as gf
 from gaussfuse.inference import drivers
 from gaussfuse._kernels import sigma_points as sp
@@ -51,25 +52,6 @@ def both(fn, *args, **kwargs):
 # ---------------------------------------------------------------------------
 # Särkkä & Svensson's pendulum, in the three modes
 # ---------------------------------------------------------------------------
-
-DT, G = 0.01, 9.81
-PENDULUM_Q = 0.01 * np.array([[DT**3 / 3, DT**2 / 2], [DT**2 / 2, DT]])
-
-
-def pendulum_f(x):
-    return np.array([x[0] + DT * x[1], x[1] - G * np.sin(x[0]) * DT])
-
-
-def pendulum_h(x):
-    return np.array([np.sin(x[0])])
-
-
-def pendulum_f_vec(X):
-    return np.stack([X[:, 0] + DT * X[:, 1], X[:, 1] - G * np.sin(X[:, 0]) * DT], axis=-1)
-
-
-def pendulum_h_vec(X):
-    return np.sin(X[:, :1])
 
 
 pendulum_f_jit = numba.njit(cache=True)(pendulum_f)

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from _pendulum import DT, G, PENDULUM_Q, pendulum_f, pendulum_f_vec, pendulum_h, pendulum_h_vec
 import gaussfuse as gf
 from gaussfuse.errors import ModelFunctionError
 
@@ -18,7 +19,6 @@ DATA = Path(__file__).parents[1] / "data"
 # Särkkä & Svensson (2023), pendulum example: RMSE of the angle.
 # ---------------------------------------------------------------------------
 
-DT, G = 0.01, 9.81
 PENDULUM_TABLE = [
     # (method, options, filter RMSE, smoother RMSE). The published iterated methods make
     # exactly 10 iterations: tol=0 stops only at a fixed point, which they do not all reach.
@@ -29,25 +29,6 @@ PENDULUM_TABLE = [
     ("ghkf", {"order": 5}, 0.09980624, 0.03710182),
     ("iplf", {"iterations": 10, "order": 3, "tol": 0.0}, 0.14055766, 0.03473322),
 ]
-
-
-def pendulum_f(x):
-    return np.array([x[0] + DT * x[1], x[1] - G * np.sin(x[0]) * DT])
-
-
-def pendulum_h(x):
-    return np.array([np.sin(x[0])])
-
-
-def pendulum_f_vec(X):
-    return np.stack([X[:, 0] + DT * X[:, 1], X[:, 1] - G * np.sin(X[:, 0]) * DT], axis=-1)
-
-
-def pendulum_h_vec(X):
-    return np.sin(X[:, :1])
-
-
-PENDULUM_Q = 0.01 * np.array([[DT**3 / 3, DT**2 / 2], [DT**2 / 2, DT]])
 
 
 @pytest.fixture(scope="module")

@@ -41,9 +41,9 @@ from ..kalman import _S_NAME
 from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
-__all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "Fixed", "fixed", "hold_fixed",
-           "steady_update", "same", "smoother_gain", "rts_step",
-           "wrap", "not_finite", "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
+__all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
+           "Fixed", "fixed", "hold_fixed", "steady_update", "same", "smoother_gain", "rts_step", "wrap", "not_finite",
+           "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
            "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -179,18 +179,7 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
     """
     n = mean.shape[0]
     m = z.shape[0]
-    mo = 0
-    for a in range(m):
-        s = 0.0
-        for j in range(n):
-            s += H[a, j] * mean[j]
-        s += d[a]
-        w.pred_z[a] = s
-        diff = z[a] - s
-        innovation[a] = wrap(diff) if angles[a] else diff
-        if z[a] == z[a]:  # not NaN
-            w.obs[mo] = a
-            mo += 1
+    mo = innovate(w, mean, z, H, d, angles, innovation)
     congruence(H, cov, R, S_full, w.HP, m, n)        # H P⁻ in w.HP, S = sym(H P⁻ Hᵀ + R)
     if mo == 0:
         for i in range(n):
@@ -211,30 +200,69 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
     if not cholesky(w.S, w.L, mo):
         return False, 0.0, mo
     cho_solve(w.L, w.Kt, mo, n)              # Kᵀ = S⁻¹ H_o P⁻
+    gain_mean(w.Kt, w.v, mean, post_mean, mo)  # m⁻ + K v
     for i in range(n):
-        s = 0.0
         for a in range(mo):
             w.K[i, a] = w.Kt[a, i]
-            s += w.Kt[a, i] * w.v[a]
-        post_mean[i] = mean[i] + s              # m⁻ + K v
     matmul(w.K, w.H_o, w.A1, n, mo, n)               # I - K H_o
     for i in range(n):
         for j in range(n):
             w.A1[i, j] = (1.0 if i == j else 0.0) - w.A1[i, j]
     congruence(w.K, w.R_o, None, w.A3, w.KR, n, mo)  # K R_oo Kᵀ
     congruence(w.A1, cov, w.A3, post_cov, w.A2, n, n)  # (I - K H_o) P⁻ (I - K H_o)ᵀ + K R_oo Kᵀ
-    # log N(v; 0, S) through the whitened innovation L⁻¹ v (kalman: log_density(whiten(L, v), L)).
+    return True, log_density(w.L, w.v, w.white, mo), mo
+
+
+@jit(inline="always", **_JIT)
+def innovate(w, mean, z, H, d, angles, innovation):
+    """The innovation ``z - (H m + d)`` (wrapped for angles, in `innovation`), and the observed components.
+
+    Writes ``H m + d`` in ``w.pred_z`` and the indices of the components of
+    z that are not NaN in ``w.obs``; returns how many, ``|o|``.
+    """
+    n = mean.shape[0]
+    mo = 0
+    for a in range(z.shape[0]):
+        s = 0.0
+        for j in range(n):
+            s += H[a, j] * mean[j]
+        s += d[a]
+        w.pred_z[a] = s
+        diff = z[a] - s
+        innovation[a] = wrap(diff) if angles[a] else diff
+        if z[a] == z[a]:  # not NaN
+            w.obs[mo] = a
+            mo += 1
+    return mo
+
+
+@jit(inline="always", **_JIT)
+def gain_mean(Kt, v, mean, post_mean, mo):
+    """``post_mean = mean + K v`` with ``Kᵀ`` in ``Kt[:mo]`` and the observed innovation ``v[:mo]``."""
+    for i in range(mean.shape[0]):
+        s = 0.0
+        for a in range(mo):
+            s += Kt[a, i] * v[a]
+        post_mean[i] = mean[i] + s
+
+
+@jit(inline="always", **_JIT)
+def log_density(L, v, white, mo):
+    r"""kalman's ``log_density(whiten(L, v), L)``: :math:`\log N(v; 0, L L^\top)` over the first `mo` components.
+
+    The whitened innovation :math:`L^{-1} v` (forward substitution) goes to `white`.
+    """
     quad = 0.0
     logdet = 0.0
     for a in range(mo):
-        s = w.v[a]
+        s = v[a]
         for b in range(a):
-            s -= w.L[a, b] * w.white[b]
-        s /= w.L[a, a]
-        w.white[a] = s
+            s -= L[a, b] * white[b]
+        s /= L[a, a]
+        white[a] = s
         quad += s * s
-        logdet += math.log(w.L[a, a])
-    return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI), mo
+        logdet += math.log(L[a, a])
+    return -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI)
 
 
 class Fixed(NamedTuple):
@@ -296,42 +324,18 @@ def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation):
     are ``fx.cov`` and ``fx.S``. The operations are :func:`update`'s, in its
     order, so the results are bitwise the same.
     """
-    n = mean.shape[0]
-    m = z.shape[0]
-    for a in range(m):
+    for a in range(z.shape[0]):
         if (z[a] == z[a]) != fx.obs[a]:
             return False, 0.0
-    mo = 0
-    for a in range(m):
-        s = 0.0
-        for j in range(n):
-            s += H[a, j] * mean[j]
-        s += d[a]
-        diff = z[a] - s
-        innovation[a] = wrap(diff) if angles[a] else diff
-        if fx.obs[a]:
-            w.v[mo] = innovation[a]
-            mo += 1
-    if mo == 0:
-        for i in range(n):
+    mo = innovate(w, mean, z, H, d, angles, innovation)
+    for a in range(mo):
+        w.v[a] = innovation[w.obs[a]]
+    if mo == 0:  # as update: the prediction, copied
+        for i in range(mean.shape[0]):
             post_mean[i] = mean[i]
         return True, 0.0
-    for i in range(n):
-        s = 0.0
-        for a in range(mo):
-            s += fx.Kt[a, i] * w.v[a]
-        post_mean[i] = mean[i] + s
-    quad = 0.0
-    logdet = 0.0
-    for a in range(mo):
-        s = w.v[a]
-        for b in range(a):
-            s -= fx.L[a, b] * w.white[b]
-        s /= fx.L[a, a]
-        w.white[a] = s
-        quad += s * s
-        logdet += math.log(fx.L[a, a])
-    return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI)
+    gain_mean(fx.Kt, w.v, mean, post_mean, mo)
+    return True, log_density(fx.L, w.v, w.white, mo)
 
 
 @jit(inline="always", **_JIT)
