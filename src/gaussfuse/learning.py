@@ -1130,8 +1130,10 @@ def fit(
     callback : callable, optional
         ``callback(iteration, loglik)`` after each iteration (progress).
     engine : {"auto", "python", "numba"}, default "auto"
-        Engine of the filter and smoother runs; "auto" compiles whenever
-        numba is installed, since a fit runs them many times.
+        Engine of the filter and smoother runs; "auto" decides once for the
+        whole fit, compiling when the series have at least 1000 steps and
+        compiling (or loading from numba's disk cache) is expected to cost
+        less than the fit's passes on the readable path (:data:`FIT_PASSES`).
 
     Returns
     -------

@@ -58,8 +58,10 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         ``"numba"`` runs compiled kernels (methods "kf", with series in
         parallel, and "ukf", "ckf", "ghkf", whose whole loop is compiled when
         f and h are numba-jitted functions), equal to it to round-off; ``"auto"``
-        compiles when numba is installed and the series have at least
-        1000 steps in all.
+        takes the compiled path when numba is installed, the series have at
+        least 1000 steps in all, and compiling the kernels (or loading them
+        from numba's disk cache) is expected to cost less than the readable
+        path would take (see :func:`gaussfuse.inference.drivers.compiled_engine`).
     keep : {"all", "means", "last"}, default "all"
         What to return per step: everything; the means, predictions and
         innovations but no covariances; or nothing but the final belief
