@@ -84,12 +84,12 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     smoothing = out.gains.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and model.Q.shape[0] == 1
                  and model.R.shape[0] == 1 and not smoothing)
-    fx = fixed(n, m)
-    # Where a step's belief goes when it is not kept: two covariances, so that the last one is still
-    # there to compare with the next (the fixed point's test).
-    mean0, pm0, pc0 = np.empty(n), np.empty(n), np.empty((n, n))
-    covs0 = np.empty((2, n, n))
-    v0, S0 = np.empty(m), np.empty((m, m))
+    # The fixed point, and where a step's belief goes when it is not kept: two covariances, so that
+    # the last one is still there to compare with the next (the fixed point's test). Borrowed, as
+    # the arguments are; `scratch` owns them until the end.
+    scratch = (fixed(n, m), np.empty(n), np.empty(n), np.empty((n, n)), np.empty((2, n, n)), np.empty(m),
+               np.empty((m, m)))
+    fx, mean0, pm0, pc0, covs0, v0, S0 = borrow(scratch)
     for s in range(lo, hi):
         mean, cov = mean0, covs0[1]
         for i in range(n):
@@ -162,6 +162,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             out.last_mean[s, i] = mean[i]
             for j in range(n):
                 out.last_cov[s, i, j] = cov[i, j]
+    scratch[1][0] = 0.0  # alive until here
 
 
 @jit(parallel=True, **_JIT)
