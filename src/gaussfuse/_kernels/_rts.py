@@ -22,7 +22,7 @@ from numba import prange
 
 from .._linalg import psd_solve
 from ._jit import jit, launch
-from ._step import rts_step, workspace, wrap
+from ._step import copy1, copy2, rts_step, workspace, wrap
 
 __all__ = ["backward", "backward_parallel", "least_squares_gains", "smooth"]
 
@@ -36,10 +36,8 @@ def backward(lo, hi, means, covs, pmeans, pcovs, gains, angles, sm_means, sm_cov
     n = means.shape[2]
     w = workspace(n, 1)
     for s in range(lo, hi):
-        for i in range(n):
-            sm_means[s, T - 1, i] = means[s, T - 1, i]
-            for j in range(n):
-                sm_covs[s, T - 1, i, j] = covs[s, T - 1, i, j]
+        copy1(sm_means[s, T - 1], means[s, T - 1])
+        copy2(sm_covs[s, T - 1], covs[s, T - 1])
         for j in range(T - 2, -1, -1):
             rts_step(w, means[s, j], covs[s, j], pmeans[s, j + 1], pcovs[s, j + 1], sm_means[s, j + 1],
                      sm_covs[s, j + 1], gains[s, j], angles, sm_means[s, j], sm_covs[s, j])

@@ -42,7 +42,7 @@ from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
 __all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
-           "Fixed", "fixed", "hold_fixed", "steady_update", "same", "smoother_gain", "rts_step", "wrap", "not_finite",
+           "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "same", "smoother_gain", "rts_step", "wrap", "not_finite",
            "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
            "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
 
@@ -182,10 +182,8 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
     mo = innovate(w, mean, z, H, d, angles, innovation)
     congruence(H, cov, R, S_full, w.HP, m, n)        # H P⁻ in w.HP, S = sym(H P⁻ Hᵀ + R)
     if mo == 0:
-        for i in range(n):
-            post_mean[i] = mean[i]
-            for j in range(n):
-                post_cov[i, j] = cov[i, j]
+        copy1(post_mean, mean)
+        copy2(post_cov, cov)
         return True, 0.0, mo
     # The observed block: H_o, R_oo, v, S_oo, and Kᵀ ← H_o P⁻.
     for a in range(mo):
@@ -265,6 +263,21 @@ def log_density(L, v, white, mo):
     return -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI)
 
 
+@register_jitable(**_JIT)
+def copy1(dst, src):
+    """``dst[:] = src`` for vectors of one length."""
+    for a in range(src.shape[0]):
+        dst[a] = src[a]
+
+
+@register_jitable(**_JIT)
+def copy2(dst, src):
+    """``dst[:, :] = src`` for matrices of one shape."""
+    for a in range(src.shape[0]):
+        for b in range(src.shape[1]):
+            dst[a, b] = src[a, b]
+
+
 class Fixed(NamedTuple):
     """kalman.SteadyState compiled: a fixed point of the covariance recursion, and what it reuses.
 
@@ -282,36 +295,25 @@ class Fixed(NamedTuple):
     L: np.ndarray         # (m, m)  the Cholesky factor of S_oo
     S: np.ndarray         # (m, m)  S over all m components
     obs: np.ndarray       # (m,)    bool: the observed components
-    state: np.ndarray     # (2,)    int64: |o|, and 1 once a fixed point is held
 
 
 @register_jitable
 def fixed(n, m):
     """An empty :class:`Fixed` for n states and m measurement components."""
     return Fixed(np.empty((n, n)), np.empty((n, n)), np.empty((m, n)), np.empty((m, m)), np.empty((m, m)),
-                 np.zeros(m, dtype=np.bool_), np.zeros(2, dtype=np.int64))
+                 np.zeros(m, dtype=np.bool_))
 
 
 @jit(inline="always", **_JIT)
 def hold_fixed(fx, w, post_cov, pred_cov, S_full, z, mo):
     """Record the fixed point that :func:`update` has just reached (its scratch `w` and outputs)."""
-    n = post_cov.shape[0]
-    m = z.shape[0]
-    for i in range(n):
-        for j in range(n):
-            fx.cov[i, j] = post_cov[i, j]
-            fx.pred_cov[i, j] = pred_cov[i, j]
-    for a in range(m):
+    copy2(fx.cov, post_cov)
+    copy2(fx.pred_cov, pred_cov)
+    copy2(fx.S, S_full)
+    copy2(fx.Kt[:mo], w.Kt[:mo])
+    copy2(fx.L[:mo, :mo], w.L[:mo, :mo])
+    for a in range(z.shape[0]):
         fx.obs[a] = z[a] == z[a]
-        for b in range(m):
-            fx.S[a, b] = S_full[a, b]
-    for a in range(mo):
-        for j in range(n):
-            fx.Kt[a, j] = w.Kt[a, j]
-        for b in range(mo):
-            fx.L[a, b] = w.L[a, b]
-    fx.state[0] = mo
-    fx.state[1] = 1
 
 
 @jit(inline="always", **_JIT)
@@ -331,8 +333,7 @@ def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation):
     for a in range(mo):
         w.v[a] = innovation[w.obs[a]]
     if mo == 0:  # as update: the prediction, copied
-        for i in range(mean.shape[0]):
-            post_mean[i] = mean[i]
+        copy1(post_mean, mean)
         return True, 0.0
     gain_mean(fx.Kt, w.v, mean, post_mean, mo)
     return True, log_density(fx.L, w.v, w.white, mo)
@@ -382,9 +383,7 @@ def smoother_gain(w, pred_cov, CT, gain):
     n = pred_cov.shape[0]
     if not cholesky(pred_cov, w.Ln, n):
         return False
-    for i in range(n):
-        for j in range(n):
-            w.A2[i, j] = CT[i, j]
+    copy2(w.A2, CT)
     cho_solve(w.Ln, w.A2, n, n)
     for i in range(n):
         for j in range(n):

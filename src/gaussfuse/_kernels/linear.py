@@ -46,9 +46,9 @@ from . import _rts
 from ._dense import BLAS_FROM
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
-from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, failures, filter_result, fixed,
-                    hold_fixed, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure, record, record_not_pd,
-                    same, smoother_gain, steady_update, update, workspace)
+from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures, filter_result,
+                    fixed, hold_fixed, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure,
+                    record, record_not_pd, same, smoother_gain, steady_update, update, workspace)
 
 __all__ = ["filter", "smooth", "KERNELS"]
 
@@ -92,25 +92,19 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     fx, mean0, pm0, pc0, covs0, v0, S0 = borrow(scratch)
     for s in range(lo, hi):
         mean, cov = mean0, covs0[1]
-        for i in range(n):
-            mean[i] = m0[i]
-            for j in range(n):
-                cov[i, j] = P0[i, j]
+        copy1(mean, m0)
+        copy2(cov, P0)
         total = 0.0
         fail.code[s] = OK
-        fx.state[1] = 0
-        at_fixed = False  # cov is the fixed point's
+        at_fixed = False  # cov is the fixed point's posterior covariance
         b = model.b[s if model.b.shape[0] > 1 else 0]
         for k in range(T):
             pm = out.predicted_means[s, k] if keep_means else pm0
             pc = out.predicted_covs[s, k] if keep_covs else pc0
             F = at(model.F, k)
-            from_fixed = at_fixed
-            if from_fixed:
+            if at_fixed:
                 predict_mean(mean, F, at(b, k), pm)
-                for i in range(n):
-                    for j in range(n):
-                        pc[i, j] = fx.pred_cov[i, j]
+                copy2(pc, fx.pred_cov)
                 if not_finite_mean(pm, 0.0):
                     record(fail, s, PREDICTED_NOT_FINITE, k)
                     break
@@ -122,9 +116,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             if smoothing and k > 0:  # G_{k-1} = C (P⁻_k)⁻¹, Cᵀ = F_k P_{k-1} from predict
                 if not smoother_gain(w, pc, w.A1, out.gains[s, k - 1]):
                     out.failed[s, k - 1] = True  # Cᵀ left for the least-squares gain
-                    for i in range(n):
-                        for j in range(n):
-                            out.gains[s, k - 1, i, j] = w.A1[i, j]
+                    copy2(out.gains[s, k - 1], w.A1)
             previous = cov
             mean = out.means[s, k] if keep_means else mean0
             cov = out.covs[s, k] if keep_covs else covs0[k % 2]
@@ -132,15 +124,11 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             S = out.innovation_covs[s, k] if keep_covs else S0
             H = at(model.H, k)
             reused = False
-            if from_fixed:
+            if at_fixed:
                 reused, ll = steady_update(fx, w, pm, zs[s, k], H, model.d, model.angles, mean, v)
             if reused:
-                for i in range(n):
-                    for j in range(n):
-                        cov[i, j] = fx.cov[i, j]
-                for a in range(m):
-                    for c in range(m):
-                        S[a, c] = fx.S[a, c]
+                copy2(cov, fx.cov)
+                copy2(S, fx.S)
                 if not_finite_mean(mean, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
@@ -152,16 +140,14 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                 if not_finite(mean, cov, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
-                if invariant and not from_fixed and same(cov, previous):
+                if invariant and not at_fixed and same(cov, previous):
                     hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
                     reused = True  # the posterior is the fixed point's: the next step reuses it
             at_fixed = reused
             total += ll
         out.loglik[s] = total
-        for i in range(n):
-            out.last_mean[s, i] = mean[i]
-            for j in range(n):
-                out.last_cov[s, i, j] = cov[i, j]
+        copy1(out.last_mean[s], mean)
+        copy2(out.last_cov[s], cov)
     scratch[1][0] = 0.0  # alive until here
 
 

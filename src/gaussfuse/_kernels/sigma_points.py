@@ -68,8 +68,9 @@ from . import _rts
 from ._jit import entry_point, jit
 from ._nrt import borrow, readonly
 from ._slr import Rule, draw, points, regress, regression
-from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, failures, filter_result, not_finite, outputs,
-                    predict, raise_failure, record, record_not_pd, smoother_gain, update, where, workspace, wrap)
+from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, copy1, copy2, failures, filter_result, not_finite,
+                    outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, where, workspace,
+                    wrap)
 
 __all__ = ["filter", "smooth", "execution_mode", "advance"]
 
@@ -139,21 +140,6 @@ def _cursor(first: int) -> Cursor:
 
 
 @register_jitable(**_JIT)
-def _copy1(dst, src):
-    """``dst[:] = src`` for vectors of one length."""
-    for a in range(src.shape[0]):
-        dst[a] = src[a]
-
-
-@register_jitable(**_JIT)
-def _copy2(dst, src):
-    """``dst[:, :] = src`` for matrices of one shape."""
-    for a in range(src.shape[0]):
-        for b in range(src.shape[1]):
-            dst[a, b] = src[a, b]
-
-
-@register_jitable(**_JIT)
 def _first_not_finite(Y):
     """The first row of Y holding inf or NaN, or -1."""
     for i in range(Y.shape[0]):
@@ -185,13 +171,13 @@ def _forecast(s, t, Y, prob, bel, out, w, gf, fail):
         record(fail, s, PREDICTED_NOT_FINITE, t)
         return False
     if out.predicted_means.shape[1]:
-        _copy1(out.predicted_means[s, t], bel.pmean)
+        copy1(out.predicted_means[s, t], bel.pmean)
     if out.predicted_covs.shape[1]:
-        _copy2(out.predicted_covs[s, t], bel.pcov)
+        copy2(out.predicted_covs[s, t], bel.pcov)
     if out.gains.shape[1] and t > 0:  # G_{t-1} = C (P⁻_t)⁻¹, Cᵀ = A P_{t-1} from predict
         if not smoother_gain(w, bel.pcov, w.A1, out.gains[s, t - 1]):
             out.failed[s, t - 1] = True  # Cᵀ left for the least-squares gain
-            _copy2(out.gains[s, t - 1], w.A1)
+            copy2(out.gains[s, t - 1], w.A1)
     return True
 
 
@@ -215,11 +201,11 @@ def _correct(s, t, Z, prob, bel, out, w, gh, fail):
         return False
     bel.loglik[0] += ll
     if out.means.shape[1]:
-        _copy1(out.means[s, t], bel.mean)
-        _copy1(out.innovations[s, t], bel.innovation)
+        copy1(out.means[s, t], bel.mean)
+        copy1(out.innovations[s, t], bel.innovation)
     if out.covs.shape[1]:
-        _copy2(out.covs[s, t], bel.cov)
-        _copy2(out.innovation_covs[s, t], bel.S)
+        copy2(out.covs[s, t], bel.cov)
+        copy2(out.innovation_covs[s, t], bel.S)
     return True
 
 
@@ -241,16 +227,16 @@ def _advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
     status = DONE
     while True:
         if stage == START:  # series s begins at the prior
-            _copy1(bel.mean, prob.m0)
-            _copy2(bel.cov, prob.P0)
+            copy1(bel.mean, prob.m0)
+            copy2(bel.cov, prob.P0)
             bel.loglik[0] = 0.0
             t = 0
             stage = DRAW_F
         if stage == DRAW_F:
             if t == T:  # series s is done
                 out.loglik[s] = bel.loglik[0]
-                _copy1(out.last_mean[s], bel.mean)
-                _copy2(out.last_cov[s], bel.cov)
+                copy1(out.last_mean[s], bel.mean)
+                copy2(out.last_cov[s], bel.cov)
                 s += 1
                 if s == N:
                     status = DONE
