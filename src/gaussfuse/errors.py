@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-__all__ = ["ConvergenceWarning", "ModelFunctionError", "not_finite"]
+import numpy as np
+
+__all__ = ["ConvergenceWarning", "ModelFunctionError", "not_finite", "STEP_ERRORS", "at_step"]
 
 
 class ConvergenceWarning(UserWarning):
@@ -31,3 +33,12 @@ def not_finite(stage: str) -> str:
     what = "mean, covariance or log-likelihood" if stage == "filtered" else "mean or covariance"
     return (f"the {stage} {what} is not finite (inf or NaN): the computation overflowed; "
             "check the scale of the model, the prior and the measurements.")
+
+
+STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
+"""What a step of a filter or smoother can raise on valid input: named with its step by :func:`at_step`."""
+
+
+def at_step(exc: Exception, k: int) -> Exception:
+    """`exc` again, with the step it happened at in front of its message."""
+    return type(exc)(f"at step {k}: {exc}")

@@ -6,7 +6,7 @@ import numpy as np
 
 from . import kalman
 from ._validation import as_array, shape_error
-from .errors import ModelFunctionError
+from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .inference.validation import check_prior
 from .linearize import Exact
@@ -99,8 +99,7 @@ class KalmanFilter:
                 raise shape_error("u", f"({p},)", u.shape)
         self._controls.clear()
         self._controls[k] = u
-        mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov, None, True,
-                              self._steady)
+        mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov, steady=self._steady)
         self.belief = Gaussian._trusted(mean, cov)
         self.step += 1
         return self.belief
@@ -113,16 +112,15 @@ class KalmanFilter:
         z = np.atleast_1d(as_array("z", z, allow_nan=True))
         if z.shape != (m,):
             raise shape_error("z", f"({m},)", z.shape)
-        post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z, 1, None, None, None,
-                         self._steady)[0]
+        post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z, steady=self._steady)[0]
         self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief
 
     @staticmethod
-    def _run(half, lin, k: int, *args):
+    def _run(half, lin, k: int, *args, **kwargs):
         """A half of :func:`gaussfuse.kalman.step`, with the step named in its errors."""
         try:
-            return half(lin, k, *args)
-        except (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError) as exc:
-            raise type(exc)(f"at step {k}: {exc}") from exc
+            return half(lin, k, *args, **kwargs)
+        except STEP_ERRORS as exc:
+            raise at_step(exc, k) from exc

@@ -19,7 +19,7 @@ import numpy as np
 from .. import kalman
 from .._kernels import compiled_state
 from .._linalg import wrap_components
-from ..errors import ConvergenceWarning, ModelFunctionError
+from ..errors import STEP_ERRORS, ConvergenceWarning, at_step
 from ..gaussian import Gaussian
 from ..linearize import Nominal
 from .registry import METHODS, Method, linearisation
@@ -43,14 +43,6 @@ READABLE_STEP = {"linear": 3e-5, "sigma_points": 4e-4}
 """What the readable path spends on a filter step beyond the compiled one, for a small state
 (``benchmarks/run.py``: W1 readable 47k steps/s against 1.5-4.8M compiled; an unscented filter with
 plain Python f and h, W4, 1.7k against 12k; a smoother counts as two passes)."""
-
-_STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
-
-
-def _at_step(exc: Exception, k: int) -> Exception:
-    """`exc` with the step it happened at in front of its message."""
-    return type(exc)(f"at step {k}: {exc}")
-
 
 def _angles(model):
     """The model's angle masks, None where it has none (so that nothing is wrapped)."""
@@ -99,8 +91,8 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
                     pcovs[k], covs[k], icovs[k] = st.predicted_cov, cov, post.innovation_cov
                 loglik += post.loglik
                 unconverged += not st.converged
-    except _STEP_ERRORS as exc:
-        raise _at_step(exc, k) from exc
+    except STEP_ERRORS as exc:
+        raise at_step(exc, k) from exc
     per_step = (means, covs, pmeans, pcovs, innov, icovs)
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean, cov,
                           used if used.shape[0] else None)
@@ -142,8 +134,8 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
                 )
                 sm_means[j] = wrap_components(sm_means[j], state_angles)
                 kalman.check_finite("smoothed", sm_means[j], sm_covs[j])
-    except _STEP_ERRORS as exc:
-        raise _at_step(exc, j + first) from exc
+    except STEP_ERRORS as exc:
+        raise at_step(exc, j + first) from exc
     return sm_means, sm_covs, gains
 
 
