@@ -27,7 +27,7 @@ def test_readme_python_example_runs(capsys):
 def test_readme_commands(tmp_path):
     commands = [line for block in _blocks("bash") for line in block.splitlines()]
     assert any(c.startswith("pip install") for c in commands)
-    assert "python -m pytest" in commands
+    assert any(c.startswith("python -m pytest") for c in commands)
     gaussfuse = [c.split() for c in commands if c.startswith("gaussfuse ")]
     assert [c[1] for c in gaussfuse] == ["demo", "filter", "fit"]
     bindir = Path(sys.executable).parent

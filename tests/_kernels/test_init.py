@@ -29,6 +29,9 @@ PROBE = textwrap.dedent("""
         import gaussfuse as gf
         model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
         gf.smooth(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
+        from gaussfuse._kernels import linear
+        stats = linear.forward.stats  # compiled and written to the cache, or loaded from it
+        out["forward"] = {"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}
         out["after"] = {m: kernels.compiled_state(m) for m in ("linear", "sigma_points")}
         out["after, smoothing"] = {m: kernels.compiled_state(m, smoothing=True) for m in ("linear", "sigma_points")}
         out["after, batch"] = kernels.compiled_state("linear", batch=True)
@@ -45,17 +48,22 @@ def probe(cache_dir, what: str) -> dict:
 
 
 def test_cold_then_loaded_then_cached(tmp_path):
+    """One cold compilation (a new user), then what a new process and a changed source see."""
     first = probe(tmp_path, "run")
     assert first["before"] == {"linear": "cold", "sigma_points": "cold"}
+    assert first["forward"] == {"hits": 0, "misses": 1}  # compiled, and written to the cache
+    assert any(tmp_path.rglob("*.nbi"))
     assert not first["numba imported"]  # deciding does not import numba
     # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only,
     # and a batch of series would compile the parallel kernel.
     assert first["after"] == {"linear": "loaded", "sigma_points": "cold"}
     assert first["after, smoothing"] == {"linear": "loaded", "sigma_points": "cold"}
     assert first["after, batch"] == "cold"
-    second = probe(tmp_path, "look")
+    second = probe(tmp_path, "run")
     assert second["before"] == {"linear": "cached", "sigma_points": "cold"}
     assert not second["numba imported"]
+    assert second["forward"] == {"hits": 1, "misses": 0}  # a new process loads it
+    assert second["after"] == {"linear": "loaded", "sigma_points": "cold"}
     third = probe(tmp_path, "changed")
     assert third["before"] == {"linear": "cold", "sigma_points": "cold"}
 

@@ -7,11 +7,6 @@ through ``gf.filter`` and ``gf.smooth``, to 1e-10.
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-import textwrap
 import threading
 import tracemalloc
 from dataclasses import fields
@@ -348,34 +343,8 @@ def test_keep_last_kernel_allocations_do_not_grow_with_T():
 
 
 # ---------------------------------------------------------------------------
-# Compilation: cached on disk; "auto" compiles only for long inputs
+# Compilation: "auto" compiles only for long inputs (the disk cache: tests/_kernels/test_init.py)
 # ---------------------------------------------------------------------------
-
-CACHE_PROBE = textwrap.dedent("""
-    import json
-    import numpy as np
-    import gaussfuse as gf
-    from gaussfuse._kernels import _jit, _rts, linear
-
-    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.eye(2), R=1.0)
-    gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], engine="numba")
-    stats = linear.forward.stats
-    print(json.dumps({"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}))
-""")
-
-
-def test_compiled_kernels_are_cached_on_disk(tmp_path):
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-
-    def probe() -> dict:
-        out = subprocess.run([sys.executable, "-c", CACHE_PROBE], env=env, capture_output=True,
-                             text=True, check=True, timeout=300)
-        return json.loads(out.stdout.strip().splitlines()[-1])
-
-    assert probe() == {"hits": 0, "misses": 1}  # compiled, and written to the cache
-    assert any(tmp_path.rglob("*.nbi"))
-    assert probe() == {"hits": 1, "misses": 0}  # a new process loads it
-
 
 @pytest.mark.parametrize("front", ["filter", "smooth"])
 def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
