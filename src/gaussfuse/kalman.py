@@ -146,8 +146,14 @@ def update(
 
     :math:`S^{-1}` is never formed: with :math:`S = L L^\top`,
     :math:`K^\top = S^{-1} H_o P^-` is a Cholesky solve. The Joseph form is
-    the covariance of the estimator for *any* gain, so it stays symmetric
-    positive semi-definite under round-off. It is the gain that minimises
+    the covariance of the estimator for *any* gain: symmetric by
+    construction, and insensitive to first order to round-off in the gain.
+    Measured against a 50-digit filter (``tests/test_kalman.py``), it is about
+    100 times closer than the symmetrised ``P - K H P`` when the prior
+    variance is 10⁸ times the sensor's (1.5e-10 relative), but it is not proof
+    against round-off: with a prior of 10¹² and a sensor variance of 10⁻⁶ its
+    variances are 74% off and the covariance indefinite. It is
+    the gain that minimises
     :math:`\operatorname{tr} P` that gives :math:`K` above; the update is the
     product of the predicted Gaussian and the measurement likelihood.
 
