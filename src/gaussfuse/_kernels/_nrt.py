@@ -5,15 +5,56 @@ from __future__ import annotations
 import numpy as np
 from numba import types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.core.datamodel.models import ArrayModel
+from numba.core.imputils import lower_cast
+from numba.extending import intrinsic, register_model
 
 __all__ = ["borrow", "readonly"]
+
+
+class Borrowed(types.Array):
+    """The type of an array that owns no reference to its memory: numba counts no references for it.
+
+    Views of it (indexing, slicing) are borrowed too; unified with another
+    borrowed array it stays borrowed, with an owning array it is an array.
+    """
+
+    def __init__(self, dtype, ndim, layout, readonly=False, name=None, aligned=True):
+        super().__init__(dtype, ndim, layout, readonly=readonly, aligned=aligned,
+                         name=name or f"borrowed array({dtype}, {ndim}d, {layout})")
+
+    def copy(self, dtype=None, ndim=None, layout=None, readonly=None):
+        a = super().copy(dtype, ndim, layout, readonly)
+        return Borrowed(a.dtype, a.ndim, a.layout, readonly=not a.mutable, aligned=a.aligned)
+
+    def unify(self, typingctx, other):
+        a = super().unify(typingctx, other)
+        if a is not None and isinstance(other, Borrowed):
+            return Borrowed(a.dtype, a.ndim, a.layout, readonly=not a.mutable, aligned=a.aligned)
+        return a
+
+
+@register_model(Borrowed)
+class _BorrowedModel(ArrayModel):
+    """An array's layout, with no member that holds a reference (its meminfo is NULL)."""
+
+    def traverse(self, builder):
+        return []
+
+
+@lower_cast(Borrowed, types.Array)
+def _as_array(context, builder, fromty, toty, value):
+    """A borrowed array passed where an array is expected (a model function's argument): the same fields.
+
+    Its meminfo stays NULL, so the references numba counts for it are no-ops.
+    """
+    return value
 
 
 def _borrowed_type(ty):
     """The type of a borrowed `ty`: arrays writable, tuples element by element, anything else as it is."""
     if isinstance(ty, types.Array):
-        return ty.copy(readonly=False)
+        return Borrowed(ty.dtype, ty.ndim, ty.layout, readonly=False, aligned=ty.aligned)
     if isinstance(ty, types.BaseTuple):
         return types.BaseTuple.from_types([_borrowed_type(t) for t in ty], getattr(ty, "instance_class", tuple))
     return ty
@@ -49,6 +90,11 @@ def borrow(typingctx, x):
     borrows its own array arguments, which its caller keeps alive for the
     whole call; views of a borrowed array are borrowed too. A borrowed view
     must never outlive the call that borrowed it.
+
+    Borrowed arrays have a type of their own, :class:`Borrowed`, whose data
+    model holds no reference: numba then emits no reference counting for them
+    at all (a call to ``NRT_incref`` with a NULL meminfo is a no-op, but still
+    a call, dozens a step).
 
     Borrowed arrays are typed writable (their memory is not touched by
     that): read-only inputs and writable outputs then share one array type,

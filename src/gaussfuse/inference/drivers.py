@@ -36,9 +36,9 @@ so that a short call gives the same numbers, to the bit, in every process."""
 START = {"loaded": 0.0, "cached": 1.0}
 """Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
 process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-0.8 s)."""
-COMPILE = {"linear": 15.0, "sigma_points": 25.0}
-"""Compiling an engine's kernels with an empty cache (``benchmarks/first_call.py``, cold: filter 10 s,
-smooth 13 s, an unscented filter 20 s)."""
+COMPILE = {"linear": 15.0, "sigma_points": 20.0}
+"""Compiling an engine's kernels with an empty cache (``benchmarks/first_call.py --cache cold --engine numba``:
+filter 14 s, an unscented filter 18 s)."""
 READABLE_STEP = {"linear": 3e-5, "sigma_points": 4e-4}
 """What the readable path spends on a filter step beyond the compiled one, for a small state
 (``benchmarks/run.py``: W1 readable 47k steps/s against 1.5-4.8M compiled; an unscented filter with
