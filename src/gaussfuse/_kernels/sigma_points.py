@@ -39,7 +39,9 @@ Two execution modes, chosen per call (:func:`execution_mode`), drive it:
   type, a locked signature) runs in the Python mode, with the same results.
 * **python** -- plain Python f and h: the loop is Python, calling f and h
   once per sigma point (or once per step on the (k, n) stack when the model
-  is vectorized) and :func:`advance` twice a step for everything between.
+  is vectorized) and :func:`advance` twice a step for everything between
+  (through :func:`advance_held`, whose arguments numba unboxes once for the
+  whole run, not at every call).
 
 Model-function errors (an exception, a wrong shape, a non-finite value) and
 failed factorisations raise the same :class:`ModelFunctionError` /
@@ -57,6 +59,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import types
+from numba.experimental import structref
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload, register_jitable
 
@@ -72,7 +75,7 @@ from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, copy1, copy2,
                     outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, where, workspace,
                     wrap)
 
-__all__ = ["filter", "smooth", "execution_mode", "advance"]
+__all__ = ["filter", "smooth", "execution_mode", "advance", "advance_held"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 _F64 = np.dtype(np.float64)
@@ -293,6 +296,33 @@ def advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
     """
     cursor, Y, prob, bel, out, w, gf, gh, fail = borrow((cursor, Y, prob, bel, out, w, gf, gh, fail))
     return _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
+
+
+@structref.register
+class _HeldType(types.StructRef):
+    """The numba type of :class:`_Held`."""
+
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class _Held(structref.StructRefProxy):
+    """:func:`advance`'s arguments but f's or h's values, unboxed once for a whole run of the Python mode.
+
+    Handing numba the tuples of arrays at every call unboxes each of their
+    (about seventy) arrays every time, several microseconds a call; a
+    structure holding them is one pointer.
+    """
+
+
+structref.define_proxy(_Held, _HeldType, ["args"])
+
+
+@jit(**_JIT)
+def advance_held(held, Y):
+    """:func:`advance` with the arguments `held` keeps."""
+    cursor, prob, bel, out, w, gf, gh, fail = held.args
+    return advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
 
 
 # ---------------------------------------------------------------------------
@@ -592,11 +622,11 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool):
 def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: int, N: int) -> None:
     """The Python mode (see the module notes): f and h called here, :func:`advance` between the calls."""
     f, h, vectorized = model.f, model.h, model.vectorized
-    args = (prob, bel, out, w, gf, gh, fail)
-    step = entry_point(advance, cursor, Yf, *args)  # the compiled function, without numba's dispatch per call
+    held = _Held((cursor, prob, bel, out, w, gf, gh, fail))
+    step = entry_point(advance_held, held, Yf)  # the compiled function, without numba's dispatch per call
     Y = Yf
     while True:
-        status = step(cursor, Y, *args)
+        status = step(held, Y)
         if status == NEED_F or status == NEED_H:
             s, t = int(cursor.series[0]), int(cursor.step[0])
             try:
