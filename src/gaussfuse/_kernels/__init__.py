@@ -43,7 +43,7 @@ _HERE = Path(__file__).resolve().parent
 
 ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
     "linear": (("linear", "forward"),),
-    "sigma_points": (("sigma_points", "advance_held"),),
+    "sigma_points": (("sigma_points", "advance"),),
 }
 """The compiled functions an engine's filter runs on one series, as (module,
 function) pairs: what :func:`compiled_state` looks for. A smoother runs

@@ -40,8 +40,8 @@ Two execution modes, chosen per call (:func:`execution_mode`), drive it:
 * **python** -- plain Python f and h: the loop is Python, calling f and h
   once per sigma point (or once per step on the (k, n) stack when the model
   is vectorized) and :func:`advance` twice a step for everything between
-  (through :func:`advance_held`, whose arguments numba unboxes once for the
-  whole run, not at every call).
+  (its arguments held in one structure, :func:`hold`, that numba unboxes
+  once for the whole run, not at every call).
 
 Model-function errors (an exception, a wrong shape, a non-finite value) and
 failed factorisations raise the same :class:`ModelFunctionError` /
@@ -75,7 +75,7 @@ from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, copy1, copy2,
                     outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, where, workspace,
                     wrap)
 
-__all__ = ["filter", "smooth", "execution_mode", "advance", "advance_held"]
+__all__ = ["filter", "smooth", "execution_mode", "advance", "hold"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 _F64 = np.dtype(np.float64)
@@ -288,16 +288,6 @@ def _advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
     return status
 
 
-@jit(**_JIT)
-def advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
-    """The Python mode's kernel: :func:`_advance` with f's or h's values `Y` (k, n or m) from the caller.
-
-    Every argument is held by the caller for the call (see :mod:`._nrt`).
-    """
-    cursor, Y, prob, bel, out, w, gf, gh, fail = borrow((cursor, Y, prob, bel, out, w, gf, gh, fail))
-    return _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
-
-
 @structref.register
 class _HeldType(types.StructRef):
     """The numba type of :class:`_Held`."""
@@ -319,10 +309,26 @@ structref.define_proxy(_Held, _HeldType, ["args"])
 
 
 @jit(**_JIT)
-def advance_held(held, Y):
-    """:func:`advance` with the arguments `held` keeps."""
+def hold(cursor, prob, bel, out, w, gf, gh, fail):
+    """A :class:`_Held` of :func:`advance`'s arguments, made by compiled (and cached) code.
+
+    ``_Held(...)`` called from Python would compile numba's constructor in
+    every process, uncached: seconds on a first call.
+    """
+    return _Held((cursor, prob, bel, out, w, gf, gh, fail))
+
+
+@jit(**_JIT)
+def advance(held, Y):
+    """The Python mode's kernel: :func:`_advance` with f's or h's values `Y` (k, n or m) from the caller.
+
+    `held` (made by :func:`hold`) keeps the cursor, problem, belief,
+    outputs, workspace, regressions and failures. The caller holds every
+    array for the call (see :mod:`._nrt`).
+    """
     cursor, prob, bel, out, w, gf, gh, fail = held.args
-    return advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
+    cursor, Y, prob, bel, out, w, gf, gh, fail = borrow((cursor, Y, prob, bel, out, w, gf, gh, fail))
+    return _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
 
 
 # ---------------------------------------------------------------------------
@@ -622,8 +628,8 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool):
 def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: int, N: int) -> None:
     """The Python mode (see the module notes): f and h called here, :func:`advance` between the calls."""
     f, h, vectorized = model.f, model.h, model.vectorized
-    held = _Held((cursor, prob, bel, out, w, gf, gh, fail))
-    step = entry_point(advance_held, held, Yf)  # the compiled function, without numba's dispatch per call
+    held = hold(cursor, prob, bel, out, w, gf, gh, fail)
+    step = entry_point(advance, held, Yf)  # the compiled function, without numba's dispatch per call
     Y = Yf
     while True:
         status = step(held, Y)
