@@ -35,7 +35,7 @@ AUTO_NUMBA_STEPS = 1000
 so that a short call gives the same numbers, to the bit, in every process."""
 START = {"loaded": 0.0, "cached": 1.0}
 """Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
-process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-0.8 s)."""
+process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-1.1 s)."""
 COMPILE = {"linear": 15.0, "sigma_points": 20.0}
 """Compiling an engine's kernels with an empty cache (``benchmarks/first_call.py --cache cold --engine numba``:
 filter 14 s, an unscented filter 18 s)."""
