@@ -37,12 +37,13 @@ from numba.extending import register_jitable
 
 from ..errors import not_finite as not_finite_message
 from ..inference.results import FilterResult
-from ..kalman import _S_NAME
+from ..kalman import _S_NAME, SETTLED
 from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
 __all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
-           "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "same", "smoother_gain", "rts_step", "wrap", "not_finite",
+           "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
+           "not_finite",
            "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
            "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
 
@@ -282,11 +283,11 @@ class Fixed(NamedTuple):
     """kalman.SteadyState compiled: a fixed point of the covariance recursion, and what it reuses.
 
     For a time-invariant model, once an update returns the covariance the
-    step's prediction started from (bitwise), every following step with the
-    same observed components computes the same prediction, gain and
-    posterior covariance again: :func:`steady_update` then computes the
-    means only. The results are bitwise those of :func:`predict` and
-    :func:`update`.
+    step's prediction started from, to round-off (:func:`settled`), every
+    following step with the same observed components would compute the
+    same prediction, gain and posterior covariance again, to round-off:
+    :func:`steady_update` then computes the means only, with the gain and
+    covariances held here (see kalman.SteadyState for the accuracy).
     """
 
     cov: np.ndarray       # (n, n)  the fixed-point posterior covariance
@@ -351,11 +352,13 @@ def predict_mean(mean, A, b, pred_mean):
 
 
 @jit(inline="always", **_JIT)
-def same(a, b):
-    """Whether two (n, n) arrays are equal, entry by entry (bitwise for numbers that are not NaN)."""
-    for i in range(a.shape[0]):
-        for j in range(a.shape[1]):
-            if a[i, j] != b[i, j]:
+def settled(new, old):
+    """kalman.settled: whether every entry of `new` is within ``SETTLED`` of `old`, relative to its variances."""
+    n = new.shape[0]
+    for i in range(n):
+        si = math.sqrt(abs(new[i, i]))
+        for j in range(n):
+            if not abs(new[i, j] - old[i, j]) <= SETTLED * (si * math.sqrt(abs(new[j, j]))):
                 return False
     return True
 

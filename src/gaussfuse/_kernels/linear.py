@@ -48,7 +48,7 @@ from ._jit import jit, launch
 from ._nrt import borrow, readonly
 from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures, filter_result,
                     fixed, hold_fixed, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure,
-                    record, record_not_pd, same, smoother_gain, steady_update, update, workspace)
+                    record, record_not_pd, settled, smoother_gain, steady_update, update, workspace)
 
 __all__ = ["filter", "smooth", "KERNELS"]
 
@@ -140,7 +140,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                 if not_finite(mean, cov, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
-                if invariant and not at_fixed and same(cov, previous):
+                if invariant and not at_fixed and settled(cov, previous):
                     hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
                     reused = True  # the posterior is the fixed point's: the next step reuses it
             at_fixed = reused
