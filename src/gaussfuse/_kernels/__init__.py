@@ -67,9 +67,11 @@ def source_stamp() -> bytes:
     kernel compiled against an older version of a helper in another file
     (say :mod:`._step`); :mod:`._jit` stamps each kernel with this digest
     instead, so that a change to any kernel module invalidates them all.
+    :mod:`gaussfuse.kalman` is stamped too: the kernels compile its
+    constants in (``SETTLED``, the fixed point's test).
     """
     digest = hashlib.sha256()
-    for path in sorted(_HERE.glob("*.py")):
+    for path in [*sorted(_HERE.glob("*.py")), _HERE.parent / "kalman.py"]:
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.digest()
