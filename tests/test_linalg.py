@@ -108,3 +108,31 @@ def test_wrap_angle_and_circular_mean():
     np.testing.assert_allclose(_linalg.wrap_angle(np.array([np.pi, -np.pi, 3 * np.pi / 2])), [-np.pi, -np.pi, -np.pi / 2])
     mean = _linalg.circular_mean(np.array([[np.pi - 0.1], [-np.pi + 0.1]]), np.array([0.5, 0.5]))
     assert abs(abs(mean[0]) - np.pi) < 1e-12  # the mean of 179° and -179° is 180°, not 0°
+
+
+# ---------------------------------------------------------------------------
+# tria
+# ---------------------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.integers(1, 6), st.integers(1, 9), st.integers(0, 2**32 - 1), st.sampled_from([1.0, 1e-150, 1e150]),
+       st.booleans())
+def test_tria_is_a_lower_triangular_root_of_M_Mt(n, k, seed, scale, zero_row):
+    """L lower triangular, diagonal >= 0, L Lᵀ = M Mᵀ to round-off; fewer columns than rows, zero rows, any scale."""
+    rng = np.random.default_rng(seed)
+    M = scale * rng.normal(size=(n, k))
+    if zero_row:
+        M[rng.integers(n)] = 0.0
+    L = _linalg.tria(M)
+    assert L.shape == (n, n)
+    assert np.array_equal(L, np.tril(L)) and (np.diagonal(L) >= 0).all()
+    G = M @ M.T
+    np.testing.assert_allclose(L @ L.T, G, rtol=0, atol=1e-13 * np.abs(G).max())
+
+
+def test_tria_of_a_positive_definite_root_is_its_cholesky_factor():
+    P = _oracle.random_spd(np.random.default_rng(1), 4)
+    C = np.linalg.cholesky(P)
+    Qm = np.linalg.qr(np.random.default_rng(2).normal(size=(4, 4)))[0]
+    np.testing.assert_allclose(_linalg.tria(C @ Qm), C, rtol=1e-12, atol=1e-14)

@@ -14,8 +14,8 @@ import numpy as np
 
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
-    "psd_solve", "sqrt_cov", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det", "observed_gram", "wrap_angle",
-    "wrap_components",
+    "psd_solve", "sqrt_cov", "tria", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
+    "observed_gram", "wrap_angle", "wrap_components",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -142,6 +142,37 @@ def sqrt_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0
     return L, np.ones(cov.shape[0], dtype=bool)
+
+
+def tria(M: np.ndarray) -> np.ndarray:
+    r"""A lower-triangular square root of ``M Mᵀ``, from an orthogonal transformation of M.
+
+    Parameters
+    ----------
+    M : ndarray of shape (n, k)
+        Any matrix; its rows may be stacked factors (``[A L, L_Q]``).
+
+    Returns
+    -------
+    ndarray of shape (n, n)
+        L, lower triangular with a non-negative diagonal, with
+        :math:`L L^\top = M M^\top`.
+
+    Notes
+    -----
+    With the QR factorisation :math:`M^\top = \Theta R` (Householder, so
+    :math:`\Theta` is orthogonal to round-off), :math:`M M^\top = R^\top R`
+    and :math:`L = R^\top`. :math:`M M^\top` is never formed: its
+    condition number is the square of M's, which is what the square-root
+    filters avoid. Columns are flipped where R's diagonal is negative
+    (:math:`L L^\top` is unchanged), so the factor of a positive definite
+    matrix is its Cholesky factor.
+    """
+    n, k = M.shape
+    if k < n:
+        M = np.concatenate([M, np.zeros((n, n - k))], axis=1)
+    L = np.linalg.qr(M.T, mode="r").T
+    return L * np.where(np.diagonal(L) < 0.0, -1.0, 1.0)
 
 
 def weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -329,7 +329,8 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
         ``"iekf"`` or ``"iplf"``.
     **options
         Passed on to :func:`gaussfuse.filter` / :func:`gaussfuse.smooth`:
-        the method's options and ``engine``.
+        the method's options, ``engine`` and ``form`` (``"sqrt"`` for the
+        square-root form, whose factors are then in ``result.cov_factors``).
 
     Returns
     -------

@@ -23,12 +23,13 @@ from typing import NamedTuple
 import numpy as np
 
 from ._linalg import (cho_solve, cholesky, eye, log_det, log_density, psd_solve, semidefinite_cholesky,
-                      symmetrize, whiten, wrap_components)
+                      sqrt_cov, symmetrize, tria, whiten, wrap_components)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
-           "fuse_moments", "Update", "Gain", "Step", "SteadyState", "SETTLED", "settled", "step", "forecast", "correct",
-           "check_finite", "iterate_changed"]
+           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "Factors",
+           "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain", "Step", "SteadyState", "SETTLED",
+           "settled", "step", "forecast", "correct", "check_finite", "iterate_changed"]
 
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 
@@ -306,6 +307,233 @@ def fuse_moments(
 
 
 # ---------------------------------------------------------------------------
+# The square-root form: the same algebra on Cholesky factors
+# ---------------------------------------------------------------------------
+
+
+class SqrtUpdate(NamedTuple):
+    """What one square-root update returns: :class:`Update` with the posterior's factor.
+
+    Attributes
+    ----------
+    mean : ndarray of shape (n,)
+    factor : ndarray of shape (n, n)
+        Lower triangular, :math:`P = L L^\top`.
+    innovation : ndarray of shape (m,)
+    innovation_cov : ndarray of shape (m, m)
+    loglik : float
+    """
+
+    mean: np.ndarray
+    factor: np.ndarray
+    innovation: np.ndarray
+    innovation_cov: np.ndarray
+    loglik: float
+
+
+def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
+    """A lower-triangular square root of a positive semi-definite covariance (Cholesky, or its semi-definite form).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When `cov` is not positive semi-definite; the message names it.
+    """
+    try:
+        return sqrt_cov(cov)[0]
+    except np.linalg.LinAlgError as exc:
+        raise np.linalg.LinAlgError(f"{name} {exc.args[0].removeprefix('the covariance ')}") from None
+
+
+def predict_sqrt(mean: np.ndarray, factor: np.ndarray, A: np.ndarray, Q_factor: np.ndarray,
+                 b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    r""":func:`predict` on factors: the prediction's mean and the Cholesky factor of its covariance.
+
+    Parameters
+    ----------
+    mean : array of shape (n,)
+    factor : array of shape (n, n)
+        :math:`L` with :math:`P = L L^\top`.
+    A : array of shape (n, n)
+    Q_factor : array of shape (n, q)
+        :math:`L_Q` with :math:`Q = L_Q L_Q^\top` (:func:`cov_factor`).
+    b : array of shape (n,), optional
+
+    Returns
+    -------
+    mean : array of shape (n,)
+    factor : array of shape (n, n)
+        Lower triangular, :math:`L^-`.
+
+    Notes
+    -----
+    .. math::
+
+        m^- = A m + b, \qquad
+        L^- = \operatorname{tria}\left[\, A L \;\; L_Q \,\right],
+
+    since :math:`[A L \;\, L_Q][A L \;\, L_Q]^\top = A P A^\top + Q`;
+    ``tria`` (:func:`gaussfuse._linalg.tria`) triangularises by an
+    orthogonal transformation, so :math:`P^-` is never formed.
+    """
+    return predict_mean(mean, A, b), tria(np.concatenate([A @ factor, Q_factor], axis=1))
+
+
+def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarray, R_factor: np.ndarray,
+                d: np.ndarray | None = None, angles: np.ndarray | None = None) -> SqrtUpdate:
+    r""":func:`update` on factors: the array (QR) form of the measurement update.
+
+    Parameters
+    ----------
+    mean : array of shape (n,)
+        Predicted mean :math:`m^-`.
+    factor : array of shape (n, n)
+        :math:`L^-` with :math:`P^- = L^- L^{-\top}`.
+    z : array of shape (m,)
+        Measurement; NaN components are missing.
+    H : array of shape (m, n)
+    R_factor : array of shape (m, m)
+        :math:`L_R` with :math:`R = L_R L_R^\top`.
+    d : array of shape (m,), optional
+    angles : array of bool, shape (m,), optional
+        Components that are angles: their innovation is wrapped to [-π, π).
+
+    Returns
+    -------
+    SqrtUpdate
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the innovation covariance of the observed components is
+        singular.
+
+    Notes
+    -----
+    With ``o`` the observed components, triangularise the pre-array
+    (:math:`L_{R,o}` a factor of :math:`R_{oo}`, ``tria`` of the observed
+    rows of :math:`L_R`):
+
+    .. math::
+
+        \operatorname{tria}\begin{bmatrix} L_{R,o} & H_o L^- \\ 0 & L^- \end{bmatrix}
+        = \begin{bmatrix} L_S & 0 \\ \bar K & L \end{bmatrix} .
+
+    Multiplying each side by its transpose shows
+    :math:`L_S L_S^\top = H_o P^- H_o^\top + R_{oo} = S`,
+    :math:`\bar K = P^- H_o^\top L_S^{-\top}` (so :math:`K = \bar K L_S^{-1}`)
+    and :math:`L L^\top = P^- - \bar K \bar K^\top = P^- - K S K^\top`, the
+    posterior. Then, with the whitened innovation :math:`e = L_S^{-1} v`,
+
+    .. math::
+
+        m = m^- + \bar K e, \qquad
+        \ell = -\tfrac12 \left(e^\top e + 2 \textstyle\sum_i \log (L_S)_{ii} + |o| \log 2\pi\right).
+
+    Only orthogonal transformations and one triangular solve touch the
+    factors, so the result is as accurate as the factors' own condition
+    (the square root of the covariances'), and :math:`L L^\top` is positive
+    semi-definite and symmetric by construction.
+    """
+    observed = observed_components(z)
+    HL = H @ factor
+    innovation_cov = symmetrize(HL @ HL.T + R_factor @ R_factor.T)
+    innovation = z - predict_mean(mean, H, d)
+    if angles is not None:
+        innovation = wrap_components(innovation, angles)
+    if observed is None:
+        HL_o, LR_o, v = HL, R_factor, innovation
+    elif not observed.any():
+        return SqrtUpdate(mean, factor, innovation, innovation_cov, 0.0)
+    else:
+        HL_o, LR_o, v = HL[observed], tria(R_factor[observed]), innovation[observed]
+    mo, n = v.shape[0], mean.shape[0]
+    pre = np.zeros((mo + n, mo + n))
+    pre[:mo, :LR_o.shape[1]] = LR_o
+    pre[:mo, mo:] = HL_o
+    pre[mo:, mo:] = factor
+    post = tria(pre)
+    L_S = post[:mo, :mo]
+    if not np.all(np.diagonal(L_S) > 0.0):
+        raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite")
+    e = whiten(L_S, v)
+    return SqrtUpdate(mean + post[mo:, :mo] @ e, np.ascontiguousarray(post[mo:, mo:]), innovation, innovation_cov,
+                      float(log_density(e, L_S)))
+
+
+def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.ndarray, next_factor: np.ndarray,
+                  A: np.ndarray, Q_factor: np.ndarray, b: np.ndarray | None = None,
+                  angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r""":func:`rts_step` on factors, for affine dynamics ``x_{k+1} = A x_k + b + w``, ``w ~ N(0, L_Q L_Qᵀ)``.
+
+    Parameters
+    ----------
+    filt_mean, filt_factor : arrays of shape (n,), (n, n)
+        Filtered belief at step k, :math:`(m_k, L_k)`.
+    next_mean, next_factor : arrays of shape (n,), (n, n)
+        Smoothed belief at step k+1, :math:`(m^s_{k+1}, L^s_{k+1})`.
+    A, Q_factor : arrays of shape (n, n), (n, q)
+        The transition out of step k.
+    b : array of shape (n,), optional
+    angles : array of bool, shape (n,), optional
+        State components that are angles: ``m^s_{k+1} - m^-_{k+1}`` is wrapped.
+
+    Returns
+    -------
+    mean : array of shape (n,)
+    factor : array of shape (n, n)
+        Lower triangular, :math:`L^s_k`.
+    gain : array of shape (n, n)
+        :math:`G_k`.
+
+    Notes
+    -----
+    The prediction and the gain come from one triangularisation of the
+    joint factor of :math:`(x_{k+1}, x_k)`:
+
+    .. math::
+
+        \operatorname{tria}\begin{bmatrix} L_Q & A L_k \\ 0 & L_k \end{bmatrix}
+        = \begin{bmatrix} L^-_{k+1} & 0 \\ Y & X \end{bmatrix},
+
+    so that :math:`L^- L^{-\top} = P^-_{k+1}`, :math:`Y L^{-\top} = P_k A^\top`
+    (the gain is :math:`G_k = Y (L^-)^{-1}`) and
+    :math:`X X^\top = P_k - G_k P^-_{k+1} G_k^\top`, the covariance of
+    :math:`x_k` given :math:`x_{k+1}`. Then
+
+    .. math::
+
+        m^s_k = m_k + Y (L^-)^{-1} (m^s_{k+1} - m^-_{k+1}), \qquad
+        L^s_k = \operatorname{tria}\left[\, X \;\; Y (L^-)^{-1} L^s_{k+1} \,\right],
+
+    :math:`P^s_k = P_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^\top` as a sum of
+    squares. Nothing is subtracted: where :math:`P^-` is nearly singular
+    (no process noise, a huge prior) :math:`I - G_k A` would be the
+    difference of nearly equal matrices. The solves with :math:`L^-` are
+    triangular; where it is singular, least-squares (the vectors it is
+    applied to lie in its range).
+    """
+    n = filt_mean.shape[0]
+    q = Q_factor.shape[1]
+    pre = np.zeros((2 * n, q + n))
+    pre[:n, :q] = Q_factor
+    pre[:n, q:] = A @ filt_factor
+    pre[n:, q:] = filt_factor
+    post = tria(pre) if q + n >= 2 * n else tria(np.concatenate([pre, np.zeros((2 * n, n - q))], axis=1))
+    pred_factor, Y, X = post[:n, :n], post[n:, :n], post[n:, n:]
+    pred_mean = predict_mean(filt_mean, A, b)
+    rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
+    if np.all(np.diagonal(pred_factor) > 0.0):
+        solved = whiten(pred_factor, rhs)                # (L⁻)⁻¹ [m^s - m⁻, L^s, I]
+    else:
+        solved = np.linalg.lstsq(pred_factor, rhs, rcond=None)[0]
+    steps = Y @ solved
+    mean = filt_mean + steps[:, 0]
+    factor = tria(np.concatenate([X, steps[:, 1:n + 1]], axis=1))
+    return mean, factor, steps[:, n + 1:]
+
+
+# ---------------------------------------------------------------------------
 # The step every driver calls: predict, then update, through a linearisation
 # ---------------------------------------------------------------------------
 
@@ -378,6 +606,74 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
         check_finite("predicted", pm, pc)  # when the prediction overflowed first, that is the error
         raise
     return Step(pm, pc, post, passes, converged)
+
+
+class Factors:
+    """The factors of Q and R a square-root filter uses: each computed once per matrix object.
+
+    A time-invariant model hands its strategy's :meth:`transition` and
+    :meth:`measurement` the same Q and R at every step, so they are
+    factored once (:func:`cov_factor`); a time-varying one, at every step.
+    """
+
+    __slots__ = ("_covs", "_factors")
+
+    def __init__(self) -> None:
+        self._covs: dict[str, np.ndarray] = {}
+        self._factors: dict[str, np.ndarray] = {}
+
+    def __call__(self, name: str, cov: np.ndarray) -> np.ndarray:
+        """The factor of `cov`, the matrix named `name` ("Q" or "R")."""
+        if self._covs.get(name) is not cov:
+            self._factors[name] = cov_factor(cov, name)
+            self._covs[name] = cov
+        return self._factors[name]
+
+
+def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors,
+                  angles=None) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction of step k on factors: :func:`predict_sqrt` through ``lin.transition`` (see :func:`step_sqrt`)."""
+    A, b, Q = lin.transition(k, mean, None)
+    pm, pL = predict_sqrt(mean, factor, A, factors("Q", Q), b)
+    return (pm if angles is None else wrap_components(pm, angles)), pL
+
+
+def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, factors: Factors,
+                 state_angles=None, measurement_angles=None) -> SqrtUpdate:
+    """The update of step k on factors: :func:`update_sqrt` through ``lin.measurement`` (see :func:`step_sqrt`)."""
+    H, d, R = lin.measurement(k, mean, None)
+    post = update_sqrt(mean, factor, z, H, factors("R", R), d, measurement_angles)
+    if state_angles is not None:
+        post = post._replace(mean=wrap_components(post.mean, state_angles))
+    check_finite("filtered", post.mean, post.factor, post.loglik, factor=True)
+    return post
+
+
+def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, factors: Factors,
+              state_angles=None, measurement_angles=None) -> Step:
+    r"""Step k of a square-root filter: :func:`forecast_sqrt`, then :func:`correct_sqrt`.
+
+    As :func:`step` (one pass, for a strategy that does not read the
+    covariance: exact or Taylor linearisation), with the Cholesky factor
+    `factor` of the belief's covariance. The returned :class:`Step` holds
+    factors: ``predicted_cov`` is :math:`L^-_k` and ``update`` a
+    :class:`SqrtUpdate`.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the innovation covariance is singular, or Q or R is not
+        positive semi-definite.
+    FloatingPointError
+        When the prediction or the posterior is not finite.
+    """
+    pm, pL = forecast_sqrt(lin, k, mean, factor, factors, state_angles)
+    try:
+        post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles)
+    except (FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
+        check_finite("predicted", pm, pL, factor=True)
+        raise
+    return Step(pm, pL, post, 1, True)
 
 
 class SteadyState:
@@ -556,15 +852,18 @@ def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     return a is b or (a is not None and b is not None and np.array_equal(a, b))
 
 
-def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0) -> None:
+def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0, factor: bool = False) -> None:
     """Raise FloatingPointError when the mean, the covariance's diagonal or `loglik` is inf or NaN.
+
+    With `factor`, `cov` is a covariance factor (square-root form), and
+    every one of its entries is checked.
 
     One sum, ``Σ mean + tr P + loglik``, is checked: it is not finite exactly
     when one of its terms is not (or, for a belief within a factor 2 of the
     largest float, 1.8e308, when their sum overflows: then the next step
     would). An inf or NaN covariance has one on its diagonal.
     """
-    total = mean.sum() + cov.trace() + loglik
+    total = mean.sum() + (cov.sum() if factor else cov.trace()) + loglik
     if total - total != 0.0:
         raise FloatingPointError(not_finite(stage))
 

@@ -8,6 +8,8 @@ from . import kalman
 from ._validation import as_array, shape_error
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
+from ._linalg import symmetrize
+from .inference.registry import FORMS
 from .inference.validation import check_prior
 from .linearize import Exact
 from .models.linear import LinearModel
@@ -26,6 +28,10 @@ class KalmanFilter:
         those of the step last predicted.
     prior : Gaussian
         The belief before the first :meth:`predict`.
+    form : {"cov", "sqrt"}, default "cov"
+        Propagate the covariance (Joseph form) or its Cholesky factor
+        (square-root form: :func:`gaussfuse.kalman.update_sqrt`), as in
+        :func:`gaussfuse.filter`.
 
     Attributes
     ----------
@@ -35,6 +41,10 @@ class KalmanFilter:
         Its mean.
     P : ndarray of shape (n, n)
         Its covariance.
+    L : ndarray of shape (n, n)
+        A lower-triangular factor of it, ``P = L Lᵀ``: the one the
+        square-root form propagates (computed from P for the covariance
+        form).
     step : int
         Number of predictions made so far.
     loglik : float
@@ -59,11 +69,16 @@ class KalmanFilter:
     ((2,), (2, 2))
     """
 
-    def __init__(self, model: LinearModel, prior: Gaussian) -> None:
+    def __init__(self, model: LinearModel, prior: Gaussian, form: str = "cov") -> None:
         if not isinstance(model, LinearModel):
             raise TypeError(f"`model` must be a gaussfuse.LinearModel; got {type(model).__name__}.")
+        if not isinstance(form, str) or form not in FORMS:
+            raise ValueError(f"`form` must be one of {list(FORMS)}; got {form!r}.")
         self.model = model
+        self.form = form
         self.belief = check_prior(prior, model.n)
+        self._factor: tuple[Gaussian, np.ndarray] | None = None  # (belief, its factor) in the square-root form
+        self._roots = kalman.Factors()
         self.step = 0
         self.loglik = 0.0
         self._controls: dict = {}  # u_k of the step being predicted, for the strategy
@@ -78,6 +93,18 @@ class KalmanFilter:
     @property
     def P(self) -> np.ndarray:
         return self.belief.cov
+
+    @property
+    def L(self) -> np.ndarray:
+        if self._factor is None or self._factor[0] is not self.belief:  # a belief set by hand, or the prior
+            self._factor = (self.belief, kalman.cov_factor(self.belief.cov, "the belief's covariance"))
+        return self._factor[1]
+
+    def _set(self, mean: np.ndarray, factor: np.ndarray) -> Gaussian:
+        """Make ``N(mean, L Lᵀ)`` the belief, remembering its factor L."""
+        self.belief = Gaussian._trusted(mean, symmetrize(factor @ factor.T))
+        self._factor = (self.belief, factor)
+        return self.belief
 
     def _check_step(self, k: int) -> None:
         steps = self.model.steps
@@ -99,8 +126,12 @@ class KalmanFilter:
                 raise shape_error("u", f"({p},)", u.shape)
         self._controls.clear()
         self._controls[k] = u
-        mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov, steady=self._steady)
-        self.belief = Gaussian._trusted(mean, cov)
+        if self.form == "sqrt":
+            self._set(*self._run(kalman.forecast_sqrt, self._lin, k, self.belief.mean, self.L, self._roots))
+        else:
+            mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov,
+                                  steady=self._steady)
+            self.belief = Gaussian._trusted(mean, cov)
         self.step += 1
         return self.belief
 
@@ -112,8 +143,13 @@ class KalmanFilter:
         z = np.atleast_1d(as_array("z", z, allow_nan=True))
         if z.shape != (m,):
             raise shape_error("z", f"({m},)", z.shape)
-        post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z, steady=self._steady)[0]
-        self.belief = Gaussian._trusted(post.mean, post.cov)
+        if self.form == "sqrt":
+            post = self._run(kalman.correct_sqrt, self._lin, k, self.belief.mean, self.L, z, self._roots)
+            self._set(post.mean, post.factor)
+        else:
+            post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z,
+                             steady=self._steady)[0]
+            self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         return self.belief
 

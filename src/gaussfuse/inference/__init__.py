@@ -20,7 +20,7 @@ __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
 
 def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
-           engine: str = "auto", keep: str = "all", **options) -> FilterResult:
+           engine: str = "auto", keep: str = "all", form: str = "cov", **options) -> FilterResult:
     r"""Filter a series of measurements: the belief about each state given the past.
 
     Parameters
@@ -67,6 +67,16 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         innovations but no covariances; or nothing but the final belief
         (``last_mean``, ``last_cov``) and the log-likelihood, so memory does
         not grow with T.
+    form : {"cov", "sqrt"}, default "cov"
+        ``"cov"`` propagates covariances (the Joseph-form update);
+        ``"sqrt"`` propagates their Cholesky factors by orthogonal (QR)
+        transformations (:func:`gaussfuse.kalman.update_sqrt`), for
+        problems where the covariance form loses its accuracy: a huge
+        prior with a precise sensor, states on very different scales. The
+        result then also holds ``cov_factors``. For methods "kf" and "ekf",
+        on the readable path (``engine="numba"`` is an error, ``"auto"``
+        takes the readable path); a ``"diffuse"`` prior is for the
+        covariance form.
 
     Returns
     -------
@@ -129,17 +139,17 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     """
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
-    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options)
+    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     if prior == "diffuse":
         result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
                         for i, z in enumerate(zs)])
     else:
-        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep)
+        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form)
     return result if batch else first(result)
 
 
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
-           engine: str = "auto", **options) -> SmoothResult:
+           engine: str = "auto", form: str = "cov", **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
     Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
@@ -153,6 +163,9 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     moved by more than `tol`, measured as in :func:`filter` (Notes) in the
     pass's predicted covariance of its step (the prior's at time 0). Their
     ``.filtered`` is the iterated filter, and ``.iterations`` the passes made.
+    With ``form="sqrt"`` the backward pass runs on Cholesky factors
+    (:func:`gaussfuse.kalman.rts_step_sqrt`), and the result holds them in
+    ``cov_factors``.
 
     Returns
     -------
@@ -181,10 +194,10 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     >>> sm.means.shape, sm.filtered.means.shape
     ((5, 2), (5, 2))
     """
-    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options)
+    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     if prior == "diffuse":
         result = stack([diffuse.diffuse_smooth(model, z, None if us is None else us[i], engine)
                         for i, z in enumerate(zs)])
     else:
-        result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine)
+        result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form)
     return result if batch else first(result)

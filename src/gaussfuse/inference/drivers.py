@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import kalman
 from .._kernels import compiled_state
-from .._linalg import wrap_components
+from .._linalg import symmetrize, wrap_components
 from ..errors import STEP_ERRORS, ConvergenceWarning, at_step
 from ..gaussian import Gaussian
 from ..linearize import Nominal
@@ -59,107 +59,145 @@ def _angles(model):
 
 
 def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol: float | None = None,
-               state_angles=None, measurement_angles=None, keep: str = "all") -> tuple[FilterResult, int]:
+               state_angles=None, measurement_angles=None, keep: str = "all",
+               form: str = "cov") -> tuple[FilterResult, int]:
     """Filter one series (T, m): :func:`gaussfuse.kalman.step` at each step, through the strategy `lin`.
 
     Returns the result and the number of steps whose iterated update made
     `iterations` passes without meeting `tol`. `keep` is one of
-    :data:`gaussfuse.inference.results.KEEP`.
+    :data:`gaussfuse.inference.results.KEEP`. With ``form="sqrt"`` the
+    steps are :func:`gaussfuse.kalman.step_sqrt`, on Cholesky factors; the
+    result holds the factors and, as always, the covariances.
     """
     T, n, m = zs.shape[0], prior.dim, zs.shape[1]
     rows = 0 if keep == "last" else T
     crows = T if keep == "all" else 0
+    sqrt = form == "sqrt"
     means, covs = np.empty((rows, n)), np.empty((crows, n, n))
     pmeans, pcovs = np.empty((rows, n)), np.empty((crows, n, n))
     innov, icovs = np.empty((rows, m)), np.empty((crows, m, m))
+    factors, pfactors = np.empty((crows if sqrt else 0, n, n)), np.empty((crows if sqrt else 0, n, n))
     used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
     unconverged, loglik = 0, 0.0
     mean, cov = prior.mean, prior.cov
-    steady = kalman.SteadyState() if getattr(lin, "invariant", False) and iterations == 1 else None
+    if sqrt:
+        cov, roots = kalman.cov_factor(prior.cov, "the prior covariance"), kalman.Factors()
+    steady = kalman.SteadyState() if getattr(lin, "invariant", False) and iterations == 1 and not sqrt else None
     k = 0
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step
             for k in range(T):
-                st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles, steady)
+                if sqrt:
+                    st = kalman.step_sqrt(lin, k, mean, cov, zs[k], roots, state_angles, measurement_angles)
+                    mean, cov = st.update.mean, st.update.factor
+                else:
+                    st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles,
+                                     steady)
+                    mean, cov = st.update.mean, st.update.cov
                 post = st.update
-                mean, cov = post.mean, post.cov
                 if rows:
                     pmeans[k], means[k], innov[k] = st.predicted_mean, mean, post.innovation
                     if used.shape[0]:
                         used[k] = st.passes
                 if crows:
-                    pcovs[k], covs[k], icovs[k] = st.predicted_cov, cov, post.innovation_cov
+                    icovs[k] = post.innovation_cov
+                    if sqrt:
+                        pfactors[k], factors[k] = st.predicted_cov, cov
+                        pcovs[k], covs[k] = _square(st.predicted_cov), _square(cov)
+                    else:
+                        pcovs[k], covs[k] = st.predicted_cov, cov
                 loglik += post.loglik
                 unconverged += not st.converged
     except STEP_ERRORS as exc:
         raise at_step(exc, k) from exc
     per_step = (means, covs, pmeans, pcovs, innov, icovs)
-    result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean, cov,
-                          used if used.shape[0] else None)
+    result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
+                          _square(cov) if sqrt else cov, used if used.shape[0] else None,
+                          factors if factors.shape[0] else None, pfactors if pfactors.shape[0] else None)
     return result, unconverged
 
 
+def _square(factor: np.ndarray) -> np.ndarray:
+    """The covariance ``L Lᵀ`` of a factor, exactly symmetric."""
+    return symmetrize(factor @ factor.T)
+
+
 def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
-                 state_angles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 state_angles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """The RTS backward pass over a filtered series, with transitions from `lin`.
 
     The transition out of each filtered belief is re-linearised at that
     belief (for sigma-point smoothers: points re-drawn from ``(m_k, P_k)``),
     so ``A``, the prediction and the cross-covariance ``P_k Aᵀ`` agree. With
-    `prior`, the pass continues back to the prior's time.
+    `prior`, the pass continues back to the prior's time. A square-root
+    filter's result (its ``cov_factors`` set) is smoothed on factors
+    (:func:`gaussfuse.kalman.rts_step_sqrt`).
 
     Returns
     -------
     means : ndarray of shape (T, n), or (T + 1, n) with `prior`
     covs : ndarray of shape (T, n, n), or (T + 1, n, n) with `prior`
     gains : ndarray of shape (T - 1, n, n), or (T, n, n) with `prior`
+    factors : ndarray of shape (T, n, n), or (T + 1, n, n) with `prior`; or None
+        The smoothed covariances' factors, for a square-root filter's result.
     """
-    means, covs = filt.means, filt.covs
+    sqrt = filt.cov_factors is not None
+    means, covs = filt.means, filt.cov_factors if sqrt else filt.covs
     first = 1
     if prior is not None:
         means = np.concatenate([prior.mean[None], means])
-        covs = np.concatenate([prior.cov[None], covs])
+        start = kalman.cov_factor(prior.cov, "the prior covariance") if sqrt else prior.cov
+        covs = np.concatenate([start[None], covs])
         first = 0
     sm_means, sm_covs = means.copy(), covs.copy()
     gains = np.empty((max(means.shape[0] - 1, 0), *covs.shape[1:]))
+    roots = kalman.Factors()
     j = means.shape[0] - 2
     try:
         with np.errstate(over="ignore", invalid="ignore"):
             for j in range(means.shape[0] - 2, -1, -1):
-                A, b, Q = lin.transition(j + first, means[j], covs[j])
-                pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)
-                sm_means[j], sm_covs[j], gains[j] = kalman.rts_step(
-                    means[j], covs[j], wrap_components(pred_mean, state_angles), pred_cov,
-                    sm_means[j + 1], sm_covs[j + 1], covs[j] @ A.T, angles=state_angles,
-                )
+                if sqrt:
+                    A, b, Q = lin.transition(j + first, means[j], None)
+                    sm_means[j], sm_covs[j], gains[j] = kalman.rts_step_sqrt(
+                        means[j], covs[j], sm_means[j + 1], sm_covs[j + 1], A, roots("Q", Q), b, state_angles)
+                else:
+                    A, b, Q = lin.transition(j + first, means[j], covs[j])
+                    pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)
+                    sm_means[j], sm_covs[j], gains[j] = kalman.rts_step(
+                        means[j], covs[j], wrap_components(pred_mean, state_angles), pred_cov,
+                        sm_means[j + 1], sm_covs[j + 1], covs[j] @ A.T, angles=state_angles,
+                    )
                 sm_means[j] = wrap_components(sm_means[j], state_angles)
-                kalman.check_finite("smoothed", sm_means[j], sm_covs[j])
+                kalman.check_finite("smoothed", sm_means[j], sm_covs[j], factor=sqrt)
     except STEP_ERRORS as exc:
         raise at_step(exc, j + first) from exc
-    return sm_means, sm_covs, gains
+    if sqrt:
+        return sm_means, symmetrize(sm_covs @ sm_covs.swapaxes(-1, -2)), gains, sm_covs
+    return sm_means, sm_covs, gains, None
 
 
-def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all") -> tuple[FilterResult, int]:
+def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all",
+                   form: str = "cov") -> tuple[FilterResult, int]:
     """The filter for one series, and how many of its steps stopped at the iteration limit."""
     lin, iterations, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
     return run_filter(lin, prior, zs, iterations=iterations, tol=tol, state_angles=xa, measurement_angles=za,
-                      keep=keep)
+                      keep=keep, form=form)
 
 
-def _method_smooth(spec: Method, model, prior, zs, us, options,
-                   to_prior: bool = False) -> tuple[SmoothResult, int, bool]:
+def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool = False,
+                   form: str = "cov") -> tuple[SmoothResult, int, bool]:
     """The smoother for one series; its filter's steps at the iteration limit; whether its passes were.
 
     With `to_prior`, the smoothed beliefs and gains start at the prior's
     time 0 (T + 1 beliefs, T gains).
     """
-    filt, unconverged = _method_filter(spec, model, prior, zs, us, options)
+    filt, unconverged = _method_filter(spec, model, prior, zs, us, options, form=form)
     lin, passes, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
     if not spec.iterated:
-        means, covs, gains = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa)
-        return SmoothResult(means, covs, gains, filt), unconverged, False
+        means, covs, gains, factors = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa)
+        return SmoothResult(means, covs, gains, filt, cov_factors=factors), unconverged, False
     # Iterated smoothers: each pass linearises about the previous pass's smoothed
     # trajectory (the first about the iterated filter's), from the prior's time on,
     # until the trajectory moves by at most `tol` (in the pass's predicted covariances).
@@ -169,7 +207,7 @@ def _method_smooth(spec: Method, model, prior, zs, us, options,
     for used in range(1, passes + 1):
         nominal = Nominal(lin, means, covs)
         last = run_filter(nominal, prior, zs, state_angles=xa, measurement_angles=za)[0]
-        new_means, covs, gains = run_smoother(nominal, last, prior, state_angles=xa)
+        new_means, covs, gains, _ = run_smoother(nominal, last, prior, state_angles=xa)
         norms = (prior.cov, *last.predicted_covs)
         change = max(kalman.iterate_changed(P)(new, old, xa) for P, new, old in zip(norms, new_means, means))
         means = new_means
@@ -205,7 +243,7 @@ def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passe
 
 
 def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, batch: bool = False,
-                    smoothing: bool = False):
+                    smoothing: bool = False, form: str = "cov"):
     """The compiled module to run `steps` steps (all series together) with, or None for the readable path.
 
     With ``engine="auto"`` the compiled path is taken only for
@@ -227,6 +265,11 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
     if engine == "python":
+        return None
+    if form != "cov":
+        if engine == "numba":
+            raise ValueError(f"`engine='numba'` runs the covariance form only; `form={form!r}` runs on the readable "
+                             "path: pass engine='python' or 'auto'.")
         return None
     available = importlib.util.find_spec("numba") is not None
     if engine == "numba":
@@ -251,13 +294,13 @@ def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smooth
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
-                 keep: str) -> FilterResult:
+                 keep: str, form: str = "cov") -> FilterResult:
     """Filter N series `zs` (N, T, m), with controls `us` (N, T, p) or None; the result has the N axis."""
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1)
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, form=form)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         return compiled.filter(lin, model, prior, zs, us, keep)
-    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep)
+    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep, form)
             for i, z in enumerate(zs)]
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
@@ -265,14 +308,15 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
 
 
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
-                 to_prior: bool = False) -> SmoothResult:
+                 to_prior: bool = False, form: str = "cov") -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True)
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
+                               form=form)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         result = compiled.smooth(lin, model, prior, zs, us)
         return _back_to_prior(model, prior, result) if to_prior else result
-    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior)
+    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form)
             for i, z in enumerate(zs)]
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],

@@ -16,7 +16,7 @@ from ..linearize import Exact, SigmaPoints, Taylor, cubature, gauss_hermite, uns
 from ..models.linear import LinearModel
 from ..models.nonlinear import NonlinearModel
 
-__all__ = ["Method", "METHODS", "DEFAULT_METHOD", "DEFAULT_TOL", "DEFAULT_ITERATIONS", "resolve_method",
+__all__ = ["Method", "METHODS", "FORMS", "DEFAULT_METHOD", "DEFAULT_TOL", "DEFAULT_ITERATIONS", "resolve_method",
            "linearisation"]
 
 DEFAULT_TOL = 1e-9
@@ -51,6 +51,9 @@ class Method(NamedTuple):
     compiled : str or None
         Module under :mod:`gaussfuse._kernels` with the compiled engine
         (its ``filter`` and ``smooth``; see :mod:`gaussfuse._kernels`).
+    forms : tuple of str
+        The forms of the algebra it runs in (:data:`FORMS`): ``"cov"``, and
+        ``"sqrt"`` where its linearisation does not read the covariance.
     """
 
     name: str
@@ -60,6 +63,7 @@ class Method(NamedTuple):
     options: dict = {}
     iterated: bool = False
     compiled: str | None = None
+    forms: tuple[str, ...] = ("cov",)
 
 
 def _regression(rule, model, us, **options) -> SigmaPoints:
@@ -71,12 +75,15 @@ def _sigma_points(rule):
     return partial(_regression, rule)  # a partial of module functions, so a Method pickles
 
 
+FORMS = ("cov", "sqrt")
+"""The forms of the filters: covariances (Joseph form), or their Cholesky factors (square-root, QR array form)."""
+
 _ITERATED = {"iterations": DEFAULT_ITERATIONS, "tol": DEFAULT_TOL}
 
 METHODS: dict[str, Method] = {m.name: m for m in (
-    Method(name="kf", model_types=(LinearModel,), strategy=Exact, compiled="linear",
+    Method(name="kf", model_types=(LinearModel,), strategy=Exact, compiled="linear", forms=FORMS,
            description="Kalman filter / Rauch-Tung-Striebel smoother (exact for linear models)"),
-    Method(name="ekf", model_types=(NonlinearModel,), strategy=Taylor,
+    Method(name="ekf", model_types=(NonlinearModel,), strategy=Taylor, forms=FORMS,
            description="extended Kalman filter / extended RTS smoother"),
     Method(name="iekf", model_types=(NonlinearModel,), strategy=Taylor, options=_ITERATED, iterated=True,
            description="iterated EKF / iterated extended (Gauss-Newton) smoother"),

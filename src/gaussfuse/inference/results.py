@@ -53,6 +53,12 @@ class FilterResult:
         linearise-and-update passes made at each step, at most the option
         `iterations` (see `tol` in :func:`filter`). None for the other
         methods.
+    cov_factors : ndarray of shape (T, n, n), or None
+        With ``form="sqrt"``: the lower-triangular Cholesky factors
+        :math:`L_k` the square-root filter propagates, ``covs[k] = L_k L_kᵀ``
+        (symmetrised). None for the covariance form.
+    predicted_cov_factors : ndarray of shape (T, n, n), or None
+        With ``form="sqrt"``: the factors of `predicted_covs`.
 
     Notes
     -----
@@ -71,6 +77,8 @@ class FilterResult:
     last_mean: np.ndarray
     last_cov: np.ndarray
     iterations: np.ndarray | None = None
+    cov_factors: np.ndarray | None = None
+    predicted_cov_factors: np.ndarray | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
 
@@ -100,6 +108,9 @@ class SmoothResult:
         For the iterated smoothers ("iekf", "iplf"): the number of passes
         made, at most the option `iterations` (see `tol` in :func:`smooth`).
         None for the other methods.
+    cov_factors : ndarray of shape (T, n, n), or None
+        With ``form="sqrt"``: the lower-triangular factors of `covs`
+        (``covs[k] = L_k L_kᵀ``, symmetrised). None for the covariance form.
     """
 
     means: np.ndarray
@@ -107,6 +118,7 @@ class SmoothResult:
     gains: np.ndarray
     filtered: FilterResult
     iterations: int | np.ndarray | None = None
+    cov_factors: np.ndarray | None = None
 
     __reduce__ = reduce_frozen
 
@@ -147,9 +159,9 @@ def first(result):
 
 def kept(result: FilterResult, keep: str) -> FilterResult:
     """Drop what `keep` does not ask for from a full single-series result."""
-    drop = {"all": (), "means": ("covs", "predicted_covs", "innovation_covs"),
-            "last": ("means", "covs", "predicted_means", "predicted_covs", "innovations",
-                     "innovation_covs", "iterations")}[keep]
+    covariances = ("covs", "predicted_covs", "innovation_covs", "cov_factors", "predicted_cov_factors")
+    drop = {"all": (), "means": covariances,
+            "last": ("means", "predicted_means", "innovations", "iterations", *covariances)}[keep]
     return replace(result, **dict.fromkeys(drop))
 
 

@@ -11,9 +11,9 @@ import numpy as np
 from .._validation import as_array, shape_error
 from ..gaussian import Gaussian
 from ..models.linear import LinearModel
-from .registry import resolve_method
+from .registry import FORMS, METHODS, resolve_method
 
-__all__ = ["check_prior", "check_measurements", "check_controls", "check_steps", "prepare"]
+__all__ = ["check_prior", "check_measurements", "check_controls", "check_steps", "check_form", "prepare"]
 
 
 def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
@@ -86,8 +86,22 @@ def check_steps(model, T: int) -> None:
         )
 
 
-def prepare(model, prior, zs, us, method, options):
+def check_form(spec, form) -> None:
+    """`form` must be one of FORMS, and one that `spec`'s method runs in."""
+    if not isinstance(form, str) or form not in FORMS:
+        raise ValueError(f"`form` must be one of {list(FORMS)}; got {form!r}.")
+    if form not in spec.forms:
+        runs = sorted(name for name, m in METHODS.items() if form in m.forms)
+        raise ValueError(f"`form={form!r}` is not available for method {spec.name!r}; it is for {runs} "
+                         "(the square-root sigma-point and iterated filters are not written yet).")
+
+
+def prepare(model, prior, zs, us, method, options, form: str = "cov"):
     spec, options = resolve_method(model, method, options)
+    check_form(spec, form)
+    if form != "cov" and isinstance(prior, str) and prior == "diffuse":
+        raise ValueError(f"a 'diffuse' prior is for the covariance form; with `form={form!r}` give a Gaussian "
+                         "prior (a large covariance, say 1e12 I, is what the square-root form handles well).")
     prior = check_prior(prior, model.n, diffuse_ok=spec.name == "kf")
     checked = check_measurements(zs, model.m)
     batch = np.ndim(zs) == 3  # only after the check: a ragged `zs` must not reach NumPy

@@ -1,0 +1,192 @@
+"""``form="sqrt"``: the square-root filter and smoother, against a 50-digit reference and the joint Gaussian."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import _oracle
+import gaussfuse as gf
+from _mp_oracle import filter_50_digits, smooth_50_digits
+from _robustness import PROBLEMS, errors
+
+
+@pytest.fixture(scope="module", params=PROBLEMS, ids=lambda make: make.__name__)
+def problem(request):
+    """A problem of the robustness suite with its 50-digit filter and smoother."""
+    p = request.param()
+    return p, filter_50_digits(*p[1:]), smooth_50_digits(*p[1:])
+
+
+@pytest.mark.parametrize("what", ["filter", "smooth"])
+def test_the_square_root_form_stays_within_1e_6_of_50_digits(problem, what):
+    """Every variance within 1e-6 relative, every mean within 1e-6 standard deviations; PSD and symmetric.
+
+    Measured (``python benchmarks/robustness.py``): at most 6.0e-7 and
+    8.5e-8 on these problems, where the covariance form is off by up to 74%
+    (filter) and by a factor of 1e6 (smoother) on the first two.
+    """
+    p, filtered, smoothed = problem
+    call = gf.filter if what == "filter" else gf.smooth
+    res = call(gf.LinearModel(p.F, p.H, p.Q, p.R), gf.Gaussian(p.m0, p.P0), p.zs, form="sqrt")
+    got = errors(res.means, res.covs, *(filtered if what == "filter" else smoothed))
+    assert got.variance <= 1e-6, got
+    assert got.mean <= 1e-6, got
+    assert got.negative_steps == 0 and got.symmetric, got
+    L = res.cov_factors
+    assert np.array_equal(L, np.tril(L)) and (np.diagonal(L, axis1=1, axis2=2) >= 0).all()
+
+
+def test_the_covariance_form_fails_where_the_square_root_form_does_not():
+    """Why the square-root form exists: the Joseph form on the first problem, against the same reference."""
+    p = PROBLEMS[0]()
+    res = gf.filter(gf.LinearModel(p.F, p.H, p.Q, p.R), gf.Gaussian(p.m0, p.P0), p.zs, form="cov")
+    got = errors(res.means, res.covs, *filter_50_digits(*p[1:]))
+    assert got.variance > 0.5 and got.negative_steps > 30
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.integers(1, 4), st.integers(1, 3), st.integers(1, 12), st.integers(0, 2),
+       st.sets(st.sampled_from(["F", "H", "Q", "R", "B"])), st.floats(0.0, 0.6), st.integers(0, 2**32 - 1))
+def test_the_square_root_form_is_the_joint_gaussian(n, m, T, p, varying, missing, seed):
+    """Filter and smoother on factors: the dense joint-Gaussian conditioning, to 1e-9.
+
+    Time-varying matrices, controls and partly missing measurements, as for
+    the covariance form.
+    """
+    rng = np.random.default_rng(seed)
+    if not p:
+        varying = varying - {"B"}
+    prob = _oracle.random_problem(rng, n, m, T, p, varying, rng.random((T, m)) < missing)
+    want = _oracle.reference(prob["F"], prob["H"], prob["Q"], prob["R"], prob["m0"], prob["P0"], prob["zs"],
+                             prob["B"], prob["us"])
+    model = gf.LinearModel(prob["F"], prob["H"], prob["Q"], prob["R"], prob["B"])
+    prior = gf.Gaussian(prob["m0"], prob["P0"])
+    sm = gf.smooth(model, prior, prob["zs"], prob["us"], form="sqrt")
+    filt = sm.filtered
+    pairs = {"means": filt.means, "covs": filt.covs, "predicted_means": filt.predicted_means,
+             "predicted_covs": filt.predicted_covs, "innovation_covs": filt.innovation_covs,
+             "smoothed_means": sm.means, "smoothed_covs": sm.covs, "gains": sm.gains}
+    for name, got in pairs.items():
+        ref = want[name]
+        scale = max(1.0, np.abs(ref).max()) if ref.size else 1.0
+        np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9 * scale, err_msg=name)
+    np.testing.assert_allclose(filt.loglik, want["loglik"], rtol=1e-9)
+    np.testing.assert_array_equal(np.isnan(filt.innovations), np.isnan(want["innovations"]))
+    np.testing.assert_array_equal(filt.covs, np.swapaxes(filt.covs, 1, 2))
+    LLt = filt.cov_factors @ np.swapaxes(filt.cov_factors, 1, 2)
+    np.testing.assert_allclose(LLt, filt.covs, rtol=1e-15, atol=1e-15 * np.abs(LLt).max())
+
+
+@pytest.mark.parametrize("case", ["no process noise", "a state known exactly", "a perfect sensor",
+                                  "all missing", "a singular prior"])
+def test_singular_covariances_are_valid_input(case):
+    """Zero and singular covariances: the two forms agree to 1e-9, and the factors stay lower triangular."""
+    F = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.5], [0.0, 0.0, 0.9]])
+    H = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    Q, R, P0 = 0.1 * np.eye(3), np.diag([0.5, 0.2]), np.eye(3)
+    zs = np.random.default_rng(7).normal(size=(25, 2))
+    if case == "no process noise":
+        Q = np.zeros((3, 3))
+    elif case == "a state known exactly":
+        Q, P0 = np.diag([0.1, 0.1, 0.0]), np.diag([1.0, 1.0, 0.0])
+        F[2] = [0.0, 0.0, 1.0]
+    elif case == "a perfect sensor":
+        R = np.diag([0.0, 0.2])
+    elif case == "all missing":
+        zs[:] = np.nan
+    else:
+        P0 = np.ones((3, 3))
+    model, prior = gf.LinearModel(F, H, Q, R), gf.Gaussian(np.zeros(3), P0)
+    a, b = gf.smooth(model, prior, zs, form="sqrt"), gf.smooth(model, prior, zs, form="cov")
+    for name in ("means", "covs"):
+        for x, y in ((getattr(a, name), getattr(b, name)), (getattr(a.filtered, name), getattr(b.filtered, name))):
+            np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(y).max()), err_msg=name)
+    assert a.filtered.loglik == pytest.approx(b.filtered.loglik, rel=1e-9, abs=1e-12)
+    for L in (a.cov_factors, a.filtered.cov_factors, a.filtered.predicted_cov_factors):
+        assert np.array_equal(L, np.tril(L))
+
+
+def test_ekf_in_square_root_form_equals_its_covariance_form():
+    """The extended filter and smoother on factors: the same linearisation, the same numbers to 1e-9."""
+    dt, g = 0.05, 9.81
+    model = gf.NonlinearModel(lambda x: np.array([x[0] + dt * x[1], x[1] - g * dt * np.sin(x[0])]),
+                              lambda x: np.array([np.sin(x[0])]), 0.01 * np.eye(2), np.array([[0.1]]))
+    zs = np.sin(np.cos(np.arange(1, 101) * dt * np.sqrt(g)))[:, None]
+    prior = gf.Gaussian([1.5, 0.0], np.eye(2))
+    a = gf.smooth(model, prior, zs, method="ekf", form="sqrt")
+    b = gf.smooth(model, prior, zs, method="ekf")
+    np.testing.assert_allclose(a.means, b.means, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.covs, b.covs, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.filtered.covs, b.filtered.covs, rtol=1e-9, atol=1e-12)
+
+
+def test_batches_and_keep():
+    """A leading series axis, and `keep`: factors only where covariances are kept."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    zs = np.random.default_rng(0).normal(size=(3, 20, 1))
+    batch = gf.filter(model, prior, zs, form="sqrt")
+    assert batch.cov_factors.shape == (3, 20, 2, 2) and batch.loglik.shape == (3,)
+    one = gf.filter(model, prior, zs[1], form="sqrt")
+    np.testing.assert_array_equal(batch.cov_factors[1], one.cov_factors)
+    means = gf.filter(model, prior, zs[1], form="sqrt", keep="means")
+    assert means.cov_factors is None and means.covs is None
+    np.testing.assert_array_equal(means.means, one.means)
+    last = gf.filter(model, prior, zs[1], form="sqrt", keep="last")
+    np.testing.assert_array_equal(last.last_cov, one.covs[-1])
+    assert gf.filter(model, prior, zs[1]).cov_factors is None
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"form": "chol"}, "`form` must be one of"),
+    ({"form": "sqrt", "engine": "numba"}, "covariance form only"),
+])
+def test_bad_form_arguments_are_named(kwargs, message):
+    model = gf.constant_velocity(0.1, 1.0, 0.25)
+    with pytest.raises(ValueError, match=message):
+        gf.filter(model, gf.Gaussian([0.0, 1.0], np.eye(2)), np.zeros((5, 1)), **kwargs)
+
+
+def test_methods_without_a_square_root_form_say_which_have_one():
+    model = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), np.eye(1))
+    with pytest.raises(ValueError, match=r"not available for method 'ukf'; it is for \['ekf', 'kf'\]"):
+        gf.filter(model, gf.Gaussian([0.0, 1.0], np.eye(2)), np.zeros((5, 1)), form="sqrt")
+    with pytest.raises(ValueError, match="'diffuse' prior is for the covariance form"):
+        gf.filter(gf.constant_velocity(0.1, 1.0, 0.25), "diffuse", np.zeros((5, 1)), form="sqrt")
+
+
+def test_the_online_filter_in_square_root_form_is_the_batch_filter():
+    """KalmanFilter(form="sqrt"): every belief and factor bitwise gf.filter's; a belief set by hand is factored."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], 1e8 * np.eye(4))
+    zs = np.cumsum(np.random.default_rng(4).normal(size=(50, 2)), axis=0) * 0.1
+    zs[20, 1] = np.nan
+    batch = gf.filter(model, prior, zs, form="sqrt")
+    kf = gf.KalmanFilter(model, prior, form="sqrt")
+    for k, z in enumerate(zs):
+        kf.predict()
+        kf.update(z)
+        np.testing.assert_array_equal(kf.x, batch.means[k])
+        np.testing.assert_array_equal(kf.P, batch.covs[k])
+        np.testing.assert_array_equal(kf.L, batch.cov_factors[k])
+    assert kf.loglik == batch.loglik
+    kf.belief = gf.Gaussian(kf.x, 4.0 * kf.P)
+    np.testing.assert_allclose(kf.L, 2.0 * batch.cov_factors[-1], rtol=1e-12, atol=1e-15)
+    with pytest.raises(ValueError, match="`form` must be one of"):
+        gf.KalmanFilter(model, prior, form="information")
+
+
+def test_fuse_timeline_takes_the_square_root_form():
+    motion = gf.ConstantVelocity(dim=1, q=0.1)
+    sensors = {"gps": gf.Position(dim=1, r=1e-6), "speed": gf.LinearSensor(H=[[0.0, 1.0]], R=[[0.01]])}
+    prior = gf.Gaussian([0.0, 1.0], np.diag([1e10, 1.0]))
+    meas = [(1.0, "gps", 1.2), (1.5, "speed", 1.05), (2.0, "gps", 2.1), (2.0, "speed", 0.98), (3.5, "gps", 3.4)]
+    for smooth in (False, True):
+        a = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, smooth=smooth, form="sqrt")
+        b = gf.fuse_timeline(motion, sensors, prior, 0.0, meas, smooth=smooth)
+        np.testing.assert_allclose(a.means, b.means, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(a.covs, b.covs, rtol=1e-7, atol=1e-15)
+        assert a.result.cov_factors.shape == a.covs.shape
