@@ -111,6 +111,7 @@ EXAMPLES = {
     gf.FilterResult: lambda: gf.filter(linear_model(), prior(), ZS, np.ones((12, 1))),
     gf.SmoothResult: lambda: gf.smooth(nonlinear_model(), prior(), np.sin(ZS), method="ekf"),
     gf.KalmanFilter: kalman_filter,
+    gf.Stationary: lambda: gf.steady_state(linear_model()),
     gf.Measurement: lambda: gf.Measurement(1.5, "gps", np.array([1.0, 2.0])),
     gf.Fused: fused,
     gf.Fuser: fuser,

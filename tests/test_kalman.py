@@ -314,3 +314,54 @@ def test_a_huge_prior_and_a_precise_sensor_stay_within_2e_9_of_a_50_digit_filter
     assert np.max(np.abs(np.diagonal(got.covs, axis1=1, axis2=2) - variances) / variances) < 2e-9
     assert np.max(np.abs(got.means - means) / np.sqrt(variances)) < 2e-9
     assert np.array_equal(got.covs, np.swapaxes(got.covs, 1, 2))
+
+
+# ---------------------------------------------------------------------------
+# The gain: any gain's covariance is the Joseph form; the optimal gain minimises its trace
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_joseph_form_is_the_error_covariance_of_any_gain(seed):
+    """update(..., gain=K): the estimator m⁻ + K v and its exact error covariance, from the joint Gaussian.
+
+    The error ``(I - K H)(x - m⁻) - K v_noise`` is a linear map M of (x - m⁻,
+    v_noise) ~ N(0, blockdiag(P⁻, R)), so its covariance is M blockdiag(P⁻, R) Mᵀ.
+    """
+    from scipy.linalg import block_diag
+
+    rng = np.random.default_rng(seed)
+    n, m = 4, 2
+    P, R, H = _oracle.random_spd(rng, n), _oracle.random_spd(rng, m), rng.normal(size=(m, n))
+    mean, z, K = rng.normal(size=n), rng.normal(size=m), rng.normal(size=(n, m))
+    post = kalman.update(mean, P, z, H, R, gain=K)
+    M = np.hstack([np.eye(n) - K @ H, -K])
+    np.testing.assert_allclose(post.cov, M @ block_diag(P, R) @ M.T, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(post.mean, mean + K @ (z - H @ mean), rtol=1e-13)
+    np.testing.assert_array_equal(post.gain, K)
+    # the log-likelihood is the measurement's predictive density, whatever the gain
+    assert post.loglik == pytest.approx(kalman.update(mean, P, z, H, R).loglik, rel=1e-13)
+    # a missing component: its column of K is not used
+    z[1] = np.nan
+    part = kalman.update(mean, P, z, H, R, gain=K)
+    M1 = np.hstack([np.eye(n) - K[:, :1] @ H[:1], -K[:, :1]])
+    np.testing.assert_allclose(part.cov, M1 @ block_diag(P, R[:1, :1]) @ M1.T, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_optimal_gain_minimises_the_trace_of_the_posterior_covariance(seed):
+    """tr P(K* + εΔ) = tr P(K*) + ε² tr(Δ S Δᵀ): a minimum, and no other gain does better."""
+    rng = np.random.default_rng(seed)
+    n, m = 3, 2
+    P, R, H = _oracle.random_spd(rng, n), _oracle.random_spd(rng, m), rng.normal(size=(m, n))
+    mean, z = rng.normal(size=n), rng.normal(size=m)
+    best = kalman.update(mean, P, z, H, R)
+    S = H @ P @ H.T + R
+    np.testing.assert_allclose(best.gain, P @ H.T @ np.linalg.inv(S), rtol=1e-12)
+    for _ in range(20):
+        D = rng.normal(size=(n, m))
+        for eps in (1e-3, 0.1, 1.0):
+            other = kalman.update(mean, P, z, H, R, gain=best.gain + eps * D)
+            excess = np.trace(other.cov) - np.trace(best.cov)
+            assert excess > 0
+            assert excess == pytest.approx(eps**2 * np.trace(D @ S @ D.T), rel=1e-6, abs=1e-13)

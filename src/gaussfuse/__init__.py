@@ -15,6 +15,7 @@ from .inference import METHODS, FilterResult, SmoothResult, filter, smooth
 from .learning import FitResult, fit
 from .models import *  # noqa: F403
 from .online import KalmanFilter
+from .steady import Stationary, steady_state
 
 __version__ = "0.1.0"
 
@@ -22,7 +23,7 @@ __all__ = [
     "Gaussian", "fuse",
     *models.__all__,
     "filter", "smooth", "FilterResult", "SmoothResult", "METHODS",
-    "KalmanFilter",
+    "KalmanFilter", "steady_state", "Stationary",
     "Measurement", "fuse_timeline", "Fused", "Fuser",
     "imm_filter", "IMMResult",
     "fit", "FitResult",

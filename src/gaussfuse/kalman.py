@@ -29,7 +29,7 @@ from .errors import ModelFunctionError, not_finite
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
            "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "Factors",
            "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain", "Step", "SteadyState", "SETTLED",
-           "settled", "step", "forecast", "correct", "check_finite", "iterate_changed"]
+           "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite", "iterate_changed"]
 
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 
@@ -50,6 +50,9 @@ class Update(NamedTuple):
     loglik : float
         ``log N(z_o; H_o m + d_o, S_o)`` over the observed components ``o``
         (0.0 when nothing was observed).
+    gain : ndarray of shape (n, |o|), or None
+        The gain applied, over the observed components (None when nothing
+        was observed).
     """
 
     mean: np.ndarray
@@ -57,6 +60,7 @@ class Update(NamedTuple):
     innovation: np.ndarray
     innovation_cov: np.ndarray
     loglik: float
+    gain: np.ndarray | None = None
 
 
 def predict(
@@ -108,6 +112,7 @@ def update(
     R: np.ndarray,
     d: np.ndarray | None = None,
     angles: np.ndarray | None = None,
+    gain: np.ndarray | None = None,
 ) -> Update:
     r"""Condition a Gaussian belief on a measurement (Joseph form).
 
@@ -127,6 +132,10 @@ def update(
         Measurement offset.
     angles : array of bool, shape (m,), optional
         Components that are angles: their innovation is wrapped to [-π, π).
+    gain : array of shape (n, m), optional
+        A gain to apply instead of the optimal one (its columns for missing
+        components are not used): the result is the mean and the exact
+        covariance of that (suboptimal) estimator.
 
     Returns
     -------
@@ -153,16 +162,27 @@ def update(
     100 times closer than the symmetrised ``P - K H P`` when the prior
     variance is 10⁸ times the sensor's (1.5e-10 relative), but it is not proof
     against round-off: with a prior of 10¹² and a sensor variance of 10⁻⁶ its
-    variances are 74% off and the covariance indefinite. It is
-    the gain that minimises
-    :math:`\operatorname{tr} P` that gives :math:`K` above; the update is the
-    product of the predicted Gaussian and the measurement likelihood.
+    variances are 74% off and the covariance indefinite (use
+    :func:`update_sqrt` there). The update is the product of the predicted
+    Gaussian and the measurement likelihood.
+
+    For any gain :math:`K` the estimator :math:`m^- + K v` has the error
+    :math:`(I - K H_o)(x - m^-) - K v_{noise}`, whose covariance is the
+    Joseph form above; expanding it around the optimal gain :math:`K^*`,
+
+    .. math::
+
+        \operatorname{tr} P(K^* + \Delta) = \operatorname{tr} P(K^*)
+        + \operatorname{tr}(\Delta S \Delta^\top),
+
+    so :math:`K^* = P^- H_o^\top S^{-1}` minimises the trace (the mean
+    squared error), and any other gain (`gain`) adds :math:`\Delta S \Delta^\top`.
 
     All-missing ``z`` returns the prediction unchanged with ``loglik = 0``.
     """
-    g = gain(cov, H, R, observed_components(z))
+    g = _covariance_half(cov, H, R, observed_components(z), gain)
     post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, angles)
-    return Update(post_mean, g.cov, innovation, g.innovation_cov, loglik)
+    return Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K)
 
 
 class Gain(NamedTuple):
@@ -201,8 +221,14 @@ def observed_components(z: np.ndarray) -> np.ndarray | None:
     return None if total == total else ~np.isnan(z)
 
 
-def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | None = None) -> Gain:
-    """The covariance half of :func:`update` (see its Notes), over the `observed` components (all if None)."""
+def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | None = None,
+         K: np.ndarray | None = None) -> Gain:
+    """The covariance half of :func:`update` (see its Notes), over the `observed` components (all if None).
+
+    With `K` (n, m), that gain's columns for the observed components are
+    applied instead of the optimal gain; the Joseph form is the covariance of
+    the estimator it gives.
+    """
     HP = H @ cov
     S_full = symmetrize(HP @ H.T + R)
     if observed is None:
@@ -213,10 +239,16 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
         H_o, R_o, HP_o = H[observed], R[np.ix_(observed, observed)], HP[observed]
         S = S_full[np.ix_(observed, observed)]
     L = cholesky(S, _S_NAME)
-    K = cho_solve(L, HP_o).T                      # Kᵀ = S⁻¹ H_o P⁻
+    if K is None:
+        K = cho_solve(L, HP_o).T                  # Kᵀ = S⁻¹ H_o P⁻
+    elif observed is not None:
+        K = K[:, observed]
     I_KH = eye(cov.shape[0]) - K @ H_o
     post_cov = symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T)
     return Gain(K, post_cov, S_full, L, log_det(L), observed)
+
+
+_covariance_half = gain  # `update` has a parameter named `gain`
 
 
 def apply_gain(g: Gain, mean: np.ndarray, z: np.ndarray, H: np.ndarray, d: np.ndarray | None = None,
@@ -322,6 +354,8 @@ class SqrtUpdate(NamedTuple):
     innovation : ndarray of shape (m,)
     innovation_cov : ndarray of shape (m, m)
     loglik : float
+    gain : ndarray of shape (n, |o|), or None
+        :math:`K = \bar K L_S^{-1}` over the observed components.
     """
 
     mean: np.ndarray
@@ -329,6 +363,7 @@ class SqrtUpdate(NamedTuple):
     innovation: np.ndarray
     innovation_cov: np.ndarray
     loglik: float
+    gain: np.ndarray | None = None
 
 
 def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
@@ -457,8 +492,9 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     if not np.all(np.diagonal(L_S) > 0.0):
         raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite")
     e = whiten(L_S, v)
-    return SqrtUpdate(mean + post[mo:, :mo] @ e, np.ascontiguousarray(post[mo:, mo:]), innovation, innovation_cov,
-                      float(log_density(e, L_S)))
+    Kbar = post[mo:, :mo]
+    return SqrtUpdate(mean + Kbar @ e, np.ascontiguousarray(post[mo:, mo:]), innovation, innovation_cov,
+                      float(log_density(e, L_S)), whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹
 
 
 def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.ndarray, next_factor: np.ndarray,
@@ -721,36 +757,53 @@ class SteadyState:
         The covariance the last full prediction started from and the one it
         returned (an update of `predicted` back to `previous`, to
         round-off, is a fixed point).
+    target : ndarray or None
+        For the steady-state filter (``filter(..., steady=True)``): the
+        stationary filtered covariance (:func:`gaussfuse.steady_state`). A
+        posterior within `tol` of it (:func:`settled`) is held, instead of
+        one that stops changing.
+    tol : float
+        The tolerance of that test: ``SETTLED`` without a target.
     """
 
-    __slots__ = ("cov", "predicted_cov", "gain", "observed", "previous", "predicted")
+    __slots__ = ("cov", "predicted_cov", "gain", "observed", "previous", "predicted", "target", "tol")
 
-    def __init__(self) -> None:
+    def __init__(self, target: np.ndarray | None = None, tol: float | None = None) -> None:
         self.cov = self.predicted_cov = self.gain = self.observed = self.previous = self.predicted = None
+        self.target = target
+        self.tol = SETTLED if tol is None else tol
+
+    def holds(self, cov: np.ndarray) -> bool:
+        """Whether the posterior `cov`, updated from :attr:`predicted`, is the one to hold (see the attributes)."""
+        return settled(cov, self.previous if self.target is None else self.target, self.tol)
 
 
 SETTLED = 8.0 * np.finfo(float).eps
 """The largest change of a covariance entry, relative to its scale, that :func:`settled` takes for none."""
 
+STEADY_TOL = 1e-10
+"""The steady-state filter's test: a posterior within this of the stationary one (relative, :func:`settled`)."""
 
-def settled(new: np.ndarray, old: np.ndarray) -> bool:
-    r"""Whether covariance `new` equals `old` to round-off: :class:`SteadyState`'s fixed-point test.
+
+def settled(new: np.ndarray, old: np.ndarray, tol: float = SETTLED) -> bool:
+    r"""Whether covariance `new` equals `old` to round-off (or to `tol`): :class:`SteadyState`'s fixed-point test.
 
     Parameters
     ----------
     new, old : ndarray of shape (n, n)
+    tol : float, default SETTLED
 
     Returns
     -------
     bool
         True when :math:`|P_{ij} - P'_{ij}| \le \epsilon_s \sqrt{P_{ii}} \sqrt{P_{jj}}`
-        for every i, j, with :math:`P` = `new` and :math:`\epsilon_s` = ``SETTLED``
-        (8 machine epsilons). The bound scales with each entry's variances, so
+        for every i, j, with :math:`P` = `new` and :math:`\epsilon_s` = `tol`
+        (by default ``SETTLED``, 8 machine epsilons). The bound scales with each entry's variances, so
         the test does not depend on the states' units; a component with zero
         variance must not change at all, and NaN is never settled.
     """
     s = np.sqrt(np.abs(np.diagonal(new)))
-    return bool(np.all(np.abs(new - old) <= SETTLED * (s[:, None] * s[None, :])))
+    return bool(np.all(np.abs(new - old) <= tol * (s[:, None] * s[None, :])))
 
 
 def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None, check: bool = True,
@@ -833,12 +886,12 @@ def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray,
         g = steady.gain
     else:
         g = gain(cov, H, R, observed)
-        if steady is not None and cov is steady.predicted and settled(g.cov, steady.previous):
+        if steady is not None and cov is steady.predicted and steady.holds(g.cov):
             steady.cov, steady.predicted_cov, steady.gain, steady.observed = g.cov, cov, g, observed
     post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, measurement_angles)
     if state_angles is not None:
         post_mean = wrap_components(post_mean, state_angles)
-    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik)
+    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K)
     if reused:  # the fixed point's covariance is finite: only the mean and loglik can have overflowed
         total = post_mean.sum() + loglik
         if total - total != 0.0:

@@ -142,7 +142,7 @@ def test_batches_and_keep():
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"form": "chol"}, "`form` must be one of"),
-    ({"form": "sqrt", "engine": "numba"}, "covariance form only"),
+    ({"form": "sqrt", "engine": "numba"}, "cannot run form=.sqrt."),
 ])
 def test_bad_form_arguments_are_named(kwargs, message):
     model = gf.constant_velocity(0.1, 1.0, 0.25)
@@ -190,3 +190,25 @@ def test_fuse_timeline_takes_the_square_root_form():
         np.testing.assert_allclose(a.means, b.means, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(a.covs, b.covs, rtol=1e-7, atol=1e-15)
         assert a.result.cov_factors.shape == a.covs.shape
+
+
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+@pytest.mark.parametrize("seed", range(4))
+def test_filter_gains_are_the_kalman_gains_of_the_joint_gaussian(form, seed):
+    """FilterResult.gains (gains=True): K_k = P⁻_k Hᵀ S_k⁻¹ over the observed components, zero columns elsewhere."""
+    rng = np.random.default_rng(seed)
+    n, m, T = 3, 2, 8
+    prob = _oracle.random_problem(rng, n, m, T, 0, {"H"}, rng.random((T, m)) < 0.3)
+    want = _oracle.reference(prob["F"], prob["H"], prob["Q"], prob["R"], prob["m0"], prob["P0"], prob["zs"])
+    model = gf.LinearModel(prob["F"], prob["H"], prob["Q"], prob["R"])
+    res = gf.filter(model, gf.Gaussian(prob["m0"], prob["P0"]), prob["zs"], form=form, gains=True)
+    for k in range(T):
+        o = ~np.isnan(prob["zs"][k])
+        K = np.zeros((n, m))
+        if o.any():
+            S = want["innovation_covs"][k][np.ix_(o, o)]
+            K[:, o] = np.linalg.solve(S, prob["H"][k][o] @ want["predicted_covs"][k]).T
+        np.testing.assert_allclose(res.gains[k], K, rtol=1e-9, atol=1e-12)
+    assert gf.filter(model, gf.Gaussian(prob["m0"], prob["P0"]), prob["zs"]).gains is None
+    with pytest.raises(ValueError, match="cannot run gains=True"):
+        gf.filter(model, gf.Gaussian(prob["m0"], prob["P0"]), prob["zs"], gains=True, engine="numba")

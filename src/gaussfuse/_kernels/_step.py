@@ -37,7 +37,7 @@ from numba.extending import register_jitable
 
 from ..errors import not_finite as not_finite_message
 from ..inference.results import FilterResult
-from ..kalman import _S_NAME, SETTLED
+from ..kalman import _S_NAME
 from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
@@ -352,13 +352,13 @@ def predict_mean(mean, A, b, pred_mean):
 
 
 @jit(inline="always", **_JIT)
-def settled(new, old):
-    """kalman.settled: whether every entry of `new` is within ``SETTLED`` of `old`, relative to its variances."""
+def settled(new, old, tol):
+    """kalman.settled: whether every entry of `new` is within `tol` of `old`, relative to its variances."""
     n = new.shape[0]
     for i in range(n):
         si = math.sqrt(abs(new[i, i]))
         for j in range(n):
-            if not abs(new[i, j] - old[i, j]) <= SETTLED * (si * math.sqrt(abs(new[j, j]))):
+            if not abs(new[i, j] - old[i, j]) <= tol * (si * math.sqrt(abs(new[j, j]))):
                 return False
     return True
 

@@ -42,6 +42,7 @@ import numpy as np
 from numba import prange
 
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
+from ..kalman import SETTLED, STEADY_TOL
 from . import _rts
 from ._dense import BLAS_FROM
 from ._jit import jit, launch
@@ -65,6 +66,8 @@ class Model(NamedTuple):
     b: np.ndarray       # (N or 1, T or 1, n): B_k u_k
     d: np.ndarray       # (m,): zeros, the measurement offset of kalman.update
     angles: np.ndarray  # (m,) bool: False, no angle components
+    target: np.ndarray  # (n, n) the stationary covariance to hold (kalman.SteadyState.target), or (0, 0)
+    tol: float          # the fixed point's test: kalman.SteadyState.tol
 
 
 @jit(**_JIT)
@@ -140,7 +143,8 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                 if not_finite(mean, cov, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
-                if invariant and not at_fixed and settled(cov, previous):
+                if invariant and not at_fixed and settled(cov, model.target if model.target.shape[0] else previous,
+                                                          model.tol):
                     hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
                     reused = True  # the posterior is the fixed point's: the next step reuses it
             at_fixed = reused
@@ -169,8 +173,8 @@ KERNELS = (forward, forward_parallel)
 # ---------------------------------------------------------------------------
 
 
-def _layout(model, us: np.ndarray | None) -> Model:
-    """The model as :class:`Model`: matrices (T or 1, rows, cols), offsets ``b = B_k u_k``."""
+def _layout(model, us: np.ndarray | None, target: np.ndarray | None = None) -> Model:
+    """The model as :class:`Model`: matrices (T or 1, rows, cols), offsets ``b = B_k u_k``; the covariance to hold."""
     F, H, Q, R = (readonly(a if a.ndim == 3 else a[None]) for a in (model.F, model.H, model.Q, model.R))
     if us is None:
         b = np.zeros((1, 1, model.n))
@@ -180,17 +184,19 @@ def _layout(model, us: np.ndarray | None) -> Model:
         B = model.B
         b = np.einsum("tnp,itp->itn" if B.ndim == 3 else "np,itp->itn", B, us)
     m = model.m
-    return Model(F, H, Q, R, readonly(b), readonly(np.zeros(m)), np.zeros(m, dtype=np.bool_))
+    held = np.zeros((0, 0)) if target is None else np.ascontiguousarray(target, dtype=np.float64)
+    return Model(F, H, Q, R, readonly(b), readonly(np.zeros(m)), np.zeros(m, dtype=np.bool_), readonly(held),
+                 SETTLED if target is None else STEADY_TOL)
 
 
-def _run_forward(model, prior, zs, us, keep: str, smoothing: bool) -> Outputs:
+def _run_forward(model, prior, zs, us, keep: str, smoothing: bool, target: np.ndarray | None = None) -> Outputs:
     """Run the forward kernel over the series `zs` (N, T, m); raise what a failed series would."""
     zs = readonly(zs)
     N, T, m = zs.shape
     n = model.n
     out = outputs(N, T, n, m, keep, smoothing)
     fail = failures(N, m)
-    args = (_layout(model, us), zs, readonly(prior.mean), readonly(prior.cov), out, fail)
+    args = (_layout(model, us, target), zs, readonly(prior.mean), readonly(prior.cov), out, fail)
     if n >= BLAS_FROM:  # BLAS parallelises the products itself: the series one after another
         forward(0, N, *args, workspace(n, m))
     else:
@@ -201,13 +207,15 @@ def _run_forward(model, prior, zs, us, keep: str, smoothing: bool) -> Outputs:
     return out
 
 
-def filter(lin, model, prior, zs, us, keep) -> FilterResult:
+def filter(lin, model, prior, zs, us, keep, target: np.ndarray | None = None) -> FilterResult:
     """The Kalman filter over N series: `zs` (N, T, m), `us` (N, T, p) or None.
 
     Returns a FilterResult whose fields all carry the leading N axis; fields
-    that `keep` leaves out are None and never allocated.
+    that `keep` leaves out are None and never allocated. With `target` (the
+    stationary filtered covariance), the steady-state filter (see
+    kalman.SteadyState).
     """
-    return filter_result(_run_forward(model, prior, zs, us, keep, smoothing=False))
+    return filter_result(_run_forward(model, prior, zs, us, keep, smoothing=False, target=target))
 
 
 def smooth(lin, model, prior, zs, us) -> SmoothResult:

@@ -10,17 +10,20 @@ over one series or, for a leading series axis, over each series
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..gaussian import Gaussian
 from . import diffuse, drivers
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
-from .validation import prepare
+from .validation import check_steady, prepare
 
 __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
 
 def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
-           engine: str = "auto", keep: str = "all", form: str = "cov", **options) -> FilterResult:
+           engine: str = "auto", keep: str = "all", form: str = "cov", steady: bool = False,
+           gains: bool = False, **options) -> FilterResult:
     r"""Filter a series of measurements: the belief about each state given the past.
 
     Parameters
@@ -77,6 +80,19 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         on the readable path (``engine="numba"`` is an error, ``"auto"``
         takes the readable path); a ``"diffuse"`` prior is for the
         covariance form.
+    steady : bool, default False
+        The steady-state filter, for a time-invariant LinearModel (method
+        "kf", covariance form): once a step's filtered covariance is within
+        ``kalman.STEADY_TOL`` (1e-10, relative to the variances) of the
+        stationary one (:func:`gaussfuse.steady_state`), that step's gain
+        and covariances are reused and only the means are computed. Equal
+        to the full filter to about 1e-10 after that point; sooner than the
+        default, which holds the covariance only once it stops changing to
+        round-off (see :class:`gaussfuse.kalman.SteadyState`). Steps with
+        missing components are computed in full.
+    gains : bool, default False
+        Also return the Kalman gain of each step, ``FilterResult.gains``
+        (T, n, m), on the readable path.
 
     Returns
     -------
@@ -140,11 +156,16 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
+    check_steady(steady, spec, form, prior)
+    if not isinstance(gains, (bool, np.bool_)):
+        raise TypeError(f"`gains` must be True or False; got {gains!r}.")
+    if gains and prior == "diffuse":
+        raise ValueError("`gains=True` is not available with a 'diffuse' prior.")
     if prior == "diffuse":
         result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
                         for i, z in enumerate(zs)])
     else:
-        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form)
+        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains)
     return result if batch else first(result)
 
 

@@ -22,6 +22,7 @@ from .._linalg import symmetrize, wrap_components
 from ..errors import STEP_ERRORS, ConvergenceWarning, at_step
 from ..gaussian import Gaussian
 from ..linearize import Nominal
+from ..steady import steady_state
 from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
 
@@ -60,14 +61,18 @@ def _angles(model):
 
 def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol: float | None = None,
                state_angles=None, measurement_angles=None, keep: str = "all",
-               form: str = "cov") -> tuple[FilterResult, int]:
+               form: str = "cov", target: np.ndarray | None = None,
+               gains: bool = False) -> tuple[FilterResult, int]:
     """Filter one series (T, m): :func:`gaussfuse.kalman.step` at each step, through the strategy `lin`.
 
     Returns the result and the number of steps whose iterated update made
     `iterations` passes without meeting `tol`. `keep` is one of
     :data:`gaussfuse.inference.results.KEEP`. With ``form="sqrt"`` the
     steps are :func:`gaussfuse.kalman.step_sqrt`, on Cholesky factors; the
-    result holds the factors and, as always, the covariances.
+    result holds the factors and, as always, the covariances. With
+    `target`, the stationary filtered covariance, the steady-state filter
+    (:class:`gaussfuse.kalman.SteadyState`). With `gains`, the result
+    holds the gain of each step (zero columns for missing components).
     """
     T, n, m = zs.shape[0], prior.dim, zs.shape[1]
     rows = 0 if keep == "last" else T
@@ -78,11 +83,14 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     innov, icovs = np.empty((rows, m)), np.empty((crows, m, m))
     factors, pfactors = np.empty((crows if sqrt else 0, n, n)), np.empty((crows if sqrt else 0, n, n))
     used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
+    K = np.zeros((rows if gains else 0, n, m))
     unconverged, loglik = 0, 0.0
     mean, cov = prior.mean, prior.cov
     if sqrt:
         cov, roots = kalman.cov_factor(prior.cov, "the prior covariance"), kalman.Factors()
-    steady = kalman.SteadyState() if getattr(lin, "invariant", False) and iterations == 1 and not sqrt else None
+    steady = None
+    if getattr(lin, "invariant", False) and iterations == 1 and not sqrt:
+        steady = kalman.SteadyState() if target is None else kalman.SteadyState(target, kalman.STEADY_TOL)
     k = 0
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step
@@ -99,6 +107,8 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
                     pmeans[k], means[k], innov[k] = st.predicted_mean, mean, post.innovation
                     if used.shape[0]:
                         used[k] = st.passes
+                    if gains and post.gain is not None:
+                        K[k][:, ~np.isnan(post.innovation)] = post.gain
                 if crows:
                     icovs[k] = post.innovation_cov
                     if sqrt:
@@ -113,7 +123,8 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     per_step = (means, covs, pmeans, pcovs, innov, icovs)
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
                           _square(cov) if sqrt else cov, used if used.shape[0] else None,
-                          factors if factors.shape[0] else None, pfactors if pfactors.shape[0] else None)
+                          factors if factors.shape[0] else None, pfactors if pfactors.shape[0] else None,
+                          K if K.shape[0] else None)
     return result, unconverged
 
 
@@ -176,13 +187,13 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
     return sm_means, sm_covs, gains, None
 
 
-def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all",
-                   form: str = "cov") -> tuple[FilterResult, int]:
+def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all", form: str = "cov",
+                   target: np.ndarray | None = None, gains: bool = False) -> tuple[FilterResult, int]:
     """The filter for one series, and how many of its steps stopped at the iteration limit."""
     lin, iterations, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
     return run_filter(lin, prior, zs, iterations=iterations, tol=tol, state_angles=xa, measurement_angles=za,
-                      keep=keep, form=form)
+                      keep=keep, form=form, target=target, gains=gains)
 
 
 def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool = False,
@@ -243,7 +254,7 @@ def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passe
 
 
 def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, batch: bool = False,
-                    smoothing: bool = False, form: str = "cov"):
+                    smoothing: bool = False, readable: str | None = None):
     """The compiled module to run `steps` steps (all series together) with, or None for the readable path.
 
     With ``engine="auto"`` the compiled path is taken only for
@@ -255,7 +266,8 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
     `passes` is how many times the caller will run the steps (a fit's
     filter passes); `batch` says that several series run at once (their
     parallel kernels are compiled separately), `smoothing` that the
-    backward pass runs too.
+    backward pass runs too; `readable` names an option that only the
+    readable path has (then ``engine="numba"`` is an error).
 
     Raises
     ------
@@ -266,10 +278,10 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
     if engine == "python":
         return None
-    if form != "cov":
+    if readable is not None:  # an option the compiled engines do not have
         if engine == "numba":
-            raise ValueError(f"`engine='numba'` runs the covariance form only; `form={form!r}` runs on the readable "
-                             "path: pass engine='python' or 'auto'.")
+            raise ValueError(f"`engine='numba'` cannot run {readable}, which the readable path runs: pass "
+                             "engine='python' or 'auto'.")
         return None
     available = importlib.util.find_spec("numba") is not None
     if engine == "numba":
@@ -294,13 +306,22 @@ def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smooth
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
-                 keep: str, form: str = "cov") -> FilterResult:
-    """Filter N series `zs` (N, T, m), with controls `us` (N, T, p) or None; the result has the N axis."""
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, form=form)
+                 keep: str, form: str = "cov", steady: bool = False, gains: bool = False) -> FilterResult:
+    """Filter N series `zs` (N, T, m), with controls `us` (N, T, p) or None; the result has the N axis.
+
+    With `steady`, the steady-state filter: the covariance is held once
+    within ``kalman.STEADY_TOL`` of the stationary one (:func:`gaussfuse.steady_state`).
+    With `gains`, the Kalman gain of each step (readable path).
+    """
+    target = steady_state(model).cov if steady else None
+    readable = f"form={form!r}" if form != "cov" else "gains=True" if gains else None
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
-        return compiled.filter(lin, model, prior, zs, us, keep)
-    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep, form)
+        if target is None:
+            return compiled.filter(lin, model, prior, zs, us, keep)
+        return compiled.filter(lin, model, prior, zs, us, keep, target)
+    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep, form, target, gains)
             for i, z in enumerate(zs)]
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
@@ -311,7 +332,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
                  to_prior: bool = False, form: str = "cov") -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
-                               form=form)
+                               readable=None if form == "cov" else f"form={form!r}")
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         result = compiled.smooth(lin, model, prior, zs, us)

@@ -59,6 +59,9 @@ class FilterResult:
         (symmetrised). None for the covariance form.
     predicted_cov_factors : ndarray of shape (T, n, n), or None
         With ``form="sqrt"``: the factors of `predicted_covs`.
+    gains : ndarray of shape (T, n, m), or None
+        With ``gains=True``: the Kalman gain :math:`K_k` of each step (its
+        columns for missing components are zero). None otherwise.
 
     Notes
     -----
@@ -79,6 +82,7 @@ class FilterResult:
     iterations: np.ndarray | None = None
     cov_factors: np.ndarray | None = None
     predicted_cov_factors: np.ndarray | None = None
+    gains: np.ndarray | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
 
@@ -161,7 +165,7 @@ def kept(result: FilterResult, keep: str) -> FilterResult:
     """Drop what `keep` does not ask for from a full single-series result."""
     covariances = ("covs", "predicted_covs", "innovation_covs", "cov_factors", "predicted_cov_factors")
     drop = {"all": (), "means": covariances,
-            "last": ("means", "predicted_means", "innovations", "iterations", *covariances)}[keep]
+            "last": ("means", "predicted_means", "innovations", "iterations", "gains", *covariances)}[keep]
     return replace(result, **dict.fromkeys(drop))
 
 

@@ -13,7 +13,8 @@ from ..gaussian import Gaussian
 from ..models.linear import LinearModel
 from .registry import FORMS, METHODS, resolve_method
 
-__all__ = ["check_prior", "check_measurements", "check_controls", "check_steps", "check_form", "prepare"]
+__all__ = ["check_prior", "check_measurements", "check_controls", "check_steps", "check_form", "check_steady",
+           "prepare"]
 
 
 def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
@@ -94,6 +95,16 @@ def check_form(spec, form) -> None:
         runs = sorted(name for name, m in METHODS.items() if form in m.forms)
         raise ValueError(f"`form={form!r}` is not available for method {spec.name!r}; it is for {runs} "
                          "(the square-root sigma-point and iterated filters are not written yet).")
+
+
+def check_steady(steady, spec, form: str, prior) -> None:
+    """`steady` must be a bool, and True only for the Kalman filter in the covariance form, with a Gaussian prior."""
+    if not isinstance(steady, (bool, np.bool_)):
+        raise TypeError(f"`steady` must be True or False; got {steady!r}.")
+    if steady and (spec.name != "kf" or form != "cov" or isinstance(prior, str)):
+        raise ValueError("`steady=True` is for method 'kf' in the covariance form with a Gaussian prior; got "
+                         f"method {spec.name!r}, form {form!r}" + (", a 'diffuse' prior." if isinstance(prior, str)
+                                                                   else "."))
 
 
 def prepare(model, prior, zs, us, method, options, form: str = "cov"):

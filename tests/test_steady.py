@@ -1,0 +1,94 @@
+"""The steady state: the Riccati equation's solution, and the steady-state filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import _oracle
+import gaussfuse as gf
+
+
+def _riccati_limit(F, H, Q, R, steps=20000):
+    """The predicted covariance after iterating the Riccati map from the identity (written here, with solves)."""
+    P = np.eye(F.shape[0])
+    for _ in range(steps):
+        S = H @ P @ H.T + R
+        P = F @ (P - P @ H.T @ np.linalg.solve(S, H @ P)) @ F.T + Q
+        P = 0.5 * (P + P.T)
+    return P
+
+
+def test_the_scalar_random_walk_is_the_golden_ratio():
+    """F = H = Q = R = 1: p = p·1/(p + 1) + 1 gives p² = p + 1."""
+    ss = gf.steady_state(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0))
+    phi = (1 + np.sqrt(5)) / 2
+    assert ss.predicted_cov[0, 0] == pytest.approx(phi, rel=1e-14)
+    assert ss.cov[0, 0] == pytest.approx(phi - 1, rel=1e-14)
+    assert ss.gain[0, 0] == pytest.approx(phi / (phi + 1), rel=1e-14)
+    assert ss.innovation_cov[0, 0] == pytest.approx(phi + 1, rel=1e-14)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_steady_state_is_the_limit_of_the_recursion(seed):
+    rng = np.random.default_rng(seed)
+    n, m = 4, 2
+    F = _oracle.random_transition(rng, n, radius=0.95)
+    H, Q, R = rng.normal(size=(m, n)), _oracle.random_spd(rng, n), _oracle.random_spd(rng, m)
+    ss = gf.steady_state(gf.LinearModel(F, H, Q, R))
+    P = _riccati_limit(F, H, Q, R)
+    np.testing.assert_allclose(ss.predicted_cov, P, rtol=1e-9, atol=1e-12)
+    S = H @ P @ H.T + R
+    np.testing.assert_allclose(ss.gain, P @ H.T @ np.linalg.inv(S), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ss.cov, P - P @ H.T @ np.linalg.solve(S, H @ P), rtol=1e-9, atol=1e-12)
+
+
+def test_an_unstable_but_observed_model_has_a_steady_state():
+    """Constant velocity (F has a double eigenvalue 1): the filter still converges, to the filter's own limit."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    ss = gf.steady_state(model)
+    res = gf.filter(model, gf.Gaussian(np.zeros(4), np.eye(4)), np.zeros((400, 2)), engine="python")
+    np.testing.assert_allclose(ss.cov, res.covs[-1], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(ss.predicted_cov, res.predicted_covs[-1], rtol=1e-9, atol=1e-14)
+
+
+def test_models_without_a_steady_state_are_named():
+    with pytest.raises(TypeError, match="gaussfuse.LinearModel"):
+        gf.steady_state(gf.NonlinearModel(lambda x: x, lambda x: x, np.eye(1), np.eye(1)))
+    with pytest.raises(ValueError, match="time-varying"):
+        gf.steady_state(gf.LinearModel(np.ones((3, 1, 1)), 1.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="no steady state"):  # x grows by 2 a step and nothing measures it
+        gf.steady_state(gf.LinearModel([[2.0, 0.0], [0.0, 0.5]], [[0.0, 1.0]], np.eye(2), [[1.0]]))
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_the_steady_state_filter_equals_the_full_filter_after_convergence(engine):
+    """Held from the first step within 1e-10 of the stationary covariance: the full filter to 1e-9, sooner."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    prior = gf.Gaussian(np.zeros(4), 1e4 * np.eye(4))
+    zs = np.cumsum(np.random.default_rng(0).normal(size=(3000, 2)), axis=0) * 0.1
+    zs[1500, 0] = np.nan  # a partly missing step is computed in full, and the steady state found again
+    steady = gf.filter(model, prior, zs, engine=engine, steady=True)
+    full = gf.filter(model, prior, zs, engine=engine)
+    for name in ("means", "covs", "predicted_covs", "innovations"):
+        a, b = getattr(steady, name), getattr(full, name)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.nanmax(np.abs(b)), err_msg=name)
+    assert steady.loglik == pytest.approx(full.loglik, rel=1e-10)  # 3,000 terms, each within about 1e-10
+
+    def held_from(covs):
+        return next(k for k in range(len(covs) - 1) if all(np.array_equal(covs[k], c) for c in covs[k:1500]))
+
+    assert held_from(steady.covs) < held_from(full.covs)
+    np.testing.assert_allclose(steady.covs[-1], gf.steady_state(model).cov, rtol=1e-9)
+
+
+def test_steady_is_checked():
+    model = gf.constant_velocity(0.1, 1.0, 0.25)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    with pytest.raises(TypeError, match="`steady` must be True or False"):
+        gf.filter(model, prior, np.zeros((5, 1)), steady="yes")
+    with pytest.raises(ValueError, match="covariance form"):
+        gf.filter(model, prior, np.zeros((5, 1)), steady=True, form="sqrt")
+    with pytest.raises(ValueError, match="time-varying"):
+        gf.filter(gf.LinearModel(np.ones((5, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), np.zeros((5, 1)),
+                  steady=True)
