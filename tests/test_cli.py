@@ -5,6 +5,7 @@ import errno
 import importlib.metadata
 import os
 import re
+import warnings
 import signal
 import stat
 import subprocess
@@ -785,3 +786,23 @@ def test_engine_option_picks_the_path_and_refuses_others(tmp_path, capsys, comma
         np.testing.assert_allclose(numbers[0], numbers[1], rtol=1e-8)
     code, _, err = run(capsys, command, data, "--model", model, "--engine", "gpu")
     assert code == 2 and "argument --engine: invalid choice: 'gpu'" in err
+
+
+def test_filter_reports_divergence_in_one_line(tmp_path, capsys, series):
+    """A DivergenceWarning is one line on stderr, `gaussfuse: warning: ...`; the output is still written."""
+    data, times, zs, model = series
+    lines = data.read_text().splitlines()
+    for k in range(10, 25):  # a sensor that jumps 40 m away for the rest of the run
+        cells = lines[k + 1].split(",")
+        cells[1] = repr(float(cells[1] or "nan") + 40.0) if cells[1] else cells[1]
+        lines[k + 1] = ",".join(cells)
+    data.write_text("\n".join(lines) + "\n")
+    toml = tmp_path / "cv.toml"
+    toml.write_text(NAMED_TOML)
+    out = tmp_path / "out.csv"
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", gf.DivergenceWarning)
+        code, stdout, err = run(capsys, "filter", data, "--model", toml, "--out", out)
+    assert code == 0 and stdout == "" and out.exists()
+    assert err.count("\n") == 1 and err.startswith("gaussfuse: warning: the filter may be diverging"), err
+    assert "Traceback" not in err

@@ -94,3 +94,45 @@ def test_rmse():
     np.testing.assert_allclose(dg.rmse(np.ones((2, 3, 1)), np.zeros((2, 3, 1)), axis=1), [1.0, 1.0])
     with pytest.raises(ValueError, match=r"`truth` must have shape \(2, 2\), that of `estimates`"):
         dg.rmse(np.ones((2, 2)), np.ones((3, 2)))
+
+
+# ---------------------------------------------------------------------------
+# divergence: the chi-square window test behind filter(check=...)
+# ---------------------------------------------------------------------------
+
+
+def test_divergence_flags_a_window_above_the_laurent_massart_threshold():
+    """Flagged exactly when a window's sum reaches d + 2√(d t) + 2t, t = log(windows / 1e-3)."""
+    T, W = 200, 50
+    windows = 7  # starts 0, 25, ..., 150
+    t = np.log(windows / 1e-3)
+    threshold = W + 2 * np.sqrt(W * t) + 2 * t
+    below = np.ones(T)
+    below[100:150] = (threshold - 1e-6) / W
+    above = below.copy()
+    above[100:150] = (threshold + 1e-6) / W
+    assert dg.divergence(below, np.ones(T)) == []
+    got = dg.divergence(above, np.ones(T))
+    assert [(s, a, b) for s, a, b, _ in got] == [(0, 100, 149)]
+    assert got[0][3] == pytest.approx((threshold + 1e-6) / W)
+
+
+def test_divergence_skips_missing_steps_merges_ranges_and_names_series():
+    v = np.ones((2, 300))
+    v[1, 40:160] = 4.0
+    v[1, 60] = np.nan  # nothing observed there: left out of its windows
+    dof = np.where(np.isnan(v), 0, 1)
+    got = dg.divergence(v, dof)
+    assert [(s, a, b) for s, a, b, _ in got] == [(1, 25, 174)]
+    assert dg.divergence(np.zeros(0), np.zeros(0)) == []
+    assert dg.divergence(np.full(10, 50.0), np.ones(10))[0][1:3] == (0, 9)  # a run shorter than a window
+
+
+def test_divergence_rarely_flags_consistent_filters():
+    """Seeded χ² draws of 400 consistent runs of 300 steps with 2 components: the rate is at most 1e-3 per run."""
+    rng = np.random.default_rng(12)
+    runs = rng.chisquare(2, size=(400, 300))
+    flagged = sum(bool(dg.divergence(run, np.full(300, 2))) for run in runs)
+    assert flagged == 0
+    # and a filter twice as confident as it should be is flagged in every run
+    assert all(dg.divergence(2.0 * run, np.full(300, 2)) for run in runs[:50])

@@ -7,7 +7,7 @@ smoothers in :mod:`gaussfuse.inference`.
 
 from . import models
 from ._linalg import wrap_angle
-from .errors import ConvergenceWarning, ModelFunctionError
+from .errors import ConvergenceWarning, DivergenceWarning, ModelFunctionError
 from .fusion import Fused, Fuser, Measurement, fuse_timeline
 from .gaussian import Gaussian, fuse
 from .imm import IMMResult, imm_filter
@@ -27,6 +27,6 @@ __all__ = [
     "Measurement", "fuse_timeline", "Fused", "Fuser",
     "imm_filter", "IMMResult",
     "fit", "FitResult",
-    "ConvergenceWarning", "ModelFunctionError",
+    "ConvergenceWarning", "DivergenceWarning", "ModelFunctionError",
     "wrap_angle",
 ]

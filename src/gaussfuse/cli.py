@@ -436,6 +436,11 @@ class _Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the program is, so that it stops as it does on Ctrl-C."""
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line on stderr: ``gaussfuse: warning: <message>`` (a DivergenceWarning, say)."""
+    print(f"gaussfuse: warning: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``gaussfuse`` command.
 
@@ -472,7 +477,9 @@ def main(argv: list[str] | None = None) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, on_sigterm) if in_main_thread else None
     try:
-        code = args.run(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning  # one line each, like the errors
+            code = args.run(args)
         if sys.stdout is not None:
             sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return 143 if code == 130 and terminated else code

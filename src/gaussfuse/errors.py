@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ConvergenceWarning", "ModelFunctionError", "not_finite", "STEP_ERRORS", "at_step"]
+__all__ = ["ConvergenceWarning", "DivergenceWarning", "ModelFunctionError", "not_finite", "STEP_ERRORS", "at_step"]
 
 
 class ConvergenceWarning(UserWarning):
@@ -13,6 +13,17 @@ class ConvergenceWarning(UserWarning):
     The result it returns is the best one found, but it may not be
     trustworthy: raise the iteration limit, loosen the tolerance, or check
     the model.
+    """
+
+
+class DivergenceWarning(UserWarning):
+    """A filter's innovations are too large for its own covariances: it may be diverging.
+
+    Issued (or, with ``check="raise"``, raised) by :func:`gaussfuse.filter`
+    and :func:`gaussfuse.smooth` when the normalised innovations of a window
+    of steps fail a χ² test (:func:`gaussfuse.diagnostics.divergence`); the
+    message names the steps. The estimates there should not be trusted:
+    check Q, R and the prior, or try another method.
     """
 
 

@@ -53,6 +53,10 @@ class Update(NamedTuple):
     gain : ndarray of shape (n, |o|), or None
         The gain applied, over the observed components (None when nothing
         was observed).
+    nis : float
+        The normalised innovation squared :math:`v^\top S_{oo}^{-1} v`, χ² with
+        |o| degrees of freedom for a consistent filter (NaN when nothing was
+        observed).
     """
 
     mean: np.ndarray
@@ -61,6 +65,7 @@ class Update(NamedTuple):
     innovation_cov: np.ndarray
     loglik: float
     gain: np.ndarray | None = None
+    nis: float = np.nan
 
 
 def predict(
@@ -181,8 +186,8 @@ def update(
     All-missing ``z`` returns the prediction unchanged with ``loglik = 0``.
     """
     g = _covariance_half(cov, H, R, observed_components(z), gain)
-    post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, angles)
-    return Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K)
+    post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, angles)
+    return Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K, nis)
 
 
 class Gain(NamedTuple):
@@ -252,15 +257,16 @@ _covariance_half = gain  # `update` has a parameter named `gain`
 
 
 def apply_gain(g: Gain, mean: np.ndarray, z: np.ndarray, H: np.ndarray, d: np.ndarray | None = None,
-               angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-    """The mean half of :func:`update`: the posterior mean, the innovation and the log-likelihood term."""
+               angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The mean half of :func:`update`: the posterior mean, the innovation, the log-likelihood term and the NIS."""
     innovation = z - predict_mean(mean, H, d)
     if angles is not None:
         innovation = wrap_components(innovation, angles)
     if g.factor is None:
-        return mean, innovation, 0.0
+        return mean, innovation, 0.0, np.nan
     v = innovation if g.observed is None else innovation[g.observed]
-    return mean + g.K @ v, innovation, float(log_density(whiten(g.factor, v), g.factor, g.logdet))
+    white = whiten(g.factor, v)
+    return mean + g.K @ v, innovation, float(log_density(white, g.factor, g.logdet)), float(white @ white)
 
 
 def rts_step(
@@ -356,6 +362,8 @@ class SqrtUpdate(NamedTuple):
     loglik : float
     gain : ndarray of shape (n, |o|), or None
         :math:`K = \bar K L_S^{-1}` over the observed components.
+    nis : float
+        :math:`e^\top e`, the normalised innovation squared (NaN when nothing was observed).
     """
 
     mean: np.ndarray
@@ -364,6 +372,7 @@ class SqrtUpdate(NamedTuple):
     innovation_cov: np.ndarray
     loglik: float
     gain: np.ndarray | None = None
+    nis: float = np.nan
 
 
 def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
@@ -494,7 +503,7 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     e = whiten(L_S, v)
     Kbar = post[mo:, :mo]
     return SqrtUpdate(mean + Kbar @ e, np.ascontiguousarray(post[mo:, mo:]), innovation, innovation_cov,
-                      float(log_density(e, L_S)), whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹
+                      float(log_density(e, L_S)), whiten(L_S.T, Kbar.T).T, float(e @ e))  # K = K̄ L_S⁻¹
 
 
 def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.ndarray, next_factor: np.ndarray,
@@ -888,10 +897,10 @@ def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray,
         g = gain(cov, H, R, observed)
         if steady is not None and cov is steady.predicted and steady.holds(g.cov):
             steady.cov, steady.predicted_cov, steady.gain, steady.observed = g.cov, cov, g, observed
-    post_mean, innovation, loglik = apply_gain(g, mean, z, H, d, measurement_angles)
+    post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, measurement_angles)
     if state_angles is not None:
         post_mean = wrap_components(post_mean, state_angles)
-    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K)
+    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K, nis)
     if reused:  # the fixed point's covariance is finite: only the mean and loglik can have overflowed
         total = post_mean.sum() + loglik
         if total - total != 0.0:

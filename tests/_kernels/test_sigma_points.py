@@ -250,7 +250,7 @@ def test_keep_and_batches(mode):
     model, prior, zs, us = toy_problem(11, mode, N=3, T=20, controls=True, missing=True)
     full = gf.filter(model, prior, zs, us, method="ckf", engine="numba")
     for keep, dropped in (("means", ("covs", "predicted_covs", "innovation_covs")),
-                          ("last", ("means", "covs", "predicted_means", "predicted_covs", "innovations",
+                          ("last", ("means", "covs", "predicted_means", "predicted_covs", "innovations", "nis",
                                     "innovation_covs"))):
         part = gf.filter(model, prior, zs, us, method="ckf", engine="numba", keep=keep)
         for field in fields(part):

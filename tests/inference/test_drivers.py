@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import re
 import tracemalloc
+import warnings
 
 import numpy as np
 import pytest
@@ -11,6 +13,7 @@ from hypothesis import strategies as st
 
 import _oracle
 import gaussfuse as gf
+from gaussfuse import diagnostics
 
 RTOL = 1e-8
 
@@ -501,3 +504,58 @@ def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     with pytest.warns(ConvergenceWarning):
         gf.fit(model, prior, np.zeros(1200), iterations=2)
     assert seen == [("linear", True, False), ("linear", True, True), ("linear", False, True)]
+
+
+# ---------------------------------------------------------------------------
+# The divergence check
+# ---------------------------------------------------------------------------
+
+
+def _pendulum(skip: int):
+    """The README's pendulum; `skip` = 6 draws first, which makes the UKF diverge (issue 12)."""
+    dt, g = 0.01, 9.81
+    model = gf.NonlinearModel(f=lambda x: np.array([x[0] + dt * x[1], x[1] - g * np.sin(x[0]) * dt]),
+                              h=lambda x: np.sin(x[:1]), Q=0.01 * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]),
+                              R=0.1)
+    rng = np.random.default_rng(0)
+    rng.standard_normal(skip)
+    zs = np.sin(np.cos(np.arange(1, 301) * dt * np.sqrt(g))) + np.sqrt(0.1) * rng.standard_normal(300)
+    return model, gf.Gaussian([0.0, 0.0], np.eye(2)), zs
+
+
+def test_a_diverging_ukf_is_named_with_its_steps():
+    model, prior, zs = _pendulum(6)
+    with pytest.warns(gf.DivergenceWarning, match=r"2\.63 over steps 100-249 \(1 expected"):
+        res = gf.filter(model, prior, zs, method="ukf")
+    assert abs(res.means[-1, 0]) > 10  # it did diverge: the angle ends beyond 3π
+    with pytest.raises(gf.DivergenceWarning, match="steps 100-249"):
+        gf.smooth(model, prior, zs, method="ukf", check="raise")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", gf.DivergenceWarning)
+        gf.filter(model, prior, zs, method="ukf", check="off")
+        gf.filter(model, prior, zs, method="ukf", keep="last")  # no per-step values: nothing to test
+        for method in ("ekf", "ckf"):  # these do not diverge on this draw
+            gf.filter(model, prior, zs, method=method)
+        gf.filter(*_pendulum(0), method="ukf")  # nor the README's draw
+    with pytest.warns(gf.DivergenceWarning, match="steps 100-249"):  # the Gauss-Hermite filter diverges too
+        assert abs(gf.filter(model, prior, zs, method="ghkf").means[-1, 0]) > 10
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_nis_is_the_same_on_both_engines_and_names_the_series(engine):
+    model = gf.constant_velocity(0.1, 1.0, 0.25)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    rng = np.random.default_rng(3)
+    zs = 0.1 * np.arange(1, 201)[None, :, None] + 0.5 * rng.standard_normal((3, 200, 1))
+    zs[2, 120:170] += 5.0  # a sensor fault in series 2
+    zs[0, 50, 0] = np.nan
+    with pytest.warns(gf.DivergenceWarning) as caught:
+        res = gf.filter(model, prior, zs, engine=engine)
+    message = str(caught[0].message)
+    first, last = map(int, re.search(r"over steps (\d+)-(\d+) of series 2 \(", message).groups())
+    assert first <= 120 and last >= 169 and "series 0" not in message and "series 1" not in message
+    want = diagnostics.nis(res.innovations, res.innovation_covs)
+    np.testing.assert_allclose(res.nis, want, rtol=1e-12)
+    assert np.isnan(res.nis[0, 50])
+    with pytest.raises(ValueError, match="`check` must be one of"):
+        gf.filter(model, prior, zs, check="loud")

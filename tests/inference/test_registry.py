@@ -53,8 +53,8 @@ def test_pendulum_table(pendulum, method, options, filter_rmse, smoother_rmse, v
     prior = gf.Gaussian([0.0, 0.0], np.eye(2))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", gf.ConvergenceWarning)  # tol=0: the published 10 iterations
-        sm = gf.smooth(model, prior, zs, method=method, **options)
-        res = gf.filter(model, prior, zs, method=method, **options)
+        sm = gf.smooth(model, prior, zs, method=method, check="raise", **options)  # the published run: consistent
+        res = gf.filter(model, prior, zs, method=method, check="raise", **options)
     assert _rmse(sm.filtered.means, truth) == pytest.approx(filter_rmse, abs=5e-8)
     assert _rmse(sm.means, truth) == pytest.approx(smoother_rmse, abs=5e-8)
     np.testing.assert_array_equal(res.means, sm.filtered.means)
@@ -63,7 +63,7 @@ def test_pendulum_table(pendulum, method, options, filter_rmse, smoother_rmse, v
 def test_pendulum_ukf_defaults_are_the_table_settings(pendulum):
     truth, zs = pendulum
     model = gf.NonlinearModel(pendulum_f, pendulum_h, PENDULUM_Q, 0.1)
-    res = gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), zs)  # default method: ukf
+    res = gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), zs, check="raise")  # default method: ukf
     assert _rmse(res.means, truth) == pytest.approx(0.09524392, abs=5e-8)
 
 

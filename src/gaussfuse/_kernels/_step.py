@@ -42,7 +42,7 @@ from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
 __all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
-           "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
+           "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
            "not_finite",
            "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
            "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
@@ -262,6 +262,21 @@ def log_density(L, v, white, mo):
         quad += s * s
         logdet += math.log(L[a, a])
     return -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI)
+
+
+@register_jitable(**_JIT)
+def nis(w, z):
+    """The normalised innovation squared of the update just made with `z`: ``|L⁻¹ v|²`` from ``w.white``; NaN if none."""
+    mo = 0
+    for a in range(z.shape[0]):
+        if z[a] == z[a]:
+            mo += 1
+    if mo == 0:
+        return np.nan
+    total = 0.0
+    for a in range(mo):
+        total += w.white[a] * w.white[a]
+    return total
 
 
 @register_jitable(**_JIT)
@@ -560,6 +575,7 @@ class Outputs(NamedTuple):
     last_cov: np.ndarray         # (N, n, n)
     gains: np.ndarray            # (N, T - 1 or 0, n, n): G_k, or C_{k+1}ᵀ where failed
     failed: np.ndarray           # (N, T - 1 or 0) bool: P⁻_{k+1} not positive definite
+    nis: np.ndarray              # (N, T or 0): vᵀ S⁻¹ v over the observed components, NaN with none
 
 
 def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool) -> Outputs:
@@ -570,10 +586,11 @@ def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool) -> Outpu
     return Outputs(np.empty((N, rows, n)), np.empty((N, crows, n, n)), np.empty((N, rows, n)),
                    np.empty((N, crows, n, n)), np.empty((N, rows, m)), np.empty((N, crows, m, m)),
                    np.empty(N), np.empty((N, n)), np.empty((N, n, n)), np.empty((N, grows, n, n)),
-                   np.zeros((N, grows), dtype=np.bool_))
+                   np.zeros((N, grows), dtype=np.bool_), np.empty((N, rows)))
 
 
 def filter_result(out: Outputs) -> FilterResult:
     """The FilterResult of a forward kernel's outputs (with the N axis); None for what was not kept."""
     per_step = (out.means, out.covs, out.predicted_means, out.predicted_covs, out.innovations, out.innovation_covs)
-    return FilterResult(*(a if a.shape[1] else None for a in per_step), out.loglik, out.last_mean, out.last_cov)
+    return FilterResult(*(a if a.shape[1] else None for a in per_step), out.loglik, out.last_mean, out.last_cov,
+                        nis=out.nis if out.nis.shape[1] else None)

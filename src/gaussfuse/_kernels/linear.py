@@ -48,7 +48,7 @@ from ._dense import BLAS_FROM
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
 from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures, filter_result,
-                    fixed, hold_fixed, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure,
+                    fixed, hold_fixed, nis, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure,
                     record, record_not_pd, settled, smoother_gain, steady_update, update, workspace)
 
 __all__ = ["filter", "smooth", "KERNELS"]
@@ -149,6 +149,8 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                     reused = True  # the posterior is the fixed point's: the next step reuses it
             at_fixed = reused
             total += ll
+            if keep_means:
+                out.nis[s, k] = nis(w, zs[s, k])
         out.loglik[s] = total
         copy1(out.last_mean[s], mean)
         copy2(out.last_cov[s], cov)

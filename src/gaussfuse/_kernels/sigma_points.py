@@ -71,9 +71,9 @@ from . import _rts
 from ._jit import entry_point, jit
 from ._nrt import borrow, readonly
 from ._slr import Rule, draw, points, regress, regression
-from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, copy1, copy2, failures, filter_result, not_finite,
-                    outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, where, workspace,
-                    wrap)
+from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, copy1, copy2, failures, filter_result, nis,
+                    not_finite, outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, where,
+                    workspace, wrap)
 
 __all__ = ["filter", "smooth", "execution_mode", "advance", "hold"]
 
@@ -206,6 +206,7 @@ def _correct(s, t, Z, prob, bel, out, w, gh, fail):
     if out.means.shape[1]:
         copy1(out.means[s, t], bel.mean)
         copy1(out.innovations[s, t], bel.innovation)
+        out.nis[s, t] = nis(w, prob.zs[s, t])
     if out.covs.shape[1]:
         copy2(out.covs[s, t], bel.cov)
         copy2(out.innovation_covs[s, t], bel.S)

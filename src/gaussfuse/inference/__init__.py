@@ -23,7 +23,7 @@ __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
 def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
            engine: str = "auto", keep: str = "all", form: str = "cov", steady: bool = False,
-           gains: bool = False, **options) -> FilterResult:
+           gains: bool = False, check: str = "warn", **options) -> FilterResult:
     r"""Filter a series of measurements: the belief about each state given the past.
 
     Parameters
@@ -93,6 +93,15 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     gains : bool, default False
         Also return the Kalman gain of each step, ``FilterResult.gains``
         (T, n, m), on the readable path.
+    check : {"warn", "raise", "off"}, default "warn"
+        The divergence test: when the normalised innovations
+        (``FilterResult.nis``) of a window of 50 steps are too large for the
+        filter's own covariances (a χ² test that a consistent filter fails
+        with probability at most 1e-3 per call:
+        :func:`gaussfuse.diagnostics.divergence`), issue a
+        :class:`gaussfuse.DivergenceWarning` naming the steps, raise it, or
+        do nothing. Not made with ``keep="last"`` (no per-step values) or a
+        ``"diffuse"`` prior.
 
     Returns
     -------
@@ -123,6 +132,8 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     ConvergenceWarning
         Once per call, when steps of an iterated method made `iterations`
         passes without meeting `tol`; it says how many.
+    DivergenceWarning
+        When the divergence test fails (see `check`).
 
     Notes
     -----
@@ -161,16 +172,18 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         raise TypeError(f"`gains` must be True or False; got {gains!r}.")
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")
+    _check_check(check)
     if prior == "diffuse":
         result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
                         for i, z in enumerate(zs)])
     else:
         result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains)
+        drivers.check_divergence(result, check)
     return result if batch else first(result)
 
 
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
-           engine: str = "auto", form: str = "cov", **options) -> SmoothResult:
+           engine: str = "auto", form: str = "cov", check: str = "warn", **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
     Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
@@ -184,6 +197,7 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     moved by more than `tol`, measured as in :func:`filter` (Notes) in the
     pass's predicted covariance of its step (the prior's at time 0). Their
     ``.filtered`` is the iterated filter, and ``.iterations`` the passes made.
+    `check` tests the forward pass's innovations as in :func:`filter`.
     With ``form="sqrt"`` the backward pass runs on Cholesky factors
     (:func:`gaussfuse.kalman.rts_step_sqrt`), and the result holds them in
     ``cov_factors``.
@@ -216,9 +230,16 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     ((5, 2), (5, 2))
     """
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
+    _check_check(check)
     if prior == "diffuse":
         result = stack([diffuse.diffuse_smooth(model, z, None if us is None else us[i], engine)
                         for i, z in enumerate(zs)])
     else:
         result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form)
+        drivers.check_divergence(result.filtered, check)
     return result if batch else first(result)
+
+
+def _check_check(check) -> None:
+    if not isinstance(check, str) or check not in drivers.CHECKS:
+        raise ValueError(f"`check` must be one of {list(drivers.CHECKS)}; got {check!r}.")

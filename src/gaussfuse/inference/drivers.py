@@ -19,16 +19,20 @@ import numpy as np
 from .. import kalman
 from .._kernels import compiled_state
 from .._linalg import symmetrize, wrap_components
-from ..errors import STEP_ERRORS, ConvergenceWarning, at_step
+from .. import diagnostics
+from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, at_step
 from ..gaussian import Gaussian
 from ..linearize import Nominal
 from ..steady import steady_state
 from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
 
-__all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine"]
+__all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
+           "CHECKS", "check_divergence"]
 
 ENGINES = ("auto", "python", "numba")
+CHECKS = ("warn", "raise", "off")
+"""What `check` can ask of the divergence test: a DivergenceWarning, the same raised, or nothing."""
 
 # What engine="auto" weighs, in seconds on a 2-core machine (see compiled_engine):
 AUTO_NUMBA_STEPS = 1000
@@ -84,6 +88,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     factors, pfactors = np.empty((crows if sqrt else 0, n, n)), np.empty((crows if sqrt else 0, n, n))
     used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
     K = np.zeros((rows if gains else 0, n, m))
+    nis = np.empty(rows)
     unconverged, loglik = 0, 0.0
     mean, cov = prior.mean, prior.cov
     if sqrt:
@@ -104,7 +109,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
                     mean, cov = st.update.mean, st.update.cov
                 post = st.update
                 if rows:
-                    pmeans[k], means[k], innov[k] = st.predicted_mean, mean, post.innovation
+                    pmeans[k], means[k], innov[k], nis[k] = st.predicted_mean, mean, post.innovation, post.nis
                     if used.shape[0]:
                         used[k] = st.passes
                     if gains and post.gain is not None:
@@ -124,7 +129,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
                           _square(cov) if sqrt else cov, used if used.shape[0] else None,
                           factors if factors.shape[0] else None, pfactors if pfactors.shape[0] else None,
-                          K if K.shape[0] else None)
+                          K if K.shape[0] else None, nis if rows else None)
     return result, unconverged
 
 
@@ -356,3 +361,27 @@ def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
         for acc, first, rest in zip(out, (m0, P0, G0), (sm.means[i], sm.covs[i], sm.gains[i])):
             acc.append(np.concatenate([first[None], rest]))
     return SmoothResult(*(np.stack(a) for a in out), filt, sm.iterations)
+
+
+def check_divergence(result: FilterResult, check: str) -> None:
+    """Warn (or raise) a DivergenceWarning naming the steps where `result`'s innovations fail the χ² test.
+
+    `result` has the series axis. See :func:`gaussfuse.diagnostics.divergence`;
+    nothing is tested without per-step values (``keep="last"``).
+    """
+    if check == "off" or result.nis is None:
+        return
+    dof = np.sum(~np.isnan(result.innovations), axis=-1)
+    flagged = diagnostics.divergence(result.nis, dof)
+    if not flagged:
+        return
+    many = result.nis.shape[0] > 1
+    where = "; ".join(f"{avg:.2f} over steps {a}-{b}{f' of series {s}' if many else ''}" for s, a, b, avg in flagged[:5])
+    more = f" (and {len(flagged) - 5} more ranges)" if len(flagged) > 5 else ""
+    message = (f"the filter may be diverging: its normalised innovations average, per observed component, {where}"
+               f"{more} (1 expected; a chi-square test that a consistent filter fails with probability "
+               f"{diagnostics.DIVERGENCE_FALSE_ALARM:g}). Its covariances do not cover its errors there: check Q, "
+               "R and the prior, or try another method; check='off' turns this test off.")
+    if check == "raise":
+        raise DivergenceWarning(message)
+    warnings.warn(message, DivergenceWarning, stacklevel=3)

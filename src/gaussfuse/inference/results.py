@@ -62,6 +62,12 @@ class FilterResult:
     gains : ndarray of shape (T, n, m), or None
         With ``gains=True``: the Kalman gain :math:`K_k` of each step (its
         columns for missing components are zero). None otherwise.
+    nis : ndarray of shape (T,), or None
+        The normalised innovation squared :math:`v_k^\top S_k^{-1} v_k` over
+        the observed components (χ² with that many degrees of freedom for a
+        consistent filter; NaN where nothing was observed): what the
+        divergence check (`check` in :func:`filter`) tests. None with
+        ``keep="last"``.
 
     Notes
     -----
@@ -83,6 +89,7 @@ class FilterResult:
     cov_factors: np.ndarray | None = None
     predicted_cov_factors: np.ndarray | None = None
     gains: np.ndarray | None = None
+    nis: np.ndarray | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
 
@@ -165,7 +172,7 @@ def kept(result: FilterResult, keep: str) -> FilterResult:
     """Drop what `keep` does not ask for from a full single-series result."""
     covariances = ("covs", "predicted_covs", "innovation_covs", "cov_factors", "predicted_cov_factors")
     drop = {"all": (), "means": covariances,
-            "last": ("means", "predicted_means", "innovations", "iterations", "gains", *covariances)}[keep]
+            "last": ("means", "predicted_means", "innovations", "iterations", "gains", "nis", *covariances)}[keep]
     return replace(result, **dict.fromkeys(drop))
 
 
