@@ -165,12 +165,13 @@ def first_prediction(model, prior):
 # ---------------------------------------------------------------------------
 
 
-def gaussfuse_linear(model, prior, zs, engine, smooth=False):
+def gaussfuse_linear(model, prior, zs, engine, smooth=False, **options):
+    """``run(n)``: gaussfuse's filter (or smoother) on the first n steps; `options` as form= or steady=."""
     def run(n):
         if smooth:
-            r = gf.smooth(model, prior, zs[:n], engine=engine)
+            r = gf.smooth(model, prior, zs[:n], engine=engine, **options)
         else:
-            r = gf.filter(model, prior, zs[:n], engine=engine)
+            r = gf.filter(model, prior, zs[:n], engine=engine, **options)
         return {"means": r.means, "covs": r.covs}
     return run
 
@@ -326,6 +327,12 @@ def w1_w3(sizes: Sizes, avail: dict[str, bool], engine: str, smooth: bool) -> Wo
         E.append(Entry("gaussfuse engine=\"python\"", "gaussfuse",
                        gaussfuse_linear(model, prior, zs, "python", smooth), nP, nP,
                        note="prefix"))
+        E.append(Entry("gaussfuse engine=\"python\", form=\"sqrt\" (square-root)", "gaussfuse",
+                       gaussfuse_linear(model, prior, zs, "python", smooth, form="sqrt"), nP, nP,
+                       note="prefix"))
+        if not smooth:
+            E.append(Entry("gaussfuse engine=\"numba\", steady=True", "gaussfuse",
+                           gaussfuse_linear(model, prior, zs, "numba", steady=True), T, T))
     if avail["filterpy"]:
         nM = min(sizes.prefix_medium, T)
         label = "filterpy batch_filter + rts_smoother" if smooth else "filterpy KalmanFilter.batch_filter"
