@@ -172,10 +172,18 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     lo = np.arange(0, T - window + 1, stride)
     if lo[-1] + window < T:
         lo = np.append(lo, T - window)
+    # Sums over the segments between window edges (one pass, no per-step temporary but the NaN mask),
+    # then over the windows from their running sums.
+    edges = np.unique(np.concatenate([lo, lo + window]))
     seen = ~np.isnan(v)
-    total = np.concatenate([np.zeros((v.shape[0], 1)), np.cumsum(np.where(seen, v, 0.0), axis=1)], axis=1)
-    count = np.concatenate([np.zeros((v.shape[0], 1)), np.cumsum(np.where(seen, k, 0.0), axis=1)], axis=1)
-    sums, dofs = total[:, lo + window] - total[:, lo], count[:, lo + window] - count[:, lo]
+    at = np.searchsorted(edges, [lo, lo + window])
+
+    def running(x):
+        segments = np.add.reduceat(x, edges[:-1], axis=1)
+        return np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(segments, axis=1)], axis=1)
+
+    total, count = running(np.where(seen, v, 0.0)), running(np.where(seen, k, 0.0))
+    sums, dofs = total[:, at[1]] - total[:, at[0]], count[:, at[1]] - count[:, at[0]]
     t = np.log(sums.size / false_alarm)
     flagged = (dofs > 0) & (sums >= dofs + 2.0 * np.sqrt(dofs * t) + 2.0 * t)
     out = []
@@ -187,8 +195,9 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
             else:
                 ranges.append([int(start), int(start) + window - 1])
         for first, last in ranges:
-            d = count[series, last + 1] - count[series, first]
-            out.append((int(series), first, last, float((total[series, last + 1] - total[series, first]) / d)))
+            observed = seen[series, first:last + 1]
+            average = v[series, first:last + 1][observed].sum() / k[series, first:last + 1][observed].sum()
+            out.append((int(series), first, last, float(average)))
     return out
 
 

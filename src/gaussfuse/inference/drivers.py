@@ -371,7 +371,10 @@ def check_divergence(result: FilterResult, check: str) -> None:
     """
     if check == "off" or result.nis is None:
         return
-    dof = np.sum(~np.isnan(result.innovations), axis=-1)
+    seen = ~np.isnan(result.innovations)
+    dof = seen[..., 0].astype(np.float64)
+    for j in range(1, seen.shape[-1]):  # m is small: m vector additions beat a reduction over the last axis
+        dof += seen[..., j]
     flagged = diagnostics.divergence(result.nis, dof)
     if not flagged:
         return
