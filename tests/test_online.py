@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import pickle
+import warnings
 
 import numpy as np
 import pytest
@@ -224,3 +225,40 @@ def test_a_belief_set_by_hand_between_predict_and_update_is_not_taken_for_a_fixe
             f.update([z])
         np.testing.assert_array_equal(kf.x, fresh.x)
         np.testing.assert_array_equal(kf.P, fresh.P)
+
+
+def test_the_online_filter_checks_for_divergence_as_it_goes():
+    """A sensor fault at steps 200-259 is named when the window ending at step 224 fails; a clean run is silent."""
+    model = gf.constant_velocity(0.1, 1.0, 0.25)
+    rng = np.random.default_rng(0)
+    zs = 0.1 * np.arange(400) + 0.5 * rng.standard_normal(400)
+    clean = gf.KalmanFilter(model, gf.Gaussian([0.0, 1.0], np.eye(2)), check="raise")
+    for z in zs:
+        clean.predict()
+        clean.update(z)
+    zs[200:260] += 5.0
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 1.0], np.eye(2)))
+    with pytest.warns(gf.DivergenceWarning, match=r"over steps 175-224 \(1 expected") as caught:
+        for z in zs:
+            kf.predict()
+            kf.update(z)
+    assert len(caught) == 1  # the failing windows that follow are one episode: reported once
+    quiet = gf.KalmanFilter(model, gf.Gaussian([0.0, 1.0], np.eye(2)), check="off")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", gf.DivergenceWarning)
+        for z in zs:
+            quiet.predict()
+            quiet.update(z)
+    np.testing.assert_array_equal(quiet.x, kf.x)
+    with pytest.raises(ValueError, match="`check` must be one of"):
+        gf.KalmanFilter(model, gf.Gaussian([0.0, 1.0], np.eye(2)), check=True)
+
+
+def test_the_fuser_names_the_times_of_a_divergence():
+    motion = gf.ConstantVelocity(dim=1, q=0.1)
+    fuser = gf.Fuser(motion, {"gps": gf.Position(dim=1, r=0.25)}, gf.Gaussian([0.0, 1.0], np.eye(2)), t0=0.0)
+    rng = np.random.default_rng(1)
+    with pytest.warns(gf.DivergenceWarning, match=r"over times \d+(\.\d+)?-\d+(\.\d+)?"):
+        for k in range(1, 200):
+            t = 0.5 * k
+            fuser.update(t, "gps", t + 0.5 * rng.standard_normal() + (8.0 if k > 120 else 0.0))

@@ -22,15 +22,17 @@ the Ljung–Box statistic.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._linalg import cholesky, observed_gram, whiten
+from .errors import DivergenceWarning, diverging
 from ._validation import as_array, shape_error
 
-__all__ = ["nis", "nees", "chi2_interval", "divergence", "DIVERGENCE_WINDOW", "DIVERGENCE_FALSE_ALARM", "whiteness",
-           "rmse", "consistency", "ConsistencyReport", "Whiteness"]
+__all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
+           "DIVERGENCE_FALSE_ALARM", "whiteness", "rmse", "consistency", "ConsistencyReport", "Whiteness"]
 
 DIVERGENCE_WINDOW = 50
 """Steps per window of :func:`divergence` (windows overlap by half)."""
@@ -184,8 +186,7 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
 
     total, count = running(np.where(seen, v, 0.0)), running(np.where(seen, k, 0.0))
     sums, dofs = total[:, at[1]] - total[:, at[0]], count[:, at[1]] - count[:, at[0]]
-    t = np.log(sums.size / false_alarm)
-    flagged = (dofs > 0) & (sums >= dofs + 2.0 * np.sqrt(dofs * t) + 2.0 * t)
+    flagged = (dofs > 0) & (sums >= _threshold(dofs, np.log(sums.size / false_alarm)))
     out = []
     for series in np.flatnonzero(flagged.any(axis=1)):
         ranges: list[list[int]] = []
@@ -199,6 +200,93 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
             average = v[series, first:last + 1][observed].sum() / k[series, first:last + 1][observed].sum()
             out.append((int(series), first, last, float(average)))
     return out
+
+
+def _threshold(dof, t):
+    """Laurent & Massart: a χ²_dof exceeds ``dof + 2√(dof t) + 2t`` with probability at most e^-t."""
+    return dof + 2.0 * np.sqrt(dof * t) + 2.0 * t
+
+
+class DivergenceMonitor:
+    r""":func:`divergence` for a filter that runs one update at a time (``KalmanFilter``, ``Fuser``).
+
+    Parameters
+    ----------
+    window : int, default 50
+        Updates per window; windows overlap by half.
+    false_alarm : float, default 1e-3
+        The largest probability that a consistent filter is ever flagged,
+        however long it runs.
+    check : {"warn", "raise"}, default "warn"
+        What :meth:`observe` does with a failing window.
+
+    Notes
+    -----
+    The number of windows is not known in advance, so the j-th window
+    (j = 1, 2, ...) is tested at level :math:`\alpha / (j (j + 1))`, which
+    sums to :math:`\alpha` over all of them; its threshold is
+    :func:`divergence`'s with :math:`t = \log(j (j + 1) / \alpha)`.
+    """
+
+    __slots__ = ("window", "false_alarm", "check", "_values", "_dofs", "_steps", "_since", "_tested", "_flagged")
+
+    def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
+                 check: str = "warn") -> None:
+        self.window, self.false_alarm, self.check = window, false_alarm, check
+        self._values: list[float] = []  # the last `window` updates with observations: NIS, dof, step
+        self._dofs: list[int] = []
+        self._steps: list = []
+        self._since = 0                  # updates since the last test
+        self._tested = 0                 # windows tested so far
+        self._flagged = False            # whether the last window tested failed
+
+    def add(self, nis_value: float, dof: int, step) -> tuple[object, object, float] | None:
+        """Record an update; return ``(first, last, average)`` when the window ending here newly fails the test.
+
+        `step` labels the update (a step number, a time). Updates without
+        observations (`dof` 0) are skipped. A window is
+        tested once the first `window` updates are in, then every
+        ``window // 2`` updates; consecutive failing windows are reported
+        once, at the first.
+        """
+        if dof == 0:
+            return None
+        self._values.append(float(nis_value))
+        self._dofs.append(int(dof))
+        self._steps.append(step)
+        if len(self._values) > self.window:
+            del self._values[0], self._dofs[0], self._steps[0]
+        self._since += 1
+        if len(self._values) < self.window or (self._tested and self._since < max(self.window // 2, 1)):
+            return None
+        self._since = 0
+        self._tested += 1
+        total, d = sum(self._values), float(sum(self._dofs))
+        flagged = total >= _threshold(d, np.log(self._tested * (self._tested + 1) / self.false_alarm))
+        report = flagged and not self._flagged
+        self._flagged = flagged
+        return (self._steps[0], self._steps[-1], total / d) if report else None
+
+    @classmethod
+    def for_check(cls, check) -> DivergenceMonitor | None:
+        """The monitor an online filter keeps for its `check` argument ("warn", "raise"; None for "off")."""
+        if not isinstance(check, str) or check not in ("warn", "raise", "off"):
+            raise ValueError(f"`check` must be one of ['warn', 'raise', 'off']; got {check!r}.")
+        return None if check == "off" else cls(check=check)
+
+    def observe(self, update, step, where: str) -> None:
+        """:meth:`add` an update (a kalman.Update); warn or raise a DivergenceWarning when a window newly fails.
+
+        `where` formats the failing window's first and last `step` labels.
+        """
+        flagged = self.add(update.nis, int(np.sum(~np.isnan(update.innovation))), step)
+        if flagged is None:
+            return
+        first, last, average = flagged
+        message = diverging([f"{average:.2f} over {where.format(first, last)}"], self.false_alarm)
+        if self.check == "raise":
+            raise DivergenceWarning(message)
+        warnings.warn(message, DivergenceWarning, stacklevel=3)
 
 
 @dataclass(frozen=True)

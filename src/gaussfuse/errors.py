@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ConvergenceWarning", "DivergenceWarning", "ModelFunctionError", "not_finite", "STEP_ERRORS", "at_step"]
+__all__ = ["ConvergenceWarning", "DivergenceWarning", "ModelFunctionError", "not_finite", "diverging", "STEP_ERRORS",
+           "at_step"]
 
 
 class ConvergenceWarning(UserWarning):
@@ -44,6 +45,15 @@ def not_finite(stage: str) -> str:
     what = "mean, covariance or log-likelihood" if stage == "filtered" else "mean or covariance"
     return (f"the {stage} {what} is not finite (inf or NaN): the computation overflowed; "
             "check the scale of the model, the prior and the measurements.")
+
+
+def diverging(where: list[str], false_alarm: float, more: int = 0) -> str:
+    """The DivergenceWarning's message: `where` says, for each flagged range, its average NIS and its steps."""
+    extra = f" (and {more} more ranges)" if more else ""
+    return (f"the filter may be diverging: its normalised innovations average, per observed component, "
+            f"{'; '.join(where)}{extra} (1 expected; a chi-square test that a consistent filter fails with "
+            f"probability {false_alarm:g}). Its covariances do not cover its errors there: check Q, R and the prior, or try "
+            "another method; check='off' turns this test off.")
 
 
 STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)

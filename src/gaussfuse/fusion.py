@@ -28,6 +28,7 @@ import numpy as np
 from . import inference, kalman
 from ._frozen import reduce_frozen
 from ._validation import as_array, shape_error
+from .diagnostics import DivergenceMonitor
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference.registry import resolve_method
@@ -434,6 +435,9 @@ class Fuser:
         ``"kf"`` (linear motion and sensors; the default then), or for a
         nonlinear motion or sensor ``"ekf"`` (the default), ``"ukf"``,
         ``"ckf"`` or ``"ghkf"``.
+    check : {"warn", "raise", "off"}, default "warn"
+        The divergence test over the updates as they come, as for
+        :class:`gaussfuse.KalmanFilter`; the warning names the times.
     **options
         The method's options (e.g. ``alpha`` for ``"ukf"``).
 
@@ -475,7 +479,8 @@ class Fuser:
     """
 
     def __init__(self, motion, sensors, prior: Gaussian, t0: float, method: str | None = None,
-                 **options) -> None:
+                 check: str = "warn", **options) -> None:
+        self._monitor = DivergenceMonitor.for_check(check)
         self._timeline = _Timeline(motion, sensors)
         self.belief = check_prior(prior, self._timeline.n)
         self.t = _time("t0", t0)
@@ -538,4 +543,6 @@ class Fuser:
                               state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
         self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
+        if self._monitor is not None:
+            self._monitor.observe(post, t, "times {:g}-{:g}")
         return self.belief

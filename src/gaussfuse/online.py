@@ -6,6 +6,7 @@ import numpy as np
 
 from . import kalman
 from ._validation import as_array, shape_error
+from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from ._linalg import symmetrize
@@ -32,6 +33,12 @@ class KalmanFilter:
         Propagate the covariance (Joseph form) or its Cholesky factor
         (square-root form: :func:`gaussfuse.kalman.update_sqrt`), as in
         :func:`gaussfuse.filter`.
+    check : {"warn", "raise", "off"}, default "warn"
+        The divergence test of :func:`gaussfuse.filter`, run over the
+        updates as they come (:class:`gaussfuse.diagnostics.DivergenceMonitor`:
+        a consistent filter is flagged with probability at most 1e-3 over its
+        whole run): a :class:`gaussfuse.DivergenceWarning` naming the steps,
+        raised with ``"raise"``.
 
     Attributes
     ----------
@@ -69,11 +76,12 @@ class KalmanFilter:
     ((2,), (2, 2))
     """
 
-    def __init__(self, model: LinearModel, prior: Gaussian, form: str = "cov") -> None:
+    def __init__(self, model: LinearModel, prior: Gaussian, form: str = "cov", check: str = "warn") -> None:
         if not isinstance(model, LinearModel):
             raise TypeError(f"`model` must be a gaussfuse.LinearModel; got {type(model).__name__}.")
         if not isinstance(form, str) or form not in FORMS:
             raise ValueError(f"`form` must be one of {list(FORMS)}; got {form!r}.")
+        self._monitor = DivergenceMonitor.for_check(check)
         self.model = model
         self.form = form
         self.belief = check_prior(prior, model.n)
@@ -151,6 +159,8 @@ class KalmanFilter:
                              steady=self._steady)[0]
             self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
+        if self._monitor is not None:
+            self._monitor.observe(post, k, "steps {}-{}")
         return self.belief
 
     @staticmethod

@@ -20,7 +20,7 @@ from .. import kalman
 from .._kernels import compiled_state
 from .._linalg import symmetrize, wrap_components
 from .. import diagnostics
-from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, at_step
+from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, at_step, diverging
 from ..gaussian import Gaussian
 from ..linearize import Nominal
 from ..steady import steady_state
@@ -379,12 +379,8 @@ def check_divergence(result: FilterResult, check: str) -> None:
     if not flagged:
         return
     many = result.nis.shape[0] > 1
-    where = "; ".join(f"{avg:.2f} over steps {a}-{b}{f' of series {s}' if many else ''}" for s, a, b, avg in flagged[:5])
-    more = f" (and {len(flagged) - 5} more ranges)" if len(flagged) > 5 else ""
-    message = (f"the filter may be diverging: its normalised innovations average, per observed component, {where}"
-               f"{more} (1 expected; a chi-square test that a consistent filter fails with probability "
-               f"{diagnostics.DIVERGENCE_FALSE_ALARM:g}). Its covariances do not cover its errors there: check Q, "
-               "R and the prior, or try another method; check='off' turns this test off.")
+    message = diverging([f"{avg:.2f} over steps {a}-{b}{f' of series {s}' if many else ''}"
+                         for s, a, b, avg in flagged[:5]], diagnostics.DIVERGENCE_FALSE_ALARM, max(len(flagged) - 5, 0))
     if check == "raise":
         raise DivergenceWarning(message)
     warnings.warn(message, DivergenceWarning, stacklevel=3)
