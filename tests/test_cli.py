@@ -806,3 +806,34 @@ def test_filter_reports_divergence_in_one_line(tmp_path, capsys, series):
     assert code == 0 and stdout == "" and out.exists()
     assert err.count("\n") == 1 and err.startswith("gaussfuse: warning: the filter may be diverging"), err
     assert "Traceback" not in err
+
+
+def test_an_overflow_is_one_line_and_exit_code_2(tmp_path, capsys):
+    """Measurements near the largest float overflow the filter: a one-line error naming the step, no file."""
+    data = tmp_path / "data.csv"
+    data.write_text("t,x\n0,1e308\n1,-1e308\n2,1e308\n")
+    model = tmp_path / "m.toml"
+    model.write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.1\nr = 1e-300\n')
+    out = tmp_path / "out.csv"
+    code, stdout, err = run(capsys, "filter", data, "--model", model, "--out", out)
+    assert code == 2 and stdout == "" and not out.exists()
+    assert_one_line_error(err, r"at step \d+: the (predicted|filtered) mean.*not finite")
+
+
+def test_check_raise_makes_divergence_an_error(tmp_path, capsys, series):
+    data, times, zs, model = series
+    lines = data.read_text().splitlines()
+    for k in range(10, 25):
+        cells = lines[k + 1].split(",")
+        if cells[1]:
+            cells[1] = repr(float(cells[1]) + 40.0)
+        lines[k + 1] = ",".join(cells)
+    data.write_text("\n".join(lines) + "\n")
+    toml = tmp_path / "cv.toml"
+    toml.write_text(NAMED_TOML)
+    out = tmp_path / "out.csv"
+    code, stdout, err = run(capsys, "filter", data, "--model", toml, "--out", out, "--check", "raise")
+    assert code == 2 and not out.exists()
+    assert_one_line_error(err, "the filter may be diverging")
+    code, stdout, err = run(capsys, "filter", data, "--model", toml, "--out", out, "--check", "off")
+    assert (code, err) == (0, "") and out.exists()

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import __version__, inference, learning, plotting
 from . import io as gfio
-from .errors import ConvergenceWarning
+from .errors import ConvergenceWarning, DivergenceWarning
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference.drivers import ENGINES
@@ -210,7 +210,7 @@ def _run_filter(args: argparse.Namespace) -> int:
     spec = gfio.read_model(args.model)
     data = gfio.read_measurements(args.data, m=spec.model.m)
     run = inference.smooth if args.smooth else inference.filter
-    result = run(spec.model, spec.prior, data.zs, engine=args.engine)
+    result = run(spec.model, spec.prior, data.zs, engine=args.engine, check=args.check)
     # The CSV file appears only once the figure is saved: on an error, neither does.
     sink = (gfio.open_atomic(args.out, "w", newline="", encoding="utf-8") if args.out
             else nullcontext(StringIO()))
@@ -389,6 +389,10 @@ def build_parser() -> argparse.ArgumentParser:
     filt.add_argument("--plot", metavar="FIG.png",
                       help="also draw measurements against the estimates with ±2σ bands "
                            "(needs matplotlib)")
+    filt.add_argument("--check", choices=("warn", "raise", "off"), default="warn",
+                      help="the divergence test (default warn: one line on stderr naming the steps whose "
+                           "innovations are too large for the filter's covariances; raise: an error, exit "
+                           "status 2; off)")
     _engine_option(filt)
     filt.set_defaults(run=_run_filter)
 
@@ -489,7 +493,9 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         _silence_stdout()
         return 141
-    except (ValueError, TypeError, OSError) as exc:  # includes InputFileError and LinAlgError
+    except (ValueError, TypeError, OSError, FloatingPointError, DivergenceWarning) as exc:
+        # ValueError includes InputFileError and LinAlgError; FloatingPointError is an overflow at a step;
+        # a DivergenceWarning is raised with --check raise
         print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -514,8 +514,9 @@ class Fuser:
         if dt > 0.0:
             model, _ = self._timeline.model(np.array([dt]))
             lin = self._strategy(model, [dt])
-            self.belief = Gaussian._trusted(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov,
-                                                             self._state_angles))
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
+                self.belief = Gaussian._trusted(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov,
+                                                                 self._state_angles))
         self.t = t
 
     def predict(self, t: float) -> Gaussian:
@@ -539,8 +540,9 @@ class Fuser:
         name = self._timeline.check_name(sensor, "sensor")
         z = self._timeline.measurement_vector(name, z)
         self._advance(t, "t")
-        post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
-                              state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
+            post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
+                                  state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
         self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         if self._monitor is not None:

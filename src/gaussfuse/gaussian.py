@@ -144,6 +144,14 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     Gaussian
         The belief proportional to :math:`N(x; \mu_a, \Sigma_a) N(x; \mu_b, \Sigma_b)`.
 
+    Raises
+    ------
+    ValueError
+        When ``a.cov + b.cov`` is singular.
+    FloatingPointError
+        When the fused mean or covariance overflows (means near 1e308 of
+        opposite signs, say).
+
     Notes
     -----
     In one dimension, with :math:`a = N(\mu_1, \sigma_1^2)` and
@@ -174,12 +182,16 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
             f"`a` and `b` must have the same dimension; got {a.dim} and {b.dim}."
         )
     try:
-        mean, cov = kalman.fuse_moments(a.mean, a.cov, b.mean, b.cov)
+        with np.errstate(over="ignore", invalid="ignore"):  # the update's log-likelihood term is not used
+            mean, cov = kalman.fuse_moments(a.mean, a.cov, b.mean, b.cov)
     except np.linalg.LinAlgError:
         raise ValueError(
             "`a.cov + b.cov` must be positive definite: the two beliefs are both certain "
             "in a common direction, so their product is not a Gaussian."
         ) from None
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+        raise FloatingPointError("the fused mean or covariance is not finite (inf or NaN): the computation "
+                                 "overflowed; check the scale of `a` and `b`.")
     return Gaussian(mean, cov)
 
 

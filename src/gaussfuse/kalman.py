@@ -713,11 +713,10 @@ def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, 
         When the prediction or the posterior is not finite.
     """
     pm, pL = forecast_sqrt(lin, k, mean, factor, factors, state_angles)
-    try:
-        post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles)
-    except (FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
-        check_finite("predicted", pm, pL, factor=True)
-        raise
+    # Checked before the update: a prediction too large to square can still give a finite posterior
+    # factor (all its precision lost), which the posterior's own check would not catch.
+    check_finite("predicted", pm, pL, factor=True)
+    post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles)
     return Step(pm, pL, post, 1, True)
 
 
@@ -917,15 +916,17 @@ def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
 def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 0.0, factor: bool = False) -> None:
     """Raise FloatingPointError when the mean, the covariance's diagonal or `loglik` is inf or NaN.
 
-    With `factor`, `cov` is a covariance factor (square-root form), and
-    every one of its entries is checked.
+    With `factor`, `cov` is a covariance factor L (square-root form), and
+    the trace of the covariance it stands for, the sum of its squared
+    entries, is checked: a finite factor of a covariance too large to
+    represent is an overflow too.
 
     One sum, ``Σ mean + tr P + loglik``, is checked: it is not finite exactly
     when one of its terms is not (or, for a belief within a factor 2 of the
     largest float, 1.8e308, when their sum overflows: then the next step
     would). An inf or NaN covariance has one on its diagonal.
     """
-    total = mean.sum() + (cov.sum() if factor else cov.trace()) + loglik
+    total = mean.sum() + ((cov * cov).sum() if factor else cov.trace()) + loglik
     if total - total != 0.0:
         raise FloatingPointError(not_finite(stage))
 

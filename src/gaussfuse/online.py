@@ -165,8 +165,13 @@ class KalmanFilter:
 
     @staticmethod
     def _run(half, lin, k: int, *args, **kwargs):
-        """A half of :func:`gaussfuse.kalman.step`, with the step named in its errors."""
+        """A half of :func:`gaussfuse.kalman.step`, with the step named in its errors.
+
+        An overflow raises FloatingPointError (the step checks), not NumPy's
+        RuntimeWarning on the way.
+        """
         try:
-            return half(lin, k, *args, **kwargs)
+            with np.errstate(over="ignore", invalid="ignore"):
+                return half(lin, k, *args, **kwargs)
         except STEP_ERRORS as exc:
             raise at_step(exc, k) from exc

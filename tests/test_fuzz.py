@@ -1,0 +1,210 @@
+"""Fuzzing the public API: whatever goes in, a correct result or a clear error comes out.
+
+Random shapes (right, transposed, one off, empty, an extra axis), values
+(NaN, ±inf, 1e±300, subnormals, zeros), matrices that are not square,
+symmetric or positive semi-definite, and arrays of objects, strings,
+complex numbers and booleans go to the model and belief constructors, the
+filters and smoothers (both forms and both engines), the online filter and
+``fuse``. Every call must return a result whose beliefs are finite and whose
+shapes are right, or raise ValueError or TypeError (numpy's LinAlgError and
+gaussfuse's ModelFunctionError are ValueErrors), or FloatingPointError for an
+overflow (documented, naming the step). Never another exception, and never
+NaN presented as a result.
+
+The suites run a fixed set of examples in CI. A longer, random search by
+hand::
+
+    GAUSSFUSE_FUZZ_EXAMPLES=5000 python -m pytest tests/test_fuzz.py -p no:xdist
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+import gaussfuse as gf
+
+_EXAMPLES = int(os.environ.get("GAUSSFUSE_FUZZ_EXAMPLES", "0"))
+FUZZ = settings(max_examples=_EXAMPLES or 60, deadline=None, derandomize=not _EXAMPLES,
+                suppress_health_check=list(HealthCheck))
+CLEAR = (ValueError, TypeError, FloatingPointError)
+
+SPECIAL = [np.nan, np.inf, -np.inf, 1e300, -1e300, 1e-300, 5e-324, 0.0, -0.0]
+
+
+@st.composite
+def arrays(draw, shape: tuple[int, ...], kind: str = "matrix"):
+    """An array meant to have `shape`; sometimes another shape, dtype or special values."""
+    shape = tuple(shape)
+    change = draw(st.sampled_from(["none"] * 6 + ["shape", "dtype", "special", "scale", "empty"]))
+    if change == "shape":
+        shape = draw(st.sampled_from([shape[::-1], tuple(s + 1 for s in shape), shape[:-1] or (1,), (*shape, 2),
+                                      (0, *shape[1:]) if shape else (0,)]))
+    if change == "empty":
+        shape = tuple(0 for _ in shape) or (0,)
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=shape)
+    if kind == "cov" and len(shape) == 2 and shape[0] == shape[1]:
+        a = a @ a.T + 0.1 * np.eye(shape[0])  # usually a valid covariance
+    if change == "special" and a.size:
+        a.flat[draw(st.integers(0, a.size - 1))] = draw(st.sampled_from(SPECIAL))
+    if change == "scale":
+        a = a * draw(st.sampled_from([1e-300, 1e-150, 1e150, 1e300]))
+    if change == "dtype":
+        how = draw(st.sampled_from(["int", "bool", "complex", "object", "str", "list"]))
+        if how == "int":
+            return a.astype(int)
+        if how == "bool":
+            return a > 0
+        if how == "complex":
+            return a + 1j
+        if how == "object":
+            out = a.astype(object)
+            if out.size:
+                out.flat[0] = "x"
+            return out
+        if how == "str":
+            return a.astype(str)
+        return a.tolist()
+    return a
+
+
+@st.composite
+def problems(draw):
+    n, m, T = draw(st.integers(1, 3)), draw(st.integers(1, 2)), draw(st.integers(0, 6))
+    F = draw(arrays((n, n)))
+    H = draw(arrays((m, n)))
+    Q = draw(arrays((n, n), "cov"))
+    R = draw(arrays((m, m), "cov"))
+    mean = draw(arrays((n,)))
+    cov = draw(arrays((n, n), "cov"))
+    zs = draw(arrays((T, m)))
+    if isinstance(zs, np.ndarray) and zs.dtype == float and zs.size and draw(st.booleans()):
+        zs[np.random.default_rng(T).random(zs.shape) < 0.3] = np.nan  # missing values: valid
+    return n, m, F, H, Q, R, mean, cov, zs
+
+
+def _finite_result(res, n: int) -> None:
+    """A returned result is usable: finite beliefs of the right shapes, symmetric covariances."""
+    for name in ("means", "covs", "last_mean", "last_cov"):
+        value = getattr(res, name, None)
+        if value is None:
+            continue
+        assert np.all(np.isfinite(value)), f"{name} holds NaN or inf"
+        assert value.shape[-1] == n, name
+    if getattr(res, "covs", None) is not None:
+        np.testing.assert_array_equal(res.covs, np.swapaxes(res.covs, -1, -2))
+
+
+def _try(call):
+    """The call's result, or None when it raised one of the clear errors, with a message."""
+    try:
+        return call()
+    except CLEAR as exc:
+        assert str(exc), f"{type(exc).__name__} without a message"
+        event(f"raised {type(exc).__name__}")  # --hypothesis-show-statistics tells what the examples reached
+        return None
+
+
+@FUZZ
+@given(problems(), st.sampled_from(["filter", "smooth"]), st.sampled_from(["cov", "sqrt"]),
+       st.sampled_from(["python", "numba"]))
+def test_filter_and_smooth_end_in_a_result_or_a_clear_error(problem, what, form, engine):
+    n, m, F, H, Q, R, mean, cov, zs = problem
+    model = _try(lambda: gf.LinearModel(F, H, Q, R))
+    prior = _try(lambda: gf.Gaussian(mean, cov))
+    if model is None or prior is None:
+        return
+    if form == "sqrt" and engine == "numba":
+        engine = "python"
+    call = gf.filter if what == "filter" else gf.smooth
+    res = _try(lambda: call(model, prior, zs, engine=engine, form=form, check="off"))
+    if res is not None:
+        event("a result")
+        _finite_result(res, n)
+        if what == "smooth":
+            _finite_result(res.filtered, n)
+
+
+@FUZZ
+@given(problems())
+def test_the_online_filter_ends_in_a_belief_or_a_clear_error(problem):
+    n, m, F, H, Q, R, mean, cov, zs = problem
+    model = _try(lambda: gf.LinearModel(F, H, Q, R))
+    prior = _try(lambda: gf.Gaussian(mean, cov))
+    if model is None or prior is None:
+        return
+    kf = gf.KalmanFilter(model, prior, check="off")
+    rows = zs if isinstance(zs, np.ndarray) and zs.ndim == 2 else [zs]
+    for z in rows:
+        if _try(kf.predict) is None or _try(lambda: kf.update(z)) is None:
+            return
+        assert np.all(np.isfinite(kf.x)) and np.all(np.isfinite(kf.P))
+
+
+@FUZZ
+@given(arrays((2,)), arrays((2, 2), "cov"), arrays((2,)), arrays((2, 2), "cov"))
+def test_fuse_ends_in_a_gaussian_or_a_clear_error(m1, c1, m2, c2):
+    a, b = _try(lambda: gf.Gaussian(m1, c1)), _try(lambda: gf.Gaussian(m2, c2))
+    if a is None or b is None:
+        return
+    out = _try(lambda: gf.fuse(a, b))
+    if out is not None:
+        assert np.all(np.isfinite(out.mean)) and np.all(np.isfinite(out.cov))
+        np.testing.assert_array_equal(out.cov, out.cov.T)
+
+
+# ---------------------------------------------------------------------------
+# The command line: malformed files and odd paths
+# ---------------------------------------------------------------------------
+
+CSV = "t,x,y\n0.0,1.0,2.0\n0.5,1.5,\n1.0,nan,2.5\n1.5,2.5,3.0\n"
+TOML = '[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.3\nr = 0.2\n\n[prior]\nvar = 2.0\n'
+GARBAGE = ["", ",", ",,", "x", "1e999", "-inf", "nan", "\x00", "é", '"', "[", "]", "=", "\n", "0x10", "1,2,3,4",
+           "kind = 3", "[model]", "dt = -1", "q = 'a'", "\ufeff", "   ", "#", "1.0e-400", "true"]
+
+
+@st.composite
+def mangled(draw, text: str) -> str:
+    """`text` with a few random cuts, duplications and insertions of awkward tokens."""
+    for _ in range(draw(st.integers(0, 4))):
+        i = draw(st.integers(0, len(text)))
+        j = draw(st.integers(i, min(len(text), i + 8)))
+        how = draw(st.sampled_from(["cut", "insert", "double"]))
+        if how == "cut":
+            text = text[:i] + text[j:]
+        elif how == "insert":
+            text = text[:i] + draw(st.sampled_from(GARBAGE)) + text[i:]
+        else:
+            text = text[:j] + text[i:j] + text[j:]
+    return text
+
+
+@settings(FUZZ, max_examples=_EXAMPLES or 80)
+@given(mangled(CSV), mangled(TOML), st.sampled_from(["", "--smooth"]), st.sampled_from(["out.csv", "new/out.csv",
+                                                                                          ".", "out dir/é.csv"]))
+def test_the_cli_ends_in_output_or_one_line_and_exit_code_2(tmp_path_factory, capsys, csv_text, toml_text, smooth,
+                                                               out_name):
+    """`gaussfuse filter` on mangled input: exit 0 with a complete file, or exit 2, one line and no file."""
+    from gaussfuse.cli import main
+
+    where = tmp_path_factory.mktemp("cli")
+    data, model, out = where / "data.csv", where / "model.toml", where / out_name
+    data.write_text(csv_text, encoding="utf-8")
+    model.write_text(toml_text, encoding="utf-8")
+    before = set(where.rglob("*"))
+    code = main(["filter", str(data), "--model", str(model), "--out", str(out), "--check", "off", *smooth.split()])
+    stdout, err = capsys.readouterr()
+    event(f"exit status {code}")
+    assert code in (0, 2), (code, err)
+    if code == 2:
+        assert err.startswith("gaussfuse: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+        assert set(where.rglob("*")) == before, "a file was left behind"
+    else:
+        lines = out.read_text().splitlines()
+        assert len(lines) >= 2 and all("," in line for line in lines)
