@@ -333,6 +333,8 @@ def w1_w3(sizes: Sizes, avail: dict[str, bool], engine: str, smooth: bool) -> Wo
         if not smooth:
             E.append(Entry("gaussfuse engine=\"numba\", steady=True", "gaussfuse",
                            gaussfuse_linear(model, prior, zs, "numba", steady=True), T, T))
+            E.append(Entry("gaussfuse engine=\"numba\", form=\"sqrt\" (square-root)", "gaussfuse",
+                           gaussfuse_linear(model, prior, zs, "numba", form="sqrt"), T, T, compiled=True))
     if avail["filterpy"]:
         nM = min(sizes.prefix_medium, T)
         label = "filterpy batch_filter + rts_smoother" if smooth else "filterpy KalmanFilter.batch_filter"

@@ -226,6 +226,7 @@ def test_one_compiled_signature_serves_every_case():
         zs = np.asarray(problem["zs"], order=zs_order)
         for keep in ("all", "means", "last"):
             gf.filter(model, prior, zs, problem["us"], engine="numba", keep=keep)
+            gf.filter(model, prior, zs, problem["us"], engine="numba", keep=keep, form="sqrt")
         gf.smooth(model, prior, np.stack([zs, zs]), problem["us"], engine="numba")
     for kernel in linear.KERNELS:
         assert len(kernel.signatures) == 1, kernel

@@ -41,7 +41,8 @@ from ..kalman import _S_NAME
 from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
-__all__ = ["Work", "workspace", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
+__all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
+           "not_finite_factor", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
            "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
            "not_finite",
            "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
@@ -210,6 +211,174 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
     congruence(w.K, w.R_o, None, w.A3, w.KR, n, mo)  # K R_oo Kᵀ
     congruence(w.A1, cov, w.A3, post_cov, w.A2, n, n)  # (I - K H_o) P⁻ (I - K H_o)ᵀ + K R_oo Kᵀ
     return True, log_density(w.L, w.v, w.white, mo), mo
+
+
+# ---------------------------------------------------------------------------
+# The square-root form: kalman.predict_sqrt, kalman.update_sqrt
+# ---------------------------------------------------------------------------
+
+
+class SqrtWork(NamedTuple):
+    """Scratch of one series' square-root steps (names as in kalman.update_sqrt)."""
+
+    M: np.ndarray    # (n + m, 2n + m) the pre-array, triangularised in place
+    T: np.ndarray    # (n + m, n + m) its lower-triangular result
+    u: np.ndarray    # (2n + m,)  a Householder vector
+    HL: np.ndarray   # (m, n)     H L⁻
+    LRo: np.ndarray  # (m, m)     the factor of R_oo
+    e: np.ndarray    # (m,)       the whitened innovation L_S⁻¹ v
+
+
+@register_jitable
+def sqrt_workspace(n, m):
+    """A :class:`SqrtWork` for n states and m measurement components."""
+    return SqrtWork(np.zeros((n + m, 2 * n + m)), np.zeros((n + m, n + m)), np.empty(2 * n + m), np.empty((m, n)),
+                    np.zeros((m, m)), np.empty(m))
+
+
+@register_jitable(**_JIT)
+def tria(M, rows, cols, u, L):
+    r"""_linalg.tria: ``L`` (``rows`` × ``rows``, lower, diagonal >= 0) with :math:`L L^\top = M M^\top`.
+
+    Householder reflections from the right make ``M[:rows, :cols]``
+    lower triangular in place (the LQ factorisation, which is the QR of
+    :math:`M^\top` that LAPACK's ``geqrf`` computes); its first ``rows``
+    columns are L, with each column's sign made that of a non-negative
+    diagonal. ``u`` (length ``cols``) holds a reflection's vector.
+    """
+    for i in range(rows):
+        if i < cols:
+            scale = 0.0
+            for j in range(i, cols):
+                scale = max(scale, abs(M[i, j]))
+            if scale > 0.0:
+                ss = 0.0
+                for j in range(i, cols):
+                    t = M[i, j] / scale
+                    ss += t * t
+                norm = scale * math.sqrt(ss)
+                alpha = -norm if M[i, i] >= 0.0 else norm
+                for j in range(i, cols):
+                    u[j] = M[i, j]
+                u[i] -= alpha
+                vtv = norm * (norm + abs(M[i, i])) * 2.0
+                for r in range(i, rows):
+                    dot = 0.0
+                    for j in range(i, cols):
+                        dot += u[j] * M[r, j]
+                    f = 2.0 * dot / vtv
+                    for j in range(i, cols):
+                        M[r, j] -= f * u[j]
+        for r in range(rows):
+            L[r, i] = M[r, i] if r >= i and i < cols else 0.0
+        if L[i, i] < 0.0:
+            for r in range(i, rows):
+                L[r, i] = -L[r, i]
+
+
+@jit(inline="always", **_JIT)
+def predict_sqrt(sw, mean, factor, A, Q_factor, b, pred_mean, pred_factor):
+    r"""kalman.predict_sqrt: :math:`m^- = A m + b`, :math:`L^- = \mathrm{tria}[A L, L_Q]`."""
+    n = mean.shape[0]
+    predict_mean(mean, A, b, pred_mean)
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(j, n):  # L is lower triangular
+                s += A[i, k] * factor[k, j]
+            sw.M[i, j] = s
+            sw.M[i, n + j] = Q_factor[i, j]
+    tria(sw.M, n, 2 * n, sw.u, pred_factor)
+
+
+@jit(inline="always", **_JIT)
+def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_factor, innovation):
+    r"""kalman.update_sqrt: the pre-array ``[[L_R,o, H_o L⁻], [0, L⁻]]`` triangularised.
+
+    Returns ``(ok, loglik, mo)``; ``ok`` is False when :math:`L_S` has a zero
+    pivot (the innovation covariance of the observed components is
+    singular). Leaves :math:`H L^-` in ``sw.HL`` and the whitened innovation
+    in ``sw.e`` (and ``w.white``, for :func:`nis`).
+    """
+    n = mean.shape[0]
+    m = z.shape[0]
+    mo = innovate(w, mean, z, H, d, angles, innovation)
+    for a in range(m):
+        for j in range(n):
+            s = 0.0
+            for k in range(j, n):
+                s += H[a, k] * factor[k, j]
+            sw.HL[a, j] = s
+    if mo == 0:
+        copy1(post_mean, mean)
+        copy2(post_factor, factor)
+        return True, 0.0, mo
+    # the factor of R_oo: tria of the observed rows of L_R
+    for a in range(mo):
+        for b in range(m):
+            sw.M[a, b] = R_factor[w.obs[a], b]
+    tria(sw.M, mo, m, sw.u, sw.LRo)
+    q = mo + n
+    for r in range(q):
+        for c in range(q):
+            sw.M[r, c] = 0.0
+    for a in range(mo):
+        for b in range(mo):
+            sw.M[a, b] = sw.LRo[a, b]
+        for j in range(n):
+            sw.M[a, mo + j] = sw.HL[w.obs[a], j]
+    for i in range(n):
+        for j in range(n):
+            sw.M[mo + i, mo + j] = factor[i, j]
+    tria(sw.M, q, q, sw.u, sw.T)
+    quad = 0.0
+    logdet = 0.0
+    for a in range(mo):
+        if not sw.T[a, a] > 0.0:
+            return False, 0.0, mo
+        s = innovation[w.obs[a]]
+        for b in range(a):
+            s -= sw.T[a, b] * sw.e[b]
+        s /= sw.T[a, a]
+        sw.e[a] = s
+        w.white[a] = s
+        quad += s * s
+        logdet += math.log(sw.T[a, a])
+    for i in range(n):
+        s = 0.0
+        for a in range(mo):
+            s += sw.T[mo + i, a] * sw.e[a]
+        post_mean[i] = mean[i] + s
+        for j in range(n):
+            post_factor[i, j] = sw.T[mo + i, mo + j]
+    return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI), mo
+
+
+@jit(inline="always", **_JIT)
+def square(factor, cov):
+    """``cov = sym(L Lᵀ)`` (exactly symmetric: each pair of entries is computed once)."""
+    n = factor.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = 0.0
+            for k in range(j + 1):
+                s += factor[i, k] * factor[j, k]
+            cov[i, j] = s
+            cov[j, i] = s
+
+
+@jit(inline="always", **_JIT)
+def not_finite_factor(mean, factor, loglik):
+    """kalman.check_finite(..., factor=True): the mean, `loglik` and the trace of ``L Lᵀ`` (its squared entries)."""
+    acc = loglik * 0.0
+    n = mean.shape[0]
+    tr = 0.0
+    for i in range(n):
+        acc += mean[i] * 0.0
+        for j in range(n):
+            tr += factor[i, j] * factor[i, j]
+    acc += tr * 0.0
+    return acc != acc
 
 
 @jit(inline="always", **_JIT)
@@ -576,21 +745,30 @@ class Outputs(NamedTuple):
     gains: np.ndarray            # (N, T - 1 or 0, n, n): G_k, or C_{k+1}ᵀ where failed
     failed: np.ndarray           # (N, T - 1 or 0) bool: P⁻_{k+1} not positive definite
     nis: np.ndarray              # (N, T or 0): vᵀ S⁻¹ v over the observed components, NaN with none
+    factors: np.ndarray          # (N, T or 0, n, n): the square-root form's L_k
+    predicted_factors: np.ndarray  # (N, T or 0, n, n): its L⁻_k
 
 
-def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool) -> Outputs:
-    """The :class:`Outputs` of N series of T steps: per-step arrays of length T where `keep` keeps them, else 0."""
+def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool, sqrt: bool = False) -> Outputs:
+    """The :class:`Outputs` of N series of T steps: per-step arrays of length T where `keep` keeps them, else 0.
+
+    With `sqrt`, the square-root form's factors too.
+    """
     rows = 0 if keep == "last" else T
     crows = T if keep == "all" else 0
+    frows = crows if sqrt else 0
     grows = T - 1 if smoothing else 0
     return Outputs(np.empty((N, rows, n)), np.empty((N, crows, n, n)), np.empty((N, rows, n)),
                    np.empty((N, crows, n, n)), np.empty((N, rows, m)), np.empty((N, crows, m, m)),
                    np.empty(N), np.empty((N, n)), np.empty((N, n, n)), np.empty((N, grows, n, n)),
-                   np.zeros((N, grows), dtype=np.bool_), np.empty((N, rows)))
+                   np.zeros((N, grows), dtype=np.bool_), np.empty((N, rows)), np.empty((N, frows, n, n)),
+                   np.empty((N, frows, n, n)))
 
 
 def filter_result(out: Outputs) -> FilterResult:
     """The FilterResult of a forward kernel's outputs (with the N axis); None for what was not kept."""
     per_step = (out.means, out.covs, out.predicted_means, out.predicted_covs, out.innovations, out.innovation_covs)
     return FilterResult(*(a if a.shape[1] else None for a in per_step), out.loglik, out.last_mean, out.last_cov,
-                        nis=out.nis if out.nis.shape[1] else None)
+                        nis=out.nis if out.nis.shape[1] else None,
+                        cov_factors=out.factors if out.factors.shape[1] else None,
+                        predicted_cov_factors=out.predicted_factors if out.predicted_factors.shape[1] else None)

@@ -42,14 +42,15 @@ import numpy as np
 from numba import prange
 
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
-from ..kalman import SETTLED, STEADY_TOL
+from ..kalman import SETTLED, STEADY_TOL, cov_factor
 from . import _rts
 from ._dense import BLAS_FROM
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
 from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures, filter_result,
                     fixed, hold_fixed, nis, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure,
-                    record, record_not_pd, settled, smoother_gain, steady_update, update, workspace)
+                    not_finite_factor, predict_sqrt, record, record_not_pd, settled, smoother_gain, sqrt_workspace,
+                    square, steady_update, update, update_sqrt, workspace)
 
 __all__ = ["filter", "smooth", "KERNELS"]
 
@@ -68,6 +69,18 @@ class Model(NamedTuple):
     angles: np.ndarray  # (m,) bool: False, no angle components
     target: np.ndarray  # (n, n) the stationary covariance to hold (kalman.SteadyState.target), or (0, 0)
     tol: float          # the fixed point's test: kalman.SteadyState.tol
+
+
+@jit(inline="always", **_JIT)
+def update_failed(fail, s, k, w, ok, mo, overflowed):
+    """Record why step k of series s failed, if it did: S not positive definite (not `ok`), or an overflow."""
+    if not ok:
+        record_not_pd(fail, s, k, w, mo)
+        return True
+    if overflowed:
+        record(fail, s, FILTERED_NOT_FINITE, k)
+        return True
+    return False
 
 
 @jit(**_JIT)
@@ -137,11 +150,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                     break
             else:
                 ok, ll, mo = update(w, pm, pc, zs[s, k], H, at(model.R, k), model.d, model.angles, mean, cov, v, S)
-                if not ok:
-                    record_not_pd(fail, s, k, w, mo)
-                    break
-                if not_finite(mean, cov, ll):
-                    record(fail, s, FILTERED_NOT_FINITE, k)
+                if update_failed(fail, s, k, w, ok, mo, ok and not_finite(mean, cov, ll)):
                     break
                 if invariant and not at_fixed and settled(cov, model.target if model.target.shape[0] else previous,
                                                           model.tol):
@@ -167,7 +176,68 @@ def forward_parallel(chunks, model, zs, m0, P0, out, fail):
         forward(c * N // chunks, (c + 1) * N // chunks, model, zs, m0, P0, out, fail, workspace(n, m))
 
 
-KERNELS = (forward, forward_parallel)
+@jit(**_JIT)
+def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
+    """The square-root filter over series ``lo..hi-1``: inference.drivers.run_filter's loop with ``form="sqrt"``.
+
+    `Qf` and `Rf` (T or 1, ·, ·) are the factors of Q and R, `L0` the
+    prior's; `w` and `sw` the scratch (:func:`._step.workspace`,
+    :func:`._step.sqrt_workspace`). Covariances are written as
+    ``sym(L Lᵀ)`` where kept, with the factors.
+    """
+    model, Qf, Rf, zs, m0, L0, out, fail, w, sw = borrow((model, Qf, Rf, zs, m0, L0, out, fail, w, sw))
+    T = zs.shape[1]
+    m = zs.shape[2]
+    n = m0.shape[0]
+    keep_means = out.means.shape[1] > 0
+    keep_covs = out.covs.shape[1] > 0
+    scratch = (np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((n, n)))
+    mean, L, pm, pL, v0, cov0 = borrow(scratch)
+    for s in range(lo, hi):
+        copy1(mean, m0)
+        copy2(L, L0)
+        total = 0.0
+        fail.code[s] = OK
+        b = model.b[s if model.b.shape[0] > 1 else 0]
+        for k in range(T):
+            predict_sqrt(sw, mean, L, at(model.F, k), at(Qf, k), at(b, k), pm, pL)
+            if not_finite_factor(pm, pL, 0.0):
+                record(fail, s, PREDICTED_NOT_FINITE, k)
+                break
+            v = out.innovations[s, k] if keep_means else v0
+            ok, ll, mo = update_sqrt(w, sw, pm, pL, zs[s, k], at(model.H, k), at(Rf, k), model.d, model.angles,
+                                     mean, L, v)
+            if update_failed(fail, s, k, w, ok, mo, ok and not_finite_factor(mean, L, ll)):
+                break
+            total += ll
+            if keep_means:
+                copy1(out.means[s, k], mean)
+                copy1(out.predicted_means[s, k], pm)
+                out.nis[s, k] = nis(w, zs[s, k])
+            if keep_covs:
+                copy2(out.factors[s, k], L)
+                copy2(out.predicted_factors[s, k], pL)
+                square(L, out.covs[s, k])
+                square(pL, out.predicted_covs[s, k])
+                S = out.innovation_covs[s, k]
+                R_f = at(Rf, k)
+                for a in range(m):
+                    for c in range(a + 1):
+                        t = 0.0
+                        for j in range(n):
+                            t += sw.HL[a, j] * sw.HL[c, j]
+                        for j in range(m):
+                            t += R_f[a, j] * R_f[c, j]
+                        S[a, c] = t
+                        S[c, a] = t
+        out.loglik[s] = total
+        copy1(out.last_mean[s], mean)
+        square(L, cov0)
+        copy2(out.last_cov[s], cov0)
+    scratch[0][0] = 0.0  # alive until here
+
+
+KERNELS = (forward, forward_parallel, forward_sqrt)
 """The forward kernels (numba dispatchers); the backward ones are :mod:`._rts`'s."""
 
 # ---------------------------------------------------------------------------
@@ -209,15 +279,37 @@ def _run_forward(model, prior, zs, us, keep: str, smoothing: bool, target: np.nd
     return out
 
 
-def filter(lin, model, prior, zs, us, keep, target: np.ndarray | None = None) -> FilterResult:
+def filter(lin, model, prior, zs, us, keep, target: np.ndarray | None = None, form: str = "cov") -> FilterResult:
     """The Kalman filter over N series: `zs` (N, T, m), `us` (N, T, p) or None.
 
     Returns a FilterResult whose fields all carry the leading N axis; fields
     that `keep` leaves out are None and never allocated. With `target` (the
     stationary filtered covariance), the steady-state filter (see
-    kalman.SteadyState).
+    kalman.SteadyState); with ``form="sqrt"``, the square-root filter.
     """
+    if form == "sqrt":
+        return filter_result(_run_sqrt(model, prior, zs, us, keep))
     return filter_result(_run_forward(model, prior, zs, us, keep, smoothing=False, target=target))
+
+
+def _factors(stack: np.ndarray, name: str) -> np.ndarray:
+    """kalman.cov_factor of each matrix of a (T or 1, k, k) stack, read-only."""
+    return readonly(np.stack([cov_factor(a, name) for a in stack]))
+
+
+def _run_sqrt(model, prior, zs, us, keep: str) -> Outputs:
+    """Run the square-root kernel over the series `zs` (N, T, m); raise what a failed series would."""
+    zs = readonly(zs)
+    N, T, m = zs.shape
+    n = model.n
+    layout = _layout(model, us)
+    out = outputs(N, T, n, m, keep, False, sqrt=True)
+    fail = failures(N, m)
+    forward_sqrt(0, N, layout, _factors(layout.Q, "Q"), _factors(layout.R, "R"), zs, readonly(prior.mean),
+                 readonly(cov_factor(prior.cov, "the prior covariance")), out, fail, workspace(n, m),
+                 sqrt_workspace(n, m))
+    raise_failure(fail)
+    return out
 
 
 def smooth(lin, model, prior, zs, us) -> SmoothResult:

@@ -76,10 +76,10 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         transformations (:func:`gaussfuse.kalman.update_sqrt`), for
         problems where the covariance form loses its accuracy: a huge
         prior with a precise sensor, states on very different scales. The
-        result then also holds ``cov_factors``. For methods "kf" and "ekf",
-        on the readable path (``engine="numba"`` is an error, ``"auto"``
-        takes the readable path); a ``"diffuse"`` prior is for the
-        covariance form.
+        result then also holds ``cov_factors``. For methods "kf" and "ekf";
+        ``engine="numba"`` runs the "kf" filter compiled (the smoother and
+        "ekf" run on the readable path, and ``"auto"`` takes the readable
+        path); a ``"diffuse"`` prior is for the covariance form.
     steady : bool, default False
         The steady-state filter, for a time-invariant LinearModel (method
         "kf", covariance form): once a step's filtered covariance is within

@@ -319,10 +319,15 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     With `gains`, the Kalman gain of each step (readable path).
     """
     target = steady_state(model).cov if steady else None
-    readable = f"form={form!r}" if form != "cov" else "gains=True" if gains else None
+    sqrt_compiled = form == "sqrt" and spec.compiled == "linear"
+    readable = "gains=True" if gains else None if form == "cov" or sqrt_compiled else f"form={form!r}"
+    if sqrt_compiled and engine == "auto":
+        engine = "python"  # the compiled square-root filter only when asked for: its kernel is compiled apart
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
+        if form == "sqrt":
+            return compiled.filter(lin, model, prior, zs, us, keep, form="sqrt")
         if target is None:
             return compiled.filter(lin, model, prior, zs, us, keep)
         return compiled.filter(lin, model, prior, zs, us, keep, target)
