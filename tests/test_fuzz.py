@@ -9,10 +9,11 @@ filters and smoothers (both forms and both engines), the online filter and
 shapes are right, or raise ValueError or TypeError (numpy's LinAlgError and
 gaussfuse's ModelFunctionError are ValueErrors), or FloatingPointError for an
 overflow (documented, naming the step). Never another exception, and never
-NaN presented as a result.
+NaN presented as a result. Nonlinear models get functions that raise or
+return wrong shapes, NaN, inf, lists, strings, complex or boolean values.
 
-The suites run a fixed set of examples in CI. A longer, random search by
-hand::
+The suites run a fixed set of examples in CI (100-150 each, seconds in all).
+A longer, random search by hand::
 
     GAUSSFUSE_FUZZ_EXAMPLES=5000 python -m pytest tests/test_fuzz.py -p no:xdist
 """
@@ -20,6 +21,7 @@ hand::
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -29,7 +31,7 @@ from hypothesis import strategies as st
 import gaussfuse as gf
 
 _EXAMPLES = int(os.environ.get("GAUSSFUSE_FUZZ_EXAMPLES", "0"))
-FUZZ = settings(max_examples=_EXAMPLES or 60, deadline=None, derandomize=not _EXAMPLES,
+FUZZ = settings(max_examples=_EXAMPLES or 150, deadline=None, derandomize=not _EXAMPLES,
                 suppress_health_check=list(HealthCheck))
 CLEAR = (ValueError, TypeError, FloatingPointError)
 
@@ -185,7 +187,7 @@ def mangled(draw, text: str) -> str:
     return text
 
 
-@settings(FUZZ, max_examples=_EXAMPLES or 80)
+@settings(FUZZ, max_examples=_EXAMPLES or 100)
 @given(mangled(CSV), mangled(TOML), st.sampled_from(["", "--smooth"]), st.sampled_from(["out.csv", "new/out.csv",
                                                                                           ".", "out dir/é.csv"]))
 def test_the_cli_ends_in_output_or_one_line_and_exit_code_2(tmp_path_factory, capsys, csv_text, toml_text, smooth,
@@ -208,3 +210,67 @@ def test_the_cli_ends_in_output_or_one_line_and_exit_code_2(tmp_path_factory, ca
     else:
         lines = out.read_text().splitlines()
         assert len(lines) >= 2 and all("," in line for line in lines)
+
+
+# ---------------------------------------------------------------------------
+# Nonlinear models whose functions misbehave
+# ---------------------------------------------------------------------------
+
+BEHAVIOURS = ["fine", "raises", "wrong shape", "nan", "inf", "list", "string", "complex", "bool", "scalar", "huge",
+              "none", "sometimes nan"]
+
+
+def _function(kind: str, size: int, behaviour: str):
+    """A transition (kind "f", size n) or measurement (kind "h", size m) that behaves as named."""
+    def fn(x, *args):
+        x = np.asarray(x, dtype=float)
+        good = 0.9 * np.sin(x) if kind == "f" else np.cos(x[:size]) + 0.1 * x[:size]
+        if behaviour == "fine":
+            return good
+        if behaviour == "raises":
+            raise RuntimeError("the user's function failed")
+        if behaviour == "wrong shape":
+            return np.concatenate([good, [1.0]])
+        if behaviour == "nan":
+            return good * np.nan
+        if behaviour == "inf":
+            return good + np.inf
+        if behaviour == "list":
+            return list(good)
+        if behaviour == "string":
+            return "abc"
+        if behaviour == "complex":
+            return good + 1j
+        if behaviour == "bool":
+            return good > 0
+        if behaviour == "scalar":
+            return float(good[0])
+        if behaviour == "huge":
+            return good * 1e300
+        if behaviour == "none":
+            return None
+        return good if x.sum() > 0 else good * np.nan  # "sometimes nan"
+    return fn
+
+
+@settings(FUZZ, max_examples=_EXAMPLES or 100)
+@given(st.integers(1, 3), st.integers(1, 2), st.sampled_from(BEHAVIOURS), st.sampled_from(BEHAVIOURS),
+       st.sampled_from(["ekf", "iekf", "ukf", "ckf", "ghkf", "iplf"]), st.sampled_from(["filter", "smooth"]),
+       st.sampled_from(["python", "numba"]), st.integers(0, 2**32 - 1))
+def test_nonlinear_filters_end_in_a_result_or_a_clear_error(n, m, f_does, h_does, method, what, engine, seed):
+    """Whatever f and h do, a result with finite beliefs, or a clear error (ModelFunctionError is a ValueError)."""
+    rng = np.random.default_rng(seed)
+    model = gf.NonlinearModel(_function("f", n, f_does), _function("h", m, h_does), 0.1 * np.eye(n),
+                              0.2 * np.eye(m))
+    prior = gf.Gaussian(rng.normal(size=n), np.eye(n))
+    zs = rng.normal(size=(8, m))
+    if method in ("iekf", "iplf", "ekf") or engine == "numba" and method not in ("ukf", "ckf", "ghkf"):
+        engine = "python"
+    call = gf.filter if what == "filter" else gf.smooth
+    options = {"iterations": 5} if method in ("iekf", "iplf") else {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)  # 5 iterations: the limit may be reached
+        res = _try(lambda: call(model, prior, zs, method=method, engine=engine, check="off", **options))
+    if res is not None:
+        event("a result")
+        _finite_result(res, n)
