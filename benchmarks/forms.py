@@ -5,7 +5,7 @@
 Rows: the covariance form as `filter` runs it (reusing the covariance fixed
 point once reached), the covariance form computing every step (the same
 matrices given per step, a time-varying model, so no fixed point), and the
-square-root form (which has no fixed-point reuse yet); each with
+square-root form (which reuses its fixed point too); each with
 ``keep="all"`` and ``keep="last"``. Best of `--repeats` after a warm-up
 call; the ratio is the time against the covariance form computing every
 step with the same `keep`.

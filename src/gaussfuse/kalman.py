@@ -27,9 +27,10 @@ from ._linalg import (cho_solve, cholesky, eye, log_det, log_density, psd_solve,
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
-           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "Factors",
-           "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain", "Step", "SteadyState", "SETTLED",
-           "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite", "iterate_changed"]
+           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "SqrtGain",
+           "sqrt_gain", "Factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
+           "Step", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
+           "iterate_changed"]
 
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 
@@ -256,17 +257,30 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
 _covariance_half = gain  # `update` has a parameter named `gain`
 
 
-def apply_gain(g: Gain, mean: np.ndarray, z: np.ndarray, H: np.ndarray, d: np.ndarray | None = None,
-               angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The mean half of :func:`update`: the posterior mean, the innovation, the log-likelihood term and the NIS."""
+def _innovation(mean, z, H, d, angles, observed) -> tuple[np.ndarray, np.ndarray]:
+    """``z - (H m + d)``, wrapped for angles, and its observed components."""
     innovation = z - predict_mean(mean, H, d)
     if angles is not None:
         innovation = wrap_components(innovation, angles)
-    if g.factor is None:
+    return innovation, innovation if observed is None else innovation[observed]
+
+
+def apply_gain(g: Gain | SqrtGain, mean: np.ndarray, z: np.ndarray, H: np.ndarray, d: np.ndarray | None = None,
+               angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The mean half of :func:`update` and :func:`update_sqrt`: the posterior mean, the innovation, the
+    log-likelihood term and the NIS.
+
+    With a :class:`SqrtGain` the mean is :math:`m^- + \bar K (L_S^{-1} v)`, from the
+    factors; with a :class:`Gain`, :math:`m^- + K v`.
+    """
+    sqrt = isinstance(g, SqrtGain)
+    innovation, v = _innovation(mean, z, H, d, angles, g.observed)
+    L = g.factor_S if sqrt else g.factor
+    if L is None:
         return mean, innovation, 0.0, np.nan
-    v = innovation if g.observed is None else innovation[g.observed]
-    white = whiten(g.factor, v)
-    return mean + g.K @ v, innovation, float(log_density(white, g.factor, g.logdet)), float(white @ white)
+    white = whiten(L, v)
+    step = g.Kbar @ white if sqrt else g.K @ v
+    return mean + step, innovation, float(log_density(white, L, None if sqrt else g.logdet)), float(white @ white)
 
 
 def rts_step(
@@ -479,19 +493,47 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     (the square root of the covariances'), and :math:`L L^\top` is positive
     semi-definite and symmetric by construction.
     """
-    observed = observed_components(z)
+    g = sqrt_gain(factor, H, R_factor, observed_components(z))
+    post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, angles)
+    return SqrtUpdate(post_mean, g.factor, innovation, g.innovation_cov, loglik, g.K, nis)
+
+
+class SqrtGain(NamedTuple):
+    """The half of :func:`update_sqrt` that does not depend on the measured values (as :class:`Gain`).
+
+    Attributes
+    ----------
+    Kbar : ndarray of shape (n, m_o), or None
+        :math:`\bar K = P^- H_o^\top L_S^{-\top}` (None when nothing is observed).
+    factor_S : ndarray of shape (m_o, m_o), or None
+        :math:`L_S`.
+    factor : ndarray of shape (n, n)
+        The posterior factor L.
+    innovation_cov : ndarray of shape (m, m)
+    observed : ndarray of bool, or None
+    K : ndarray of shape (n, m_o), or None
+        :math:`\bar K L_S^{-1}`.
+    """
+
+    Kbar: np.ndarray | None
+    factor_S: np.ndarray | None
+    factor: np.ndarray
+    innovation_cov: np.ndarray
+    observed: np.ndarray | None
+    K: np.ndarray | None
+
+
+def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed: np.ndarray | None = None) -> SqrtGain:
+    """The factor half of :func:`update_sqrt` (see its Notes), over the `observed` components (all if None)."""
     HL = H @ factor
     innovation_cov = symmetrize(HL @ HL.T + R_factor @ R_factor.T)
-    innovation = z - predict_mean(mean, H, d)
-    if angles is not None:
-        innovation = wrap_components(innovation, angles)
     if observed is None:
-        HL_o, LR_o, v = HL, R_factor, innovation
+        HL_o, LR_o = HL, R_factor
     elif not observed.any():
-        return SqrtUpdate(mean, factor, innovation, innovation_cov, 0.0)
+        return SqrtGain(None, None, factor, innovation_cov, observed, None)
     else:
-        HL_o, LR_o, v = HL[observed], tria(R_factor[observed]), innovation[observed]
-    mo, n = v.shape[0], mean.shape[0]
+        HL_o, LR_o = HL[observed], tria(R_factor[observed])
+    mo, n = HL_o.shape[0], factor.shape[0]
     pre = np.zeros((mo + n, mo + n))
     pre[:mo, :LR_o.shape[1]] = LR_o
     pre[:mo, mo:] = HL_o
@@ -500,10 +542,9 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     L_S = post[:mo, :mo]
     if not np.all(np.diagonal(L_S) > 0.0):
         raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite")
-    e = whiten(L_S, v)
     Kbar = post[mo:, :mo]
-    return SqrtUpdate(mean + Kbar @ e, np.ascontiguousarray(post[mo:, mo:]), innovation, innovation_cov,
-                      float(log_density(e, L_S)), whiten(L_S.T, Kbar.T).T, float(e @ e))  # K = K̄ L_S⁻¹
+    return SqrtGain(Kbar, L_S, np.ascontiguousarray(post[mo:, mo:]), innovation_cov, observed,
+                    whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹
 
 
 def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.ndarray, next_factor: np.ndarray,
@@ -676,26 +717,50 @@ class Factors:
 
 
 def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors,
-                  angles=None) -> tuple[np.ndarray, np.ndarray]:
-    """The prediction of step k on factors: :func:`predict_sqrt` through ``lin.transition`` (see :func:`step_sqrt`)."""
+                  angles=None, steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction of step k on factors: :func:`predict_sqrt` through ``lin.transition`` (see :func:`step_sqrt`).
+
+    With `steady` (:class:`SteadyState`, holding factors), a factor at its
+    fixed point predicts to the fixed point's prediction.
+    """
     A, b, Q = lin.transition(k, mean, None)
-    pm, pL = predict_sqrt(mean, factor, A, factors("Q", Q), b)
+    if steady is not None and factor is steady.cov:
+        pm, pL = predict_mean(mean, A, b), steady.predicted_cov
+    else:
+        pm, pL = predict_sqrt(mean, factor, A, factors("Q", Q), b)
+        if steady is not None:
+            steady.previous, steady.predicted = factor, pL
     return (pm if angles is None else wrap_components(pm, angles)), pL
 
 
 def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, factors: Factors,
-                 state_angles=None, measurement_angles=None) -> SqrtUpdate:
-    """The update of step k on factors: :func:`update_sqrt` through ``lin.measurement`` (see :func:`step_sqrt`)."""
+                 state_angles=None, measurement_angles=None, steady: SteadyState | None = None) -> SqrtUpdate:
+    """The update of step k on factors: :func:`update_sqrt` through ``lin.measurement`` (see :func:`step_sqrt`).
+
+    With `steady`, the fixed point's gain is reused for the prediction it
+    made, and a fixed point is recorded when the posterior's covariance
+    ``L Lᵀ`` is the one the prediction started from (:meth:`SteadyState.holds`).
+    """
     H, d, R = lin.measurement(k, mean, None)
-    post = update_sqrt(mean, factor, z, H, factors("R", R), d, measurement_angles)
+    observed = observed_components(z)
+    reused = steady is not None and factor is steady.predicted_cov and _same(observed, steady.observed)
+    if reused:
+        g = steady.gain
+    else:
+        g = sqrt_gain(factor, H, factors("R", R), observed)
+        if (steady is not None and factor is steady.predicted
+                and steady.holds(g.factor @ g.factor.T, steady.previous @ steady.previous.T)):
+            steady.cov, steady.predicted_cov, steady.gain, steady.observed = g.factor, factor, g, observed
+    post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, measurement_angles)
     if state_angles is not None:
-        post = post._replace(mean=wrap_components(post.mean, state_angles))
+        post_mean = wrap_components(post_mean, state_angles)
+    post = SqrtUpdate(post_mean, g.factor, innovation, g.innovation_cov, loglik, g.K, nis)
     check_finite("filtered", post.mean, post.factor, post.loglik, factor=True)
     return post
 
 
 def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, factors: Factors,
-              state_angles=None, measurement_angles=None) -> Step:
+              state_angles=None, measurement_angles=None, steady: SteadyState | None = None) -> Step:
     r"""Step k of a square-root filter: :func:`forecast_sqrt`, then :func:`correct_sqrt`.
 
     As :func:`step` (one pass, for a strategy that does not read the
@@ -712,11 +777,11 @@ def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, 
     FloatingPointError
         When the prediction or the posterior is not finite.
     """
-    pm, pL = forecast_sqrt(lin, k, mean, factor, factors, state_angles)
+    pm, pL = forecast_sqrt(lin, k, mean, factor, factors, state_angles, steady)
     # Checked before the update: a prediction too large to square can still give a finite posterior
     # factor (all its precision lost), which the posterior's own check would not catch.
     check_finite("predicted", pm, pL, factor=True)
-    post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles)
+    post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles, steady)
     return Step(pm, pL, post, 1, True)
 
 
@@ -781,9 +846,14 @@ class SteadyState:
         self.target = target
         self.tol = SETTLED if tol is None else tol
 
-    def holds(self, cov: np.ndarray) -> bool:
-        """Whether the posterior `cov`, updated from :attr:`predicted`, is the one to hold (see the attributes)."""
-        return settled(cov, self.previous if self.target is None else self.target, self.tol)
+    def holds(self, cov: np.ndarray, previous: np.ndarray | None = None) -> bool:
+        """Whether the posterior `cov`, updated from :attr:`predicted`, is the one to hold (see the attributes).
+
+        `previous` is the covariance the prediction started from, when
+        :attr:`previous` holds its factor (the square-root form).
+        """
+        old = (self.previous if previous is None else previous) if self.target is None else self.target
+        return settled(cov, old, self.tol)
 
 
 SETTLED = 8.0 * np.finfo(float).eps

@@ -135,7 +135,8 @@ class KalmanFilter:
         self._controls.clear()
         self._controls[k] = u
         if self.form == "sqrt":
-            self._set(*self._run(kalman.forecast_sqrt, self._lin, k, self.belief.mean, self.L, self._roots))
+            self._set(*self._run(kalman.forecast_sqrt, self._lin, k, self.belief.mean, self.L, self._roots,
+                                 steady=self._steady))
         else:
             mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov,
                                   steady=self._steady)
@@ -152,7 +153,8 @@ class KalmanFilter:
         if z.shape != (m,):
             raise shape_error("z", f"({m},)", z.shape)
         if self.form == "sqrt":
-            post = self._run(kalman.correct_sqrt, self._lin, k, self.belief.mean, self.L, z, self._roots)
+            post = self._run(kalman.correct_sqrt, self._lin, k, self.belief.mean, self.L, z, self._roots,
+                             steady=self._steady)
             self._set(post.mean, post.factor)
         else:
             post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z,

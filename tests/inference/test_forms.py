@@ -250,3 +250,26 @@ def test_auto_runs_the_square_root_form_on_the_readable_path_and_numba_smooths_o
                                                               check="off").cov_factors)
     with pytest.raises(ValueError, match="cannot run form='sqrt'"):
         gf.smooth(model, prior, zs, form="sqrt", engine="numba")
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_the_square_root_filter_reuses_its_fixed_point(engine):
+    """A time-invariant model's factor settles; it is then reused: computing every step agrees to 1e-13.
+
+    Missing components leave the fixed point (a step computed in full) and
+    it is found again.
+    """
+    model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
+    prior = gf.Gaussian(np.zeros(4), 4 * np.eye(4))
+    T = 800
+    zs = np.cumsum(np.random.default_rng(0).normal(size=(T, 2)), axis=0) * 0.05
+    zs[400, 1] = np.nan
+    zs[500] = np.nan
+    every = gf.LinearModel(np.repeat(model.F[None], T, 0), model.H, model.Q, model.R)
+    fast = gf.filter(model, prior, zs, form="sqrt", engine=engine, check="off")
+    full = gf.filter(every, prior, zs, form="sqrt", engine=engine, check="off")
+    for name in ("means", "covs", "cov_factors", "predicted_covs", "innovations", "innovation_covs", "nis"):
+        a, b = getattr(fast, name), getattr(full, name)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * np.nanmax(np.abs(b)), err_msg=name)
+    assert fast.loglik == pytest.approx(full.loglik, rel=1e-13)
+    assert len({fast.cov_factors[k].tobytes() for k in range(T - 200, T)}) == 1  # held

@@ -36,6 +36,7 @@ one after the other.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -47,10 +48,10 @@ from . import _rts
 from ._dense import BLAS_FROM
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
-from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures, filter_result,
-                    fixed, hold_fixed, nis, not_finite, not_finite_mean, outputs, predict, predict_mean, raise_failure,
-                    not_finite_factor, predict_sqrt, record, record_not_pd, settled, smoother_gain, sqrt_workspace,
-                    square, steady_update, update, update_sqrt, workspace)
+from ._step import (FILTERED_NOT_FINITE, LOG_2PI, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures,
+                    filter_result, fixed, hold_fixed, innovate, nis, not_finite, not_finite_factor, not_finite_mean,
+                    outputs, predict, predict_mean, predict_sqrt, raise_failure, record, record_not_pd, settled,
+                    smoother_gain, sqrt_workspace, square, steady_update, update, update_sqrt, workspace)
 
 __all__ = ["filter", "smooth", "KERNELS"]
 
@@ -183,7 +184,10 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     `Qf` and `Rf` (T or 1, ·, ·) are the factors of Q and R, `L0` the
     prior's; `w` and `sw` the scratch (:func:`._step.workspace`,
     :func:`._step.sqrt_workspace`). Covariances are written as
-    ``sym(L Lᵀ)`` where kept, with the factors.
+    ``sym(L Lᵀ)`` where kept, with the factors. A time-invariant model's
+    steps reuse the fixed point once the covariance ``L Lᵀ`` settles
+    (kalman.SteadyState, as :func:`forward`): then only the means are
+    computed, with the held ``K̄`` and ``L_S``.
     """
     model, Qf, Rf, zs, m0, L0, out, fail, w, sw = borrow((model, Qf, Rf, zs, m0, L0, out, fail, w, sw))
     T = zs.shape[1]
@@ -191,29 +195,84 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     n = m0.shape[0]
     keep_means = out.means.shape[1] > 0
     keep_covs = out.covs.shape[1] > 0
-    scratch = (np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((n, n)))
-    mean, L, pm, pL, v0, cov0 = borrow(scratch)
+    invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and Qf.shape[0] == 1 and Rf.shape[0] == 1)
+    scratch = (np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((n, n)),
+               np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, m)), np.empty((m, m)),
+               np.zeros(m, dtype=np.bool_))
+    mean, L, pm, pL, v0, cov0, prevL, fxL, fxpL, fxK, fxLS, fxobs = borrow(scratch)
     for s in range(lo, hi):
         copy1(mean, m0)
         copy2(L, L0)
         total = 0.0
         fail.code[s] = OK
+        at_fixed = False
         b = model.b[s if model.b.shape[0] > 1 else 0]
         for k in range(T):
-            predict_sqrt(sw, mean, L, at(model.F, k), at(Qf, k), at(b, k), pm, pL)
-            if not_finite_factor(pm, pL, 0.0):
-                record(fail, s, PREDICTED_NOT_FINITE, k)
-                break
             v = out.innovations[s, k] if keep_means else v0
-            ok, ll, mo = update_sqrt(w, sw, pm, pL, zs[s, k], at(model.H, k), at(Rf, k), model.d, model.angles,
-                                     mean, L, v)
-            if update_failed(fail, s, k, w, ok, mo, ok and not_finite_factor(mean, L, ll)):
-                break
+            H = at(model.H, k)
+            z = zs[s, k]
+            reused = False
+            if at_fixed:  # the fixed point's prediction, and its gain when the same components are observed
+                predict_mean(mean, at(model.F, k), at(b, k), pm)
+                copy2(pL, fxpL)
+                same_obs = True
+                for a in range(m):
+                    if (z[a] == z[a]) != fxobs[a]:
+                        same_obs = False
+                if same_obs:
+                    mo = innovate(w, pm, z, H, model.d, model.angles, v)
+                    quad = 0.0
+                    logdet = 0.0
+                    for a in range(mo):
+                        t = v[w.obs[a]]
+                        for c in range(a):
+                            t -= fxLS[a, c] * w.white[c]
+                        t /= fxLS[a, a]
+                        w.white[a] = t
+                        quad += t * t
+                        logdet += math.log(fxLS[a, a])
+                    for i in range(n):
+                        t = 0.0
+                        for a in range(mo):
+                            t += fxK[i, a] * w.white[a]
+                        mean[i] = pm[i] + t
+                    ll = -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI) if mo else 0.0
+                    copy2(L, fxL)
+                    reused = True
+                    if not_finite_mean(mean, ll):
+                        record(fail, s, FILTERED_NOT_FINITE, k)
+                        break
+            if not reused:
+                copy2(prevL, L)  # the factor this step's prediction started from: the fixed point's test
+                if not at_fixed:
+                    predict_sqrt(sw, mean, L, at(model.F, k), at(Qf, k), at(b, k), pm, pL)
+                    if not_finite_factor(pm, pL, 0.0):
+                        record(fail, s, PREDICTED_NOT_FINITE, k)
+                        break
+                ok, ll, mo = update_sqrt(w, sw, pm, pL, z, H, at(Rf, k), model.d, model.angles, mean, L, v)
+                if update_failed(fail, s, k, w, ok, mo, ok and not_finite_factor(mean, L, ll)):
+                    break
+                at_fixed = False
+                if invariant and mo > 0:  # the fixed point's test, on the covariances L Lᵀ
+                    square(L, cov0)
+                    square(prevL, fxL)
+                    if settled(cov0, fxL, model.tol):
+                        copy2(fxL, L)
+                        copy2(fxpL, pL)
+                        for a in range(m):
+                            fxobs[a] = z[a] == z[a]
+                        for a in range(mo):
+                            for c in range(mo):
+                                fxLS[a, c] = sw.T[a, c]
+                            for i in range(n):
+                                fxK[i, a] = sw.T[mo + i, a]
+                        reused = True
+            at_fixed = reused
             total += ll
             if keep_means:
                 copy1(out.means[s, k], mean)
                 copy1(out.predicted_means[s, k], pm)
-                out.nis[s, k] = nis(w, zs[s, k])
+                out.nis[s, k] = nis(w, z)
             if keep_covs:
                 copy2(out.factors[s, k], L)
                 copy2(out.predicted_factors[s, k], pL)
@@ -225,7 +284,12 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                     for c in range(a + 1):
                         t = 0.0
                         for j in range(n):
-                            t += sw.HL[a, j] * sw.HL[c, j]
+                            t2 = 0.0
+                            t3 = 0.0
+                            for q in range(j, n):
+                                t2 += H[a, q] * pL[q, j]
+                                t3 += H[c, q] * pL[q, j]
+                            t += t2 * t3
                         for j in range(m):
                             t += R_f[a, j] * R_f[c, j]
                         S[a, c] = t

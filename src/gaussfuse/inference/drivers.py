@@ -94,14 +94,14 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     if sqrt:
         cov, roots = kalman.cov_factor(prior.cov, "the prior covariance"), kalman.Factors()
     steady = None
-    if getattr(lin, "invariant", False) and iterations == 1 and not sqrt:
+    if getattr(lin, "invariant", False) and iterations == 1:
         steady = kalman.SteadyState() if target is None else kalman.SteadyState(target, kalman.STEADY_TOL)
     k = 0
     try:
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step
             for k in range(T):
                 if sqrt:
-                    st = kalman.step_sqrt(lin, k, mean, cov, zs[k], roots, state_angles, measurement_angles)
+                    st = kalman.step_sqrt(lin, k, mean, cov, zs[k], roots, state_angles, measurement_angles, steady)
                     mean, cov = st.update.mean, st.update.factor
                 else:
                     st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles,
