@@ -19,27 +19,36 @@ def _to_float(a) -> np.ndarray:
     return np.array(a.tolist(), dtype=float)
 
 
+def _forward(F, H, Q, R, m0, P0, zs):
+    """The 50-digit filter's predictions and posteriors, as mpmath matrices (call inside ``mp.workdps(50)``).
+
+    predict m⁻ = F m, P⁻ = F P Fᵀ + Q; update with K = P⁻ Hᵀ (H P⁻ Hᵀ + R)⁻¹,
+    m = m⁻ + K (z - H m⁻), P = P⁻ - K H P⁻ (in 50 digits every form agrees).
+    Returns the transition F and the lists of (m⁻, P⁻) and (m, P).
+    """
+    F, H, Q, R = (mp.matrix(np.atleast_2d(a).tolist()) for a in (F, H, Q, R))
+    m = mp.matrix(np.asarray(m0, float).tolist())
+    P = mp.matrix(np.asarray(P0, float).tolist())
+    pred, filt = [], []
+    for z in np.asarray(zs, float).reshape(len(zs), -1):
+        pm, pP = F * m, F * P * F.T + Q
+        K = pP * H.T * mp.inverse(H * pP * H.T + R)
+        m = pm + K * (mp.matrix(z.tolist()) - H * pm)
+        P = pP - K * H * pP
+        P = (P + P.T) / 2
+        pred.append((pm, pP))
+        filt.append((m, P))
+    return F, pred, filt
+
+
 def filter_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
     """Filtered means (T, n) and covariances (T, n, n) of a time-invariant linear model, prior one step before z_1.
 
-    x_k = F x_{k-1} + w_k, w_k ~ N(0, Q); z_k = H x_k + v_k, v_k ~ N(0, R):
-    predict m⁻ = F m, P⁻ = F P Fᵀ + Q; update with K = P⁻ Hᵀ (H P⁻ Hᵀ + R)⁻¹,
-    m = m⁻ + K (z - H m⁻), P = P⁻ - K H P⁻ (in 50 digits every form agrees).
+    x_k = F x_{k-1} + w_k, w_k ~ N(0, Q); z_k = H x_k + v_k, v_k ~ N(0, R) (see :func:`_forward`).
     """
     with mp.workdps(50):
-        F, H, Q, R = (mp.matrix(np.atleast_2d(a).tolist()) for a in (F, H, Q, R))
-        m = mp.matrix(np.asarray(m0, float).tolist())
-        P = mp.matrix(np.asarray(P0, float).tolist())
-        means, covs = [], []
-        for z in np.asarray(zs, float).reshape(len(zs), -1):
-            m, P = F * m, F * P * F.T + Q
-            K = P * H.T * mp.inverse(H * P * H.T + R)
-            m = m + K * (mp.matrix(z.tolist()) - H * m)
-            P = P - K * H * P
-            P = (P + P.T) / 2
-            means.append(np.array(m.tolist(), dtype=float).ravel())
-            covs.append(np.array(P.tolist(), dtype=float))
-    return np.array(means), np.array(covs)
+        filt = _forward(F, H, Q, R, m0, P0, zs)[2]
+        return (np.array([_to_float(m).ravel() for m, _ in filt]), np.array([_to_float(P) for _, P in filt]))
 
 
 def smooth_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
@@ -49,18 +58,7 @@ def smooth_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
     P^s_k = P_k + G_k (P^s_{k+1} - P⁻_{k+1}) G_kᵀ, all in 50 digits.
     """
     with mp.workdps(50):
-        F, H, Q, R = (mp.matrix(np.atleast_2d(a).tolist()) for a in (F, H, Q, R))
-        m = mp.matrix(np.asarray(m0, float).tolist())
-        P = mp.matrix(np.asarray(P0, float).tolist())
-        filt, pred = [], []
-        for z in np.asarray(zs, float).reshape(len(zs), -1):
-            pm, pP = F * m, F * P * F.T + Q
-            K = pP * H.T * mp.inverse(H * pP * H.T + R)
-            m = pm + K * (mp.matrix(z.tolist()) - H * pm)
-            P = pP - K * H * pP
-            P = (P + P.T) / 2
-            filt.append((m, P))
-            pred.append((pm, pP))
+        F, pred, filt = _forward(F, H, Q, R, m0, P0, zs)
         sm_m, sm_P = filt[-1]
         means, covs = [_to_float(sm_m).ravel()], [_to_float(sm_P)]
         for k in range(len(filt) - 2, -1, -1):

@@ -226,14 +226,13 @@ class SqrtWork(NamedTuple):
     u: np.ndarray    # (2n + m,)  a Householder vector
     HL: np.ndarray   # (m, n)     H L⁻
     LRo: np.ndarray  # (m, m)     the factor of R_oo
-    e: np.ndarray    # (m,)       the whitened innovation L_S⁻¹ v
 
 
 @register_jitable
 def sqrt_workspace(n, m):
     """A :class:`SqrtWork` for n states and m measurement components."""
     return SqrtWork(np.zeros((n + m, 2 * n + m)), np.zeros((n + m, n + m)), np.empty(2 * n + m), np.empty((m, n)),
-                    np.zeros((m, m)), np.empty(m))
+                    np.zeros((m, m)))
 
 
 @register_jitable(**_JIT)
@@ -297,8 +296,8 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_
 
     Returns ``(ok, loglik, mo)``; ``ok`` is False when :math:`L_S` has a zero
     pivot (the innovation covariance of the observed components is
-    singular). Leaves :math:`H L^-` in ``sw.HL`` and the whitened innovation
-    in ``sw.e`` (and ``w.white``, for :func:`nis`).
+    singular). Leaves :math:`L_S` in ``w.L``, :math:`\bar K^\top` in ``w.Kt``
+    (what :func:`hold_fixed` keeps) and the whitened innovation in ``w.white``.
     """
     n = mean.shape[0]
     m = z.shape[0]
@@ -331,27 +330,20 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_
         for j in range(n):
             sw.M[mo + i, mo + j] = factor[i, j]
     tria(sw.M, q, q, sw.u, sw.T)
-    quad = 0.0
-    logdet = 0.0
     for a in range(mo):
         if not sw.T[a, a] > 0.0:
             return False, 0.0, mo
-        s = innovation[w.obs[a]]
-        for b in range(a):
-            s -= sw.T[a, b] * sw.e[b]
-        s /= sw.T[a, a]
-        sw.e[a] = s
-        w.white[a] = s
-        quad += s * s
-        logdet += math.log(sw.T[a, a])
+        w.v[a] = innovation[w.obs[a]]
+        for b in range(mo):
+            w.L[a, b] = sw.T[a, b]        # L_S
+        for i in range(n):
+            w.Kt[a, i] = sw.T[mo + i, a]  # K̄ᵀ
     for i in range(n):
-        s = 0.0
-        for a in range(mo):
-            s += sw.T[mo + i, a] * sw.e[a]
-        post_mean[i] = mean[i] + s
         for j in range(n):
             post_factor[i, j] = sw.T[mo + i, mo + j]
-    return True, -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI), mo
+    loglik = log_density(w.L, w.v, w.white, mo)  # w.white = L_S⁻¹ v
+    gain_mean(w.Kt, w.white, mean, post_mean, mo)  # m = m⁻ + K̄ L_S⁻¹ v
+    return True, loglik, mo
 
 
 @jit(inline="always", **_JIT)
@@ -502,8 +494,12 @@ def hold_fixed(fx, w, post_cov, pred_cov, S_full, z, mo):
 
 
 @jit(inline="always", **_JIT)
-def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation):
+def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation, factors=False):
     """:func:`update` of the fixed point's prediction ``fx.pred_cov``, reusing its gain: the means only.
+
+    With `factors` (the square-root form, whose :class:`Fixed` holds the
+    factors, :math:`\bar K^\top` and :math:`L_S`), the mean is
+    :math:`m^- + \bar K L_S^{-1} v`, as :func:`update_sqrt` computes it.
 
     Returns ``(reused, loglik)``; `reused` is False, and nothing is
     written, when the observed components of z are not the fixed point's
@@ -520,8 +516,9 @@ def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation):
     if mo == 0:  # as update: the prediction, copied
         copy1(post_mean, mean)
         return True, 0.0
-    gain_mean(fx.Kt, w.v, mean, post_mean, mo)
-    return True, log_density(fx.L, w.v, w.white, mo)
+    loglik = log_density(fx.L, w.v, w.white, mo)
+    gain_mean(fx.Kt, w.white if factors else w.v, mean, post_mean, mo)
+    return True, loglik
 
 
 @jit(inline="always", **_JIT)

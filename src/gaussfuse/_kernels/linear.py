@@ -36,7 +36,6 @@ one after the other.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -45,11 +44,11 @@ from numba import prange
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ..kalman import SETTLED, STEADY_TOL, cov_factor
 from . import _rts
-from ._dense import BLAS_FROM
+from ._dense import BLAS_FROM, congruence
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
-from ._step import (FILTERED_NOT_FINITE, LOG_2PI, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures,
-                    filter_result, fixed, hold_fixed, innovate, nis, not_finite, not_finite_factor, not_finite_mean,
+from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures,
+                    filter_result, fixed, hold_fixed, nis, not_finite, not_finite_factor, not_finite_mean,
                     outputs, predict, predict_mean, predict_sqrt, raise_failure, record, record_not_pd, settled,
                     smoother_gain, sqrt_workspace, square, steady_update, update, update_sqrt, workspace)
 
@@ -196,10 +195,10 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     keep_means = out.means.shape[1] > 0
     keep_covs = out.covs.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and Qf.shape[0] == 1 and Rf.shape[0] == 1)
-    scratch = (np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((n, n)),
-               np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, m)), np.empty((m, m)),
-               np.zeros(m, dtype=np.bool_))
-    mean, L, pm, pL, v0, cov0, prevL, fxL, fxpL, fxK, fxLS, fxobs = borrow(scratch)
+    # the fixed point (a Fixed holding factors, K̄ᵀ and L_S), and the step's belief and scratch
+    scratch = (fixed(n, m), np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m),
+               np.empty((n, n)), np.empty((n, n)))
+    fx, mean, L, pm, pL, v0, cov0, prevL = borrow(scratch)
     for s in range(lo, hi):
         copy1(mean, m0)
         copy2(L, L0)
@@ -214,31 +213,10 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
             reused = False
             if at_fixed:  # the fixed point's prediction, and its gain when the same components are observed
                 predict_mean(mean, at(model.F, k), at(b, k), pm)
-                copy2(pL, fxpL)
-                same_obs = True
-                for a in range(m):
-                    if (z[a] == z[a]) != fxobs[a]:
-                        same_obs = False
-                if same_obs:
-                    mo = innovate(w, pm, z, H, model.d, model.angles, v)
-                    quad = 0.0
-                    logdet = 0.0
-                    for a in range(mo):
-                        t = v[w.obs[a]]
-                        for c in range(a):
-                            t -= fxLS[a, c] * w.white[c]
-                        t /= fxLS[a, a]
-                        w.white[a] = t
-                        quad += t * t
-                        logdet += math.log(fxLS[a, a])
-                    for i in range(n):
-                        t = 0.0
-                        for a in range(mo):
-                            t += fxK[i, a] * w.white[a]
-                        mean[i] = pm[i] + t
-                    ll = -0.5 * (quad + 2.0 * logdet + mo * LOG_2PI) if mo else 0.0
-                    copy2(L, fxL)
-                    reused = True
+                copy2(pL, fx.pred_cov)
+                reused, ll = steady_update(fx, w, pm, z, H, model.d, model.angles, mean, v, True)
+                if reused:
+                    copy2(L, fx.cov)
                     if not_finite_mean(mean, ll):
                         record(fail, s, FILTERED_NOT_FINITE, k)
                         break
@@ -252,20 +230,11 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                 ok, ll, mo = update_sqrt(w, sw, pm, pL, z, H, at(Rf, k), model.d, model.angles, mean, L, v)
                 if update_failed(fail, s, k, w, ok, mo, ok and not_finite_factor(mean, L, ll)):
                     break
-                at_fixed = False
                 if invariant and mo > 0:  # the fixed point's test, on the covariances L Lᵀ
                     square(L, cov0)
-                    square(prevL, fxL)
-                    if settled(cov0, fxL, model.tol):
-                        copy2(fxL, L)
-                        copy2(fxpL, pL)
-                        for a in range(m):
-                            fxobs[a] = z[a] == z[a]
-                        for a in range(mo):
-                            for c in range(mo):
-                                fxLS[a, c] = sw.T[a, c]
-                            for i in range(n):
-                                fxK[i, a] = sw.T[mo + i, a]
+                    square(prevL, fx.cov)
+                    if settled(cov0, fx.cov, model.tol):
+                        hold_fixed(fx, w, L, pL, fx.S, z, mo)
                         reused = True
             at_fixed = reused
             total += ll
@@ -278,27 +247,13 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                 copy2(out.predicted_factors[s, k], pL)
                 square(L, out.covs[s, k])
                 square(pL, out.predicted_covs[s, k])
-                S = out.innovation_covs[s, k]
-                R_f = at(Rf, k)
-                for a in range(m):
-                    for c in range(a + 1):
-                        t = 0.0
-                        for j in range(n):
-                            t2 = 0.0
-                            t3 = 0.0
-                            for q in range(j, n):
-                                t2 += H[a, q] * pL[q, j]
-                                t3 += H[c, q] * pL[q, j]
-                            t += t2 * t3
-                        for j in range(m):
-                            t += R_f[a, j] * R_f[c, j]
-                        S[a, c] = t
-                        S[c, a] = t
+                # S = sym(H P⁻ Hᵀ + R), as the covariance form writes it
+                congruence(H, out.predicted_covs[s, k], at(model.R, k), out.innovation_covs[s, k], w.HP, m, n)
         out.loglik[s] = total
         copy1(out.last_mean[s], mean)
         square(L, cov0)
         copy2(out.last_cov[s], cov0)
-    scratch[0][0] = 0.0  # alive until here
+    scratch[1][0] = 0.0  # alive until here
 
 
 KERNELS = (forward, forward_parallel, forward_sqrt)
