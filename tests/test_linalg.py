@@ -136,3 +136,45 @@ def test_tria_of_a_positive_definite_root_is_its_cholesky_factor():
     C = np.linalg.cholesky(P)
     Qm = np.linalg.qr(np.random.default_rng(2).normal(size=(4, 4)))[0]
     np.testing.assert_allclose(_linalg.tria(C @ Qm), C, rtol=1e-12, atol=1e-14)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.integers(1, 6), st.integers(1, 3), st.integers(0, 2**32 - 1), st.sampled_from([1.0, 1e-150, 1e150]),
+       st.floats(0.0, 0.95))
+def test_downdate_is_a_lower_triangular_root_of_L_Lt_minus_V_Vt(n, r, seed, scale, size):
+    """Any scale; V taking away up to 95% of the smallest eigenvalue's worth; a zero variance is left exactly zero."""
+    rng = np.random.default_rng(seed)
+    L = _linalg.tria(scale * rng.normal(size=(n, n + 2)))
+    P = L @ L.T
+    # columns of V inside the ellipse: V Vᵀ ≤ size · P, so L Lᵀ - V Vᵀ stays positive definite
+    V = L @ rng.normal(size=(n, r))
+    V *= np.sqrt(size) / max(np.linalg.norm(np.linalg.solve(L, V), 2), 1e-300)
+    D = _linalg.downdate(L, V)
+    assert np.array_equal(D, np.tril(D)) and (np.diagonal(D) >= 0).all()
+    G = P - V @ V.T
+    np.testing.assert_allclose(D @ D.T, G, rtol=0, atol=1e-12 * np.abs(P).max())
+    # (the oracle, a Cholesky factorisation of the difference, when it exists)
+    if size < 0.9:
+        np.testing.assert_allclose(D, np.linalg.cholesky(G), rtol=1e-6, atol=1e-9 * np.sqrt(np.abs(P).max()))
+
+
+def test_downdate_leaves_untouched_components_and_refuses_an_indefinite_result():
+    L = np.array([[2.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.3, 1.0]])  # the second component: exactly the first's half
+    V = np.array([[1.0], [0.5], [0.2]])
+    D = _linalg.downdate(L, np.array([[0.0], [0.0], [0.5]]))
+    np.testing.assert_array_equal(D[:2], L[:2])
+    np.testing.assert_allclose(D @ D.T, L @ L.T - np.diag([0.0, 0.0, 0.25]), atol=1e-15)
+    D = _linalg.downdate(L, V)
+    np.testing.assert_allclose(D @ D.T, L @ L.T - V @ V.T, atol=1e-15)
+    with pytest.raises(np.linalg.LinAlgError, match="the predicted covariance is not positive definite"):
+        _linalg.downdate(L, 2.0 * V, "the predicted covariance")
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        _linalg.downdate(L, np.array([[0.0], [0.1], [0.0]]))  # a direction with no variance
+
+
+def test_factor_solve_is_exact_on_the_range_of_a_singular_factor():
+    L = np.array([[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.5, 0.3, 1.0]])
+    x = np.array([[1.0], [-2.0], [0.5]])
+    np.testing.assert_allclose(L @ _linalg.factor_solve(L, L @ x), L @ x, atol=1e-14)
+    full = np.tril(np.random.default_rng(3).normal(size=(3, 3))) + 3 * np.eye(3)
+    np.testing.assert_allclose(_linalg.factor_solve(full, x), np.linalg.solve(full, x), rtol=1e-13)

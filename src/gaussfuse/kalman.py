@@ -22,13 +22,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, eye, log_det, log_density, psd_solve, semidefinite_cholesky,
-                      sqrt_cov, symmetrize, tria, whiten, wrap_components)
+from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, psd_solve,
+                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, whiten, wrap_components)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
            "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "SqrtGain",
-           "sqrt_gain", "Factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
+           "sqrt_gain", "Factors", "transition_factors", "measurement_factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
            "Step", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
 
@@ -404,7 +404,7 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
 
 
 def predict_sqrt(mean: np.ndarray, factor: np.ndarray, A: np.ndarray, Q_factor: np.ndarray,
-                 b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 b: np.ndarray | None = None, Q_minus: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     r""":func:`predict` on factors: the prediction's mean and the Cholesky factor of its covariance.
 
     Parameters
@@ -416,6 +416,10 @@ def predict_sqrt(mean: np.ndarray, factor: np.ndarray, A: np.ndarray, Q_factor: 
     Q_factor : array of shape (n, q)
         :math:`L_Q` with :math:`Q = L_Q L_Q^\top` (:func:`cov_factor`).
     b : array of shape (n,), optional
+    Q_minus : array of shape (n, r), optional
+        :math:`D_Q`, when the noise is :math:`L_Q L_Q^\top - D_Q D_Q^\top`
+        (a sigma-point regression with negative weights,
+        :func:`gaussfuse.linearize.slr_sqrt`).
 
     Returns
     -------
@@ -432,13 +436,19 @@ def predict_sqrt(mean: np.ndarray, factor: np.ndarray, A: np.ndarray, Q_factor: 
 
     since :math:`[A L \;\, L_Q][A L \;\, L_Q]^\top = A P A^\top + Q`;
     ``tria`` (:func:`gaussfuse._linalg.tria`) triangularises by an
-    orthogonal transformation, so :math:`P^-` is never formed.
+    orthogonal transformation, so :math:`P^-` is never formed. With
+    :math:`D_Q`, :math:`L^-` is then downdated by its columns
+    (:func:`gaussfuse._linalg.downdate`, hyperbolic rotations).
     """
-    return predict_mean(mean, A, b), tria(np.concatenate([A @ factor, Q_factor], axis=1))
+    pL = tria(np.concatenate([A @ factor, Q_factor], axis=1))
+    if Q_minus is not None:
+        pL = downdate(pL, Q_minus, "the predicted covariance")
+    return predict_mean(mean, A, b), pL
 
 
 def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarray, R_factor: np.ndarray,
-                d: np.ndarray | None = None, angles: np.ndarray | None = None) -> SqrtUpdate:
+                d: np.ndarray | None = None, angles: np.ndarray | None = None,
+                R_minus: np.ndarray | None = None) -> SqrtUpdate:
     r""":func:`update` on factors: the array (QR) form of the measurement update.
 
     Parameters
@@ -450,11 +460,14 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     z : array of shape (m,)
         Measurement; NaN components are missing.
     H : array of shape (m, n)
-    R_factor : array of shape (m, m)
+    R_factor : array of shape (m, r)
         :math:`L_R` with :math:`R = L_R L_R^\top`.
     d : array of shape (m,), optional
     angles : array of bool, shape (m,), optional
         Components that are angles: their innovation is wrapped to [-π, π).
+    R_minus : array of shape (m, r'), optional
+        :math:`D_R`, when the noise is :math:`L_R L_R^\top - D_R D_R^\top`
+        (see :func:`predict_sqrt`).
 
     Returns
     -------
@@ -492,8 +505,13 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     factors, so the result is as accurate as the factors' own condition
     (the square root of the covariances'), and :math:`L L^\top` is positive
     semi-definite and symmetric by construction.
+
+    With :math:`D_R`, the triangularised post-array, a factor of the joint
+    covariance of the measurement and the state, is downdated by the
+    columns :math:`[D_{R,o};\, 0]` (:func:`gaussfuse._linalg.downdate`)
+    before its blocks are read.
     """
-    g = sqrt_gain(factor, H, R_factor, observed_components(z))
+    g = sqrt_gain(factor, H, R_factor, observed_components(z), R_minus)
     post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, angles)
     return SqrtUpdate(post_mean, g.factor, innovation, g.innovation_cov, loglik, g.K, nis)
 
@@ -523,22 +541,28 @@ class SqrtGain(NamedTuple):
     K: np.ndarray | None
 
 
-def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed: np.ndarray | None = None) -> SqrtGain:
+def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed: np.ndarray | None = None,
+              R_minus: np.ndarray | None = None) -> SqrtGain:
     """The factor half of :func:`update_sqrt` (see its Notes), over the `observed` components (all if None)."""
     HL = H @ factor
-    innovation_cov = symmetrize(HL @ HL.T + R_factor @ R_factor.T)
+    noise = R_factor @ R_factor.T if R_minus is None else R_factor @ R_factor.T - R_minus @ R_minus.T
+    innovation_cov = symmetrize(HL @ HL.T + noise)
+    D_o = R_minus
     if observed is None:
-        HL_o, LR_o = HL, R_factor
+        HL_o, LR_o = HL, (R_factor if R_factor.shape[1] <= R_factor.shape[0] else tria(R_factor))
     elif not observed.any():
         return SqrtGain(None, None, factor, innovation_cov, observed, None)
     else:
         HL_o, LR_o = HL[observed], tria(R_factor[observed])
+        D_o = None if R_minus is None else R_minus[observed]
     mo, n = HL_o.shape[0], factor.shape[0]
     pre = np.zeros((mo + n, mo + n))
     pre[:mo, :LR_o.shape[1]] = LR_o
     pre[:mo, mo:] = HL_o
     pre[mo:, mo:] = factor
     post = tria(pre)
+    if D_o is not None:
+        post = downdate(post, np.concatenate([D_o, np.zeros((n, D_o.shape[1]))]), "the innovation covariance")
     L_S = post[:mo, :mo]
     if not np.all(np.diagonal(L_S) > 0.0):
         raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite")
@@ -549,7 +573,8 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
 
 def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.ndarray, next_factor: np.ndarray,
                   A: np.ndarray, Q_factor: np.ndarray, b: np.ndarray | None = None,
-                  angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  angles: np.ndarray | None = None,
+                  Q_minus: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r""":func:`rts_step` on factors, for affine dynamics ``x_{k+1} = A x_k + b + w``, ``w ~ N(0, L_Q L_Qᵀ)``.
 
     Parameters
@@ -563,6 +588,9 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     b : array of shape (n,), optional
     angles : array of bool, shape (n,), optional
         State components that are angles: ``m^s_{k+1} - m^-_{k+1}`` is wrapped.
+    Q_minus : array of shape (n, r), optional
+        :math:`D_Q`, when the noise is :math:`L_Q L_Q^\top - D_Q D_Q^\top`:
+        the joint factor is downdated by :math:`[D_Q;\, 0]`.
 
     Returns
     -------
@@ -605,15 +633,13 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     pre[:n, :q] = Q_factor
     pre[:n, q:] = A @ filt_factor
     pre[n:, q:] = filt_factor
-    post = tria(pre) if q + n >= 2 * n else tria(np.concatenate([pre, np.zeros((2 * n, n - q))], axis=1))
+    post = tria(pre)
+    if Q_minus is not None:
+        post = downdate(post, np.concatenate([Q_minus, np.zeros((n, Q_minus.shape[1]))]), "the predicted covariance")
     pred_factor, Y, X = post[:n, :n], post[n:, :n], post[n:, n:]
     pred_mean = predict_mean(filt_mean, A, b)
     rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
-    if np.all(np.diagonal(pred_factor) > 0.0):
-        solved = whiten(pred_factor, rhs)                # (L⁻)⁻¹ [m^s - m⁻, L^s, I]
-    else:
-        solved = np.linalg.lstsq(pred_factor, rhs, rcond=None)[0]
-    steps = Y @ solved
+    steps = Y @ factor_solve(pred_factor, rhs)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
     mean = filt_mean + steps[:, 0]
     factor = tria(np.concatenate([X, steps[:, 1:n + 1]], axis=1))
     return mean, factor, steps[:, n + 1:]
@@ -716,6 +742,27 @@ class Factors:
         return self._factors[name]
 
 
+def transition_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors):
+    r"""Step k's transition for the square-root form: ``(A, b, L_Q, D_Q)``, the noise :math:`L_Q L_Q^\top - D_Q D_Q^\top`.
+
+    A strategy that reads the belief's covariance (sigma points) regresses
+    on its factor (``lin.transition_sqrt``); for the others, ``L_Q`` is the
+    factor of their Q (:class:`Factors`) and ``D_Q`` is None.
+    """
+    if hasattr(lin, "transition_sqrt"):
+        return lin.transition_sqrt(k, mean, factor, factors)
+    A, b, Q = lin.transition(k, mean, None)
+    return A, b, factors("Q", Q), None
+
+
+def measurement_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors):
+    """Step k's measurement for the square-root form: ``(H, d, L_R, D_R)`` (see :func:`transition_factors`)."""
+    if hasattr(lin, "measurement_sqrt"):
+        return lin.measurement_sqrt(k, mean, factor, factors)
+    H, d, R = lin.measurement(k, mean, None)
+    return H, d, factors("R", R), None
+
+
 def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors,
                   angles=None, steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The prediction of step k on factors: :func:`predict_sqrt` through ``lin.transition`` (see :func:`step_sqrt`).
@@ -723,11 +770,11 @@ def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Fa
     With `steady` (:class:`SteadyState`, holding factors), a factor at its
     fixed point predicts to the fixed point's prediction.
     """
-    A, b, Q = lin.transition(k, mean, None)
+    A, b, LQ, DQ = transition_factors(lin, k, mean, factor, factors)
     if steady is not None and factor is steady.cov:
         pm, pL = predict_mean(mean, A, b), steady.predicted_cov
     else:
-        pm, pL = predict_sqrt(mean, factor, A, factors("Q", Q), b)
+        pm, pL = predict_sqrt(mean, factor, A, LQ, b, DQ)
         if steady is not None:
             steady.previous, steady.predicted = factor, pL
     return (pm if angles is None else wrap_components(pm, angles)), pL
@@ -741,13 +788,13 @@ def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarra
     made, and a fixed point is recorded when the posterior's covariance
     ``L Lᵀ`` is the one the prediction started from (:meth:`SteadyState.holds`).
     """
-    H, d, R = lin.measurement(k, mean, None)
+    H, d, LR, DR = measurement_factors(lin, k, mean, factor, factors)
     observed = observed_components(z)
     reused = steady is not None and factor is steady.predicted_cov and _same(observed, steady.observed)
     if reused:
         g = steady.gain
     else:
-        g = sqrt_gain(factor, H, factors("R", R), observed)
+        g = sqrt_gain(factor, H, LR, observed, DR)
         if (steady is not None and factor is steady.predicted
                 and steady.holds(g.factor @ g.factor.T, steady.previous @ steady.previous.T)):
             steady.cov, steady.predicted_cov, steady.gain, steady.observed = g.factor, factor, g, observed

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gaussfuse._linalg import sqrt_cov as _sqrt_cov
-from gaussfuse.linearize import cubature, gauss_hermite, slr, unscented
+from gaussfuse.linearize import cubature, gauss_hermite, slr, slr_sqrt, unscented
 
 
 def sqrt_cov(cov):
@@ -192,3 +192,43 @@ def test_filters_refuse_a_gauss_hermite_order_too_large(method):
     with pytest.raises(ValueError, match=r"^`order` = 100 in n = 4 dimensions would give order\*\*n = 100,000,000 "
                                          r"sigma points"):
         gf.smooth(model, prior, [1.0], method=method, order=100)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 5), d=st.integers(1, 3), alpha=st.sampled_from([1.0, 0.5, 1e-2]))
+def test_slr_on_a_factor_is_slr(seed, n, d, alpha):
+    """slr_sqrt: the same A and b, and Ω = Ω₊Ω₊ᵀ - Ω₋Ω₋ᵀ, with Ω₋ exactly where a weight is negative."""
+    rng = np.random.default_rng(seed)
+    mean, cov = _random_gaussian(rng, n)
+    W = rng.standard_normal((d, n))
+    g = lambda X: np.sin(X @ W.T) + 0.1 * (X @ W.T) ** 2  # noqa: E731
+    for rule in (unscented(n, alpha=alpha), cubature(n), gauss_hermite(n, 3)):
+        A, b, omega = slr(g, rule, mean, cov)
+        A2, b2, plus, minus = slr_sqrt(g, rule, mean, np.linalg.cholesky(cov))
+        scale = max(1.0, np.abs(A).max())
+        np.testing.assert_allclose(A2, A, rtol=1e-9, atol=1e-9 * scale)
+        np.testing.assert_allclose(b2, b, rtol=1e-9, atol=1e-9 * scale)
+        assert (minus is None) == bool((rule.wc >= 0).all())
+        got = plus @ plus.T - (0.0 if minus is None else minus @ minus.T)
+        np.testing.assert_allclose(got, omega, rtol=1e-7, atol=1e-9 * max(1.0, np.abs(plus).max() ** 2))
+
+
+def test_slr_on_a_factor_of_an_affine_map_leaves_no_residual():
+    """A linear g: residuals at round-off are zero, so nothing is downdated even with a negative weight."""
+    rng = np.random.default_rng(5)
+    mean, cov = 1e6 + rng.normal(size=4), np.diag([1e-6, 1.0, 1e6, 1.0])
+    F = rng.normal(size=(3, 4))
+    A, b, plus, minus = slr_sqrt(lambda X: X @ F.T + 2.0, unscented(4), mean, np.linalg.cholesky(cov))
+    np.testing.assert_allclose(A, F, rtol=1e-6)  # points 1e-3 apart on 1e6 are quantised to 1e-10: 1e-7 of a slope
+    assert not plus.any() and not minus.any()
+
+
+def test_slr_on_a_singular_factor_regresses_on_its_range():
+    """A factor with a zero on its diagonal (a component known exactly): A L = Ξᵀ still holds."""
+    L = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.5, 0.0, 2.0]])
+    g = lambda X: np.stack([np.sin(X[:, 0]) * X[:, 2], X[:, 1] ** 2], axis=1)  # noqa: E731
+    A, b, plus, minus = slr_sqrt(g, cubature(3), np.array([0.3, 1.0, -0.5]), L)
+    A_ref, b_ref, omega = slr(g, cubature(3), np.array([0.3, 1.0, -0.5]), L @ L.T)
+    np.testing.assert_allclose(A @ L, A_ref @ L, atol=1e-12)
+    np.testing.assert_allclose(plus @ plus.T, omega, atol=1e-12)
+    assert minus is None

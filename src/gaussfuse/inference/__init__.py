@@ -76,10 +76,15 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         transformations (:func:`gaussfuse.kalman.update_sqrt`), for
         problems where the covariance form loses its accuracy: a huge
         prior with a precise sensor, states on very different scales. The
-        result then also holds ``cov_factors``. For methods "kf" and "ekf";
+        result then also holds ``cov_factors``. For the one-pass methods
+        "kf", "ekf", "ukf", "ckf" and "ghkf": the sigma-point methods
+        regress on the factor (:func:`gaussfuse.linearize.slr_sqrt`) and
+        downdate it, by hyperbolic rotations, where a weight is negative
+        (the unscented rule's centre past three states).
         ``engine="numba"`` runs the "kf" filter compiled (the smoother and
-        "ekf" run on the readable path, and ``"auto"`` takes the readable
-        path); a ``"diffuse"`` prior is for the covariance form.
+        the nonlinear methods run on the readable path, and ``"auto"``
+        takes the readable path); a ``"diffuse"`` prior is for the
+        covariance form.
     steady : bool, default False
         The steady-state filter, for a time-invariant LinearModel (method
         "kf", covariance form): once a step's filtered covariance is within

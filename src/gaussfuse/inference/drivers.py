@@ -173,9 +173,9 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
         with np.errstate(over="ignore", invalid="ignore"):
             for j in range(means.shape[0] - 2, -1, -1):
                 if sqrt:
-                    A, b, Q = lin.transition(j + first, means[j], None)
+                    A, b, LQ, DQ = kalman.transition_factors(lin, j + first, means[j], covs[j], roots)
                     sm_means[j], sm_covs[j], gains[j] = kalman.rts_step_sqrt(
-                        means[j], covs[j], sm_means[j + 1], sm_covs[j + 1], A, roots("Q", Q), b, state_angles)
+                        means[j], covs[j], sm_means[j + 1], sm_covs[j + 1], A, LQ, b, state_angles, DQ)
                 else:
                     A, b, Q = lin.transition(j + first, means[j], covs[j])
                     pred_mean, pred_cov = kalman.predict(means[j], covs[j], A, Q, b)

@@ -53,7 +53,8 @@ class Method(NamedTuple):
         (its ``filter`` and ``smooth``; see :mod:`gaussfuse._kernels`).
     forms : tuple of str
         The forms of the algebra it runs in (:data:`FORMS`): ``"cov"``, and
-        ``"sqrt"`` where its linearisation does not read the covariance.
+        ``"sqrt"`` for the one-pass methods (an iterated update re-linearises
+        at each pass, which the square-root step does not).
     """
 
     name: str
@@ -88,12 +89,12 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method(name="iekf", model_types=(NonlinearModel,), strategy=Taylor, options=_ITERATED, iterated=True,
            description="iterated EKF / iterated extended (Gauss-Newton) smoother"),
     Method(name="ukf", model_types=(NonlinearModel,), strategy=_sigma_points(unscented),
-           options={"alpha": 1.0, "beta": 0.0, "kappa": None}, compiled="sigma_points",
+           options={"alpha": 1.0, "beta": 0.0, "kappa": None}, compiled="sigma_points", forms=FORMS,
            description="unscented Kalman filter / unscented RTS smoother"),
-    Method(name="ckf", model_types=(NonlinearModel,), strategy=_sigma_points(cubature), compiled="sigma_points",
+    Method(name="ckf", model_types=(NonlinearModel,), strategy=_sigma_points(cubature), compiled="sigma_points", forms=FORMS,
            description="cubature Kalman filter / cubature RTS smoother"),
     Method(name="ghkf", model_types=(NonlinearModel,), strategy=_sigma_points(gauss_hermite),
-           options={"order": 3}, compiled="sigma_points",
+           options={"order": 3}, compiled="sigma_points", forms=FORMS,
            description="Gauss-Hermite Kalman filter / RTS smoother"),
     Method(name="iplf", model_types=(NonlinearModel,), strategy=_sigma_points(gauss_hermite),
            options={**_ITERATED, "order": 3}, iterated=True,

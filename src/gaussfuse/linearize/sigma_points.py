@@ -67,7 +67,7 @@ import numpy as np
 from .._linalg import circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten, wrap_angle
 from .rules import SigmaRule, unscented
 
-__all__ = ["SigmaPoints", "slr"]
+__all__ = ["SigmaPoints", "slr", "slr_sqrt"]
 
 
 def slr(
@@ -116,19 +116,96 @@ def slr(
     [0.96631]
     """
     L, keep = sqrt_cov(cov)
-    X = mean + rule.points @ L.T
-    Y = g(X)
+    y_mean, dY = _spread(g, rule, mean, L, angles)
+    S = (dY * rule.wc[:, None]).T @ dY
+    Xi = (rule.points[:, keep] * rule.wc[:, None]).T @ dY  # C = L Ξ, over the nonzero columns
+    A = np.zeros((dY.shape[1], mean.shape[0]))
+    A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
+    return A, y_mean - A @ mean, symmetrize(S - Xi.T @ Xi)
+
+
+def _spread(g, rule: SigmaRule, mean: np.ndarray, L: np.ndarray, angles) -> tuple[np.ndarray, np.ndarray]:
+    """``ȳ`` and the rows ``δY_i = g(m + L ξ_i) - ȳ`` (angles: circular mean, wrapped residuals)."""
+    Y = g(mean + rule.points @ L.T)
     y_mean = weighted_mean(Y, rule.wm)
     dY = Y - y_mean
     if angles is not None and angles.any():
         ref = Y[0, angles]  # centred, as weighted_mean: a constant angle is its own mean, exactly
         y_mean[angles] = ref + circular_mean(Y[:, angles] - ref, rule.wm)
         dY[:, angles] = wrap_angle(Y[:, angles] - y_mean[angles])
-    S = (dY * rule.wc[:, None]).T @ dY
-    Xi = (rule.points[:, keep] * rule.wc[:, None]).T @ dY  # C = L Ξ, over the nonzero columns
-    A = np.zeros((dY.shape[1], mean.shape[0]))
-    A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
-    return A, y_mean - A @ mean, symmetrize(S - Xi.T @ Xi)
+    return y_mean, dY
+
+
+def slr_sqrt(
+    g: Callable[[np.ndarray], np.ndarray],
+    rule: SigmaRule,
+    mean: np.ndarray,
+    factor: np.ndarray,
+    angles: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    r""":func:`slr` on a Cholesky factor: the affine map, and the regression error as factor columns.
+
+    Parameters
+    ----------
+    g, rule, mean, angles :
+        As :func:`slr`.
+    factor : ndarray of shape (n, n)
+        Lower-triangular :math:`L`, :math:`P = L L^\top`; it draws the points.
+
+    Returns
+    -------
+    A : ndarray of shape (d, n)
+    b : ndarray of shape (d,)
+    Omega_plus : ndarray of shape (d, k₊)
+    Omega_minus : ndarray of shape (d, k₋), or None
+        :math:`\Omega = \Omega_+ \Omega_+^\top - \Omega_- \Omega_-^\top`;
+        None when no weight is negative.
+
+    Notes
+    -----
+    The residual of point i about the regression line is, with
+    :math:`A L = \Xi^\top`,
+
+    .. math::
+
+        e_i = \delta\mathcal Y_i - A (\mathcal X_i - m) = \delta\mathcal Y_i - \Xi^\top \xi_i,
+
+    and since the unit points have :math:`\sum_i w^c_i \xi_i \xi_i^\top = I`,
+    :math:`\sum_i w^c_i e_i e_i^\top = S - \Xi^\top \Xi = \Omega`. So
+    :math:`\Omega`'s square root is the columns :math:`\sqrt{w^c_i}\, e_i`
+    for the positive weights, less the outer products of
+    :math:`\sqrt{-w^c_i}\, e_i` for the negative ones (the unscented
+    rule's centre point when :math:`\lambda < 0`, as for its default
+    :math:`\kappa = 3 - n` past three states). :math:`\Omega` is never formed
+    as a difference of two large terms. Where :math:`L` is singular (a
+    zero on its diagonal), :math:`A` is the minimum-norm solution of
+    :math:`A L = \Xi^\top`, with each state component scaled to unit
+    variance so that the cut-off does not depend on units.
+
+    A residual within the round-off of the points and outputs,
+    :math:`|e_{ij}| \le 4 k \epsilon\, (|A| (|m| + |L \xi_i|) + |\delta\mathcal Y_i| + |\bar y|)_j`
+    for k points, is set to 0: it is not information about g's curvature,
+    and for a linear g (all residuals at round-off) it would otherwise leave
+    an indefinite :math:`\Omega` of round-off size to downdate.
+    """
+    y_mean, dY = _spread(g, rule, mean, factor, angles)
+    wc, points = rule.wc, rule.points
+    Xi = (points * wc[:, None]).T @ dY                 # C = L Ξ
+    diag = np.diagonal(factor)
+    if np.all(diag > 0.0):
+        A = whiten(factor.T, Xi).T                      # Aᵀ = L⁻ᵀ Ξ: back substitution
+    else:
+        scale = np.linalg.norm(factor, axis=1)          # √P_jj
+        unit = np.where(scale > 0.0, scale, 1.0)
+        A = (np.linalg.lstsq(factor.T / unit, Xi, rcond=None)[0] / unit[:, None]).T
+    E = dY - points @ Xi                                # e_i = δY_i - Ξᵀ ξ_i, by rows
+    # Residuals at the round-off of the points and outputs are zero: a linear g leaves none to downdate.
+    size = (np.abs(mean) + np.abs(points @ factor.T)) @ np.abs(A).T + np.abs(dY) + np.abs(y_mean)
+    E[np.abs(E) <= 4 * len(wc) * np.finfo(np.float64).eps * size] = 0.0
+    plus, minus = wc > 0.0, wc < 0.0
+    Omega_plus = (E[plus] * np.sqrt(wc[plus])[:, None]).T
+    Omega_minus = (E[minus] * np.sqrt(-wc[minus])[:, None]).T if minus.any() else None
+    return A, y_mean - A @ mean, Omega_plus, Omega_minus
 
 
 class SigmaPoints:
@@ -163,3 +240,16 @@ class SigmaPoints:
         m = self.model
         H, d, omega = slr(m.measurement, self.rule, mean, cov, m.measurement_angles)
         return H, d, m.noise(k)[1] + omega
+
+    def transition_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
+        """``(A, b, [L_Q  Ω₊], Ω₋)`` from the regression of f on the factor (:func:`slr_sqrt`)."""
+        m = self.model
+        u = None if self.us is None else self.us[k]
+        A, b, plus, minus = slr_sqrt(lambda X: m.transition(X, u), self.rule, mean, factor, m.state_angles)
+        return A, b, np.concatenate([factors("Q", m.noise(k)[0]), plus], axis=1), minus
+
+    def measurement_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
+        """``(H, d, [L_R  Ω₊], Ω₋)`` from the regression of h on the factor (:func:`slr_sqrt`)."""
+        m = self.model
+        H, d, plus, minus = slr_sqrt(m.measurement, self.rule, mean, factor, m.measurement_angles)
+        return H, d, np.concatenate([factors("R", m.noise(k)[1]), plus], axis=1), minus
