@@ -491,9 +491,9 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
     plain = gf.NonlinearModel(f_plain, h_plain, Q, R)
     vec = gf.NonlinearModel(f_vec, h_vec, Q, R, vectorized=True)
 
-    def gaussfuse_ukf(model, eng):
+    def gaussfuse_ukf(model, eng, form="cov"):
         def run(n):
-            r = gf.filter(model, prior, zs[:n], engine=eng, **opts)
+            r = gf.filter(model, prior, zs[:n], engine=eng, form=form, **opts)
             return {"means": r.means, "covs": r.covs}
 
         def actual_mode():  # the sigma-point engine's mode for this model ("compiled" or "python")
@@ -537,6 +537,11 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
                    gaussfuse_ukf(plain, "python"), T, T))
     E.append(Entry("gaussfuse engine=\"python\", vectorized f, h", "gaussfuse",
                    gaussfuse_ukf(vec, "python"), T, T))
+    # the square-root UKF: kappa = -1 gives the centre point a negative weight, so each step downdates
+    E.append(Entry("gaussfuse engine=\"python\", form=\"sqrt\", plain Python f, h", "gaussfuse",
+                   gaussfuse_ukf(plain, "python", "sqrt"), T, T))
+    E.append(Entry("gaussfuse engine=\"python\", form=\"sqrt\", vectorized f, h", "gaussfuse",
+                   gaussfuse_ukf(vec, "python", "sqrt"), T, T))
     reference = _cached(gaussfuse_ukf(plain, "python"))
     return Workload(
         "W4", "unscented Kalman filter, range-bearing",
