@@ -165,6 +165,37 @@ def test_fuse_ends_in_a_gaussian_or_a_clear_error(m1, c1, m2, c2):
 # The command line: malformed files and odd paths
 # ---------------------------------------------------------------------------
 
+@settings(FUZZ, max_examples=_EXAMPLES or 60)
+@given(problems(), st.sampled_from(["em", "mle"]),
+       st.sampled_from([("Q", "R"), ("F",), ("H", "R"), ("m0", "P0"), ("Q",), ("R",)]),
+       st.sampled_from([None, {"Q": "diagonal"}, {"R": "scalar"}]), st.sampled_from([1, 3]))
+def test_fit_ends_in_a_finite_model_or_a_clear_error(problem, method, learn, structure, iterations):
+    """`fit` on the same random problems: a model whose matrices and log-likelihood are finite, or a clear error."""
+    n, m, F, H, Q, R, mean, cov, zs = problem
+    model = _try(lambda: gf.LinearModel(F, H, Q, R))
+    prior = _try(lambda: gf.Gaussian(mean, cov))
+    if model is None or prior is None:
+        return
+    if structure is not None and not set(structure) <= set(learn):
+        structure = None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)  # a few iterations on purpose
+        fit = _try(lambda: gf.fit(model, prior, zs, learn=learn, method=method, structure=structure,
+                                  iterations=iterations, engine="python"))
+    if fit is not None:
+        event("a fitted model")
+        assert np.isfinite(fit.loglik) and np.all(np.isfinite(fit.history))
+        for name in ("F", "H", "Q", "R"):
+            value = getattr(fit.model, name)
+            assert np.all(np.isfinite(value)), f"fitted {name} holds NaN or inf"
+        for name in ("Q", "R"):
+            value = getattr(fit.model, name)
+            np.testing.assert_array_equal(value, np.swapaxes(value, -1, -2))
+            assert np.linalg.eigvalsh(value).min() >= -1e-9 * max(1.0, np.abs(value).max()), name
+        assert np.all(np.isfinite(fit.prior.mean)) and np.all(np.isfinite(fit.prior.cov))
+        assert all(np.isfinite(v) for v in fit.params.values())
+
+
 CSV = "t,x,y\n0.0,1.0,2.0\n0.5,1.5,\n1.0,nan,2.5\n1.5,2.5,3.0\n"
 TOML = '[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.3\nr = 0.2\n\n[prior]\nvar = 2.0\n'
 GARBAGE = ["", ",", ",,", "x", "1e999", "-inf", "nan", "\x00", "é", '"', "[", "]", "=", "\n", "0x10", "1,2,3,4",
@@ -212,6 +243,41 @@ def test_the_cli_ends_in_output_or_one_line_and_exit_code_2(tmp_path_factory, ca
         assert len(lines) >= 2 and all("," in line for line in lines)
 
 
+FIT_TOML = ('[model]\nF = [[1.0, 1.0], [0.0, 1.0]]\nH = [[1.0, 0.0], [0.0, 1.0]]\nQ = [[0.25, 0.5], [0.5, 1.0]]\n'
+            'R = [[4.0, 0.0], [0.0, 4.0]]\n\n[prior]\nmean = [0.0, 1.0]\nvar = 10.0\n')
+
+
+@settings(FUZZ, max_examples=_EXAMPLES or 60)
+@given(mangled(CSV), mangled(FIT_TOML), st.sampled_from(["Q,R", "R", "F,Q", "q,r", "m0,P0", "", "Q,Q,R"]),
+       st.sampled_from(["em", "mle"]), st.sampled_from(["fitted.toml", "new/fitted.toml", ".", "é dir/f.toml"]))
+def test_cli_fit_ends_in_a_model_file_or_one_line_and_exit_code_2(tmp_path_factory, capsys, csv_text, toml_text,
+                                                                    learn, method, out_name):
+    """`gaussfuse fit` on mangled input: exit 0 or 3 with a complete model file, or exit 2, one line and no file."""
+    import tomllib
+
+    from gaussfuse.cli import main
+
+    where = tmp_path_factory.mktemp("fit")
+    data, model, out = where / "data.csv", where / "model.toml", where / out_name
+    data.write_text(csv_text, encoding="utf-8")
+    model.write_text(toml_text, encoding="utf-8")
+    before = set(where.rglob("*"))
+    code = main(["fit", str(data), "--model", str(model), "--out", str(out), "--learn", learn, "--method", method,
+                 "--iterations", "3", "--engine", "python"])
+    stdout, err = capsys.readouterr()
+    event(f"exit status {code}")
+    assert code in (0, 2, 3), (code, err)
+    if code == 2:
+        assert err.startswith("gaussfuse: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+        assert set(where.rglob("*")) == before, "a file was left behind"
+    else:
+        if code == 3:  # (progress lines come first on stderr)
+            assert err.splitlines()[-1].startswith("gaussfuse: warning: ") and "Traceback" not in err, err
+        fitted = tomllib.loads(out.read_text(encoding="utf-8"))
+        for name in ("F", "H", "Q", "R"):
+            assert np.all(np.isfinite(np.array(fitted["model"][name], dtype=float))), name
+
+
 # ---------------------------------------------------------------------------
 # Nonlinear models whose functions misbehave
 # ---------------------------------------------------------------------------
@@ -256,7 +322,7 @@ def _function(kind: str, size: int, behaviour: str):
 @settings(FUZZ, max_examples=_EXAMPLES or 100)
 @given(st.integers(1, 3), st.integers(1, 2), st.sampled_from(BEHAVIOURS), st.sampled_from(BEHAVIOURS),
        st.sampled_from(["ekf", "iekf", "ukf", "ckf", "ghkf", "iplf"]), st.sampled_from(["filter", "smooth"]),
-       st.sampled_from(["python", "numba"]), st.integers(0, 2**32 - 1))
+       st.sampled_from(["python", "numba", "sqrt"]), st.integers(0, 2**32 - 1))
 def test_nonlinear_filters_end_in_a_result_or_a_clear_error(n, m, f_does, h_does, method, what, engine, seed):
     """Whatever f and h do, a result with finite beliefs, or a clear error (ModelFunctionError is a ValueError)."""
     rng = np.random.default_rng(seed)
@@ -264,13 +330,14 @@ def test_nonlinear_filters_end_in_a_result_or_a_clear_error(n, m, f_does, h_does
                               0.2 * np.eye(m))
     prior = gf.Gaussian(rng.normal(size=n), np.eye(n))
     zs = rng.normal(size=(8, m))
-    if method in ("iekf", "iplf", "ekf") or engine == "numba" and method not in ("ukf", "ckf", "ghkf"):
+    form = "sqrt" if engine == "sqrt" and method in gf.METHODS and "sqrt" in gf.METHODS[method].forms else "cov"
+    if method in ("iekf", "iplf", "ekf") or engine != "numba" or method not in ("ukf", "ckf", "ghkf"):
         engine = "python"
     call = gf.filter if what == "filter" else gf.smooth
     options = {"iterations": 5} if method in ("iekf", "iplf") else {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", gf.ConvergenceWarning)  # 5 iterations: the limit may be reached
-        res = _try(lambda: call(model, prior, zs, method=method, engine=engine, check="off", **options))
+        res = _try(lambda: call(model, prior, zs, method=method, engine=engine, form=form, check="off", **options))
     if res is not None:
         event("a result")
         _finite_result(res, n)

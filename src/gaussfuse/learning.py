@@ -1070,6 +1070,20 @@ def _check_tol(tol) -> float:
     return float(tol)
 
 
+def _check_fitted(model: LinearModel, prior, history: np.ndarray, values: np.ndarray) -> None:
+    """Raise FloatingPointError when a fit ended in a non-finite model or log-likelihood (an overflow)."""
+    parts = {"the log-likelihood": history[-1:], "the learned parameters": values,
+             **{name: getattr(model, name) for name in ("F", "H", "Q", "R")}}
+    if not isinstance(prior, str):
+        parts.update({"m0": prior.mean, "P0": prior.cov})
+    bad = [name for name, value in parts.items() if value is not None and not np.all(np.isfinite(value))]
+    if bad:
+        raise FloatingPointError(
+            f"the fit overflowed: {', '.join(bad)} {'is' if len(bad) == 1 else 'are'} not finite. The measurements "
+            "or the model's matrices are too large or too small for float64; rescale them (for example to units "
+            "in which the measurements are of order 1).")
+
+
 def fit(
     model: LinearModel,
     prior: Gaussian | str,
@@ -1155,6 +1169,9 @@ def fit(
     ValueError, TypeError
         For invalid arguments, data with no observed value, or a diffuse
         state the data do not identify.
+    FloatingPointError
+        When the fit overflows (measurements or matrices near float64's
+        limits): the message names what is not finite.
 
     Examples
     --------
@@ -1211,26 +1228,29 @@ def fit(
         if method == "mle":
             build = _Parametrisation(model, prior, learn, structure)
             theta0 = build.encode()
-    if method == "em":
-        model, prior, history, converged, message = _em(model, prior, zs, us, learn, structure, iterations,
-                                                        tol, callback, engine)
-        try:
-            build = _Parametrisation(model, prior, learn, structure)
-        except ValueError:  # a learned full covariance became singular: no information matrix
-            build = None
+    # Overflows (measurements or matrices near float64's limits) are not warnings: the result is checked below.
+    with np.errstate(over="ignore", invalid="ignore"):
+        if method == "em":
+            model, prior, history, converged, message = _em(model, prior, zs, us, learn, structure, iterations,
+                                                            tol, callback, engine)
+            try:
+                build = _Parametrisation(model, prior, learn, structure)
+            except ValueError:  # a learned full covariance became singular: no information matrix
+                build = None
+            if build is not None:
+                theta = build.encode()
+                evaluate = _evaluator(build, zs, us, engine)
+        else:
+            theta, history, converged, message, evaluate = _mle(build, theta0, zs, us, iterations, tol, callback,
+                                                                engine)
+            model, prior = build(theta)
         if build is not None:
-            theta = build.encode()
-            evaluate = _evaluator(build, zs, us, engine)
-    else:
-        theta, history, converged, message, evaluate = _mle(build, theta0, zs, us, iterations, tol, callback,
-                                                            engine)
-        model, prior = build(theta)
-    if build is not None:
-        errors, bse = _standard_errors(evaluate, build, theta, learn)
-        names, values = build.names(), build.natural(theta)
-    else:
-        errors, names = None, []
-        values = bse = np.zeros(0)
+            errors, bse = _standard_errors(evaluate, build, theta, learn)
+            names, values = build.names(), build.natural(theta)
+        else:
+            errors, names = None, []
+            values = bse = np.zeros(0)
+    _check_fitted(model, prior, history, values)
     if not converged and not message.startswith("interrupted") and not (method == "em" and tol == 0):
         how = "EM" if method == "em" else "maximum likelihood"
         warnings.warn(ConvergenceWarning(
