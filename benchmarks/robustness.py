@@ -10,7 +10,11 @@ smooths with each form and engine and prints one row per (problem, form,
 engine, pass): the largest relative error of a variance, the largest error
 of a mean in standard deviations, the steps whose covariance has a negative
 eigenvalue (exactly, with 50 digits) and whether every covariance is
-exactly symmetric. The reference is ``tests/_mp_oracle.py``'s 50-digit
+exactly symmetric. The same problems also go through the unscented and
+cubature filters and smoothers (a NonlinearModel with the linear f and h,
+whose regression is exact), in both forms on the readable path; a
+covariance form that stops on an indefinite covariance is shown as such.
+The reference is ``tests/_mp_oracle.py``'s 50-digit
 filter and RTS smoother; for the long run, a 50-digit filter written for
 its two states (the smoother is not run there).
 """
@@ -32,6 +36,7 @@ from _mp_oracle import filter_50_digits, smooth_50_digits  # noqa: E402
 from _robustness import PROBLEMS, errors  # noqa: E402
 
 RUNS = (("cov", "python"), ("cov", "numba"), ("sqrt", "python"), ("sqrt", "numba"))
+SIGMA_POINTS = ("ukf", "ckf")  # run on the same linear problems (their regression of a linear map is exact)
 
 
 def long_run(T: int):
@@ -70,12 +75,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--long-steps", type=int, default=1_000_000, help="steps of the long run (default 10^6)")
     parser.add_argument("--out", help="also write the table to this file")
     args = parser.parse_args(argv)
-    rows = ["| problem | form | engine | pass | max rel. variance error | max mean error (sd) | "
-            "negative-eigenvalue steps | symmetric |", "| --- | --- | --- | --- | ---: | ---: | ---: | --- |"]
+    rows = ["| problem | method | form | engine | pass | max rel. variance error | max mean error (sd) | "
+            "negative-eigenvalue steps | symmetric |", "| --- | --- | --- | --- | --- | ---: | ---: | ---: | --- |"]
 
-    def row(name, form, engine, what, e):
-        rows.append(f"| {name} | {form} | {engine} | {what} | {e.variance:.1e} | {e.mean:.1e} | {e.negative_steps} "
-                    f"| {'yes' if e.symmetric else 'no'} |")
+    def row(name, form, engine, what, e, method="kf"):
+        if isinstance(e, Exception):
+            rows.append(f"| {name} | {method} | {form} | {engine} | {what} | fails: {str(e)[:70]} | | | |")
+        else:
+            rows.append(f"| {name} | {method} | {form} | {engine} | {what} | {e.variance:.1e} | {e.mean:.1e} | "
+                        f"{e.negative_steps} | {'yes' if e.symmetric else 'no'} |")
         print(rows[-1], file=sys.stderr)
 
     for make in PROBLEMS:
@@ -88,6 +96,18 @@ def main(argv: list[str] | None = None) -> int:
                     continue  # the square-root smoother is readable only
                 res = call(model, prior, p.zs, engine=engine, form=form)
                 row(p.name, form, engine, what, errors(res.means, res.covs, *ref[what]))
+        F, H = p.F, p.H
+        curved = gf.NonlinearModel(lambda X: X @ F.T, lambda X: X @ H.T, p.Q, p.R, vectorized=True)
+        for method in SIGMA_POINTS:
+            for form in ("cov", "sqrt"):
+                try:
+                    res = gf.smooth(curved, prior, p.zs, method=method, form=form, engine="python", check="off")
+                except (ValueError, FloatingPointError) as exc:  # the covariance form can stop on an indefinite P
+                    row(p.name, form, "python", "filter + smooth", exc, method)
+                    continue
+                row(p.name, form, "python", "filter", errors(res.filtered.means, res.filtered.covs, *ref["filter"]),
+                    method)
+                row(p.name, form, "python", "smooth", errors(res.means, res.covs, *ref["smooth"]), method)
     T = args.long_steps
     start = time.perf_counter()
     model, prior, zs, means, variances = long_run(T)
@@ -101,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         det = res.covs[:, 0, 0] * res.covs[:, 1, 1] - res.covs[:, 0, 1] * res.covs[:, 1, 0]
         negative = int(np.sum((det < 0) | (got < 0).any(axis=1)))
         symmetric = bool(np.array_equal(res.covs, np.swapaxes(res.covs, 1, 2)))
-        rows.append(f"| {T:,} steps, constant velocity | {form} | {engine} | filter | {var:.1e} | {mean:.1e} | "
+        rows.append(f"| {T:,} steps, constant velocity | kf | {form} | {engine} | filter | {var:.1e} | {mean:.1e} | "
                     f"{negative} | {'yes' if symmetric else 'no'} |")
         print(rows[-1], file=sys.stderr)
     table = "\n".join(rows)

@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
-    "psd_solve", "sqrt_cov", "tria", "downdate", "factor_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
+    "psd_solve", "sqrt_cov", "tria", "downdate", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
     "observed_gram", "wrap_angle", "wrap_components",
 ]
 
@@ -256,6 +256,21 @@ def factor_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     if np.all(np.diagonal(L) > 0.0):
         return whiten(L, B)
     return np.linalg.lstsq(L, B, rcond=None)[0]
+
+
+def back_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``L⁻ᵀ B`` for a lower-triangular factor L: a back substitution, or least squares where L is singular.
+
+    Where L has a zero on its diagonal, the minimum-norm solution of
+    ``Lᵀ X = B``, with each component scaled to unit variance (the rows of
+    L to unit norm) so that the cut-off of small singular values does not
+    depend on units.
+    """
+    if np.all(np.diagonal(L) > 0.0):
+        return whiten(L.T, B)
+    scale = np.linalg.norm(L, axis=1)  # √P_jj
+    unit = np.where(scale > 0.0, scale, 1.0)
+    return np.linalg.lstsq(L.T / unit, B, rcond=None)[0] / unit[:, None]
 
 
 def weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -64,7 +64,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._linalg import circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten, wrap_angle
+from .._linalg import back_solve, circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten, wrap_angle
 from .rules import SigmaRule, unscented
 
 __all__ = ["SigmaPoints", "slr", "slr_sqrt"]
@@ -191,13 +191,7 @@ def slr_sqrt(
     y_mean, dY = _spread(g, rule, mean, factor, angles)
     wc, points = rule.wc, rule.points
     Xi = (points * wc[:, None]).T @ dY                 # C = L Ξ
-    diag = np.diagonal(factor)
-    if np.all(diag > 0.0):
-        A = whiten(factor.T, Xi).T                      # Aᵀ = L⁻ᵀ Ξ: back substitution
-    else:
-        scale = np.linalg.norm(factor, axis=1)          # √P_jj
-        unit = np.where(scale > 0.0, scale, 1.0)
-        A = (np.linalg.lstsq(factor.T / unit, Xi, rcond=None)[0] / unit[:, None]).T
+    A = back_solve(factor, Xi).T                        # Aᵀ = L⁻ᵀ Ξ
     E = dY - points @ Xi                                # e_i = δY_i - Ξᵀ ξ_i, by rows
     # Residuals at the round-off of the points and outputs are zero: a linear g leaves none to downdate.
     size = (np.abs(mean) + np.abs(points @ factor.T)) @ np.abs(A).T + np.abs(dY) + np.abs(y_mean)
