@@ -12,7 +12,10 @@ of the gain, and :func:`least_squares_gains` replaces it, in Python, by the
 readable path's minimum-norm solution (:func:`gaussfuse._linalg.psd_solve`).
 Then :func:`backward` runs the recursion (:func:`._step.rts_step`) over
 each series, in parallel over chunks of series for a batch
-(:func:`backward_parallel`).
+(:func:`backward_parallel`). The square-root smoother's recursion,
+:func:`backward_sqrt` (:func:`._step.rts_step_sqrt`), computes its gains
+from the joint factor as it goes; a series whose prediction's factor is
+singular is left to the readable path.
 """
 
 from __future__ import annotations
@@ -22,9 +25,10 @@ from numba import prange
 
 from .._linalg import psd_solve
 from ._jit import jit, launch
-from ._step import copy1, copy2, rts_step, workspace, wrap
+from ._step import (at, copy1, copy2, not_finite_factor, rts_step, rts_step_sqrt, sqrt_back_workspace, workspace,
+                    wrap)
 
-__all__ = ["backward", "backward_parallel", "least_squares_gains", "smooth"]
+__all__ = ["backward", "backward_parallel", "backward_sqrt", "least_squares_gains", "smooth"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 
@@ -53,6 +57,35 @@ def backward_parallel(chunks, means, covs, pmeans, pcovs, gains, angles, sm_mean
     for c in prange(chunks):
         backward(c * N // chunks, (c + 1) * N // chunks, means, covs, pmeans, pcovs, gains, angles,
                  sm_means, sm_covs)
+
+
+@jit(**_JIT)
+def backward_sqrt(lo, hi, means, factors, F, Qf, b, angles, sm_means, sm_factors, gains, failed):
+    """run_smoother on factors over series ``lo..hi-1`` (:func:`._step.rts_step_sqrt`), for a linear model.
+
+    `F` and `Qf` (T or 1, n, n) are the transitions and the factors of Q,
+    `b` (N or 1, T or 1, n) the offsets. ``failed[s]`` is set where a
+    prediction's factor is singular or a smoothed belief is not finite;
+    the caller smooths those series on the readable path.
+    """
+    T = means.shape[1]
+    n = means.shape[2]
+    bw = sqrt_back_workspace(n)
+    for s in range(lo, hi):
+        failed[s] = False
+        copy1(sm_means[s, T - 1], means[s, T - 1])
+        copy2(sm_factors[s, T - 1], factors[s, T - 1])
+        bs = b[s if b.shape[0] > 1 else 0]
+        for j in range(T - 2, -1, -1):  # the transition out of step j is the one into step j + 1
+            ok = rts_step_sqrt(bw, means[s, j], factors[s, j], sm_means[s, j + 1], sm_factors[s, j + 1],
+                               at(F, j + 1), at(Qf, j + 1), at(bs, j + 1), angles, sm_means[s, j], sm_factors[s, j],
+                               gains[s, j])
+            if not ok or not_finite_factor(sm_means[s, j], sm_factors[s, j], 0.0):
+                failed[s] = True
+                break
+            for i in range(n):
+                if angles[i]:
+                    sm_means[s, j, i] = wrap(sm_means[s, j, i])
 
 
 def least_squares_gains(gains: np.ndarray, failed: np.ndarray, pcovs: np.ndarray) -> None:

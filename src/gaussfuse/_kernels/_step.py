@@ -42,6 +42,7 @@ from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
 __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
+           "SqrtBack", "sqrt_back_workspace", "rts_step_sqrt",
            "not_finite_factor", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
            "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
            "not_finite",
@@ -344,6 +345,80 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_
     loglik = log_density(w.L, w.v, w.white, mo)  # w.white = L_S⁻¹ v
     gain_mean(w.Kt, w.white, mean, post_mean, mo)  # m = m⁻ + K̄ L_S⁻¹ v
     return True, loglik, mo
+
+
+class SqrtBack(NamedTuple):
+    """Scratch of :func:`rts_step_sqrt` for n states (the names are kalman.rts_step_sqrt's)."""
+
+    M: np.ndarray    # (2n, 2n)    the joint pre-array [[L_Q, A L_k], [0, L_k]], triangularised in place
+    T: np.ndarray    # (2n, 2n)    its lower-triangular result [[L⁻, 0], [Y, X]]
+    u: np.ndarray    # (2n,)       a Householder vector
+    rhs: np.ndarray  # (n, 2n + 1) [m^s - m⁻, L^s, I], then (L⁻)⁻¹ of it
+    N: np.ndarray    # (n, 2n)     [X, G L^s], triangularised in place
+    pm: np.ndarray   # (n,)        m⁻
+
+
+@register_jitable
+def sqrt_back_workspace(n):
+    """A :class:`SqrtBack` for n states."""
+    return SqrtBack(np.zeros((2 * n, 2 * n)), np.zeros((2 * n, 2 * n)), np.empty(2 * n), np.empty((n, 2 * n + 1)),
+                    np.zeros((n, 2 * n)), np.empty(n))
+
+
+@jit(inline="always", **_JIT)
+def rts_step_sqrt(bw, filt_mean, filt_factor, next_mean, next_factor, A, Q_factor, b, angles, mean, factor, gain):
+    r"""kalman.rts_step_sqrt: one triangularisation of the joint factor, then the gain's triangular solve.
+
+    Writes :math:`m^s_k`, :math:`L^s_k` and :math:`G_k` into `mean`,
+    `factor` and `gain`. Returns False when :math:`L^-` has a zero pivot
+    (a singular prediction): the caller then takes the readable path, whose
+    least-squares solve is exact on the range of :math:`L^-`.
+    """
+    n = filt_mean.shape[0]
+    M = bw.M
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(j, n):  # L_k is lower triangular
+                s += A[i, k] * filt_factor[k, j]
+            M[i, j] = Q_factor[i, j]
+            M[i, n + j] = s
+            M[n + i, j] = 0.0
+            M[n + i, n + j] = filt_factor[i, j]
+    tria(M, 2 * n, 2 * n, bw.u, bw.T)
+    for i in range(n):
+        if not bw.T[i, i] > 0.0:
+            return False
+    predict_mean(filt_mean, A, b, bw.pm)
+    rhs = bw.rhs
+    for i in range(n):
+        diff = next_mean[i] - bw.pm[i]
+        rhs[i, 0] = wrap(diff) if angles[i] else diff
+        for j in range(n):
+            rhs[i, 1 + j] = next_factor[i, j]
+            rhs[i, 1 + n + j] = 1.0 if i == j else 0.0
+    for c in range(2 * n + 1):  # (L⁻)⁻¹ [m^s - m⁻, L^s, I]: forward substitution
+        for i in range(n):
+            s = rhs[i, c]
+            for k in range(i):
+                s -= bw.T[i, k] * rhs[k, c]
+            rhs[i, c] = s / bw.T[i, i]
+    N = bw.N
+    for i in range(n):  # Y (L⁻)⁻¹ [...]: the step of the mean, G L^s and G
+        for c in range(2 * n + 1):
+            s = 0.0
+            for k in range(n):
+                s += bw.T[n + i, k] * rhs[k, c]
+            if c == 0:
+                mean[i] = filt_mean[i] + s
+            elif c <= n:
+                N[i, n + c - 1] = s
+            else:
+                gain[i, c - n - 1] = s
+        for j in range(n):
+            N[i, j] = bw.T[n + i, n + j]
+    tria(N, n, 2 * n, bw.u, factor)  # L^s_k = tria[X, G L^s_{k+1}]
+    return True
 
 
 @jit(inline="always", **_JIT)

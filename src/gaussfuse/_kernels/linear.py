@@ -41,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import prange
 
+from .._linalg import symmetrize
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ..kalman import SETTLED, STEADY_TOL, cov_factor
 from . import _rts
@@ -52,7 +53,7 @@ from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, 
                     outputs, predict, predict_mean, predict_sqrt, raise_failure, record, record_not_pd, settled,
                     smoother_gain, sqrt_workspace, square, steady_update, update, update_sqrt, workspace)
 
-__all__ = ["filter", "smooth", "KERNELS"]
+__all__ = ["filter", "smooth", "smooth_sqrt", "KERNELS"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 
@@ -307,7 +308,7 @@ def filter(lin, model, prior, zs, us, keep, target: np.ndarray | None = None, fo
     kalman.SteadyState); with ``form="sqrt"``, the square-root filter.
     """
     if form == "sqrt":
-        return filter_result(_run_sqrt(model, prior, zs, us, keep))
+        return filter_result(_run_sqrt(model, prior, zs, us, keep)[0])
     return filter_result(_run_forward(model, prior, zs, us, keep, smoothing=False, target=target))
 
 
@@ -316,19 +317,23 @@ def _factors(stack: np.ndarray, name: str) -> np.ndarray:
     return readonly(np.stack([cov_factor(a, name) for a in stack]))
 
 
-def _run_sqrt(model, prior, zs, us, keep: str) -> Outputs:
-    """Run the square-root kernel over the series `zs` (N, T, m); raise what a failed series would."""
+def _run_sqrt(model, prior, zs, us, keep: str) -> tuple[Outputs, Model, np.ndarray]:
+    """Run the square-root kernel over the series `zs` (N, T, m); raise what a failed series would.
+
+    Returns the outputs, the model's layout and the factors of its Q (for the smoother).
+    """
     zs = readonly(zs)
     N, T, m = zs.shape
     n = model.n
     layout = _layout(model, us)
     out = outputs(N, T, n, m, keep, False, sqrt=True)
     fail = failures(N, m)
-    forward_sqrt(0, N, layout, _factors(layout.Q, "Q"), _factors(layout.R, "R"), zs, readonly(prior.mean),
+    Qf = _factors(layout.Q, "Q")
+    forward_sqrt(0, N, layout, Qf, _factors(layout.R, "R"), zs, readonly(prior.mean),
                  readonly(cov_factor(prior.cov, "the prior covariance")), out, fail, workspace(n, m),
                  sqrt_workspace(n, m))
     raise_failure(fail)
-    return out
+    return out, layout, Qf
 
 
 def smooth(lin, model, prior, zs, us) -> SmoothResult:
@@ -338,3 +343,21 @@ def smooth(lin, model, prior, zs, us) -> SmoothResult:
     sm_means, sm_covs = _rts.smooth(out.means, out.covs, out.predicted_means, out.predicted_covs, out.gains, angles)
     check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, out.gains, filter_result(out))
+
+
+def smooth_sqrt(lin, model, prior, zs, us) -> tuple[SmoothResult, np.ndarray]:
+    """The square-root filter and RTS smoother over N series, and which series the readable path must smooth.
+
+    Returns the result and a bool array (N,): True for a series whose
+    backward pass met a singular prediction or an overflow (the driver
+    smooths it on the readable path, which takes the least-squares gain or
+    raises the error, naming the step).
+    """
+    out, layout, Qf = _run_sqrt(model, prior, zs, us, "all")
+    N, T, n = out.means.shape
+    sm_means, sm_factors = np.empty_like(out.means), np.empty_like(out.factors)
+    gains, failed = np.empty((N, max(T - 1, 0), n, n)), np.zeros(N, dtype=np.bool_)
+    if T:
+        _rts.backward_sqrt(0, N, out.means, out.factors, layout.F, Qf, layout.b, np.zeros(n, dtype=np.bool_),
+                           sm_means, sm_factors, gains, failed)
+    return SmoothResult(sm_means, symmetrize(sm_factors @ sm_factors.swapaxes(-1, -2)), gains, filter_result(out), cov_factors=sm_factors), failed

@@ -81,10 +81,10 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         regress on the factor (:func:`gaussfuse.linearize.slr_sqrt`) and
         downdate it, by hyperbolic rotations, where a weight is negative
         (the unscented rule's centre past three states).
-        ``engine="numba"`` runs the "kf" filter compiled (the smoother and
-        the nonlinear methods run on the readable path, and ``"auto"``
-        takes the readable path); a ``"diffuse"`` prior is for the
-        covariance form.
+        ``engine="numba"`` runs the "kf" filter and smoother compiled (the
+        nonlinear methods run on the readable path, and ``"auto"`` takes
+        the readable path); a ``"diffuse"`` prior is for the covariance
+        form.
     steady : bool, default False
         The steady-state filter, for a time-invariant LinearModel (method
         "kf", covariance form): once a step's filtered covariance is within

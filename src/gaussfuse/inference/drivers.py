@@ -341,10 +341,20 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
                  to_prior: bool = False, form: str = "cov") -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
+    sqrt_compiled = form == "sqrt" and spec.compiled == "linear" and not to_prior
+    if sqrt_compiled and engine == "auto":
+        engine = "python"  # as filter_batch: the compiled square-root kernels only when asked for
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
-                               readable=None if form == "cov" else f"form={form!r}")
+                               readable=None if form == "cov" or sqrt_compiled else f"form={form!r}")
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
+        if form == "sqrt":
+            result, failed = compiled.smooth_sqrt(lin, model, prior, zs, us)
+            for s in np.flatnonzero(failed):  # a singular prediction or an overflow: the readable step decides
+                one = _method_smooth(spec, model, prior, zs[s], None if us is None else us[s], options, False, form)[0]
+                result.means[s], result.covs[s], result.gains[s], result.cov_factors[s] = (
+                    one.means, one.covs, one.gains, one.cov_factors)
+            return result
         result = compiled.smooth(lin, model, prior, zs, us)
         return _back_to_prior(model, prior, result) if to_prior else result
     runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form)
