@@ -17,6 +17,8 @@ MODULES = [
     "gaussfuse.models.motion",
     "gaussfuse.models.nonlinear",
     "gaussfuse.linearize.sigma_points",
+    "gaussfuse.forecasting",
+    "gaussfuse.simulation",
 ]
 
 

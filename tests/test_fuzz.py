@@ -196,6 +196,29 @@ def test_fit_ends_in_a_finite_model_or_a_clear_error(problem, method, learn, str
         assert all(np.isfinite(v) for v in fit.params.values())
 
 
+@settings(FUZZ, max_examples=_EXAMPLES or 60)
+@given(problems(), st.integers(0, 4), st.integers(0, 2**32 - 1))
+def test_forecast_simulate_and_posterior_draws_end_in_finite_arrays_or_a_clear_error(problem, steps, seed):
+    n, m, F, H, Q, R, mean, cov, zs = problem
+    model = _try(lambda: gf.LinearModel(F, H, Q, R))
+    prior = _try(lambda: gf.Gaussian(mean, cov))
+    if model is None or prior is None:
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.DivergenceWarning)
+        fc = _try(lambda: gf.forecast(model, prior, steps))
+        sim = _try(lambda: gf.simulate(model, prior, steps, size=2, rng=seed))
+        draws = _try(lambda: gf.sample_posterior(model, prior, zs, 3, rng=seed))
+    if fc is not None:
+        assert all(np.all(np.isfinite(a)) for a in (fc.means, fc.covs, fc.measurement_means, fc.measurement_covs))
+    if sim is not None:
+        assert sim.states.shape == (2, steps, n) and np.all(np.isfinite(sim.states))
+        assert np.all(np.isfinite(sim.measurements))
+    if draws is not None:
+        event("posterior draws")
+        assert draws.shape[0] == 3 and draws.shape[-1] == n and np.all(np.isfinite(draws))
+
+
 CSV = "t,x,y\n0.0,1.0,2.0\n0.5,1.5,\n1.0,nan,2.5\n1.5,2.5,3.0\n"
 TOML = '[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.3\nr = 0.2\n\n[prior]\nvar = 2.0\n'
 GARBAGE = ["", ",", ",,", "x", "1e999", "-inf", "nan", "\x00", "é", '"', "[", "]", "=", "\n", "0x10", "1,2,3,4",

@@ -8,6 +8,7 @@ smoothers in :mod:`gaussfuse.inference`.
 from . import models
 from ._linalg import wrap_angle
 from .errors import ConvergenceWarning, DivergenceWarning, ModelFunctionError
+from .forecasting import Forecast, forecast
 from .fusion import Fused, Fuser, Measurement, fuse_timeline
 from .gaussian import Gaussian, fuse
 from .imm import IMMResult, imm_filter
@@ -15,6 +16,7 @@ from .inference import METHODS, FilterResult, SmoothResult, filter, smooth
 from .learning import FitResult, fit
 from .models import *  # noqa: F403
 from .online import KalmanFilter
+from .simulation import Simulation, sample_posterior, simulate
 from .steady import Stationary, steady_state
 
 __version__ = "0.1.0"
@@ -27,6 +29,7 @@ __all__ = [
     "Measurement", "fuse_timeline", "Fused", "Fuser",
     "imm_filter", "IMMResult",
     "fit", "FitResult",
+    "forecast", "Forecast", "simulate", "Simulation", "sample_posterior",
     "ConvergenceWarning", "DivergenceWarning", "ModelFunctionError",
     "wrap_angle",
 ]

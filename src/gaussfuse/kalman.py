@@ -27,7 +27,7 @@ from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det,
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
-           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "SqrtGain",
+           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "joint_factor", "SqrtGain",
            "sqrt_gain", "Factors", "transition_factors", "measurement_factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
            "Step", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
@@ -628,6 +628,47 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     applied to lie in its range).
     """
     n = filt_mean.shape[0]
+    pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus)
+    rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
+    steps = Y @ factor_solve(pred_factor, rhs)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
+    mean = filt_mean + steps[:, 0]
+    factor = tria(np.concatenate([X, steps[:, 1:n + 1]], axis=1))
+    return mean, factor, steps[:, n + 1:]
+
+
+def joint_factor(filt_mean: np.ndarray, filt_factor: np.ndarray, A: np.ndarray, Q_factor: np.ndarray,
+                 b: np.ndarray | None = None, Q_minus: np.ndarray | None = None):
+    r"""The prediction out of a filtered belief, and the state given the prediction, from one factor.
+
+    Parameters
+    ----------
+    filt_mean, filt_factor : arrays of shape (n,), (n, n)
+        :math:`(m_k, L_k)`.
+    A, Q_factor, b, Q_minus :
+        The transition out of step k (see :func:`rts_step_sqrt`).
+
+    Returns
+    -------
+    pred_mean : array of shape (n,)
+        :math:`m^-_{k+1} = A m_k + b`.
+    pred_factor : array of shape (n, n)
+        :math:`L^-_{k+1}`.
+    Y : array of shape (n, n)
+        With :math:`Y L^{-\top} = P_k A^\top`: the gain is :math:`G_k = Y (L^-)^{-1}`.
+    X : array of shape (n, n)
+        Lower triangular, :math:`X X^\top = P_k - G_k P^-_{k+1} G_k^\top`, the
+        covariance of :math:`x_k` given :math:`x_{k+1}`.
+
+    Notes
+    -----
+    :math:`\operatorname{tria}\begin{bmatrix} L_Q & A L_k \\ 0 & L_k \end{bmatrix}
+    = \begin{bmatrix} L^- & 0 \\ Y & X \end{bmatrix}`: the lower-triangular
+    factor of the joint covariance of :math:`(x_{k+1}, x_k)`, read in blocks
+    (downdated by :math:`[D_Q;\, 0]` when the noise has negative terms).
+    The RTS smoother (:func:`rts_step_sqrt`) and the posterior sampler
+    (:func:`gaussfuse.sample_posterior`) condition on :math:`x_{k+1}` with it.
+    """
+    n = filt_mean.shape[0]
     q = Q_factor.shape[1]
     pre = np.zeros((2 * n, q + n))
     pre[:n, :q] = Q_factor
@@ -636,13 +677,7 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     post = tria(pre)
     if Q_minus is not None:
         post = downdate(post, np.concatenate([Q_minus, np.zeros((n, Q_minus.shape[1]))]), "the predicted covariance")
-    pred_factor, Y, X = post[:n, :n], post[n:, :n], post[n:, n:]
-    pred_mean = predict_mean(filt_mean, A, b)
-    rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
-    steps = Y @ factor_solve(pred_factor, rhs)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
-    mean = filt_mean + steps[:, 0]
-    factor = tria(np.concatenate([X, steps[:, 1:n + 1]], axis=1))
-    return mean, factor, steps[:, n + 1:]
+    return predict_mean(filt_mean, A, b), post[:n, :n], post[n:, :n], post[n:, n:]
 
 
 # ---------------------------------------------------------------------------

@@ -94,7 +94,7 @@ def check_form(spec, form) -> None:
     if form not in spec.forms:
         runs = sorted(name for name, m in METHODS.items() if form in m.forms)
         raise ValueError(f"`form={form!r}` is not available for method {spec.name!r}; it is for {runs} "
-                         "(the square-root sigma-point and iterated filters are not written yet).")
+                         "(the iterated methods re-linearise within a step, which the square-root step does not).")
 
 
 def check_steady(steady, spec, form: str, prior) -> None:

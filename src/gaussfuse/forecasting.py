@@ -1,0 +1,181 @@
+r"""Forecasts: the model's predictions of states and measurements past a belief.
+
+From a belief :math:`N(m_0, P_0)` (a filter's last one, say) the forecast
+runs the prediction of the Kalman filter with no update, step after step,
+
+.. math::
+
+    m_j = A_j m_{j-1} + b_j, \qquad P_j = A_j P_{j-1} A_j^\top + Q_j, \qquad
+    \hat z_j = H_j m_j + d_j, \qquad S_j = H_j P_j H_j^\top + R_j,
+
+with each step's model made affine around the predicted belief by the
+method's linearisation (exact for a LinearModel; Taylor or sigma points for
+a NonlinearModel, whose regression error is part of :math:`Q_j` and
+:math:`R_j`): :func:`gaussfuse.kalman.forecast` for the states, and
+:func:`gaussfuse.kalman.predict` through the measurement map for the
+measurements. These are the means and covariances of the states and of new
+measurements, the measurement noise included.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from statistics import NormalDist
+
+import numpy as np
+
+from . import kalman
+from ._frozen import reduce_frozen
+from ._linalg import wrap_components
+from ._validation import integer
+from .errors import STEP_ERRORS, at_step
+from .gaussian import Gaussian
+from .inference.registry import linearisation, resolve_method
+from .inference.results import FilterResult, SmoothResult
+from .inference.validation import check_controls, check_prior
+
+__all__ = ["forecast", "Forecast"]
+
+
+@dataclass(frozen=True, eq=False)
+class Forecast:
+    """The output of :func:`forecast`; its arrays are read-only.
+
+    Attributes
+    ----------
+    means : ndarray of shape (k, n)
+        Predicted state means, one row per step ahead.
+    covs : ndarray of shape (k, n, n)
+        Their covariances.
+    measurement_means : ndarray of shape (k, m)
+        Predicted measurements.
+    measurement_covs : ndarray of shape (k, m, m)
+        Their covariances, the measurement noise included.
+    """
+
+    means: np.ndarray
+    covs: np.ndarray
+    measurement_means: np.ndarray
+    measurement_covs: np.ndarray
+
+    __reduce__ = reduce_frozen
+
+    def interval(self, level: float = 0.95, of: str = "measurements") -> tuple[np.ndarray, np.ndarray]:
+        """The central `level` interval of each component: ``mean ± z σ`` with z the normal quantile.
+
+        Parameters
+        ----------
+        level : float, default 0.95
+            In (0, 1).
+        of : {"measurements", "states"}, default "measurements"
+
+        Returns
+        -------
+        lower, upper : ndarrays of shape (k, m) or (k, n)
+        """
+        if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not 0.0 < level < 1.0:
+            raise ValueError(f"`level` must be a number in (0, 1); got {level!r}.")
+        if of not in ("measurements", "states"):
+            raise ValueError(f"`of` must be 'measurements' or 'states'; got {of!r}.")
+        means, covs = ((self.measurement_means, self.measurement_covs) if of == "measurements"
+                       else (self.means, self.covs))
+        half = NormalDist().inv_cdf(0.5 + level / 2.0) * np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+        return means - half, means + half
+
+
+def forecast(model, belief, steps: int, us=None, *, method: str | None = None, **options) -> Forecast:
+    """Predict the states and measurements `steps` steps past a belief.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        Step j of the forecast (j = 1..`steps`) uses the model's matrices of
+        step j - 1: a time-varying model describes the horizon, with at
+        least `steps` steps.
+    belief : Gaussian, FilterResult or SmoothResult
+        The belief to forecast from; for a result of one series, its last
+        belief (the filtered one, which is also the last smoothed one).
+    steps : int
+        How many steps ahead, at least 1.
+    us : array_like of shape (steps, p), optional
+        Controls of the forecast steps, when the model has ``B`` (or its
+        ``f`` takes them).
+    method : str, optional
+        How a NonlinearModel is made affine (see :data:`gaussfuse.METHODS`;
+        default "ukf"); a LinearModel's is exact.
+    **options
+        The method's options (``alpha``, ``order``, ...).
+
+    Returns
+    -------
+    Forecast
+
+    Raises
+    ------
+    TypeError, ValueError
+        For a belief of the wrong kind or dimension, a batch result, bad
+        `steps` or `us`, or a time-varying model shorter than `steps`.
+
+    Notes
+    -----
+    See the module notes for the recursion. The iterated methods have
+    nothing to iterate without measurements: they forecast as their
+    one-pass forms.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import gaussfuse as gf
+    >>> model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0)
+    >>> fc = gf.forecast(model, gf.Gaussian([0.0], [[1.0]]), steps=3)
+    >>> fc.covs[:, 0, 0], fc.measurement_covs[:, 0, 0]
+    (array([2., 3., 4.]), array([4., 5., 6.]))
+    """
+    steps = integer("steps", steps)
+    belief = _last_belief(belief, model.n)
+    spec, options = resolve_method(model, method, options)
+    model_steps = getattr(model, "steps", None)
+    if model_steps is not None and model_steps < steps:
+        raise ValueError(f"the model is time-varying over {model_steps} steps, fewer than `steps` = {steps}.")
+    us = check_controls(us, model, 1, steps)
+    lin = linearisation(spec, model, None if us is None else us[0], options)[0]
+    xa = _angles(model, "state_angles")
+    za = _angles(model, "measurement_angles")
+    n, m = model.n, model.m
+    means, covs = np.empty((steps, n)), np.empty((steps, n, n))
+    zmeans, zcovs = np.empty((steps, m)), np.empty((steps, m, m))
+    mean, cov = belief.mean, belief.cov
+    k = 0
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised, naming the step
+            for k in range(steps):
+                mean, cov = kalman.forecast(lin, k, mean, cov, xa)
+                H, d, R = lin.measurement(k, mean, cov)
+                zmean, zcov = kalman.predict(mean, cov, H, R, d)
+                kalman.check_finite("predicted measurement", zmean, zcov)
+                means[k], covs[k], zmeans[k], zcovs[k] = mean, cov, wrap_components(zmean, za), zcov
+    except STEP_ERRORS as exc:
+        raise at_step(exc, k) from exc
+    for a in (means, covs, zmeans, zcovs):
+        a.setflags(write=False)
+    return Forecast(means, covs, zmeans, zcovs)
+
+
+def _angles(model, name: str) -> np.ndarray | None:
+    angles = getattr(model, name, None)
+    return None if angles is None or not np.any(angles) else np.asarray(angles, dtype=bool)
+
+
+def _last_belief(belief, n: int) -> Gaussian:
+    """The Gaussian to forecast from: `belief` itself, or a one-series result's last belief."""
+    if isinstance(belief, SmoothResult):
+        belief = belief.filtered
+    if isinstance(belief, FilterResult):
+        if belief.last_mean.ndim != 1:
+            raise ValueError(f"`belief` must be the result of one series; got a batch of {belief.last_mean.shape[0]} "
+                             "(forecast each series from its own result).")
+        belief = Gaussian(belief.last_mean, belief.last_cov)
+    if not isinstance(belief, Gaussian):
+        raise TypeError(f"`belief` must be a gaussfuse.Gaussian, FilterResult or SmoothResult; "
+                        f"got {type(belief).__name__}.")
+    return check_prior(belief, n)

@@ -1,0 +1,236 @@
+r"""Draws from a model: simulated series, and whole state trajectories from the smoothing distribution.
+
+:func:`simulate` draws from the model itself: :math:`x_0` from the prior
+(one step before the first measurement), then
+
+.. math::
+
+    x_k = f_k(x_{k-1}, u_k) + w_k, \quad w_k \sim N(0, Q_k), \qquad
+    z_k = h_k(x_k) + v_k, \quad v_k \sim N(0, R_k),
+
+(:math:`f_k(x, u) = F_k x + B_k u_k`, :math:`h_k(x) = H_k x` for a
+LinearModel). Each Gaussian draw is :math:`L \varepsilon` with
+:math:`\varepsilon` standard normal and :math:`L` a lower-triangular
+square root of the covariance (:func:`gaussfuse.kalman.cov_factor`), so a
+zero or singular covariance is drawn exactly: a component without noise
+gets none.
+
+:func:`sample_posterior` draws whole trajectories :math:`x_{1:T}` from
+:math:`p(x_{1:T} \mid z_{1:T})` of a LinearModel, by forward filtering,
+backward sampling: the filter gives :math:`N(m_k, P_k)`; then
+:math:`x_T \sim N(m_T, P_T)` and, going back,
+
+.. math::
+
+    x_k \mid x_{k+1} \sim N\left(m_k + G_k (x_{k+1} - m^-_{k+1}),\;
+    P_k - G_k P^-_{k+1} G_k^\top\right),
+
+the conditional of the joint Gaussian of :math:`(x_{k+1}, x_k)` given the
+data up to k, with the RTS gain :math:`G_k`. Its factor and the gain come
+from one triangularisation (:func:`gaussfuse.kalman.joint_factor`), so the
+conditional covariance is never a difference of covariances. The
+trajectories' mean and covariance at each step are the RTS smoother's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kalman
+from ._frozen import reduce_frozen
+from ._linalg import factor_solve
+from ._validation import integer
+from .inference import filter as run_filter
+from .inference.validation import check_controls, check_measurements, check_prior, check_steps
+from .models.linear import LinearModel
+from .models.nonlinear import NonlinearModel
+
+__all__ = ["simulate", "Simulation", "sample_posterior"]
+
+
+@dataclass(frozen=True, eq=False)
+class Simulation:
+    """The output of :func:`simulate`; its arrays are read-only.
+
+    Attributes
+    ----------
+    states : ndarray of shape (T, n), or (size, T, n)
+        :math:`x_1, \\dots, x_T`.
+    measurements : ndarray of shape (T, m), or (size, T, m)
+        :math:`z_1, \\dots, z_T`.
+    initial : ndarray of shape (n,), or (size, n)
+        :math:`x_0`, drawn from the prior.
+    """
+
+    states: np.ndarray
+    measurements: np.ndarray
+    initial: np.ndarray
+
+    __reduce__ = reduce_frozen
+
+
+def _generator(rng) -> np.random.Generator:
+    """`rng` as a NumPy Generator: None (fresh entropy), a seed, or a Generator (used as is)."""
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"`rng` must be None, an integer seed or a numpy.random.Generator; got {rng!r}.") from exc
+
+
+def _draw(rng: np.random.Generator, factor: np.ndarray, size: int) -> np.ndarray:
+    """`size` draws of N(0, L Lᵀ), as rows."""
+    return rng.standard_normal((size, factor.shape[1])) @ factor.T
+
+
+def simulate(model, prior, T: int, us=None, *, size: int | None = None, rng=None) -> Simulation:
+    """Draw states and measurements from a model.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+    prior : Gaussian
+        The state one step before the first measurement, as in :func:`gaussfuse.filter`.
+    T : int
+        Steps to draw, at least 1 (a time-varying model's own number of steps).
+    us : array_like of shape (T, p), optional
+        Controls, when the model has ``B`` (or its ``f`` takes them).
+    size : int, optional
+        Draw this many independent series at once (a leading axis);
+        default one series, without the axis.
+    rng : None, int or numpy.random.Generator
+        The source of randomness; an integer seeds a new Generator.
+
+    Returns
+    -------
+    Simulation
+
+    Raises
+    ------
+    TypeError, ValueError
+        For bad arguments, named.
+    numpy.linalg.LinAlgError
+        When Q, R or the prior covariance is not positive semi-definite.
+    ModelFunctionError
+        When a NonlinearModel's f or h fails (see :class:`gaussfuse.NonlinearModel`).
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> sim = gf.simulate(gf.constant_velocity(dt=1.0, q=0.1, r=1.0), gf.Gaussian([0, 1], [[1, 0], [0, 1]]), 50,
+    ...                   rng=0)
+    >>> sim.states.shape, sim.measurements.shape
+    ((50, 2), (50, 1))
+    """
+    if not isinstance(model, (LinearModel, NonlinearModel)):
+        raise TypeError(f"`model` must be a gaussfuse.LinearModel or NonlinearModel; got {type(model).__name__}.")
+    prior = check_prior(prior, model.n)
+    T = integer("T", T)
+    check_steps(model, T)
+    count = 1 if size is None else integer("size", size)
+    us = check_controls(us, model, 1, T)
+    u = None if us is None else us[0]
+    rng = _generator(rng)
+    n, m = model.n, model.m
+    states, measurements = np.empty((count, T, n)), np.empty((count, T, m))
+    with np.errstate(over="ignore", invalid="ignore"):
+        x0 = prior.mean + _draw(rng, kalman.cov_factor(prior.cov, "the prior covariance"), count)
+    x = x0
+    roots = kalman.Factors()
+    linear = isinstance(model, LinearModel)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
+        for k in range(T):
+            if linear:
+                F, H, Q, R, B = model.at(k)
+                x = x @ F.T + (0.0 if B is None else B @ u[k])
+            else:
+                Q, R = model.noise(k)
+                x = model.transition(x, None if u is None else u[k])  # f at each row (checked)
+            x = x + _draw(rng, roots("Q", Q), count)
+            z = x @ H.T if linear else model.measurement(x)
+            states[:, k], measurements[:, k] = x, z + _draw(rng, roots("R", R), count)
+    if not (np.all(np.isfinite(states)) and np.all(np.isfinite(measurements))):
+        raise FloatingPointError("the simulation overflowed: its states or measurements are not finite.")
+    out = (states, measurements, x0) if size is not None else (states[0], measurements[0], x0[0])
+    for a in out:
+        a.setflags(write=False)
+    return Simulation(*out)
+
+
+def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None, form: str = "cov") -> np.ndarray:
+    """Draw n state trajectories from the smoothing distribution, by forward filtering, backward sampling.
+
+    Parameters
+    ----------
+    model : LinearModel
+    prior : Gaussian
+        As in :func:`gaussfuse.filter`.
+    zs : array_like of shape (T, m) or (T,)
+        One series of measurements; NaN = missing.
+    n : int
+        How many trajectories, at least 1.
+    us : array_like of shape (T, p), optional
+        Controls, when the model has ``B``.
+    rng : None, int or numpy.random.Generator
+    form : {"cov", "sqrt"}, default "cov"
+        The filter's form (see :func:`gaussfuse.filter`): ``"sqrt"`` where
+        the covariance form loses its accuracy (a huge prior with a precise
+        sensor); its factors are then used as they are.
+
+    Returns
+    -------
+    ndarray of shape (n, T, state dimension)
+        Independent draws of :math:`x_{1:T} \\mid z_{1:T}`; their mean and
+        covariance at each step converge to the RTS smoother's.
+
+    Raises
+    ------
+    TypeError, ValueError
+        For bad arguments, named (a NonlinearModel, a batch of series).
+
+    Notes
+    -----
+    See the module notes. The filter is :func:`gaussfuse.filter` (its
+    divergence check included); each backward step triangularises the
+    joint factor once and draws all n trajectories together.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import gaussfuse as gf
+    >>> model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    >>> draws = gf.sample_posterior(model, gf.Gaussian([0.0], [[1.0]]), [1.0, 2.0, np.nan, 3.0], 1000, rng=0)
+    >>> draws.shape
+    (1000, 4, 1)
+    """
+    if not isinstance(model, LinearModel):
+        raise TypeError("`model` must be a gaussfuse.LinearModel: backward sampling is exact for linear-Gaussian "
+                        f"models only; got {type(model).__name__}.")
+    prior = check_prior(prior, model.n)
+    count = integer("n", n)
+    arr = check_measurements(zs, model.m)
+    if arr.shape[0] != 1:
+        raise ValueError(f"`zs` must be one series, of shape (T, {model.m}); got {arr.shape[0]} series "
+                         "(sample each series on its own).")
+    T = arr.shape[1]
+    check_steps(model, T)
+    us = check_controls(us, model, 1, T)
+    u = None if us is None else us[0]
+    rng = _generator(rng)
+    filt = run_filter(model, prior, arr[0], u, form=form)
+    roots = kalman.Factors()
+    factors = (filt.cov_factors if filt.cov_factors is not None
+               else [kalman.cov_factor(P, "a filtered covariance") for P in filt.covs])
+    draws = np.empty((count, T, model.n))
+    with np.errstate(over="ignore", invalid="ignore"):
+        draws[:, -1] = filt.means[-1] + _draw(rng, factors[-1], count)
+        for k in range(T - 2, -1, -1):  # x_k | x_{k+1}, through the transition into step k + 1
+            F, _, Q, _, B = model.at(k + 1)
+            b = None if B is None else B @ u[k + 1]
+            pred_mean, pred_factor, Y, X = kalman.joint_factor(filt.means[k], factors[k], F, roots("Q", Q), b)
+            steps = Y @ factor_solve(pred_factor, (draws[:, k + 1] - pred_mean).T)  # G (x_{k+1} - m⁻)
+            draws[:, k] = filt.means[k] + steps.T + _draw(rng, X, count)
+    if not np.all(np.isfinite(draws)):
+        raise FloatingPointError("the posterior draws overflowed: they are not finite.")
+    return draws

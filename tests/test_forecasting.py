@@ -1,0 +1,106 @@
+"""gf.forecast: against statsmodels' get_forecast, the closed form of a linear forecast, and the sigma-point path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import statsmodels.api as sm
+
+import gaussfuse as gf
+
+
+def _local_linear_trend():
+    rng = np.random.default_rng(3)
+    T = 60
+    level = np.cumsum(np.cumsum(0.1 * rng.standard_normal(T)) + 0.5)
+    y = level + rng.standard_normal(T)
+    y[[0, 5, 6, 30, 59]] = np.nan  # the last one missing too: the forecast starts from a prediction
+    return y, (1.2, 0.3, 0.05)
+
+
+@pytest.mark.parametrize("steps", [1, 12])
+def test_forecast_equals_statsmodels_get_forecast(steps):
+    """Local linear trend, exact diffuse start, missing values: means, variances and 95% intervals to 1e-9."""
+    y, (s_eps, s_level, s_trend) = _local_linear_trend()
+    ref = sm.tsa.UnobservedComponents(y, "local linear trend", use_exact_diffuse=True).smooth(
+        [s_eps, s_level, s_trend]).get_forecast(steps=steps)
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([s_level, s_trend]), R=s_eps)
+    fc = gf.forecast(model, gf.filter(model, "diffuse", y), steps)
+    np.testing.assert_allclose(fc.measurement_means[:, 0], ref.predicted_mean, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(fc.measurement_covs[:, 0, 0], ref.var_pred_mean, rtol=1e-10)
+    lower, upper = fc.interval(0.95)
+    np.testing.assert_allclose(np.column_stack([lower[:, 0], upper[:, 0]]), ref.conf_int(alpha=0.05), rtol=1e-10)
+    # states: the level is the measurement's mean, its variance that of the measurement less R
+    np.testing.assert_allclose(fc.means[:, 0], fc.measurement_means[:, 0], rtol=1e-14)
+    np.testing.assert_allclose(fc.covs[:, 0, 0] + s_eps, fc.measurement_covs[:, 0, 0], rtol=1e-12)
+
+
+def test_forecast_with_controls_is_the_closed_form():
+    """k steps of x = F x + B u + w from N(m, P): F^k m + Σ F^(k-j) B u_j and F^k P F^kᵀ + Σ F^(k-j) Q F^(k-j)ᵀ."""
+    rng = np.random.default_rng(0)
+    F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.2], [0.0, 0.0, 0.7]])
+    B, H = rng.normal(size=(3, 2)), rng.normal(size=(2, 3))
+    Q, R = np.diag([0.1, 0.0, 0.3]), np.array([[0.5, 0.1], [0.1, 0.2]])
+    model = gf.LinearModel(F, H, Q, R, B)
+    belief = gf.Gaussian(rng.normal(size=3), np.eye(3) + 0.1)
+    us = rng.normal(size=(5, 2))
+    fc = gf.forecast(model, belief, 5, us)
+    mean, cov = belief.mean, belief.cov
+    for k in range(5):
+        Fk = np.linalg.matrix_power(F, k + 1)
+        mean_k = Fk @ belief.mean + sum(np.linalg.matrix_power(F, k - j) @ B @ us[j] for j in range(k + 1))
+        cov_k = Fk @ belief.cov @ Fk.T + sum(np.linalg.matrix_power(F, k - j) @ Q @ np.linalg.matrix_power(F, k - j).T
+                                             for j in range(k + 1))
+        np.testing.assert_allclose(fc.means[k], mean_k, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fc.covs[k], cov_k, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fc.measurement_means[k], H @ mean_k, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fc.measurement_covs[k], H @ cov_k @ H.T + R, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(fc.covs, np.swapaxes(fc.covs, 1, 2))
+    lower, upper = fc.interval(0.5, of="states")
+    np.testing.assert_allclose(upper - fc.means, 0.6744897501960817 * np.sqrt(np.diagonal(fc.covs, 0, 1, 2)))
+    with pytest.raises(ValueError, match="read-only"):
+        fc.means[0, 0] = 1.0
+
+
+@pytest.mark.parametrize("method", ["ukf", "ckf", "ekf", "iekf"])
+def test_a_linear_model_forecast_through_a_nonlinear_method_is_exact(method):
+    """f and h linear, as a NonlinearModel: the regression (or the Jacobian) is exact, so is the forecast."""
+    F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    Q, R = np.array([[0.25, 0.5], [0.5, 1.0]]), np.array([[4.0]])
+    belief = gf.Gaussian([3.0, -1.0], [[2.0, 0.3], [0.3, 1.0]])
+    exact = gf.forecast(gf.LinearModel(F, H, Q, R), belief, 7)
+    curved = gf.NonlinearModel(lambda x: F @ x, lambda x: H @ x, Q, R)
+    fc = gf.forecast(curved, belief, 7, method=method)
+    for name in ("means", "covs", "measurement_means", "measurement_covs"):
+        np.testing.assert_allclose(getattr(fc, name), getattr(exact, name), rtol=1e-10, atol=1e-10, err_msg=name)
+
+
+def test_a_forecast_of_an_angle_is_wrapped():
+    """A bearing measurement of a target turning past ±π: the predicted bearing stays in [-π, π)."""
+    model = gf.NonlinearModel(lambda x: np.array([x[0], x[1] + 0.5]), lambda x: np.array([x[1]]),
+                              0.01 * np.eye(2), np.array([[0.01]]), state_angles=[False, True],
+                              measurement_angles=[True])
+    fc = gf.forecast(model, gf.Gaussian([1.0, 3.0], 0.01 * np.eye(2)), 4)
+    assert np.all(fc.means[:, 1] >= -np.pi) and np.all(fc.means[:, 1] < np.pi)
+    np.testing.assert_allclose(fc.measurement_means[:, 0], fc.means[:, 1], atol=1e-9)
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda m, b: gf.forecast(m, b, 0), ValueError, "`steps` must be a positive integer"),
+    (lambda m, b: gf.forecast(m, b, True), TypeError, "`steps` must be a positive integer"),
+    (lambda m, b: gf.forecast(m, [0.0, 1.0], 3), TypeError, "`belief` must be a gaussfuse.Gaussian"),
+    (lambda m, b: gf.forecast(m, gf.Gaussian([0.0], [[1.0]]), 3), ValueError, "dimension 2"),
+    (lambda m, b: gf.forecast(m, gf.filter(m, b, np.zeros((2, 4, 1))), 3), ValueError, "one series"),
+    (lambda m, b: gf.forecast(m, b, 3, [[1.0]] * 3), ValueError, "no control input"),
+    (lambda m, b: gf.forecast(gf.LinearModel(np.ones((2, 2, 2)), [1, 0], np.eye(2), 1.0), b, 3), ValueError,
+     "fewer than `steps`"),
+    (lambda m, b: gf.forecast(m, b, 3).interval(1.0), ValueError, "`level` must be a number in"),
+    (lambda m, b: gf.forecast(m, b, 3).interval(0.9, of="state"), ValueError, "`of` must be"),
+    (lambda m, b: gf.forecast(m, b, 3, method="ukf"), TypeError, "does not apply to a LinearModel"),
+    (lambda m, b: gf.forecast(gf.LinearModel([[1e200, 0], [0, 1]], [1, 0], np.eye(2), 1.0), b, 3),
+     FloatingPointError, "at step 0: the predicted mean or covariance is not finite"),
+])
+def test_bad_arguments_are_named(call, error, message):
+    model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
+    with pytest.raises(error, match=message):
+        call(model, gf.Gaussian([0.0, 1.0], np.eye(2)))

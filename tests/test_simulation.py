@@ -1,0 +1,131 @@
+"""gf.simulate and gf.sample_posterior: seeded sample moments against the model's exact moments and the RTS smoother."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+from gaussfuse import kalman
+
+
+def _within_sampling_error(draws: np.ndarray, mean: np.ndarray, cov: np.ndarray, name: str, z: float = 5.0) -> None:
+    """The draws' (N, d) mean and covariance within z standard errors of (mean, cov), entry by entry.
+
+    The standard error of a sample covariance entry of a Gaussian is
+    sqrt((σ_ii σ_jj + σ_ij²) / N). The draws are seeded: the test is
+    deterministic; z = 5 leaves room for every entry of every step.
+    """
+    N = draws.shape[0]
+    d = np.diag(cov)
+    np.testing.assert_array_less(np.abs(draws.mean(axis=0) - mean), z * np.sqrt(d / N) + 1e-12, err_msg=name)
+    got = np.cov(draws, rowvar=False).reshape(cov.shape)
+    bound = z * np.sqrt((np.outer(d, d) + cov**2) / N) + 1e-12
+    np.testing.assert_array_less(np.abs(got - cov), bound, err_msg=name)
+
+
+def _controlled_model():
+    F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.0], [0.0, 0.0, 1.0]])
+    B = np.array([[0.0], [1.0], [0.0]])
+    H = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    Q = np.diag([0.05, 0.2, 0.0])  # the third state has no noise
+    return gf.LinearModel(F, H, Q, np.diag([0.5, 0.1]), B), gf.Gaussian([0.0, 1.0, 2.0], np.diag([1.0, 0.5, 0.0]))
+
+
+def test_simulated_moments_are_the_models():
+    """20,000 seeded series of a controlled model: the states' and measurements' moments at each step are the
+    model's (kalman.predict from the prior); a state without noise and a known start is the same in every draw."""
+    model, prior = _controlled_model()
+    us = np.array([[0.5], [-1.0], [0.0], [2.0]])
+    sim = gf.simulate(model, prior, 4, us, size=20_000, rng=7)
+    assert sim.states.shape == (20_000, 4, 3) and sim.measurements.shape == (20_000, 4, 2)
+    mean, cov = prior.mean, prior.cov
+    _within_sampling_error(sim.initial, mean, cov + np.diag([0, 0, 1e-300]), "x0")
+    for k in range(4):
+        mean, cov = kalman.predict(mean, cov, model.F, model.Q, model.B @ us[k])
+        _within_sampling_error(sim.states[:, k], mean, cov + np.diag([0, 0, 1e-300]), f"states {k}")
+        zmean, zcov = kalman.predict(mean, cov, model.H, model.R)
+        _within_sampling_error(sim.measurements[:, k], zmean, zcov, f"measurements {k}")
+    assert np.all(sim.states[:, :, 2] == 2.0)
+
+
+def test_seeds_reproduce_and_generators_are_used_as_given():
+    model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    a, b = gf.simulate(model, prior, 30, rng=3), gf.simulate(model, prior, 30, rng=3)
+    np.testing.assert_array_equal(a.states, b.states)
+    rng = np.random.default_rng(3)
+    c = gf.simulate(model, prior, 30, rng=rng)
+    np.testing.assert_array_equal(c.measurements, a.measurements)
+    assert not np.array_equal(gf.simulate(model, prior, 30, rng=rng).states, a.states)  # the generator moved on
+    assert a.states.shape == (30, 2) and a.initial.shape == (2,)
+
+
+def test_a_nonlinear_model_without_noise_follows_f_exactly():
+    """Q = 0 and a known start: the states are f iterated (plain and vectorized f agree); h plus R's noise."""
+    dt = 0.05
+
+    def f(x):
+        return np.array([x[0] + dt * x[1], x[1] - dt * 9.81 * np.sin(x[0])])
+
+    plain = gf.NonlinearModel(f, lambda x: np.sin(x[:1]), np.zeros((2, 2)), np.array([[0.01]]))
+    vec = gf.NonlinearModel(lambda X: np.stack([f(x) for x in X]), lambda X: np.sin(X[:, :1]), np.zeros((2, 2)),
+                            np.array([[0.01]]), vectorized=True)
+    prior = gf.Gaussian([1.0, 0.0], np.zeros((2, 2)))
+    x, truth = np.array([1.0, 0.0]), []
+    for _ in range(40):
+        x = f(x)
+        truth.append(x)
+    for model in (plain, vec):
+        sim = gf.simulate(model, prior, 40, size=3, rng=1)
+        np.testing.assert_array_equal(sim.states, np.broadcast_to(truth, (3, 40, 2)))
+        noise = sim.measurements[..., 0] - np.sin(sim.states[..., 0])
+        assert 0.05 < noise.std() < 0.15
+
+
+def test_posterior_draws_converge_to_the_rts_smoother():
+    """20,000 seeded trajectories (controls, a missing value, a state known exactly): at each step, mean and
+    covariance within sampling error of the RTS smoother's; the known state is drawn exactly."""
+    model, prior = _controlled_model()
+    rng = np.random.default_rng(2)
+    us = rng.normal(size=(12, 1))
+    zs = gf.simulate(model, prior, 12, us, rng=rng).measurements.copy()
+    zs[4, 0] = np.nan
+    draws = gf.sample_posterior(model, prior, zs, 20_000, us, rng=5)
+    sm = gf.smooth(model, prior, zs, us)
+    assert draws.shape == (20_000, 12, 3)
+    for k in range(12):
+        _within_sampling_error(draws[:, k, :2], sm.means[k, :2], sm.covs[k, :2, :2], f"step {k}")
+    np.testing.assert_array_equal(draws[:, :, 2], 2.0)
+
+
+def test_posterior_draws_of_a_huge_prior_stay_finite_and_consistent():
+    """P0 = 1e12 I, R = 1e-6, Q = 0 (the robustness suite's first problem), with the square-root filter: the
+    conditional covariance comes from the joint factor, never as a difference, so every draw is finite and the
+    draws' moments match the square-root smoother's."""
+    F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    model = gf.LinearModel(F, H, np.zeros((2, 2)), 1e-6)
+    prior = gf.Gaussian([0.0, 0.0], 1e12 * np.eye(2))
+    zs = 3.0 + 2.0 * np.arange(1, 11) + 1e-3 * np.random.default_rng(0).normal(size=10)
+    draws = gf.sample_posterior(model, prior, zs, 5000, rng=0, form="sqrt")
+    sm = gf.smooth(model, prior, zs, form="sqrt")
+    assert np.all(np.isfinite(draws))
+    for k in range(10):
+        _within_sampling_error(draws[:, k], sm.means[k], sm.covs[k], f"step {k}", z=6.0)
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda m, p: gf.simulate(m, p, 0), ValueError, "`T` must be a positive integer"),
+    (lambda m, p: gf.simulate(m, p, 5, size=0), ValueError, "`size` must be a positive integer"),
+    (lambda m, p: gf.simulate(m, p, 5, rng="seed"), TypeError, "`rng` must be None, an integer seed"),
+    (lambda m, p: gf.simulate("model", p, 5), TypeError, "`model` must be a gaussfuse.LinearModel"),
+    (lambda m, p: gf.simulate(m, gf.Gaussian([0.0], [[1.0]]), 5), ValueError, "dimension 2"),
+    (lambda m, p: gf.sample_posterior(m, p, np.zeros((2, 5, 1)), 10), ValueError, "one series"),
+    (lambda m, p: gf.sample_posterior(m, p, np.zeros(5), 0), ValueError, "`n` must be a positive integer"),
+    (lambda m, p: gf.sample_posterior(gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0), p,
+                                      np.zeros(5), 10), TypeError, "LinearModel"),
+])
+def test_bad_arguments_are_named(call, error, message):
+    model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
+    with pytest.raises(error, match=message):
+        call(model, gf.Gaussian([0.0, 1.0], np.eye(2)))
