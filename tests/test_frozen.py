@@ -221,3 +221,11 @@ def test_a_model_and_a_result_travel_to_another_process_and_back(tmp_path):
     for (*_, expected), there, sent_back in zip(jobs, computed, received):
         assert_equal_values(expected, there)  # the model filtered there as here, to the bit
         assert_equal_values(expected, sent_back)
+
+
+@pytest.mark.parametrize("cls", [c for c in EXAMPLES if dataclasses.is_dataclass(c) and c is not gf.Gaussian],
+                         ids=lambda cls: cls.__name__)
+def test_results_show_their_shapes_and_numbers_not_their_arrays(cls):
+    text = repr(EXAMPLES[cls]())
+    assert text.startswith(f"{cls.__name__}(") and "\n" not in text
+    assert "array(" not in text and "[[" not in text

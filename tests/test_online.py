@@ -72,14 +72,30 @@ def test_missing_update_changes_nothing():
     assert kf.loglik == 0.0
 
 
-def test_belief_is_an_immutable_gaussian():
+def test_the_belief_is_immutable_and_x_and_P_are_the_users_to_change():
+    """filterpy's idioms: ``kf.P *= 1000``, ``kf.x[0] = 3``, ``kf.x = ...``; the next step starts from them."""
     model = gf.constant_velocity(dt=1.0, q=0.5, r=1.0)
     kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
     kf.predict()
     kf.update(1.0)
     with pytest.raises(ValueError, match="read-only"):
-        kf.x[0] = 3.0
-    assert kf.x is kf.belief.mean and kf.P is kf.belief.cov
+        kf.belief.mean[0] = 3.0
+    kf.P *= 1000.0
+    kf.x[0] = 3.0
+    assert kf.x is kf.x  # the same copy until the belief changes
+    np.testing.assert_array_equal(kf.belief.mean, [3.0, kf.x_post[1]])
+    np.testing.assert_array_equal(kf.belief.cov, 1000.0 * kf.P_post)
+    want = gf.KalmanFilter(model, gf.Gaussian(kf.belief.mean, kf.belief.cov))
+    kf.predict()
+    want.predict()
+    np.testing.assert_array_equal(kf.x, want.x)
+    kf.x = [1.0, 2.0]
+    np.testing.assert_array_equal(kf.belief.mean, [1.0, 2.0])
+    kf.P[0, 1] = 5.0  # not symmetric: refused when the next step reads it
+    with pytest.raises(ValueError, match="`cov` must be symmetric"):
+        kf.update(1.0)
+    with pytest.raises(ValueError, match="`cov` must be positive semi-definite"):
+        kf.P = [[1.0, 2.0], [2.0, 1.0]]
 
 
 # ---------------------------------------------------------------------------
@@ -149,7 +165,7 @@ def test_stepping_past_the_end_of_a_time_varying_model():
 
 
 def test_constructor_checks_model_and_prior():
-    with pytest.raises(TypeError, match=r"^`model` must be a gaussfuse.LinearModel; got dict\.$"):
+    with pytest.raises(TypeError, match=r"^`model` must be a LinearModel, NonlinearModel; got dict\.$"):
         gf.KalmanFilter({}, gf.Gaussian([0.0], [[1.0]]))
     model = gf.constant_velocity(dt=1.0, q=1.0, r=1.0)
     with pytest.raises(ValueError, match=r"^`prior` must have dimension 2 \(the model's state\); got 1\.$"):
@@ -181,7 +197,7 @@ def test_a_pickled_or_copied_filter_carries_on_where_the_original_left_off():
         np.testing.assert_array_equal(other.x, kf.x)
         np.testing.assert_array_equal(other.P, kf.P)
         assert other.loglik == kf.loglik
-        assert not other.x.flags.writeable
+        assert not other.belief.mean.flags.writeable and other.x.flags.writeable
 
 
 def test_online_filter_reuses_the_fixed_point_and_equals_the_batch_filter_bitwise():
@@ -197,7 +213,7 @@ def test_online_filter_reuses_the_fixed_point_and_equals_the_batch_filter_bitwis
         kf.update(z)
         np.testing.assert_array_equal(kf.x, batch.means[k])
         np.testing.assert_array_equal(kf.P, batch.covs[k])
-    assert kf._steady.cov is kf.P  # at the fixed point, reused
+    assert kf._steady.cov is kf.belief.cov  # at the fixed point, reused
     assert kf.loglik == batch.loglik
 
 
@@ -209,7 +225,7 @@ def test_a_belief_set_by_hand_between_predict_and_update_is_not_taken_for_a_fixe
     for z in np.linspace(0.0, 3.0, 200):
         kf.predict()
         kf.update([z])
-    assert kf._steady.cov is kf.P
+    assert kf._steady.cov is kf.belief.cov
     kf.predict()
     other = gf.Gaussian(kf.x, 2.0 * kf.P)
     kf.belief = other
@@ -262,3 +278,119 @@ def test_the_fuser_names_the_times_of_a_divergence():
         for k in range(1, 200):
             t = 0.5 * k
             fuser.update(t, "gps", t + 0.5 * rng.standard_normal() + (8.0 if k > 120 else 0.0))
+
+
+# ---------------------------------------------------------------------------
+# filterpy's interface: per-call matrices, update(None), y, S, K, the likelihood
+# ---------------------------------------------------------------------------
+
+
+def test_a_filterpy_loop_with_per_call_matrices_gives_filterpys_numbers():
+    """predict(F=, Q=), update(z, R=, H=), update(None), and every attribute filterpy has after a step, to 1e-10."""
+    from filterpy.kalman import KalmanFilter as FilterpyKF
+
+    rng = np.random.default_rng(3)
+    F, H = np.array([[1.0, 0.5], [0.0, 1.0]]), np.array([[1.0, 0.0], [0.0, 1.0]])
+    Q, R = np.diag([0.01, 0.1]), np.diag([1.0, 0.5])
+    kf = gf.KalmanFilter(gf.LinearModel(F, H, Q, R), gf.Gaussian([0.0, 1.0], 10.0 * np.eye(2)))
+    f = FilterpyKF(dim_x=2, dim_z=2)
+    f.x, f.P, f.F, f.H, f.Q, f.R = np.array([0.0, 1.0]), 10.0 * np.eye(2), F.copy(), H.copy(), Q.copy(), R.copy()
+    for k in range(30):
+        z = rng.normal(size=2) + [0.5 * k, 1.0]
+        calls = {}
+        if k % 7 == 3:
+            calls = {"F": np.array([[1.0, 0.8], [0.0, 0.95]]), "Q": 3.0 * Q}
+        kf.predict(**calls)
+        f.predict(**calls)
+        np.testing.assert_allclose(kf.x_prior, f.x_prior, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(kf.P_prior, f.P_prior, rtol=1e-12, atol=1e-12)
+        if k % 9 == 4:
+            kf.update(None)
+            f.update(None)
+            assert kf.step == k + 1 and np.isnan(kf.y).all()
+        else:
+            kw = {"R": np.diag([4.0, 2.0])} if k % 5 == 1 else {}
+            kf.update(z, **kw)
+            f.update(z, **kw)
+            for name in ("y", "S", "K", "log_likelihood", "mahalanobis"):
+                np.testing.assert_allclose(getattr(kf, name), getattr(f, name), rtol=1e-10, atol=1e-12,
+                                           err_msg=f"step {k}: {name}")
+        np.testing.assert_allclose(kf.x, f.x, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(kf.P, f.P, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(kf.x_post, kf.belief.mean)
+
+
+def test_another_sensor_for_one_update_is_the_missing_component_update():
+    """update(z_0, H=H[:1], R=R[:1, :1]) is update([z_0, NaN]) exactly (same algebra over the observed component)."""
+    model = gf.constant_velocity(dt=1.0, q=0.3, r=1.0, dim=2)
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 1.0], np.eye(4))
+    a, b = gf.KalmanFilter(model, prior), gf.KalmanFilter(model, prior)
+    for kf in (a, b):
+        kf.predict()
+    a.update([0.7], H=model.H[:1], R=model.R[:1, :1])
+    b.update([0.7, np.nan])
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(a.K, b.K[:, :1], rtol=1e-14, atol=1e-15)
+    assert a.log_likelihood == pytest.approx(b.log_likelihood, rel=1e-14)
+    with pytest.raises(ValueError, match="`R` is required with an `H` of 1 rows"):
+        a.update([0.1], H=model.H[:1])
+    with pytest.raises(ValueError, match=r"`z` must have shape \(1,\)"):
+        a.update([0.1, 0.2], H=model.H[:1], R=[[1.0]])
+    with pytest.raises(ValueError, match="`Q` must be symmetric"):
+        a.predict(Q=[[1.0, 2.0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+    with pytest.raises(ValueError, match=r"`F` must have shape \(4, 4\)"):
+        a.predict(F=np.eye(2))
+
+
+@pytest.mark.parametrize("method, form", [("ukf", "cov"), ("ekf", "cov"), ("ckf", "sqrt"), ("iekf", "cov")])
+def test_a_nonlinear_model_online_is_the_batch_filter(method, form):
+    """KalmanFilter(NonlinearModel, method=...): every belief bitwise gf.filter's; Q= and R= per call; F= refused."""
+    dt = 0.05
+    model = gf.NonlinearModel(lambda x: np.array([x[0] + dt * x[1], x[1] - 9.81 * dt * np.sin(x[0])]),
+                              lambda x: np.array([np.sin(x[0])]), 0.01 * np.eye(2), np.array([[0.1]]))
+    prior = gf.Gaussian([1.0, 0.0], 0.5 * np.eye(2))
+    zs = np.sin(np.cos(np.arange(1, 41) * dt * 3.0))[:, None]
+    zs[10] = np.nan
+    batch = gf.filter(model, prior, zs, method=method, form=form)
+    kf = gf.KalmanFilter(model, prior, method=method, form=form)
+    for k, z in enumerate(zs):
+        kf.predict()
+        kf.update(z)
+        np.testing.assert_array_equal(kf.x, batch.means[k])
+        np.testing.assert_array_equal(kf.P, batch.covs[k])
+    assert kf.loglik == batch.loglik
+    other = gf.NonlinearModel(model.f, model.h, 0.02 * np.eye(2), np.array([[0.3]]))
+    a, b = gf.KalmanFilter(model, prior, method=method, form=form), gf.KalmanFilter(other, prior, method=method,
+                                                                                   form=form)
+    a.predict(Q=0.02 * np.eye(2))
+    a.update(zs[0], R=[[0.3]])
+    b.predict()
+    b.update(zs[0])
+    np.testing.assert_array_equal(a.x, b.x)
+    with pytest.raises(TypeError, match="replaces a LinearModel's matrix"):
+        a.predict(F=np.eye(2))
+
+
+def test_controls_of_a_nonlinear_model_go_to_f_only_when_given():
+    seen = []
+
+    def f(x, u=None):
+        seen.append(u)
+        return x if u is None else x + u
+
+    model = gf.NonlinearModel(f, lambda x: x[:1], 0.1 * np.eye(2), np.array([[1.0]]))
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), method="ekf")
+    kf.predict()
+    assert set(map(type, seen)) == {type(None)}
+    kf.predict(u=[1.0, 2.0])
+    assert seen[-1] is not None and np.array_equal(seen[-1], [1.0, 2.0])
+
+
+def test_reprs_say_what_the_filter_is_without_its_arrays():
+    kf = gf.KalmanFilter(gf.constant_velocity(dt=1.0, q=1.0, r=1.0), gf.Gaussian([0.0, 0.0], np.eye(2)))
+    kf.predict()
+    kf.update(1.0)
+    text = repr(kf)
+    assert text.startswith("KalmanFilter(LinearModel(n=2, m=1, p=0), method='kf', form='cov', step=1, loglik=")
+    assert "[" not in text

@@ -1,4 +1,4 @@
-"""Pickling and copying frozen result dataclasses without losing their read-only arrays.
+"""Pickling, copying and showing frozen result dataclasses.
 
 A NumPy array comes back writable from ``copy.deepcopy`` and from a pickle
 of protocol 4 or lower (the default before Python 3.14, and what
@@ -14,7 +14,7 @@ from dataclasses import fields
 
 import numpy as np
 
-__all__ = ["reduce_frozen"]
+__all__ = ["reduce_frozen", "shapes_repr"]
 
 
 def reduce_frozen(obj) -> tuple:
@@ -40,3 +40,24 @@ def _rebuild(cls: type, values: tuple, readonly: tuple[int, ...]):
     for i in readonly:
         values[i].setflags(write=False)
     return cls(*values)
+
+
+def shapes_repr(obj) -> str:
+    """``__repr__`` for a result dataclass: its arrays by shape, its numbers by value, its None fields left out.
+
+    A result of 10⁶ steps prints as one line, not as its arrays.
+    """
+    parts = []
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if value is None:
+            continue
+        if isinstance(value, np.ndarray) and value.ndim:
+            parts.append(f"{f.name}: {value.shape}")
+        elif isinstance(value, (float, np.floating)) or (isinstance(value, np.ndarray) and value.ndim == 0):
+            parts.append(f"{f.name}={float(value):.6g}")
+        elif isinstance(value, (bool, int, str, np.integer)):
+            parts.append(f"{f.name}={value!r}")
+        else:
+            parts.append(f"{f.name}: {type(value).__name__}")
+    return f"{type(obj).__name__}({', '.join(parts)})"

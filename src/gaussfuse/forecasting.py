@@ -25,7 +25,7 @@ from statistics import NormalDist
 import numpy as np
 
 from . import kalman
-from ._frozen import reduce_frozen
+from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import wrap_components
 from ._validation import integer
 from .errors import STEP_ERRORS, at_step
@@ -59,6 +59,7 @@ class Forecast:
     measurement_covs: np.ndarray
 
     __reduce__ = reduce_frozen
+    __repr__ = shapes_repr
 
     def interval(self, level: float = 0.95, of: str = "measurements") -> tuple[np.ndarray, np.ndarray]:
         """The central `level` interval of each component: ``mean ± z σ`` with z the normal quantile.

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import inference, kalman
-from ._frozen import reduce_frozen
+from ._frozen import reduce_frozen, shapes_repr
 from ._validation import as_array, shape_error
 from .diagnostics import DivergenceMonitor
 from .gaussian import Gaussian
@@ -96,6 +96,7 @@ class Fused:
     result: FilterResult | SmoothResult
 
     __reduce__ = reduce_frozen  # pickles and copies keep the arrays read-only
+    __repr__ = shapes_repr
 
     def at(self, times) -> tuple[np.ndarray, np.ndarray]:
         """The beliefs at the given times, after every measurement at each.

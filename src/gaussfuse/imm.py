@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
-from ._frozen import reduce_frozen
+from ._frozen import reduce_frozen, shapes_repr
 from ._validation import as_array, shape_error
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
@@ -68,6 +68,7 @@ class IMMResult:
     loglik: float
 
     __reduce__ = reduce_frozen  # pickles and copies keep the arrays read-only
+    __repr__ = shapes_repr
 
 
 def _probabilities(name: str, value, M: int, *, matrix: bool) -> np.ndarray:

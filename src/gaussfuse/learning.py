@@ -96,7 +96,7 @@ from typing import Callable
 
 import numpy as np
 
-from ._frozen import reduce_frozen
+from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize
 from ._validation import as_vector
 from .errors import ConvergenceWarning
@@ -176,6 +176,7 @@ class FitResult:
     nobs: int = 0
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
+    __repr__ = shapes_repr
 
     @property
     def df_model(self) -> int:

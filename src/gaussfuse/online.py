@@ -1,18 +1,17 @@
-"""Online filtering: one predict or update at a time."""
+"""Online filtering: one predict or update at a time, with filterpy's names where they fit."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from . import kalman
-from ._validation import as_array, shape_error
+from ._linalg import symmetrize
+from ._validation import as_array, as_matrix, check_psd, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
-from ._linalg import symmetrize
-from .inference.registry import FORMS
-from .inference.validation import check_prior
-from .linearize import Exact
+from .inference.registry import linearisation, resolve_method
+from .inference.validation import check_form, check_prior
 from .models.linear import LinearModel
 
 __all__ = ["KalmanFilter"]
@@ -23,7 +22,7 @@ class KalmanFilter:
 
     Parameters
     ----------
-    model : LinearModel
+    model : LinearModel or NonlinearModel
         The model; for a time-varying one, the k-th call of :meth:`predict`
         uses its matrices at step k (counting from 0), and :meth:`update`
         those of the step last predicted.
@@ -39,15 +38,22 @@ class KalmanFilter:
         a consistent filter is flagged with probability at most 1e-3 over its
         whole run): a :class:`gaussfuse.DivergenceWarning` naming the steps,
         raised with ``"raise"``.
+    method : str, optional
+        How the model is made affine (:data:`gaussfuse.METHODS`): "kf" for
+        a LinearModel, "ukf" by default for a NonlinearModel.
+    **options
+        The method's options (``alpha``, ``order``, ``iterations``, ...).
 
     Attributes
     ----------
     belief : Gaussian
         The current belief.
     x : ndarray of shape (n,)
-        Its mean.
+        Its mean. Settable; a copy that may also be changed in place
+        (``kf.x[0] = 3.0``): the next step starts from what it holds.
     P : ndarray of shape (n, n)
-        Its covariance.
+        Its covariance, likewise (``kf.P *= 1000``); checked to be
+        symmetric positive semi-definite when the next step reads it.
     L : ndarray of shape (n, n)
         A lower-triangular factor of it, ``P = L Lᵀ``: the one the
         square-root form propagates (computed from P for the covariance
@@ -56,13 +62,31 @@ class KalmanFilter:
         Number of predictions made so far.
     loglik : float
         Sum of the log-likelihood contributions of the updates so far.
+    x_prior, P_prior : ndarray
+        The last prediction (after :meth:`predict`).
+    x_post, P_post : ndarray
+        The last posterior (after :meth:`update`).
+    y : ndarray of shape (m,)
+        The last update's innovation ``z - (H x + d)``; NaN where missing.
+    S : ndarray of shape (m, m)
+        Its covariance ``H P Hᵀ + R``.
+    K : ndarray of shape (n, m)
+        The gain applied, with zero columns for missing components.
+    log_likelihood : float
+        The last update's log-likelihood term.
+    mahalanobis : float
+        ``sqrt(yᵀ S⁻¹ y)`` over the observed components (NaN when nothing
+        was observed).
 
     Notes
     -----
     ``predict(u_k)`` then ``update(z_k)`` for k = 0..T-1 is exactly
     :func:`gaussfuse.filter` on the same series: the two halves of
     :func:`gaussfuse.kalman.step`, :func:`~gaussfuse.kalman.forecast` and
-    :func:`~gaussfuse.kalman.correct`.
+    :func:`~gaussfuse.kalman.correct`. ``predict(F=..., Q=...)`` and
+    ``update(z, H=..., R=...)`` replace the model's matrices for that call
+    only (for a NonlinearModel, Q and R); ``update(None)`` skips a missing
+    measurement, as filterpy's does.
 
     Examples
     --------
@@ -72,98 +96,240 @@ class KalmanFilter:
     >>> for z in [1, 2, 3, 2, 1]:
     ...     _ = kf.predict()
     ...     _ = kf.update(z)
-    >>> kf.x.shape, kf.P.shape
-    ((2,), (2, 2))
+    >>> kf.x.shape, kf.P.shape, kf.K.shape
+    ((2,), (2, 2), (2, 1))
     """
 
-    def __init__(self, model: LinearModel, prior: Gaussian, form: str = "cov", check: str = "warn") -> None:
-        if not isinstance(model, LinearModel):
-            raise TypeError(f"`model` must be a gaussfuse.LinearModel; got {type(model).__name__}.")
-        if not isinstance(form, str) or form not in FORMS:
-            raise ValueError(f"`form` must be one of {list(FORMS)}; got {form!r}.")
+    def __init__(self, model, prior: Gaussian, form: str = "cov", check: str = "warn", method: str | None = None,
+                 **options) -> None:
+        spec, options = resolve_method(model, method, options)
+        check_form(spec, form)
         self._monitor = DivergenceMonitor.for_check(check)
-        self.model = model
-        self.form = form
-        self.belief = check_prior(prior, model.n)
+        self.model, self.method, self.form = model, spec.name, form
+        self._spec, self._options = spec, options
+        self._belief = check_prior(prior, model.n)
+        self._views: dict[str, np.ndarray] = {}  # x and P as handed out, for in-place changes
         self._factor: tuple[Gaussian, np.ndarray] | None = None  # (belief, its factor) in the square-root form
         self._roots = kalman.Factors()
         self.step = 0
         self.loglik = 0.0
         self._controls: dict = {}  # u_k of the step being predicted, for the strategy
-        self._lin = Exact(model, self._controls)
-        # a time-invariant model's covariances reach a fixed point that steps then reuse, exactly
-        self._steady = kalman.SteadyState() if self._lin.invariant else None
+        self._lin, self._iterations, self._tol = linearisation(spec, model, self._controls, options)
+        self._angles = tuple(None if a is None or not np.any(a) else np.asarray(a, dtype=bool)
+                             for a in (getattr(model, "state_angles", None), getattr(model, "measurement_angles", None)))
+        self._steady = self._fresh_steady()
+        self.x_prior = self.P_prior = self.x_post = self.P_post = None
+        self.y = self.S = self.K = None
+        self.log_likelihood = self.mahalanobis = np.nan
+
+    def _fresh_steady(self) -> kalman.SteadyState | None:
+        """A time-invariant model's covariances reach a fixed point that steps then reuse, exactly."""
+        return kalman.SteadyState() if getattr(self._lin, "invariant", False) and self._iterations == 1 else None
+
+    def __getstate__(self) -> dict:
+        # pickles and copies keep the read-only arrays (x_prior, y, ...) read-only
+        state = dict(self.__dict__)
+        state["_readonly"] = [name for name, v in state.items() if isinstance(v, np.ndarray) and not v.flags.writeable]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        readonly = state.pop("_readonly", ())
+        self.__dict__.update(state)
+        for name in readonly:
+            self.__dict__[name].setflags(write=False)
+
+    def __repr__(self) -> str:
+        return (f"KalmanFilter({self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "
+                f"loglik={self.loglik:.6g})")
+
+    # -- the belief, and filterpy's x and P --------------------------------
+
+    @property
+    def belief(self) -> Gaussian:
+        self._adopt_views()
+        return self._belief
+
+    @belief.setter
+    def belief(self, value: Gaussian) -> None:
+        self._belief = check_prior(value, self.model.n)
+        self._views.clear()
+        self._steady = self._fresh_steady()  # the recursion starts again from a belief set by hand
 
     @property
     def x(self) -> np.ndarray:
-        return self.belief.mean
+        return self._view("x", self.belief.mean)
+
+    @x.setter
+    def x(self, value) -> None:
+        self._views.pop("x", None)  # replaced: what the old copy holds no longer counts
+        self.belief = Gaussian(value, self.belief.cov)
 
     @property
     def P(self) -> np.ndarray:
-        return self.belief.cov
+        return self._view("P", self.belief.cov)
+
+    @P.setter
+    def P(self, value) -> None:
+        self._views.pop("P", None)
+        self.belief = Gaussian(self.belief.mean, value)
+
+    def _view(self, name: str, value: np.ndarray) -> np.ndarray:
+        """A writable copy of the belief's `value`, the same one until the belief changes."""
+        if name not in self._views:
+            self._views[name] = np.array(value)
+        return self._views[name]
+
+    def _adopt_views(self) -> None:
+        """Make the belief what the handed-out x and P now hold, if they were changed in place."""
+        x, P = self._views.get("x"), self._views.get("P")
+        if (x is None or np.array_equal(x, self._belief.mean)) and (P is None or np.array_equal(P, self._belief.cov)):
+            return
+        belief = Gaussian(self._belief.mean if x is None else x, self._belief.cov if P is None else P)
+        self.belief = belief
 
     @property
     def L(self) -> np.ndarray:
-        if self._factor is None or self._factor[0] is not self.belief:  # a belief set by hand, or the prior
-            self._factor = (self.belief, kalman.cov_factor(self.belief.cov, "the belief's covariance"))
+        belief = self.belief
+        if self._factor is None or self._factor[0] is not belief:  # a belief set by hand, or the prior
+            self._factor = (belief, kalman.cov_factor(belief.cov, "the belief's covariance"))
         return self._factor[1]
 
     def _set(self, mean: np.ndarray, factor: np.ndarray) -> Gaussian:
         """Make ``N(mean, L Lᵀ)`` the belief, remembering its factor L."""
-        self.belief = Gaussian._trusted(mean, symmetrize(factor @ factor.T))
-        self._factor = (self.belief, factor)
-        return self.belief
+        self._belief = Gaussian._trusted(mean, symmetrize(factor @ factor.T))
+        self._factor = (self._belief, factor)
+        return self._belief
 
     def _check_step(self, k: int) -> None:
-        steps = self.model.steps
+        steps = getattr(self.model, "steps", None)
         if steps is not None and not 0 <= k < steps:
             raise ValueError(f"the time-varying model has {steps} steps; step {k} is beyond it.")
 
-    def predict(self, u=None) -> Gaussian:
-        """Advance the belief one step, with control input `u` of shape (p,) when the model has B."""
+    # -- predict and update -------------------------------------------------
+
+    def predict(self, u=None, F=None, Q=None) -> Gaussian:
+        """Advance the belief one step.
+
+        Parameters
+        ----------
+        u : array_like of shape (p,), optional
+            The control input, when the model has B (or its f takes one).
+        F : array_like of shape (n, n), optional
+            The transition matrix for this step only (a LinearModel).
+        Q : array_like of shape (n, n), optional
+            The process noise covariance for this step only.
+
+        Returns
+        -------
+        Gaussian
+            The prediction, also in ``x_prior`` and ``P_prior``.
+        """
+        belief = self.belief
         k = self.step
         self._check_step(k)
-        p = self.model.p
-        if not p and u is not None:
+        p = self.model.p if isinstance(self.model, LinearModel) else None
+        if p == 0 and u is not None:
             raise ValueError("`u` was given but the model has no control input; give the model `B`.")
-        if p:
-            if u is None:
-                raise ValueError(f"`u` is required: the model has a control input with p = {p}.")
+        if u is None and p:
+            raise ValueError(f"`u` is required: the model has a control input with p = {p}.")
+        if u is not None:
             u = np.atleast_1d(as_array("u", u))
-            if u.shape != (p,):
-                raise shape_error("u", f"({p},)", u.shape)
+            if u.ndim != 1 or (p is not None and u.shape != (p,)):
+                raise shape_error("u", f"({p if p is not None else 'p'},)", u.shape)
         self._controls.clear()
         self._controls[k] = u
+        lin = self._replaced(F=F, Q=Q)
+        # f(x) or f(x, u): a strategy passes u_k when it has controls at all
+        lin.us = self._controls if u is not None or isinstance(self.model, LinearModel) else None
+        steady = self._steady if lin is self._lin else None
         if self.form == "sqrt":
-            self._set(*self._run(kalman.forecast_sqrt, self._lin, k, self.belief.mean, self.L, self._roots,
-                                 steady=self._steady))
+            self._set(*self._run(kalman.forecast_sqrt, lin, k, belief.mean, self.L, self._roots, self._angles[0],
+                                 steady=steady))
         else:
-            mean, cov = self._run(kalman.forecast, self._lin, k, self.belief.mean, self.belief.cov,
-                                  steady=self._steady)
-            self.belief = Gaussian._trusted(mean, cov)
+            mean, cov = self._run(kalman.forecast, lin, k, belief.mean, belief.cov, self._angles[0], steady=steady)
+            self._belief = Gaussian._trusted(mean, cov)
+        if lin is not self._lin:
+            self._steady = self._fresh_steady()
+        self._views.clear()
+        self.x_prior, self.P_prior = self._belief.mean, self._belief.cov
         self.step += 1
-        return self.belief
+        return self._belief
 
-    def update(self, z) -> Gaussian:
-        """Condition the belief on measurement `z` of shape (m,) (a scalar when m = 1); NaN = missing."""
+    def update(self, z, R=None, H=None) -> Gaussian:
+        """Condition the belief on a measurement.
+
+        Parameters
+        ----------
+        z : array_like of shape (m,), a scalar when m = 1, or None
+            The measurement; NaN components are missing, and None skips the
+            update (all missing).
+        R : array_like of shape (m, m), optional
+            The measurement noise covariance for this update only.
+        H : array_like of shape (m', n), optional
+            The measurement matrix for this update only (a LinearModel); a
+            sensor of another dimension m' then needs its `R`.
+
+        Returns
+        -------
+        Gaussian
+            The posterior, also in ``x_post`` and ``P_post``; the innovation
+            and its covariance, the gain, the log-likelihood term and the
+            Mahalanobis distance in ``y``, ``S``, ``K``, ``log_likelihood``
+            and ``mahalanobis``.
+        """
+        belief = self.belief
         k = max(self.step - 1, 0)
         self._check_step(k)
-        m = self.model.m
-        z = np.atleast_1d(as_array("z", z, allow_nan=True))
+        m = self.model.m if H is None else self._matrix("H", H, None, self.model.n).shape[0]
+        if H is not None and m != self.model.m and R is None:
+            raise ValueError(f"`R` is required with an `H` of {m} rows: the model's R is for {self.model.m}.")
+        z = np.full(m, np.nan) if z is None else np.atleast_1d(as_array("z", z, allow_nan=True))
         if z.shape != (m,):
             raise shape_error("z", f"({m},)", z.shape)
+        lin = self._replaced(H=H, R=R, m=m)
+        steady = self._steady if lin is self._lin else None
+        xa, za = self._angles
         if self.form == "sqrt":
-            post = self._run(kalman.correct_sqrt, self._lin, k, self.belief.mean, self.L, z, self._roots,
-                             steady=self._steady)
+            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self.L, z, self._roots, xa, za, steady=steady)
             self._set(post.mean, post.factor)
         else:
-            post = self._run(kalman.correct, self._lin, k, self.belief.mean, self.belief.cov, z,
-                             steady=self._steady)[0]
-            self.belief = Gaussian._trusted(post.mean, post.cov)
+            post = self._run(kalman.correct, lin, k, belief.mean, belief.cov, z, self._iterations, self._tol, xa, za,
+                             steady=steady)[0]
+            self._belief = Gaussian._trusted(post.mean, post.cov)
+        if lin is not self._lin:
+            self._steady = self._fresh_steady()
+        self._views.clear()
         self.loglik += post.loglik
+        observed = ~np.isnan(post.innovation)
+        K = np.zeros((self.model.n, m))
+        if post.gain is not None:
+            K[:, observed] = post.gain
+        self.x_post, self.P_post = self._belief.mean, self._belief.cov
+        self.y, self.S, self.K = post.innovation, post.innovation_cov, K
+        self.log_likelihood, self.mahalanobis = float(post.loglik), float(np.sqrt(post.nis))
         if self._monitor is not None:
             self._monitor.observe(post, k, "steps {}-{}")
-        return self.belief
+        return self._belief
+
+    # -- one call's matrices ------------------------------------------------
+
+    def _matrix(self, name: str, value, rows: int | None, cols: int | None) -> np.ndarray:
+        mat = as_matrix(name, value, rows, cols, time_varying=False, row_vector_ok=name == "H")
+        return check_psd(name, mat) if name in ("Q", "R") else mat
+
+    def _replaced(self, m: int | None = None, **given):
+        """The strategy, or one over the model with the matrices `given` (not None) in place of its own."""
+        given = {name: value for name, value in given.items() if value is not None}
+        if not given:
+            return self._lin
+        n = self.model.n
+        linear = isinstance(self.model, LinearModel)
+        if not linear and ("F" in given or "H" in given):
+            raise TypeError(f"`{'F' if 'F' in given else 'H'}` replaces a LinearModel's matrix; a NonlinearModel's "
+                            "f and h are functions (replace Q and R only).")
+        shapes = {"F": (n, n), "Q": (n, n), "H": (None, n), "R": (m, m)}
+        checked = {name: self._matrix(name, value, *shapes[name]) for name, value in given.items()}
+        return linearisation(self._spec, _Replaced(self.model, checked), self._controls, self._options)[0]
 
     @staticmethod
     def _run(half, lin, k: int, *args, **kwargs):
@@ -177,3 +343,22 @@ class KalmanFilter:
                 return half(lin, k, *args, **kwargs)
         except STEP_ERRORS as exc:
             raise at_step(exc, k) from exc
+
+
+class _Replaced:
+    """A model seen with some matrices replaced, for one predict or update (filterpy's ``F=``, ``Q=``, ...).
+
+    A LinearModel's strategy reads ``F``, ``H``, ``Q``, ``R`` and ``B``; a
+    NonlinearModel's reads its noise through :meth:`noise`.
+    """
+
+    def __init__(self, model, given: dict[str, np.ndarray]) -> None:
+        self._model, self._given = model, given
+
+    def __getattr__(self, name: str):
+        given = self.__dict__["_given"]
+        return given[name] if name in given else getattr(self.__dict__["_model"], name)
+
+    def noise(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        Q, R = self._model.noise(k)
+        return self._given.get("Q", Q), self._given.get("R", R)

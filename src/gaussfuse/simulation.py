@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
-from ._frozen import reduce_frozen
+from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import factor_solve
 from ._validation import integer
 from .inference import filter as run_filter
@@ -69,6 +69,7 @@ class Simulation:
     initial: np.ndarray
 
     __reduce__ = reduce_frozen
+    __repr__ = shapes_repr
 
 
 def _generator(rng) -> np.random.Generator:

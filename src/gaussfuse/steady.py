@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import kalman
-from ._frozen import reduce_frozen
+from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import symmetrize
 from .models.linear import LinearModel
 
@@ -51,6 +51,7 @@ class Stationary:
     innovation_cov: np.ndarray
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
+    __repr__ = shapes_repr
 
 
 def steady_state(model: LinearModel) -> Stationary:

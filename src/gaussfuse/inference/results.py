@@ -10,7 +10,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from .._frozen import reduce_frozen
+from .._frozen import reduce_frozen, shapes_repr
 from ..errors import not_finite
 from ..gaussian import Gaussian
 
@@ -92,6 +92,7 @@ class FilterResult:
     nis: np.ndarray | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
+    __repr__ = shapes_repr
 
     @property
     def last(self) -> Gaussian:
@@ -132,6 +133,7 @@ class SmoothResult:
     cov_factors: np.ndarray | None = None
 
     __reduce__ = reduce_frozen
+    __repr__ = shapes_repr
 
     @property
     def loglik(self) -> float | np.ndarray:
