@@ -29,7 +29,7 @@ from .errors import ModelFunctionError, not_finite
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
            "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "joint_factor", "SqrtGain",
            "sqrt_gain", "Factors", "transition_factors", "measurement_factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
-           "Step", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
+           "Step", "Gate", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
 
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
@@ -58,6 +58,9 @@ class Update(NamedTuple):
         The normalised innovation squared :math:`v^\top S_{oo}^{-1} v`, χ² with
         |o| degrees of freedom for a consistent filter (NaN when nothing was
         observed).
+    rejected : ndarray of bool, shape (m,), or None
+        With a :class:`Gate`: the components it rejected (treated as
+        missing). None without a gate.
     """
 
     mean: np.ndarray
@@ -67,6 +70,7 @@ class Update(NamedTuple):
     loglik: float
     gain: np.ndarray | None = None
     nis: float = np.nan
+    rejected: np.ndarray | None = None
 
 
 def predict(
@@ -359,6 +363,81 @@ def fuse_moments(
 
 
 # ---------------------------------------------------------------------------
+# Gating: measurements too far from the prediction are treated as missing
+# ---------------------------------------------------------------------------
+
+
+class Gate:
+    r"""A validation gate on the innovations, at a chi-square probability.
+
+    Parameters
+    ----------
+    probability : float
+        In (0, 1): a measurement from the model itself passes with this
+        probability (0.99 rejects 1% of good measurements).
+    by : {"measurement", "component"}, default "measurement"
+        Reject the whole measurement when its normalised innovation squared
+        :math:`v_o^\top S_{oo}^{-1} v_o` exceeds the `probability` quantile of
+        :math:`\chi^2_{|o|}`; or each component i whose
+        :math:`v_i^2 / S_{ii}` exceeds that of :math:`\chi^2_1` (the others
+        are kept).
+
+    Notes
+    -----
+    A rejected component is treated as missing: the update conditions on
+    the others only, and its log-likelihood term is not counted. The
+    quantiles come from :func:`scipy.special.chdtri`, once per number of
+    degrees of freedom.
+    """
+
+    __slots__ = ("probability", "by", "_quantiles")
+
+    def __init__(self, probability: float, by: str = "measurement") -> None:
+        if isinstance(probability, bool) or not isinstance(probability, (int, float, np.floating)) \
+                or not 0.0 < probability < 1.0:
+            raise ValueError(f"`gate` must be a probability in (0, 1), such as 0.99; got {probability!r}.")
+        if by not in ("measurement", "component"):
+            raise ValueError(f"`gate_by` must be 'measurement' or 'component'; got {by!r}.")
+        self.probability, self.by = float(probability), by
+        self._quantiles: dict[int, float] = {}
+
+    def __repr__(self) -> str:
+        return f"Gate({self.probability!r}, by={self.by!r})"
+
+    def quantile(self, dof: int) -> float:
+        """The `probability` quantile of χ² with `dof` degrees of freedom."""
+        if dof not in self._quantiles:
+            from scipy.special import chdtri  # SciPy only once a gate is used
+
+            self._quantiles[dof] = float(chdtri(dof, 1.0 - self.probability))
+        return self._quantiles[dof]
+
+    def __call__(self, z: np.ndarray, innovation: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`z` with the rejected components set to NaN, and the mask of those rejected.
+
+        `innovation` is ``z - (H m + d)`` (wrapped for angles) and `S` its
+        covariance, over all m components.
+        """
+        observed = ~np.isnan(z)
+        rejected = np.zeros(z.shape[0], dtype=bool)
+        if not observed.any():
+            return z, rejected
+        if self.by == "component":
+            with np.errstate(divide="ignore", invalid="ignore"):
+                d2 = innovation**2 / np.diagonal(S)
+            rejected = observed & ~(d2 <= self.quantile(1))  # a zero variance and a nonzero innovation: out
+        else:
+            v = innovation[observed]
+            L = cholesky(S[np.ix_(observed, observed)], _S_NAME)
+            white = whiten(L, v)
+            if not white @ white <= self.quantile(int(observed.sum())):
+                rejected = observed
+        if rejected.any():
+            z = np.where(rejected, np.nan, z)
+        return z, rejected
+
+
+# ---------------------------------------------------------------------------
 # The square-root form: the same algebra on Cholesky factors
 # ---------------------------------------------------------------------------
 
@@ -378,6 +457,8 @@ class SqrtUpdate(NamedTuple):
         :math:`K = \bar K L_S^{-1}` over the observed components.
     nis : float
         :math:`e^\top e`, the normalised innovation squared (NaN when nothing was observed).
+    rejected : ndarray of bool, shape (m,), or None
+        As :class:`Update`'s.
     """
 
     mean: np.ndarray
@@ -387,6 +468,7 @@ class SqrtUpdate(NamedTuple):
     loglik: float
     gain: np.ndarray | None = None
     nis: float = np.nan
+    rejected: np.ndarray | None = None
 
 
 def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
@@ -709,7 +791,7 @@ class Step(NamedTuple):
 
 def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
          tol: float | None = None, state_angles=None, measurement_angles=None,
-         steady: SteadyState | None = None) -> Step:
+         steady: SteadyState | None = None, gate: Gate | None = None) -> Step:
     r"""Step k of a filter: :func:`forecast`, then :func:`correct`.
 
     Parameters
@@ -733,6 +815,9 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
         step or the belief (``lin.invariant``): what this step may reuse
         from the last ones (see :class:`SteadyState`); the driver keeps one
         per series. Not used with `iterations` > 1.
+    gate : Gate, optional
+        Measurement components it rejects are treated as missing
+        (``update.rejected`` says which).
 
     Returns
     -------
@@ -748,7 +833,7 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
     pm, pc = forecast(lin, k, mean, cov, state_angles, check=False, steady=steady)
     try:
         post, passes, converged = correct(lin, k, pm, pc, z, iterations, tol, state_angles, measurement_angles,
-                                          steady)
+                                          steady, gate)
     except (FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
         check_finite("predicted", pm, pc)  # when the prediction overflowed first, that is the error
         raise
@@ -816,14 +901,21 @@ def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Fa
 
 
 def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, factors: Factors,
-                 state_angles=None, measurement_angles=None, steady: SteadyState | None = None) -> SqrtUpdate:
+                 state_angles=None, measurement_angles=None, steady: SteadyState | None = None,
+                 gate: Gate | None = None) -> SqrtUpdate:
     """The update of step k on factors: :func:`update_sqrt` through ``lin.measurement`` (see :func:`step_sqrt`).
 
     With `steady`, the fixed point's gain is reused for the prediction it
     made, and a fixed point is recorded when the posterior's covariance
     ``L Lᵀ`` is the one the prediction started from (:meth:`SteadyState.holds`).
+    With `gate` (:class:`Gate`), the components it rejects are missing.
     """
     H, d, LR, DR = measurement_factors(lin, k, mean, factor, factors)
+    rejected = None
+    if gate is not None:
+        HL = H @ factor
+        noise = LR @ LR.T if DR is None else LR @ LR.T - DR @ DR.T
+        z, rejected = gate(z, _innovation(mean, z, H, d, measurement_angles, None)[0], symmetrize(HL @ HL.T + noise))
     observed = observed_components(z)
     reused = steady is not None and factor is steady.predicted_cov and _same(observed, steady.observed)
     if reused:
@@ -836,13 +928,14 @@ def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarra
     post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, measurement_angles)
     if state_angles is not None:
         post_mean = wrap_components(post_mean, state_angles)
-    post = SqrtUpdate(post_mean, g.factor, innovation, g.innovation_cov, loglik, g.K, nis)
+    post = SqrtUpdate(post_mean, g.factor, innovation, g.innovation_cov, loglik, g.K, nis, rejected)
     check_finite("filtered", post.mean, post.factor, post.loglik, factor=True)
     return post
 
 
 def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, factors: Factors,
-              state_angles=None, measurement_angles=None, steady: SteadyState | None = None) -> Step:
+              state_angles=None, measurement_angles=None, steady: SteadyState | None = None,
+              gate: Gate | None = None) -> Step:
     r"""Step k of a square-root filter: :func:`forecast_sqrt`, then :func:`correct_sqrt`.
 
     As :func:`step` (one pass, for a strategy that does not read the
@@ -863,7 +956,7 @@ def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, 
     # Checked before the update: a prediction too large to square can still give a finite posterior
     # factor (all its precision lost), which the posterior's own check would not catch.
     check_finite("predicted", pm, pL, factor=True)
-    post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles, steady)
+    post = correct_sqrt(lin, k, pm, pL, z, factors, state_angles, measurement_angles, steady, gate)
     return Step(pm, pL, post, 1, True)
 
 
@@ -991,7 +1084,7 @@ def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None, check:
 
 def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iterations: int = 1,
             tol: float | None = None, state_angles=None, measurement_angles=None,
-            steady: SteadyState | None = None) -> tuple[Update, int, bool]:
+            steady: SteadyState | None = None, gate: Gate | None = None) -> tuple[Update, int, bool]:
     """The update of step k through ``lin.measurement``, iterated when asked.
 
     Pass i linearises the measurement at the previous posterior ``x_{i-1}``
@@ -1007,6 +1100,9 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     point is recorded when this update brings the covariance back to the
     one the prediction started from.
 
+    With `gate` (:class:`Gate`), the components it rejects at the first
+    linearisation (at the prediction) are missing for every pass.
+
     Returns
     -------
     post : Update
@@ -1017,7 +1113,11 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         (given); True otherwise.
     """
     if iterations == 1:  # the plain update
-        return _correct_once(lin, k, mean, cov, z, state_angles, measurement_angles, steady)[0], 1, True
+        return _correct_once(lin, k, mean, cov, z, state_angles, measurement_angles, steady, gate)[0], 1, True
+    rejected = None
+    if gate is not None:
+        H, d, R = lin.measurement(k, mean, cov)
+        z, rejected = gate(z, _innovation(mean, z, H, d, measurement_angles, None)[0], symmetrize(H @ cov @ H.T + R))
     post_mean, post_cov = mean, cov
     changed = iterate_changed(cov) if tol is not None else None
     passes, converged = iterations, changed is None
@@ -1030,16 +1130,20 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         if changed is not None and changed(post_mean, previous, state_angles) <= tol:
             passes, converged = i + 1, True
             break
-    if post_mean is not post.mean:
-        post = post._replace(mean=post_mean)
+    if post_mean is not post.mean or rejected is not None:
+        post = post._replace(mean=post_mean, rejected=rejected)
     check_finite("filtered", post.mean, post.cov, post.loglik)
     return post, passes, converged
 
 
 def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, state_angles,
-                  measurement_angles, steady: SteadyState | None = None) -> tuple[Update, Gain]:
+                  measurement_angles, steady: SteadyState | None = None,
+                  gate: Gate | None = None) -> tuple[Update, Gain]:
     """The plain update of step k through ``lin.measurement``, and its :class:`Gain` (see :func:`correct`)."""
     H, d, R = lin.measurement(k, mean, cov)
+    rejected = None
+    if gate is not None:
+        z, rejected = gate(z, _innovation(mean, z, H, d, measurement_angles, None)[0], symmetrize(H @ cov @ H.T + R))
     observed = observed_components(z)
     reused = steady is not None and cov is steady.predicted_cov and _same(observed, steady.observed)
     if reused:
@@ -1051,7 +1155,7 @@ def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray,
     post_mean, innovation, loglik, nis = apply_gain(g, mean, z, H, d, measurement_angles)
     if state_angles is not None:
         post_mean = wrap_components(post_mean, state_angles)
-    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K, nis)
+    post = Update(post_mean, g.cov, innovation, g.innovation_cov, loglik, g.K, nis, rejected)
     if reused:  # the fixed point's covariance is finite: only the mean and loglik can have overflowed
         total = post_mean.sum() + loglik
         if total - total != 0.0:

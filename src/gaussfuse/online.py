@@ -119,7 +119,7 @@ class KalmanFilter:
                              for a in (getattr(model, "state_angles", None), getattr(model, "measurement_angles", None)))
         self._steady = self._fresh_steady()
         self.x_prior = self.P_prior = self.x_post = self.P_post = None
-        self.y = self.S = self.K = None
+        self.y = self.S = self.K = self.rejected = None
         self.log_likelihood = self.mahalanobis = np.nan
 
     def _fresh_steady(self) -> kalman.SteadyState | None:
@@ -255,7 +255,7 @@ class KalmanFilter:
         self.step += 1
         return self._belief
 
-    def update(self, z, R=None, H=None) -> Gaussian:
+    def update(self, z, R=None, H=None, gate: float | None = None, gate_by: str = "measurement") -> Gaussian:
         """Condition the belief on a measurement.
 
         Parameters
@@ -268,6 +268,10 @@ class KalmanFilter:
         H : array_like of shape (m', n), optional
             The measurement matrix for this update only (a LinearModel); a
             sensor of another dimension m' then needs its `R`.
+        gate, gate_by :
+            Outlier gating, as in :func:`gaussfuse.filter`: what the gate
+            rejects is treated as missing; ``rejected`` says which
+            components (None without a gate).
 
         Returns
         -------
@@ -289,12 +293,14 @@ class KalmanFilter:
         lin = self._replaced(H=H, R=R, m=m)
         steady = self._steady if lin is self._lin else None
         xa, za = self._angles
+        checked_gate = self._gate(gate, gate_by)
         if self.form == "sqrt":
-            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self.L, z, self._roots, xa, za, steady=steady)
+            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self.L, z, self._roots, xa, za, steady=steady,
+                             gate=checked_gate)
             self._set(post.mean, post.factor)
         else:
             post = self._run(kalman.correct, lin, k, belief.mean, belief.cov, z, self._iterations, self._tol, xa, za,
-                             steady=steady)[0]
+                             steady=steady, gate=checked_gate)[0]
             self._belief = Gaussian._trusted(post.mean, post.cov)
         if lin is not self._lin:
             self._steady = self._fresh_steady()
@@ -307,9 +313,21 @@ class KalmanFilter:
         self.x_post, self.P_post = self._belief.mean, self._belief.cov
         self.y, self.S, self.K = post.innovation, post.innovation_cov, K
         self.log_likelihood, self.mahalanobis = float(post.loglik), float(np.sqrt(post.nis))
+        self.rejected = post.rejected
         if self._monitor is not None:
             self._monitor.observe(post, k, "steps {}-{}")
         return self._belief
+
+    def _gate(self, gate, gate_by: str) -> kalman.Gate | None:
+        """The Gate of this update (checked; the last one reused, with its quantiles), or None."""
+        checked = kalman.Gate(0.5 if gate is None else gate, gate_by)  # a bad `gate_by` is named even without a gate
+        if gate is None:
+            return None
+        last = self.__dict__.get("_last_gate")
+        if last is not None and (last.probability, last.by) == (checked.probability, checked.by):
+            return last
+        self._last_gate = checked
+        return checked
 
     # -- one call's matrices ------------------------------------------------
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kalman
 from ..gaussian import Gaussian
 from . import diffuse, drivers
 from .registry import METHODS
@@ -23,7 +24,8 @@ __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
 def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
            engine: str = "auto", keep: str = "all", form: str = "cov", steady: bool = False,
-           gains: bool = False, check: str = "warn", **options) -> FilterResult:
+           gains: bool = False, check: str = "warn", gate: float | None = None, gate_by: str = "measurement",
+           **options) -> FilterResult:
     r"""Filter a series of measurements: the belief about each state given the past.
 
     Parameters
@@ -107,6 +109,15 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         :class:`gaussfuse.DivergenceWarning` naming the steps, raise it, or
         do nothing. Not made with ``keep="last"`` (no per-step values) or a
         ``"diffuse"`` prior.
+    gate : float, optional
+        Outlier gating at this chi-square probability (0.99, say): a
+        measurement whose normalised innovation squared is beyond the
+        quantile of :math:`\chi^2_{|o|}` is treated as missing, and
+        ``FilterResult.rejected`` (T, m) says which were
+        (:class:`gaussfuse.kalman.Gate`). On the readable path.
+    gate_by : {"measurement", "component"}, default "measurement"
+        Gate the whole measurement, or each component on its own
+        (:math:`v_i^2 / S_{ii}` against :math:`\chi^2_1`).
 
     Returns
     -------
@@ -177,18 +188,20 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         raise TypeError(f"`gains` must be True or False; got {gains!r}.")
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")
+    gate = _gate(gate, gate_by, prior)
     _check_check(check)
     if prior == "diffuse":
         result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
                         for i, z in enumerate(zs)])
     else:
-        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains)
+        result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains, gate)
         drivers.check_divergence(result, check)
     return result if batch else first(result)
 
 
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
-           engine: str = "auto", form: str = "cov", check: str = "warn", **options) -> SmoothResult:
+           engine: str = "auto", form: str = "cov", check: str = "warn", gate: float | None = None,
+           gate_by: str = "measurement", **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
     Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
@@ -235,14 +248,26 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     ((5, 2), (5, 2))
     """
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
+    gate = _gate(gate, gate_by, prior)
     _check_check(check)
     if prior == "diffuse":
         result = stack([diffuse.diffuse_smooth(model, z, None if us is None else us[i], engine)
                         for i, z in enumerate(zs)])
     else:
-        result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form)
+        result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form, gate=gate)
         drivers.check_divergence(result.filtered, check)
     return result if batch else first(result)
+
+
+def _gate(gate, gate_by: str, prior) -> kalman.Gate | None:
+    """The Gate of `gate` and `gate_by` (checked), or None."""
+    if gate is None:
+        if gate_by != "measurement":
+            kalman.Gate(0.5, gate_by)  # a bad `gate_by` is named even without a gate
+        return None
+    if prior == "diffuse":
+        raise ValueError("`gate` is not available with a 'diffuse' prior.")
+    return kalman.Gate(gate, gate_by)
 
 
 def _check_check(check) -> None:

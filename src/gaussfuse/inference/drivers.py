@@ -66,7 +66,7 @@ def _angles(model):
 def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol: float | None = None,
                state_angles=None, measurement_angles=None, keep: str = "all",
                form: str = "cov", target: np.ndarray | None = None,
-               gains: bool = False) -> tuple[FilterResult, int]:
+               gains: bool = False, gate: kalman.Gate | None = None) -> tuple[FilterResult, int]:
     """Filter one series (T, m): :func:`gaussfuse.kalman.step` at each step, through the strategy `lin`.
 
     Returns the result and the number of steps whose iterated update made
@@ -77,6 +77,8 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     `target`, the stationary filtered covariance, the steady-state filter
     (:class:`gaussfuse.kalman.SteadyState`). With `gains`, the result
     holds the gain of each step (zero columns for missing components).
+    With `gate` (:class:`gaussfuse.kalman.Gate`), the components it rejects
+    are missing, and ``rejected`` says which.
     """
     T, n, m = zs.shape[0], prior.dim, zs.shape[1]
     rows = 0 if keep == "last" else T
@@ -88,6 +90,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     factors, pfactors = np.empty((crows if sqrt else 0, n, n)), np.empty((crows if sqrt else 0, n, n))
     used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
     K = np.zeros((rows if gains else 0, n, m))
+    rejected = np.zeros((T if gate is not None else 0, m), dtype=bool)
     nis = np.empty(rows)
     unconverged, loglik = 0, 0.0
     mean, cov = prior.mean, prior.cov
@@ -101,13 +104,16 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step
             for k in range(T):
                 if sqrt:
-                    st = kalman.step_sqrt(lin, k, mean, cov, zs[k], roots, state_angles, measurement_angles, steady)
+                    st = kalman.step_sqrt(lin, k, mean, cov, zs[k], roots, state_angles, measurement_angles, steady,
+                                          gate)
                     mean, cov = st.update.mean, st.update.factor
                 else:
                     st = kalman.step(lin, k, mean, cov, zs[k], iterations, tol, state_angles, measurement_angles,
-                                     steady)
+                                     steady, gate)
                     mean, cov = st.update.mean, st.update.cov
                 post = st.update
+                if post.rejected is not None:
+                    rejected[k] = post.rejected
                 if rows:
                     pmeans[k], means[k], innov[k], nis[k] = st.predicted_mean, mean, post.innovation, post.nis
                     if used.shape[0]:
@@ -129,7 +135,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
                           _square(cov) if sqrt else cov, used if used.shape[0] else None,
                           factors if factors.shape[0] else None, pfactors if pfactors.shape[0] else None,
-                          K if K.shape[0] else None, nis if rows else None)
+                          K if K.shape[0] else None, nis if rows else None, rejected if gate is not None else None)
     return result, unconverged
 
 
@@ -193,22 +199,25 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
 
 
 def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all", form: str = "cov",
-                   target: np.ndarray | None = None, gains: bool = False) -> tuple[FilterResult, int]:
+                   target: np.ndarray | None = None, gains: bool = False,
+                   gate: kalman.Gate | None = None) -> tuple[FilterResult, int]:
     """The filter for one series, and how many of its steps stopped at the iteration limit."""
     lin, iterations, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
     return run_filter(lin, prior, zs, iterations=iterations, tol=tol, state_angles=xa, measurement_angles=za,
-                      keep=keep, form=form, target=target, gains=gains)
+                      keep=keep, form=form, target=target, gains=gains, gate=gate)
 
 
 def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool = False,
-                   form: str = "cov") -> tuple[SmoothResult, int, bool]:
+                   form: str = "cov", gate: kalman.Gate | None = None) -> tuple[SmoothResult, int, bool]:
     """The smoother for one series; its filter's steps at the iteration limit; whether its passes were.
 
     With `to_prior`, the smoothed beliefs and gains start at the prior's
     time 0 (T + 1 beliefs, T gains).
     """
-    filt, unconverged = _method_filter(spec, model, prior, zs, us, options, form=form)
+    filt, unconverged = _method_filter(spec, model, prior, zs, us, options, form=form, gate=gate)
+    if filt.rejected is not None:  # the iterated smoother's passes leave out what the filter's gate rejected
+        zs = np.where(filt.rejected, np.nan, zs)
     lin, passes, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
     if not spec.iterated:
@@ -311,7 +320,8 @@ def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smooth
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
-                 keep: str, form: str = "cov", steady: bool = False, gains: bool = False) -> FilterResult:
+                 keep: str, form: str = "cov", steady: bool = False, gains: bool = False,
+                 gate: kalman.Gate | None = None) -> FilterResult:
     """Filter N series `zs` (N, T, m), with controls `us` (N, T, p) or None; the result has the N axis.
 
     With `steady`, the steady-state filter: the covariance is held once
@@ -320,7 +330,8 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     """
     target = steady_state(model).cov if steady else None
     sqrt_compiled = form == "sqrt" and spec.compiled == "linear"
-    readable = "gains=True" if gains else None if form == "cov" or sqrt_compiled else f"form={form!r}"
+    readable = ("gains=True" if gains else f"gate={gate.probability!r}" if gate is not None
+                else None if form == "cov" or sqrt_compiled else f"form={form!r}")
     if sqrt_compiled and engine == "auto":
         engine = "python"  # the compiled square-root filter only when asked for: its kernel is compiled apart
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable)
@@ -331,21 +342,23 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
         if target is None:
             return compiled.filter(lin, model, prior, zs, us, keep)
         return compiled.filter(lin, model, prior, zs, us, keep, target)
-    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep, form, target, gains)
-            for i, z in enumerate(zs)]
+    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep, form, target, gains,
+                           gate) for i, z in enumerate(zs)]
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
     return stack([r[0] for r in runs])
 
 
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
-                 to_prior: bool = False, form: str = "cov") -> SmoothResult:
+                 to_prior: bool = False, form: str = "cov", gate: kalman.Gate | None = None) -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
     sqrt_compiled = form == "sqrt" and spec.compiled == "linear" and not to_prior
     if sqrt_compiled and engine == "auto":
         engine = "python"  # as filter_batch: the compiled square-root kernels only when asked for
+    readable = (f"gate={gate.probability!r}" if gate is not None
+                else None if form == "cov" or sqrt_compiled else f"form={form!r}")
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
-                               readable=None if form == "cov" or sqrt_compiled else f"form={form!r}")
+                               readable=readable)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
@@ -357,7 +370,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
             return result
         result = compiled.smooth(lin, model, prior, zs, us)
         return _back_to_prior(model, prior, result) if to_prior else result
-    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form)
+    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form, gate)
             for i, z in enumerate(zs)]
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],

@@ -68,6 +68,9 @@ class FilterResult:
         consistent filter; NaN where nothing was observed): what the
         divergence check (`check` in :func:`filter`) tests. None with
         ``keep="last"``.
+    rejected : ndarray of bool, shape (T, m), or None
+        With `gate`: the measurement components the gate rejected (treated
+        as missing). None without a gate.
 
     Notes
     -----
@@ -90,6 +93,7 @@ class FilterResult:
     predicted_cov_factors: np.ndarray | None = None
     gains: np.ndarray | None = None
     nis: np.ndarray | None = None
+    rejected: np.ndarray | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
     __repr__ = shapes_repr
