@@ -112,6 +112,7 @@ EXAMPLES = {
     gf.SmoothResult: lambda: gf.smooth(nonlinear_model(), prior(), np.sin(ZS), method="ekf"),
     gf.KalmanFilter: kalman_filter,
     gf.Stationary: lambda: gf.steady_state(linear_model()),
+    gf.TimedModel: lambda: gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.1)),
     gf.Forecast: lambda: gf.forecast(linear_model(), prior(), 3, np.ones((3, 1))),
     gf.Simulation: lambda: gf.simulate(linear_model(), prior(), 4, np.ones((4, 1)), rng=0),
     gf.Measurement: lambda: gf.Measurement(1.5, "gps", np.array([1.0, 2.0])),

@@ -317,7 +317,7 @@ def _call(**changes):
      "`sensors['v']` has `H` of shape (1, 2), which does not fit the state of `motion` (n = 4); `H` must have 4 columns."),
     (dict(prior=gf.Gaussian([0.0, 0.0], np.eye(2))), ValueError,
      "`prior` must have dimension 4 (the model's state); got 2."),
-    (dict(t0="0"), TypeError, "`t0` must be a real number (a time); got '0'."),
+    (dict(t0="0"), TypeError, "`t0` must be a real number of seconds or a datetime; got '0'."),
     (dict(t0=np.nan), ValueError, "`t0` must be finite; got nan."),
     (dict(measurements=5), TypeError,
      "`measurements` must be an iterable of Measurement(t, sensor, z) or (t, sensor, z) tuples; got int."),
@@ -332,7 +332,7 @@ def _call(**changes):
     (dict(measurements=[(1.0, "pos", [0, np.inf])]), ValueError,
      "`measurements[0].z` must be finite; got an infinite value at index (1,)."),
     (dict(measurements=[(None, "pos", [0, 0])]), TypeError,
-     "`measurements[0].t` must be a real number (a time); got None."),
+     "`measurements[0].t` must be a real number of seconds or a datetime; got None."),
     (dict(times=[[1.0]]), ValueError, "`times` must have shape (k,); got shape (1, 1)."),
     (dict(times=[2.0, -1.0]), ValueError,
      "`times` must not be earlier than `t0` = 0.0 (the prior's time); got -1.0."),
@@ -356,7 +356,7 @@ def test_fuser_validation():
         fuser.update(1.0, "gps", [0.0, 0.0])
     with pytest.raises(ValueError, match=re.escape("`z` must have shape (2,) for sensor 'vel'; got shape ().")):
         fuser.update(1.0, "vel", 3.0)
-    with pytest.raises(TypeError, match=re.escape("`t` must be a real number (a time); got '1'.")):
+    with pytest.raises(TypeError, match=re.escape("`t` must be a real number of seconds or a datetime; got '1'.")):
         fuser.predict("1")
     assert fuser.t == 0.0 and fuser.loglik == 0.0  # nothing happened
     motion, sensors, prior, _ = _turning_scenario()
@@ -406,3 +406,30 @@ def test_a_pickled_or_copied_fuser_carries_on_where_the_original_left_off(method
         np.testing.assert_array_equal(other.belief.mean, fuser.belief.mean)
         np.testing.assert_array_equal(other.belief.cov, fuser.belief.cov)
         assert other.loglik == fuser.loglik
+
+
+def test_datetimes_are_seconds_since_1970_in_utc():
+    """fuse_timeline and Fuser take datetime, numpy.datetime64 and pandas.Timestamp (any time zone): the same
+    numbers as the seconds they stand for."""
+    import datetime
+
+    import pandas as pd
+
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.1), {"gps": gf.Position(dim=1, r=1.0)}
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    t0 = pd.Timestamp("2026-03-29 03:00:00", tz="Europe/Paris")  # just after the change to summer time
+    seconds = [1.0, 2.5, 4.0]
+    stamped = [(t0 + pd.Timedelta(seconds=s), "gps", s + 0.1) for s in seconds]
+    plain = [(s, "gps", s + 0.1) for s in seconds]
+    a = gf.fuse_timeline(motion, sensors, prior, t0, stamped)
+    b = gf.fuse_timeline(motion, sensors, prior, 0.0, plain)
+    np.testing.assert_allclose(a.means, b.means, rtol=1e-12)
+    np.testing.assert_allclose(a.times - a.times[0], np.array(seconds) - seconds[0], atol=1e-6)
+    utc = datetime.datetime(2026, 3, 29, 1, 0, 0)  # t0 in UTC, naive
+    fuser = gf.Fuser(motion, sensors, prior, utc)
+    fuser.update(np.datetime64("2026-03-29T01:00:01"), "gps", 1.1)
+    online = gf.Fuser(motion, sensors, prior, 0.0)
+    online.update(1.0, "gps", 1.1)
+    np.testing.assert_allclose(fuser.belief.mean, online.belief.mean, rtol=1e-12)
+    with pytest.raises(TypeError, match="a real number of seconds or a datetime"):
+        gf.Fuser(motion, sensors, prior, "2026-01-01")

@@ -392,5 +392,5 @@ def test_reprs_say_what_the_filter_is_without_its_arrays():
     kf.predict()
     kf.update(1.0)
     text = repr(kf)
-    assert text.startswith("KalmanFilter(LinearModel(n=2, m=1, p=0), method='kf', form='cov', step=1, loglik=")
+    assert text.startswith("KalmanFilter(LinearModel(n=2, m=1, p=0, dt=1), method='kf', form='cov', step=1, loglik=")
     assert "[" not in text

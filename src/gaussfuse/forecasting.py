@@ -30,8 +30,10 @@ from ._linalg import wrap_components
 from ._validation import integer
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
+from .models.compose import TimedModel
 from .inference.registry import linearisation, resolve_method
 from .inference.results import FilterResult, SmoothResult
+from .inference.timing import as_seconds, resolve
 from .inference.validation import check_controls, check_prior
 
 __all__ = ["forecast", "Forecast"]
@@ -84,7 +86,8 @@ class Forecast:
         return means - half, means + half
 
 
-def forecast(model, belief, steps: int, us=None, *, method: str | None = None, **options) -> Forecast:
+def forecast(model, belief, steps: int | None = None, us=None, *, times=None, method: str | None = None,
+             **options) -> Forecast:
     """Predict the states and measurements `steps` steps past a belief.
 
     Parameters
@@ -96,11 +99,15 @@ def forecast(model, belief, steps: int, us=None, *, method: str | None = None, *
     belief : Gaussian, FilterResult or SmoothResult
         The belief to forecast from; for a result of one series, its last
         belief (the filtered one, which is also the last smoothed one).
-    steps : int
-        How many steps ahead, at least 1.
+    steps : int, optional
+        How many steps ahead, at least 1 (or `times`).
     us : array_like of shape (steps, p), optional
         Controls of the forecast steps, when the model has ``B`` (or its
         ``f`` takes them).
+    times : array_like of shape (steps + 1,), optional
+        The belief's time, then the times to forecast at (see
+        :func:`gaussfuse.filter`'s `times`): a TimedModel
+        (:func:`gaussfuse.model` without dt) is discretised for each step.
     method : str, optional
         How a NonlinearModel is made affine (see :data:`gaussfuse.METHODS`;
         default "ukf"); a LinearModel's is exact.
@@ -132,6 +139,17 @@ def forecast(model, belief, steps: int, us=None, *, method: str | None = None, *
     >>> fc.covs[:, 0, 0], fc.measurement_covs[:, 0, 0]
     (array([2., 3., 4.]), array([4., 5., 6.]))
     """
+    if times is not None:
+        if steps is not None:
+            raise ValueError("give `steps` or `times`, not both: the number of steps is len(times) - 1.")
+        steps = len(as_seconds("times", times)) - 1
+        if steps < 1:
+            raise ValueError("`times` must hold the belief's time and at least one time to forecast at.")
+        model, us = resolve(model, times, steps, us)
+    elif steps is None:
+        raise TypeError("forecast() needs `steps` (how many steps ahead) or `times`.")
+    elif isinstance(model, TimedModel):
+        raise ValueError("`times` is required: the model was built by gf.model(motion, sensor) without dt.")
     steps = integer("steps", steps)
     belief = _last_belief(belief, model.n)
     spec, options = resolve_method(model, method, options)

@@ -18,6 +18,8 @@ timeline of events becomes ONE state-space model over the event steps:
 
 from __future__ import annotations
 
+import datetime
+
 from collections.abc import Iterable
 from functools import partial
 from dataclasses import dataclass
@@ -228,9 +230,16 @@ def _moved_jacobian(timeline: _Timeline, x: np.ndarray, u: np.ndarray) -> np.nda
 
 
 def _time(name: str, value) -> float:
-    """A finite real time."""
+    """A finite real time: a number of seconds, or a datetime as seconds since 1970-01-01 UTC."""
+    if isinstance(value, (datetime.datetime, np.datetime64)) or hasattr(value, "tz_localize"):
+        if getattr(value, "tzinfo", None) is not None:  # aware: the same instant in UTC
+            value = value.astimezone(datetime.timezone.utc).replace(tzinfo=None)
+        stamp = np.datetime64(value, "ns")
+        if np.isnat(stamp):
+            raise ValueError(f"`{name}` must be a time; got NaT.")
+        return stamp.astype(np.int64) / 1e9
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"`{name}` must be a real number (a time); got {value!r:.60}.")
+        raise TypeError(f"`{name}` must be a real number of seconds or a datetime; got {value!r:.60}.")
     value = float(value)
     if not np.isfinite(value):
         raise ValueError(f"`{name}` must be finite; got {value}.")
@@ -310,8 +319,11 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
         :class:`gaussfuse.RangeBearing`.
     prior : Gaussian
         Belief about the state at time `t0`, of the motion's dimension n.
-    t0 : float
-        Time of the prior; no measurement may be earlier.
+    t0 : float or datetime
+        Time of the prior; no measurement may be earlier. Times are seconds,
+        or datetimes (``datetime``, ``numpy.datetime64``, ``pandas.Timestamp``;
+        time zones taken to UTC), which count as seconds since 1970-01-01
+        UTC: the result's times are then those seconds.
     measurements : iterable of Measurement or of (t, sensor, z) tuples
         In any order: they are sorted by time (stably, so measurements at
         equal times keep their order). ``z`` has the sensor's shape (m_s,)
@@ -430,8 +442,8 @@ class Fuser:
         The sensors by name (see :func:`fuse_timeline`).
     prior : Gaussian
         Belief about the state at time `t0`.
-    t0 : float
-        Time of the prior.
+    t0 : float or datetime
+        Time of the prior (seconds, or a datetime, as in :func:`fuse_timeline`).
     method : str, optional
         ``"kf"`` (linear motion and sensors; the default then), or for a
         nonlinear motion or sensor ``"ekf"`` (the default), ``"ukf"``,

@@ -105,7 +105,9 @@ from .inference.diffuse import Moments, augmented_runs, diffuse_moments, not_ide
 from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
 from .inference.registry import METHODS as _METHODS
 from .inference.results import first
+from .inference import timing
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
+from .models.compose import TimedModel
 from .models.linear import LinearModel
 
 __all__ = ["fit", "FitResult", "LEARNABLE", "STRUCTURES"]
@@ -1100,6 +1102,7 @@ def fit(
     x0=None,
     callback: Callable[[int, float], None] | None = None,
     engine: str = "auto",
+    times=None,
 ) -> FitResult:
     """Learn a linear-Gaussian model's matrices from measurements.
 
@@ -1149,6 +1152,10 @@ def fit(
         whole fit, compiling when the series have at least 1000 steps and
         compiling (or loading from numba's disk cache) is expected to cost
         less than the fit's passes on the readable path (:data:`FIT_PASSES`).
+    times : array_like, optional
+        The measurements' times, as in :func:`gaussfuse.filter`: a
+        TimedModel (:func:`gaussfuse.model` without dt) is discretised for
+        each step; its F, Q and B then vary with dt and are not learned.
 
     Returns
     -------
@@ -1186,6 +1193,14 @@ def fit(
     >>> round(float(res.model.R[0, 0])), round(float(res.model.Q[0, 0]), 1)
     (15099, 1469.1)
     """
+    timed = isinstance(model, TimedModel)
+    model, us = timing.resolve(model, times, zs, us)
+    if timed and model.steps is not None and params is None:
+        varying = sorted({"F", "Q", "B"} & set([learn] if isinstance(learn, str) else learn))
+        if varying:
+            raise ValueError(f"`learn` includes {varying}, which a model discretised for each step's dt has at every "
+                             "step (they depend on dt); learn H, R, m0 or P0, or use times on a regular grid with a "
+                             "model of that dt.")
     if not isinstance(model, LinearModel):
         raise TypeError(f"`model` must be a gaussfuse.LinearModel; got {type(model).__name__}.")
     if method not in METHODS:

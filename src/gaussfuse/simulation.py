@@ -43,7 +43,9 @@ from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import factor_solve
 from ._validation import integer
 from .inference import filter as run_filter
+from .inference.timing import resolve
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
+from .models.compose import TimedModel
 from .models.linear import LinearModel
 from .models.nonlinear import NonlinearModel
 
@@ -85,7 +87,7 @@ def _draw(rng: np.random.Generator, factor: np.ndarray, size: int) -> np.ndarray
     return rng.standard_normal((size, factor.shape[1])) @ factor.T
 
 
-def simulate(model, prior, T: int, us=None, *, size: int | None = None, rng=None) -> Simulation:
+def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = None, rng=None) -> Simulation:
     """Draw states and measurements from a model.
 
     Parameters
@@ -97,6 +99,9 @@ def simulate(model, prior, T: int, us=None, *, size: int | None = None, rng=None
         Steps to draw, at least 1 (a time-varying model's own number of steps).
     us : array_like of shape (T, p), optional
         Controls, when the model has ``B`` (or its ``f`` takes them).
+    times : array_like of shape (T,) or (T + 1,), optional
+        The steps' times, as in :func:`gaussfuse.filter`: a TimedModel
+        (:func:`gaussfuse.model` without dt) is discretised for each step.
     size : int, optional
         Draw this many independent series at once (a leading axis);
         default one series, without the axis.
@@ -124,10 +129,13 @@ def simulate(model, prior, T: int, us=None, *, size: int | None = None, rng=None
     >>> sim.states.shape, sim.measurements.shape
     ((50, 2), (50, 1))
     """
-    if not isinstance(model, (LinearModel, NonlinearModel)):
-        raise TypeError(f"`model` must be a gaussfuse.LinearModel or NonlinearModel; got {type(model).__name__}.")
-    prior = check_prior(prior, model.n)
     T = integer("T", T)
+    if isinstance(model, (LinearModel, NonlinearModel, TimedModel)):
+        model, us = resolve(model, times, T, us)
+    if not isinstance(model, (LinearModel, NonlinearModel)):
+        raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
+                        f"got {type(model).__name__}.")
+    prior = check_prior(prior, model.n)
     check_steps(model, T)
     count = 1 if size is None else integer("size", size)
     us = check_controls(us, model, 1, T)

@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import kalman
 from ..gaussian import Gaussian
-from . import diffuse, drivers
+from . import diffuse, drivers, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
 from .validation import check_steady, prepare
@@ -25,13 +25,15 @@ __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
            engine: str = "auto", keep: str = "all", form: str = "cov", steady: bool = False,
            gains: bool = False, check: str = "warn", gate: float | None = None, gate_by: str = "measurement",
-           **options) -> FilterResult:
+           times=None, **options) -> FilterResult:
     r"""Filter a series of measurements: the belief about each state given the past.
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
-        The state-space model.
+    model : LinearModel, NonlinearModel or TimedModel
+        The state-space model; a :class:`~gaussfuse.models.TimedModel`
+        (:func:`gaussfuse.model` without dt) is discretised for each step's
+        own time step, from `times`.
     prior : Gaussian or "diffuse"
         Belief about the state one step *before* the first measurement;
         every step is predict (with ``u_k``), then update (with ``z_k``).
@@ -118,6 +120,14 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     gate_by : {"measurement", "component"}, default "measurement"
         Gate the whole measurement, or each component on its own
         (:math:`v_i^2 / S_{ii}` against :math:`\chi^2_1`).
+    times : array_like of shape (T,) or (T + 1,), optional
+        The measurements' times: float seconds, ``datetime64``, datetimes
+        or a pandas DatetimeIndex/TimedeltaIndex (time zones taken to UTC);
+        with T + 1, the prior's time first, otherwise the prior is one step
+        of ``times[1] - times[0]`` before the first
+        (:mod:`gaussfuse.inference.timing`). Required by a TimedModel; a
+        model with fixed matrices takes only regular times (at its ``dt``,
+        if it records one), and says how to fix irregular ones.
 
     Returns
     -------
@@ -182,6 +192,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     """
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
+    model, us = timing.resolve(model, times, zs, us)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     check_steady(steady, spec, form, prior)
     if not isinstance(gains, (bool, np.bool_)):
@@ -201,7 +212,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
 
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
            engine: str = "auto", form: str = "cov", check: str = "warn", gate: float | None = None,
-           gate_by: str = "measurement", **options) -> SmoothResult:
+           gate_by: str = "measurement", times=None, **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
     Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
@@ -247,6 +258,7 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     >>> sm.means.shape, sm.filtered.means.shape
     ((5, 2), (5, 2))
     """
+    model, us = timing.resolve(model, times, zs, us)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     gate = _gate(gate, gate_by, prior)
     _check_check(check)

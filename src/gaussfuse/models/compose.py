@@ -12,15 +12,16 @@ from functools import partial
 import numpy as np
 
 from .._validation import call_checked, integer, real
+from ._base import Frozen
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
 from .nonlinear import NonlinearModel
 from .sensors import LinearSensor, NonlinearSensor, Position
 
-__all__ = ["model", "constant_velocity", "constant_acceleration", "stack_sensors", "Stacked"]
+__all__ = ["model", "TimedModel", "constant_velocity", "constant_acceleration", "stack_sensors", "Stacked"]
 
 
-def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
+def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearModel | TimedModel:
     r"""The state-space model of a motion observed by a sensor, stepped every dt.
 
     Parameters
@@ -31,17 +32,19 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
     sensor : LinearSensor or NonlinearSensor
         What is measured, e.g. :class:`~gaussfuse.Position` or
         :class:`~gaussfuse.RangeBearing`.
-    dt : float
-        Time step, > 0.
+    dt : float, optional
+        Time step, > 0. Without it, a :class:`TimedModel`: the filters
+        discretise it for each step's own dt, from their `times`.
 
     Returns
     -------
-    LinearModel or NonlinearModel
+    LinearModel or NonlinearModel or TimedModel
         A :class:`LinearModel` ``(F, H, Q, R, B)`` when both are linear (B
         from ``motion.control(dt)``, if any); otherwise a
         :class:`NonlinearModel` with the analytic Jacobians of both, the
         angle components of both, and ``vectorized=True`` (the functions
-        take a stack of states).
+        take a stack of states). Either records `dt`. Without `dt`, a
+        :class:`TimedModel`.
 
     Raises
     ------
@@ -71,7 +74,7 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
     --------
     >>> import gaussfuse as gf
     >>> gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.1), dt=0.1)
-    LinearModel(n=4, m=2, p=0)
+    LinearModel(n=4, m=2, p=0, dt=0.1)
     >>> gf.model(gf.CoordinatedTurn(), gf.RangeBearing(), dt=1.0)
     NonlinearModel(n=5, m=2, vectorized=True)
     """
@@ -87,6 +90,8 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
         )
     n = motion.n
     _check_fit(motion, sensor, n)
+    if dt is None:
+        return TimedModel(motion, sensor)
 
     if isinstance(motion, LinearMotion):
         F, Q = motion.transition(dt)
@@ -96,7 +101,7 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
 
     if isinstance(motion, LinearMotion) and isinstance(sensor, LinearSensor):
         H, R = sensor.linear(n)
-        return LinearModel(F=F, H=H, Q=Q, R=R, B=B)
+        return LinearModel(F=F, H=H, Q=Q, R=R, B=B, dt=dt)
 
     # f, h and their Jacobians are partials of module-level functions (or a sensor's
     # bound methods), not closures, so that the model pickles.
@@ -122,7 +127,121 @@ def model(motion, sensor, dt: float) -> LinearModel | NonlinearModel:
 
     return NonlinearModel(f, h, Q, R, f_jacobian=f_jacobian, h_jacobian=h_jacobian, vectorized=True,
                           state_angles=motion.state_angles,
-                          measurement_angles=sensor.measurement_angles)
+                          measurement_angles=sensor.measurement_angles, dt=dt)
+
+
+class TimedModel(Frozen):
+    r"""A motion observed by a sensor, discretised for each step's own time step (:func:`model` without dt).
+
+    The filters, smoothers, :func:`gaussfuse.fit`, :func:`gaussfuse.forecast`
+    and :func:`gaussfuse.simulate` take it with their `times`; step k then
+    uses ``motion.transition(dt_k)`` (or ``motion.f(x, dt_k)`` and
+    ``motion.noise(dt_k)``) for :math:`dt_k = t_k - t_{k-1}`: the exact
+    discretisation of the continuous model over that step.
+
+    Parameters
+    ----------
+    motion : LinearMotion or NonlinearMotion
+    sensor : LinearSensor or NonlinearSensor
+
+    Attributes
+    ----------
+    n, m : int
+        State and measurement dimensions.
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> track = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.1))
+    >>> track
+    TimedModel(motion=ConstantVelocity(dim=2, q=0.5, noise='continuous'), sensor=Position(dim=2, r=0.1, n=None))
+    >>> track.at([0.5, 2.0])[0].F[:, 0, 2]  # dt of each step
+    array([0.5, 2. ])
+    """
+
+    __slots__ = ("motion", "sensor")
+
+    def __init__(self, motion, sensor) -> None:
+        model(motion, sensor, 1.0)  # checks that they fit, as model() does
+        self._set(motion=motion, sensor=sensor)
+
+    @property
+    def n(self) -> int:
+        return self.motion.n
+
+    @property
+    def m(self) -> int:
+        return self.sensor.m
+
+    @property
+    def linear(self) -> bool:
+        """Whether it discretises to a LinearModel."""
+        return isinstance(self.motion, LinearMotion) and isinstance(self.sensor, LinearSensor)
+
+    def at(self, dts, us=None) -> tuple[LinearModel | NonlinearModel, np.ndarray | None]:
+        """The model of steps of sizes `dts` (T,), and the controls to filter it with.
+
+        A linear motion and sensor give a :class:`LinearModel` whose F, Q
+        (and B) vary with the step (one set per distinct dt; a
+        time-invariant model when every dt is the same). Otherwise a
+        :class:`NonlinearModel` whose f takes ``u_k = [dt_k, *controls_k]``,
+        returned with those controls.
+        """
+        dts = np.asarray(dts, dtype=np.float64)
+        unique, index = np.unique(dts, return_inverse=True)
+        if unique.shape[0] == 1 and (self.linear or us is None) and isinstance(self.motion, LinearMotion):
+            return model(self.motion, self.sensor, float(unique[0])), us
+        n = self.n
+        if isinstance(self.motion, LinearMotion):
+            pairs = [self.motion.transition(float(d)) for d in unique]
+            Q = np.stack([pairs[i][1] for i in index])
+            controls = [self.motion.control(float(d)) for d in unique]
+            B = None if controls[0] is None else np.stack([controls[i] for i in index])
+            if self.linear:
+                H, R = self.sensor.linear(n)
+                return LinearModel(np.stack([pairs[i][0] for i in index]), H, Q, R, B), us
+        else:
+            Q = np.stack([self.motion.noise(float(d)) for d in unique])[index]
+        if isinstance(self.sensor, LinearSensor):
+            H, R = self.sensor.linear(n)
+            H.setflags(write=False)
+            h, h_jacobian = partial(_linear, H), partial(_constant, H)
+        else:
+            R, h, h_jacobian = self.sensor.R, self.sensor.h, self.sensor.jacobian
+        stepped = _Stepped(self.motion)
+        controls = dts[:, None] if us is None else np.concatenate(
+            [np.broadcast_to(dts[:, None], (*np.shape(us)[:-1], 1)), np.asarray(us, dtype=np.float64)], axis=-1)
+        return NonlinearModel(stepped, h, Q, R, f_jacobian=stepped.jacobian, h_jacobian=h_jacobian,
+                              vectorized=True, state_angles=self.motion.state_angles,
+                              measurement_angles=self.sensor.measurement_angles), controls
+
+
+class _Stepped:
+    """f(x, u) of a motion over the step ``u[0]`` (with controls ``u[1:]`` for a linear motion's B)."""
+
+    def __init__(self, motion) -> None:
+        self.motion = motion
+        self._dt, self._matrices = None, None
+
+    def __reduce__(self):
+        return type(self), (self.motion,)
+
+    def _at(self, dt: float):
+        if dt != self._dt:  # the sigma points of a step share their dt: computed once
+            F, _ = self.motion.transition(dt)
+            self._dt, self._matrices = dt, (F, self.motion.control(dt))
+        return self._matrices
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        if isinstance(self.motion, NonlinearMotion):
+            return self.motion.f(x, float(u[0]))
+        F, B = self._at(float(u[0]))
+        return x @ F.T if B is None else x @ F.T + B @ u[1:]
+
+    def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        if isinstance(self.motion, NonlinearMotion):
+            return self.motion.jacobian(x, float(u[0]))
+        return self._at(float(u[0]))[0]
 
 
 def _linear(M: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -336,9 +455,9 @@ def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearMode
     --------
     >>> import gaussfuse as gf
     >>> gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
-    LinearModel(n=4, m=2, p=0)
+    LinearModel(n=4, m=2, p=0, dt=0.1)
     """
-    return model(ConstantVelocity(dim=dim, q=q), Position(dim=dim, r=r), dt)
+    return model(ConstantVelocity(dim=dim, q=q), Position(dim=dim, r=r), real("dt", dt, positive=True))
 
 
 def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
@@ -354,4 +473,4 @@ def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> Linear
     :math:`F = [[1, Δt, Δt^2/2], [0, 1, Δt], [0, 0, 1]]` and
     :math:`Q = q [[Δt^5/20, Δt^4/8, Δt^3/6], [Δt^4/8, Δt^3/3, Δt^2/2], [Δt^3/6, Δt^2/2, Δt]]`.
     """
-    return model(ConstantAcceleration(dim=dim, q=q), Position(dim=dim, r=r), dt)
+    return model(ConstantAcceleration(dim=dim, q=q), Position(dim=dim, r=r), real("dt", dt, positive=True))

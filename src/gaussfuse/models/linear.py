@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_matrix, check_psd
+from .._validation import as_matrix, check_psd, real
 
 __all__ = ["LinearModel"]
 
@@ -30,6 +30,10 @@ class LinearModel:
         scalar when m = 1.
     B : array_like of shape (n, p) or (T, n, p), optional
         Control-input matrix; a 1-D array of length n is a single column.
+    dt : float, optional
+        The time step the matrices are for, when they come from one (as
+        :func:`gaussfuse.model` records): `times` given to a filter must
+        then be that regular.
 
     Notes
     -----
@@ -49,15 +53,16 @@ class LinearModel:
     (2, 1, 0)
     """
 
-    __slots__ = ("F", "H", "Q", "R", "B")
+    __slots__ = ("F", "H", "Q", "R", "B", "dt")
 
     F: np.ndarray
     H: np.ndarray
     Q: np.ndarray
     R: np.ndarray
     B: np.ndarray | None
+    dt: float | None
 
-    def __init__(self, F, H, Q, R, B=None) -> None:
+    def __init__(self, F, H, Q, R, B=None, dt: float | None = None) -> None:
         F = as_matrix("F", F, None, None, row_name="n")
         if F.shape[-1] != F.shape[-2]:
             raise ValueError(
@@ -83,6 +88,7 @@ class LinearModel:
             if a is not None:
                 a.setflags(write=False)
             object.__setattr__(self, name, a)
+        object.__setattr__(self, "dt", None if dt is None else real("dt", dt, positive=True))
 
     def __setattr__(self, name, value):
         raise AttributeError("LinearModel is immutable; build a new one instead.")
@@ -90,7 +96,7 @@ class LinearModel:
     def __reduce__(self):
         # Pickled and copied by its arguments: the constructor validates them again and
         # makes the arrays read-only, which the default protocol (setattr) cannot.
-        return type(self), (self.F, self.H, self.Q, self.R, self.B)
+        return type(self), (self.F, self.H, self.Q, self.R, self.B, self.dt)
 
     @property
     def n(self) -> int:
@@ -122,4 +128,5 @@ class LinearModel:
 
     def __repr__(self) -> str:
         tv = "" if self.steps is None else f", time-varying over {self.steps} steps"
-        return f"LinearModel(n={self.n}, m={self.m}, p={self.p}{tv})"
+        dt = "" if self.dt is None else f", dt={self.dt:g}"
+        return f"LinearModel(n={self.n}, m={self.m}, p={self.p}{tv}{dt})"

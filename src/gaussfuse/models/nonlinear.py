@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, call_checked, check_psd, size_reason
+from .._validation import as_matrix, call_checked, check_psd, real, size_reason
 
 __all__ = ["NonlinearModel"]
 
@@ -80,6 +80,9 @@ class NonlinearModel:
         to [-π, π), and means over sigma points are circular means. Either
         the components' indices, or a boolean mask with one entry per
         component.
+    dt : float, optional
+        The time step f and Q are for, when known (see
+        :class:`LinearModel`'s `dt`).
 
     Notes
     -----
@@ -107,7 +110,7 @@ class NonlinearModel:
     """
 
     __slots__ = ("f", "h", "Q", "R", "f_jacobian", "h_jacobian", "vectorized",
-                 "state_angles", "measurement_angles")
+                 "state_angles", "measurement_angles", "dt")
 
     def __init__(
         self,
@@ -121,6 +124,7 @@ class NonlinearModel:
         *,
         state_angles=(),
         measurement_angles=(),
+        dt: float | None = None,
     ) -> None:
         for name, fn, required in (("f", f, True), ("h", h, True),
                                    ("f_jacobian", f_jacobian, False),
@@ -151,6 +155,7 @@ class NonlinearModel:
         )
         for name, value in values.items():
             object.__setattr__(self, name, value)
+        object.__setattr__(self, "dt", None if dt is None else real("dt", dt, positive=True))
 
     def __setattr__(self, name, value):
         raise AttributeError("NonlinearModel is immutable; build a new one instead.")
@@ -161,7 +166,7 @@ class NonlinearModel:
         # error; a module-level function, a partial of one or a picklable callable object works.
         angles = {name: tuple(np.flatnonzero(getattr(self, name)).tolist())
                   for name in ("state_angles", "measurement_angles")}
-        return (functools.partial(type(self), **angles),
+        return (functools.partial(type(self), **angles, dt=self.dt),
                 (self.f, self.h, self.Q, self.R, self.f_jacobian, self.h_jacobian, self.vectorized))
 
     @property

@@ -1,0 +1,168 @@
+"""`times=`: seconds from any clock, exact discretisation on irregular grids (against the continuous process's
+own joint Gaussian), and the errors that say how to fix a model that cannot take the times."""
+
+from __future__ import annotations
+
+import datetime
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import gaussfuse as gf
+from gaussfuse.inference.timing import as_seconds
+
+
+def _integrated_wiener_joint(ts: np.ndarray, q: float, m0: np.ndarray, P0: np.ndarray):
+    """Mean and covariance of [p(t_1), v(t_1), ..., p(t_T), v(t_T)] of the continuous constant-velocity process.
+
+    x(t) = Φ(t) x(0) + w(t), Φ(t) = [[1, t], [0, 1]], w the integrated Wiener process of spectral density q:
+    Cov(v(s), v(t)) = q min, Cov(p(s), v(t)) = q s²/2 (s <= t) or q (s t - t²/2), and
+    Cov(p(s), p(t)) = q (min² max / 2 - min³ / 6). Closed forms of the process, not the filter's recursion.
+    """
+    T = ts.shape[0]
+    mean, cov = np.empty(2 * T), np.empty((2 * T, 2 * T))
+
+    def pv(s, t):
+        return q * s * s / 2 if s <= t else q * (s * t - t * t / 2)
+
+    for j, s in enumerate(ts):
+        Phi_s = np.array([[1.0, s], [0.0, 1.0]])
+        mean[2 * j:2 * j + 2] = Phi_s @ m0
+        for k, t in enumerate(ts):
+            Phi_t = np.array([[1.0, t], [0.0, 1.0]])
+            lo, hi = min(s, t), max(s, t)
+            W = np.array([[q * (lo * lo * hi / 2 - lo**3 / 6), pv(s, t)], [pv(t, s), q * lo]])
+            cov[2 * j:2 * j + 2, 2 * k:2 * k + 2] = Phi_s @ P0 @ Phi_t.T + W
+    return mean, cov
+
+
+def _condition(mean, cov, H, r, zs, upto):
+    """The states given the measurements z_1..z_upto (NaN = missing): dense Gaussian conditioning."""
+    T = zs.shape[0]
+    rows = [k for k in range(upto) if not np.isnan(zs[k])]
+    A = np.zeros((len(rows), 2 * T))
+    for i, k in enumerate(rows):
+        A[i, 2 * k:2 * k + 2] = H
+    S = A @ cov @ A.T + r * np.eye(len(rows))
+    G = cov @ A.T @ np.linalg.inv(S)
+    return mean + G @ (zs[rows] - A @ mean), cov - G @ A @ cov
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_irregular_steps_are_the_continuous_process_exactly(engine):
+    """Steps of 0.1 to 7 s, a missing value: filter and smoother equal the continuous process conditioned densely."""
+    q, r = 0.3, 0.5
+    gaps = np.array([1.0, 0.1, 2.5, 7.0, 0.3, 1.0, 4.0, 0.2, 0.2, 3.0])
+    ts = np.cumsum(gaps)  # the prior at time 0
+    zs = np.sin(ts) + 0.1 * ts
+    zs[4] = np.nan
+    m0, P0 = np.array([0.0, 0.5]), np.array([[2.0, 0.3], [0.3, 1.0]])
+    timed = gf.model(gf.ConstantVelocity(q=q), gf.Position(r=r))
+    sm = gf.smooth(timed, gf.Gaussian(m0, P0), zs, times=np.concatenate([[0.0], ts]), engine=engine)
+    mean, cov = _integrated_wiener_joint(ts, q, m0, P0)
+    H = np.array([1.0, 0.0])
+    post_mean, post_cov = _condition(mean, cov, H, r, zs, len(ts))
+    for k in range(len(ts)):
+        block = slice(2 * k, 2 * k + 2)
+        np.testing.assert_allclose(sm.means[k], post_mean[block], rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(sm.covs[k], post_cov[block, block], rtol=1e-9, atol=1e-10)
+        f_mean, f_cov = _condition(mean, cov, H, r, zs, k + 1)
+        np.testing.assert_allclose(sm.filtered.means[k], f_mean[block], rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(sm.filtered.covs[k], f_cov[block, block], rtol=1e-9, atol=1e-10)
+
+
+def test_clocks_give_the_same_filter():
+    """Seconds, datetime64, datetimes, a pandas DatetimeIndex in another time zone and a TimedeltaIndex agree."""
+    timed = gf.model(gf.ConstantVelocity(dim=2, q=0.1), gf.Position(dim=2, r=1.0))
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 1.0], np.eye(4))
+    seconds = np.array([0.0, 1.0, 2.5, 3.0, 8.0])
+    zs = np.column_stack([seconds, 2 * seconds]) + 0.1
+    start = datetime.datetime(2026, 3, 29, 0, 59, 58)  # across a change of summer time in Europe
+    clocks = [
+        seconds + 1e9,
+        np.datetime64("2026-01-01T00:00:00") + (seconds * 1e3).astype("timedelta64[ms]"),
+        [start + datetime.timedelta(seconds=float(s)) for s in seconds],
+        pd.DatetimeIndex([start + datetime.timedelta(seconds=float(s)) for s in seconds], tz="UTC").tz_convert(
+            "Europe/Paris"),
+        pd.to_timedelta(seconds, unit="s"),
+        pd.Series(pd.to_datetime(seconds, unit="s")),
+    ]
+    want = gf.filter(timed, prior, zs, times=seconds)
+    for clock in clocks:
+        got = gf.filter(timed, prior, zs, times=clock)
+        np.testing.assert_allclose(got.means, want.means, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got.covs, want.covs, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(as_seconds("times", clocks[3]), seconds)
+
+
+def test_regular_times_keep_a_time_invariant_model_and_its_speed():
+    """Regular times discretise to the fixed-dt model itself (time-invariant: compiled, fixed point reused)."""
+    timed = gf.model(gf.ConstantVelocity(q=0.5), gf.Position(r=0.1))
+    model, _ = timed.at(np.full(40, 0.25))
+    assert model.steps is None and model.dt == 0.25
+    zs = np.linspace(0, 10, 40)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    np.testing.assert_array_equal(gf.filter(timed, prior, zs, times=np.arange(1, 41) * 0.25).means,
+                                  gf.filter(gf.model(gf.ConstantVelocity(q=0.5), gf.Position(r=0.1), 0.25), prior,
+                                            zs).means)
+
+
+def test_a_nonlinear_motion_steps_by_each_dt():
+    """Coordinated turn and range-bearing: step k is f(x, dt_k) with Q(dt_k), as a fixed-dt model of that dt."""
+    timed = gf.model(gf.CoordinatedTurn(q_acc=0.1, q_turn=1e-3), gf.RangeBearing(origin=(-5.0, 0.0)))
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5, 0.05], np.diag([1.0, 1.0, 0.1, 0.1, 0.01]))
+    zs = np.array([[5.0, 0.1], [6.0, 0.12], [8.0, 0.2]])
+    for method in ("ekf", "ukf"):
+        res = gf.filter(timed, prior, zs, times=[0.0, 1.0, 3.0, 3.5], method=method)
+        belief = prior
+        for k, dt in enumerate([1.0, 2.0, 0.5]):
+            step = gf.model(gf.CoordinatedTurn(q_acc=0.1, q_turn=1e-3), gf.RangeBearing(origin=(-5.0, 0.0)), dt)
+            one = gf.filter(step, belief, zs[k:k + 1], method=method)
+            np.testing.assert_allclose(res.means[k], one.means[0], rtol=1e-10, atol=1e-12)
+            belief = one.last
+
+
+@pytest.mark.parametrize("times, model, message", [
+    (np.array([0.0, 1.0, 2.0, 4.0, 5.0]), "fixed", r"`times` are irregular \(steps from 1 s to 2 s\)"),
+    (np.arange(5.0), "dt2", r"`times` step by 1 s but the model is for dt = 2 s"),
+    (None, "timed", "`times` is required"),
+    (np.array([0.0, 1.0, 1.0, 2.0, 3.0]), "timed", "strictly increasing; step 2 has dt = 0"),
+    (np.arange(3.0), "timed", "must have 5 entries, one per measurement, or 6"),
+    (np.array(["a", "b", "c", "d", "e"]), "timed", "`times` must be numbers"),
+    (np.arange(10.0).reshape(5, 2), "timed", "one-dimensional"),
+    (np.array([0.0, 1.0, np.nan, 3.0, 4.0]), "timed", "finite"),
+])
+def test_times_that_do_not_fit_are_named(times, model, message):
+    models = {"fixed": gf.constant_velocity(1.0, 0.5, 0.1), "dt2": gf.constant_velocity(2.0, 0.5, 0.1),
+              "timed": gf.model(gf.ConstantVelocity(q=0.5), gf.Position(r=0.1))}
+    with pytest.raises((ValueError, TypeError), match=message):
+        gf.filter(models[model], gf.Gaussian([0.0, 1.0], np.eye(2)), np.arange(5.0), times=times)
+
+
+def test_fit_forecast_and_simulate_take_times():
+    """Each equals the same call on the model discretised for those steps (TimedModel.at), and fit refuses to learn
+    what varies with dt."""
+    timed = gf.model(gf.ConstantVelocity(q=0.5), gf.Position(r=2.0))
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    gaps = np.random.default_rng(0).choice([1.0, 2.0, 5.0], size=120)
+    times = np.concatenate([[0.0], np.cumsum(gaps)])
+    stepped, _ = timed.at(gaps)
+    sim = gf.simulate(timed, prior, 120, times=times, rng=4)
+    np.testing.assert_array_equal(sim.states, gf.simulate(stepped, prior, 120, rng=4).states)
+    fit = gf.fit(timed, prior, sim.measurements, learn=("R",), times=times, method="mle")
+    want = gf.fit(stepped, prior, sim.measurements, learn=("R",), method="mle")
+    assert fit.params["R"] == pytest.approx(want.params["R"], rel=1e-12)
+    with pytest.raises(ValueError, match=r"`learn` includes \['Q'\]"):
+        gf.fit(timed, prior, sim.measurements, learn=("Q", "R"), times=times)
+    ahead = np.array([times[-1], times[-1] + 0.5, times[-1] + 10.0])
+    fc = gf.forecast(timed, gf.Gaussian([3.0, 1.0], np.eye(2)), times=ahead)
+    for k, dt in enumerate([0.5, 9.5]):
+        step = gf.forecast(gf.model(gf.ConstantVelocity(q=0.5), gf.Position(r=2.0), dt),
+                           gf.Gaussian([3.0, 1.0], np.eye(2)) if k == 0 else gf.Gaussian(fc.means[0], fc.covs[0]), 1)
+        np.testing.assert_allclose(fc.means[k], step.means[0], rtol=1e-14)
+        np.testing.assert_allclose(fc.covs[k], step.covs[0], rtol=1e-14)
+    with pytest.raises(ValueError, match="give `steps` or `times`, not both"):
+        gf.forecast(timed, prior, 2, times=ahead)
+    with pytest.raises(ValueError, match="`times` is required"):
+        gf.forecast(timed, prior, 2)
