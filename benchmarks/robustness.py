@@ -92,8 +92,6 @@ def main(argv: list[str] | None = None) -> int:
         model, prior = gf.LinearModel(p.F, p.H, p.Q, p.R), gf.Gaussian(p.m0, p.P0)
         for form, engine in RUNS:
             for what, call in (("filter", gf.filter), ("smooth", gf.smooth)):
-                if (form, engine, what) == ("sqrt", "numba", "smooth"):
-                    continue  # the square-root smoother is readable only
                 res = call(model, prior, p.zs, engine=engine, form=form)
                 row(p.name, form, engine, what, errors(res.means, res.covs, *ref[what]))
         F, H = p.F, p.H

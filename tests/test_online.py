@@ -394,3 +394,28 @@ def test_reprs_say_what_the_filter_is_without_its_arrays():
     text = repr(kf)
     assert text.startswith("KalmanFilter(LinearModel(n=2, m=1, p=0, dt=1), method='kf', form='cov', step=1, loglik=")
     assert "[" not in text
+
+
+@pytest.mark.parametrize("motion, sensor, method, prior, zs", [
+    (gf.ConstantVelocity(q=0.5), gf.Position(r=0.1), None, gf.Gaussian([0.0, 1.0], np.eye(2)),
+     np.array([[1.0], [3.1], [3.4]])),
+    (gf.CoordinatedTurn(q_acc=0.1, q_turn=1e-3), gf.RangeBearing(origin=(-5.0, 0.0)), "ukf",
+     gf.Gaussian([0.0, 0.0, 1.0, 0.5, 0.05], np.diag([1.0, 1.0, 0.1, 0.1, 0.01])),
+     np.array([[5.0, 0.1], [6.0, 0.12], [8.0, 0.2]])),
+])
+def test_predict_dt_steps_a_timed_model_as_the_batch_filter_does(motion, sensor, method, prior, zs):
+    """KalmanFilter(gf.model(motion, sensor)) with predict(dt=...): gf.filter with the same `times`, bitwise."""
+    timed = gf.model(motion, sensor)
+    times = np.array([0.0, 1.0, 3.0, 3.5])
+    batch = gf.filter(timed, prior, zs, times=times, method=method)
+    kf = gf.KalmanFilter(timed, prior, method=method)
+    for k, (dt, z) in enumerate(zip(np.diff(times), zs)):
+        kf.predict(dt=dt)
+        kf.update(z)
+        np.testing.assert_array_equal(kf.x, batch.means[k])
+        np.testing.assert_array_equal(kf.P, batch.covs[k])
+    assert repr(kf).startswith("KalmanFilter(TimedModel(")
+    with pytest.raises(ValueError, match="`dt` is required"):
+        kf.predict()
+    with pytest.raises(ValueError, match="`dt` is for a model built by gf.model"):
+        gf.KalmanFilter(gf.constant_velocity(1.0, 1.0, 1.0), gf.Gaussian([0.0, 1.0], np.eye(2))).predict(dt=1.0)

@@ -6,12 +6,13 @@ import numpy as np
 
 from . import kalman
 from ._linalg import symmetrize
-from ._validation import as_array, as_matrix, check_psd, shape_error
+from ._validation import as_array, as_matrix, check_psd, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .inference.registry import linearisation, resolve_method
 from .inference.validation import check_form, check_prior
+from .models.compose import TimedModel
 from .models.linear import LinearModel
 
 __all__ = ["KalmanFilter"]
@@ -102,6 +103,9 @@ class KalmanFilter:
 
     def __init__(self, model, prior: Gaussian, form: str = "cov", check: str = "warn", method: str | None = None,
                  **options) -> None:
+        self.timed = model if isinstance(model, TimedModel) else None
+        if self.timed is not None:
+            model = self.timed.at(np.array([1.0]))[0]  # its form over one step: the method, dimensions and angles
         spec, options = resolve_method(model, method, options)
         check_form(spec, form)
         self._monitor = DivergenceMonitor.for_check(check)
@@ -124,6 +128,8 @@ class KalmanFilter:
 
     def _fresh_steady(self) -> kalman.SteadyState | None:
         """A time-invariant model's covariances reach a fixed point that steps then reuse, exactly."""
+        if self.timed is not None:  # each step its own dt: no fixed point
+            return None
         return kalman.SteadyState() if getattr(self._lin, "invariant", False) and self._iterations == 1 else None
 
     def __getstate__(self) -> dict:
@@ -139,7 +145,7 @@ class KalmanFilter:
             self.__dict__[name].setflags(write=False)
 
     def __repr__(self) -> str:
-        return (f"KalmanFilter({self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "
+        return (f"KalmanFilter({self.timed or self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "
                 f"loglik={self.loglik:.6g})")
 
     # -- the belief, and filterpy's x and P --------------------------------
@@ -207,7 +213,7 @@ class KalmanFilter:
 
     # -- predict and update -------------------------------------------------
 
-    def predict(self, u=None, F=None, Q=None) -> Gaussian:
+    def predict(self, u=None, F=None, Q=None, dt: float | None = None) -> Gaussian:
         """Advance the belief one step.
 
         Parameters
@@ -218,6 +224,10 @@ class KalmanFilter:
             The transition matrix for this step only (a LinearModel).
         Q : array_like of shape (n, n), optional
             The process noise covariance for this step only.
+        dt : float, optional
+            The time step, for a model built by :func:`gaussfuse.model`
+            without dt (a TimedModel), which it requires: the step is
+            discretised for it exactly.
 
         Returns
         -------
@@ -236,6 +246,8 @@ class KalmanFilter:
             u = np.atleast_1d(as_array("u", u))
             if u.ndim != 1 or (p is not None and u.shape != (p,)):
                 raise shape_error("u", f"({p if p is not None else 'p'},)", u.shape)
+        if dt is not None or self.timed is not None:
+            u = self._discretise(dt, u)
         self._controls.clear()
         self._controls[k] = u
         lin = self._replaced(F=F, Q=Q)
@@ -317,6 +329,18 @@ class KalmanFilter:
         if self._monitor is not None:
             self._monitor.observe(post, k, "steps {}-{}")
         return self._belief
+
+    def _discretise(self, dt, u):
+        """Make the model and strategy those of a step of `dt` (a TimedModel's); the control the step passes f."""
+        if self.timed is None:
+            raise ValueError("`dt` is for a model built by gf.model(motion, sensor) without dt; this model's matrices "
+                             "are for a fixed step.")
+        if dt is None:
+            raise ValueError("`dt` is required: the model was built by gf.model(motion, sensor) without dt, so each "
+                             "step is discretised for its own time step.")
+        self.model, controls = self.timed.at(np.array([real("dt", dt, positive=True)]), None if u is None else u[None])
+        self._lin = linearisation(self._spec, self.model, self._controls, self._options)[0]
+        return None if controls is None else controls[0]
 
     def _gate(self, gate, gate_by: str) -> kalman.Gate | None:
         """The Gate of this update (checked; the last one reused, with its quantiles), or None."""

@@ -202,6 +202,8 @@ class TimedModel(Frozen):
                 return LinearModel(np.stack([pairs[i][0] for i in index]), H, Q, R, B), us
         else:
             Q = np.stack([self.motion.noise(float(d)) for d in unique])[index]
+        if unique.shape[0] == 1:
+            Q = Q[0]  # one dt: the same Q at every step (f still takes dt as its control)
         if isinstance(self.sensor, LinearSensor):
             H, R = self.sensor.linear(n)
             H.setflags(write=False)
