@@ -105,7 +105,7 @@ from .inference.diffuse import Moments, augmented_runs, diffuse_moments, not_ide
 from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
 from .inference.registry import METHODS as _METHODS
 from .inference.results import first
-from .inference import timing
+from .inference import frames, timing
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.compose import TimedModel
 from .models.linear import LinearModel
@@ -198,6 +198,12 @@ class FitResult:
     def bic(self) -> float:
         """The Bayesian information criterion, ``-2 loglik + df_model log(nobs)``."""
         return -2.0 * self.loglik + self.df_model * np.log(self.nobs)
+
+    def to_pandas(self):
+        """The learned parameters as a pandas Series named "estimate" (index: the names of `params`)."""
+        import pandas as pd
+
+        return pd.Series(self.params, name="estimate", dtype=float)
 
     def summary(self) -> str:
         """A table of the estimates with standard errors and 95% intervals, and the fit's figures.
@@ -1194,6 +1200,7 @@ def fit(
     (15099, 1469.1)
     """
     timed = isinstance(model, TimedModel)
+    zs, times, _ = frames.unpack(zs, times)
     model, us = timing.resolve(model, times, zs, us)
     if timed and model.steps is not None and params is None:
         varying = sorted({"F", "Q", "B"} & set([learn] if isinstance(learn, str) else learn))

@@ -10,11 +10,14 @@ over one series or, for a leading series axis, over each series
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .. import kalman
 from ..gaussian import Gaussian
-from . import diffuse, drivers, timing
+from ..models.compose import TimedModel
+from . import diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
 from .validation import check_steady, prepare
@@ -192,6 +195,8 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     """
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
+    zs, times, table = frames.unpack(zs, times)
+    names = _names(model)
     model, us = timing.resolve(model, times, zs, us)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     check_steady(steady, spec, form, prior)
@@ -207,7 +212,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     else:
         result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains, gate)
         drivers.check_divergence(result, check)
-    return result if batch else first(result)
+    return result if batch else _labelled(first(result), table, names)
 
 
 def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
@@ -258,6 +263,8 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     >>> sm.means.shape, sm.filtered.means.shape
     ((5, 2), (5, 2))
     """
+    zs, times, table = frames.unpack(zs, times)
+    names = _names(model)
     model, us = timing.resolve(model, times, zs, us)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     gate = _gate(gate, gate_by, prior)
@@ -268,7 +275,20 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     else:
         result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form, gate=gate)
         drivers.check_divergence(result.filtered, check)
-    return result if batch else first(result)
+    if batch:
+        return result
+    result = first(result)
+    return replace(result, filtered=_labelled(result.filtered, table, names))
+
+
+def _names(model) -> tuple[str, ...] | None:
+    """The state components' names, when the model knows them (a TimedModel's motion)."""
+    return tuple(model.motion.names) if isinstance(model, TimedModel) else None
+
+
+def _labelled(result: FilterResult, table, names) -> FilterResult:
+    """`result` carrying a pandas input's index and columns and the state names, for to_pandas()."""
+    return result if table is None and names is None else replace(result, table=table, state_names=names)
 
 
 def _gate(gate, gate_by: str, prior) -> kalman.Gate | None:

@@ -76,7 +76,9 @@ class FilterResult:
     -----
     With ``keep="means"`` the covariance fields are None; with
     ``keep="last"`` every per-step field (`iterations` too) is None, so that
-    a long series filters in memory independent of its length.
+    a long series filters in memory independent of its length. `table` and
+    `state_names` carry a pandas input's index and columns and the model's
+    component names, for :meth:`to_pandas`.
     """
 
     means: np.ndarray | None
@@ -94,9 +96,31 @@ class FilterResult:
     gains: np.ndarray | None = None
     nis: np.ndarray | None = None
     rejected: np.ndarray | None = None
+    table: object = None
+    state_names: tuple[str, ...] | None = None
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
     __repr__ = shapes_repr
+
+    def to_pandas(self, covariances: bool = False, names=None):
+        """The filtered means and standard deviations as a pandas DataFrame, indexed like the input.
+
+        Parameters
+        ----------
+        covariances : bool, default False
+            Also the covariances, one column ``cov_a_b`` per pair of components.
+        names : sequence of str, optional
+            The state components' names (default: the model's, else x0, x1, ...).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``name`` and ``name_sd`` per component; the index of a
+            Series or DataFrame given as `zs` (else 0..T-1).
+        """
+        from .frames import to_frame
+
+        return to_frame(self.means, self.covs, self.table, names or self.state_names, covariances)
 
     @property
     def last(self) -> Gaussian:
@@ -143,6 +167,12 @@ class SmoothResult:
     def loglik(self) -> float | np.ndarray:
         """The log-likelihood of the measurements (from the forward pass)."""
         return self.filtered.loglik
+
+    def to_pandas(self, covariances: bool = False, names=None):
+        """The smoothed means and standard deviations as a pandas DataFrame (see :meth:`FilterResult.to_pandas`)."""
+        from .frames import to_frame
+
+        return to_frame(self.means, self.covs, self.filtered.table, names or self.filtered.state_names, covariances)
 
 
 def stack(results: list):

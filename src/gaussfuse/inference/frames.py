@@ -1,0 +1,69 @@
+"""pandas in and out: measurements from a Series or DataFrame, results as DataFrames.
+
+pandas is optional: nothing here imports it unless a pandas object is given
+or a DataFrame is asked for. A Series or DataFrame as `zs` gives its values
+(``pd.NA`` and NaN are missing), its index (a DatetimeIndex or
+TimedeltaIndex supplies `times` when none are given) and its column names;
+:meth:`~gaussfuse.FilterResult.to_pandas` gives the means, standard
+deviations and, on request, covariances, indexed like the input.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Table", "unpack", "to_frame"]
+
+
+class Table:
+    """What a pandas `zs` carried besides its values: its index and column names."""
+
+    __slots__ = ("index", "columns")
+
+    def __init__(self, index, columns) -> None:
+        self.index, self.columns = index, columns
+
+    def __reduce__(self):
+        return type(self), (self.index, self.columns)
+
+
+def _is_pandas(value) -> bool:
+    return type(value).__module__.split(".")[0] == "pandas" and hasattr(value, "to_numpy")
+
+
+def unpack(zs, times):
+    """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array)."""
+    if not _is_pandas(zs) or not hasattr(zs, "index"):
+        return zs, times, None
+    try:
+        values = zs.to_numpy(dtype=np.float64, na_value=np.nan)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
+    columns = tuple(str(c) for c in zs.columns) if hasattr(zs, "columns") else (str(zs.name),)
+    if times is None and type(zs.index).__name__ in ("DatetimeIndex", "TimedeltaIndex"):
+        times = zs.index
+    return values, times, Table(zs.index, columns)
+
+
+def to_frame(means: np.ndarray, covs: np.ndarray | None, table: Table | None, names, covariances: bool):
+    """A DataFrame of means and standard deviations (and covariances) per step, indexed like the input."""
+    import pandas as pd
+
+    if means is None or means.ndim != 2:
+        raise ValueError("to_pandas() is for one series whose means were kept (keep='all' or 'means').")
+    n = means.shape[1]
+    names = tuple(names) if names is not None else tuple(f"x{i}" for i in range(n))
+    if len(names) != n:
+        raise ValueError(f"`names` must have {n} entries, one per state component; got {len(names)}.")
+    data = {name: means[:, i] for i, name in enumerate(names)}
+    if covs is not None:
+        sds = np.sqrt(np.clip(np.diagonal(covs, axis1=1, axis2=2), 0.0, None))
+        data.update({f"{name}_sd": sds[:, i] for i, name in enumerate(names)})
+        if covariances:
+            for i in range(n):
+                for j in range(i + 1, n):
+                    data[f"cov_{names[i]}_{names[j]}"] = covs[:, i, j]
+    elif covariances:
+        raise ValueError("covariances=True needs the covariances (keep='all').")
+    index = table.index if table is not None and len(table.index) == means.shape[0] else None
+    return pd.DataFrame(data, index=index)

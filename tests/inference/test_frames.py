@@ -1,0 +1,68 @@
+"""pandas in and out: a DataFrame's index and columns, its DatetimeIndex as times, pd.NA as missing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import gaussfuse as gf
+
+
+def _frame():
+    idx = pd.DatetimeIndex(pd.to_datetime("2026-01-01") + pd.to_timedelta([0.0, 1.0, 3.0, 4.0, 9.0], unit="s"))
+    df = pd.DataFrame({"x": [0.1, 1.2, pd.NA, 4.1, 9.0], "y": [0.0, 2.0, 6.1, 8.0, 18.2]}, index=idx)
+    return df.astype("Float64"), np.array([[0.1, 0.0], [1.2, 2.0], [np.nan, 6.1], [4.1, 8.0], [9.0, 18.2]])
+
+
+def test_a_dataframe_is_its_values_at_its_times_and_comes_back_indexed_like_it():
+    df, values = _frame()
+    timed = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.1))
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 2.0], np.eye(4))
+    seconds = np.array([0.0, 1.0, 3.0, 4.0, 9.0])
+    want = gf.smooth(timed, prior, values, times=seconds)
+    got = gf.smooth(timed, prior, df)
+    np.testing.assert_array_equal(got.means, want.means)
+    frame = got.to_pandas(covariances=True)
+    assert frame.index.equals(df.index)
+    assert list(frame.columns[:8]) == ["x", "y", "vx", "vy", "x_sd", "y_sd", "vx_sd", "vy_sd"]
+    np.testing.assert_array_equal(frame[["x", "y", "vx", "vy"]].to_numpy(), want.means)
+    np.testing.assert_allclose(frame["vx_sd"].to_numpy(), np.sqrt(want.covs[:, 2, 2]), rtol=1e-15)
+    np.testing.assert_array_equal(frame["cov_x_vx"].to_numpy(), want.covs[:, 0, 2])
+    filt = gf.filter(timed, prior, df).to_pandas(names=["a", "b", "c", "d"])
+    assert list(filt.columns[:4]) == ["a", "b", "c", "d"] and filt.index.equals(df.index)
+
+
+def test_a_series_with_a_plain_index_keeps_it_and_a_masked_array_is_missing_values():
+    model = gf.constant_velocity(dt=1.0, q=0.5, r=0.1)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    series = pd.Series([1.0, 2.0, None, 4.0], index=[10, 11, 12, 13], name="pos")
+    frame = gf.filter(model, prior, series).to_pandas()
+    assert list(frame.index) == [10, 11, 12, 13] and list(frame.columns) == ["x0", "x1", "x0_sd", "x1_sd"]
+    masked = np.ma.masked_array([1.0, 2.0, 99.0, 4.0], mask=[False, False, True, False])
+    np.testing.assert_array_equal(gf.filter(model, prior, masked).means, gf.filter(model, prior, series).means)
+
+
+def test_fit_reads_a_dataframe_and_gives_its_parameters_as_a_series():
+    rng = np.random.default_rng(2)
+    y = np.cumsum(rng.normal(size=200)) + rng.normal(scale=2.0, size=200)
+    series = pd.Series(y, index=pd.date_range("2026-01-01", periods=200, freq="D"))
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, dt=86400.0)
+    fit = gf.fit(model, gf.Gaussian([0.0], [[10.0]]), series, method="mle")
+    want = gf.fit(model, gf.Gaussian([0.0], [[10.0]]), y, method="mle")
+    params = fit.to_pandas()
+    assert params.name == "estimate" and list(params.index) == ["Q", "R"]
+    assert params["R"] == pytest.approx(want.params["R"], rel=1e-12)
+    with pytest.raises(ValueError, match="the model is for dt = 3600 s"):
+        gf.fit(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, dt=3600.0), gf.Gaussian([0.0], [[10.0]]), series)
+
+
+def test_to_pandas_needs_one_series_with_its_means():
+    model = gf.constant_velocity(dt=1.0, q=0.5, r=0.1)
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    with pytest.raises(ValueError, match="one series whose means were kept"):
+        gf.filter(model, prior, np.zeros((2, 5, 1))).to_pandas()
+    with pytest.raises(ValueError, match="covariances=True needs the covariances"):
+        gf.filter(model, prior, np.zeros(5), keep="means").to_pandas(covariances=True)
+    with pytest.raises(TypeError, match="`zs` must hold numbers"):
+        gf.filter(model, prior, pd.Series(["a", "b"]))
