@@ -382,3 +382,25 @@ def test_drawing_never_touches_pyplot():
             "assert 'matplotlib.pyplot' not in sys.modules, 'pyplot imported'\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_figures_go_through_pyplot_only_when_the_caller_uses_it(tmp_path):
+    """With pyplot imported, a new figure is pyplot's (plt.show() shows it); a process that never imports pyplot
+    draws on an Agg canvas and leaves pyplot unimported."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, numpy as np\n"
+        "from gaussfuse.plotting import plot_series\n"
+        "fig = plot_series(np.arange(5.0), np.arange(5.0)[:, None], np.ones((5, 1, 1)))\n"
+        "print('matplotlib.pyplot' in sys.modules, type(fig.canvas).__name__)\n"
+        "import matplotlib\n"
+        "matplotlib.use('Agg')\n"
+        "import matplotlib.pyplot as plt\n"
+        "fig = plot_series(np.arange(5.0), np.arange(5.0)[:, None], np.ones((5, 1, 1)))\n"
+        "print(fig.number in plt.get_fignums())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["False", "FigureCanvasAgg", "True"]

@@ -1,9 +1,11 @@
 """Figures of measurements, estimates and filter diagnostics.
 
 matplotlib is an optional dependency (``pip install gaussfuse[plot]``); it is
-imported inside these functions only, and figures are drawn with the Agg
-canvas on a :class:`matplotlib.figure.Figure`, never through pyplot's global
-state.
+imported inside these functions only. A new figure is made through pyplot
+when the caller has imported it (so ``plt.show()`` shows it, and notebooks
+display it), and otherwise on the Agg canvas of a
+:class:`matplotlib.figure.Figure`, outside pyplot's global state (the
+command line, scripts that only save).
 
 The single-panel functions (:func:`plot_series`, :func:`plot_trajectory`,
 :func:`plot_consistency`, :func:`plot_mode_probabilities`) take an optional
@@ -16,6 +18,7 @@ built from the single-panel ones.
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
@@ -515,7 +518,10 @@ def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
 
 
 def _figure(figsize: tuple[float, float]) -> Figure:
-    """A new figure on an Agg canvas, outside pyplot."""
+    """A new figure: through pyplot when the caller uses it (so ``plt.show()`` shows it), else on an Agg canvas."""
+    pyplot = sys.modules.get("matplotlib.pyplot")
+    if pyplot is not None:
+        return pyplot.figure(figsize=figsize, layout="constrained")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
