@@ -837,3 +837,74 @@ def test_check_raise_makes_divergence_an_error(tmp_path, capsys, series):
     assert_one_line_error(err, "the filter may be diverging")
     code, stdout, err = run(capsys, "filter", data, "--model", toml, "--out", out, "--check", "off")
     assert (code, err) == (0, "") and out.exists()
+
+
+# ---------------------------------------------------------------------------
+# Real files: time columns, ISO-8601 times, irregular steps, chosen columns
+# ---------------------------------------------------------------------------
+
+CV_TOML = '[model]\nkind = "constant_velocity"\ndim = 1\ndt = 1.0\nq = 0.5\nr = 2.0\n\n[prior]\nvar = 10.0\n'
+EXPLICIT_TOML = ('[model]\nF = [[1.0, 1.0], [0.0, 1.0]]\nH = [[1.0, 0.0]]\nQ = [[0.25, 0.5], [0.5, 1.0]]\n'
+                 'R = [[2.0]]\n\n[prior]\nvar = 10.0\n')
+
+
+def _files(tmp_path, csv_text: str, toml_text: str = CV_TOML):
+    """DATA.csv and MODEL.toml in `tmp_path`, with these texts."""
+    data, model = tmp_path / "d.csv", tmp_path / "m.toml"
+    data.write_text(csv_text, encoding="utf-8")
+    model.write_text(toml_text, encoding="utf-8")
+    return data, model
+
+
+def test_iso_times_with_zones_step_a_named_model_by_each_dt_and_come_back_verbatim(tmp_path, capsys):
+    """Irregular ISO-8601 times in two zones: the estimates are gf.smooth's with those times, and the output's
+    time column is the input's text."""
+    stamps = ["2026-05-01T12:00:00+02:00", "2026-05-01T10:00:01Z", "2026-05-01T12:00:03+02:00",
+              "2026-05-01T10:00:08Z", "2026-05-01T12:00:09+02:00"]
+    seconds = np.array([0.0, 1.0, 3.0, 8.0, 9.0])
+    pos = [0.1, 1.2, 2.9, 8.3, 8.8]
+    data = tmp_path / "track.csv"
+    data.write_text("when,other,pos\n" + "".join(f"{s},x,{p}\n" for s, p in zip(stamps, pos)), encoding="utf-8")
+    model = tmp_path / "cv.toml"
+    model.write_text(CV_TOML, encoding="utf-8")
+    code, out, err = run(capsys, "filter", data, "-m", model, "--smooth", "--time-column", "when", "--columns",
+                         "pos")
+    assert code == 0 and err == "", err
+    rows = list(csv.reader(out.splitlines()))
+    assert rows[0] == ["when", "x", "vx", "std_x", "std_vx"]
+    assert [r[0] for r in rows[1:]] == stamps
+    want = gf.smooth(gf.model(gf.ConstantVelocity(q=0.5), gf.Position(r=2.0)), gf.Gaussian([0.0, 0.0], 10 * np.eye(2)),
+                     np.array(pos), times=seconds)
+    np.testing.assert_allclose(np.array([r[1:3] for r in rows[1:]], dtype=float), want.means, rtol=1e-12)
+
+
+def test_explicit_matrices_and_irregular_times_warn_in_one_line(tmp_path, capsys):
+    data, model = _files(tmp_path, "t,z\n0,1.0\n1,2.0\n5,6.1\n6,7.0\n", EXPLICIT_TOML)
+    code, out, err = run(capsys, "filter", data, "-m", model)
+    assert code == 0
+    assert err.startswith("gaussfuse: warning: the times are irregular (steps from 1 s to 4 s)") and \
+        err.count("\n") == 1, err
+    model.write_text(CV_TOML.replace("dt = 1.0", "dt = 2.0"), encoding="utf-8")
+    data.write_text("t,z\n0,1.0\n1,2.0\n2,3.1\n", encoding="utf-8")
+    code, out, err = run(capsys, "filter", data, "-m", model)
+    assert code == 0 and err.startswith("gaussfuse: warning: the model file's dt = 2 s, but the times step by 1 s")
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--time-column", "clock"], r"no column named `clock` \(the time column\)"),
+    (["--columns", "pos,pos"], r"measurement column `pos` is named twice"),
+    (["--columns", "t"], r"measurement column `t` is the time column"),
+    (["--columns", "speed"], r"measurement column `speed` is not a column"),
+])
+def test_bad_time_and_measurement_columns_are_one_line_errors(tmp_path, capsys, argv, match):
+    data, model = _files(tmp_path, "t,pos\n0,1.0\n1,2.0\n")
+    code, out, err = run(capsys, "filter", data, "-m", model, *argv)
+    assert code == 2
+    assert_one_line_error(err, match)
+
+
+def test_times_that_mix_seconds_and_iso_are_refused(tmp_path, capsys):
+    data, model = _files(tmp_path, "t,pos\n0,1.0\n2026-05-01T10:00:01Z,2.0\n")
+    code, out, err = run(capsys, "filter", data, "-m", model)
+    assert code == 2
+    assert_one_line_error(err, r"line 3: column `t`: the times mix numbers \(seconds\) and ISO-8601 times")

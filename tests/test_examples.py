@@ -36,6 +36,12 @@ def test_example_runs(script, tmp_path):
             assert rmse[name] < 0.15
         nis = re.findall(r"^(EKF|UKF): NIS [0-9.]+, interval \[[0-9., ]+\]: (\w+)", done.stdout, re.M)
         assert nis == [("EKF", "consistent"), ("UKF", "consistent")]
+    if script.stem == "gps_gaps":  # reading the time stamps beats the raw fixes; counting rows does not
+        rmse = dict(re.findall(r"^(raw fixes|rows as 1 s steps|time-stamped steps)\s+([0-9.]+) m", done.stdout, re.M))
+        assert float(rmse["time-stamped steps"]) < 0.6 * float(rmse["raw fixes"])
+        assert float(rmse["time-stamped steps"]) < float(rmse["rows as 1 s steps"])
+        assert re.search(r"^rows as 1 s steps .* divergence check: flags it$", done.stdout, re.M)
+        assert re.search(r"^time-stamped steps .* divergence check: quiet$", done.stdout, re.M)
     if script.stem == "port_from_filterpy":  # the ported loop gives filterpy's numbers, to round-off
         line = re.search(r"^largest difference from filterpy: (.*)$", done.stdout, re.M).group(1)
         found = dict((name, float(value)) for name, value in re.findall(r"(\w+) ([0-9.e+-]+)", line))

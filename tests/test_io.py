@@ -35,7 +35,7 @@ def write(path, text):
 
 def test_read_measurements_values_names_and_missing_cells(tmp_path):
     path = write(tmp_path / "data.csv", "t,x,y\n0.5,1.25,-2\n1.0,,NaN\n1.5, nan ,3e-3\n\n")
-    times, zs, columns = read_measurements(path)
+    times, zs, columns, _ = read_measurements(path)
     assert columns == ["t", "x", "y"]
     np.testing.assert_array_equal(times, [0.5, 1.0, 1.5])
     np.testing.assert_array_equal(zs, [[1.25, -2.0], [np.nan, np.nan], [np.nan, 3e-3]])
@@ -44,7 +44,7 @@ def test_read_measurements_values_names_and_missing_cells(tmp_path):
 
 def test_read_measurements_time_column_anywhere_any_case(tmp_path):
     path = write(tmp_path / "data.csv", "\ufeffa, TIME ,b\n1,10,2\n3,20,4\n")  # with a BOM
-    times, zs, columns = read_measurements(path, m=2)
+    times, zs, columns, _ = read_measurements(path, m=2)
     assert columns == ["TIME", "a", "b"]
     np.testing.assert_array_equal(times, [10, 20])
     np.testing.assert_array_equal(zs, [[1, 2], [3, 4]])
@@ -66,7 +66,7 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
         ("t,x\n1,2\n0.5,4\n", r"line 3: column `t`: times must be strictly increasing", 3),
         ("t,x\n,2\n", r"data\.csv: line 2: column `t`: the time is missing", 2),
         ("t,x\nnan,2\n", r"line 2: column `t`: the time is missing", 2),
-        ("t,x\nabc,2\n", r"line 2: column `t`: 'abc' is not a number", 2),
+        ("t,x\nabc,2\n", r"line 2: column `t`: 'abc' is neither a number of seconds nor an ISO-8601 time", 2),
         ("t,x\n1,-inf\n", r"data\.csv: line 2: column `x`: '-inf' is not finite", 2),
         ("t,x\n1,\"2\n", r"data\.csv: line 2: unexpected end of data", 2),
         ("t,x\n1,\"2\"x\n", r"data\.csv: line 2: .*expected after", 2),
@@ -109,7 +109,7 @@ def test_read_measurements_missing_file(tmp_path):
 
 def test_read_named_model_with_default_prior(tmp_path):
     path = write(tmp_path / "m.toml", '[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 2\nr = 0.25\n')
-    model, prior, names = read_model(path)
+    model, prior, names, _ = read_model(path)
     expected = gf.constant_velocity(0.5, 2.0, 0.25, dim=2)
     for a, b in zip(model.at(0), expected.at(0)):
         np.testing.assert_array_equal(a, b)
@@ -121,7 +121,7 @@ def test_read_named_model_with_default_prior(tmp_path):
 def test_read_named_constant_acceleration_default_dim_and_var_prior(tmp_path):
     path = write(tmp_path / "m.toml", '[model]\nkind = "constant_acceleration"\ndt = 1\nq = 0.1\nr = 4\n'
                                       "[prior]\nmean = [1, 2, 3]\nvar = 9\n")
-    model, prior, names = read_model(path)
+    model, prior, names, _ = read_model(path)
     np.testing.assert_array_equal(model.F, gf.constant_acceleration(1.0, 0.1, 4.0).F)
     assert names == ["x", "vx", "ax"]
     np.testing.assert_array_equal(prior.mean, [1, 2, 3])
@@ -132,7 +132,7 @@ def test_read_explicit_model_with_states_and_cov_prior(tmp_path):
     path = write(tmp_path / "m.toml", "[model]\nF = [[1, 1], [0, 1]]\nH = [1, 0]\nQ = [[1, 0], [0, 3]]\n"
                                       'R = 10\nstates = ["pos", "vel"]\n'
                                       "[prior]\nmean = [0, 1]\ncov = [[500, 0], [0, 500]]\n")
-    model, prior, names = read_model(path)
+    model, prior, names, _ = read_model(path)
     np.testing.assert_array_equal(model.F, [[1, 1], [0, 1]])
     np.testing.assert_array_equal(model.H, [[1, 0]])
     np.testing.assert_array_equal(model.R, [[10]])
@@ -144,7 +144,7 @@ def test_read_explicit_model_with_states_and_cov_prior(tmp_path):
 def test_read_explicit_model_default_names_and_prior_mean(tmp_path):
     path = write(tmp_path / "m.toml", "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.5]]\nR = [[2.0]]\n"
                                       "[prior]\ncov = [[4.0]]\n")
-    model, prior, names = read_model(path)
+    model, prior, names, _ = read_model(path)
     assert names == ["x0"]
     np.testing.assert_array_equal(prior.mean, [0.0])
     np.testing.assert_array_equal(prior.cov, [[4.0]])
@@ -243,7 +243,7 @@ def test_write_estimates_round_trips_exactly(tmp_path):
     path = tmp_path / "est.csv"
     write_estimates(path, times, means, covs, ["a", "b", "c"], time_name="time")
     assert path.read_text().splitlines()[0] == "time,a,b,c,std_a,std_b,std_c"
-    t, values, columns = read_measurements(path)
+    t, values, columns, _ = read_measurements(path)
     assert columns == ["time", "a", "b", "c", "std_a", "std_b", "std_c"]
     np.testing.assert_array_equal(t, times)
     np.testing.assert_array_equal(values[:, :3], means)

@@ -40,9 +40,11 @@ NOT_CONVERGED = 3
 """Exit status of ``gaussfuse fit`` when the fit stopped before converging."""
 
 _FORMATS = """\
-DATA.csv: a header row; one column named `t` or `time` (any case), strictly
-increasing; every other column, in order, is one measurement component (as
-many as the model's m). An empty cell or NaN is a missing component.
+DATA.csv: a header row; one time column, named `t` or `time` (any case) or
+by --time-column, strictly increasing: seconds, or ISO-8601 times such as
+2026-05-01T12:00:00.5+02:00 (UTC without a zone); every other column (or
+those named by --columns), in order, is one measurement component (as many
+as the model's m). An empty cell or NaN is a missing component.
 
 MODEL.toml: explicit matrices
     [model]
@@ -63,12 +65,15 @@ and optionally the belief one step before the first measurement
     mean = [0.0, 0.0, 1.0, 0.0]    # default: zeros
     var = 100.0                    # var * I, or cov = [[...]]
 Without [prior] the prior is N(0, 1e6 I); `diffuse = true` alone in [prior]
-is a flat prior, handled exactly. The model's own time step is used;
-the time column only labels the rows. A control input (B) is not supported
+is a flat prior, handled exactly. A named model steps by the data's own
+times: each step is discretised exactly for its dt (the file's dt is used
+only for a single row, and a warning says when the times step otherwise).
+Explicit matrices are for one fixed step: with irregular times a warning
+says so, and every row is one step. A control input (B) is not supported
 yet.
 
-Output CSV: the time column, the state means, then std_<state> for each
-state, written with full float precision.
+Output CSV: the time column as written in DATA.csv, the state means, then
+std_<state> for each state, written with full float precision.
 
 Limits, so that a wrong file fails at once: DATA.csv must be text (no NUL
 character) with lines of at most 1 Mi characters; MODEL.toml at most 8 MiB,
@@ -208,14 +213,16 @@ def _run_demo(args: argparse.Namespace) -> int:
 def _run_filter(args: argparse.Namespace) -> int:
     _check_paths(args, {"--out": args.out, "--plot": args.plot})
     spec = gfio.read_model(args.model)
-    data = gfio.read_measurements(args.data, m=spec.model.m)
+    columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
     run = inference.smooth if args.smooth else inference.filter
-    result = run(spec.model, spec.prior, data.zs, engine=args.engine, check=args.check)
+    model, times = _stepping(spec, data.times)
+    result = run(model, spec.prior, data.zs, engine=args.engine, check=args.check, times=times)
     # The CSV file appears only once the figure is saved: on an error, neither does.
     sink = (gfio.open_atomic(args.out, "w", newline="", encoding="utf-8") if args.out
             else nullcontext(StringIO()))
     with sink as out:
-        gfio.write_estimates(out, data.times, result.means, result.covs, spec.state_names, data.columns[0])
+        gfio.write_estimates(out, data.time_text, result.means, result.covs, spec.state_names, data.columns[0])
         if args.plot:
             fig = plotting.plot_measurements(data.times, data.zs, result.means, result.covs,
                                              spec.model.H, names=data.columns[1:])
@@ -223,6 +230,29 @@ def _run_filter(args: argparse.Namespace) -> int:
     if not args.out:
         sys.stdout.write(out.getvalue())
     return 0
+
+
+def _stepping(spec, times: np.ndarray):
+    """The model to filter with and the `times` to pass it: a named model steps by the data's times.
+
+    Warns (one line) when explicit matrices meet irregular times, or a named
+    model's dt is not the times' regular step.
+    """
+    steps = np.diff(times)
+    if steps.size == 0:
+        return spec.model, None
+    low, high = float(steps.min()), float(steps.max())
+    regular = high - low <= 1e-9 * high
+    if spec.timed is not None:
+        if regular and abs(low - spec.model.dt) > 1e-9 * spec.model.dt:
+            print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by {low:g} s; "
+                  "each step uses the times' own step.", file=sys.stderr)
+        return spec.timed, times
+    if not regular:
+        print(f"gaussfuse: warning: the times are irregular (steps from {low:g} s to {high:g} s), but the model "
+              "file's explicit matrices are for one fixed step: every row is filtered as one step. A named model "
+              "(kind = ...) is discretised for each step's own dt.", file=sys.stderr)
+    return spec.model, None
 
 
 def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
@@ -389,6 +419,10 @@ def build_parser() -> argparse.ArgumentParser:
     filt.add_argument("--plot", metavar="FIG.png",
                       help="also draw measurements against the estimates with ±2σ bands "
                            "(needs matplotlib)")
+    filt.add_argument("--time-column", metavar="NAME",
+                      help="the time column (default: the one named t or time)")
+    filt.add_argument("--columns", metavar="A,B,...",
+                      help="the measurement columns, in order (default: every other column)")
     filt.add_argument("--check", choices=("warn", "raise", "off"), default="warn",
                       help="the divergence test (default warn: one line on stderr naming the steps whose "
                            "innovations are too large for the filter's covariances; raise: an error, exit "

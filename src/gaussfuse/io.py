@@ -74,6 +74,7 @@ starts with the file, then the line or field, e.g.
 from __future__ import annotations
 
 import csv
+import datetime
 import errno
 import io as stdio
 import math
@@ -92,8 +93,10 @@ import numpy as np
 from ._validation import as_array, as_vector, shape_error
 from .gaussian import Gaussian
 from .models.linear import LinearModel
-from .models.compose import constant_acceleration, constant_velocity
-from .models.motion import state_names
+from .models.compose import TimedModel, constant_acceleration, constant_velocity
+from .models.compose import model as compose_model
+from .models.motion import ConstantAcceleration, ConstantVelocity, state_names
+from .models.sensors import Position
 
 __all__ = [
     "InputFileError",
@@ -128,6 +131,7 @@ StrPath = str | os.PathLike[str]
 
 # kind -> (constructor, order of the integrated white-noise model)
 _KINDS = {"constant_velocity": (constant_velocity, 1), "constant_acceleration": (constant_acceleration, 2)}
+_MOTIONS = {"constant_velocity": ConstantVelocity, "constant_acceleration": ConstantAcceleration}
 _EXPLICIT_KEYS = ("F", "H", "Q", "R", "states")
 _NAMED_KEYS = ("kind", "dim", "dt", "q", "r", "states")
 _PRIOR_KEYS = ("mean", "cov", "var", "diffuse")
@@ -178,14 +182,18 @@ class Measurements(NamedTuple):
         Measurements; NaN where a component is missing.
     columns : list of str
         The time column's name, then the m measurement columns' names.
+    time_text : list of str
+        The time cells as written, for output that keeps them verbatim.
     """
 
     times: np.ndarray
     zs: np.ndarray
     columns: list[str]
+    time_text: list[str] | None = None
 
 
-def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
+def read_measurements(path: StrPath, m: int | None = None, time_column: str | None = None,
+                      columns: Sequence[str] | None = None) -> Measurements:
     """Read a measurement CSV file (see the module docstring for the format).
 
     Parameters
@@ -195,12 +203,21 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
     m : int, optional
         The number of measurement components the model expects; when given,
         the file must have exactly that many measurement columns.
+    time_column : str, optional
+        The time column's name (default: the one named ``t`` or ``time``,
+        in any case). Its cells are seconds, or ISO-8601 times
+        (``2026-05-01T12:00:00.5+02:00``; one without a zone is UTC), all
+        of one kind; ISO times become seconds since 1970-01-01 UTC.
+    columns : sequence of str, optional
+        The measurement columns, in this order (default: every other one);
+        the others are not read.
 
     Returns
     -------
     Measurements
-        ``(times, zs, columns)``: times of shape (T,), zs of shape (T, m),
-        and the column names, time column first.
+        ``(times, zs, columns, time_text)``: times of shape (T,) in seconds,
+        zs of shape (T, m), the column names (time column first) and the
+        time cells as written.
 
     Raises
     ------
@@ -218,27 +235,34 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
         reader = csv.reader(_text_lines(path, f), strict=True)
         try:
             header = [name.strip() for name in next(reader, [])]
-            time_col = _time_column(path, header)
-            names = [header[time_col]] + header[:time_col] + header[time_col + 1:]
+            time_col = _time_column(path, header, time_column)
+            wanted = _measurement_columns(path, header, time_col, columns)
+            names = [header[time_col]] + [header[i] for i in wanted]
             if m is not None and len(names) - 1 != m:
                 raise InputFileError(
                     path,
                     f"found {len(names) - 1} measurement column(s) {names[1:]} besides `{names[0]}`, "
                     f"but the model measures m = {m} component(s).",
                 )
-            lines, rows = [], []
+            lines, rows, texts = [], [], []
             for row in reader:
                 if len(row) <= 1 and not "".join(row).strip():
                     continue  # a blank line
                 lines.append(reader.line_num)
-                rows.append(_parse_row(path, reader.line_num, header, time_col, row))
+                rows.append(_parse_row(path, reader.line_num, header, time_col, wanted, row))
+                texts.append(row[time_col].strip())
         except csv.Error as exc:
             raise InputFileError(path, str(exc), line=reader.line_num) from None
         except UnicodeDecodeError as exc:  # decoded in blocks, so no line number
             raise InputFileError(path, f"not UTF-8 text: {exc}") from None
     if not rows:
         raise InputFileError(path, "no data rows after the header.")
-    data = np.array(rows)
+    kinds = {type(row[0]) for row in rows}
+    if len(kinds) > 1:
+        first = next(i for i, row in enumerate(rows) if type(row[0]) is not type(rows[0][0]))
+        raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
+                             line=lines[first], field=f"column `{names[0]}`")
+    data = np.array([[float(row[0]), *row[1:]] for row in rows])
     times, zs = data[:, 0], data[:, 1:]
     back = np.flatnonzero(np.diff(times) <= 0)
     if back.size:
@@ -248,7 +272,7 @@ def read_measurements(path: StrPath, m: int | None = None) -> Measurements:
             f"times must be strictly increasing; {float(times[k])!r} follows {float(times[k - 1])!r}.",
             line=lines[k], field=f"column `{names[0]}`",
         )
-    return Measurements(times, zs, names)
+    return Measurements(times, zs, names, texts)
 
 
 def _text_lines(path, f: IO[str]) -> Iterator[str]:
@@ -261,40 +285,90 @@ def _text_lines(path, f: IO[str]) -> Iterator[str]:
         yield line
 
 
-def _time_column(path, header: list[str]) -> int:
-    """Index of the one time column in `header`."""
-    found = [i for i, name in enumerate(header) if name.lower() in TIME_COLUMNS]
-    if len(found) != 1:
-        what = "no time column" if not found else "more than one time column"
-        raise InputFileError(
-            path, f"{what}: expected exactly one column named `t` or `time`; found columns {header}."
-        )
+def _time_column(path, header: list[str], name: str | None = None) -> int:
+    """Index of the time column in `header`: the one named `name`, or the one named t or time."""
+    if name is not None:
+        found = [i for i, h in enumerate(header) if h == name] or [i for i, h in enumerate(header)
+                                                                  if h.lower() == name.lower()]
+        if len(found) != 1:
+            raise InputFileError(path, f"{'no' if not found else 'more than one'} column named `{name}` "
+                                       f"(the time column); found columns {header}.")
+    else:
+        found = [i for i, h in enumerate(header) if h.lower() in TIME_COLUMNS]
+        if len(found) != 1:
+            what = "no time column" if not found else "more than one time column"
+            raise InputFileError(
+                path, f"{what}: expected exactly one column named `t` or `time`; found columns {header} "
+                      "(name another with --time-column)."
+            )
     if len(header) < 2:
         raise InputFileError(path, f"no measurement columns besides `{header[found[0]]}`.")
     return found[0]
 
 
-def _parse_row(path, line: int, header: list[str], time_col: int, row: list[str]) -> list[float]:
+def _measurement_columns(path, header: list[str], time_col: int, columns) -> list[int]:
+    """Indices of the measurement columns: those named in `columns`, in order, or every one but the time's."""
+    if columns is None:
+        if len(header) < 2:
+            raise InputFileError(path, f"no measurement columns besides `{header[time_col]}`.")
+        return [i for i in range(len(header)) if i != time_col]
+    out = []
+    for name in columns:
+        found = [i for i, h in enumerate(header) if h == name]
+        if len(found) != 1 or found[0] == time_col or found[0] in out:
+            why = ("is the time column" if found and found[0] == time_col else "is named twice" if found
+                   and found[0] in out else "is not a column" if not found else "is not unique")
+            raise InputFileError(path, f"measurement column `{name}` {why}; found columns {header}.")
+        out.append(found[0])
+    if not out:
+        raise InputFileError(path, "no measurement columns chosen.")
+    return out
+
+
+def _parse_time(path, text: str, where: dict):
+    """A time cell: seconds (a float), or an ISO-8601 time as a `_Stamp` of seconds since 1970 UTC."""
+    if not text:
+        raise InputFileError(path, "the time is missing; every row needs a time.", **where)
+    try:
+        value = float(text)
+    except ValueError:
+        try:
+            when = datetime.datetime.fromisoformat(text)
+        except ValueError:
+            raise InputFileError(path, f"{text!r} is neither a number of seconds nor an ISO-8601 time.",
+                                 **where) from None
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=datetime.timezone.utc)
+        return _Stamp(when.timestamp())
+    if math.isnan(value):
+        raise InputFileError(path, "the time is missing; every row needs a time.", **where)
+    if not math.isfinite(value):
+        raise InputFileError(path, f"{text!r} is not finite.", **where)
+    return value
+
+
+class _Stamp(float):
+    """Seconds since 1970 read from an ISO-8601 time (a float that remembers it was one)."""
+
+
+def _parse_row(path, line: int, header: list[str], time_col: int, wanted: list[int], row: list[str]) -> list:
     """One data row as ``[time, z_1, ..., z_m]``; empty and NaN cells are NaN."""
     if len(row) != len(header):
         raise InputFileError(
             path, f"expected {len(header)} cells ({', '.join(header)}); found {len(row)}.", line=line
         )
-    values = []
-    for name, cell in zip(header, row):
-        where = {"line": line, "field": f"column `{name}`"}
-        text = cell.strip()
+    values = [_parse_time(path, row[time_col].strip(), {"line": line, "field": f"column `{header[time_col]}`"})]
+    for i in wanted:
+        where = {"line": line, "field": f"column `{header[i]}`"}
+        text = row[i].strip()
         try:
             value = float(text) if text else math.nan
         except ValueError:
-            raise InputFileError(path, f"{cell!r} is not a number.", **where) from None
+            raise InputFileError(path, f"{row[i]!r} is not a number.", **where) from None
         if math.isinf(value):
-            raise InputFileError(path, f"{cell!r} is not finite.", **where)
+            raise InputFileError(path, f"{row[i]!r} is not finite.", **where)
         values.append(value)
-    if math.isnan(values[time_col]):
-        raise InputFileError(path, "the time is missing; every row needs a time.", line=line,
-                             field=f"column `{header[time_col]}`")
-    return [values[time_col]] + values[:time_col] + values[time_col + 1:]
+    return values
 
 
 # ---------------------------------------------------------------------------
@@ -314,11 +388,16 @@ class ModelFile(NamedTuple):
         when the file has no ``[prior]``.
     state_names : list of str
         n names, one per state.
+    timed : TimedModel or None
+        For a named model (``kind = ...``), its motion and sensor without
+        the time step: discretised for each step of the data's times.
+        None for explicit matrices.
     """
 
     model: LinearModel
     prior: Gaussian
     state_names: list[str]
+    timed: TimedModel | None = None
 
 
 def read_model(path: StrPath) -> ModelFile:
@@ -366,11 +445,13 @@ def read_model(path: StrPath) -> ModelFile:
         raise InputFileError(path, "missing the [model] table.")
     if "kind" in table:
         model, names = _named_model(path, table)
+        timed = _timed(table)
     else:
         model, names = _explicit_model(path, table)
+        timed = None
     names = _state_names(path, table.get("states"), names)
     prior = _prior(path, _table(path, doc, "prior") or {}, model.n)
-    return ModelFile(model, prior, names)
+    return ModelFile(model, prior, names, timed)
 
 
 def _depth(doc: dict) -> int:
@@ -455,6 +536,12 @@ def _named_model(path, table: dict) -> tuple[LinearModel, list[str]]:
     return model, state_names(order, dim)
 
 
+def _timed(table: dict) -> TimedModel:
+    """A named model's motion and sensor, without its dt (read after :func:`_named_model` checked them)."""
+    motion = _MOTIONS[table["kind"]](dim=table.get("dim", 1), q=table["q"])
+    return compose_model(motion, Position(dim=table.get("dim", 1), r=table["r"]))
+
+
 def _state_names(path, given, default: list[str]) -> list[str]:
     if given is None:
         return default
@@ -509,8 +596,9 @@ def write_estimates(
     dest : str, os.PathLike, text file or None
         A path (written atomically: nothing is left behind on error), an
         open text file, or None for standard output.
-    times : array_like of shape (T,)
-        Times, one per row.
+    times : array_like of shape (T,), or sequence of str
+        Times, one per row; strings (the input's time cells) are written as
+        they are.
     means : array_like of shape (T, n)
         State means.
     covs : array_like of shape (T, n, n)
@@ -535,6 +623,9 @@ def write_estimates(
     t,x,v,std_x,std_v
     0.5,1.0,-2.0,2.0,0.1
     """
+    verbatim = len(times) > 0 and all(isinstance(t, str) for t in times)
+    stamps = list(times) if verbatim else None
+    times = np.zeros(len(times)) if verbatim else times
     times, means, covs = (np.asarray(a, dtype=np.float64) for a in (times, means, covs))
     T, n = times.shape[0], len(state_names)
     for name, arr, shape in (("times", times, (T,)), ("means", means, (T, n)), ("covs", covs, (T, n, n))):
@@ -543,6 +634,8 @@ def write_estimates(
     stds = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
     header = [time_name, *state_names, *(f"std_{name}" for name in state_names)]
     rows = np.column_stack([times, means, stds]).tolist()  # Python floats: str() is repr
+    if verbatim:
+        rows = [[stamp, *row[1:]] for stamp, row in zip(stamps, rows)]
 
     def write(f: IO[str]) -> None:
         writer = csv.writer(f, lineterminator="\n")
