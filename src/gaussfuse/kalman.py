@@ -27,7 +27,7 @@ from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det,
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
-           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "joint_factor", "SqrtGain",
+           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "joint_factor", "backward_conditional", "SqrtGain",
            "sqrt_gain", "Factors", "transition_factors", "measurement_factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
            "Step", "Gate", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
@@ -412,12 +412,21 @@ class Gate:
             self._quantiles[dof] = float(chdtri(dof, 1.0 - self.probability))
         return self._quantiles[dof]
 
-    def __call__(self, z: np.ndarray, innovation: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    @classmethod
+    def of(cls, probability: float | None, by: str = "measurement") -> Gate | None:
+        """The gate of a `gate=`/`gate_by=` pair of arguments, or None without `probability` (`by` checked even then)."""
+        gate = cls(0.5 if probability is None else probability, by)
+        return None if probability is None else gate
+
+    def __call__(self, z: np.ndarray, predicted: np.ndarray, S: np.ndarray,
+                 angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """`z` with the rejected components set to NaN, and the mask of those rejected.
 
-        `innovation` is ``z - (H m + d)`` (wrapped for angles) and `S` its
-        covariance, over all m components.
+        `predicted` is the predicted measurement ``H m + d`` and `S` its
+        covariance, over all m components (:func:`predict` through the
+        measurement map); the innovation is wrapped for `angles`.
         """
+        innovation = wrap_components(z - predicted, angles)
         observed = ~np.isnan(z)
         rejected = np.zeros(z.shape[0], dtype=bool)
         if not observed.any():
@@ -762,6 +771,37 @@ def joint_factor(filt_mean: np.ndarray, filt_factor: np.ndarray, A: np.ndarray, 
     return predict_mean(filt_mean, A, b), post[:n, :n], post[n:, :n], post[n:, n:]
 
 
+def backward_conditional(filt_mean: np.ndarray, filt_factor: np.ndarray, next_states: np.ndarray, A: np.ndarray,
+                         Q_factor: np.ndarray, b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    r"""The law of :math:`x_k` given the filter up to k and :math:`x_{k+1}`, for each of several next states.
+
+    Parameters
+    ----------
+    filt_mean, filt_factor : arrays of shape (n,), (n, n)
+        :math:`(m_k, L_k)`.
+    next_states : array of shape (s, n)
+        Values of :math:`x_{k+1}`.
+    A, Q_factor, b :
+        The transition out of step k (see :func:`rts_step_sqrt`).
+
+    Returns
+    -------
+    means : array of shape (s, n)
+        :math:`m_k + G_k (x_{k+1} - m^-_{k+1})`, one row per next state.
+    factor : array of shape (n, n)
+        :math:`X`, with :math:`X X^\top = P_k - G_k P^-_{k+1} G_k^\top`, the
+        same for every next state.
+
+    Notes
+    -----
+    From :func:`joint_factor`: :math:`G_k = Y (L^-)^{-1}`, applied as a
+    triangular solve; the step of backward sampling (:func:`gaussfuse.sample_posterior`).
+    """
+    pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b)
+    steps = Y @ factor_solve(pred_factor, (next_states - pred_mean).T)
+    return filt_mean + steps.T, X
+
+
 # ---------------------------------------------------------------------------
 # The step every driver calls: predict, then update, through a linearisation
 # ---------------------------------------------------------------------------
@@ -912,10 +952,9 @@ def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarra
     """
     H, d, LR, DR = measurement_factors(lin, k, mean, factor, factors)
     rejected = None
-    if gate is not None:
-        HL = H @ factor
-        noise = LR @ LR.T if DR is None else LR @ LR.T - DR @ DR.T
-        z, rejected = gate(z, _innovation(mean, z, H, d, measurement_angles, None)[0], symmetrize(HL @ HL.T + noise))
+    if gate is not None:  # the measurement's prediction, on factors: L_z L_zᵀ = H P⁻ Hᵀ + R
+        predicted, L_z = predict_sqrt(mean, factor, H, LR, d, DR)
+        z, rejected = gate(z, predicted, symmetrize(L_z @ L_z.T), measurement_angles)
     observed = observed_components(z)
     reused = steady is not None and factor is steady.predicted_cov and _same(observed, steady.observed)
     if reused:
@@ -1117,7 +1156,7 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     rejected = None
     if gate is not None:
         H, d, R = lin.measurement(k, mean, cov)
-        z, rejected = gate(z, _innovation(mean, z, H, d, measurement_angles, None)[0], symmetrize(H @ cov @ H.T + R))
+        z, rejected = gate(z, *predict(mean, cov, H, R, d), measurement_angles)
     post_mean, post_cov = mean, cov
     changed = iterate_changed(cov) if tol is not None else None
     passes, converged = iterations, changed is None
@@ -1143,7 +1182,7 @@ def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray,
     H, d, R = lin.measurement(k, mean, cov)
     rejected = None
     if gate is not None:
-        z, rejected = gate(z, _innovation(mean, z, H, d, measurement_angles, None)[0], symmetrize(H @ cov @ H.T + R))
+        z, rejected = gate(z, *predict(mean, cov, H, R, d), measurement_angles)
     observed = observed_components(z)
     reused = steady is not None and cov is steady.predicted_cov and _same(observed, steady.observed)
     if reused:

@@ -305,7 +305,7 @@ class KalmanFilter:
         lin = self._replaced(H=H, R=R, m=m)
         steady = self._steady if lin is self._lin else None
         xa, za = self._angles
-        checked_gate = self._gate(gate, gate_by)
+        checked_gate = kalman.Gate.of(gate, gate_by)
         if self.form == "sqrt":
             post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self.L, z, self._roots, xa, za, steady=steady,
                              gate=checked_gate)
@@ -341,17 +341,6 @@ class KalmanFilter:
         self.model, controls = self.timed.at(np.array([real("dt", dt, positive=True)]), None if u is None else u[None])
         self._lin = linearisation(self._spec, self.model, self._controls, self._options)[0]
         return None if controls is None else controls[0]
-
-    def _gate(self, gate, gate_by: str) -> kalman.Gate | None:
-        """The Gate of this update (checked; the last one reused, with its quantiles), or None."""
-        checked = kalman.Gate(0.5 if gate is None else gate, gate_by)  # a bad `gate_by` is named even without a gate
-        if gate is None:
-            return None
-        last = self.__dict__.get("_last_gate")
-        if last is not None and (last.probability, last.by) == (checked.probability, checked.by):
-            return last
-        self._last_gate = checked
-        return checked
 
     # -- one call's matrices ------------------------------------------------
 

@@ -27,7 +27,7 @@ backward sampling: the filter gives :math:`N(m_k, P_k)`; then
 
 the conditional of the joint Gaussian of :math:`(x_{k+1}, x_k)` given the
 data up to k, with the RTS gain :math:`G_k`. Its factor and the gain come
-from one triangularisation (:func:`gaussfuse.kalman.joint_factor`), so the
+from one triangularisation (:func:`gaussfuse.kalman.backward_conditional`), so the
 conditional covariance is never a difference of covariances. The
 trajectories' mean and covariance at each step are the RTS smoother's.
 """
@@ -40,7 +40,6 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import factor_solve
 from ._validation import integer
 from .inference import filter as run_filter
 from .inference.timing import resolve
@@ -237,9 +236,8 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None
         for k in range(T - 2, -1, -1):  # x_k | x_{k+1}, through the transition into step k + 1
             F, _, Q, _, B = model.at(k + 1)
             b = None if B is None else B @ u[k + 1]
-            pred_mean, pred_factor, Y, X = kalman.joint_factor(filt.means[k], factors[k], F, roots("Q", Q), b)
-            steps = Y @ factor_solve(pred_factor, (draws[:, k + 1] - pred_mean).T)  # G (x_{k+1} - m⁻)
-            draws[:, k] = filt.means[k] + steps.T + _draw(rng, X, count)
+            means, X = kalman.backward_conditional(filt.means[k], factors[k], draws[:, k + 1], F, roots("Q", Q), b)
+            draws[:, k] = means + _draw(rng, X, count)
     if not np.all(np.isfinite(draws)):
         raise FloatingPointError("the posterior draws overflowed: they are not finite.")
     return draws

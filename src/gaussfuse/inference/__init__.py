@@ -195,9 +195,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     """
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
-    zs, times, table = frames.unpack(zs, times)
-    names = _names(model)
-    model, us = timing.resolve(model, times, zs, us)
+    model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     check_steady(steady, spec, form, prior)
     if not isinstance(gains, (bool, np.bool_)):
@@ -263,9 +261,7 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     >>> sm.means.shape, sm.filtered.means.shape
     ((5, 2), (5, 2))
     """
-    zs, times, table = frames.unpack(zs, times)
-    names = _names(model)
-    model, us = timing.resolve(model, times, zs, us)
+    model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     gate = _gate(gate, gate_by, prior)
     _check_check(check)
@@ -281,9 +277,12 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     return replace(result, filtered=_labelled(result.filtered, table, names))
 
 
-def _names(model) -> tuple[str, ...] | None:
-    """The state components' names, when the model knows them (a TimedModel's motion)."""
-    return tuple(model.motion.names) if isinstance(model, TimedModel) else None
+def _inputs(model, zs, us, times):
+    """A pandas `zs` unpacked and a TimedModel discretised at `times`: ``(model, zs, us, table, state names)``."""
+    zs, times, table = frames.unpack(zs, times)
+    names = tuple(model.motion.names) if isinstance(model, TimedModel) else None
+    model, us = timing.resolve(model, times, zs, us)
+    return model, zs, us, table, names
 
 
 def _labelled(result: FilterResult, table, names) -> FilterResult:
@@ -293,13 +292,9 @@ def _labelled(result: FilterResult, table, names) -> FilterResult:
 
 def _gate(gate, gate_by: str, prior) -> kalman.Gate | None:
     """The Gate of `gate` and `gate_by` (checked), or None."""
-    if gate is None:
-        if gate_by != "measurement":
-            kalman.Gate(0.5, gate_by)  # a bad `gate_by` is named even without a gate
-        return None
-    if prior == "diffuse":
+    if gate is not None and prior == "diffuse":
         raise ValueError("`gate` is not available with a 'diffuse' prior.")
-    return kalman.Gate(gate, gate_by)
+    return kalman.Gate.of(gate, gate_by)
 
 
 def _check_check(check) -> None:

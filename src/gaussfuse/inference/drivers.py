@@ -329,11 +329,7 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     With `gains`, the Kalman gain of each step (readable path).
     """
     target = steady_state(model).cov if steady else None
-    sqrt_compiled = form == "sqrt" and spec.compiled == "linear"
-    readable = ("gains=True" if gains else f"gate={gate.probability!r}" if gate is not None
-                else None if form == "cov" or sqrt_compiled else f"form={form!r}")
-    if sqrt_compiled and engine == "auto":
-        engine = "python"  # the compiled square-root filter only when asked for: its kernel is compiled apart
+    engine, readable = _readable_only(spec, engine, form, gate, "gains=True" if gains else None)
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable)
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
@@ -349,14 +345,28 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     return stack([r[0] for r in runs])
 
 
+def _readable_only(spec: Method, engine: str, form: str, gate, option: str | None = None) -> tuple[str, str | None]:
+    """The engine to ask for, and the option (if any) that only the readable path runs.
+
+    The compiled square-root kernels exist for the linear engine only, and
+    ``engine="auto"`` does not pick them (they are compiled apart); a gate,
+    and `option` when given, are the readable path's.
+    """
+    sqrt_compiled = form == "sqrt" and spec.compiled == "linear" and option is None
+    if sqrt_compiled and engine == "auto":
+        engine = "python"
+    if option is None and gate is not None:
+        option = f"gate={gate.probability!r}"
+    if option is None and form != "cov" and not sqrt_compiled:
+        option = f"form={form!r}"
+    return engine, option
+
+
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
                  to_prior: bool = False, form: str = "cov", gate: kalman.Gate | None = None) -> SmoothResult:
     """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
-    sqrt_compiled = form == "sqrt" and spec.compiled == "linear" and not to_prior
-    if sqrt_compiled and engine == "auto":
-        engine = "python"  # as filter_batch: the compiled square-root kernels only when asked for
-    readable = (f"gate={gate.probability!r}" if gate is not None
-                else None if form == "cov" or sqrt_compiled else f"form={form!r}")
+    engine, readable = _readable_only(spec, engine, form, gate, "form='sqrt' to the prior's time" if to_prior
+                                      and form == "sqrt" else None)
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
                                readable=readable)
     if compiled is not None:
