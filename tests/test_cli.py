@@ -2,6 +2,8 @@
 
 import csv
 import errno
+import io
+import types
 import importlib.metadata
 import os
 import re
@@ -306,6 +308,45 @@ def test_filter_plot(tmp_path, capsys, series):
     assert read_csv(out)[1].shape == (25, 9)
 
 
+@pytest.mark.parametrize("smooth", [False, True])
+def test_filter_plot_has_a_title_a_track_panel_and_says_what_it_drew(tmp_path, capsys, monkeypatch, smooth):
+    """The figure the CLI saves: titled, one panel per column plus the x–y track, "smoothed" when smoothing.
+
+    Drawn from pieces of 4 rows (the smoother's come last first): the lines hold every row, in order.
+    """
+    data, times, _ = _irregular(tmp_path, 30)
+    toml = tmp_path / "cv.toml"
+    toml.write_text(NAMED_TOML)
+    drawn = []
+    monkeypatch.setattr(cli.plotting, "save_figure", lambda fig, path: drawn.append(fig))
+    monkeypatch.setattr(cli, "_piece_rows", lambda n, m: 4)
+    code, stdout, err = run(capsys, "filter", data, "-m", toml, "--plot", tmp_path / "f.png", "--check", "off",
+                            *(["--smooth"] if smooth else []))
+    assert code == 0 and err == ""
+    (fig,) = drawn
+    what = "smoothed" if smooth else "filtered"
+    assert fig.get_suptitle() == f"{data.name}: {what} estimates, ±2σ"
+    px, py, track = fig.get_axes()
+    assert [px.get_ylabel(), py.get_ylabel(), py.get_xlabel()] == ["px", "py", "t (s)"]
+    assert [t.get_text() for t in px.get_legend().get_texts()] == ["measurement", what, f"{what} ±2σ"]
+    np.testing.assert_array_equal(px.get_lines()[1].get_xdata(), times)
+    _, values = read_csv(stdout)
+    np.testing.assert_array_equal(track.get_lines()[1].get_xdata(), values[:, 1])
+
+
+def test_filter_plot_of_iso_times_counts_seconds_from_the_first(tmp_path, capsys, monkeypatch):
+    data = tmp_path / "d.csv"
+    data.write_text("time,z\n2026-05-01T12:00:00Z,1.0\n2026-05-01T12:00:02Z,2.0\n2026-05-01T12:00:03Z,2.5\n")
+    toml = tmp_path / "m.toml"
+    toml.write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.1\nr = 1.0\n')
+    drawn = []
+    monkeypatch.setattr(cli.plotting, "save_figure", lambda fig, path: drawn.append(fig))
+    assert run(capsys, "filter", data, "-m", toml, "--plot", tmp_path / "f.png")[0] == 0
+    (ax,) = drawn[0].get_axes()  # one column: no track panel
+    assert ax.get_xlabel() == "time since 2026-05-01T12:00:00Z (s)"
+    np.testing.assert_array_equal(ax.get_lines()[1].get_xdata(), [0.0, 2.0, 3.0])
+
+
 @pytest.mark.parametrize("model", ["cv2d.toml", "explicit.toml"])
 def test_filter_the_examples(tmp_path, capsys, model):
     out = tmp_path / "track-out.csv"
@@ -445,6 +486,29 @@ def test_fit_em_to_stdout_with_structure(tmp_path, capsys, series):
     assert "Warning" not in err  # no Python warning text, no traceback
     code, _, err = run(capsys, "fit", data, "--model", toml, "--learn", "Q,R", "--iterations", "5", "--tol", "0")
     assert code == 0 and "gaussfuse: warning" not in err  # tol=0: exactly the iterations asked
+
+
+def test_fit_time_column_and_columns(tmp_path, capsys):
+    """`--time-column` and `--columns` choose what fit reads (the Nile's flow, among other columns)."""
+    _, flow = datasets.nile()
+    data = tmp_path / "nile.csv"
+    years = 1871 + np.arange(len(flow))
+
+    def write(years):
+        data.write_text("note,year,flow,other\n" + "".join(f"a,{y},{float(v)!r},{-float(v)!r}\n"
+                                                          for y, v in zip(years, flow)))
+
+    write(years)
+    argv = ["fit", data, "--model", EXAMPLES / "models" / "local_level.toml", "--learn", "Q,R", "--method", "mle"]
+    code, stdout, err = run(capsys, *argv)
+    assert code == 2 and "no time column" in err and "--time-column" in err
+    code, stdout, err = run(capsys, *argv, "--time-column", "year", "--columns", "flow")
+    assert code == 0 and "gaussfuse: warning" not in err
+    lib = gf.fit(gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0), "diffuse", flow, method="mle")
+    assert gfio.tomllib.loads(stdout)["model"]["Q"] == [[lib.model.Q[0, 0]]]
+    write(years + 2 * (years >= 1880))  # a gap of 3 years
+    code, stdout, err = run(capsys, *argv, "--time-column", "year", "--columns", "flow")
+    assert code == 0 and "gaussfuse: warning: the times are irregular (steps from 1 s to 3 s)" in err
 
 
 def test_help_documents_the_non_convergence_status(capsys):
@@ -908,3 +972,117 @@ def test_times_that_mix_seconds_and_iso_are_refused(tmp_path, capsys):
     code, out, err = run(capsys, "filter", data, "-m", model)
     assert code == 2
     assert_one_line_error(err, r"line 3: column `t`: the times mix numbers \(seconds\) and ISO-8601 times")
+
+
+# ---------------------------------------------------------------------------
+# Files in pieces (issue 13, item 8)
+# ---------------------------------------------------------------------------
+
+
+def _irregular(tmp_path, rows, seed=5):
+    """A CSV of `rows` rows of a 2-D track at irregular times, some cells missing."""
+    rng = np.random.default_rng(seed)
+    times = np.round(np.cumsum(rng.choice([0.1, 0.2, 0.5], rows)), 1)
+    zs = np.cumsum(rng.normal(size=(rows, 2)), axis=0) * 0.2 + rng.normal(size=(rows, 2))
+    cells = [[repr(float(t)), "" if rng.random() < 0.05 else repr(float(x)), repr(float(y))]
+             for t, (x, y) in zip(times, zs)]
+    data = tmp_path / f"track{rows}.csv"
+    data.write_text("t,px,py\n" + "".join(",".join(row) + "\n" for row in cells))
+    return data, times, zs
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("smooth", [False, True])
+@pytest.mark.parametrize("toml", ["named", "explicit"])
+def test_a_file_in_pieces_gives_what_one_piece_gives(tmp_path, capsys, monkeypatch, smooth, toml, engine):
+    """Pieces of 4 rows of 37: what the file in one piece gives, and gf.filter / gf.smooth on it in memory.
+
+    A named model steps by the irregular times: every step's matrices differ, and the pieces give the same
+    bytes. Explicit matrices are time-invariant: the filter holds a settled covariance, which each piece
+    recomputes, so they agree to round-off.
+    """
+    data, times, zs = _irregular(tmp_path, 37)
+    model = tmp_path / "m.toml"
+    model.write_text(NAMED_TOML if toml == "named" else explicit_toml(gf.constant_velocity(DT, Q, R, dim=2)))
+    argv = ["filter", data, "-m", model, "--check", "off", "--engine", engine] + (["--smooth"] if smooth else [])
+    code, whole, _ = run(capsys, *argv)
+    assert code == 0
+    monkeypatch.setattr(cli, "_piece_rows", lambda n, m: 4)
+    code, pieces, _ = run(capsys, *argv)
+    out = tmp_path / "out.csv"
+    assert code == 0 and run(capsys, *argv, "--out", out)[0] == 0
+    assert out.read_text() == pieces
+    spec = gfio.read_model(model)
+    values = np.genfromtxt(data, delimiter=",", skip_header=1)[:, 1:]  # empty cells are NaN
+    fn = gf.smooth if smooth else gf.filter
+    want = (fn(spec.timed, spec.prior, values, times=times, check="off", engine=engine) if toml == "named"
+            else fn(spec.model, spec.prior, values, check="off", engine=engine))
+    for text in (whole, pieces):
+        header, got = read_csv(text)
+        assert header == ["t", *spec.state_names, *(f"std_{s}" for s in spec.state_names)]
+        np.testing.assert_array_equal(got[:, 0], times)
+        if toml == "named":
+            assert pieces == whole
+            np.testing.assert_array_equal(got[:, 1:5], want.means)
+        else:
+            np.testing.assert_allclose(got[:, 1:5], want.means, rtol=0, atol=1e-12 * np.abs(want.means).max())
+
+
+def test_an_error_in_a_later_piece_leaves_no_output(tmp_path, capsys, monkeypatch):
+    data, _, _ = _irregular(tmp_path, 30)
+    lines = data.read_text().splitlines()
+    lines[25] = lines[25].split(",")[0] + ",x,1.0"
+    data.write_text("\n".join(lines) + "\n")
+    model = tmp_path / "m.toml"
+    model.write_text(NAMED_TOML)
+    monkeypatch.setattr(cli, "_piece_rows", lambda n, m: 4)
+    out = tmp_path / "out.csv"
+    for argv in (["--out", out], [], ["--smooth", "--out", out], ["--smooth"]):
+        code, stdout, err = run(capsys, "filter", data, "-m", model, *argv)
+        assert code == 2 and stdout == "" and not out.exists()
+        assert_one_line_error(err, r"line 26: column `px`: 'x' is not a number")
+
+
+def _traced_peak(argv):
+    import tracemalloc
+    tracemalloc.start()
+    try:
+        assert main([str(a) for a in argv]) == 0
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_memory_does_not_grow_with_the_file(tmp_path, capsys, monkeypatch, smooth):
+    """Python's traced peak (NumPy's arrays included) for a file 4 times longer: the same, up to a few pieces."""
+    monkeypatch.setattr(cli, "_piece_rows", lambda n, m: 1000)
+    model = tmp_path / "m.toml"
+    model.write_text(NAMED_TOML)
+    flag = ["--smooth"] if smooth else []
+    short, _, _ = _irregular(tmp_path, 5_000)
+    long, _, _ = _irregular(tmp_path, 20_000)
+    _traced_peak(["filter", short, "-m", model, "--check", "off", "--out", tmp_path / "warm.csv", *flag])
+    peaks = [_traced_peak(["filter", data, "-m", model, "--check", "off", "--out", tmp_path / "o.csv", *flag])
+             for data in (short, long)]
+    capsys.readouterr()
+    # 15,000 more rows in memory would be at least 15,000 x (t, 2 z, 4 means, 16 covariances) x 8 bytes = 2.8 MB
+    assert peaks[1] < peaks[0] + 1.0e6, peaks
+
+
+def test_row_progress_on_a_terminal_only():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    shown, hidden = Terminal(), io.StringIO()
+    for stream in (shown, hidden):
+        progress = cli._RowProgress(stream)
+        pieces = [types.SimpleNamespace(zs=np.zeros((1000, 2))), types.SimpleNamespace(zs=np.zeros((500, 2)))]
+        for piece in progress.count("filtered", pieces):
+            pass
+        progress.add("smoothed", 1500)
+        progress.close()
+    assert shown.getvalue().endswith("\rfiltered: 1,500 rows, smoothed: 1,500 rows\n")
+    assert "\rfiltered: 1,000 rows" in shown.getvalue()
+    assert hidden.getvalue() == ""

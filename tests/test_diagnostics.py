@@ -136,3 +136,38 @@ def test_divergence_rarely_flags_consistent_filters():
     assert flagged == 0
     # and a filter twice as confident as it should be is flagged in every run
     assert all(dg.divergence(2.0 * run, np.full(300, 2)) for run in runs[:50])
+
+
+def _reference_monitor(nis, dofs, window, false_alarm=dg.DIVERGENCE_FALSE_ALARM):
+    """DivergenceMonitor's rule written out update by update: the oracle of add and add_many."""
+    kept = [(v, d, k) for k, (v, d) in enumerate(zip(nis, dofs)) if d > 0]
+    stride, reports, tested, previous = max(window // 2, 1), [], 0, False
+    for i in range(window - 1, len(kept), stride):
+        values = kept[i - window + 1:i + 1]
+        total, d = sum(v for v, _, _ in values), float(sum(d for _, d, _ in values))
+        tested += 1
+        t = np.log(tested * (tested + 1) / false_alarm)
+        flagged = total >= d + 2 * np.sqrt(d * t) + 2 * t
+        if flagged and not previous:
+            reports.append((values[0][2], values[-1][2], total / d))
+        previous = flagged
+    return reports
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_monitor_in_pieces_matches_the_rule_update_by_update(seed):
+    rng = np.random.default_rng(seed)
+    T, window = int(rng.integers(1, 500)), int(rng.integers(1, 70))
+    dofs = rng.choice([0, 1, 2, 3], T)
+    nis = rng.chisquare(np.maximum(dofs, 1)) * np.where(np.arange(T) % 97 > 60, 5.0, 1.0)
+    want = _reference_monitor(nis, dofs, window)
+    one, many = dg.DivergenceMonitor(window=window), dg.DivergenceMonitor(window=window)
+    singly = [r for k in range(T) if (r := one.add(nis[k], dofs[k], k)) is not None]
+    pieces, k = [], 0
+    while k < T:
+        n = int(rng.integers(1, 120))
+        pieces += many.add_many(nis[k:k + n], dofs[k:k + n], range(k, k + n))
+        k += n
+    for got in (singly, pieces):
+        assert [(a, b) for a, b, _ in got] == [(a, b) for a, b, _ in want]
+        np.testing.assert_allclose([avg for *_, avg in got], [avg for *_, avg in want], rtol=1e-12)

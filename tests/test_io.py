@@ -16,6 +16,7 @@ import gaussfuse as gf
 import gaussfuse.io
 from gaussfuse.io import (
     InputFileError,
+    iter_measurements,
     open_atomic,
     read_measurements,
     read_model,
@@ -672,3 +673,78 @@ def test_open_atomic_errors_name_the_path_never_the_temporary_file(tmp_path, mon
             f.write("new")
     assert (info.value.errno, info.value.filename, info.value.filename2) == (errno.EXDEV, str(path), None)
     assert os.listdir(tmp_path) == []
+
+
+# ---------------------------------------------------------------------------
+# iter_measurements: the file in pieces
+# ---------------------------------------------------------------------------
+
+PIECES = """t,x,y
+0.5,1.0,2.0
+
+1.0,,3.5
+1.5,nan,4.0
+2.0,2.5,
+2.5,3.0,1e-300
+"""
+
+
+@pytest.mark.parametrize("rows", [1, 2, 4, 5, 100])
+def test_pieces_join_to_the_whole_file(tmp_path, rows):
+    path = write(tmp_path / "d.csv", PIECES)
+    whole = read_measurements(path)
+    pieces = list(iter_measurements(path, rows=rows))
+    assert [len(p.times) for p in pieces][:-1] == [rows] * (len(pieces) - 1)
+    np.testing.assert_array_equal(np.concatenate([p.times for p in pieces]), whole.times)
+    np.testing.assert_array_equal(np.concatenate([p.zs for p in pieces]), whole.zs)
+    assert [t for p in pieces for t in p.time_text] == whole.time_text == ["0.5", "1.0", "1.5", "2.0", "2.5"]
+    assert all(p.columns == ["t", "x", "y"] for p in pieces)
+    np.testing.assert_array_equal(whole.zs, [[1.0, 2.0], [np.nan, 3.5], [np.nan, 4.0], [2.5, np.nan], [3.0, 1e-300]])
+
+
+@pytest.mark.parametrize("text, line, match", [
+    ("t,x\n1,1\n2,2\n3,3\n2.5,4\n", 5, r"strictly increasing; 2\.5 follows 3\.0"),  # across the boundary
+    ("t,x\n1,1\n2,2\n3,3\n4,oops\n", 5, r"column `x`: 'oops' is not a number"),
+    ("t,x\n1,1\n2,2\n3,3\n4,inf\n", 5, r"column `x`: 'inf' is not finite"),
+    ("t,x\n1,1\n2,2\n3,3\n2026-01-01T00:00:00,4\n", 5, r"mix numbers \(seconds\) and ISO-8601"),
+    ("t,x\n1,1\n2,2\n3,3\n4,4,4\n", 5, r"expected 2 cells \(t, x\); found 3"),
+    ("t,x\n1,1\n2,2\n3,3\n,4\n", 5, r"the time is missing"),
+])
+def test_an_error_in_a_later_piece_names_its_line(tmp_path, text, line, match):
+    path = write(tmp_path / "d.csv", text)
+    pieces = iter_measurements(path, rows=3)
+    assert len(next(pieces).times) == 3  # the first piece is good, and read before the error
+    with pytest.raises(InputFileError, match=match) as info:
+        next(pieces)
+    assert info.value.line == line
+    with pytest.raises(InputFileError, match=match):
+        read_measurements(path)
+
+
+def test_iso_times_in_pieces(tmp_path):
+    path = write(tmp_path / "d.csv", "time,x\n2026-05-01T12:00:00+02:00,1\n2026-05-01T10:00:01Z,2\n"
+                                     "2026-05-01T10:00:03.5,3\n")
+    pieces = list(iter_measurements(path, rows=2))
+    times = np.concatenate([p.times for p in pieces])
+    np.testing.assert_array_equal(np.diff(times), [1.0, 2.5])
+    assert pieces[1].time_text == ["2026-05-01T10:00:03.5"]
+
+
+@pytest.mark.parametrize("rows", [0, -1, 1.5, True, "3"])
+def test_rows_must_be_a_positive_int(tmp_path, rows):
+    path = write(tmp_path / "d.csv", PIECES)
+    with pytest.raises(ValueError, match="`rows` must be a positive int"):
+        next(iter_measurements(path, rows=rows))
+
+
+@pytest.mark.parametrize("block", [1, 2, 3, 5, 64])
+@pytest.mark.parametrize("ending", ["\n", "\r\n", "\r"])
+def test_lines_read_in_blocks_are_the_lines_of_the_file(block, ending):
+    """Small blocks split lines and "\\r\\n" endings anywhere: the lines (and their numbers) stay the file's."""
+    text = ending.join(["t,x", "1,2", "", "3,44444", "5,6"]) + ending + "7,8"
+    want = stdio.StringIO(text, newline="").readlines()
+    got = list(gaussfuse.io._text_lines("f.csv", stdio.StringIO(text, newline=""), block=block))
+    assert got == want
+    bad = text.replace("44444", "44\x0044")
+    with pytest.raises(InputFileError, match="line 4: a NUL character"):
+        list(gaussfuse.io._text_lines("f.csv", stdio.StringIO(bad, newline=""), block=block))

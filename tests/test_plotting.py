@@ -56,6 +56,46 @@ def test_plot_measurements_draws_one_panel_per_component(filtered):
                                                                           "estimate ±2σ"]
 
 
+def test_plot_measurements_labels_units_title_and_track(filtered):
+    """A "smoothed" legend, units on the axes, a title, and the x–y panel of the two components."""
+    times, zs, res, model = filtered
+    fig = plot_measurements(times, zs, res.means, res.covs, model.H, names=["east", "north"], label="smoothed",
+                            units="m", xlabel="t", time_unit="s", title="track.csv: smoothed", track=True)
+    east, north, track = fig.get_axes()
+    assert [east.get_ylabel(), north.get_ylabel(), north.get_xlabel()] == ["east (m)", "north (m)", "t (s)"]
+    assert [t.get_text() for t in east.get_legend().get_texts()] == ["measurement", "smoothed", "smoothed ±2σ"]
+    assert fig.get_suptitle() == "track.csv: smoothed"
+    assert [track.get_xlabel(), track.get_ylabel()] == ["east (m)", "north (m)"]
+    dots, path = track.get_lines()
+    np.testing.assert_array_equal(dots.get_xdata(), zs[:, 0])
+    np.testing.assert_allclose(path.get_ydata(), (res.means @ model.H.T)[:, 1], rtol=1e-12)
+    assert [t.get_text() for t in track.get_legend().get_texts()] == ["measurement", "smoothed", "smoothed 2σ"]
+    fig = plot_measurements(times, zs, res.means, res.covs, model.H, units=["m", "km"], track=True)
+    assert [ax.get_ylabel() for ax in fig.get_axes()] == ["z0 (m)", "z1 (km)", "z1"]  # mixed units: none on x–y
+    assert fig.get_axes()[2].get_xlabel() == "z0"
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"units": ["m"]}, r"`units` must be one unit, or one per measurement component \(2\); got 1"),
+    ({"track": True, "H": "one row"}, r"`track` draws two measurement components .* m = 1"),
+])
+def test_plot_measurements_bad_units_and_track(filtered, kwargs, match):
+    times, zs, res, model = filtered
+    H = model.H
+    if kwargs.pop("H", None):
+        H, zs = model.H[:1], zs[:, :1]
+    with pytest.raises(ValueError, match=match):
+        plot_measurements(times, zs, res.means, res.covs, H, **kwargs)
+
+
+def test_series_and_trajectory_take_labels_and_units(filtered):
+    times, zs, res, _ = filtered
+    fig = plot_series(times, res.means, res.covs, component=2, xlabel="t", ylabel="vx", unit="m/s", time_unit="s")
+    assert [fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()] == ["t (s)", "vx (m/s)"]
+    fig = plot_trajectory(res.means, res.covs, xlabel="east", ylabel="north", unit="km")
+    assert [fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()] == ["east (km)", "north (km)"]
+
+
 def test_plot_measurements_into_a_given_figure_with_time_varying_h(filtered):
     times, zs, res, model = filtered
     H = np.broadcast_to(model.H, (12, 2, 4))

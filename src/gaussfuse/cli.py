@@ -13,10 +13,13 @@ output closed early (``| head``) ends it quietly with status 141.
 from __future__ import annotations
 
 import argparse
+import csv
+import itertools
 import os
 import signal
 import stat
 import sys
+import tempfile
 import threading
 import warnings
 from contextlib import nullcontext, suppress
@@ -30,6 +33,7 @@ from . import io as gfio
 from .errors import ConvergenceWarning, DivergenceWarning
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
+from .inference import streaming
 from .inference.drivers import ENGINES
 from .models import LinearModel, constant_velocity
 
@@ -74,6 +78,12 @@ yet.
 
 Output CSV: the time column as written in DATA.csv, the state means, then
 std_<state> for each state, written with full float precision.
+
+Files of any length: DATA.csv is read in pieces and the estimates are
+spooled to a temporary file (in TMPDIR, about the output's size; the
+smoother also keeps the pieces there), then copied to the output, so memory
+does not grow with the file (except for --plot, and for the smoother with a
+diffuse prior, which reads the file whole).
 
 Limits, so that a wrong file fails at once: DATA.csv must be text (no NUL
 character) with lines of at most 1 Mi characters; MODEL.toml at most 8 MiB,
@@ -198,7 +208,7 @@ def _run_demo(args: argparse.Namespace) -> int:
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, DEMO_FIGURE)
     sm = demo.smoothed
-    estimates = {"filter": (sm.filtered.means, sm.filtered.covs), "smoother": (sm.means, sm.covs)}
+    estimates = {"filtered": (sm.filtered.means, sm.filtered.covs), "smoothed": (sm.means, sm.covs)}
     plotting.save_figure(plotting.plot_demo(demo.times, demo.zs, demo.truth, estimates), path)
     print()
     print(f"figure: {path}")
@@ -211,48 +221,185 @@ def _run_demo(args: argparse.Namespace) -> int:
 
 
 def _run_filter(args: argparse.Namespace) -> int:
+    """`gaussfuse filter`: the file in pieces (:func:`gaussfuse.io.iter_measurements`), so memory is bounded.
+
+    The estimates go to a temporary spool, piece by piece (the smoother's
+    last piece first), and are copied to the output in order once all are
+    computed: an error leaves no output, and no partial standard output.
+    """
     _check_paths(args, {"--out": args.out, "--plot": args.plot})
     spec = gfio.read_model(args.model)
     columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
-    data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
-    run = inference.smooth if args.smooth else inference.filter
-    model, times = _stepping(spec, data.times)
-    result = run(model, spec.prior, data.zs, engine=args.engine, check=args.check, times=times)
-    # The CSV file appears only once the figure is saved: on an error, neither does.
-    sink = (gfio.open_atomic(args.out, "w", newline="", encoding="utf-8") if args.out
-            else nullcontext(StringIO()))
-    with sink as out:
-        gfio.write_estimates(out, data.time_text, result.means, result.covs, spec.state_names, data.columns[0])
-        if args.plot:
-            fig = plotting.plot_measurements(data.times, data.zs, result.means, result.covs,
-                                             spec.model.H, names=data.columns[1:])
-            plotting.save_figure(fig, args.plot)
-    if not args.out:
-        sys.stdout.write(out.getvalue())
+    read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns}
+    if args.smooth and isinstance(spec.prior, str):  # a diffuse prior is smoothed whole
+        pieces = iter([gfio.read_measurements(args.data, **read)])
+    else:
+        pieces = gfio.iter_measurements(args.data, rows=_piece_rows(spec.model.n, spec.model.m), **read)
+    head = next(pieces)
+    steps = _Steps(spec, head)
+    pieces = steps.watch(itertools.chain([head], pieces))
+    model = spec.timed if steps.timed else spec.model
+    run = streaming.smooth_pieces if args.smooth else streaming.filter_pieces
+    drawn = _Drawn() if args.plot else None
+    progress = _RowProgress()
+    pieces = progress.count("filtered", pieces)
+    with tempfile.TemporaryFile() as spool:
+        starts = []  # where each piece's rows start in the spool, in the order written
+        try:
+            for piece, result in run(model, spec.prior, pieces, timed=steps.timed, engine=args.engine,
+                                     check=args.check):
+                text = StringIO()
+                gfio.write_estimates(text, piece.time_text, result.means, result.covs, spec.state_names,
+                                     header=False)
+                starts.append(spool.tell())
+                spool.write(text.getvalue().encode("utf-8"))
+                if args.smooth:
+                    progress.add("smoothed", piece.zs.shape[0])
+                if drawn is not None:
+                    drawn.add(piece, result)
+        finally:
+            progress.close()
+        steps.warn()
+        spans = list(zip(starts, starts[1:] + [spool.tell()]))
+        # The CSV file appears only once the figure is saved: on an error, neither does.
+        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_binary_stdout()) as out:
+            if drawn is not None:
+                plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
+            out.write(_header([head.columns[0], *spec.state_names, *(f"std_{n}" for n in spec.state_names)]))
+            for start, stop in (reversed(spans) if args.smooth else spans):  # the smoother wrote the last first
+                spool.seek(start)
+                while start < stop:
+                    block = spool.read(min(stop - start, 2**24))
+                    out.write(block)
+                    start += len(block)
     return 0
 
 
-def _stepping(spec, times: np.ndarray):
-    """The model to filter with and the `times` to pass it: a named model steps by the data's times.
+def _piece_rows(n: int, m: int) -> int:
+    """Rows per piece of a file: a piece's arrays (about 6 n² + m² floats per row for the smoother) in ~32 MiB."""
+    return int(np.clip(2**25 // (8 * (6 * n * n + 3 * n + m * m + m)), 1024, gfio.CHUNK_ROWS))
 
-    Warns (one line) when explicit matrices meet irregular times, or a named
-    model's dt is not the times' regular step.
+
+def _binary_stdout():
+    """Standard output for bytes: its buffer (after what was written as text), or a stand-in that decodes."""
+    sys.stdout.flush()
+    buffer = getattr(sys.stdout, "buffer", None)
+    return buffer if buffer is not None else _Decoding(sys.stdout)
+
+
+class _Decoding:
+    """A text stream (such as a test's StringIO) taking bytes."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+
+    def write(self, data: bytes) -> None:
+        self.stream.write(data.decode("utf-8"))
+
+
+def _header(names: list[str]) -> bytes:
+    """The CSV header row of `names`, quoted as the csv module quotes."""
+    text = StringIO()
+    csv.writer(text, lineterminator="\n").writerow(names)
+    return text.getvalue().encode("utf-8")
+
+
+class _Steps:
+    """How a file's rows step in time: whether a named model steps by them, and the warnings to give.
+
+    A named model steps by the data's times (each step discretised for its
+    own dt); explicit matrices are for one fixed step. :meth:`watch` follows
+    the times as the pieces are read; :meth:`warn` says, in one line, when
+    explicit matrices met irregular times, or a named model's dt is not the
+    times' regular step.
     """
-    steps = np.diff(times)
-    if steps.size == 0:
-        return spec.model, None
-    low, high = float(steps.min()), float(steps.max())
-    regular = high - low <= 1e-9 * high
-    if spec.timed is not None:
-        if regular and abs(low - spec.model.dt) > 1e-9 * spec.model.dt:
-            print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by {low:g} s; "
+
+    def __init__(self, spec: gfio.ModelFile, head: gfio.Measurements) -> None:
+        self.spec = spec
+        self.timed = spec.timed is not None and head.times.shape[0] >= 2  # one row: the file's dt
+        self.stamps = not _is_number(head.time_text[0])  # ISO-8601 times
+        self.low, self.high, self.last = np.inf, -np.inf, None
+
+    def watch(self, pieces):
+        for piece in pieces:
+            times = piece.times if self.last is None else np.concatenate([[self.last], piece.times])
+            if times.shape[0] >= 2:
+                steps = np.diff(times)
+                self.low, self.high = min(self.low, float(steps.min())), max(self.high, float(steps.max()))
+            self.last = piece.times[-1]
+            yield piece
+
+    def warn(self) -> None:
+        if self.high < 0:
+            return
+        regular = self.high - self.low <= 1e-9 * self.high
+        dt = self.spec.model.dt
+        if self.timed and regular and abs(self.low - dt) > 1e-9 * dt:
+            print(f"gaussfuse: warning: the model file's dt = {dt:g} s, but the times step by {self.low:g} s; "
                   "each step uses the times' own step.", file=sys.stderr)
-        return spec.timed, times
-    if not regular:
-        print(f"gaussfuse: warning: the times are irregular (steps from {low:g} s to {high:g} s), but the model "
-              "file's explicit matrices are for one fixed step: every row is filtered as one step. A named model "
-              "(kind = ...) is discretised for each step's own dt.", file=sys.stderr)
-    return spec.model, None
+        elif not self.timed and not regular:
+            print(f"gaussfuse: warning: the times are irregular (steps from {self.low:g} s to {self.high:g} s), but "
+                  "the model file's explicit matrices are for one fixed step: every row is filtered as one step. A "
+                  "named model (kind = ...) is discretised for each step's own dt.", file=sys.stderr)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+class _RowProgress:
+    """Rows done, on one line of stderr, when stderr is a terminal: ``filtered: 1,234,567 rows``."""
+
+    def __init__(self, stream=None) -> None:
+        self.done: dict[str, int] = {}
+        self.stream = stream if stream is not None else sys.stderr
+        self.live = self.stream is not None and self.stream.isatty()
+
+    def count(self, what: str, pieces):
+        """The pieces, counted under `what` as they go by."""
+        for piece in pieces:
+            yield piece
+            self.add(what, piece.zs.shape[0])
+
+    def add(self, what: str, rows: int) -> None:
+        self.done[what] = self.done.get(what, 0) + rows
+        if self.live:
+            self.stream.write("\r" + ", ".join(f"{name}: {n:,} rows" for name, n in self.done.items()))
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self.live and self.done:
+            self.stream.write("\n")
+
+
+class _Drawn:
+    """What `--plot` draws, kept in memory as the pieces go by (the only part of the command that grows with the file)."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple] = []
+
+    def add(self, piece: gfio.Measurements, result) -> None:
+        self.parts.append((piece.times, piece.zs, result.means, result.covs, piece.time_text[0]))
+
+    def figure(self, spec: gfio.ModelFile, data: str, columns: list[str], smoothed: bool, stamps: bool):
+        """Measurements against the estimates, titled; with an x–y panel for two measurement columns.
+
+        ISO-8601 times are drawn as seconds since the first.
+        """
+        parts = sorted(self.parts, key=lambda p: p[0][0])  # the smoother's come last first
+        times, zs, means, covs = (np.concatenate(a) for a in list(zip(*parts))[:4])
+        what = "smoothed" if smoothed else "filtered"
+        xlabel = columns[0]
+        if stamps:
+            xlabel = f"{columns[0]} since {parts[0][4]}"
+            times = times - times[0]
+        return plotting.plot_measurements(
+            times, zs, means, covs, spec.model.H, names=columns[1:], label=what, xlabel=xlabel, time_unit="s",
+            title=f"{os.path.basename(data)}: {what} estimates, ±2σ", track=len(columns) == 3)
 
 
 def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
@@ -334,7 +481,12 @@ class _Progress:
 def _run_fit(args: argparse.Namespace) -> int:
     _check_paths(args, {"--out": args.out})
     spec = gfio.read_model(args.model)
-    data = gfio.read_measurements(args.data, m=spec.model.m)
+    columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
+    steps = np.diff(data.times)
+    if steps.size and steps.max() - steps.min() > 1e-9 * steps.max():
+        print(f"gaussfuse: warning: the times are irregular (steps from {steps.min():g} s to {steps.max():g} s), "
+              "but a fitted model has one set of matrices: every row is fitted as one step of it.", file=sys.stderr)
     learn = _names(args.learn, "--learn", learning.LEARNABLE)
     iterations = args.iterations if args.iterations is not None else (500 if args.method == "em" else 1000)
     progress = _Progress(args.method, iterations)
@@ -417,8 +569,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="write the estimates to this file (default: standard output); "
                            "not DATA.csv, MODEL.toml or FIG.png")
     filt.add_argument("--plot", metavar="FIG.png",
-                      help="also draw measurements against the estimates with ±2σ bands "
-                           "(needs matplotlib)")
+                      help="also draw measurements against the estimates with ±2σ bands, and for two "
+                           "measurement columns the x-y track (needs matplotlib; what it draws is held in "
+                           "memory, so a very large file needs memory for it)")
     filt.add_argument("--time-column", metavar="NAME",
                       help="the time column (default: the one named t or time)")
     filt.add_argument("--columns", metavar="A,B,...",
@@ -455,6 +608,10 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--iterations", type=int, metavar="N",
                      help="maximum iterations (default: 500 for em, 1000 for mle)")
     fit.add_argument("--tol", type=float, metavar="TOL", help="convergence tolerance (see gaussfuse.fit)")
+    fit.add_argument("--time-column", metavar="NAME",
+                     help="the time column (default: the one named t or time)")
+    fit.add_argument("--columns", metavar="A,B,...",
+                     help="the measurement columns, in order (default: every other column)")
     fit.add_argument("-o", "--out", metavar="FITTED.toml",
                      help="write the fitted model to this file (default: standard output); "
                           "not DATA.csv or MODEL.toml")

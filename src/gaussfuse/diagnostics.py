@@ -233,8 +233,8 @@ class DivergenceMonitor:
     def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
                  check: str = "warn") -> None:
         self.window, self.false_alarm, self.check = window, false_alarm, check
-        self._values: list[float] = []  # the last `window` updates with observations: NIS, dof, step
-        self._dofs: list[int] = []
+        self._values = np.zeros(0)       # the last `window` updates with observations: NIS, dof, step
+        self._dofs = np.zeros(0)
         self._steps: list = []
         self._since = 0                  # updates since the last test
         self._tested = 0                 # windows tested so far
@@ -249,23 +249,52 @@ class DivergenceMonitor:
         ``window // 2`` updates; consecutive failing windows are reported
         once, at the first.
         """
-        if dof == 0:
-            return None
-        self._values.append(float(nis_value))
-        self._dofs.append(int(dof))
-        self._steps.append(step)
-        if len(self._values) > self.window:
-            del self._values[0], self._dofs[0], self._steps[0]
-        self._since += 1
-        if len(self._values) < self.window or (self._tested and self._since < max(self.window // 2, 1)):
-            return None
-        self._since = 0
-        self._tested += 1
-        total, d = sum(self._values), float(sum(self._dofs))
-        flagged = total >= _threshold(d, np.log(self._tested * (self._tested + 1) / self.false_alarm))
-        report = flagged and not self._flagged
-        self._flagged = flagged
-        return (self._steps[0], self._steps[-1], total / d) if report else None
+        report = self.add_many([nis_value], [dof], [step])
+        return report[0] if report else None
+
+    def add_many(self, nis_values, dofs, steps) -> list[tuple[object, object, float]]:
+        """:meth:`add` each of many updates, in order; the windows that newly failed, each ``(first, last, average)``.
+
+        Parameters
+        ----------
+        nis_values : array_like of shape (k,)
+        dofs : array_like of int, shape (k,)
+        steps : sequence of length k
+            The updates' labels.
+        """
+        dofs = np.asarray(dofs, dtype=np.float64)
+        kept = np.flatnonzero(dofs > 0)
+        if kept.size == 0:
+            return []
+        old = self._values.size
+        values = np.concatenate([self._values, np.asarray(nis_values, dtype=np.float64)[kept]])
+        counts = np.concatenate([self._dofs, dofs[kept]])
+        stride = max(self.window // 2, 1)
+        # the updates (indices into `values`) whose window is tested: the window-th, then every stride-th
+        first = self.window - 1 if not self._tested else old - 1 + stride - self._since
+        tests = np.arange(first, values.size, stride)  # first >= old: a test is never overdue
+
+        def label(i: int):
+            return self._steps[i] if i < old else steps[kept[i - old]]
+        reports = []
+        if tests.size:
+            sums = np.concatenate([[0.0], np.cumsum(values)])
+            dsums = np.concatenate([[0.0], np.cumsum(counts)])
+            total = sums[tests + 1] - sums[tests + 1 - self.window]
+            d = dsums[tests + 1] - dsums[tests + 1 - self.window]
+            j = self._tested + 1 + np.arange(tests.size)
+            flagged = total >= _threshold(d, np.log(j * (j + 1.0) / self.false_alarm))
+            newly = flagged & ~np.concatenate([[self._flagged], flagged[:-1]])
+            reports = [(label(i - self.window + 1), label(i), float(total[t] / d[t]))
+                       for t, i in zip(np.flatnonzero(newly), tests[newly])]
+            self._tested += tests.size
+            self._flagged = bool(flagged[-1])
+            self._since = values.size - 1 - int(tests[-1])
+        else:
+            self._since += kept.size
+        self._steps = [label(i) for i in range(max(values.size - self.window, 0), values.size)]
+        self._values, self._dofs = values[-self.window:], counts[-self.window:]
+        return reports
 
     @classmethod
     def for_check(cls, check) -> DivergenceMonitor | None:

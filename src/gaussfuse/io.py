@@ -103,6 +103,7 @@ __all__ = [
     "Measurements",
     "ModelFile",
     "read_measurements",
+    "iter_measurements",
     "read_model",
     "write_estimates",
     "write_model",
@@ -116,6 +117,9 @@ __all__ = [
 DEFAULT_PRIOR_VAR = 1e6
 """Variance of each state in the default prior ``N(0, 1e6 I)``."""
 
+CHUNK_ROWS = 2**16
+"""Rows per piece of :func:`iter_measurements` (and of the command line's streaming filter)."""
+
 MAX_LINE_CHARS = 2**20
 """Longest line of a measurement file, in characters (the line ending not counted)."""
 
@@ -126,6 +130,7 @@ MAX_NESTING = 16
 """Deepest nesting of tables and arrays in a model file (``[model]`` and ``F = [[1.0]]`` make 3)."""
 
 TIME_COLUMNS = ("t", "time")
+_QUOTED = re.compile(r'[,"\r\n]')  # what the csv module quotes
 
 StrPath = str | os.PathLike[str]
 
@@ -230,7 +235,38 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         column.
     OSError
         When the file cannot be read.
+
+    See Also
+    --------
+    iter_measurements : the same file in pieces, in memory independent of its length.
     """
+    pieces = list(iter_measurements(path, m, time_column, columns))
+    return Measurements(np.concatenate([p.times for p in pieces]), np.concatenate([p.zs for p in pieces]),
+                        pieces[0].columns, [text for p in pieces for text in p.time_text])
+
+
+def iter_measurements(path: StrPath, m: int | None = None, time_column: str | None = None,
+                      columns: Sequence[str] | None = None, rows: int = CHUNK_ROWS) -> Iterator[Measurements]:
+    """Read a measurement CSV file in pieces of at most `rows` rows, each as it is needed.
+
+    Takes the arguments of :func:`read_measurements` and checks the file as
+    it does (times increase across pieces too); a file of any length is
+    read in memory proportional to `rows`. An error in a later piece is
+    raised when that piece is reached.
+
+    Parameters
+    ----------
+    rows : int, default CHUNK_ROWS
+        The most rows per piece (positive).
+
+    Yields
+    ------
+    Measurements
+        The rows of one piece, in file order; the first piece is yielded
+        only once the header has been checked, and there is at least one.
+    """
+    if not isinstance(rows, int) or isinstance(rows, bool) or rows < 1:
+        raise ValueError(f"`rows` must be a positive int; got {rows!r}.")
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(_text_lines(path, f), strict=True)
         try:
@@ -244,45 +280,107 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
                     f"found {len(names) - 1} measurement column(s) {names[1:]} besides `{names[0]}`, "
                     f"but the model measures m = {m} component(s).",
                 )
-            lines, rows, texts = [], [], []
+            parser = _Rows(path, header, time_col, wanted, names)
+            cells: list[list[str]] = []
+            lines: list[int] = []
             for row in reader:
-                if len(row) <= 1 and not "".join(row).strip():
-                    continue  # a blank line
+                if len(row) != len(header):
+                    if len(row) <= 1 and not "".join(row).strip():
+                        continue  # a blank line
+                    _parse_row(path, reader.line_num, header, time_col, wanted, row)  # raises
+                cells.append(row)
                 lines.append(reader.line_num)
-                rows.append(_parse_row(path, reader.line_num, header, time_col, wanted, row))
-                texts.append(row[time_col].strip())
+                if len(cells) == rows:
+                    yield parser.parse(cells, lines)
+                    cells, lines = [], []
         except csv.Error as exc:
             raise InputFileError(path, str(exc), line=reader.line_num) from None
         except UnicodeDecodeError as exc:  # decoded in blocks, so no line number
             raise InputFileError(path, f"not UTF-8 text: {exc}") from None
-    if not rows:
-        raise InputFileError(path, "no data rows after the header.")
-    kinds = {type(row[0]) for row in rows}
-    if len(kinds) > 1:
-        first = next(i for i, row in enumerate(rows) if type(row[0]) is not type(rows[0][0]))
-        raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
-                             line=lines[first], field=f"column `{names[0]}`")
-    data = np.array([[float(row[0]), *row[1:]] for row in rows])
-    times, zs = data[:, 0], data[:, 1:]
-    back = np.flatnonzero(np.diff(times) <= 0)
-    if back.size:
-        k = back[0] + 1
-        raise InputFileError(
-            path,
-            f"times must be strictly increasing; {float(times[k])!r} follows {float(times[k - 1])!r}.",
-            line=lines[k], field=f"column `{names[0]}`",
-        )
-    return Measurements(times, zs, names, texts)
+        if cells:
+            yield parser.parse(cells, lines)
+        elif parser.last is None:
+            raise InputFileError(path, "no data rows after the header.")
 
 
-def _text_lines(path, f: IO[str]) -> Iterator[str]:
-    """The lines of `f`, each read in bounded memory and checked to be text."""
-    for number, line in enumerate(iter(lambda: f.readline(MAX_LINE_CHARS + 2), ""), start=1):
-        if "\0" in line:
-            raise InputFileError(path, "a NUL character: not a text file.", line=number)
-        if len(line.rstrip("\r\n")) > MAX_LINE_CHARS:
-            raise InputFileError(path, f"longer than {MAX_LINE_CHARS} characters.", line=number)
-        yield line
+class _Rows:
+    """Turns the rows of a measurement file into :class:`Measurements`, a piece at a time.
+
+    The cells of a whole piece are converted at once (NumPy parses numbers
+    as ``float`` does); a piece that does not convert is parsed row by row by
+    :func:`_parse_row`, which raises the error naming the line and column.
+    The times are checked to increase across pieces, and to be all numbers
+    or all ISO-8601 times.
+    """
+
+    def __init__(self, path, header: list[str], time_col: int, wanted: list[int], names: list[str]) -> None:
+        self.path, self.header, self.time_col, self.wanted, self.names = path, header, time_col, wanted, names
+        self.last: tuple[float, int] | None = None  # the last time read, and its line
+        self.stamps: bool | None = None  # whether the times are ISO-8601 times (set by the first row)
+
+    def parse(self, rows: list[list[str]], lines: list[int]) -> Measurements:
+        texts = [row[self.time_col].strip() for row in rows]
+        cells = [row[i] for row in rows for i in self.wanted]
+        try:
+            times = np.array(texts, dtype=np.float64)
+            stamps = np.zeros(len(rows), dtype=bool)
+            values = np.array([c if c.strip() else "nan" for c in cells], dtype=np.float64)
+            good = np.isfinite(times).all() and not np.isinf(values).any()
+        except ValueError:  # ISO-8601 times, or a cell that is not a number
+            good = False
+        if not good:
+            parsed = [_parse_row(self.path, line, self.header, self.time_col, self.wanted, row)
+                      for row, line in zip(rows, lines)]
+            stamps = np.array([isinstance(p[0], _Stamp) for p in parsed])
+            times = np.array([p[0] for p in parsed], dtype=np.float64)
+            values = np.array([p[1:] for p in parsed], dtype=np.float64)
+        self._check_times(times, stamps, lines)
+        return Measurements(times, values.reshape(len(rows), len(self.wanted)), self.names, texts)
+
+    def _check_times(self, times: np.ndarray, stamps: np.ndarray, lines: list[int]) -> None:
+        where = {"field": f"column `{self.names[0]}`"}
+        if self.stamps is None:
+            self.stamps = bool(stamps[0])
+        mixed = np.flatnonzero(stamps != self.stamps)
+        if mixed.size:
+            raise InputFileError(self.path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
+                                 line=lines[mixed[0]], **where)
+        if self.last is not None:
+            times = np.concatenate([[self.last[0]], times])
+            lines = [self.last[1], *lines]
+        back = np.flatnonzero(np.diff(times) <= 0)
+        if back.size:
+            k = back[0] + 1
+            raise InputFileError(
+                self.path,
+                f"times must be strictly increasing; {float(times[k])!r} follows {float(times[k - 1])!r}.",
+                line=lines[k], **where,
+            )
+        self.last = (float(times[-1]), lines[-1])
+
+
+def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
+    """The lines of `f`, read in blocks of about `block` characters and checked to be text.
+
+    A block is completed to the end of its last line by a read of at most
+    ``MAX_LINE_CHARS + 2`` characters, so memory stays bounded by a line far
+    too long (which is an error).
+    """
+    number = 0
+    while text := f.read(block):
+        if text.endswith("\r"):
+            text += f.read(1)  # a "\r\n" split between blocks stays one line ending
+        if not text.endswith(("\n", "\r")):
+            text += f.readline(MAX_LINE_CHARS + 2)
+        lines = stdio.StringIO(text, newline="").readlines()
+        if "\0" in text or max(map(len, lines)) > MAX_LINE_CHARS:
+            for k, line in enumerate(lines, start=number + 1):
+                if "\0" in line:
+                    raise InputFileError(path, "a NUL character: not a text file.", line=k)
+                if len(line.rstrip("\r\n")) > MAX_LINE_CHARS:
+                    raise InputFileError(path, f"longer than {MAX_LINE_CHARS} characters.", line=k)
+        number += len(lines)
+        yield from lines
 
 
 def _time_column(path, header: list[str], name: str | None = None) -> int:
@@ -588,6 +686,7 @@ def write_estimates(
     covs,
     state_names: Sequence[str],
     time_name: str = "t",
+    header: bool = True,
 ) -> None:
     """Write state estimates as CSV: time, means, then standard deviations.
 
@@ -607,6 +706,9 @@ def write_estimates(
         Column names of the means; the standard deviations are ``std_<name>``.
     time_name : str, default "t"
         Name of the time column.
+    header : bool, default True
+        Whether to write the header row first (False for the rows that
+        continue a file).
 
     Notes
     -----
@@ -632,15 +734,17 @@ def write_estimates(
         if arr.shape != shape:
             raise shape_error(name, str(shape), arr.shape)
     stds = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
-    header = [time_name, *state_names, *(f"std_{name}" for name in state_names)]
-    rows = np.column_stack([times, means, stds]).tolist()  # Python floats: str() is repr
-    if verbatim:
-        rows = [[stamp, *row[1:]] for stamp, row in zip(stamps, rows)]
+    columns = [time_name, *state_names, *(f"std_{name}" for name in state_names)]
+    values = np.column_stack([means, stds]).tolist()  # Python floats: str() is repr
+    stamps = stamps if verbatim else [repr(t) for t in times.tolist()]
 
     def write(f: IO[str]) -> None:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(header)
-        writer.writerows(rows)
+        if header:
+            csv.writer(f, lineterminator="\n").writerow(columns)
+        if _QUOTED.search("".join(stamps)):  # a time cell that needs quotes: the csv module's rows
+            csv.writer(f, lineterminator="\n").writerows([stamp, *row] for stamp, row in zip(stamps, values))
+        else:  # numbers need no quotes: joined directly, a third faster
+            f.write("".join([stamp + "," + ",".join(map(repr, row)) + "\n" for stamp, row in zip(stamps, values)]))
 
     if dest is None:
         write(sys.stdout)

@@ -60,6 +60,10 @@ def plot_series(
     truth=None,
     ax: Axes | None = None,
     label: str = "estimate",
+    xlabel: str = "time",
+    ylabel: str | None = None,
+    unit: str | None = None,
+    time_unit: str | None = None,
 ) -> Figure:
     r"""One component of an estimate against time, with a band of :math:`\pm k\sigma`.
 
@@ -88,7 +92,15 @@ def plot_series(
     ax : matplotlib.axes.Axes, optional
         Axes to draw into; a new figure by default.
     label : str, default "estimate"
-        Legend label of the estimate; the band is labelled ``"<label> ±kσ"``.
+        Legend label of the estimate (say ``"smoothed"``); the band is
+        labelled ``"<label> ±kσ"``.
+    xlabel : str, default "time"
+        Label of the time axis.
+    ylabel : str, optional
+        Label of the value axis; ``"component <c>"`` by default.
+    unit, time_unit : str, optional
+        Units of the values and of the times, shown in the axis labels as
+        ``"<label> (<unit>)"``.
 
     Returns
     -------
@@ -137,8 +149,8 @@ def plot_series(
     if truth is not None:
         ax.plot(times, _column("truth", truth, T, component), label="truth", **_TRUTH_STYLE)
     _band(ax, times, means[:, component], std, label, k)
-    ax.set_xlabel("time")
-    ax.set_ylabel(f"component {component}")
+    ax.set_xlabel(_with_unit(xlabel, time_unit))
+    ax.set_ylabel(_with_unit(f"component {component}" if ylabel is None else ylabel, unit))
     ax.legend(loc="best", fontsize="small")
     return fig
 
@@ -153,6 +165,9 @@ def plot_trajectory(
     k: float = 2.0,
     ax: Axes | None = None,
     label: str = "estimate",
+    xlabel: str = "x",
+    ylabel: str = "y",
+    unit: str | None = None,
 ) -> Figure:
     r"""An x–y path with covariance ellipses.
 
@@ -182,7 +197,12 @@ def plot_trajectory(
     ax : matplotlib.axes.Axes, optional
         Axes to draw into; a new figure by default.
     label : str, default "estimate"
-        Legend label of the path; the ellipses are labelled ``"<label> kσ"``.
+        Legend label of the path (say ``"smoothed"``); the ellipses are
+        labelled ``"<label> kσ"``.
+    xlabel, ylabel : str, default "x", "y"
+        Labels of the axes.
+    unit : str, optional
+        Unit of the positions, shown in the axis labels as ``"x (<unit>)"``.
 
     Returns
     -------
@@ -216,7 +236,7 @@ def plot_trajectory(
     (line,) = ax.plot(means[:, 0], means[:, 1], label=label)
     if covs is not None:
         _ellipses(ax, means[::every, :2], covs[::every, :2, :2], k, line.get_color(), f"{label} {k:g}σ")
-    ax.set(xlabel="x", ylabel="y", aspect="equal", adjustable="datalim")
+    ax.set(xlabel=_with_unit(xlabel, unit), ylabel=_with_unit(ylabel, unit), aspect="equal", adjustable="datalim")
     ax.legend(loc="best", fontsize="small")
     return fig
 
@@ -376,13 +396,22 @@ def plot_measurements(
     *,
     names: Sequence[str] | None = None,
     fig: Figure | None = None,
+    label: str = "estimate",
+    units: str | Sequence[str | None] | None = None,
+    xlabel: str = "time",
+    time_unit: str | None = None,
+    title: str | None = None,
+    track: bool = False,
 ) -> Figure:
     r"""Measurements against the estimated measurement, one panel per component.
 
     Panel j shows the measurements :math:`z_{k,j}` as dots, the estimate
     :math:`(H m_k)_j` as a line and a band of :math:`\pm 2\sigma` with
     :math:`\sigma = \sqrt{(H P_k H^\top)_{jj}}` (each panel is a
-    :func:`plot_series` of the estimated measurement).
+    :func:`plot_series` of the estimated measurement). With `track` and two
+    components (a 2-D position), a panel on the right draws them against
+    each other: the measured and estimated track, with the 2σ ellipses of
+    :math:`H P_k H^\top` (a :func:`plot_trajectory`).
 
     Parameters
     ----------
@@ -400,6 +429,18 @@ def plot_measurements(
         Names of the measurement components (y-axis labels).
     fig : matplotlib.figure.Figure, optional
         Figure to draw into; a new one by default.
+    label : str, default "estimate"
+        Legend label of the estimate: ``"filtered"``, ``"smoothed"``, ...
+    units : str or sequence of str of length m, optional
+        Unit of every component, or of each, for the axis labels.
+    xlabel : str, default "time"
+        Label of the time axis.
+    time_unit : str, optional
+        Unit of the times.
+    title : str, optional
+        Title of the figure.
+    track : bool, default False
+        Add the x–y panel (two components only).
 
     Returns
     -------
@@ -408,7 +449,8 @@ def plot_measurements(
     Raises
     ------
     ValueError
-        If an argument has the wrong shape (the message names it).
+        If an argument has the wrong shape (the message names it), or
+        `track` is asked for with other than two components.
     """
     times = _times("times", times)
     T = times.shape[0]
@@ -428,17 +470,30 @@ def plot_measurements(
     names = [f"z{j}" for j in range(m)] if names is None else [str(s) for s in names]
     if len(names) != m:
         raise ValueError(f"`names` must have one name per measurement component ({m}); got {len(names)}.")
+    units = [units] * m if units is None or isinstance(units, str) else list(units)
+    if len(units) != m:
+        raise ValueError(f"`units` must be one unit, or one per measurement component ({m}); got {len(units)}.")
+    if track and m != 2:
+        raise ValueError(f"`track` draws two measurement components against each other; these have m = {m}.")
     est = (H @ means[..., None])[..., 0]
     zcov = H @ covs @ np.swapaxes(H, -1, -2)
-    fig = fig if fig is not None else _figure((7.0, 1.0 + 2.2 * m))
-    axes = fig.subplots(m, 1, sharex=True, squeeze=False)[:, 0]
+    fig = fig if fig is not None else _figure((12.0 if track else 7.0, 1.0 + 2.2 * max(m, 2 if track else 1)))
+    grid = fig.add_gridspec(m, 2 if track else 1, width_ratios=(3, 2) if track else None)
+    axes = [fig.add_subplot(grid[0, 0])]
+    axes += [fig.add_subplot(grid[j, 0], sharex=axes[0]) for j in range(1, m)]
     for j, ax in enumerate(axes):
-        plot_series(times, est, zcov, component=j, zs=zs, ax=ax)
-        ax.set_ylabel(names[j])
+        plot_series(times, est, zcov, component=j, zs=zs, ax=ax, label=label, xlabel=xlabel, ylabel=names[j],
+                    unit=units[j], time_unit=time_unit)
         if j:
             ax.get_legend().remove()
         if j < m - 1:
             ax.set_xlabel("")
+            ax.tick_params(labelbottom=False)
+    if track:
+        plot_trajectory(est, zcov, zs=zs, ax=fig.add_subplot(grid[:, 1]), label=label, every=max(T // 25, 1),
+                        xlabel=names[0], ylabel=names[1], unit=units[0] if units[0] == units[1] else None)
+    if title is not None:
+        fig.suptitle(title)
     return fig
 
 
@@ -515,6 +570,10 @@ def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
 # ---------------------------------------------------------------------------
 # Helpers
 # ---------------------------------------------------------------------------
+
+
+def _with_unit(label: str, unit: str | None) -> str:
+    return label if unit is None else f"{label} ({unit})"
 
 
 def _figure(figsize: tuple[float, float]) -> Figure:

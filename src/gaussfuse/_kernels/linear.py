@@ -336,11 +336,19 @@ def _run_sqrt(model, prior, zs, us, keep: str) -> tuple[Outputs, Model, np.ndarr
     return out, layout, Qf
 
 
-def smooth(lin, model, prior, zs, us) -> SmoothResult:
-    """The Kalman filter and RTS smoother over N series (see :func:`filter`)."""
+def smooth(lin, model, prior, zs, us, ending=None) -> SmoothResult:
+    """The Kalman filter and RTS smoother over N series (see :func:`filter`).
+
+    With `ending` (a Gaussian), the backward passes start from it at the
+    last step instead of the last filtered belief.
+    """
     out = _run_forward(model, prior, zs, us, "all", smoothing=True)
     angles = np.zeros(model.n, dtype=np.bool_)
-    sm_means, sm_covs = _rts.smooth(out.means, out.covs, out.predicted_means, out.predicted_covs, out.gains, angles)
+    means, covs = out.means, out.covs
+    if ending is not None:
+        means, covs = means.copy(), covs.copy()
+        means[:, -1], covs[:, -1] = ending.mean, ending.cov
+    sm_means, sm_covs = _rts.smooth(means, covs, out.predicted_means, out.predicted_covs, out.gains, angles)
     check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, out.gains, filter_result(out))
 

@@ -144,8 +144,8 @@ def _square(factor: np.ndarray) -> np.ndarray:
     return symmetrize(factor @ factor.T)
 
 
-def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
-                 state_angles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *, state_angles=None,
+                 ending: Gaussian | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """The RTS backward pass over a filtered series, with transitions from `lin`.
 
     The transition out of each filtered belief is re-linearised at that
@@ -172,6 +172,9 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *,
         covs = np.concatenate([start[None], covs])
         first = 0
     sm_means, sm_covs = means.copy(), covs.copy()
+    if ending is not None:
+        sm_means[-1] = ending.mean
+        sm_covs[-1] = kalman.cov_factor(ending.cov, "the ending covariance") if sqrt else ending.cov
     gains = np.empty((max(means.shape[0] - 1, 0), *covs.shape[1:]))
     roots = kalman.Factors()
     j = means.shape[0] - 2
@@ -209,19 +212,24 @@ def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all
 
 
 def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool = False,
-                   form: str = "cov", gate: kalman.Gate | None = None) -> tuple[SmoothResult, int, bool]:
+                   form: str = "cov", gate: kalman.Gate | None = None,
+                   ending: Gaussian | None = None) -> tuple[SmoothResult, int, bool]:
     """The smoother for one series; its filter's steps at the iteration limit; whether its passes were.
 
     With `to_prior`, the smoothed beliefs and gains start at the prior's
-    time 0 (T + 1 beliefs, T gains).
+    time 0 (T + 1 beliefs, T gains). `ending` is :func:`run_smoother`'s (not
+    for the iterated smoothers, whose passes re-filter).
     """
     filt, unconverged = _method_filter(spec, model, prior, zs, us, options, form=form, gate=gate)
     if filt.rejected is not None:  # the iterated smoother's passes leave out what the filter's gate rejected
         zs = np.where(filt.rejected, np.nan, zs)
     lin, passes, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
+    if ending is not None and spec.iterated:
+        raise ValueError(f"`ending` is not available for the iterated smoother {spec.name!r}.")
     if not spec.iterated:
-        means, covs, gains, factors = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa)
+        means, covs, gains, factors = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa,
+                                                   ending=ending)
         return SmoothResult(means, covs, gains, filt, cov_factors=factors), unconverged, False
     # Iterated smoothers: each pass linearises about the previous pass's smoothed
     # trajectory (the first about the iterated filter's), from the prior's time on,
@@ -363,10 +371,16 @@ def _readable_only(spec: Method, engine: str, form: str, gate, option: str | Non
 
 
 def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
-                 to_prior: bool = False, form: str = "cov", gate: kalman.Gate | None = None) -> SmoothResult:
-    """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on."""
-    engine, readable = _readable_only(spec, engine, form, gate, "form='sqrt' to the prior's time" if to_prior
-                                      and form == "sqrt" else None)
+                 to_prior: bool = False, form: str = "cov", gate: kalman.Gate | None = None,
+                 ending: Gaussian | None = None) -> SmoothResult:
+    """Smooth N series (see :func:`filter_batch`); with `to_prior`, from the prior's time 0 on.
+
+    With `ending`, every series' backward pass starts from that smoothed
+    belief at its last step (:func:`run_smoother`).
+    """
+    why = ("form='sqrt' to the prior's time" if to_prior and form == "sqrt"
+           else "an ending" if ending is not None and (form == "sqrt" or spec.compiled != "linear") else None)
+    engine, readable = _readable_only(spec, engine, form, gate, why)
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
                                readable=readable)
     if compiled is not None:
@@ -378,9 +392,10 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
                 result.means[s], result.covs[s], result.gains[s], result.cov_factors[s] = (
                     one.means, one.covs, one.gains, one.cov_factors)
             return result
-        result = compiled.smooth(lin, model, prior, zs, us)
+        result = compiled.smooth(lin, model, prior, zs, us) if ending is None else \
+            compiled.smooth(lin, model, prior, zs, us, ending)
         return _back_to_prior(model, prior, result) if to_prior else result
-    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form, gate)
+    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form, gate, ending)
             for i, z in enumerate(zs)]
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],

@@ -194,12 +194,13 @@ class TimedModel(Frozen):
         n = self.n
         if isinstance(self.motion, LinearMotion):
             pairs = [self.motion.transition(float(d)) for d in unique]
-            Q = np.stack([pairs[i][1] for i in index])
-            controls = [self.motion.control(float(d)) for d in unique]
-            B = None if controls[0] is None else np.stack([controls[i] for i in index])
-            if self.linear:
+            if self.linear:  # checked once per distinct dt, then indexed by step
                 H, R = self.sensor.linear(n)
-                return LinearModel(np.stack([pairs[i][0] for i in index]), H, Q, R, B), us
+                controls = [self.motion.control(float(d)) for d in unique]
+                distinct = LinearModel(np.stack([pair[0] for pair in pairs]), H, np.stack([pair[1] for pair in pairs]),
+                                       R, None if controls[0] is None else np.stack(controls))
+                return LinearModel._indexed(distinct, index), us
+            Q = np.stack([pair[1] for pair in pairs])[index]
         else:
             Q = np.stack([self.motion.noise(float(d)) for d in unique])[index]
         if unique.shape[0] == 1:

@@ -93,6 +93,25 @@ class LinearModel:
     def __setattr__(self, name, value):
         raise AttributeError("LinearModel is immutable; build a new one instead.")
 
+    @classmethod
+    def _indexed(cls, distinct: LinearModel, index: np.ndarray) -> LinearModel:
+        """The model whose step k has the matrices of `distinct`'s step ``index[k]``.
+
+        `distinct` (time-varying, one step per distinct set of matrices) has
+        been checked by the constructor; the T steps are taken from it
+        without checking each again (a long series of a few distinct steps
+        would otherwise pay an eigenvalue test per step).
+        """
+        out = object.__new__(cls)
+        for name in ("F", "H", "Q", "R", "B"):
+            a = getattr(distinct, name)
+            if a is not None and a.ndim == 3:
+                a = a[index]
+                a.setflags(write=False)
+            object.__setattr__(out, name, a)
+        object.__setattr__(out, "dt", None)
+        return out
+
     def __reduce__(self):
         # Pickled and copied by its arguments: the constructor validates them again and
         # makes the arrays read-only, which the default protocol (setattr) cannot.

@@ -1,0 +1,233 @@
+r"""Filtering and smoothing a series that arrives in pieces, in memory independent of its length.
+
+The filter needs only the last belief to go on, so :func:`filter_pieces`
+filters each piece from the belief the previous one ended in. The smoother
+needs the future; :func:`smooth_pieces` filters the pieces forward, keeping
+each piece and the belief it started from in a temporary file (on disk, not
+in memory), then goes back over them, last piece first: piece c is filtered
+again from its starting belief, together with the first measurement of piece
+c + 1, and the RTS pass over it starts from that measurement's smoothed
+belief (``ending`` of :func:`gaussfuse.inference.drivers.run_smoother`):
+
+.. math::
+
+    m^s_k = m_k + G_k (m^s_{k+1} - m^-_{k+1}), \qquad
+    P^s_k = P_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^\top,
+
+so each smoothed belief is the one the whole series gives. The filter is
+run twice, the price of holding one piece at a time. Both give the numbers
+of :func:`gaussfuse.filter` and :func:`gaussfuse.smooth` on the whole series
+(the same steps on the same beliefs): to the last bit for a model that varies
+with the step, such as a TimedModel at irregular times; to round-off for a
+time-invariant one, whose filter holds its covariance once settled
+(:class:`gaussfuse.kalman.SteadyState`) and starts each piece afresh. A
+series in one piece is checked for divergence as :func:`gaussfuse.filter`
+checks it; a longer one as an online filter is
+(:class:`gaussfuse.diagnostics.DivergenceMonitor`), as the number of steps
+is not known in advance.
+"""
+
+from __future__ import annotations
+
+import pickle
+from dataclasses import fields, replace
+import tempfile
+import warnings
+from collections.abc import Iterable, Iterator
+from typing import Protocol
+
+import numpy as np
+
+from .. import diagnostics
+from ..errors import DivergenceWarning, diverging
+from ..gaussian import Gaussian
+from . import diffuse, drivers, timing
+from .results import FilterResult, SmoothResult, first, stack
+from .validation import prepare
+
+__all__ = ["Piece", "filter_pieces", "smooth_pieces"]
+
+
+class Piece(Protocol):
+    """What a piece of a series has: its measurements and their times (seconds)."""
+
+    zs: np.ndarray
+    times: np.ndarray
+
+
+def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, timed: bool = False,
+                  engine: str = "auto", check: str = "warn") -> Iterator[tuple[Piece, FilterResult]]:
+    """Filter a series given in pieces, each from the belief the previous piece ended in.
+
+    Parameters
+    ----------
+    model : LinearModel, NonlinearModel or TimedModel
+    prior : Gaussian or "diffuse"
+        The belief before the first piece.
+    pieces : iterable of Piece
+        Consecutive pieces of one series, each with ``zs`` of shape (T_c, m)
+        and ``times`` of shape (T_c,); read one at a time.
+    timed : bool, default False
+        Whether to pass the times to the filter (a TimedModel is
+        discretised for each step's own dt, the first piece's first step
+        for its second step's dt, as :func:`gaussfuse.filter` does; so the
+        first piece needs two rows).
+    engine : {"auto", "numba", "python"}
+        With "auto" and more than one piece, the compiled engine for all of
+        them (so that every piece runs the same arithmetic).
+    check : {"warn", "raise", "off"}
+        The divergence check, over the whole series: "raise" stops at the
+        first window that fails; "warn" warns once at the end.
+
+    Yields
+    ------
+    (Piece, FilterResult)
+        Each piece with its filtered beliefs (no series axis), in order.
+    """
+    monitor = _Monitor(check)
+    belief, before = prior, None
+    for piece, engine_k in _engines(pieces, engine):
+        result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
+                            smooth=False))
+        monitor.add(result)
+        belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
+        before = piece.times[-1]
+        yield piece, result
+    monitor.finish()
+
+
+def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, timed: bool = False, engine: str = "auto",
+                  check: str = "warn", spool_dir: str | None = None) -> Iterator[tuple[Piece, SmoothResult]]:
+    """Smooth a series given in pieces; yield the pieces last first (see the module notes).
+
+    Takes :func:`filter_pieces`'s arguments. The pieces and their starting
+    beliefs are kept in a temporary file in `spool_dir` (default: the
+    system's, ``TMPDIR``), removed when the generator finishes or is closed.
+    A "diffuse" prior needs the series in one piece.
+
+    Yields
+    ------
+    (Piece, SmoothResult)
+        Each piece with its smoothed beliefs, the last piece first. Each
+        result's ``.filtered`` is the forward pass over the piece.
+    """
+    with tempfile.TemporaryFile(dir=spool_dir) as spool:
+        offsets, belief, before = [], prior, None
+        for piece, result in filter_pieces(model, prior, pieces, timed=timed, engine=engine, check=check):
+            offsets.append(spool.tell())
+            pickle.dump((piece, belief, before), spool, protocol=pickle.HIGHEST_PROTOCOL)
+            belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
+            before = piece.times[-1]
+        engine = engine if engine != "auto" or len(offsets) == 1 else "numba"
+        after = None  # the next piece and its smoothed result
+        for offset in reversed(offsets):
+            spool.seek(offset)
+            piece, belief, before = pickle.load(spool)
+            zs, times, ending = piece.zs, piece.times, None
+            if after is not None:  # one step more, whose smoothed belief the pass starts from
+                zs = np.concatenate([zs, after[0].zs[:1]])
+                times = np.concatenate([times, after[0].times[:1]])
+                ending = Gaussian._trusted(after[1].means[0], after[1].covs[0])
+                if isinstance(belief, str):
+                    raise ValueError("smoothing in pieces needs a Gaussian prior; give a 'diffuse' one the "
+                                     "whole series as one piece.")
+            result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending, smooth=True))
+            if after is not None:
+                result = _head(result, piece.zs.shape[0])
+            after = (piece, result)
+            yield piece, result
+
+
+def _engines(pieces: Iterable[Piece], engine: str) -> Iterator[tuple[Piece, str]]:
+    """Each piece with its engine: "auto" is the compiled engine for all when there is more than one piece."""
+    it = iter(pieces)
+    current = next(it, None)
+    if current is None:
+        return
+    following = next(it, None)
+    if engine == "auto" and following is not None:
+        engine = "numba"
+    while current is not None:
+        yield current, engine
+        current, following = following, next(it, None) if following is not None else None
+
+
+def _times(piece: Piece, before, timed: bool, times: np.ndarray | None = None) -> np.ndarray | None:
+    """The `times` argument of a piece's filter: its times, after the previous piece's last time if any."""
+    if not timed:
+        return None
+    times = piece.times if times is None else times
+    return times if before is None else np.concatenate([[before], times])
+
+
+def _run(model, prior, zs: np.ndarray, times, engine: str, ending: Gaussian | None, smooth: bool):
+    """The filter (or smoother) of one piece, with its series axis; no divergence check."""
+    model, us = timing.resolve(model, times, zs)
+    spec, options, prior, zs, us, _ = prepare(model, prior, zs, None, None, {})
+    if isinstance(prior, str):  # the first piece, with a diffuse prior
+        run = diffuse.diffuse_smooth if smooth else diffuse.diffuse_filter
+        return stack([run(model, zs[0], None, engine)])
+    if smooth:
+        return drivers.smooth_batch(spec, model, prior, zs, us, options, engine, ending=ending)
+    return drivers.filter_batch(spec, model, prior, zs, us, options, engine, "all")
+
+
+def _head(result, T: int):
+    """The first T steps of a result (a SmoothResult's ``.filtered`` too); its ``loglik`` is the whole run's."""
+    cut = {}
+    for f in fields(result):
+        value = getattr(result, f.name)
+        if isinstance(value, FilterResult):
+            cut[f.name] = _head(value, T)
+        elif f.name == "gains" and isinstance(result, SmoothResult):
+            cut[f.name] = value[:T - 1]
+        elif isinstance(value, np.ndarray) and not f.name.startswith("last_"):
+            cut[f.name] = value[:T]
+    return replace(result, **cut)
+
+
+class _Monitor:
+    """The divergence check of a series filtered in pieces.
+
+    A series in one piece is checked as :func:`gaussfuse.filter` checks it
+    (:func:`gaussfuse.diagnostics.divergence`); a longer one as an online
+    filter is (:class:`gaussfuse.diagnostics.DivergenceMonitor`).
+    """
+
+    def __init__(self, check: str) -> None:
+        if not isinstance(check, str) or check not in drivers.CHECKS:
+            raise ValueError(f"`check` must be one of {list(drivers.CHECKS)}; got {check!r}.")
+        self.check = check
+        self.monitor = diagnostics.DivergenceMonitor(check=check)
+        self.first: FilterResult | None = None  # the first piece's result, until a second comes
+        self.steps = 0
+        self.flagged: list[tuple[int, int, float]] = []
+
+    def add(self, result: FilterResult) -> None:
+        if self.check == "off" or result.nis is None:
+            return
+        if self.steps == 0 and self.first is None:
+            self.first = result
+            return
+        if self.first is not None:
+            first, self.first = self.first, None
+            self._test(first)
+        self._test(result)
+
+    def _test(self, result: FilterResult) -> None:
+        dof = np.count_nonzero(~np.isnan(result.innovations), axis=-1)
+        found = self.monitor.add_many(result.nis, dof, range(self.steps, self.steps + dof.shape[0]))
+        self.steps += dof.shape[0]
+        self.flagged += found
+        if found and self.check == "raise":
+            raise DivergenceWarning(self.message())
+
+    def message(self) -> str:
+        where = [f"{avg:.2f} over steps {a}-{b}" for a, b, avg in self.flagged[:5]]
+        return diverging(where, diagnostics.DIVERGENCE_FALSE_ALARM, max(len(self.flagged) - 5, 0))
+
+    def finish(self) -> None:
+        if self.first is not None:
+            drivers.check_divergence(stack([self.first]), self.check)
+        elif self.flagged:
+            warnings.warn(self.message(), DivergenceWarning, stacklevel=3)

@@ -1,0 +1,141 @@
+"""A series filtered and smoothed in pieces equals the whole series filtered and smoothed at once.
+
+The oracle is gf.filter / gf.smooth on the whole series: the pieces run the
+same steps on the same beliefs, so the results must agree to the last bit
+for a model that varies with the step. A time-invariant model's filter holds
+its covariance once it has settled (kalman.SteadyState), and a piece starts
+afresh: there they agree to round-off.
+"""
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+from gaussfuse.diagnostics import DivergenceMonitor
+from gaussfuse.inference.streaming import filter_pieces, smooth_pieces
+
+
+def cut(zs, times, rows):
+    return [SimpleNamespace(zs=zs[i:i + rows], times=times[i:i + rows]) for i in range(0, len(zs), rows)]
+
+
+@pytest.fixture
+def track():
+    rng = np.random.default_rng(7)
+    T = 240
+    times = np.cumsum(rng.choice([0.1, 0.25, 1.0], T))
+    zs = np.cumsum(rng.normal(size=(T, 2)), axis=0) * 0.3 + rng.normal(size=(T, 2))
+    zs[rng.random(T) < 0.1, 0] = np.nan
+    zs[50:53] = np.nan  # whole steps without a measurement, across a piece boundary for rows=51
+    timed = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=1.0))
+    return timed, gf.Gaussian([0.0, 0.0, 1.0, 0.0], 50.0 * np.eye(4)), zs, times
+
+
+def joined(results, attr):
+    return np.concatenate([getattr(r, attr) for _, r in results])
+
+
+def close(got, want):
+    """Equal to round-off: 1e-12 relative to each array's scale."""
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.nanmax(np.abs(want)))
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("rows", [2, 51, 240, 1000])
+def test_pieces_equal_the_whole_series_with_times(track, engine, rows):
+    model, prior, zs, times = track
+    whole = gf.smooth(model, prior, zs, times=times, engine=engine, check="off")
+    filtered = list(filter_pieces(model, prior, cut(zs, times, rows), timed=True, engine=engine, check="off"))
+    smoothed = list(smooth_pieces(model, prior, cut(zs, times, rows), timed=True, engine=engine, check="off"))[::-1]
+    for got, want in ((filtered, whole.filtered), (smoothed, whole)):
+        np.testing.assert_array_equal(joined(got, "means"), want.means)
+        np.testing.assert_array_equal(joined(got, "covs"), want.covs)
+    np.testing.assert_array_equal(joined(smoothed, "gains"), np.concatenate(
+        [whole.gains[i:i + rows - 1] for i in range(0, len(zs), rows)]))  # the gains within each piece
+    assert [p.times[0] for p, _ in smoothed] == [p.times[0] for p in cut(zs, times, rows)]
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("rows", [1, 3, 17])
+def test_pieces_of_a_fixed_model_one_row_each_too(rows, engine):
+    rng = np.random.default_rng(1)
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([0.1, 0.01]), R=4.0)
+    prior = gf.Gaussian([0.0, 0.0], np.diag([1e6, 1e6]))
+    zs = np.cumsum(rng.normal(size=60))[:, None]
+    times = np.arange(60.0)
+    whole = gf.smooth(model, prior, zs, engine=engine, check="off")
+    got = list(smooth_pieces(model, prior, cut(zs, times, rows), engine=engine, check="off"))[::-1]
+    close(joined(got, "means"), whole.means)
+    close(joined(got, "covs"), whole.covs)
+
+
+def test_a_singular_prior_and_zero_noise_stay_exact():
+    """A prior certain about the velocity and a noiseless velocity: singular covariances throughout."""
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([0.5, 0.0]), R=1.0)
+    prior = gf.Gaussian([0.0, 2.0], np.diag([10.0, 0.0]))
+    zs = (2.0 * np.arange(1, 41) + np.random.default_rng(3).normal(size=40))[:, None]
+    whole = gf.smooth(model, prior, zs, engine="python", check="off")
+    got = list(smooth_pieces(model, prior, cut(zs, np.arange(40.0), 9), engine="python", check="off"))[::-1]
+    close(joined(got, "means"), whole.means)
+    close(joined(got, "covs"), whole.covs)
+    assert np.all(joined(got, "covs")[:, 1, 1] == 0.0)
+
+
+def test_a_diffuse_prior(track):
+    model, _, zs, times = track
+    fixed = model.at(np.full(len(zs), 0.25))[0]
+    whole = gf.filter(fixed, "diffuse", zs, check="off")
+    got = list(filter_pieces(fixed, "diffuse", cut(zs, times, 40), check="off"))
+    close(joined(got, "means"), whole.means)
+    sm = list(smooth_pieces(fixed, "diffuse", cut(zs, times, 1000), check="off"))
+    np.testing.assert_allclose(sm[0][1].means, gf.smooth(fixed, "diffuse", zs, check="off").means, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="diffuse"):
+        list(smooth_pieces(fixed, "diffuse", cut(zs, times, 40), check="off"))
+
+
+def test_the_spool_is_removed(track, tmp_path):
+    model, prior, zs, times = track
+    pieces = smooth_pieces(model, prior, cut(zs, times, 50), timed=True, check="off", spool_dir=str(tmp_path))
+    next(pieces)
+    pieces.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_divergence_in_one_piece_is_the_filters_check(track):
+    model, prior, zs, times = track
+    bad = zs + np.where(np.arange(len(zs))[:, None] >= 100, 30.0, 0.0)
+    with pytest.warns(gf.DivergenceWarning) as want:
+        gf.filter(model, prior, bad, times=times)
+    with pytest.warns(gf.DivergenceWarning) as got:
+        list(filter_pieces(model, prior, cut(bad, times, 1000), timed=True))
+    assert str(got[0].message) == str(want[0].message)
+
+
+def test_divergence_over_pieces_is_the_online_monitors(track):
+    """Over many pieces, the windows flagged are those an online filter's monitor flags, step for step."""
+    model, prior, zs, times = track
+    bad = zs + np.where(np.arange(len(zs))[:, None] >= 100, 30.0, 0.0)
+    whole = gf.filter(model, prior, bad, times=times, check="off")
+    monitor = DivergenceMonitor()
+    dof = np.count_nonzero(~np.isnan(whole.innovations), axis=1)
+    expected = [w for k in range(len(zs)) if (w := monitor.add(whole.nis[k], dof[k], k)) is not None]
+    assert expected  # the jump is found
+    with pytest.warns(gf.DivergenceWarning) as got:
+        list(filter_pieces(model, prior, cut(bad, times, 30), timed=True))
+    message = str(got[0].message)
+    for first, last, average in expected[:5]:
+        assert f"{average:.2f} over steps {first}-{last}" in message
+    with pytest.raises(gf.DivergenceWarning):
+        list(filter_pieces(model, prior, cut(bad, times, 30), timed=True, check="raise"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        list(filter_pieces(model, prior, cut(bad, times, 30), timed=True, check="off"))
+
+
+def test_bad_check():
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    with pytest.raises(ValueError, match="`check` must be one of"):
+        list(filter_pieces(model, gf.Gaussian(0.0, 1.0), [], check="loud"))
