@@ -92,7 +92,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -105,7 +105,7 @@ from .inference.diffuse import Moments, augmented_runs, diffuse_moments, not_ide
 from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
 from .inference.registry import METHODS as _METHODS
 from .inference.results import first
-from .inference import frames, timing
+from .inference import chunked, frames, timing
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.compose import TimedModel
 from .models.linear import LinearModel
@@ -407,49 +407,179 @@ def _fixed_zeros(cov: np.ndarray, structure: str) -> np.ndarray:
 
 
 def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, structure: dict, fixed: dict):
-    n, p = model.n, model.p
-    F, H, Q, R, B = model.F, model.H, model.Q, model.R, model.B
-    T_w = sum(s.T - s.start for s in stats)
-    T_v = sum(s.T for s in stats)
+    """The M-step: the matrices in `learn` that maximise the expected log-likelihood of `stats`.
+
+    In two stages, each a sum over the series: F, B, H and m0 from the
+    moments (:func:`_first_sums`), then Q, R and P0 from the residuals of the
+    new F, B, H and m0 (:func:`_second_sums`). A pool of series held in
+    chunks sums each stage chunk by chunk (:class:`_Chunks`).
+    """
+    first = _first_sums(model, stats, learn)
+    new = _first_solve(model, prior, first, learn)
+    return _second_solve(model, prior, first, new, _second_sums(stats, new, learn), learn, structure, fixed)
+
+
+def _first_sums(model: LinearModel, stats: list[Statistics], learn: tuple) -> dict:
+    """The M-step's first-stage sums over `stats`: counts, and the regressions of F, B and H and the mean of x₀."""
+    n, p, m = model.n, model.p, model.m
+    out = {"T_w": sum(s.T - s.start for s in stats), "T_v": sum(s.T for s in stats), "series": len(stats)}
     if "F" in learn or "B" in learn:
         # Regress x_t on the learned regressors, the known parts moved to the target.
         rows = ([np.arange(n, 2 * n)] if "F" in learn else []) + \
                ([np.arange(2 * n, 2 * n + p)] if "B" in learn else [])
         sel = np.concatenate(rows)
-        Fk = np.zeros_like(F) if "F" in learn else F
-        Bk = (np.zeros_like(B) if "B" in learn else B) if p else None
+        Fk = np.zeros_like(model.F) if "F" in learn else model.F
+        Bk = (np.zeros_like(model.B) if "B" in learn else model.B) if p else None
         Phi = [s.Phi for s in stats]
-        lhs = sum(np.sum((s.w_map(Fk, Bk) @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
-        gram = sum(np.sum(ph[:, sel][:, :, sel], axis=0) for ph in Phi)
-        coef = psd_solve(gram, lhs.T).T
+        out["lhs"] = sum(np.sum((s.w_map(Fk, Bk) @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
+        out["gram"] = sum(np.sum(ph[:, sel][:, :, sel], axis=0) for ph in Phi)
+    if "H" in learn:
+        Psi = [s.Psi for s in stats]
+        out["zx"] = sum(np.sum(ps[:, :m, m:m + n], axis=0) for ps in Psi)
+        out["xx"] = sum(np.sum(ps[:, m:m + n, m:m + n], axis=0) for ps in Psi)
+    if "m0" in learn:
+        out["x0"] = sum(s.x0_mean for s in stats)
+    return out
+
+
+def _first_solve(model: LinearModel, prior, sums: dict, learn: tuple) -> dict:
+    """F, B, H and m0 of the M-step, from the first-stage sums (the others as they are)."""
+    n = model.n
+    F, B, H = model.F, model.B, model.H
+    if "F" in learn or "B" in learn:
+        coef = psd_solve(sums["gram"], sums["lhs"].T).T
         if "F" in learn:
             F, coef = coef[:, :n], coef[:, n:]
         if "B" in learn:
             B = coef
-    if "Q" in learn:
-        second = sum(np.sum(s.residual_second_moment("w", s.w_map(F, B)), axis=0) for s in stats)
-        Q = _structured(second / T_w, structure["Q"], fixed["Q"])
-    m = model.m
     if "H" in learn:
-        Psi = [s.Psi for s in stats]
-        zx = sum(np.sum(ps[:, :m, m:m + n], axis=0) for ps in Psi)
-        xx = sum(np.sum(ps[:, m:m + n, m:m + n], axis=0) for ps in Psi)
-        H = psd_solve(xx, zx.T).T
+        H = psd_solve(sums["xx"], sums["zx"].T).T
+    m0 = sums["x0"] / sums["series"] if "m0" in learn else (None if isinstance(prior, str) else prior.mean)
+    return {"F": F, "B": B, "H": H, "m0": m0}
+
+
+def _second_sums(stats: list[Statistics], new: dict, learn: tuple) -> dict:
+    """The M-step's second-stage sums: the residuals' second moments under the new F, B, H and m0."""
+    out = {}
+    if "Q" in learn:
+        out["Q"] = sum(np.sum(s.residual_second_moment("w", s.w_map(new["F"], new["B"])), axis=0) for s in stats)
     if "R" in learn:
-        second = sum(np.sum(s.residual_second_moment("v", s.v_map(H)), axis=0) for s in stats)
-        R = _structured(second / T_v, structure["R"], fixed["R"])
+        out["R"] = sum(np.sum(s.residual_second_moment("v", s.v_map(new["H"])), axis=0) for s in stats)
+    if "P0" in learn:
+        out["P0"] = sum(s.x0_cov + np.outer(s.x0_mean - new["m0"], s.x0_mean - new["m0"]) for s in stats)
+    return out
+
+
+def _second_solve(model: LinearModel, prior, first: dict, new: dict, second: dict, learn: tuple, structure: dict,
+                  fixed: dict):
+    """The M-step's model and prior, from both stages' sums."""
+    Q, R = model.Q, model.R
+    if "Q" in learn:
+        Q = _structured(second["Q"] / first["T_w"], structure["Q"], fixed["Q"])
+    if "R" in learn:
+        R = _structured(second["R"] / first["T_v"], structure["R"], fixed["R"])
     new_prior = prior
     if "m0" in learn or "P0" in learn:
-        m0 = np.mean([s.x0_mean for s in stats], axis=0) if "m0" in learn else prior.mean
-        P0 = prior.cov
-        if "P0" in learn:
-            P0 = np.mean([s.x0_cov + np.outer(s.x0_mean - m0, s.x0_mean - m0) for s in stats], axis=0)
-            P0 = _structured(P0, structure["P0"], fixed["P0"])
-        new_prior = Gaussian(m0, P0)
-    return LinearModel(F, H, Q, R, B), new_prior
+        P0 = _structured(second["P0"] / first["series"], structure["P0"], fixed["P0"]) if "P0" in learn \
+            else prior.cov
+        new_prior = Gaussian(new["m0"], P0)
+    return LinearModel(new["F"], new["H"], Q, R, new["B"]), new_prior
 
 
-def _em(model, prior, zs, us, learn, structure, iterations, tol, callback, engine):
+def _second_needs_the_first(learn: tuple) -> bool:
+    """Whether the second stage depends on a matrix the first stage learns (a pool in chunks then passes twice)."""
+    return bool(({"F", "B"} & set(learn) and "Q" in learn) or ({"H", "R"} <= set(learn))
+                or ({"m0", "P0"} <= set(learn)))
+
+
+class _Series(NamedTuple):
+    """The measurements (N, T, m) and controls of a fit, in memory: what EM and the score are computed over."""
+
+    zs: np.ndarray
+    us: np.ndarray | None
+
+    def e_step(self, model, prior, learn, structure, fixed, engine):
+        """The log-likelihood at (model, prior), and the M-step as a function of no arguments."""
+        loglik, stats = _e_step(model, prior, self.zs, self.us, engine)
+        return loglik, lambda: _m_step(model, prior, stats, learn, structure, fixed)
+
+    def score(self, model, prior, directions, engine):
+        """The log-likelihood and its derivative along each direction."""
+        return _loglik_and_gradient(model, prior, self.zs, self.us, directions, engine)
+
+
+class _Chunks:
+    """The measurements of a fit as a dask array chunked over series: each sum computed chunk by chunk.
+
+    Each chunk's E-step runs where Dask puts it, and returns only the small
+    sums the M-step needs (:func:`_first_sums`, :func:`_second_sums`), or
+    its log-likelihood and score; they are added by a tree reduction. The
+    second stage of an M-step that learns both a matrix and the noise of
+    its residual (F and Q, H and R, m0 and P0) needs the first stage's
+    matrices, so it is a second pass over the chunks. The sums are those of
+    the in-memory fit, added in another order: the fits agree to round-off.
+    """
+
+    def __init__(self, zs, us) -> None:
+        self.zs, sizes = chunked.series_blocks("zs", zs)
+        self.us = [None] * len(self.zs)
+        if us is not None:
+            self.us, control_sizes = chunked.series_blocks("us", us)
+            if control_sizes != sizes:
+                raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and "
+                                 f"{sizes}.")
+
+    def total(self, fn, *args):
+        """``fn(zs_c, us_c, *args)`` summed over the chunks c (numbers, arrays, and tuples or dicts of them)."""
+        import dask
+
+        parts = [dask.delayed(fn, pure=True)(z, u, *args) for z, u in zip(self.zs, self.us)]
+        while len(parts) > 1:
+            parts = [dask.delayed(_add, pure=True)(*parts[i:i + 2]) for i in range(0, len(parts), 2)]
+        return dask.compute(parts[0])[0]
+
+    def e_step(self, model, prior, learn, structure, fixed, engine):
+        loglik, first, second = self.total(_chunk_e_step, model, prior, learn, engine)
+
+        def m_step():
+            new = _first_solve(model, prior, first, learn)
+            sums = second if second is not None else self.total(_chunk_second_sums, model, prior, new, learn, engine)
+            return _second_solve(model, prior, first, new, sums, learn, structure, fixed)
+
+        return loglik, m_step
+
+    def score(self, model, prior, directions, engine):
+        return self.total(_chunk_score, model, prior, directions, engine)
+
+
+def _chunk_e_step(zs, us, model, prior, learn, engine):
+    """A chunk's log-likelihood and first-stage sums; its second-stage ones too when they need no new matrix."""
+    loglik, stats = _e_step(model, prior, zs, us, engine)
+    first = _first_sums(model, stats, learn)
+    second = None if _second_needs_the_first(learn) else _second_sums(stats, _first_solve(model, prior, {}, ()), learn)
+    return loglik, first, second
+
+
+def _chunk_second_sums(zs, us, model, prior, new, learn, engine):
+    return _second_sums(_e_step(model, prior, zs, us, engine)[1], new, learn)
+
+
+def _chunk_score(zs, us, model, prior, directions, engine):
+    return _loglik_and_gradient(model, prior, zs, us, directions, engine)
+
+
+def _add(a, b=None):
+    """The sum of two partial results of :meth:`_Chunks.total` (one alone is itself)."""
+    if b is None:
+        return a
+    if isinstance(a, tuple):
+        return tuple(_add(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict):
+        return {key: _add(a[key], b[key]) for key in a}
+    return a + b
+
+
+def _em(model, prior, data, learn, structure, iterations, tol, callback, engine):
     history: list[float] = []
     fixed = {name: (_fixed_zeros(_current(model, prior, name), structure[name]) if name in learn else None)
              for name in COVARIANCES}
@@ -457,7 +587,7 @@ def _em(model, prior, zs, us, learn, structure, iterations, tol, callback, engin
     message, converged = f"stopped at the limit of {iterations} iterations", False
     try:
         for it in range(iterations + 1):
-            loglik, stats = _e_step(model, prior, zs, us, engine)
+            loglik, m_step = data.e_step(model, prior, learn, structure, fixed, engine)
             history.append(loglik)
             best = (model, prior)
             if callback is not None:
@@ -467,7 +597,7 @@ def _em(model, prior, zs, us, learn, structure, iterations, tol, callback, engin
                 break
             if it == iterations:
                 break
-            model, prior = _m_step(model, prior, stats, learn, structure, fixed)
+            model, prior = m_step()
     except KeyboardInterrupt:
         if not history:
             raise
@@ -892,7 +1022,7 @@ def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: s
 # ---------------------------------------------------------------------------
 
 
-def _evaluator(build, zs, us, engine):
+def _evaluator(build, data, engine):
     """``theta -> (loglik, gradient)``, cached on θ."""
     cache: dict[bytes, tuple[float, np.ndarray]] = {}
 
@@ -900,15 +1030,15 @@ def _evaluator(build, zs, us, engine):
         key = theta.tobytes()
         if key not in cache:
             mdl, pri = build(theta)
-            cache[key] = _loglik_and_gradient(mdl, pri, zs, us, build.directions(theta), engine)
+            cache[key] = data.score(mdl, pri, build.directions(theta), engine)
         return cache[key]
 
     return evaluate
 
 
-def _mle(build, theta0, zs, us, iterations, tol, callback, engine):
-    n_obs = max(int(np.sum(~np.isnan(zs))), 1)
-    evaluate = _evaluator(build, zs, us, engine)
+def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
+    n_obs = max(n_obs, 1)
+    evaluate = _evaluator(build, data, engine)
     history: list[float] = []
     best = [theta0, -np.inf]
 
@@ -1201,7 +1331,10 @@ def fit(
     """
     timed = isinstance(model, TimedModel)
     zs, times, _ = frames.unpack(zs, times)
-    model, us = timing.resolve(model, times, zs, us)
+    pooled = chunked.is_dask(zs)
+    if pooled and zs.ndim != 3:
+        raise ValueError(f"`zs` as a dask array must have a leading series axis, shape (N, T, m); got {zs.shape}.")
+    model, us = timing.resolve(model, times, zs.shape[1] if pooled else zs, us)
     if timed and model.steps is not None and params is None:
         varying = sorted({"F", "Q", "B"} & set([learn] if isinstance(learn, str) else learn))
         if varying:
@@ -1213,12 +1346,22 @@ def fit(
     if method not in METHODS:
         raise ValueError(f"`method` must be one of {list(METHODS)}; got {method!r}.")
     prior = check_prior(prior, model.n, diffuse_ok=True)
-    zs = check_measurements(zs, model.m)
-    nobs = int(np.sum(~np.isnan(zs)))
+    if pooled:  # chunks of series, each summed where it is (_Chunks)
+        if zs.shape[2] != model.m:
+            raise ValueError(f"`zs` must have m = {model.m} components per step (the model's); got shape {zs.shape}.")
+        if (us is None) != (model.B is None) or (us is not None and us.shape[:2] != zs.shape[:2]):
+            raise ValueError(f"`us` must be a dask array (N, T, p) chunked as `zs` exactly when the model has B; got "
+                             f"{None if us is None else us.shape}.")
+        nobs = int(chunked.observed(zs))
+        data = _Chunks(zs, us)
+    else:
+        zs = check_measurements(zs, model.m)
+        nobs = int(np.sum(~np.isnan(zs)))
+        us = check_controls(us, model, zs.shape[0], zs.shape[1])
+        data = _Series(zs, us)
     if nobs == 0:
         raise ValueError("`zs` has no observed value (every entry is NaN): there is nothing to learn from.")
     check_steps(model, zs.shape[1])
-    us = check_controls(us, model, zs.shape[0], zs.shape[1])
     if iterations is None:
         iterations = 500 if method == "em" else 1000
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
@@ -1254,7 +1397,7 @@ def fit(
     # Overflows (measurements or matrices near float64's limits) are not warnings: the result is checked below.
     with np.errstate(over="ignore", invalid="ignore"):
         if method == "em":
-            model, prior, history, converged, message = _em(model, prior, zs, us, learn, structure, iterations,
+            model, prior, history, converged, message = _em(model, prior, data, learn, structure, iterations,
                                                             tol, callback, engine)
             try:
                 build = _Parametrisation(model, prior, learn, structure)
@@ -1262,9 +1405,9 @@ def fit(
                 build = None
             if build is not None:
                 theta = build.encode()
-                evaluate = _evaluator(build, zs, us, engine)
+                evaluate = _evaluator(build, data, engine)
         else:
-            theta, history, converged, message, evaluate = _mle(build, theta0, zs, us, iterations, tol, callback,
+            theta, history, converged, message, evaluate = _mle(build, theta0, data, nobs, iterations, tol, callback,
                                                                 engine)
             model, prior = build(theta)
         if build is not None:

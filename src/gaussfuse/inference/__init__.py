@@ -17,7 +17,7 @@ import numpy as np
 from .. import kalman
 from ..gaussian import Gaussian
 from ..models.compose import TimedModel
-from . import diffuse, drivers, frames, timing
+from . import chunked, diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
 from .validation import check_steady, prepare
@@ -49,7 +49,10 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
         Measurements; a NaN component (or a masked entry of a masked array)
         is missing. A leading axis holds N independent series, and every
-        result then gains that axis.
+        result then gains that axis. A dask array (N, T, m), chunked over
+        series, is filtered chunk by chunk as a Dask graph: the result's
+        arrays are dask arrays with its chunks, computed when asked
+        (:mod:`gaussfuse.inference.chunked`; `us` then a dask array too).
     us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
         Control inputs: required exactly when a LinearModel has ``B``;
         passed to a NonlinearModel's ``f(x, u_k)`` when given.
@@ -195,6 +198,11 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     """
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
+    if chunked.is_dask(zs):
+        _check_check(check)
+        return chunked.map_series(filter, zs, us, dict(
+            model=model, prior=prior, method=method, engine=engine, keep=keep, form=form, steady=steady,
+            gains=gains, check=check, gate=gate, gate_by=gate_by, times=times, **options))
     model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     check_steady(steady, spec, form, prior)
@@ -261,6 +269,11 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     >>> sm.means.shape, sm.filtered.means.shape
     ((5, 2), (5, 2))
     """
+    if chunked.is_dask(zs):
+        _check_check(check)
+        return chunked.map_series(smooth, zs, us, dict(
+            model=model, prior=prior, method=method, engine=engine, form=form, check=check, gate=gate,
+            gate_by=gate_by, times=times, **options))
     model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     gate = _gate(gate, gate_by, prior)

@@ -416,11 +416,12 @@ def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
     return SmoothResult(*(np.stack(a) for a in out), filt, sm.iterations)
 
 
-def check_divergence(result: FilterResult, check: str) -> None:
+def check_divergence(result: FilterResult, check: str, first_series: int = 0) -> None:
     """Warn (or raise) a DivergenceWarning naming the steps where `result`'s innovations fail the χ² test.
 
-    `result` has the series axis. See :func:`gaussfuse.diagnostics.divergence`;
-    nothing is tested without per-step values (``keep="last"``).
+    `result` has the series axis, its first series numbered `first_series`
+    in the message. See :func:`gaussfuse.diagnostics.divergence`; nothing
+    is tested without per-step values (``keep="last"``).
     """
     if check == "off" or result.nis is None:
         return
@@ -432,7 +433,7 @@ def check_divergence(result: FilterResult, check: str) -> None:
     if not flagged:
         return
     many = result.nis.shape[0] > 1
-    message = diverging([f"{avg:.2f} over steps {a}-{b}{f' of series {s}' if many else ''}"
+    message = diverging([f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
                          for s, a, b, avg in flagged[:5]], diagnostics.DIVERGENCE_FALSE_ALARM, max(len(flagged) - 5, 0))
     if check == "raise":
         raise DivergenceWarning(message)

@@ -1,0 +1,160 @@
+"""Many series in chunks: a dask array of measurements, filtered and smoothed chunk by chunk.
+
+A dask array ``zs`` of shape (N, T, m), chunked over its series axis, is
+filtered (or smoothed) one chunk of series at a time, each chunk by the same
+batch path as an in-memory array (the compiled batch kernel for the linear
+engine), as a task of Dask's graph: nothing is computed until asked, and a
+chunk runs where Dask schedules it (a thread, a process, a worker of a
+``dask.distributed`` cluster). The result's arrays are dask arrays with the
+input's chunks over series; they equal, series for series, the in-memory
+batch path on the same input, because each series is filtered on its own.
+
+Dask is imported only here, and only when a dask array is given
+(``pip install -e ".[dask]"``).
+
+The divergence check (``check``) runs in each chunk's task, naming series
+by their number in the whole array; a warning is issued where the task runs
+(in a worker's log on a cluster), and ``check="raise"`` raises from
+``compute``. Each field of a result is built from the same task per chunk, so
+``dask.compute(res.means, res.covs)`` (or ``res.compute()``) runs each
+chunk's filter once; computing the fields one after another runs it once per
+field.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import fields, is_dataclass
+
+import numpy as np
+
+from . import drivers
+
+__all__ = ["is_dask", "series_blocks", "map_series", "observed"]
+
+
+def is_dask(a) -> bool:
+    """Whether `a` is a dask collection (without importing dask)."""
+    return type(a).__module__.split(".")[0] == "dask" and hasattr(a, "__dask_graph__")
+
+
+def observed(zs) -> int:
+    """The number of observed (not NaN) entries of a dask array, computed."""
+    import dask.array as da
+
+    return int((~da.isnan(zs)).sum().compute())
+
+
+def series_blocks(name: str, a, ndim: int = 3):
+    """A dask array (N, T, k), whole along every axis but the series axis: its blocks, one per chunk of series.
+
+    Raises
+    ------
+    ValueError
+        When `a` is not 3-D; a chunked time or component axis is rejoined
+        (each chunk of series needs its whole series).
+    """
+    if a.ndim != ndim:
+        raise ValueError(f"`{name}` as a dask array must have a leading series axis, shape (N, T, k); "
+                         f"got shape {a.shape}.")
+    if any(len(c) > 1 for c in a.chunks[1:]):
+        a = a.rechunk({axis: -1 for axis in range(1, ndim)})
+    return a.astype(np.float64).to_delayed().reshape(-1).tolist(), a.chunks[0]
+
+
+def map_series(run: Callable, zs, us, kwargs: dict):
+    """``run(zs=chunk, us=chunk, **kwargs)`` on each chunk of series, as a result whose arrays are dask arrays.
+
+    Parameters
+    ----------
+    run : callable
+        The in-memory front function (``filter`` or ``smooth``): called on a
+        chunk's (N_c, T, m) block, it returns a result with the series axis.
+    zs, us : dask arrays (N, T, m) and (N, T, p) or None
+    kwargs : dict
+        The other arguments of `run`. The result's structure is read from
+        `run` on one series of zeros (readable path, no check), of a length
+        that no other dimension equals, so that a time axis is told apart.
+
+    Returns
+    -------
+    The result type of `run`, its arrays dask arrays chunked like `zs` over
+    series; a ``loglik`` is an (N,) array.
+    """
+    import dask
+    import dask.array as da
+
+    blocks, sizes = series_blocks("zs", zs)
+    if us is not None:
+        controls, control_sizes = series_blocks("us", us)
+        if control_sizes != sizes:
+            raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and {sizes}.")
+    else:
+        controls = [None] * len(blocks)
+    T = zs.shape[1]
+
+    def meta(steps: int):
+        return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
+                   **{**kwargs, "engine": "python", "check": "off"})
+
+    probe = max(zs.shape[2], *_trailing(meta(2))) + 3
+    template = meta(probe)
+    firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
+    tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs)
+             for first, block, control in zip(firsts, blocks, controls)]
+
+    def build(template, path):
+        if not is_dataclass(template):
+            return template
+        values = {}
+        for f in fields(template):
+            value = getattr(template, f.name)
+            if is_dataclass(value):
+                values[f.name] = build(value, path + (f.name,))
+            elif isinstance(value, np.ndarray) and value.ndim >= 1:
+                values[f.name] = da.concatenate([
+                    da.from_delayed(dask.delayed(_field, pure=True)(task, path + (f.name,)),
+                                    shape=(size, *_shape(value.shape[1:], probe, T)), dtype=value.dtype)
+                    for task, size in zip(tasks, sizes)])
+            else:
+                values[f.name] = value
+        return type(template)(**values)
+
+    return build(template, ())
+
+
+def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwargs: dict):
+    """`run` on one chunk of series; its divergence check names the series by their numbers in the whole array."""
+    check = kwargs.get("check", "warn")
+    result = run(zs=zs, us=us, **{**kwargs, "check": "off"})
+    drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first)
+    return result
+
+
+def _field(result, path: tuple):
+    for name in path:
+        result = getattr(result, name)
+    return result
+
+
+def _shape(trailing: tuple, probe: int, T: int) -> tuple:
+    """A probe's trailing shape with the time axis (of `probe` or `probe` - 1 steps) set to T's."""
+    if not trailing:
+        return ()
+    if trailing[0] == probe:
+        return (T, *trailing[1:])
+    if trailing[0] == probe - 1:
+        return (T - 1, *trailing[1:])
+    return trailing
+
+
+def _trailing(result) -> list:
+    """Every trailing dimension of a result's arrays (to choose a probe length none equals)."""
+    out = [0]
+    for f in fields(result):
+        value = getattr(result, f.name)
+        if is_dataclass(value):
+            out += _trailing(value)
+        elif isinstance(value, np.ndarray):
+            out += list(value.shape[1:])
+    return out

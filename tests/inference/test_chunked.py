@@ -1,0 +1,141 @@
+"""Many series as a dask array: filter, smooth and fit chunk by chunk, on a real dask.distributed cluster.
+
+The oracle is the in-memory batch path on the same array: each series is
+filtered on its own, so the chunks must give its results to the last bit
+(the pooled fit's sums are added in another order: to round-off). The
+cluster is a LocalCluster of 2 worker processes, started here; one test
+kills a worker in the middle of a run.
+"""
+
+import os
+import signal
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+
+da = pytest.importorskip("dask.array")
+distributed = pytest.importorskip("distributed")
+dask = pytest.importorskip("dask")
+
+
+@pytest.fixture(scope="module")
+def client():
+    # The kernels are compiled (or loaded) here first, so that the workers load them from numba's disk cache.
+    gf.filter(gf.constant_velocity(1.0, 1.0, 1.0), gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros((2, 3, 1)),
+              engine="numba")
+    gf.smooth(gf.constant_velocity(1.0, 1.0, 1.0), gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros((2, 3, 1)),
+              engine="numba")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=2, processes=True,
+                                           dashboard_address=None, silence_logs=50)
+        with distributed.Client(cluster) as c:
+            yield c
+        cluster.close()
+
+
+def panel(N=40, T=50, seed=0):
+    rng = np.random.default_rng(seed)
+    model = gf.constant_velocity(0.5, 0.3, 0.8, dim=2)
+    sims = gf.simulate(model, gf.Gaussian(np.zeros(4), np.eye(4)), T, size=N, rng=rng)
+    zs = np.array(sims.measurements)
+    zs[rng.random(zs.shape) < 0.05] = np.nan
+    return model, gf.Gaussian(np.zeros(4), 10.0 * np.eye(4)), zs
+
+
+def test_filter_and_smooth_on_the_cluster_equal_the_batch_path(client):
+    model, prior, zs = panel()
+    lazy = da.from_array(zs, chunks=(7, 25, 2))  # chunked over time too: rejoined, each chunk whole series
+    for run in (gf.filter, gf.smooth):
+        res = run(model, prior, lazy, engine="numba")
+        assert isinstance(res.means, da.Array) and res.means.chunks[0] == (7, 7, 7, 7, 7, 5)
+        assert res.covs.shape == (40, 50, 4, 4)
+        got = dask.compute(res)[0]
+        want = run(model, prior, zs, engine="numba")
+        for name in ("means", "covs"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+        filt_got, filt_want = getattr(got, "filtered", got), getattr(want, "filtered", want)
+        np.testing.assert_array_equal(filt_got.loglik, filt_want.loglik)
+        np.testing.assert_array_equal(filt_got.nis, filt_want.nis)
+        if run is gf.smooth:
+            np.testing.assert_array_equal(got.gains, want.gains)
+
+
+def test_nothing_runs_until_asked(client):
+    model, prior, zs = panel(N=6, T=10)
+    calls = []
+
+    def counted(block):
+        calls.append(block.shape)
+        return block
+
+    lazy = da.from_array(zs, chunks=(2, 10, 2)).map_blocks(counted, dtype=float, meta=np.empty((0, 0, 0)))
+    res = gf.filter(model, prior, lazy, engine="python")
+    assert calls == [] and res.means.chunks[0] == (2, 2, 2)
+    np.testing.assert_array_equal(res.means[:2].compute(scheduler="sync"), gf.filter(model, prior, zs[:2]).means)
+
+
+def _held_back(block, block_info=None):
+    """The input of the later chunks, given only once the test says go: the run is surely unfinished until then."""
+    if block_info[0]["chunk-location"][0] >= 4:
+        distributed.Event("go").wait(timeout=120)
+    return block
+
+
+def _finished_chunks(dask_scheduler):
+    """Where each finished task's result is (a chunk's, fused by Dask with its inputs): [(key, worker address)]."""
+    return [(str(ts.key), ws.address) for ts in dask_scheduler.tasks.values()
+            if ts.state == "memory" for ws in ts.who_has]
+
+
+def test_a_worker_killed_mid_run_and_the_results_are_the_same(client):
+    model, prior, zs = panel(N=40, T=100, seed=1)
+    want = gf.smooth(model, prior, zs, engine="numba")
+    lazy = da.from_array(zs, chunks=(5, 100, 2)).map_blocks(_held_back, dtype=float, meta=np.empty((0, 0, 0)))
+    future = client.compute(gf.smooth(model, prior, lazy, engine="numba").means)
+    deadline = time.monotonic() + 120
+    while not (finished := client.run_on_scheduler(_finished_chunks)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert finished and not future.done()  # chunks 0-3 done on some worker, 4-7 waiting
+    pids = client.run(os.getpid)
+    os.kill(pids[finished[0][1]], signal.SIGKILL)  # the worker holding a finished chunk: it must be redone
+    distributed.Event("go", client=client).set()
+    np.testing.assert_array_equal(future.result(timeout=300), want.means)
+    assert finished[0][1] not in client.run(os.getpid) or client.run(os.getpid)[finished[0][1]] != \
+        pids[finished[0][1]]  # a new worker process
+
+
+def test_pooled_em_and_mle_over_chunks_equal_the_in_memory_fit(client):
+    model, prior, zs = panel(N=12, T=40, seed=2)
+    lazy = da.from_array(zs, chunks=(5, 40, 2))
+    start = gf.constant_velocity(0.5, 1.0, 2.0, dim=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        for learn in (("Q", "R"), ("F", "Q", "R", "m0", "P0")):  # the second needs two passes per M-step
+            a = gf.fit(start, prior, zs, learn=learn, method="em", iterations=8, tol=0, engine="numba")
+            b = gf.fit(start, prior, lazy, learn=learn, method="em", iterations=8, tol=0, engine="numba")
+            np.testing.assert_allclose(b.history, a.history, rtol=1e-12)
+            for name in ("F", "Q", "R"):
+                np.testing.assert_allclose(getattr(b.model, name), getattr(a.model, name), rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(b.prior.cov, a.prior.cov, rtol=1e-10, atol=1e-12)
+        scalar = {"learn": ("Q", "R"), "structure": {"Q": "scalar", "R": "scalar"}}
+        a = gf.fit(start, prior, zs, method="mle", engine="numba", **scalar)
+        b = gf.fit(start, prior, lazy, method="mle", engine="numba", **scalar)
+    assert a.converged and b.converged
+    np.testing.assert_allclose(b.model.Q, a.model.Q, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(b.model.R, a.model.R, rtol=1e-8)
+    assert b.nobs == a.nobs == int(np.sum(~np.isnan(zs)))
+
+
+def test_dask_input_errors():
+    model, prior, zs = panel(N=4, T=5)
+    with pytest.raises(ValueError, match=r"leading series axis, shape \(N, T, k\); got shape \(5, 2\)"):
+        gf.filter(model, prior, da.from_array(zs[0]))
+    with pytest.raises(ValueError, match="`check` must be one of"):
+        gf.filter(model, prior, da.from_array(zs), check="loud")
+    with pytest.raises(ValueError, match="m = 2 components"):
+        gf.fit(model, prior, da.from_array(zs[..., :1]))
