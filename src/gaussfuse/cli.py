@@ -22,13 +22,13 @@ import sys
 import tempfile
 import threading
 import warnings
-from contextlib import nullcontext, suppress
+from contextlib import contextmanager, nullcontext, suppress
 from io import StringIO
 from typing import NamedTuple
 
 import numpy as np
 
-from . import __version__, inference, learning, plotting
+from . import __version__, inference, learning, panels, plotting
 from . import io as gfio
 from .errors import ConvergenceWarning, DivergenceWarning
 from .gaussian import Gaussian
@@ -230,6 +230,8 @@ def _run_filter(args: argparse.Namespace) -> int:
     _check_paths(args, {"--out": args.out, "--plot": args.plot})
     spec = gfio.read_model(args.model)
     columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    if args.series_column is not None:
+        return _run_many(args, spec, columns)
     read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns}
     if args.smooth and isinstance(spec.prior, str):  # a diffuse prior is smoothed whole
         pieces = iter([gfio.read_measurements(args.data, **read)])
@@ -273,6 +275,72 @@ def _run_filter(args: argparse.Namespace) -> int:
                     out.write(block)
                     start += len(block)
     return 0
+
+
+def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
+    """`gaussfuse filter --series-column`: each partition filtered where a worker runs, to its own output file."""
+    if not args.out:
+        raise ValueError("--series-column writes one output file per partition: name an output directory with --out.")
+    if args.plot:
+        raise ValueError("--plot draws one series; leave it out with --series-column.")
+    parts = panels.partitions(args.data)
+    source = args.data if os.path.isdir(args.data) else os.path.dirname(os.path.abspath(args.data))
+    if os.path.realpath(args.out) == os.path.realpath(source):
+        raise ValueError(f"`--out` {args.out} is the data's own directory; choose another, so no input is replaced.")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ValueError(f"`--out` {args.out} is a file; with --series-column it is a directory (created if missing).")
+    with _cluster(args) as client:
+        import distributed
+
+        futures = [client.submit(panels.filter_partition, part, panels.output_path(args.data, part, args.out), spec,
+                                 args.series_column, smooth=args.smooth, time_column=args.time_column,
+                                 columns=columns, engine=args.engine, check=args.check, pure=False)
+                   for part in parts]
+        progress = _RowProgress()
+        try:
+            for future in distributed.as_completed(futures):
+                future.result()  # a partition's error stops the command here
+                progress.add("partitions", 1)
+        finally:
+            progress.close()
+        done = client.gather(futures)
+    seen: dict = {}
+    for part, (ids, _, messages) in zip(parts, done):
+        for message in messages:
+            print(f"gaussfuse: warning: {message}", file=sys.stderr)
+        for i in ids:
+            if i in seen:
+                print(f"gaussfuse: warning: series {i!r} is in two partitions ({seen[i]} and {part}); each part was "
+                      "filtered as a series of its own.", file=sys.stderr)
+            seen[i] = part
+    rows = sum(r for _, r, _ in done)
+    print(f"{'smooth' if args.smooth else 'filter'}: {len(seen):,} series, {rows:,} rows in {len(parts)} "
+          f"partition(s); wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+@contextmanager
+def _cluster(args: argparse.Namespace):
+    """A Dask client: of the cluster at `--scheduler`, or of a local cluster of `--workers` processes."""
+    try:
+        import distributed
+    except ImportError:
+        raise ValueError("--series-column runs on Dask: install it with pip install -e \".[dask]\".") from None
+    import logging
+
+    if args.scheduler:
+        with distributed.Client(args.scheduler, timeout="30s") as client:
+            yield client
+        return
+    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    if workers < 1:
+        raise ValueError(f"--workers must be a positive integer; got {workers}.")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the local cluster's notes about ports and dashboards
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=logging.CRITICAL)
+    with cluster, distributed.Client(cluster) as client:  # a task's error reaches the client, not the logs
+        yield client
 
 
 def _piece_rows(n: int, m: int) -> int:
@@ -482,18 +550,55 @@ def _run_fit(args: argparse.Namespace) -> int:
     _check_paths(args, {"--out": args.out})
     spec = gfio.read_model(args.model)
     columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
-    data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
-    steps = np.diff(data.times)
-    if steps.size and steps.max() - steps.min() > 1e-9 * steps.max():
-        print(f"gaussfuse: warning: the times are irregular (steps from {steps.min():g} s to {steps.max():g} s), "
-              "but a fitted model has one set of matrices: every row is fitted as one step of it.", file=sys.stderr)
     learn = _names(args.learn, "--learn", learning.LEARNABLE)
+    if args.series_column is None:
+        data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
+        steps = np.diff(data.times)
+        if steps.size and steps.max() - steps.min() > 1e-9 * steps.max():
+            print(f"gaussfuse: warning: the times are irregular (steps from {steps.min():g} s to {steps.max():g} s),"
+                  " but a fitted model has one set of matrices: every row is fitted as one step of it.",
+                  file=sys.stderr)
+        return _fit_and_write(args, spec, learn, data.zs)
+    with _cluster(args) as client:
+        return _fit_and_write(args, spec, learn, _pooled(args, spec, columns, client))
+
+
+def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, client):
+    """Every series of a long-format table as one dask array (N, T, m), each partition read on a worker.
+
+    Series shorter than the longest are padded at the end with missing steps
+    (which leave the likelihood as it is). A series in two partitions is an
+    error, found before the fit.
+    """
+    import dask
+    import dask.array as da
+
+    parts = panels.partitions(args.data)
+    read = dict(series_column=args.series_column, m=spec.model.m, time_column=args.time_column, columns=columns)
+    shapes = client.gather([client.submit(panels.partition_shape, part, **read, pure=False) for part in parts])
+    seen: dict = {}
+    for part, (ids, _) in zip(parts, shapes):
+        for i in ids:
+            if i in seen:
+                raise ValueError(f"series {i!r} is in two partitions ({seen[i]} and {part}); each series must lie "
+                                 "in one partition.")
+            seen[i] = part
+    T = max(steps for _, steps in shapes)
+    blocks = [da.from_delayed(dask.delayed(panels.partition_arrays)(part, **read, steps=T),
+                              shape=(len(ids), T, spec.model.m), dtype=np.float64)
+              for part, (ids, _) in zip(parts, shapes)]
+    print(f"fit: {len(seen):,} series in {len(parts)} partition(s), at most {T} steps each", file=sys.stderr)
+    return client.persist(da.concatenate(blocks))
+
+
+def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[str], zs) -> int:
+    """`gaussfuse fit`'s fit of `zs` (an array, or a dask array of many series) and its output."""
     iterations = args.iterations if args.iterations is not None else (500 if args.method == "em" else 1000)
     progress = _Progress(args.method, iterations)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
-            res = learning.fit(spec.model, spec.prior, data.zs, learn=learn, method=args.method,
+            res = learning.fit(spec.model, spec.prior, zs, learn=learn, method=args.method,
                                structure=_structure(args.structure), iterations=iterations, tol=args.tol,
                                callback=progress, engine=args.engine)
     finally:
@@ -576,6 +681,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="the time column (default: the one named t or time)")
     filt.add_argument("--columns", metavar="A,B,...",
                       help="the measurement columns, in order (default: every other column)")
+    _many_options(filt, "filter each series of a long-format table (CSV or Parquet file, or a directory of "
+                        "them: a partitioned dataset), one output file per partition under --out DIR")
     filt.add_argument("--check", choices=("warn", "raise", "off"), default="warn",
                       help="the divergence test (default warn: one line on stderr naming the steps whose "
                            "innovations are too large for the filter's covariances; raise: an error, exit "
@@ -612,12 +719,24 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the time column (default: the one named t or time)")
     fit.add_argument("--columns", metavar="A,B,...",
                      help="the measurement columns, in order (default: every other column)")
+    _many_options(fit, "fit one model to every series of a long-format table (CSV or Parquet file, or a "
+                       "directory of them), pooled")
     fit.add_argument("-o", "--out", metavar="FITTED.toml",
                      help="write the fitted model to this file (default: standard output); "
                           "not DATA.csv or MODEL.toml")
     _engine_option(fit)
     fit.set_defaults(run=_run_fit)
     return parser
+
+
+def _many_options(command: argparse.ArgumentParser, what: str) -> None:
+    many = command.add_argument_group("many series (on Dask; pip install -e \".[dask]\")")
+    many.add_argument("--series-column", metavar="NAME", help=f"the series-id column: {what}")
+    many.add_argument("--scheduler", metavar="ADDRESS",
+                      help="with --series-column: the Dask scheduler of an existing cluster (tcp://host:8786)")
+    many.add_argument("--workers", metavar="N", type=int,
+                      help="with --series-column and no --scheduler: a local cluster of N worker processes "
+                           "(default: one per core)")
 
 
 def _engine_option(command: argparse.ArgumentParser) -> None:

@@ -1,6 +1,6 @@
 """W2 scaled up on a Dask cluster: many series filtered chunk by chunk, against the in-process batch path.
 
-    python benchmarks/distributed.py [--series 200000] [--steps 200] [--chunk 10000] [--out benchmarks/distributed.md]
+    python benchmarks/many_series.py [--series 200000] [--steps 200] [--chunk 10000] [--out benchmarks/many_series.md]
 
 The workload is W2's model (a 1-D constant-velocity target, 2 states, 1
 position measurement; ``gf.constant_velocity(0.1, 1.0, 0.25)``), on
@@ -102,7 +102,7 @@ def main() -> None:
     base = rows[0][1]
     import gaussfuse
     lines = [f"# Many series on a Dask cluster: {N:,} series x {T} steps (W2's model)", "",
-             f"`python benchmarks/distributed.py --series {N} --steps {T} --chunk {args.chunk}` on "
+             f"`python benchmarks/many_series.py --series {N} --steps {T} --chunk {args.chunk}` on "
              f"{platform.machine()}, {os.cpu_count()} cores, load average {load:.2f} at start and "
              f"{os.getloadavg()[0]:.2f} at end; gaussfuse {gaussfuse.__version__}, dask {dask.__version__}, "
              f"distributed {distributed.__version__}. Best of {args.repeats}.", "",

@@ -1,0 +1,236 @@
+"""Long-format tables of many series, one partition at a time: the command line's ``--series-column`` mode.
+
+A long-format table has one row per (series, time): a series-id column, a
+time column and the measurement columns. It is a CSV or Parquet file, or a
+directory of them (a partitioned dataset, such as pyarrow or Dask writes):
+each file is a **partition**, and every series must lie in one partition.
+
+:func:`filter_partition` reads one partition, filters (or smooths) each of
+its series and writes the estimates to one output file, atomically; it runs
+as a task on a Dask cluster, where the partition is read and written, so
+that only a summary travels. :func:`partition_arrays` turns a partition into
+an (N, T, m) array (series padded at the end with missing steps to the
+longest), the input of a pooled fit over a dask array.
+
+Within a series the times must increase strictly. A named model file (a
+TimedModel) steps each series by its own times; explicit matrices step by
+rows. pandas reads and writes the tables (and pyarrow Parquet); both come
+with the ``dask`` extra.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import warnings
+from typing import NamedTuple
+
+import numpy as np
+
+from . import inference
+from .errors import DivergenceWarning
+from .io import InputFileError, ModelFile, TIME_COLUMNS, open_atomic
+
+__all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
+           "filter_partition"]
+
+FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
+
+
+class Partition(NamedTuple):
+    """One partition, read: its series in order of first appearance.
+
+    Attributes
+    ----------
+    ids : list
+        The series ids.
+    times : list of ndarray
+        Each series' times, in seconds (datetimes as seconds since 1970 UTC).
+    zs : list of ndarray
+        Each series' measurements (T_i, m); NaN where missing.
+    frame : pandas.DataFrame
+        The series-id and time columns as read (for the output), rows grouped
+        by series in the order of `ids`, time-ordered within each.
+    columns : list of str
+        The series-id column, the time column, then the m measurement columns.
+    """
+
+    ids: list
+    times: list
+    zs: list
+    frame: object
+    columns: list
+
+
+def partitions(path: str) -> list[str]:
+    """The partition files of `path`: the file itself, or the CSV / Parquet files under a directory, sorted.
+
+    Raises
+    ------
+    ValueError
+        When `path` is a directory holding no such file, or files of both kinds.
+    """
+    if not os.path.isdir(path):
+        return [path]
+    found = sorted(f for f in glob.glob(os.path.join(path, "**", "*"), recursive=True)
+                   if os.path.isfile(f) and os.path.splitext(f)[1].lower() in FORMATS)
+    kinds = {FORMATS[os.path.splitext(f)[1].lower()] for f in found}
+    if not found:
+        raise ValueError(f"{path}: a directory without CSV or Parquet files.")
+    if len(kinds) > 1:
+        raise ValueError(f"{path}: holds both CSV and Parquet files; give one kind.")
+    return found
+
+
+def output_path(data: str, part: str, out_dir: str) -> str:
+    """Where the estimates of partition `part` of `data` go: its path under `out_dir`, relative to `data`."""
+    relative = os.path.basename(part) if not os.path.isdir(data) else os.path.relpath(part, data)
+    return os.path.join(out_dir, relative)
+
+
+def _format(path: str) -> str:
+    kind = FORMATS.get(os.path.splitext(path)[1].lower())
+    if kind is None:
+        raise ValueError(f"{path}: not a .csv or .parquet file.")
+    return kind
+
+
+def read_partition(path: str, series_column: str, m: int, time_column: str | None = None,
+                   columns: list[str] | None = None) -> Partition:
+    """Read one partition of a long-format table (see the module notes).
+
+    Raises
+    ------
+    InputFileError
+        For a missing column, a wrong number of measurement columns, a value
+        that is not a number or a time, or times that do not increase within
+        a series; the message names the file, the column and the series.
+    """
+    import pandas as pd
+
+    frame = pd.read_parquet(path) if _format(path) == "parquet" else pd.read_csv(path)
+    header = [str(c) for c in frame.columns]
+    frame.columns = header
+    if series_column not in header:
+        raise InputFileError(path, f"no column named `{series_column}` (the series ids); found columns {header}.")
+    named = [time_column] if time_column is not None else [h for h in header if h.lower() in TIME_COLUMNS]
+    if len(named) != 1 or named[0] not in header:
+        raise InputFileError(path, f"expected one time column ({time_column or '`t` or `time`'}); found columns "
+                                   f"{header} (name it with --time-column).")
+    time_col = named[0]
+    wanted = columns if columns is not None else [h for h in header if h not in (series_column, time_col)]
+    missing = [c for c in wanted if c not in header]
+    if missing or len(wanted) != m:
+        raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
+                                   f"`{time_col}`{'' if not missing else f' ({missing} missing)'}, but the model "
+                                   f"measures m = {m} component(s).")
+    try:
+        values = frame[wanted].apply(pd.to_numeric).to_numpy(dtype=np.float64, na_value=np.nan)
+    except (TypeError, ValueError) as exc:
+        raise InputFileError(path, f"a measurement is not a number: {exc}") from None
+    if np.isinf(values).any():
+        raise InputFileError(path, "a measurement is infinite.")
+    seconds = _seconds(path, frame[time_col], time_col)
+    codes, ids = pd.factorize(frame[series_column], sort=False)
+    order = np.lexsort((seconds, codes))  # by series (first appearance), then time
+    codes, seconds, values = codes[order], seconds[order], values[order]
+    bounds = np.flatnonzero(np.diff(codes)) + 1
+    times = np.split(seconds, bounds)
+    for k, t in enumerate(times):
+        if np.any(np.diff(t) <= 0):
+            raise InputFileError(path, f"series {ids[k]!r} has two rows at one time; times must increase strictly.",
+                                 field=f"column `{time_col}`")
+    return Partition(list(ids), times, np.split(values, bounds),
+                     frame[[series_column, time_col]].iloc[order].reset_index(drop=True),
+                     [series_column, time_col, *wanted])
+
+
+def _seconds(path: str, column, name: str) -> np.ndarray:
+    """A time column as float seconds: numbers as they are, datetimes (or ISO-8601 text) since 1970 UTC."""
+    import pandas as pd
+
+    if pd.api.types.is_numeric_dtype(column):
+        seconds = column.to_numpy(dtype=np.float64)
+    else:
+        try:
+            stamps = pd.to_datetime(column, utc=True, format="ISO8601")
+        except (TypeError, ValueError) as exc:
+            raise InputFileError(path, f"a time is neither a number of seconds nor an ISO-8601 time: {exc}",
+                                 field=f"column `{name}`") from None
+        seconds = (stamps - pd.Timestamp(0, tz="UTC")).dt.total_seconds().to_numpy(dtype=np.float64)
+    if not np.all(np.isfinite(seconds)):
+        raise InputFileError(path, "a time is missing; every row needs a time.", field=f"column `{name}`")
+    return seconds
+
+
+def partition_arrays(path: str, series_column: str, m: int, time_column: str | None = None,
+                     columns: list[str] | None = None, steps: int | None = None) -> np.ndarray:
+    """A partition's series as one array (N, steps, m), each padded at its end with missing (NaN) steps."""
+    part = read_partition(path, series_column, m, time_column, columns)
+    T = max(len(t) for t in part.times) if steps is None else steps
+    out = np.full((len(part.ids), T, m), np.nan)
+    for i, z in enumerate(part.zs):
+        out[i, :z.shape[0]] = z
+    return out
+
+
+def partition_shape(path: str, series_column: str, m: int, time_column: str | None = None,
+                    columns: list[str] | None = None) -> tuple[list, int]:
+    """A partition's series ids and its longest series' length."""
+    part = read_partition(path, series_column, m, time_column, columns)
+    return part.ids, max(len(t) for t in part.times)
+
+
+def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *, smooth: bool = False,
+                     time_column: str | None = None, columns: list[str] | None = None, engine: str = "auto",
+                     check: str = "warn") -> tuple[list, int, list[str]]:
+    """Filter (or smooth) every series of partition `path`; write the estimates to `out`, atomically.
+
+    The output has the series-id and time columns as read, then the state
+    means and ``std_<state>``, one row per input row, grouped by series (in
+    order of first appearance) and time-ordered; CSV or Parquet as `out`'s
+    extension says. A named model steps each series by its own times;
+    explicit matrices filter all the series at once (one batch).
+
+    Returns
+    -------
+    ids : list
+        The series filtered.
+    rows : int
+        Rows written.
+    warnings : list of str
+        The divergence check's warnings (a series that fails it), to show
+        where the command runs.
+    """
+    part = read_partition(path, series_column, spec.model.m, time_column, columns)
+    run = inference.smooth if smooth else inference.filter
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DivergenceWarning)
+        if spec.timed is not None:
+            results = [run(spec.timed if len(t) > 1 else spec.model, spec.prior, z, times=t if len(t) > 1 else None,
+                           engine=engine, check=check) for t, z in zip(part.times, part.zs)]
+            means = np.concatenate([r.means for r in results])
+            covs = np.concatenate([r.covs for r in results])
+        else:
+            T = max(len(t) for t in part.times)
+            zs = np.full((len(part.ids), T, spec.model.m), np.nan)
+            for i, z in enumerate(part.zs):
+                zs[i, :z.shape[0]] = z
+            result = run(spec.model, spec.prior, zs, engine=engine, check=check)
+            means = np.concatenate([result.means[i, :len(t)] for i, t in enumerate(part.times)])
+            covs = np.concatenate([result.covs[i, :len(t)] for i, t in enumerate(part.times)])
+    names = spec.state_names
+    table = part.frame.copy()
+    for j, name in enumerate(names):
+        table[name] = means[:, j]
+    stds = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    for j, name in enumerate(names):
+        table[f"std_{name}"] = stds[:, j]
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    with open_atomic(out, "wb") as f:
+        if _format(out) == "parquet":
+            table.to_parquet(f, index=False)
+        else:
+            table.to_csv(f, index=False, float_format=None, lineterminator="\n")
+    messages = [f"{os.path.basename(path)}: {w.message}" for w in caught if issubclass(w.category, DivergenceWarning)]
+    return part.ids, len(table), messages

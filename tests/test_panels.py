@@ -1,0 +1,165 @@
+"""Long-format tables of many series: `gaussfuse filter` and `gaussfuse fit` with --series-column, on Dask.
+
+The oracle is the library on each series alone (filter, smooth) or on the
+pooled in-memory array (fit). The commands run on a LocalCluster of 2 worker
+processes started here (`--scheduler`), and once on a local cluster of their
+own (`--workers`).
+"""
+
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+import gaussfuse as gf
+from gaussfuse import io as gfio, panels
+from gaussfuse.cli import main
+
+pd = pytest.importorskip("pandas")
+pytest.importorskip("pyarrow")
+distributed = pytest.importorskip("distributed")
+
+NAMED = '[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.5\nr = 1.0\n[prior]\nvar = 10.0\n'
+EXPLICIT = ('[model]\nF = [[1.0, 1.0], [0.0, 1.0]]\nH = [[1.0, 0.0]]\nQ = [[0.25, 0.5], [0.5, 1.0]]\nR = [[2.0]]\n'
+            '[prior]\nvar = 10.0\n')
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=50)
+    with cluster:
+        yield cluster.scheduler_address
+
+
+def dataset(root, kind="parquet", seed=0):
+    """Two partitions (hive directories) of 9 series of different lengths at irregular times, rows shuffled."""
+    rng = np.random.default_rng(seed)
+    series = {}
+    for group, ids in (("a", range(0, 5)), ("b", range(5, 9))):
+        rows = []
+        for i in ids:
+            T = 20 + 2 * i
+            t = 100.0 + np.cumsum(rng.choice([0.5, 1.0, 2.0], T))
+            x = np.cumsum(rng.normal(size=T)) + rng.normal(size=T)
+            x[rng.random(T) < 0.1] = np.nan
+            series[f"u{i}"] = (t, x)
+            rows.append(pd.DataFrame({"unit": f"u{i}", "t": t, "x": x, "note": "-"}))
+        frame = pd.concat(rows).sample(frac=1, random_state=1)
+        os.makedirs(root / f"group={group}", exist_ok=True)
+        if kind == "parquet":
+            frame.to_parquet(root / f"group={group}" / "part.parquet", index=False)
+        else:
+            frame.to_csv(root / f"group={group}" / "part.csv", index=False)
+    return series
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_filter_a_partitioned_parquet_dataset(tmp_path, capsys, scheduler, smooth):
+    """One output per partition, each series' rows equal to the library on that series alone."""
+    data, out = tmp_path / "data", tmp_path / "out"
+    series = dataset(data)
+    (tmp_path / "cv.toml").write_text(NAMED)
+    code, stdout, err = run(capsys, "filter", data, "-m", tmp_path / "cv.toml", "--series-column", "unit",
+                            "--columns", "x", "--out", out, "--scheduler", scheduler, "--engine", "numba",
+                            "--check", "off", *(["--smooth"] if smooth else []))
+    assert code == 0 and stdout == ""
+    assert err.strip().endswith(f"9 series, {sum(len(t) for t, _ in series.values())} rows in 2 partition(s); "
+                                f"wrote {out}")
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.parquet")) == \
+        ["group=a/part.parquet", "group=b/part.parquet"]
+    spec = gfio.read_model(tmp_path / "cv.toml")
+    got = pd.concat([pd.read_parquet(p) for p in sorted(out.rglob("*.parquet"))])
+    assert list(got.columns) == ["unit", "t", "x", "vx", "std_x", "std_vx"]
+    run_one = gf.smooth if smooth else gf.filter
+    for name, (t, x) in series.items():
+        rows = got[got.unit == name]
+        want = run_one(spec.timed, spec.prior, x, times=t, engine="numba", check="off")
+        np.testing.assert_array_equal(rows.t.to_numpy(), t)  # time-ordered, the times as read
+        np.testing.assert_array_equal(rows[["x", "vx"]].to_numpy(), want.means)
+        np.testing.assert_array_equal(rows.std_x.to_numpy(), np.sqrt(want.covs[:, 0, 0]))
+
+
+def test_filter_csv_partitions_with_explicit_matrices_on_a_cluster_of_its_own(tmp_path, capsys):
+    data, out = tmp_path / "data", tmp_path / "out"
+    series = dataset(data, kind="csv", seed=1)
+    (tmp_path / "m.toml").write_text(EXPLICIT)
+    code, _, err = run(capsys, "filter", data, "-m", tmp_path / "m.toml", "--series-column", "unit", "--columns", "x",
+                       "--out", out, "--workers", "2", "--engine", "numba", "--check", "off")
+    assert code == 0, err
+    spec = gfio.read_model(tmp_path / "m.toml")
+    got = pd.concat([pd.read_csv(p) for p in sorted(out.rglob("*.csv"))])
+    for name, (t, x) in series.items():  # explicit matrices: every row one step; series padded in the batch
+        want = gf.filter(spec.model, spec.prior, x, engine="numba", check="off")
+        np.testing.assert_array_equal(got[got.unit == name][["x0", "x1"]].to_numpy(), want.means)
+
+
+def test_pooled_fit_of_a_partitioned_dataset(tmp_path, capsys, scheduler):
+    data = tmp_path / "data"
+    series = dataset(data, seed=2)
+    (tmp_path / "m.toml").write_text(EXPLICIT)
+    code, stdout, err = run(capsys, "fit", data, "-m", tmp_path / "m.toml", "--series-column", "unit", "--columns",
+                            "x", "--learn", "Q,R", "--method", "em", "--iterations", "10", "--tol", "0", "--scheduler",
+                            scheduler, "--engine", "numba")
+    assert code == 0, err
+    assert "fit: 9 series in 2 partition(s), at most 36 steps each" in err
+    fitted = gfio.tomllib.loads(stdout)["model"]
+    order = sorted(series, key=lambda k: int(k[1:]))  # the partitions' series, in order
+    zs = np.full((9, 36, 1), np.nan)
+    for i, name in enumerate(order):
+        zs[i, :len(series[name][1]), 0] = series[name][1]
+    spec = gfio.read_model(tmp_path / "m.toml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        want = gf.fit(spec.model, spec.prior, zs, learn=("Q", "R"), method="em", iterations=10, tol=0,
+                      engine="numba")
+    np.testing.assert_allclose(fitted["Q"], want.model.Q, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(fitted["R"], want.model.R, rtol=1e-10)
+
+
+def test_errors_are_one_line(tmp_path, capsys, scheduler):
+    data = tmp_path / "data"
+    dataset(data)
+    (tmp_path / "cv.toml").write_text(NAMED)
+    base = ["filter", data, "-m", tmp_path / "cv.toml", "--series-column", "unit", "--columns", "x",
+            "--scheduler", scheduler]
+    for extra, match in ((["--out", data], "is the same file as the data file"),
+                         ([], "name an output directory with --out"),
+                         (["--out", tmp_path / "o", "--plot", tmp_path / "f.png"], "--plot draws one series")):
+        code, _, err = run(capsys, *base, *extra)
+        assert code == 2 and err.startswith("gaussfuse: error: ") and match in err and err.count("\n") == 1, err
+    frame = pd.read_parquet(data / "group=a" / "part.parquet")
+    frame.loc[frame.index[:2], "t"] = 5.0  # two rows of one series at one time... or two series sharing it
+    frame.loc[frame.index[:2], "unit"] = "u0"
+    frame.to_parquet(data / "group=a" / "part.parquet", index=False)
+    code, _, err = run(capsys, *base, "--out", tmp_path / "o2")
+    assert code == 2 and "series 'u0' has two rows at one time" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "o2" / "group=a").exists()
+    dataset(tmp_path / "split")
+    moved = pd.read_parquet(tmp_path / "split" / "group=b" / "part.parquet")
+    moved["unit"] = moved["unit"].replace({"u5": "u0"})  # u0 now in both partitions
+    moved.to_parquet(tmp_path / "split" / "group=b" / "part.parquet", index=False)
+    code, _, err = run(capsys, "fit", tmp_path / "split", "-m", tmp_path / "cv.toml", "--series-column", "unit",
+                       "--columns", "x", "--scheduler", scheduler)
+    assert code == 2 and "series 'u0' is in two partitions" in err
+
+
+def test_partitions_of_a_path(tmp_path):
+    dataset(tmp_path / "d")
+    assert [os.path.relpath(p, tmp_path) for p in panels.partitions(str(tmp_path / "d"))] == \
+        ["d/group=a/part.parquet", "d/group=b/part.parquet"]
+    (tmp_path / "d" / "extra.csv").write_text("unit,t,x\n")
+    with pytest.raises(ValueError, match="both CSV and Parquet"):
+        panels.partitions(str(tmp_path / "d"))
+    (tmp_path / "e").mkdir()
+    with pytest.raises(ValueError, match="without CSV or Parquet files"):
+        panels.partitions(str(tmp_path / "e"))
