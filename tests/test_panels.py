@@ -163,3 +163,21 @@ def test_partitions_of_a_path(tmp_path):
     (tmp_path / "e").mkdir()
     with pytest.raises(ValueError, match="without CSV or Parquet files"):
         panels.partitions(str(tmp_path / "e"))
+
+
+def test_a_diverging_series_is_named(tmp_path, capsys, scheduler):
+    data = tmp_path / "data"
+    dataset(data)
+    frame = pd.read_parquet(data / "group=b" / "part.parquet")
+    late = (frame.unit == "u7") & (frame.t > frame[frame.unit == "u7"].t.median())
+    frame.loc[late, "x"] += 60.0  # the sensor jumps 60 m away for the second half of one series
+    frame.to_parquet(data / "group=b" / "part.parquet", index=False)
+    (tmp_path / "cv.toml").write_text(NAMED)
+    base = ["filter", data, "-m", tmp_path / "cv.toml", "--series-column", "unit", "--columns", "x",
+            "--scheduler", scheduler]
+    code, _, err = run(capsys, *base, "--out", tmp_path / "o")
+    lines = err.splitlines()
+    assert code == 0 and len(lines) == 2, err
+    assert lines[0].startswith("gaussfuse: warning: part.parquet: series 'u7' may be diverging")
+    code, _, err = run(capsys, *base, "--out", tmp_path / "o2", "--check", "raise")
+    assert code == 2 and "series 'u7' may be diverging" in err and err.count("\n") == 1

@@ -22,12 +22,11 @@ from __future__ import annotations
 
 import glob
 import os
-import warnings
 from typing import NamedTuple
 
 import numpy as np
 
-from . import inference
+from . import diagnostics, inference
 from .errors import DivergenceWarning
 from .io import InputFileError, ModelFile, TIME_COLUMNS, open_atomic
 
@@ -199,26 +198,32 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
     rows : int
         Rows written.
     warnings : list of str
-        The divergence check's warnings (a series that fails it), to show
-        where the command runs.
+        The divergence check's warnings, one per series that fails it
+        (:func:`gaussfuse.diagnostics.divergence`), to show where the
+        command runs; with ``check="raise"`` the first is raised instead.
     """
     part = read_partition(path, series_column, spec.model.m, time_column, columns)
     run = inference.smooth if smooth else inference.filter
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", DivergenceWarning)
-        if spec.timed is not None:
-            results = [run(spec.timed if len(t) > 1 else spec.model, spec.prior, z, times=t if len(t) > 1 else None,
-                           engine=engine, check=check) for t, z in zip(part.times, part.zs)]
-            means = np.concatenate([r.means for r in results])
-            covs = np.concatenate([r.covs for r in results])
-        else:
-            T = max(len(t) for t in part.times)
-            zs = np.full((len(part.ids), T, spec.model.m), np.nan)
-            for i, z in enumerate(part.zs):
-                zs[i, :z.shape[0]] = z
-            result = run(spec.model, spec.prior, zs, engine=engine, check=check)
-            means = np.concatenate([result.means[i, :len(t)] for i, t in enumerate(part.times)])
-            covs = np.concatenate([result.covs[i, :len(t)] for i, t in enumerate(part.times)])
+    if spec.timed is not None:  # each series stepped by its own times
+        results = [run(spec.timed if len(t) > 1 else spec.model, spec.prior, z, times=t if len(t) > 1 else None,
+                       engine=engine, check="off") for t, z in zip(part.times, part.zs)]
+        filtered = [getattr(r, "filtered", r) for r in results]
+        means, covs = np.concatenate([r.means for r in results]), np.concatenate([r.covs for r in results])
+        nis = [f.nis for f in filtered]
+        seen = [np.count_nonzero(~np.isnan(f.innovations), axis=-1) for f in filtered]
+    else:  # all at once, padded at the end with missing steps
+        T = max(len(t) for t in part.times)
+        zs = np.full((len(part.ids), T, spec.model.m), np.nan)
+        for i, z in enumerate(part.zs):
+            zs[i, :z.shape[0]] = z
+        result = run(spec.model, spec.prior, zs, engine=engine, check="off")
+        lengths = [len(t) for t in part.times]
+        means = np.concatenate([result.means[i, :k] for i, k in enumerate(lengths)])
+        covs = np.concatenate([result.covs[i, :k] for i, k in enumerate(lengths)])
+        filt = getattr(result, "filtered", result)
+        nis = [filt.nis[i, :k] for i, k in enumerate(lengths)]
+        seen = [np.count_nonzero(~np.isnan(filt.innovations[i, :k]), axis=-1) for i, k in enumerate(lengths)]
+    messages = _divergence(path, part.ids, nis, seen, check)
     names = spec.state_names
     table = part.frame.copy()
     for j, name in enumerate(names):
@@ -232,5 +237,25 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
             table.to_parquet(f, index=False)
         else:
             table.to_csv(f, index=False, float_format=None, lineterminator="\n")
-    messages = [f"{os.path.basename(path)}: {w.message}" for w in caught if issubclass(w.category, DivergenceWarning)]
     return part.ids, len(table), messages
+
+
+def _divergence(path: str, ids: list, nis: list, seen: list, check: str) -> list[str]:
+    """The divergence check of each series (:func:`gaussfuse.diagnostics.divergence`), one line per failing series.
+
+    Raises a DivergenceWarning for the first with ``check="raise"``.
+    """
+    if check not in ("warn", "raise", "off"):
+        raise ValueError(f"`check` must be one of ['warn', 'raise', 'off']; got {check!r}.")
+    out = []
+    if check == "off":
+        return out
+    for name, values, dof in zip(ids, nis, seen):
+        flagged = diagnostics.divergence(values, dof)
+        if flagged:
+            where = "; ".join(f"{avg:.2f} over steps {a}-{b}" for _, a, b, avg in flagged[:3])
+            out.append(f"{os.path.basename(path)}: series {name!r} may be diverging: its normalised innovations "
+                       f"average, per observed component, {where} (1 expected).")
+            if check == "raise":
+                raise DivergenceWarning(out[-1])
+    return out
