@@ -163,11 +163,16 @@ def test_monitor_in_pieces_matches_the_rule_update_by_update(seed):
     want = _reference_monitor(nis, dofs, window)
     one, many = dg.DivergenceMonitor(window=window), dg.DivergenceMonitor(window=window)
     singly = [r for k in range(T) if (r := one.add(nis[k], dofs[k], k)) is not None]
-    pieces, k = [], 0
+    pieces, mixed, k = [], [], 0
+    both = dg.DivergenceMonitor(window=window)
     while k < T:
         n = int(rng.integers(1, 120))
         pieces += many.add_many(nis[k:k + n], dofs[k:k + n], range(k, k + n))
+        if n % 2:  # the two mixed on one monitor
+            mixed += both.add_many(nis[k:k + n], dofs[k:k + n], range(k, k + n))
+        else:
+            mixed += [r for j in range(k, min(k + n, T)) if (r := both.add(nis[j], dofs[j], j)) is not None]
         k += n
-    for got in (singly, pieces):
+    for got in (singly, pieces, mixed):
         assert [(a, b) for a, b, _ in got] == [(a, b) for a, b, _ in want]
         np.testing.assert_allclose([avg for *_, avg in got], [avg for *_, avg in want], rtol=1e-12)

@@ -233,8 +233,8 @@ class DivergenceMonitor:
     def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
                  check: str = "warn") -> None:
         self.window, self.false_alarm, self.check = window, false_alarm, check
-        self._values = np.zeros(0)       # the last `window` updates with observations: NIS, dof, step
-        self._dofs = np.zeros(0)
+        self._values: list[float] = []  # the last `window` updates with observations: NIS, dof, step
+        self._dofs: list[int] = []
         self._steps: list = []
         self._since = 0                  # updates since the last test
         self._tested = 0                 # windows tested so far
@@ -249,11 +249,29 @@ class DivergenceMonitor:
         ``window // 2`` updates; consecutive failing windows are reported
         once, at the first.
         """
-        report = self.add_many([nis_value], [dof], [step])
-        return report[0] if report else None
+        if dof == 0:
+            return None
+        self._values.append(float(nis_value))
+        self._dofs.append(int(dof))
+        self._steps.append(step)
+        if len(self._values) > self.window:
+            del self._values[0], self._dofs[0], self._steps[0]
+        self._since += 1
+        if len(self._values) < self.window or (self._tested and self._since < max(self.window // 2, 1)):
+            return None
+        self._since = 0
+        self._tested += 1
+        total, d = sum(self._values), float(sum(self._dofs))
+        flagged = total >= _threshold(d, np.log(self._tested * (self._tested + 1) / self.false_alarm))
+        report = flagged and not self._flagged
+        self._flagged = flagged
+        return (self._steps[0], self._steps[-1], total / d) if report else None
 
     def add_many(self, nis_values, dofs, steps) -> list[tuple[object, object, float]]:
         """:meth:`add` each of many updates, in order; the windows that newly failed, each ``(first, last, average)``.
+
+        The same rule as :meth:`add`, vectorised over the updates (a piece of
+        a long series); the two may be mixed on one monitor.
 
         Parameters
         ----------
@@ -266,9 +284,9 @@ class DivergenceMonitor:
         kept = np.flatnonzero(dofs > 0)
         if kept.size == 0:
             return []
-        old = self._values.size
-        values = np.concatenate([self._values, np.asarray(nis_values, dtype=np.float64)[kept]])
-        counts = np.concatenate([self._dofs, dofs[kept]])
+        old = len(self._values)
+        values = np.concatenate([np.asarray(self._values, dtype=np.float64), np.asarray(nis_values, dtype=np.float64)[kept]])
+        counts = np.concatenate([np.asarray(self._dofs, dtype=np.float64), dofs[kept]])
         stride = max(self.window // 2, 1)
         # the updates (indices into `values`) whose window is tested: the window-th, then every stride-th
         first = self.window - 1 if not self._tested else old - 1 + stride - self._since
@@ -293,7 +311,7 @@ class DivergenceMonitor:
         else:
             self._since += kept.size
         self._steps = [label(i) for i in range(max(values.size - self.window, 0), values.size)]
-        self._values, self._dofs = values[-self.window:], counts[-self.window:]
+        self._values, self._dofs = values[-self.window:].tolist(), [int(d) for d in counts[-self.window:]]
         return reports
 
     @classmethod
