@@ -1,4 +1,5 @@
-"""EKF-SLAM: map unknown landmarks while localising the robot among them.
+"""EKF-SLAM: map unknown landmarks while localising the robot among them
+=====================================================================
 
 The state holds the robot's pose and the landmarks' positions,
 
@@ -126,7 +127,7 @@ def first_sightings(dead, zs):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--plot", metavar="PATH", help="save a figure of the map to PATH")
     args = parser.parse_args(argv)
 
@@ -163,11 +164,11 @@ def main(argv=None):
                       for method, r in naive.items()))
 
     if args.plot:
-        from matplotlib.figure import Figure
+        import matplotlib.pyplot as plt  # a pyplot figure: shown by notebooks and the docs gallery, saved here
 
         from gaussfuse.plotting import plot_trajectory, save_figure
 
-        fig = Figure(figsize=(7.0, 6.5), layout="constrained")
+        fig = plt.figure(figsize=(7.0, 6.5), layout="constrained")
         ax = fig.add_subplot()
         ax.plot(dead[:, 0], dead[:, 1], ":", color="0.5", label="dead reckoning")
         ax.plot(*LANDMARKS.T, "k*", markersize=12, label="landmark (true)")

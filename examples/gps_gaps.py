@@ -1,4 +1,5 @@
-"""GPS fixes with hidden gaps: a smoother that reads the time stamps against one that counts rows.
+"""GPS fixes with hidden gaps: a smoother that reads the time stamps against one that counts rows
+==============================================================================================
 
 A car drives for about eight minutes. Its GPS (4 m noise) gives a fix
 every second, except that fixes go missing in silent gaps: the rows of the

@@ -1,4 +1,5 @@
-"""Learn the Nile's local level model from the data, as Durbin & Koopman (2012, section 2.10) do.
+"""Learn the Nile's local level model from the data, as Durbin & Koopman (2012, section 2.10) do
+=============================================================================================
 
 Maximum likelihood with the exact diffuse prior gives the published
 variances sigma²_eps = 15099 and sigma²_eta = 1469.1; EM climbs to the same

@@ -1,4 +1,5 @@
-"""filterpy's textbook Kalman filter loop, ported line for line to gaussfuse's online filter.
+"""filterpy's textbook Kalman filter loop, ported line for line to gaussfuse's online filter
+=========================================================================================
 
 The filterpy lines are in the comments (Labbe, "Kalman and Bayesian Filters in
 Python", chapter 6: a dog's position, measured with noise, constant

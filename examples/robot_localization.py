@@ -1,4 +1,5 @@
-"""Localise a differential-drive robot among known landmarks with an EKF and a UKF.
+"""Localise a differential-drive robot among known landmarks with an EKF and a UKF
+===============================================================================
 
 The robot's state is its pose [x, y, heading]. It drives on velocity
 commands; its wheel odometry reports the speed and turn rate u_k = [v, ω]
@@ -106,7 +107,7 @@ def _check(value, interval):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--plot", metavar="PATH", help="save a figure of the paths to PATH")
     args = parser.parse_args(argv)
 
@@ -140,13 +141,13 @@ def main(argv=None):
           " so the estimation errors come out a little smaller than the filters say.)")
 
     if args.plot:
-        from matplotlib.figure import Figure
+        import matplotlib.pyplot as plt  # a pyplot figure: shown by notebooks and the docs gallery, saved here
 
         from gaussfuse.diagnostics import chi2_interval, nees
         from gaussfuse.plotting import plot_consistency, plot_trajectory, save_figure
 
         ekf = results["ekf"]
-        fig = Figure(figsize=(12.0, 5.0), layout="constrained")
+        fig = plt.figure(figsize=(12.0, 5.0), layout="constrained")
         track, check = fig.subplots(1, 2, width_ratios=[1.0, 1.3])
         track.plot(dead[:, 0], dead[:, 1], ":", color="0.5", label="dead reckoning")
         track.plot(*LANDMARKS.T, "k*", markersize=10, label="landmark")

@@ -384,7 +384,24 @@ def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str 
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Wrap angles in radians to [-π, π)."""
+    """Wrap angles in radians to [-π, π).
+
+    Parameters
+    ----------
+    a : array_like
+        Angles in radians.
+
+    Returns
+    -------
+    ndarray
+        ``(a + π) mod 2π − π``, elementwise.
+
+    Examples
+    --------
+    >>> import gaussfuse as gf
+    >>> float(gf.wrap_angle(3.5))
+    -2.7831853071795862
+    """
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 

@@ -95,10 +95,21 @@ def nees(errors, covs) -> np.ndarray:
 def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[float, float]:
     """Two-sided interval for the average of `count` independent χ²_dof values.
 
+    Parameters
+    ----------
+    dof : int
+        Degrees of freedom of each value.
+    count : int, default 1
+        Number of values averaged.
+    confidence : float, default 0.95
+        Probability of the interval, in (0, 1).
+
     Returns
     -------
-    (low, high) : tuple of float
-        ``χ²_{count·dof}`` quantiles at (1 ∓ confidence)/2, divided by `count`.
+    low : float
+        The ``χ²_{count·dof}`` quantile at (1 - confidence)/2, divided by `count`.
+    high : float
+        The quantile at (1 + confidence)/2, divided by `count`.
 
     Examples
     --------
@@ -248,6 +259,22 @@ class DivergenceMonitor:
         tested once the first `window` updates are in, then every
         ``window // 2`` updates; consecutive failing windows are reported
         once, at the first.
+
+        Parameters
+        ----------
+        nis_value : float
+            The update's normalised innovation squared.
+        dof : int
+            Its number of observed components (its χ² degrees of freedom).
+        step : object
+            The update's label.
+
+        Returns
+        -------
+        tuple of (object, object, float) or None
+            ``(first, last, average)``: the labels of the failing window's
+            first and last updates and its average NIS per observed
+            component; None when no window newly fails here.
         """
         if dof == 0:
             return None
@@ -316,7 +343,24 @@ class DivergenceMonitor:
 
     @classmethod
     def for_check(cls, check) -> DivergenceMonitor | None:
-        """The monitor an online filter keeps for its `check` argument ("warn", "raise"; None for "off")."""
+        """The monitor an online filter keeps for its `check` argument ("warn", "raise"; None for "off").
+
+        Parameters
+        ----------
+        check : {"warn", "raise", "off"}
+            The filter's `check` argument.
+
+        Returns
+        -------
+        DivergenceMonitor or None
+            A monitor with that `check` and the default window and false
+            alarm rate; None for "off".
+
+        Raises
+        ------
+        ValueError
+            For any other `check`.
+        """
         if not isinstance(check, str) or check not in ("warn", "raise", "off"):
             raise ValueError(f"`check` must be one of ['warn', 'raise', 'off']; got {check!r}.")
         return None if check == "off" else cls(check=check)
@@ -325,6 +369,27 @@ class DivergenceMonitor:
         """:meth:`add` an update (a kalman.Update); warn or raise a DivergenceWarning when a window newly fails.
 
         `where` formats the failing window's first and last `step` labels.
+
+        Parameters
+        ----------
+        update : kalman.Update
+            The update; its `nis`, and its number of observed components
+            from the non-NaN entries of its `innovation`.
+        step : object
+            The update's label.
+        where : str
+            A format string with two fields, for the failing window's first
+            and last labels (e.g. ``"times {:g}-{:g}"``).
+
+        Raises
+        ------
+        DivergenceWarning
+            With ``check="raise"``, when a window newly fails.
+
+        Warns
+        -----
+        DivergenceWarning
+            With ``check="warn"``, when a window newly fails.
         """
         flagged = self.add(update.nis, int(np.sum(~np.isnan(update.innovation))), step)
         if flagged is None:
@@ -340,7 +405,7 @@ class DivergenceMonitor:
 class Whiteness:
     """Whiteness of the normalised innovations.
 
-    Attributes
+    Parameters
     ----------
     autocorrelation : ndarray of shape (lags,)
         Sample autocorrelation of the whitened innovations (pooled over
@@ -351,6 +416,8 @@ class Whiteness:
         Ljung–Box ``T (T + 2) Σ ρ_j² / (T - j)``, χ² with `lags` × m
         degrees of freedom summed over components.
     p_value : float
+        The probability of a statistic at least as large for white
+        innovations (χ² tail).
     white : bool
         ``p_value >= 1 - confidence``.
     """
@@ -366,6 +433,25 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     """Test one series' innovations (T, m) for whiteness (see the module notes).
 
     Steps with a missing component are left out.
+
+    Parameters
+    ----------
+    innovations : array_like of shape (T, m)
+        ``res.innovations`` of one series; NaN components are missing.
+    innovation_covs : array_like of shape (T, m, m)
+        ``res.innovation_covs``.
+    lags : int, default 10
+        Autocorrelation lags 1..lags, in [1, T' - 1] for the T' steps with
+        no missing component.
+    confidence : float, default 0.95
+        The test's confidence: the innovations are white when the p-value is
+        at least ``1 - confidence``; also sets the bound's normal quantile.
+
+    Returns
+    -------
+    Whiteness
+        The autocorrelations, their bound, the Ljung–Box statistic, its
+        p-value and the verdict.
     """
     from scipy.stats import chi2, norm
 
@@ -408,18 +494,27 @@ def rmse(estimates, truth, axis=None) -> np.ndarray | float:
 class ConsistencyReport:
     """What :func:`consistency` finds; ``str(report)`` is a short table.
 
-    Attributes
+    Parameters
     ----------
-    nis, nis_interval, nis_ok
-        Average NIS over every step and run, its χ² interval, and whether
-        it lies inside.
-    nees, nees_interval, nees_ok
-        The same for NEES (None without the truth).
+    nis : float
+        Average NIS over every observed step and run.
+    nis_interval : tuple of float
+        Its χ² interval ``(low, high)``.
+    nis_ok : bool
+        Whether `nis` lies inside.
+    nees : float or None
+        Average NEES over every step and run (None without the truth).
+    nees_interval : tuple of float or None
+        Its χ² interval (None without the truth).
+    nees_ok : bool or None
+        Whether `nees` lies inside (None without the truth).
     whiteness : Whiteness or None
-        Of the first run's innovations.
+        Of the first run's innovations (None with fewer than 10 steps
+        without a missing component).
     rmse : float or None
         Of the means, with the truth.
     runs : int
+        Number of runs (series).
     """
 
     nis: float

@@ -71,10 +71,14 @@ class Forecast:
         level : float, default 0.95
             In (0, 1).
         of : {"measurements", "states"}, default "measurements"
+            The intervals of the predicted measurements or of the states.
 
         Returns
         -------
-        lower, upper : ndarrays of shape (k, m) or (k, n)
+        lower : ndarray of shape (k, m) or (k, n)
+            ``mean - z σ``, of the measurements (m) or the states (n).
+        upper : ndarray of shape (k, m) or (k, n)
+            ``mean + z σ``.
         """
         if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not 0.0 < level < 1.0:
             raise ValueError(f"`level` must be a number in (0, 1); got {level!r}.")

@@ -48,7 +48,7 @@ __all__ = ["Measurement", "Fused", "fuse_timeline", "Fuser"]
 class Measurement(NamedTuple):
     """One timestamped measurement from a named sensor.
 
-    Attributes
+    Parameters
     ----------
     t : float
         Time of the measurement.
@@ -533,7 +533,19 @@ class Fuser:
         self.t = t
 
     def predict(self, t: float) -> Gaussian:
-        """Move the belief to time `t` (>= the current time) and return it."""
+        """Move the belief to time `t` (>= the current time) and return it.
+
+        Parameters
+        ----------
+        t : float or datetime
+            The time to predict to, >= the current time :attr:`t` (seconds,
+            or a datetime, as `t0`).
+
+        Returns
+        -------
+        Gaussian
+            The predicted belief, also in :attr:`belief`.
+        """
         self._advance(_time("t", t), "t")
         return self.belief
 

@@ -92,6 +92,17 @@ class Gaussian:
         """Log-density at `x`, array_like of shape (n,) or (k, n).
 
         Uses a Cholesky factor of the covariance, which must be positive definite.
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (k, n)
+            A point, or k points. For n = 1 a scalar is a point too, and a
+            1-D array of length k > 1 is k points.
+
+        Returns
+        -------
+        float or ndarray of shape (k,)
+            The log-density at the point, or at each of the k points.
         """
         x = as_array("x", x)
         if x.ndim > 2 or (x.shape[-1:] != (self.dim,) and not (self.dim == 1 and x.ndim <= 1)):
@@ -108,6 +119,18 @@ class Gaussian:
         `size` is None or a non-negative integer (0 gives an empty (0, n)
         array). A singular covariance (a belief certain in some direction)
         is factorised by its eigendecomposition instead of Cholesky.
+
+        Parameters
+        ----------
+        size : int, optional
+            Number of samples, >= 0; None for a single one.
+        rng : int, numpy.random.Generator or None, optional
+            Seed or generator, as for :func:`numpy.random.default_rng`.
+
+        Returns
+        -------
+        ndarray of shape (n,) or (size, n)
+            The samples.
 
         Raises
         ------

@@ -179,7 +179,7 @@ class InputFileError(ValueError):
 class Measurements(NamedTuple):
     """What :func:`read_measurements` returns.
 
-    Attributes
+    Parameters
     ----------
     times : ndarray of shape (T,)
         Strictly increasing times.
@@ -187,7 +187,7 @@ class Measurements(NamedTuple):
         Measurements; NaN where a component is missing.
     columns : list of str
         The time column's name, then the m measurement columns' names.
-    time_text : list of str
+    time_text : list of str, optional
         The time cells as written, for output that keeps them verbatim.
     """
 
@@ -256,6 +256,14 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
 
     Parameters
     ----------
+    path : str or os.PathLike
+        The CSV file.
+    m : int, optional
+        The number of measurement components, as for :func:`read_measurements`.
+    time_column : str, optional
+        The time column's name, as for :func:`read_measurements`.
+    columns : sequence of str, optional
+        The measurement columns, as for :func:`read_measurements`.
     rows : int, default CHUNK_ROWS
         The most rows per piece (positive).
 
@@ -477,7 +485,7 @@ def _parse_row(path, line: int, header: list[str], time_col: int, wanted: list[i
 class ModelFile(NamedTuple):
     """What :func:`read_model` returns.
 
-    Attributes
+    Parameters
     ----------
     model : LinearModel
         The model, with state dimension n.
@@ -486,7 +494,7 @@ class ModelFile(NamedTuple):
         when the file has no ``[prior]``.
     state_names : list of str
         n names, one per state.
-    timed : TimedModel or None
+    timed : TimedModel or None, optional
         For a named model (``kind = ...``), its motion and sensor without
         the time step: discretised for each step of the data's times.
         None for explicit matrices.
@@ -509,7 +517,7 @@ def read_model(path: StrPath) -> ModelFile:
     Returns
     -------
     ModelFile
-        ``(model, prior, state_names)``.
+        ``(model, prior, state_names, timed)``.
 
     Raises
     ------

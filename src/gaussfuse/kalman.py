@@ -36,9 +36,9 @@ _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 
 
 class Update(NamedTuple):
-    """What one measurement update returns.
+    r"""What one measurement update returns.
 
-    Attributes
+    Parameters
     ----------
     mean : array of shape (n,)
         Posterior mean.
@@ -51,12 +51,12 @@ class Update(NamedTuple):
     loglik : float
         ``log N(z_o; H_o m + d_o, S_o)`` over the observed components ``o``
         (0.0 when nothing was observed).
-    gain : ndarray of shape (n, |o|), or None
-        The gain applied, over the observed components (None when nothing
-        was observed).
+    gain : ndarray of shape (n, k), or None
+        The gain applied, over the k observed components ``o`` (None when
+        nothing was observed).
     nis : float
         The normalised innovation squared :math:`v^\top S_{oo}^{-1} v`, χ² with
-        |o| degrees of freedom for a consistent filter (NaN when nothing was
+        k degrees of freedom for a consistent filter (NaN when nothing was
         observed).
     rejected : ndarray of bool, shape (m,), or None
         With a :class:`Gate`: the components it rejected (treated as
@@ -110,7 +110,23 @@ def predict(
 
 
 def predict_mean(mean: np.ndarray, A: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
-    """The mean half of :func:`predict`: ``A m + b``."""
+    """The mean half of :func:`predict`: ``A m + b``.
+
+    Parameters
+    ----------
+    mean : array of shape (n,)
+        Mean :math:`m`.
+    A : array of shape (r, n)
+        Linear map: the transition matrix (r = n), or H for the predicted
+        measurement.
+    b : array of shape (r,), optional
+        Offset; none is added when None.
+
+    Returns
+    -------
+    array of shape (r,)
+        ``A m + b``.
+    """
     return A @ mean if b is None else A @ mean + b
 
 
@@ -171,8 +187,9 @@ def update(
     Measured against a 50-digit filter (``tests/test_kalman.py``), it is about
     100 times closer than the symmetrised ``P - K H P`` when the prior
     variance is 10⁸ times the sensor's (1.5e-10 relative), but it is not proof
-    against round-off: with a prior of 10¹² and a sensor variance of 10⁻⁶ its
-    variances are 74% off and the covariance indefinite (use
+    against round-off: with a prior of 10¹² and a sensor variance of 10⁻⁶,
+    the first update is accurate but its variances drift from the second on,
+    to 74% off by the 40th step, the covariance indefinite (use
     :func:`update_sqrt` there). The update is the product of the predicted
     Gaussian and the measurement likelihood.
 
@@ -201,7 +218,7 @@ class Gain(NamedTuple):
     It depends on the predicted covariance, H, R and which components are
     observed; :func:`apply_gain` applies it to a prediction and a measurement.
 
-    Attributes
+    Parameters
     ----------
     K : ndarray of shape (n, m_o), or None
         The gain, over the observed components (None when none is).
@@ -226,7 +243,18 @@ class Gain(NamedTuple):
 
 
 def observed_components(z: np.ndarray) -> np.ndarray | None:
-    """The components of `z` that are not NaN: None when all are (the common case), else a mask."""
+    """The components of `z` that are not NaN: None when all are (the common case), else a mask.
+
+    Parameters
+    ----------
+    z : array of shape (m,)
+        Measurement; NaN components are missing.
+
+    Returns
+    -------
+    ndarray of bool, shape (m,), or None
+        True where `z` is not NaN; None when no component is NaN.
+    """
     total = z.sum()
     return None if total == total else ~np.isnan(z)
 
@@ -238,6 +266,25 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     With `K` (n, m), that gain's columns for the observed components are
     applied instead of the optimal gain; the Joseph form is the covariance of
     the estimator it gives.
+
+    Parameters
+    ----------
+    cov : array of shape (n, n)
+        Predicted covariance :math:`P^-`.
+    H : array of shape (m, n)
+        Measurement matrix.
+    R : array of shape (m, m)
+        Measurement-noise covariance.
+    observed : array of bool, shape (m,), optional
+        The observed components (:func:`observed_components`); None: all.
+    K : array of shape (n, m), optional
+        A gain to apply instead of the optimal one.
+
+    Returns
+    -------
+    Gain
+        The gain, the posterior covariance and the innovation covariance;
+        with nothing observed, no gain and `cov` unchanged.
     """
     HP = H @ cov
     S_full = symmetrize(HP @ H.T + R)
@@ -271,11 +318,38 @@ def _innovation(mean, z, H, d, angles, observed) -> tuple[np.ndarray, np.ndarray
 
 def apply_gain(g: Gain | SqrtGain, mean: np.ndarray, z: np.ndarray, H: np.ndarray, d: np.ndarray | None = None,
                angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The mean half of :func:`update` and :func:`update_sqrt`: the posterior mean, the innovation, the
+    r"""The mean half of :func:`update` and :func:`update_sqrt`: the posterior mean, the innovation, the
     log-likelihood term and the NIS.
 
     With a :class:`SqrtGain` the mean is :math:`m^- + \bar K (L_S^{-1} v)`, from the
     factors; with a :class:`Gain`, :math:`m^- + K v`.
+
+    Parameters
+    ----------
+    g : Gain or SqrtGain
+        The covariance half (:func:`gain` or :func:`sqrt_gain`), computed
+        for the components `z` observes.
+    mean : array of shape (n,)
+        Predicted mean :math:`m^-`.
+    z : array of shape (m,)
+        Measurement; NaN components are missing.
+    H : array of shape (m, n)
+        Measurement matrix.
+    d : array of shape (m,), optional
+        Measurement offset.
+    angles : array of bool, shape (m,), optional
+        Components that are angles: their innovation is wrapped to [-π, π).
+
+    Returns
+    -------
+    mean : array of shape (n,)
+        Posterior mean (`mean` itself when nothing was observed).
+    innovation : array of shape (m,)
+        ``z - (H m + d)``; NaN in the missing components.
+    loglik : float
+        Log-likelihood term of the observed components (0.0 when none is).
+    nis : float
+        Normalised innovation squared (NaN when nothing was observed).
     """
     sqrt = isinstance(g, SqrtGain)
     innovation, v = _innovation(mean, z, H, d, angles, g.observed)
@@ -344,6 +418,20 @@ def fuse_moments(
 ) -> tuple[np.ndarray, np.ndarray]:
     r"""Moments of the (normalised) product of two Gaussians on one variable.
 
+    Parameters
+    ----------
+    mean_a, cov_a : arrays of shape (n,), (n, n)
+        The first Gaussian, :math:`N(a, A)`.
+    mean_b, cov_b : arrays of shape (n,), (n, n)
+        The second, :math:`N(b, B)`.
+
+    Returns
+    -------
+    mean : array of shape (n,)
+        :math:`\mu`.
+    cov : array of shape (n, n)
+        :math:`\Sigma`.
+
     Notes
     -----
     The product :math:`N(x; a, A)\, N(x; b, B)` is proportional to a Gaussian;
@@ -405,7 +493,18 @@ class Gate:
         return f"Gate({self.probability!r}, by={self.by!r})"
 
     def quantile(self, dof: int) -> float:
-        """The `probability` quantile of χ² with `dof` degrees of freedom."""
+        """The `probability` quantile of χ² with `dof` degrees of freedom.
+
+        Parameters
+        ----------
+        dof : int
+            Degrees of freedom, >= 1.
+
+        Returns
+        -------
+        float
+            The quantile, computed once per `dof`.
+        """
         if dof not in self._quantiles:
             from scipy.special import chdtri  # SciPy only once a gate is used
 
@@ -414,7 +513,20 @@ class Gate:
 
     @classmethod
     def of(cls, probability: float | None, by: str = "measurement") -> Gate | None:
-        """The gate of a `gate=`/`gate_by=` pair of arguments, or None without `probability` (`by` checked even then)."""
+        """The gate of a `gate=`/`gate_by=` pair of arguments, or None without `probability` (`by` checked even then).
+
+        Parameters
+        ----------
+        probability : float or None
+            The `gate=` argument, in (0, 1); None for no gate.
+        by : {"measurement", "component"}, default "measurement"
+            The `gate_by=` argument.
+
+        Returns
+        -------
+        Gate or None
+            The gate; None when `probability` is None.
+        """
         gate = cls(0.5 if probability is None else probability, by)
         return None if probability is None else gate
 
@@ -452,18 +564,22 @@ class Gate:
 
 
 class SqrtUpdate(NamedTuple):
-    """What one square-root update returns: :class:`Update` with the posterior's factor.
+    r"""What one square-root update returns: :class:`Update` with the posterior's factor.
 
-    Attributes
+    Parameters
     ----------
     mean : ndarray of shape (n,)
+        Posterior mean.
     factor : ndarray of shape (n, n)
         Lower triangular, :math:`P = L L^\top`.
     innovation : ndarray of shape (m,)
+        As :class:`Update`'s.
     innovation_cov : ndarray of shape (m, m)
+        As :class:`Update`'s.
     loglik : float
-    gain : ndarray of shape (n, |o|), or None
-        :math:`K = \bar K L_S^{-1}` over the observed components.
+        As :class:`Update`'s.
+    gain : ndarray of shape (n, k), or None
+        :math:`K = \bar K L_S^{-1}` over the k observed components.
     nis : float
         :math:`e^\top e`, the normalised innovation squared (NaN when nothing was observed).
     rejected : ndarray of bool, shape (m,), or None
@@ -482,6 +598,18 @@ class SqrtUpdate(NamedTuple):
 
 def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
     """A lower-triangular square root of a positive semi-definite covariance (Cholesky, or its semi-definite form).
+
+    Parameters
+    ----------
+    cov : array of shape (n, n)
+        Symmetric positive semi-definite covariance.
+    name : str, default "the covariance"
+        What `cov` is, for the error message.
+
+    Returns
+    -------
+    ndarray of shape (n, n)
+        Lower triangular L with ``L Lᵀ = cov``.
 
     Raises
     ------
@@ -608,9 +736,9 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
 
 
 class SqrtGain(NamedTuple):
-    """The half of :func:`update_sqrt` that does not depend on the measured values (as :class:`Gain`).
+    r"""The half of :func:`update_sqrt` that does not depend on the measured values (as :class:`Gain`).
 
-    Attributes
+    Parameters
     ----------
     Kbar : ndarray of shape (n, m_o), or None
         :math:`\bar K = P^- H_o^\top L_S^{-\top}` (None when nothing is observed).
@@ -619,7 +747,9 @@ class SqrtGain(NamedTuple):
     factor : ndarray of shape (n, n)
         The posterior factor L.
     innovation_cov : ndarray of shape (m, m)
-    observed : ndarray of bool, or None
+        ``S = H P Hᵀ + R`` over all m components.
+    observed : ndarray of bool, shape (m,), or None
+        The observed components; None when all are.
     K : ndarray of shape (n, m_o), or None
         :math:`\bar K L_S^{-1}`.
     """
@@ -634,7 +764,33 @@ class SqrtGain(NamedTuple):
 
 def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed: np.ndarray | None = None,
               R_minus: np.ndarray | None = None) -> SqrtGain:
-    """The factor half of :func:`update_sqrt` (see its Notes), over the `observed` components (all if None)."""
+    r"""The factor half of :func:`update_sqrt` (see its Notes), over the `observed` components (all if None).
+
+    Parameters
+    ----------
+    factor : array of shape (n, n)
+        :math:`L^-`, the factor of the predicted covariance.
+    H : array of shape (m, n)
+        Measurement matrix.
+    R_factor : array of shape (m, r)
+        :math:`L_R` with :math:`R = L_R L_R^\top`.
+    observed : array of bool, shape (m,), optional
+        The observed components (:func:`observed_components`); None: all.
+    R_minus : array of shape (m, r'), optional
+        :math:`D_R`, when the noise is :math:`L_R L_R^\top - D_R D_R^\top`.
+
+    Returns
+    -------
+    SqrtGain
+        The gain and the posterior factor; with nothing observed, no gain
+        and `factor` unchanged.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the innovation covariance of the observed components is not
+        positive definite.
+    """
     HL = H @ factor
     noise = R_factor @ R_factor.T if R_minus is None else R_factor @ R_factor.T - R_minus @ R_minus.T
     innovation_cov = symmetrize(HL @ HL.T + noise)
@@ -810,7 +966,7 @@ def backward_conditional(filt_mean: np.ndarray, filt_factor: np.ndarray, next_st
 class Step(NamedTuple):
     """What one :func:`step` returns.
 
-    Attributes
+    Parameters
     ----------
     predicted_mean, predicted_cov : ndarray of shape (n,), (n, n)
         The prediction :math:`(m^-_k, P^-_k)`.
@@ -908,6 +1064,19 @@ def transition_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, factor
     A strategy that reads the belief's covariance (sigma points) regresses
     on its factor (``lin.transition_sqrt``); for the others, ``L_Q`` is the
     factor of their Q (:class:`Factors`) and ``D_Q`` is None.
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The belief's mean after step k - 1.
+    factor : array of shape (n, n)
+        The Cholesky factor of its covariance.
+    factors : Factors
+        The cache of the factors of Q.
     """
     if hasattr(lin, "transition_sqrt"):
         return lin.transition_sqrt(k, mean, factor, factors)
@@ -916,7 +1085,21 @@ def transition_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, factor
 
 
 def measurement_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors):
-    """Step k's measurement for the square-root form: ``(H, d, L_R, D_R)`` (see :func:`transition_factors`)."""
+    """Step k's measurement for the square-root form: ``(H, d, L_R, D_R)`` (see :func:`transition_factors`).
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The predicted mean of step k.
+    factor : array of shape (n, n)
+        The Cholesky factor of the predicted covariance.
+    factors : Factors
+        The cache of the factors of R.
+    """
     if hasattr(lin, "measurement_sqrt"):
         return lin.measurement_sqrt(k, mean, factor, factors)
     H, d, R = lin.measurement(k, mean, None)
@@ -929,6 +1112,31 @@ def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Fa
 
     With `steady` (:class:`SteadyState`, holding factors), a factor at its
     fixed point predicts to the fixed point's prediction.
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The belief's mean after step k - 1.
+    factor : array of shape (n, n)
+        The Cholesky factor of its covariance.
+    factors : Factors
+        The cache of the factors of Q.
+    angles : array of bool, shape (n,), optional
+        State components that are angles: the predicted mean's are wrapped
+        to [-π, π).
+    steady : SteadyState, optional
+        What may be reused at a fixed point.
+
+    Returns
+    -------
+    mean : array of shape (n,)
+        The predicted mean.
+    factor : array of shape (n, n)
+        The Cholesky factor of the predicted covariance.
     """
     A, b, LQ, DQ = transition_factors(lin, k, mean, factor, factors)
     if steady is not None and factor is steady.cov:
@@ -949,6 +1157,33 @@ def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarra
     made, and a fixed point is recorded when the posterior's covariance
     ``L Lᵀ`` is the one the prediction started from (:meth:`SteadyState.holds`).
     With `gate` (:class:`Gate`), the components it rejects are missing.
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The predicted mean.
+    factor : array of shape (n, n)
+        The Cholesky factor of the predicted covariance.
+    z : array of shape (m,)
+        The measurement; NaN components are missing.
+    factors : Factors
+        The cache of the factors of R.
+    state_angles, measurement_angles : array of bool, optional
+        Components that are angles: wrapped to [-π, π).
+    steady : SteadyState, optional
+        What may be reused at a fixed point.
+    gate : Gate, optional
+        Measurement components it rejects are treated as missing
+        (``rejected`` says which).
+
+    Returns
+    -------
+    SqrtUpdate
+        The posterior, its mean wrapped to the state angles.
     """
     H, d, LR, DR = measurement_factors(lin, k, mean, factor, factors)
     rejected = None
@@ -983,6 +1218,32 @@ def step_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarray, 
     factors: ``predicted_cov`` is :math:`L^-_k` and ``update`` a
     :class:`SqrtUpdate`.
 
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The belief's mean after step k - 1.
+    factor : array of shape (n, n)
+        The Cholesky factor of its covariance.
+    z : array of shape (m,)
+        The measurement; NaN components are missing.
+    factors : Factors
+        The cache of the factors of Q and R.
+    state_angles, measurement_angles : array of bool, optional
+        Components that are angles: wrapped to [-π, π).
+    steady : SteadyState, optional
+        What may be reused at a fixed point (see :func:`step`).
+    gate : Gate, optional
+        Measurement components it rejects are treated as missing.
+
+    Returns
+    -------
+    Step
+        With ``passes`` 1 and ``converged`` True.
+
     Raises
     ------
     numpy.linalg.LinAlgError
@@ -1012,6 +1273,14 @@ class SteadyState:
     components would compute the same covariances, gain and factor again,
     up to round-off: they are reused, and only the means are computed (a
     few products instead of a Cholesky factorisation and the Joseph form).
+
+    Parameters
+    ----------
+    target : ndarray of shape (n, n), optional
+        The stationary filtered covariance, for the steady-state filter
+        (see the attribute `target`).
+    tol : float, optional
+        The tolerance of the fixed-point test; ``SETTLED`` by default.
 
     Notes
     -----
@@ -1065,6 +1334,21 @@ class SteadyState:
 
         `previous` is the covariance the prediction started from, when
         :attr:`previous` holds its factor (the square-root form).
+
+        Parameters
+        ----------
+        cov : ndarray of shape (n, n)
+            The posterior covariance.
+        previous : ndarray of shape (n, n), optional
+            The covariance the prediction started from; the attribute
+            `previous` by default. Not used with a `target`, which `cov` is
+            compared with instead.
+
+        Returns
+        -------
+        bool
+            Whether `cov` equals `target` (or else the previous
+            covariance) to within `tol` (:func:`settled`).
         """
         old = (self.previous if previous is None else previous) if self.target is None else self.target
         return settled(cov, old, self.tol)
@@ -1106,6 +1390,31 @@ def forecast(lin, k: int, mean: np.ndarray, cov: np.ndarray, angles=None, check:
     (:func:`step` checks it only when the update fails, which it then does).
     With `steady` (see :class:`SteadyState`), a covariance at its fixed point
     predicts to the fixed point's prediction, without computing it again.
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The belief's mean after step k - 1.
+    cov : array of shape (n, n)
+        Its covariance.
+    angles : array of bool, shape (n,), optional
+        State components that are angles: the predicted mean's are wrapped
+        to [-π, π).
+    check : bool, default True
+        Raise FloatingPointError for a prediction that is not finite.
+    steady : SteadyState, optional
+        What may be reused at a fixed point.
+
+    Returns
+    -------
+    mean : array of shape (n,)
+        The predicted mean.
+    cov : array of shape (n, n)
+        The predicted covariance.
     """
     A, b, Q = lin.transition(k, mean, cov)
     if steady is not None and cov is steady.cov:
@@ -1141,6 +1450,31 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
 
     With `gate` (:class:`Gate`), the components it rejects at the first
     linearisation (at the prediction) are missing for every pass.
+
+    Parameters
+    ----------
+    lin : linearisation strategy
+        Step k's model made affine around a belief, as for :func:`step`.
+    k : int
+        The step.
+    mean : array of shape (n,)
+        The predicted mean.
+    cov : array of shape (n, n)
+        The predicted covariance.
+    z : array of shape (m,)
+        The measurement; NaN components are missing.
+    iterations : int, default 1
+        The most passes.
+    tol : float, optional
+        Stop after the first pass whose change is at most `tol`; None: all
+        `iterations` passes are made.
+    state_angles, measurement_angles : array of bool, optional
+        Components that are angles: wrapped to [-π, π).
+    steady : SteadyState, optional
+        What may be reused at a fixed point; used with one iteration only.
+    gate : Gate, optional
+        Measurement components it rejects are treated as missing
+        (``post.rejected`` says which).
 
     Returns
     -------
@@ -1220,6 +1554,24 @@ def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 
     when one of its terms is not (or, for a belief within a factor 2 of the
     largest float, 1.8e308, when their sum overflows: then the next step
     would). An inf or NaN covariance has one on its diagonal.
+
+    Parameters
+    ----------
+    stage : str
+        "predicted", "filtered" or "smoothed", for the error message.
+    mean : array of shape (n,)
+        The belief's mean.
+    cov : array of shape (n, n)
+        Its covariance, or with `factor` its factor L.
+    loglik : float, default 0.0
+        A log-likelihood term, checked too.
+    factor : bool, default False
+        Whether `cov` is a covariance factor.
+
+    Raises
+    ------
+    FloatingPointError
+        When the sum is not finite.
     """
     total = mean.sum() + ((cov * cov).sum() if factor else cov.trace()) + loglik
     if total - total != 0.0:
@@ -1239,6 +1591,18 @@ def iterate_changed(cov: np.ndarray):
     deviations of P. A component that changed by no more than its round-off,
     ``4 ε max(|new|, |old|)``, counts as unchanged, so that a component whose
     variance is itself round-off does not keep the iteration going.
+
+    Parameters
+    ----------
+    cov : array of shape (n, n)
+        The covariance P of the norm, positive semi-definite.
+
+    Returns
+    -------
+    callable
+        ``changed(new, old, angles=None) -> float``, with `new` and `old`
+        of shape (n,) and `angles` the state components whose difference
+        is wrapped to [-π, π).
     """
     try:
         L = np.linalg.cholesky(cov)

@@ -1420,7 +1420,7 @@ def fit(
     if not converged and not message.startswith("interrupted") and not (method == "em" and tol == 0):
         how = "EM" if method == "em" else "maximum likelihood"
         warnings.warn(ConvergenceWarning(
-            f"{how} did not converge: {message}. The result is the best model found (loglik "
+            f"{how} did not converge: {message.rstrip('.')}. The result is the best model found (loglik "
             f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model."), stacklevel=2)
     return FitResult(model, prior, float(history[-1]), history, method, converged, message, errors,
                      params=dict(zip(names, map(float, values))), bse=dict(zip(names, map(float, bse))),

@@ -152,6 +152,7 @@ class KalmanFilter:
 
     @property
     def belief(self) -> Gaussian:
+        """The current belief, including changes made in place to :attr:`x` and :attr:`P`; settable."""
         self._adopt_views()
         return self._belief
 
@@ -163,6 +164,7 @@ class KalmanFilter:
 
     @property
     def x(self) -> np.ndarray:
+        """The belief's mean, shape (n,): a writable copy whose in-place changes count; settable."""
         return self._view("x", self.belief.mean)
 
     @x.setter
@@ -172,6 +174,7 @@ class KalmanFilter:
 
     @property
     def P(self) -> np.ndarray:
+        """The belief's covariance, shape (n, n): a writable copy whose in-place changes count; settable."""
         return self._view("P", self.belief.cov)
 
     @P.setter
@@ -195,6 +198,7 @@ class KalmanFilter:
 
     @property
     def L(self) -> np.ndarray:
+        """A lower-triangular factor of the belief's covariance, ``P = L Lᵀ``, shape (n, n)."""
         belief = self.belief
         if self._factor is None or self._factor[0] is not belief:  # a belief set by hand, or the prior
             self._factor = (belief, kalman.cov_factor(belief.cov, "the belief's covariance"))

@@ -570,7 +570,7 @@ def hold_fixed(fx, w, post_cov, pred_cov, S_full, z, mo):
 
 @jit(inline="always", **_JIT)
 def steady_update(fx, w, mean, z, H, d, angles, post_mean, innovation, factors=False):
-    """:func:`update` of the fixed point's prediction ``fx.pred_cov``, reusing its gain: the means only.
+    r""":func:`update` of the fixed point's prediction ``fx.pred_cov``, reusing its gain: the means only.
 
     With `factors` (the square-root form, whose :class:`Fixed` holds the
     factors, :math:`\bar K^\top` and :math:`L_S`), the mean is

@@ -60,12 +60,6 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         One of ``METHODS``: ``"kf"`` (the default for a LinearModel) or,
         for a NonlinearModel, ``"ekf"``, ``"iekf"``, ``"ukf"`` (default),
         ``"ckf"``, ``"ghkf"`` or ``"iplf"``.
-    **options
-        Method options: ``iterations`` (iekf, iplf: the most update
-        iterations per step, default 50) and ``tol`` (iekf, iplf: default
-        1e-9; see Notes); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0,
-        3 - n); ``order`` (ghkf, iplf: Gauss–Hermite points per axis,
-        default 3). An unknown one is rejected with the list of valid ones.
     engine : {"auto", "python", "numba"}, default "auto"
         ``"python"`` is the readable implementation, the specification;
         ``"numba"`` runs compiled kernels (methods "kf", with series in
@@ -134,6 +128,12 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
         (:mod:`gaussfuse.inference.timing`). Required by a TimedModel; a
         model with fixed matrices takes only regular times (at its ``dt``,
         if it records one), and says how to fix irregular ones.
+    **options
+        Method options: ``iterations`` (iekf, iplf: the most update
+        iterations per step, default 50) and ``tol`` (iekf, iplf: default
+        1e-9; see Notes); ``alpha``, ``beta``, ``kappa`` (ukf; defaults 1, 0,
+        3 - n); ``order`` (ghkf, iplf: Gauss–Hermite points per axis,
+        default 3). An unknown one is rejected with the list of valid ones.
 
     Returns
     -------
@@ -226,7 +226,7 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
            gate_by: str = "measurement", times=None, **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.
 
-    Takes the same arguments as :func:`filter` but `keep`. Every method ends in the
+    Every method ends in the
     Rauch–Tung–Striebel backward pass (:func:`gaussfuse.kalman.rts_step`):
     exact for ``"kf"``; with the transition re-linearised at each filtered
     belief for ``"ekf"``, ``"ukf"``, ``"ckf"`` and ``"ghkf"``. The iterated
@@ -241,6 +241,34 @@ def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     With ``form="sqrt"`` the backward pass runs on Cholesky factors
     (:func:`gaussfuse.kalman.rts_step_sqrt`), and the result holds them in
     ``cov_factors``.
+
+    Parameters
+    ----------
+    model : LinearModel, NonlinearModel or TimedModel
+        As for :func:`filter`.
+    prior : Gaussian or "diffuse"
+        As for :func:`filter`.
+    zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
+        As for :func:`filter` (pandas and dask arrays too).
+    us : array_like of shape (T, p) or (N, T, p), optional
+        As for :func:`filter`.
+    method : str, optional
+        As for :func:`filter`; the smoother of that method.
+    engine : {"auto", "python", "numba"}, default "auto"
+        As for :func:`filter`.
+    form : {"cov", "sqrt"}, default "cov"
+        As for :func:`filter`; "sqrt" smooths on Cholesky factors.
+    check : {"warn", "raise", "off"}, default "warn"
+        The divergence test of the forward pass, as for :func:`filter`.
+    gate : float, optional
+        As for :func:`filter`: what the forward pass rejects, the backward
+        pass leaves out too.
+    gate_by : {"measurement", "component"}, default "measurement"
+        As for :func:`filter`.
+    times : array_like, optional
+        As for :func:`filter`.
+    **options
+        Method options, as for :func:`filter`.
 
     Returns
     -------

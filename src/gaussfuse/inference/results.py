@@ -22,7 +22,7 @@ KEEP = ("all", "means", "last")
 
 @dataclass(frozen=True, eq=False)
 class FilterResult:
-    """The output of :func:`filter`.
+    r"""The output of :func:`filter`.
 
     With a leading series axis on the measurements (N series), every array
     gains that axis and `loglik` has shape (N,).
@@ -169,7 +169,21 @@ class SmoothResult:
         return self.filtered.loglik
 
     def to_pandas(self, covariances: bool = False, names=None):
-        """The smoothed means and standard deviations as a pandas DataFrame (see :meth:`FilterResult.to_pandas`)."""
+        """The smoothed means and standard deviations as a pandas DataFrame (see :meth:`FilterResult.to_pandas`).
+
+        Parameters
+        ----------
+        covariances : bool, default False
+            Also the covariances, one column ``cov_a_b`` per pair of components.
+        names : sequence of str, optional
+            The state components' names (default: the model's, else x0, x1, ...).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``name`` and ``name_sd`` per component; the index of a
+            Series or DataFrame given as `zs` (else 0..T-1).
+        """
         from .frames import to_frame
 
         return to_frame(self.means, self.covs, self.filtered.table, names or self.filtered.state_names, covariances)

@@ -167,10 +167,12 @@ class TimedModel(Frozen):
 
     @property
     def n(self) -> int:
+        """State dimension, the motion's n."""
         return self.motion.n
 
     @property
     def m(self) -> int:
+        """Measurement dimension, the sensor's m."""
         return self.sensor.m
 
     @property
@@ -186,6 +188,25 @@ class TimedModel(Frozen):
         time-invariant model when every dt is the same). Otherwise a
         :class:`NonlinearModel` whose f takes ``u_k = [dt_k, *controls_k]``,
         returned with those controls.
+
+        Parameters
+        ----------
+        dts : array_like of shape (T,)
+            The step sizes :math:`dt_k`, > 0.
+        us : array_like of shape (T, p) or (N, T, p), optional
+            The controls of the steps (of N series), for a motion with a
+            control input.
+
+        Returns
+        -------
+        model : LinearModel or NonlinearModel
+            The model of the T steps.
+        controls : ndarray or None
+            The controls to filter it with: `us` as given when the model is
+            a LinearModel or one built by :func:`model` for the single dt
+            of all steps (it records that ``dt``); otherwise the
+            ``u_k = [dt_k, *us_k]`` its f takes, of shape (T, 1 + p), or
+            (N, T, 1 + p) for N series ((T, 1) without `us`).
         """
         dts = np.asarray(dts, dtype=np.float64)
         unique, index = np.unique(dts, return_inverse=True)
@@ -382,6 +403,7 @@ class Stacked(NonlinearSensor):
 
     @property
     def slots(self) -> dict[str, slice]:
+        """Each sensor's components in the stacked measurement vector, by name."""
         out, start = {}, 0
         for name, sensor in self.sensors:
             out[name] = slice(start, start + sensor.m)
@@ -390,23 +412,38 @@ class Stacked(NonlinearSensor):
 
     @property
     def m(self) -> int:
+        """Measurement dimension, the sum of the sensors' m."""
         return sum(sensor.m for _, sensor in self.sensors)
 
     @property
     def names(self) -> tuple[str, ...]:
+        """The stacked components' names, ``"<sensor>.<component>"``."""
         return _stacked_names(dict(self.sensors))
 
     @property
     def R(self) -> np.ndarray:
+        """Block-diagonal measurement-noise covariance of shape (m, m), the sensors' R in order."""
         return _block_diagonal([np.asarray(sensor.R, dtype=float) for _, sensor in self.sensors])
 
     @property
     def measurement_angles(self) -> tuple[int, ...]:
+        """The sensors' angle components, as indices into the stacked measurement vector."""
         return tuple(slot.start + int(i) for slot, (_, sensor) in zip(self.slots.values(), self.sensors)
                      for i in sensor.measurement_angles)
 
     def h(self, x) -> np.ndarray:
-        """Every sensor's noise-free measurement of x (n,) or of each state of a stack (k, n), stacked."""
+        """Every sensor's noise-free measurement of x (n,) or of each state of a stack (k, n), stacked.
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (k, n)
+            A state, or a stack of k states.
+
+        Returns
+        -------
+        ndarray of shape (m,) or (k, m)
+            The sensors' measurements, in the order of :attr:`slots`.
+        """
         x = np.asarray(x)
         out = np.empty((*x.shape[:-1], self.m), dtype=np.result_type(x, np.float64))
         for slot, (name, sensor) in zip(self.slots.values(), self.sensors):
@@ -418,7 +455,18 @@ class Stacked(NonlinearSensor):
         return out
 
     def jacobian(self, x) -> np.ndarray:
-        """The stacked Jacobian at x (n,), shape (m, n)."""
+        """The stacked Jacobian at x (n,), shape (m, n).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,)
+            The state at which it is taken.
+
+        Returns
+        -------
+        ndarray of shape (m, n)
+            The sensors' Jacobians (H for a linear one), stacked by rows.
+        """
         out = np.empty((self.m, self.n))
         for slot, (name, sensor) in zip(self.slots.values(), self.sensors):
             if isinstance(sensor, LinearSensor):
@@ -466,9 +514,24 @@ def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearMode
 def constant_acceleration(dt: float, q: float, r: float, dim: int = 1) -> LinearModel:
     """Nearly-constant-acceleration model (white-noise jerk) measuring position.
 
-    Parameters are those of :func:`constant_velocity`, with `q` the spectral
-    density of the jerk. The state is positions, then velocities, then
-    accelerations (size 3·dim).
+    The state is positions, then velocities, then accelerations (size 3·dim).
+
+    Parameters
+    ----------
+    dt : float
+        Time step (positive).
+    q : float
+        Spectral density of the jerk (the white noise driving each axis's
+        acceleration), in units² / s⁵.
+    r : float
+        Variance of each position measurement.
+    dim : int, default 1
+        Number of axes (1, 2 or 3).
+
+    Returns
+    -------
+    LinearModel
+        The model, with ``dt`` recorded.
 
     Notes
     -----

@@ -141,7 +141,27 @@ class LinearModel:
         return None
 
     def at(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """The matrices ``(F, H, Q, R, B)`` in force at step k."""
+        """The matrices ``(F, H, Q, R, B)`` in force at step k.
+
+        Parameters
+        ----------
+        k : int
+            The step, from 0; a time-invariant matrix is the same at every
+            step.
+
+        Returns
+        -------
+        F : ndarray of shape (n, n)
+            Transition matrix.
+        H : ndarray of shape (m, n)
+            Measurement matrix.
+        Q : ndarray of shape (n, n)
+            Process-noise covariance.
+        R : ndarray of shape (m, m)
+            Measurement-noise covariance.
+        B : ndarray of shape (n, p) or None
+            Control matrix; None without a control input.
+        """
         return tuple(None if a is None else (a[k] if a.ndim == 3 else a)
                      for a in (self.F, self.H, self.Q, self.R, self.B))
 

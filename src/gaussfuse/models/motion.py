@@ -70,11 +70,36 @@ class LinearMotion(Frozen):
         return ()
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``."""
+        """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (n, n)
+            Transition matrix.
+        Q : ndarray of shape (n, n)
+            Process-noise covariance.
+        """
         raise NotImplementedError
 
     def control(self, dt: float) -> np.ndarray | None:
-        """The control matrix B of shape (n, p) over a time step ``dt > 0``; None without control."""
+        """The control matrix B of shape (n, p) over a time step ``dt > 0``; None without control.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0 (checked even when there is no control input).
+
+        Returns
+        -------
+        ndarray of shape (n, p) or None
+            B; this base method returns None (no control input), and
+            motions with one (:class:`ForceInput`) override it.
+        """
         real("dt", dt, positive=True)
         return None
 
@@ -108,15 +133,52 @@ class NonlinearMotion(Frozen):
         return ()
 
     def f(self, x, dt: float) -> np.ndarray:
-        """The state after a time step dt from x."""
+        """The state after a time step dt from x.
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (k, n)
+            A state, or a stack of k states.
+        dt : float
+            Time step.
+
+        Returns
+        -------
+        ndarray of shape (n,) or (k, n)
+            The state (or each state of the stack) after the step.
+        """
         raise NotImplementedError
 
     def jacobian(self, x, dt: float) -> np.ndarray:
-        """The Jacobian of :meth:`f` with respect to x, shape (n, n)."""
+        """The Jacobian of :meth:`f` with respect to x, shape (n, n).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,)
+            The state at which it is taken.
+        dt : float
+            Time step.
+
+        Returns
+        -------
+        ndarray of shape (n, n)
+            ∂f/∂x at `x`.
+        """
         raise NotImplementedError
 
     def noise(self, dt: float) -> np.ndarray:
-        """The process-noise covariance Q over a time step dt, shape (n, n)."""
+        """The process-noise covariance Q over a time step dt, shape (n, n).
+
+        Parameters
+        ----------
+        dt : float
+            Time step.
+
+        Returns
+        -------
+        ndarray of shape (n, n)
+            Q.
+        """
         raise NotImplementedError
 
 
@@ -152,7 +214,21 @@ class _IntegratedWhiteNoise(LinearMotion):
         return tuple(state_names(self._order, self.dim))
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``."""
+        """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (n, n)
+            Transition matrix: per axis, the Taylor series of the position
+            to the model's order.
+        Q : ndarray of shape (n, n)
+            Process-noise covariance, of the `noise` kind, scaled by `q`.
+        """
         dt = real("dt", dt, positive=True)
         K = self._order
         noise = continuous_white_noise if self.noise == "continuous" else piecewise_white_noise
@@ -326,14 +402,40 @@ class ForceInput(LinearMotion):
         return tuple(state_names(1, self.dim))
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)``, each of shape (2·dim, 2·dim), over a time step ``dt > 0``."""
+        """``(F, Q)``, each of shape (2·dim, 2·dim), over a time step ``dt > 0``.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (2·dim, 2·dim)
+            The constant-velocity transition.
+        Q : ndarray of shape (2·dim, 2·dim)
+            Piecewise white noise of variance `q`: ``q g gᵀ`` per axis,
+            ``g = [dt²/2, dt]``.
+        """
         dt = real("dt", dt, positive=True)
         eye = np.eye(self.dim)
         return (np.kron(_kinematic_transition(1, dt), eye),
                 np.kron(piecewise_white_noise(1, dt, self.q), eye))
 
     def control(self, dt: float) -> np.ndarray:
-        """B of shape (2·dim, dim): ``[dt²/2, dt]`` per axis."""
+        """B of shape (2·dim, dim): ``[dt²/2, dt]`` per axis.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        ndarray of shape (2·dim, dim)
+            B, which maps the acceleration u to the change of position and
+            velocity over the step.
+        """
         dt = real("dt", dt, positive=True)
         return np.kron(np.array([[dt**2 / 2], [dt]]), np.eye(self.dim))
 
@@ -404,7 +506,20 @@ class Singer(LinearMotion):
         return tuple(state_names(2, self.dim))
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)``, each of shape (3·dim, 3·dim), over a time step ``dt > 0``."""
+        """``(F, Q)``, each of shape (3·dim, 3·dim), over a time step ``dt > 0``.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (3·dim, 3·dim)
+            Transition matrix, ``exp(A dt)`` per axis.
+        Q : ndarray of shape (3·dim, 3·dim)
+            Process-noise covariance (Van Loan's method).
+        """
         dt = real("dt", dt, positive=True)
         A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / self.tau]])
         F1, Q1 = van_loan(A, [0.0, 0.0, 1.0], 2.0 * self.sigma**2 / self.tau, dt)
@@ -446,7 +561,20 @@ class RandomWalk(LinearMotion):
         return tuple(f"x{i}" for i in range(self.n))
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(I, q·dt·I)`` of shape (n, n)."""
+        """``(I, q·dt·I)`` of shape (n, n).
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (n, n)
+            The identity.
+        Q : ndarray of shape (n, n)
+            ``q·dt·I``.
+        """
         dt = real("dt", dt, positive=True)
         return np.eye(self.n), self.q * dt * np.eye(self.n)
 
@@ -485,7 +613,20 @@ class LocalLevel(LinearMotion):
     names = property(lambda self: ("level",), doc="``('level',)``.")
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``([[1]], [[q·dt]])``."""
+        """``([[1]], [[q·dt]])``.
+
+        Parameters
+        ----------
+        dt : float
+            Time step in steps (1 for consecutive observations), > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (1, 1)
+            ``[[1]]``.
+        Q : ndarray of shape (1, 1)
+            ``[[q·dt]]``.
+        """
         dt = real("dt", dt, positive=True)
         return np.ones((1, 1)), np.full((1, 1), self.q * dt)
 
@@ -528,7 +669,20 @@ class LocalLinearTrend(LinearMotion):
     names = property(lambda self: ("level", "slope"), doc="``('level', 'slope')``.")
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)`` of shape (2, 2)."""
+        """``(F, Q)`` of shape (2, 2).
+
+        Parameters
+        ----------
+        dt : float
+            Time step in steps (1 for consecutive observations), > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (2, 2)
+            ``[[1, dt], [0, 1]]``.
+        Q : ndarray of shape (2, 2)
+            ``diag(q_level·dt, q_slope·dt)``.
+        """
         dt = real("dt", dt, positive=True)
         return (np.array([[1.0, dt], [0.0, 1.0]]),
                 np.diag([self.q_level * dt, self.q_slope * dt]))
@@ -578,7 +732,20 @@ class LinearSDE(LinearMotion):
         return self.A.shape[0]
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F, Q)`` of shape (n, n) by Van Loan's method."""
+        """``(F, Q)`` of shape (n, n) by Van Loan's method.
+
+        Parameters
+        ----------
+        dt : float
+            Time step, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (n, n)
+            Transition matrix ``exp(A dt)``.
+        Q : ndarray of shape (n, n)
+            Process-noise covariance over the step.
+        """
         return van_loan(self.A, self.L, self.Qc, dt)
 
     def __repr__(self) -> str:
@@ -707,7 +874,21 @@ class CoordinatedTurn(NonlinearMotion):
                      doc="``('x', 'y', 'vx', 'vy', 'omega')``.")
 
     def f(self, x, dt: float) -> np.ndarray:
-        """The state after dt: x of shape (5,) or (k, 5), real or complex; dt >= 0 (0 is the identity)."""
+        """The state after dt: x of shape (5,) or (k, 5), real or complex; dt >= 0 (0 is the identity).
+
+        Parameters
+        ----------
+        x : array_like of shape (5,) or (k, 5)
+            A state ``[x, y, vx, vy, omega]``, or a stack of k states; real
+            or complex.
+        dt : float
+            Time step, >= 0.
+
+        Returns
+        -------
+        ndarray of shape (5,) or (k, 5)
+            The state (or each state of the stack) after the turn.
+        """
         x = check_state(x, 5)
         dt = real("dt", dt, nonnegative=True)
         px, py, vx, vy, w = (x[..., i] for i in range(5))
@@ -722,7 +903,21 @@ class CoordinatedTurn(NonlinearMotion):
                          w], axis=-1)
 
     def jacobian(self, x, dt: float) -> np.ndarray:
-        """∂f/∂x of shape (5, 5) (or (k, 5, 5) for a stack of states)."""
+        """∂f/∂x of shape (5, 5) (or (k, 5, 5) for a stack of states).
+
+        Parameters
+        ----------
+        x : array_like of shape (5,) or (k, 5)
+            The state (or stack of k states) at which it is taken; real or
+            complex.
+        dt : float
+            Time step, >= 0.
+
+        Returns
+        -------
+        ndarray of shape (5, 5) or (k, 5, 5)
+            The Jacobian of :meth:`f` at each state.
+        """
         x = check_state(x, 5)
         dt = real("dt", dt, nonnegative=True)
         vx, vy, w = x[..., 2], x[..., 3], x[..., 4]
@@ -740,7 +935,18 @@ class CoordinatedTurn(NonlinearMotion):
         return J
 
     def noise(self, dt: float) -> np.ndarray:
-        """Q of shape (5, 5): the CV block for x, y, vx, vy and q_turn·dt for omega (dt >= 0)."""
+        """Q of shape (5, 5): the CV block for x, y, vx, vy and q_turn·dt for omega (dt >= 0).
+
+        Parameters
+        ----------
+        dt : float
+            Time step, >= 0 (0 gives a zero Q).
+
+        Returns
+        -------
+        ndarray of shape (5, 5)
+            The process-noise covariance over the step.
+        """
         dt = real("dt", dt, nonnegative=True)
         Q = np.zeros((5, 5))
         if dt > 0:

@@ -188,7 +188,21 @@ class NonlinearModel:
         return None
 
     def noise(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(Q, R)`` in force at step k."""
+        """``(Q, R)`` in force at step k.
+
+        Parameters
+        ----------
+        k : int
+            The step, from 0; a time-invariant matrix is the same at every
+            step.
+
+        Returns
+        -------
+        Q : ndarray of shape (n, n)
+            Process-noise covariance.
+        R : ndarray of shape (m, m)
+            Measurement-noise covariance.
+        """
         return tuple(a[k] if a.ndim == 3 else a for a in (self.Q, self.R))
 
     def __repr__(self) -> str:
@@ -197,12 +211,37 @@ class NonlinearModel:
     # -- evaluation with checked shapes ------------------------------------
 
     def transition(self, X: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
-        """``f`` at the states X of shape (n,) or (k, n); returns the same shape."""
+        """``f`` at the states X of shape (n,) or (k, n); returns the same shape.
+
+        Parameters
+        ----------
+        X : ndarray of shape (n,) or (k, n)
+            A state, or a stack of k states.
+        u : ndarray, optional
+            The control, passed to f as its second argument (the same for
+            every state of the stack); f takes only x when None.
+
+        Returns
+        -------
+        ndarray of shape (n,) or (k, n)
+            ``f(x[, u])`` for each state, its shape checked.
+        """
         args = () if u is None else (u,)
         return _evaluate("f", self.f, X, args, self.n, self.vectorized)
 
     def measurement(self, X: np.ndarray) -> np.ndarray:
-        """``h`` at the states X of shape (n,) or (k, n); returns (m,) or (k, m)."""
+        """``h`` at the states X of shape (n,) or (k, n); returns (m,) or (k, m).
+
+        Parameters
+        ----------
+        X : ndarray of shape (n,) or (k, n)
+            A state, or a stack of k states.
+
+        Returns
+        -------
+        ndarray of shape (m,) or (k, m)
+            ``h(x)`` for each state, its shape checked.
+        """
         return _evaluate("h", self.h, X, (), self.m, self.vectorized)
 
 

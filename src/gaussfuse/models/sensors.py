@@ -75,7 +75,20 @@ class LinearSensor(Frozen):
         return ()
 
     def linear(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(H, R)`` for a state of n components; H has shape (m, n), R (m, m)."""
+        """``(H, R)`` for a state of n components; H has shape (m, n), R (m, m).
+
+        Parameters
+        ----------
+        n : int
+            State dimension; must equal the number of columns of `H`.
+
+        Returns
+        -------
+        H : ndarray of shape (m, n)
+            Measurement matrix.
+        R : ndarray of shape (m, m)
+            Measurement-noise covariance.
+        """
         n = integer("n", n)
         if self.H.shape[1] != n:
             raise ValueError(f"`n` must be {self.H.shape[1]}, the number of columns of `H`; got {n}.")
@@ -144,7 +157,21 @@ class Position(LinearSensor):
         return ("x", "y", "z")[: self.dim]
 
     def linear(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(H, R)`` for a state of n >= dim components (n as given at construction, if it was)."""
+        """``(H, R)`` for a state of n >= dim components (n as given at construction, if it was).
+
+        Parameters
+        ----------
+        n : int
+            State dimension, >= dim; must equal the `n` given at
+            construction, if one was.
+
+        Returns
+        -------
+        H : ndarray of shape (dim, n)
+            ``[I, 0]``: the first dim state components.
+        R : ndarray of shape (dim, dim)
+            ``r I``.
+        """
         n = integer("n", n, minimum=self.dim)
         if self.n is not None and n != self.n:
             raise ValueError(f"`n` must be {self.n}, as given to `Position`; got {n}.")
@@ -186,11 +213,33 @@ class NonlinearSensor(Frozen):
         return ()
 
     def h(self, x) -> np.ndarray:
-        """The noise-free measurement of x."""
+        """The noise-free measurement of x.
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (k, n)
+            A state, or a stack of k states.
+
+        Returns
+        -------
+        ndarray of shape (m,) or (k, m)
+            The measurement of the state (or of each state of the stack).
+        """
         raise NotImplementedError
 
     def jacobian(self, x) -> np.ndarray:
-        """The Jacobian of :meth:`h` with respect to x, shape (m, n)."""
+        """The Jacobian of :meth:`h` with respect to x, shape (m, n).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,)
+            The state at which it is taken.
+
+        Returns
+        -------
+        ndarray of shape (m, n)
+            ∂h/∂x at `x`.
+        """
         raise NotImplementedError
 
 
@@ -270,13 +319,38 @@ class RangeBearing(NonlinearSensor):
         return np.diag([self.r_range, self.r_bearing])
 
     def h(self, x) -> np.ndarray:
-        """``[range, bearing]`` of shape (2,) (or (j, 2) for a stack of states)."""
+        """``[range, bearing]`` of shape (2,) (or (j, 2) for a stack of states).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (j, n)
+            A state, or a stack of j states, with the position ``(x, y)`` in
+            its first 2 components (n >= 2).
+
+        Returns
+        -------
+        ndarray of shape (2,) or (j, 2)
+            The range and the bearing (radians) from `origin`.
+        """
         x, _ = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
         return np.stack([np.hypot(dx, dy), np.arctan2(dy, dx)], axis=-1)
 
     def jacobian(self, x) -> np.ndarray:
-        """∂h/∂x of shape (2, n)."""
+        """∂h/∂x of shape (2, n).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (j, n)
+            The state (or stack of j states) at which it is taken, position
+            first (n >= 2).
+
+        Returns
+        -------
+        ndarray of shape (2, n) or (j, 2, n)
+            The Jacobian, zero past the first 2 columns; NaN at the sensor's
+            own position, where it is undefined.
+        """
         x, n = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -355,14 +429,40 @@ class RangeBearingElevation(NonlinearSensor):
         return np.diag([self.r_range, self.r_bearing, self.r_elevation])
 
     def h(self, x) -> np.ndarray:
-        """``[range, bearing, elevation]`` of shape (3,) (or (j, 3))."""
+        """``[range, bearing, elevation]`` of shape (3,) (or (j, 3)).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (j, n)
+            A state, or a stack of j states, with the position ``(x, y, z)``
+            in its first 3 components (n >= 3).
+
+        Returns
+        -------
+        ndarray of shape (3,) or (j, 3)
+            The range, the bearing and the elevation (radians) from `origin`.
+        """
         x, _ = _position(x, 3)
         dx, dy, dz = (x[..., i] - self.origin[i] for i in range(3))
         rxy = np.hypot(dx, dy)
         return np.stack([np.hypot(rxy, dz), np.arctan2(dy, dx), np.arctan2(dz, rxy)], axis=-1)
 
     def jacobian(self, x) -> np.ndarray:
-        """∂h/∂x of shape (3, n)."""
+        """∂h/∂x of shape (3, n).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (j, n)
+            The state (or stack of j states) at which it is taken, position
+            first (n >= 3).
+
+        Returns
+        -------
+        ndarray of shape (3, n) or (j, 3, n)
+            The Jacobian, zero past the first 3 columns; on the vertical
+            through the sensor, where the bearing and elevation rows are
+            undefined, they hold NaN.
+        """
         x, n = _position(x, 3)
         dx, dy, dz = (x[..., i] - self.origin[i] for i in range(3))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -424,13 +524,38 @@ class BearingOnly(NonlinearSensor):
         return np.array([[self.r_bearing]])
 
     def h(self, x) -> np.ndarray:
-        """``[bearing]`` of shape (1,) (or (j, 1))."""
+        """``[bearing]`` of shape (1,) (or (j, 1)).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (j, n)
+            A state, or a stack of j states, with the position ``(x, y)`` in
+            its first 2 components (n >= 2).
+
+        Returns
+        -------
+        ndarray of shape (1,) or (j, 1)
+            The bearing (radians) from `origin`.
+        """
         x, _ = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
         return np.arctan2(dy, dx)[..., None]
 
     def jacobian(self, x) -> np.ndarray:
-        """∂h/∂x of shape (1, n)."""
+        """∂h/∂x of shape (1, n).
+
+        Parameters
+        ----------
+        x : array_like of shape (n,) or (j, n)
+            The state (or stack of j states) at which it is taken, position
+            first (n >= 2).
+
+        Returns
+        -------
+        ndarray of shape (1, n) or (j, 1, n)
+            The Jacobian, zero past the first 2 columns; NaN at the sensor's
+            own position, where it is undefined.
+        """
         x, n = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
         with np.errstate(divide="ignore", invalid="ignore"):
