@@ -94,6 +94,10 @@ def test_rmse():
     np.testing.assert_allclose(dg.rmse(np.ones((2, 3, 1)), np.zeros((2, 3, 1)), axis=1), [1.0, 1.0])
     with pytest.raises(ValueError, match=r"`truth` must have shape \(2, 2\), that of `estimates`"):
         dg.rmse(np.ones((2, 2)), np.ones((3, 2)))
+    # a 1-D array is a series of scalars: the square root of the mean square, not the norm of one vector
+    errors = np.array([0.5, -2.0, 1.0, 3.0])
+    assert dg.rmse(errors, np.zeros(4)) == pytest.approx(np.sqrt(np.mean(errors**2)))
+    assert dg.rmse(errors, np.zeros(4)) == dg.rmse(errors[:, None], np.zeros((4, 1)))
 
 
 # ---------------------------------------------------------------------------

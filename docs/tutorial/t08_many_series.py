@@ -25,6 +25,7 @@ import time
 
 import dask
 import dask.array as da
+import matplotlib.pyplot as plt
 import numpy as np
 
 import gaussfuse as gf
@@ -97,6 +98,23 @@ print(f"total: {total['all'] / 1e6:.1f} MB with keep='all', {total['last'] / 1e6
 n, m = model.n, model.m
 assert abs(total["all"] / (8 * N * T * (2 * n + 2 * n**2 + m + m**2 + 1)) - 1) < 0.01  # the count above
 assert np.array_equal(full.last_mean, last.last_mean) and np.array_equal(full.loglik, last.loglik)
+
+# %%
+# The same in a figure: the memory each kept field takes, per series, for
+# ``keep="all"`` (every step) and ``keep="last"`` (the last belief and the
+# log-likelihood).
+
+sizes = {f.name: getattr(full, f.name).nbytes / N for f in dataclasses.fields(full)
+         if isinstance(getattr(full, f.name), np.ndarray)}
+kept = {name: (getattr(last, name).nbytes / N if isinstance(getattr(last, name), np.ndarray) else 0.0)
+        for name in sizes}
+fig, ax = plt.subplots(figsize=(7.0, 3.2), layout="constrained")
+y = np.arange(len(sizes))
+ax.barh(y - 0.2, list(sizes.values()), height=0.4, label='keep="all"')
+ax.barh(y + 0.2, list(kept.values()), height=0.4, label='keep="last"')
+ax.set(yticks=y, yticklabels=list(sizes), xscale="symlog", xlabel="bytes per series",
+       title=f"What a filter result holds, {T} steps, n = {n}, m = {m}")
+ax.legend(loc="lower right")
 
 # %%
 # The count above matches the total to 1 % (checked), and the final

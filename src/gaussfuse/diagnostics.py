@@ -478,14 +478,28 @@ def rmse(estimates, truth, axis=None) -> np.ndarray | float:
 
     Parameters
     ----------
-    estimates, truth : array_like of shape (..., T, d)
+    estimates, truth : array_like of shape (..., T, d), or (T,)
+        A 1-D array is T scalar estimates (d = 1), not one vector.
     axis : int or tuple, optional
         Axes of the mean (over the leading axes, after summing over the
         last); all by default.
+
+    Returns
+    -------
+    float or ndarray
+        The RMSE; an array when `axis` leaves axes.
+
+    Examples
+    --------
+    >>> from gaussfuse.diagnostics import rmse
+    >>> rmse([1.0, -1.0, 1.0, -1.0], [0.0, 0.0, 0.0, 0.0])
+    1.0
     """
     a, b = as_array("estimates", estimates), as_array("truth", truth)
     if a.shape != b.shape:
         raise shape_error("truth", f"{a.shape}, that of `estimates`", b.shape)
+    if a.ndim == 1:  # a series of scalars
+        a, b = a[:, None], b[:, None]
     out = np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1), axis=axis))
     return float(out) if np.ndim(out) == 0 else out
 
