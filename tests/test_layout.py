@@ -124,3 +124,13 @@ def test_covariances_are_factorised_only_in_the_linear_algebra_modules():
                     and node.value.attr == "linalg"):
                 found.append(f"{name}:{node.lineno} linalg.{node.attr}")
     assert found == []
+
+
+def test_the_package_exports_every_model_name():
+    """gaussfuse.__all__ is written out for type checkers; it must not drift from models.__all__."""
+    import gaussfuse
+    import gaussfuse.models
+
+    assert set(gaussfuse.models.__all__) <= set(gaussfuse.__all__)
+    assert len(gaussfuse.__all__) == len(set(gaussfuse.__all__))
+    assert all(getattr(gaussfuse, name) is getattr(gaussfuse.models, name) for name in gaussfuse.models.__all__)

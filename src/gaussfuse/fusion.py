@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import inference, kalman
 from ._frozen import reduce_frozen, shapes_repr
@@ -61,7 +62,7 @@ class Measurement(NamedTuple):
 
     t: float
     sensor: str
-    z: np.ndarray
+    z: ArrayLike
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,7 +25,7 @@ from .validation import check_steady, prepare
 __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
 
-def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
+def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None, *,
            engine: str = "auto", keep: str = "all", form: str = "cov", steady: bool = False,
            gains: bool = False, check: str = "warn", gate: float | None = None, gate_by: str = "measurement",
            times=None, **options) -> FilterResult:
@@ -221,7 +221,7 @@ def filter(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
     return result if batch else _labelled(first(result), table, names)
 
 
-def smooth(model, prior: Gaussian, zs, us=None, method: str | None = None, *,
+def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None, *,
            engine: str = "auto", form: str = "cov", check: str = "warn", gate: float | None = None,
            gate_by: str = "measurement", times=None, **options) -> SmoothResult:
     """Smooth a series of measurements: the belief about each state given all of them.

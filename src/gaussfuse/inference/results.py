@@ -76,17 +76,22 @@ class FilterResult:
     -----
     With ``keep="means"`` the covariance fields are None; with
     ``keep="last"`` every per-step field (`iterations` too) is None, so that
-    a long series filters in memory independent of its length. `table` and
+    a long series filters in memory independent of its length. The fields'
+    type annotations are those of the default ``keep="all"`` (so that
+    ``res.means[-1]`` type-checks), and are not true of the fields these
+    two leave out. `table` and
     `state_names` carry a pandas input's index and columns and the model's
     component names, for :meth:`to_pandas`.
     """
 
-    means: np.ndarray | None
-    covs: np.ndarray | None
-    predicted_means: np.ndarray | None
-    predicted_covs: np.ndarray | None
-    innovations: np.ndarray | None
-    innovation_covs: np.ndarray | None
+    # Annotated as what the default keep="all" gives, so that ``res.means[-1]`` type-checks in user code;
+    # keep="means" and keep="last" leave some of them None (see the Notes).
+    means: np.ndarray
+    covs: np.ndarray
+    predicted_means: np.ndarray
+    predicted_covs: np.ndarray
+    innovations: np.ndarray
+    innovation_covs: np.ndarray
     loglik: float | np.ndarray
     last_mean: np.ndarray
     last_cov: np.ndarray
