@@ -250,14 +250,18 @@ def _fmt(x: float) -> str:
 # ---------------------------------------------------------------------------
 
 
-def moments(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | None, engine: str = "auto") -> Moments:
-    """Smoothed moments of one series from time 0 (the prior's) to T, with lag-one covariances."""
+def moments(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | None, engine: str = "auto") -> list[Moments]:
+    """Smoothed moments of each series of `zs` (N, T, m) from time 0 (the prior's) to T, with lag-one covariances.
+
+    The series are smoothed in one call of the batch smoother (compiled: in
+    parallel), one by one with a diffuse prior.
+    """
     if isinstance(prior, str):
-        return diffuse_moments(model, zs, us, engine)
-    sm = first(smooth_batch(_METHODS["kf"], model, prior, zs[None], None if us is None else us[None], {}, engine,
-                            to_prior=True))
-    cross = sm.covs[1:] @ np.swapaxes(sm.gains, -1, -2)
-    return Moments(sm.means, sm.covs, cross, sm.filtered.loglik, sm.filtered, sm.gains)
+        return [diffuse_moments(model, z, None if us is None else us[i], engine) for i, z in enumerate(zs)]
+    sm = smooth_batch(_METHODS["kf"], model, prior, zs, us, {}, engine, to_prior=True)
+    cross = sm.covs[:, 1:] @ np.swapaxes(sm.gains, -1, -2)
+    return [Moments(sm.means[i], sm.covs[i], cross[i], float(sm.filtered.loglik[i]), first(sm.filtered, i),
+                    sm.gains[i]) for i in range(zs.shape[0])]
 
 
 def _per_step(a: np.ndarray | None, T: int) -> np.ndarray | None:
@@ -369,11 +373,9 @@ def _quad(M: np.ndarray, S: np.ndarray, N: np.ndarray | None = None) -> np.ndarr
 
 def _e_step(model, prior, zs, us, engine: str = "auto") -> tuple[float, list[Statistics]]:
     loglik, stats = 0.0, []
-    for i, z in enumerate(zs):
-        u = None if us is None else us[i]
-        mom = moments(model, prior, z, u, engine)
+    for i, mom in enumerate(moments(model, prior, zs, us, engine)):
         loglik += mom.loglik
-        stats.append(Statistics(model, mom, z, u))
+        stats.append(Statistics(model, mom, zs[i], None if us is None else us[i]))
     return loglik, stats
 
 

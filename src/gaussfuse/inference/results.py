@@ -207,19 +207,19 @@ def stack(results: list):
     return cls(**values)
 
 
-def first(result):
-    """The only series of a batched result, without the leading axis."""
+def first(result, index: int = 0):
+    """Series `index` of a batched result (by default the first, or only, one), without the leading axis."""
     values = {}
     for f in fields(type(result)):
         item = getattr(result, f.name)
         if f.name == "filtered":
-            values[f.name] = first(item)
+            values[f.name] = first(item, index)
         elif f.name == "loglik":
-            values[f.name] = float(item[0])
+            values[f.name] = float(item[index])
         elif f.name == "iterations" and np.ndim(item) == 1 and isinstance(result, SmoothResult):
-            values[f.name] = int(item[0])
+            values[f.name] = int(item[index])
         else:
-            values[f.name] = None if item is None else item[0]
+            values[f.name] = None if item is None else item[index]
     return type(result)(**values)
 
 
