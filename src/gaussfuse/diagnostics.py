@@ -26,6 +26,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import chdtrc, chdtri, ndtri
 
 from ._linalg import cholesky, observed_gram, whiten
 from .errors import DivergenceWarning, diverging
@@ -117,13 +118,12 @@ def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[f
     >>> round(lo, 3), round(hi, 3)
     (1.63, 2.41)
     """
-    from scipy.stats import chi2
-
     if not 0 < confidence < 1:
         raise ValueError(f"`confidence` must be in (0, 1); got {confidence!r}.")
     k = count * dof
     alpha = 1.0 - confidence
-    return float(chi2.ppf(alpha / 2, k) / count), float(chi2.ppf(1 - alpha / 2, k) / count)
+    # chdtri(k, s) is the χ²_k quantile of upper tail s (scipy.stats.chi2.ppf's own, without importing scipy.stats)
+    return float(chdtri(k, 1 - alpha / 2) / count), float(chdtri(k, alpha / 2) / count)
 
 
 def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
@@ -453,8 +453,6 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
         The autocorrelations, their bound, the Ljung–Box statistic, its
         p-value and the verdict.
     """
-    from scipy.stats import chi2, norm
-
     v = as_array("innovations", innovations, allow_nan=True)
     S = as_array("innovation_covs", innovation_covs)
     if v.ndim != 2 or S.shape != v.shape + v.shape[-1:]:
@@ -468,8 +466,8 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     denom = np.sum(w * w, axis=0)
     rho = np.array([np.sum(w[j:] * w[:-j], axis=0) / denom for j in range(1, lags + 1)])  # (lags, m)
     q = T * (T + 2) * np.sum(rho**2 / (T - np.arange(1, lags + 1))[:, None])
-    p = float(chi2.sf(q, lags * m))
-    bound = float(norm.ppf(1 - (1 - confidence) / 2) / np.sqrt(T))
+    p = float(chdtrc(lags * m, q))  # the χ² survival function
+    bound = float(ndtri(1 - (1 - confidence) / 2) / np.sqrt(T))  # the normal quantile
     return Whiteness(rho.mean(axis=1), bound, float(q), p, p >= 1 - confidence)
 
 
