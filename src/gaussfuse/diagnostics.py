@@ -26,7 +26,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtrc, chdtri, ndtri
 
 from ._linalg import cholesky, observed_gram, whiten
 from .errors import DivergenceWarning, diverging
@@ -118,6 +117,8 @@ def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[f
     >>> round(lo, 3), round(hi, 3)
     (1.63, 2.41)
     """
+    from scipy.special import chdtri  # here: `import gaussfuse` loads only NumPy
+
     if not 0 < confidence < 1:
         raise ValueError(f"`confidence` must be in (0, 1); got {confidence!r}.")
     k = count * dof
@@ -453,6 +454,8 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
         The autocorrelations, their bound, the Ljung–Box statistic, its
         p-value and the verdict.
     """
+    from scipy.special import chdtrc, ndtri
+
     v = as_array("innovations", innovations, allow_nan=True)
     S = as_array("innovation_covs", innovation_covs)
     if v.ndim != 2 or S.shape != v.shape + v.shape[-1:]:
