@@ -229,7 +229,7 @@ def _run_filter(args: argparse.Namespace) -> int:
     """
     _check_paths(args, {"--out": args.out, "--plot": args.plot})
     spec = gfio.read_model(args.model)
-    columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    columns = _columns(args)
     if args.series_column is not None:
         return _run_many(args, spec, columns)
     read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns}
@@ -549,7 +549,7 @@ class _Progress:
 def _run_fit(args: argparse.Namespace) -> int:
     _check_paths(args, {"--out": args.out})
     spec = gfio.read_model(args.model)
-    columns = None if args.columns is None else [c.strip() for c in args.columns.split(",")]
+    columns = _columns(args)
     learn = _names(args.learn, "--learn", learning.LEARNABLE)
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
@@ -677,10 +677,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="also draw measurements against the estimates with ±2σ bands, and for two "
                            "measurement columns the x-y track (needs matplotlib; what it draws is held in "
                            "memory, so a very large file needs memory for it)")
-    filt.add_argument("--time-column", metavar="NAME",
-                      help="the time column (default: the one named t or time)")
-    filt.add_argument("--columns", metavar="A,B,...",
-                      help="the measurement columns, in order (default: every other column)")
+    _column_options(filt)
     _many_options(filt, "filter each series of a long-format table (CSV or Parquet file, or a directory of "
                         "them: a partitioned dataset), one output file per partition under --out DIR")
     filt.add_argument("--check", choices=("warn", "raise", "off"), default="warn",
@@ -715,10 +712,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--iterations", type=int, metavar="N",
                      help="maximum iterations (default: 500 for em, 1000 for mle)")
     fit.add_argument("--tol", type=float, metavar="TOL", help="convergence tolerance (see gaussfuse.fit)")
-    fit.add_argument("--time-column", metavar="NAME",
-                     help="the time column (default: the one named t or time)")
-    fit.add_argument("--columns", metavar="A,B,...",
-                     help="the measurement columns, in order (default: every other column)")
+    _column_options(fit)
     _many_options(fit, "fit one model to every series of a long-format table (CSV or Parquet file, or a "
                        "directory of them), pooled")
     fit.add_argument("-o", "--out", metavar="FITTED.toml",
@@ -727,6 +721,17 @@ def build_parser() -> argparse.ArgumentParser:
     _engine_option(fit)
     fit.set_defaults(run=_run_fit)
     return parser
+
+
+def _column_options(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--time-column", metavar="NAME", help="the time column (default: the one named t or time)")
+    command.add_argument("--columns", metavar="A,B,...",
+                         help="the measurement columns, in order (default: every other column)")
+
+
+def _columns(args: argparse.Namespace) -> list[str] | None:
+    """The measurement columns named by --columns, or None for every other one."""
+    return None if args.columns is None else [c.strip() for c in args.columns.split(",")]
 
 
 def _many_options(command: argparse.ArgumentParser, what: str) -> None:

@@ -523,13 +523,7 @@ class _Chunks:
     """
 
     def __init__(self, zs, us) -> None:
-        self.zs, sizes = chunked.series_blocks("zs", zs)
-        self.us = [None] * len(self.zs)
-        if us is not None:
-            self.us, control_sizes = chunked.series_blocks("us", us)
-            if control_sizes != sizes:
-                raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and "
-                                 f"{sizes}.")
+        self.zs, self.us, _ = chunked.paired_blocks(zs, us)
 
     def total(self, fn, *args):
         """``fn(zs_c, us_c, *args)`` summed over the chunks c (numbers, arrays, and tuples or dicts of them)."""

@@ -165,7 +165,11 @@ def _seconds(path: str, column, name: str) -> np.ndarray:
 def partition_arrays(path: str, series_column: str, m: int, time_column: str | None = None,
                      columns: list[str] | None = None, steps: int | None = None) -> np.ndarray:
     """A partition's series as one array (N, steps, m), each padded at its end with missing (NaN) steps."""
-    part = read_partition(path, series_column, m, time_column, columns)
+    return _padded(read_partition(path, series_column, m, time_column, columns), m, steps)
+
+
+def _padded(part: Partition, m: int, steps: int | None = None) -> np.ndarray:
+    """`part`'s series as one array (N, steps, m), padded at the end with NaN (default: to the longest)."""
     T = max(len(t) for t in part.times) if steps is None else steps
     out = np.full((len(part.ids), T, m), np.nan)
     for i, z in enumerate(part.zs):
@@ -212,11 +216,7 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         nis = [f.nis for f in filtered]
         seen = [np.count_nonzero(~np.isnan(f.innovations), axis=-1) for f in filtered]
     else:  # all at once, padded at the end with missing steps
-        T = max(len(t) for t in part.times)
-        zs = np.full((len(part.ids), T, spec.model.m), np.nan)
-        for i, z in enumerate(part.zs):
-            zs[i, :z.shape[0]] = z
-        result = run(spec.model, spec.prior, zs, engine=engine, check="off")
+        result = run(spec.model, spec.prior, _padded(part, spec.model.m), engine=engine, check="off")
         lengths = [len(t) for t in part.times]
         means = np.concatenate([result.means[i, :k] for i, k in enumerate(lengths)])
         covs = np.concatenate([result.covs[i, :k] for i, k in enumerate(lengths)])

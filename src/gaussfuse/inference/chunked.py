@@ -30,7 +30,7 @@ import numpy as np
 
 from . import drivers
 
-__all__ = ["is_dask", "series_blocks", "map_series", "observed"]
+__all__ = ["is_dask", "series_blocks", "paired_blocks", "map_series", "observed"]
 
 
 def is_dask(a) -> bool:
@@ -62,6 +62,23 @@ def series_blocks(name: str, a, ndim: int = 3):
     return a.astype(np.float64).to_delayed().reshape(-1).tolist(), a.chunks[0]
 
 
+def paired_blocks(zs, us) -> tuple[list, list, tuple]:
+    """The blocks of `zs` and of `us` (None for each when `us` is None), chunk for chunk, and the chunks' sizes.
+
+    Raises
+    ------
+    ValueError
+        When `us` is not chunked over series as `zs` is.
+    """
+    blocks, sizes = series_blocks("zs", zs)
+    if us is None:
+        return blocks, [None] * len(blocks), sizes
+    controls, control_sizes = series_blocks("us", us)
+    if control_sizes != sizes:
+        raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and {sizes}.")
+    return blocks, controls, sizes
+
+
 def map_series(run: Callable, zs, us, kwargs: dict):
     """``run(zs=chunk, us=chunk, **kwargs)`` on each chunk of series, as a result whose arrays are dask arrays.
 
@@ -84,13 +101,7 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     import dask
     import dask.array as da
 
-    blocks, sizes = series_blocks("zs", zs)
-    if us is not None:
-        controls, control_sizes = series_blocks("us", us)
-        if control_sizes != sizes:
-            raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and {sizes}.")
-    else:
-        controls = [None] * len(blocks)
+    blocks, controls, sizes = paired_blocks(zs, us)
     T = zs.shape[1]
 
     def meta(steps: int):

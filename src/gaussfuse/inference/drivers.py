@@ -28,7 +28,7 @@ from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
 
 __all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
-           "CHECKS", "check_divergence"]
+           "CHECKS", "check_divergence", "divergence_message"]
 
 ENGINES = ("auto", "python", "numba")
 CHECKS = ("warn", "raise", "off")
@@ -416,6 +416,11 @@ def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
     return SmoothResult(*(np.stack(a) for a in out), filt, sm.iterations)
 
 
+def divergence_message(ranges: list[str]) -> str:
+    """The DivergenceWarning's message for flagged `ranges` ("<average> over steps a-b ..."): the first five, and a count."""
+    return diverging(ranges[:5], diagnostics.DIVERGENCE_FALSE_ALARM, max(len(ranges) - 5, 0))
+
+
 def check_divergence(result: FilterResult, check: str, first_series: int = 0) -> None:
     """Warn (or raise) a DivergenceWarning naming the steps where `result`'s innovations fail the χ² test.
 
@@ -433,8 +438,8 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0) ->
     if not flagged:
         return
     many = result.nis.shape[0] > 1
-    message = diverging([f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
-                         for s, a, b, avg in flagged[:5]], diagnostics.DIVERGENCE_FALSE_ALARM, max(len(flagged) - 5, 0))
+    message = divergence_message([f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
+                                  for s, a, b, avg in flagged])
     if check == "raise":
         raise DivergenceWarning(message)
     warnings.warn(message, DivergenceWarning, stacklevel=3)

@@ -39,7 +39,7 @@ from typing import Protocol
 import numpy as np
 
 from .. import diagnostics
-from ..errors import DivergenceWarning, diverging
+from ..errors import DivergenceWarning
 from ..gaussian import Gaussian
 from . import diffuse, drivers, timing
 from .results import FilterResult, SmoothResult, first, stack
@@ -223,8 +223,7 @@ class _Monitor:
             raise DivergenceWarning(self.message())
 
     def message(self) -> str:
-        where = [f"{avg:.2f} over steps {a}-{b}" for a, b, avg in self.flagged[:5]]
-        return diverging(where, diagnostics.DIVERGENCE_FALSE_ALARM, max(len(self.flagged) - 5, 0))
+        return drivers.divergence_message([f"{avg:.2f} over steps {a}-{b}" for a, b, avg in self.flagged])
 
     def finish(self) -> None:
         if self.first is not None:
