@@ -533,6 +533,11 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
         E.append(Entry("gaussfuse engine=\"numba\", numba.njit vectorized f, h", "gaussfuse",
                        gaussfuse_ukf(compiled_vec, "numba"), T, T, goal=100.0, compiled=True,
                        mode="compiled"))
+        # the compiled square-root UKF (a downdate every step), against the covariance form's rows above
+        E.append(Entry("gaussfuse engine=\"numba\", form=\"sqrt\", plain Python f, h", "gaussfuse",
+                       gaussfuse_ukf(plain, "numba", "sqrt"), T, T, compiled=True, mode="python"))
+        E.append(Entry("gaussfuse engine=\"numba\", form=\"sqrt\", numba.njit f, h", "gaussfuse",
+                       gaussfuse_ukf(compiled, "numba", "sqrt"), T, T, compiled=True, mode="compiled"))
     E.append(Entry("gaussfuse engine=\"python\", plain Python f, h", "gaussfuse",
                    gaussfuse_ukf(plain, "python"), T, T))
     E.append(Entry("gaussfuse engine=\"python\", vectorized f, h", "gaussfuse",

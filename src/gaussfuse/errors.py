@@ -28,6 +28,16 @@ class DivergenceWarning(UserWarning):
     """
 
 
+class ReadablePath(Exception):
+    """Raised by a compiled kernel for a step that only the readable path takes (not for users).
+
+    The square-root sigma-point kernels meet it at a singular factor, whose
+    regression is the readable path's least-squares solve, and at a failed
+    downdate, whose error the readable path raises; the drivers then run
+    the call there.
+    """
+
+
 class ModelFunctionError(ValueError):
     """A model function (f, h or a Jacobian) raised, or returned a bad value.
 

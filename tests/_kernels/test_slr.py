@@ -85,3 +85,72 @@ def test_a_component_known_exactly_keeps_zero_spread():
     points(mean, rule, reg, X)
     regress(X * [2.0, 1.0], n, rule, mean, np.zeros(n, dtype=bool), reg)
     assert reg.noise[1, 1] == 0.0 and reg.b[1] + reg.A[1] @ mean == 1.7
+
+
+@pytest.mark.parametrize("name", list(RULES))
+@pytest.mark.parametrize("cov_kind", ["definite", "ill-conditioned", "tiny variance"])
+@pytest.mark.parametrize("alpha", [1.0, 1e-2])
+def test_regress_sqrt_is_slr_sqrt(name, cov_kind, alpha):
+    """The square-root regression: A, b and the residual columns Ω₊, Ω₋ of slr_sqrt, to round-off of scale,
+    on a factor that is well conditioned, ill conditioned (1e-6 and 1e6 at once) or has a variance of 1e-30;
+    with alpha = 1e-2 the unscented centre weight is about -1e4."""
+    from gaussfuse._kernels._slr import regress_sqrt
+    from gaussfuse.linearize import slr_sqrt
+
+    n, d = 3, 2
+    rng = np.random.default_rng(len(name) + len(cov_kind))
+    mean = rng.standard_normal(n)
+    B = rng.standard_normal((n, n))
+    cov = B @ B.T / n + 0.1 * np.eye(n)
+    if cov_kind == "ill-conditioned":
+        scale = np.array([1e-6, 1.0, 1e6])
+        cov = cov * np.outer(scale, scale)
+    elif cov_kind == "tiny variance":
+        cov[2], cov[:, 2] = 0.0, 0.0
+        cov[2, 2] = 1e-30
+    readable = unscented(n, alpha, 2.0, 0.0) if name == "unscented" else RULES[name](n)
+    rule = Rule(np.ascontiguousarray(readable.points), readable.wm.copy(), readable.wc.copy())
+    L = np.linalg.cholesky(cov)
+    k = rule.points.shape[0]
+    reg = regression(k, n, d)
+    reg.L[...] = L
+    X = np.empty((k, n))
+    points(mean, rule, reg, X)
+    angles = np.array([False, True])
+    E, dev, At = np.empty((k, d)), np.empty((k, n)), np.empty((n, d))
+    regress_sqrt(g(X), d, rule, mean, angles, reg, E, dev, At)
+    A, b, plus, minus = slr_sqrt(g, readable, mean, L, angles)
+    AL = A @ L  # A along the belief's spread, as the filters use it (see test_regress_is_slr)
+    np.testing.assert_allclose(reg.A @ L, AL, rtol=TOL, atol=TOL * max(1.0, np.abs(AL).max()), err_msg="A L")
+    ym = A @ mean + b
+    np.testing.assert_allclose(reg.A @ mean + reg.b, ym, rtol=TOL, atol=TOL * max(1.0, np.abs(ym).max()))
+    wc = rule.wc
+    got_plus = (E[wc > 0] * np.sqrt(wc[wc > 0])[:, None]).T
+    np.testing.assert_allclose(got_plus, plus, rtol=TOL, atol=TOL * max(1.0, np.abs(plus).max()), err_msg="Ω₊")
+    if minus is None:
+        assert not (wc < 0).any()
+    else:
+        got_minus = (E[wc < 0] * np.sqrt(-wc[wc < 0])[:, None]).T
+        np.testing.assert_allclose(got_minus, minus, rtol=TOL, atol=TOL * max(1.0, np.abs(minus).max()))
+
+
+def test_regress_sqrt_of_a_linear_map_leaves_no_residual():
+    """A linear g: every residual is at round-off and set to exactly 0, so nothing is downdated."""
+    from gaussfuse._kernels._slr import regress_sqrt
+
+    n = 3
+    readable = unscented(n, 1e-2, 2.0, 0.0)
+    rule = Rule(np.ascontiguousarray(readable.points), readable.wm.copy(), readable.wc.copy())
+    M = np.random.default_rng(2).standard_normal((2, n))
+    mean = np.array([1e6, -3.0, 2e-3])
+    k = rule.points.shape[0]
+    reg = regression(k, n, 2)
+    L = np.linalg.cholesky(np.diag([1e4, 1.0, 1e-8]))
+    reg.L[...] = L
+    X = np.empty((k, n))
+    points(mean, rule, reg, X)
+    E = np.empty((k, 2))
+    regress_sqrt(X @ M.T, 2, rule, mean, np.zeros(2, dtype=bool), reg, E, np.empty((k, n)), np.empty((n, 2)))
+    assert (E == 0.0).all()
+    ML = M @ L  # A along the spread (along the variance of 1e-8 the outputs of size 1e6 resolve A to 1e-5)
+    np.testing.assert_allclose(reg.A @ L, ML, rtol=0, atol=1e-10 * np.abs(ML).max())

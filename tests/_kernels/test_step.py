@@ -220,3 +220,31 @@ def test_failures_raise_the_readable_messages():
     one.code[0], one.step[0] = _step.FILTERED_NOT_FINITE, 2
     with pytest.raises(FloatingPointError, match=r"^at step 2: the filtered mean, covariance or log-likelihood"):
         _step.raise_failure(one)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(st.integers(1, 6), st.integers(1, 3), st.sampled_from([1e-150, 1e-6, 1.0, 1e6, 1e150]),
+       st.booleans(), st.integers(0, 2**32 - 1))
+def test_downdate_is_linalg_downdate(n, p, scale, zero_row, seed):
+    """The compiled downdate (in place, rows ``:q``) against _linalg.downdate: the same factor to round-off of
+    its scale, a component that V does not touch left as it is, and False exactly where the readable one raises."""
+    from gaussfuse._linalg import downdate as readable_downdate
+
+    rng = np.random.default_rng(seed)
+    L = np.linalg.cholesky(conditioned_cov(rng, n, 1e4)) * scale
+    V = 0.3 * L @ rng.standard_normal((n, p)) / np.sqrt(p)  # L Lᵀ - V Vᵀ stays positive definite
+    if zero_row:
+        V[0] = 0.0
+    if rng.random() < 0.25:  # sometimes too much to take away
+        V *= 10.0
+    try:
+        want = readable_downdate(L, V)
+    except np.linalg.LinAlgError:
+        want = None
+    got = L.copy()
+    ok = _step.downdate(got, V, n, p, np.empty(n))
+    assert ok == (want is not None)
+    if want is not None:
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+        if zero_row:
+            assert got[0, 0] == L[0, 0]

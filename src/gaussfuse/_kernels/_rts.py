@@ -13,9 +13,11 @@ readable path's minimum-norm solution (:func:`gaussfuse._linalg.psd_solve`).
 Then :func:`backward` runs the recursion (:func:`._step.rts_step`) over
 each series, in parallel over chunks of series for a batch
 (:func:`backward_parallel`). The square-root smoother's recursion,
-:func:`backward_sqrt` (:func:`._step.rts_step_sqrt`), computes its gains
-from the joint factor as it goes; a series whose prediction's factor is
-singular is left to the readable path.
+:func:`backward_sqrt` (:func:`._step.rts_back`), computes its gains
+from the joint factor of each transition as it goes (computed from a
+linear model, or stored by the sigma-point forward pass, which has the
+regression); a series whose prediction's factor is singular is left to
+the readable path.
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ from numba import prange
 
 from .._linalg import psd_solve
 from ._jit import jit, launch
-from ._step import (at, copy1, copy2, not_finite_factor, rts_step, rts_step_sqrt, sqrt_back_workspace, workspace,
-                    wrap)
+from ._step import (at, copy1, copy2, joint_factor, not_finite_factor, predict_mean, rts_back, rts_step,
+                    sqrt_back_workspace, workspace, wrap)
 
 __all__ = ["backward", "backward_parallel", "backward_sqrt", "least_squares_gains", "smooth"]
 
@@ -60,26 +62,37 @@ def backward_parallel(chunks, means, covs, pmeans, pcovs, gains, angles, sm_mean
 
 
 @jit(**_JIT)
-def backward_sqrt(lo, hi, means, factors, F, Qf, b, angles, sm_means, sm_factors, gains, failed):
-    """run_smoother on factors over series ``lo..hi-1`` (:func:`._step.rts_step_sqrt`), for a linear model.
+def backward_sqrt(lo, hi, means, factors, F, Qf, b, joint, jpm, angles, sm_means, sm_factors, gains, failed):
+    """run_smoother on factors over series ``lo..hi-1`` (:func:`._step.rts_back`).
 
-    `F` and `Qf` (T or 1, n, n) are the transitions and the factors of Q,
-    `b` (N or 1, T or 1, n) the offsets. ``failed[s]`` is set where a
+    The joint factor of each transition (:func:`._step.joint_factor`) is
+    read from `joint` (N, T - 1, 2n, 2n), with the prediction's mean from
+    `jpm` (N, T - 1, n), where a sigma-point forward pass stored them;
+    otherwise (`joint` of length 0) it is computed from a linear model's
+    `F` and `Qf` (T or 1, n, n), the transitions and the factors of Q, and
+    `b` (N or 1, T or 1, n), the offsets. ``failed[s]`` is set where a
     prediction's factor is singular or a smoothed belief is not finite;
     the caller smooths those series on the readable path.
     """
     T = means.shape[1]
     n = means.shape[2]
     bw = sqrt_back_workspace(n)
+    stored = joint.shape[1] > 0
     for s in range(lo, hi):
         failed[s] = False
         copy1(sm_means[s, T - 1], means[s, T - 1])
         copy2(sm_factors[s, T - 1], factors[s, T - 1])
         bs = b[s if b.shape[0] > 1 else 0]
         for j in range(T - 2, -1, -1):  # the transition out of step j is the one into step j + 1
-            ok = rts_step_sqrt(bw, means[s, j], factors[s, j], sm_means[s, j + 1], sm_factors[s, j + 1],
-                               at(F, j + 1), at(Qf, j + 1), at(bs, j + 1), angles, sm_means[s, j], sm_factors[s, j],
-                               gains[s, j])
+            if stored:
+                copy2(bw.T, joint[s, j])
+                copy1(bw.pm, jpm[s, j])
+            else:
+                Lq = at(Qf, j + 1)
+                joint_factor(bw, factors[s, j], at(F, j + 1), Lq, Lq[:, :0])
+                predict_mean(means[s, j], at(F, j + 1), at(bs, j + 1), bw.pm)
+            ok = rts_back(bw, means[s, j], sm_means[s, j + 1], sm_factors[s, j + 1], angles, sm_means[s, j],
+                          sm_factors[s, j], gains[s, j])
             if not ok or not_finite_factor(sm_means[s, j], sm_factors[s, j], 0.0):
                 failed[s] = True
                 break

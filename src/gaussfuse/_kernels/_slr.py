@@ -35,9 +35,10 @@ from ._dense import cholesky
 from ._jit import jit
 from ._step import wrap
 
-__all__ = ["Rule", "Regression", "regression", "draw", "points", "regress"]
+__all__ = ["Rule", "Regression", "regression", "draw", "points", "regress", "regress_sqrt"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
+_EPS = float(np.finfo(np.float64).eps)
 
 
 class Rule(NamedTuple):
@@ -133,10 +134,9 @@ def regress(Y, d, rule, mean, angles, g):
 
 
 @register_jitable(**_JIT)
-def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, offset, noise):
+def _spread(Y, d, wm, angles, ybar, dY):
+    """ȳ centred on the first point (_linalg.weighted_mean), or the circular mean of an angle; δY_i = Y_i - ȳ."""
     k = Y.shape[0]
-    n = mean.shape[0]
-    # ȳ centred on the first point (_linalg.weighted_mean), or the circular mean of an angle
     for a in range(d):
         ref = Y[0, a]
         if angles[a]:
@@ -155,6 +155,13 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, of
             ybar[a] = ref + t
             for i in range(k):
                 dY[i, a] = Y[i, a] - ybar[a]
+
+
+@register_jitable(**_JIT)
+def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, offset, noise):
+    k = Y.shape[0]
+    n = mean.shape[0]
+    _spread(Y, d, wm, angles, ybar, dY)
     # S = (δY wc)ᵀ δY, Ξ = (ξ_r wc)ᵀ δY
     for a in range(d):
         for b in range(d):
@@ -205,3 +212,61 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, of
         for j in range(n):
             t += A[a, j] * mean[j]
         offset[a] = ybar[a] - t
+
+
+@jit(inline="always", **_JIT)
+def regress_sqrt(Y, d, rule, mean, angles, g, E, dev, At):
+    r"""linearize.sigma_points.slr_sqrt on the outputs ``Y[:, :d]`` at the points of ``N(mean, L Lᵀ)``.
+
+    ``g.L`` is the lower-triangular factor that drew the points, with a
+    positive diagonal. Writes ``g.A[:d]``, ``g.b[:d]`` and the residuals
+    :math:`e_i = \delta\mathcal Y_i - \Xi^\top \xi_i` in ``E[:, :d]``, those
+    within the round-off of the points and outputs set to 0 (see slr_sqrt);
+    `dev` (k, n) and `At` (n, ≥ d) are scratch for :math:`|\xi L^\top|` and :math:`A^\top`.
+    """
+    _regress_sqrt(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.ybar, g.dY, g.Xi, At, g.A, g.b, E, dev)
+
+
+@register_jitable(**_JIT)
+def _regress_sqrt(Y, d, xi, wm, wc, mean, angles, L, ybar, dY, Xi, At, A, offset, E, dev):
+    k = Y.shape[0]
+    n = mean.shape[0]
+    _spread(Y, d, wm, angles, ybar, dY)
+    for j in range(n):  # Ξ = (ξ wc)ᵀ δY
+        for a in range(d):
+            t = 0.0
+            for i in range(k):
+                t += xi[i, j] * wc[i] * dY[i, a]
+            Xi[j, a] = t
+    for i in range(k):  # e_i = δY_i - Ξᵀ ξ_i
+        for a in range(d):
+            t = 0.0
+            for j in range(n):
+                t += xi[i, j] * Xi[j, a]
+            E[i, a] = dY[i, a] - t
+    for j in range(n - 1, -1, -1):  # Aᵀ = L⁻ᵀ Ξ: back substitution
+        for a in range(d):
+            t = Xi[j, a]
+            for jj in range(j + 1, n):
+                t -= L[jj, j] * At[jj, a]
+            At[j, a] = t / L[j, j]
+    for a in range(d):  # b = ȳ - A m
+        t = 0.0
+        for j in range(n):
+            A[a, j] = At[j, a]
+            t += At[j, a] * mean[j]
+        offset[a] = ybar[a] - t
+    for i in range(k):  # |ξ_i Lᵀ|, the points' distances from the mean
+        for j in range(n):
+            t = 0.0
+            for jj in range(j + 1):
+                t += xi[i, jj] * L[j, jj]
+            dev[i, j] = abs(t)
+    cut = 4.0 * k * _EPS
+    for i in range(k):  # residuals at the round-off of (|m| + |ξ_i Lᵀ|) |A|ᵀ + |δY_i| + |ȳ| are zero
+        for a in range(d):
+            size = abs(dY[i, a]) + abs(ybar[a])
+            for j in range(n):
+                size += (abs(mean[j]) + dev[i, j]) * abs(A[a, j])
+            if abs(E[i, a]) <= cut * size:
+                E[i, a] = 0.0

@@ -42,7 +42,7 @@ from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
 __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
-           "SqrtBack", "sqrt_back_workspace", "rts_step_sqrt",
+           "SqrtBack", "sqrt_back_workspace", "joint_factor", "rts_back", "downdate",
            "not_finite_factor", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
            "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
            "not_finite",
@@ -52,6 +52,7 @@ __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_s
 LOG_2PI = math.log(2.0 * math.pi)
 _TWO_PI = 2.0 * math.pi
 _JIT = {"nogil": True, "error_model": "numpy"}
+_EPS = float(np.finfo(np.float64).eps)
 
 
 class Work(NamedTuple):
@@ -220,20 +221,61 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
 
 
 class SqrtWork(NamedTuple):
-    """Scratch of one series' square-root steps (names as in kalman.update_sqrt)."""
+    """Scratch of one series' square-root steps (names as in kalman.update_sqrt).
 
-    M: np.ndarray    # (n + m, 2n + m) the pre-array, triangularised in place
+    For n states, m measurement components and k extra noise columns (a
+    sigma-point regression's residuals, :func:`sqrt_workspace`).
+    """
+
+    M: np.ndarray    # (n + m, 2n + m + k) the pre-array, triangularised in place
     T: np.ndarray    # (n + m, n + m) its lower-triangular result
-    u: np.ndarray    # (2n + m,)  a Householder vector
+    u: np.ndarray    # (2n + m + k,)  a Householder vector
     HL: np.ndarray   # (m, n)     H L⁻
     LRo: np.ndarray  # (m, m)     the factor of R_oo
+    V: np.ndarray    # (n + m, k) the columns to downdate by
+    v: np.ndarray    # (n + m,)   one of them, turned by the rotations
 
 
 @register_jitable
-def sqrt_workspace(n, m):
-    """A :class:`SqrtWork` for n states and m measurement components."""
-    return SqrtWork(np.zeros((n + m, 2 * n + m)), np.zeros((n + m, n + m)), np.empty(2 * n + m), np.empty((m, n)),
-                    np.zeros((m, m)))
+def sqrt_workspace(n, m, k=0):
+    """A :class:`SqrtWork` for n states, m measurement components and k extra noise columns."""
+    c = 2 * n + m + k
+    return SqrtWork(np.zeros((n + m, c)), np.zeros((n + m, n + m)), np.empty(c), np.empty((m, n)),
+                    np.zeros((m, m)), np.zeros((n + m, k)), np.empty(n + m))
+
+
+@register_jitable(**_JIT)
+def downdate(L, V, q, p, v):
+    r"""_linalg.downdate in place: ``L[:q, :q]`` becomes the factor of :math:`L L^\top - V V^\top`, ``V = V[:q, :p]``.
+
+    The same hyperbolic rotations in the "mixed" form, column by column of
+    V (copied into `v`, so V is left as it is), with the same floor: a
+    component :math:`v_k` within :math:`8 q \epsilon` of its standard
+    deviation is left alone. Returns False where a pivot :math:`\rho^2 \le 0`
+    (the readable path then raises, naming the matrix).
+    """
+    floor = 8 * q * _EPS
+    for c in range(p):
+        for i in range(q):
+            v[i] = V[i, c]
+        for k in range(q):
+            norm = 0.0
+            for j in range(k + 1):
+                norm += L[k, j] * L[k, j]
+            if abs(v[k]) <= floor * math.sqrt(norm):
+                continue
+            a = L[k, k]
+            rho2 = (a - v[k]) * (a + v[k])
+            if not rho2 > 0.0:
+                return False
+            rho = math.sqrt(rho2)
+            cos = rho / a
+            sin = v[k] / a
+            L[k, k] = rho
+            for i in range(k + 1, q):
+                L[i, k] = (L[i, k] - sin * v[i]) / cos
+                v[i] = cos * v[i] - sin * L[i, k]
+    return True
 
 
 @register_jitable(**_JIT)
@@ -278,8 +320,9 @@ def tria(M, rows, cols, u, L):
 
 @jit(inline="always", **_JIT)
 def predict_sqrt(sw, mean, factor, A, Q_factor, b, pred_mean, pred_factor):
-    r"""kalman.predict_sqrt: :math:`m^- = A m + b`, :math:`L^- = \mathrm{tria}[A L, L_Q]`."""
+    r"""kalman.predict_sqrt: :math:`m^- = A m + b`, :math:`L^- = \mathrm{tria}[A L, L_Q]`, `Q_factor` (n, q)."""
     n = mean.shape[0]
+    q = Q_factor.shape[1]
     predict_mean(mean, A, b, pred_mean)
     for i in range(n):
         for j in range(n):
@@ -287,17 +330,20 @@ def predict_sqrt(sw, mean, factor, A, Q_factor, b, pred_mean, pred_factor):
             for k in range(j, n):  # L is lower triangular
                 s += A[i, k] * factor[k, j]
             sw.M[i, j] = s
+        for j in range(q):
             sw.M[i, n + j] = Q_factor[i, j]
-    tria(sw.M, n, 2 * n, sw.u, pred_factor)
+    tria(sw.M, n, n + q, sw.u, pred_factor)
 
 
 @jit(inline="always", **_JIT)
-def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_factor, innovation):
+def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, post_factor, innovation):
     r"""kalman.update_sqrt: the pre-array ``[[L_R,o, H_o L⁻], [0, L⁻]]`` triangularised.
 
-    Returns ``(ok, loglik, mo)``; ``ok`` is False when :math:`L_S` has a zero
-    pivot (the innovation covariance of the observed components is
-    singular). Leaves :math:`L_S` in ``w.L``, :math:`\bar K^\top` in ``w.Kt``
+    `R_factor` is (m, r); `D` (m, p) the columns :math:`D_R` to take away
+    (p = 0 for none): the post-array is downdated by :math:`[D_{R,o};\, 0]`
+    before its blocks are read. Returns ``(ok, loglik, mo)``; ``ok`` is
+    False when :math:`L_S` has a zero pivot (the innovation covariance of
+    the observed components is singular) or the downdate fails. Leaves :math:`L_S` in ``w.L``, :math:`\bar K^\top` in ``w.Kt``
     (what :func:`hold_fixed` keeps) and the whitened innovation in ``w.white``.
     """
     n = mean.shape[0]
@@ -314,10 +360,11 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_
         copy2(post_factor, factor)
         return True, 0.0, mo
     # the factor of R_oo: tria of the observed rows of L_R
+    r = R_factor.shape[1]
     for a in range(mo):
-        for b in range(m):
+        for b in range(r):
             sw.M[a, b] = R_factor[w.obs[a], b]
-    tria(sw.M, mo, m, sw.u, sw.LRo)
+    tria(sw.M, mo, r, sw.u, sw.LRo)
     q = mo + n
     for r in range(q):
         for c in range(q):
@@ -331,6 +378,13 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_
         for j in range(n):
             sw.M[mo + i, mo + j] = factor[i, j]
     tria(sw.M, q, q, sw.u, sw.T)
+    p = D.shape[1]
+    if p > 0:
+        for i in range(q):
+            for c in range(p):
+                sw.V[i, c] = D[w.obs[i], c] if i < mo else 0.0
+        if not downdate(sw.T, sw.V, q, p, sw.v):
+            return False, 0.0, mo
     for a in range(mo):
         if not sw.T[a, a] > 0.0:
             return False, 0.0, mo
@@ -348,48 +402,69 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, d, angles, post_mean, post_
 
 
 class SqrtBack(NamedTuple):
-    """Scratch of :func:`rts_step_sqrt` for n states (the names are kalman.rts_step_sqrt's)."""
+    """Scratch of :func:`joint_factor` and :func:`rts_back` for n states and k extra noise columns (names as in kalman.rts_step_sqrt)."""
 
-    M: np.ndarray    # (2n, 2n)    the joint pre-array [[L_Q, A L_k], [0, L_k]], triangularised in place
+    M: np.ndarray    # (2n, 2n + k) the joint pre-array [[L_Q, A L_k], [0, L_k]], triangularised in place
     T: np.ndarray    # (2n, 2n)    its lower-triangular result [[L⁻, 0], [Y, X]]
-    u: np.ndarray    # (2n,)       a Householder vector
+    u: np.ndarray    # (2n + k,)   a Householder vector
     rhs: np.ndarray  # (n, 2n + 1) [m^s - m⁻, L^s, I], then (L⁻)⁻¹ of it
     N: np.ndarray    # (n, 2n)     [X, G L^s], triangularised in place
     pm: np.ndarray   # (n,)        m⁻
+    V: np.ndarray    # (2n, k)     the columns [D_Q; 0] to downdate by
+    v: np.ndarray    # (2n,)       one of them, turned by the rotations
 
 
 @register_jitable
-def sqrt_back_workspace(n):
-    """A :class:`SqrtBack` for n states."""
-    return SqrtBack(np.zeros((2 * n, 2 * n)), np.zeros((2 * n, 2 * n)), np.empty(2 * n), np.empty((n, 2 * n + 1)),
-                    np.zeros((n, 2 * n)), np.empty(n))
+def sqrt_back_workspace(n, k=0):
+    """A :class:`SqrtBack` for n states and k extra noise columns."""
+    return SqrtBack(np.zeros((2 * n, 2 * n + k)), np.zeros((2 * n, 2 * n)), np.empty(2 * n + k),
+                    np.empty((n, 2 * n + 1)), np.zeros((n, 2 * n)), np.empty(n), np.zeros((2 * n, k)),
+                    np.empty(2 * n))
 
 
 @jit(inline="always", **_JIT)
-def rts_step_sqrt(bw, filt_mean, filt_factor, next_mean, next_factor, A, Q_factor, b, angles, mean, factor, gain):
-    r"""kalman.rts_step_sqrt: one triangularisation of the joint factor, then the gain's triangular solve.
+def joint_factor(bw, filt_factor, A, Q_factor, D):
+    r"""kalman.joint_factor's triangularisation, into ``bw.T``: :math:`[[L^-, 0], [Y, X]]`.
 
-    Writes :math:`m^s_k`, :math:`L^s_k` and :math:`G_k` into `mean`,
-    `factor` and `gain`. Returns False when :math:`L^-` has a zero pivot
-    (a singular prediction): the caller then takes the readable path, whose
-    least-squares solve is exact on the range of :math:`L^-`.
+    :math:`\mathrm{tria}[[L_Q, A L_k], [0, L_k]]` with `Q_factor` (n, q),
+    downdated by :math:`[D_Q;\, 0]` with `D` (n, p; p = 0 for none).
+    Returns False when the downdate fails (the readable path then raises).
     """
-    n = filt_mean.shape[0]
+    n = filt_factor.shape[0]
+    q = Q_factor.shape[1]
     M = bw.M
     for i in range(n):
+        for j in range(q):
+            M[i, j] = Q_factor[i, j]
+            M[n + i, j] = 0.0
         for j in range(n):
             s = 0.0
             for k in range(j, n):  # L_k is lower triangular
                 s += A[i, k] * filt_factor[k, j]
-            M[i, j] = Q_factor[i, j]
-            M[i, n + j] = s
-            M[n + i, j] = 0.0
-            M[n + i, n + j] = filt_factor[i, j]
-    tria(M, 2 * n, 2 * n, bw.u, bw.T)
+            M[i, q + j] = s
+            M[n + i, q + j] = filt_factor[i, j]
+    tria(M, 2 * n, q + n, bw.u, bw.T)
+    p = D.shape[1]
+    if p == 0:
+        return True
+    for i in range(2 * n):
+        for c in range(p):
+            bw.V[i, c] = D[i, c] if i < n else 0.0
+    return downdate(bw.T, bw.V, 2 * n, p, bw.v)
+
+
+@jit(inline="always", **_JIT)
+def rts_back(bw, filt_mean, next_mean, next_factor, angles, mean, factor, gain):
+    r"""The backward step from the joint factor in ``bw.T`` and the prediction's mean in ``bw.pm``.
+
+    :math:`G_k = Y (L^-)^{-1}`, :math:`m^s_k = m_k + G_k (m^s_{k+1} - m^-_{k+1})`
+    and :math:`L^s_k = \mathrm{tria}[X, G_k L^s_{k+1}]`, by one forward
+    substitution with :math:`L^-`. Returns False when :math:`L^-` has a zero pivot.
+    """
+    n = filt_mean.shape[0]
     for i in range(n):
         if not bw.T[i, i] > 0.0:
             return False
-    predict_mean(filt_mean, A, b, bw.pm)
     rhs = bw.rhs
     for i in range(n):
         diff = next_mean[i] - bw.pm[i]

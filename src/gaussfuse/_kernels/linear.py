@@ -228,7 +228,7 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                     if not_finite_factor(pm, pL, 0.0):
                         record(fail, s, PREDICTED_NOT_FINITE, k)
                         break
-                ok, ll, mo = update_sqrt(w, sw, pm, pL, z, H, at(Rf, k), model.d, model.angles, mean, L, v)
+                ok, ll, mo = update_sqrt(w, sw, pm, pL, z, H, at(Rf, k), at(Rf, k)[:, :0], model.d, model.angles, mean, L, v)
                 if update_failed(fail, s, k, w, ok, mo, ok and not_finite_factor(mean, L, ll)):
                     break
                 if invariant and mo > 0:  # the fixed point's test, on the covariances L Lᵀ
@@ -366,6 +366,7 @@ def smooth_sqrt(lin, model, prior, zs, us) -> tuple[SmoothResult, np.ndarray]:
     sm_means, sm_factors = np.empty_like(out.means), np.empty_like(out.factors)
     gains, failed = np.empty((N, max(T - 1, 0), n, n)), np.zeros(N, dtype=np.bool_)
     if T:
-        _rts.backward_sqrt(0, N, out.means, out.factors, layout.F, Qf, layout.b, np.zeros(n, dtype=np.bool_),
-                           sm_means, sm_factors, gains, failed)
+        _rts.backward_sqrt(0, N, out.means, out.factors, layout.F, Qf, layout.b, np.empty((N, 0, 2 * n, 2 * n)),
+                           np.empty((N, 0, n)), np.zeros(n, dtype=np.bool_), sm_means, sm_factors, gains, failed)
+    sm_means[failed], sm_factors[failed] = 0.0, 0.0  # left unwritten where they stopped: the driver fills them in
     return SmoothResult(sm_means, symmetrize(sm_factors @ sm_factors.swapaxes(-1, -2)), gains, filter_result(out), cov_factors=sm_factors), failed

@@ -43,6 +43,19 @@ Two execution modes, chosen per call (:func:`execution_mode`), drive it:
   (its arguments held in one structure, :func:`hold`, that numba unboxes
   once for the whole run, not at every call).
 
+The square-root form (``form="sqrt"``: :func:`gaussfuse.kalman.step_sqrt`
+through SigmaPoints' ``transition_sqrt`` and ``measurement_sqrt``) runs the
+same machine on a :class:`SqrtBelief`, whose type selects, when compiled,
+each stage's square-root version: the points are drawn from the factor,
+:func:`._slr.regress_sqrt` carries the regression's error as factor columns,
+:func:`._step.predict_sqrt` and :func:`._step.update_sqrt` triangularise
+them and :func:`._step.downdate` takes away those of negative weights. A
+factor with a zero pivot (whose regression is the readable path's
+least-squares solve) or a downdate that fails stops the run with
+:class:`gaussfuse.errors.ReadablePath`, and the driver runs the call on the
+readable path. When smoothing, the forward pass stores each transition's
+joint factor (:func:`._step.joint_factor`) for :func:`._rts.backward_sqrt`.
+
 Model-function errors (an exception, a wrong shape, a non-finite value) and
 failed factorisations raise the same :class:`ModelFunctionError` /
 :class:`numpy.linalg.LinAlgError` messages as the readable path, prefixed
@@ -63,19 +76,21 @@ from numba.experimental import structref
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload, register_jitable
 
-from .._linalg import sqrt_cov
+from .._linalg import sqrt_cov, symmetrize
+from ..kalman import cov_factor
 from .._validation import call_checked, size_reason
-from ..errors import ModelFunctionError
+from ..errors import ModelFunctionError, ReadablePath
 from ..inference.results import SmoothResult, check_smoothed
 from . import _rts
 from ._jit import entry_point, jit
 from ._nrt import borrow, readonly
-from ._slr import Rule, draw, points, regress, regression
-from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, at, copy1, copy2, failures, filter_result, nis,
-                    not_finite, outputs, predict, raise_failure, record, record_not_pd, smoother_gain, update, where,
-                    workspace, wrap)
+from ._slr import Rule, draw, points, regress, regress_sqrt, regression
+from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, SqrtBack, SqrtWork, at, copy1, copy2, downdate,
+                    failures, filter_result, joint_factor, nis, not_finite, not_finite_factor, outputs, predict,
+                    predict_mean, predict_sqrt, raise_failure, record, record_not_pd, smoother_gain, sqrt_back_workspace,
+                    sqrt_workspace, square, update, update_sqrt, where, workspace, wrap)
 
-__all__ = ["filter", "smooth", "execution_mode", "advance", "hold"]
+__all__ = ["filter", "smooth", "smooth_sqrt", "execution_mode", "advance", "hold"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 _F64 = np.dtype(np.float64)
@@ -83,8 +98,10 @@ _F64 = np.dtype(np.float64)
 # Stages of a step, and what advance() and run() return.
 START, DRAW_F, FORECAST, DRAW_H, CORRECT = range(5)
 DONE, NEED_F, NEED_H, NEED_ROOT, FAILED = range(5)
-# Failure codes beyond _step's: f or h returned a non-finite value, or (compiled mode) a wrong shape.
-F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE = 10, 11, 12, 13
+# Failure codes beyond _step's: f or h returned a non-finite value, or (compiled mode) a wrong shape; and a
+# square-root step that needs the readable path (a singular factor, or a downdate or update that fails).
+F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE, READABLE = 10, 11, 12, 13, 14
+DRAWN = -1  # a draw's status when the points are drawn
 
 
 class Problem(NamedTuple):
@@ -98,6 +115,9 @@ class Problem(NamedTuple):
     measurement_angles: np.ndarray  # (m,) bool
     m0: np.ndarray                  # (n,)
     P0: np.ndarray                  # (n, n)
+    Qf: np.ndarray                  # (T or 1, n, n) the factors of Q (square-root form; else length 0)
+    Rf: np.ndarray                  # (T or 1, m, m) the factors of R (idem)
+    L0: np.ndarray                  # (n, n) the factor of P0 (idem)
 
 
 class Belief(NamedTuple):
@@ -116,6 +136,37 @@ class Belief(NamedTuple):
     loglik: np.ndarray      # (1,) the series' log-likelihood so far
 
 
+class SqrtBelief(NamedTuple):
+    r""":class:`Belief` for the square-root form: ``cov`` and ``pcov`` hold the factors L and L⁻; and its scratch.
+
+    k points, n states, m measurement components; the columns of a
+    regression's noise are :math:`[L_Q, \sqrt{w_i} e_i]` (positive
+    weights) and :math:`\sqrt{-w_i} e_i` (negative ones), see
+    :func:`._slr.regress_sqrt`.
+    """
+
+    mean: np.ndarray        # (n,)
+    cov: np.ndarray         # (n, n) L
+    pmean: np.ndarray       # (n,)
+    pcov: np.ndarray        # (n, n) L⁻
+    innovation: np.ndarray  # (m,)
+    S: np.ndarray           # (m, m)
+    X: np.ndarray           # (k, n)
+    Xh: np.ndarray          # (k, n)
+    loglik: np.ndarray      # (1,)
+    E: np.ndarray           # (k, max(n, m)) the residuals e_i
+    dev: np.ndarray         # (k, n) |ξ_i Lᵀ|
+    At: np.ndarray          # (n, max(n, m)) Aᵀ
+    Qc: np.ndarray          # (n, n + k) [L_Q, √w e]
+    Qm: np.ndarray          # (n, k) √-w e
+    Rc: np.ndarray          # (m, m + k) [L_R, √w e]
+    Rm: np.ndarray          # (m, k) √-w e
+    sw: SqrtWork
+    bw: SqrtBack
+    joint: np.ndarray       # (N, T - 1 or 0, 2n, 2n) the smoother's joint factor of each transition
+    jpm: np.ndarray         # (N, T - 1 or 0, n) and the mean of its prediction, A m + b
+
+
 class Cursor(NamedTuple):
     """Where :func:`advance` stands, and what it reports (one-element arrays: written by compiled code)."""
 
@@ -130,6 +181,16 @@ class Cursor(NamedTuple):
 def _belief(k: int, n: int, m: int) -> Belief:
     return Belief(np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((m, m)),
                   np.empty((k, n)), np.empty((k, n)), np.empty((n, n)), np.empty((m, m)), np.zeros(1))
+
+
+def _sqrt_belief(k: int, n: int, m: int, N: int, T: int, smoothing: bool) -> SqrtBelief:
+    d = max(n, m)
+    links = max(T - 1, 0) if smoothing else 0
+    return SqrtBelief(np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((m, m)),
+                      np.empty((k, n)), np.empty((k, n)), np.zeros(1), np.empty((k, d)), np.empty((k, n)),
+                      np.empty((n, d)), np.empty((n, n + k)), np.empty((n, k)), np.empty((m, m + k)),
+                      np.empty((m, k)), sqrt_workspace(n, m, k), sqrt_back_workspace(n, k),
+                      np.empty((N, links, 2 * n, 2 * n)), np.empty((N, links, n)))
 
 
 def _cursor(first: int) -> Cursor:
@@ -214,13 +275,221 @@ def _correct(s, t, Z, prob, bel, out, w, gh, fail):
 
 
 @jit(inline="always", **_JIT)
-def _draw(cursor, mean, cov, rule, g, X):
-    """The points of ``N(mean, cov)``: through the root the caller gave, or the Cholesky factor; False if it has none."""
+def _draw(cursor, bel, prob, g, predicted, s, t, fail):
+    """The points of the belief (`predicted`: of the prediction): through the root the caller gave, or the
+    Cholesky factor; DRAWN, or NEED_ROOT if it has none."""
+    mean, cov, X = (bel.pmean, bel.pcov, bel.Xh) if predicted else (bel.mean, bel.cov, bel.X)
     if cursor.given[0]:
         cursor.given[0] = 0
-        points(mean, rule, g, X)
-        return True
-    return draw(mean, cov, rule, g, X)
+        points(mean, prob.rule, g, X)
+        return DRAWN
+    return DRAWN if draw(mean, cov, prob.rule, g, X) else NEED_ROOT
+
+
+# ---------------------------------------------------------------------------
+# The square-root form's stages (kalman.forecast_sqrt / correct_sqrt through SigmaPoints)
+# ---------------------------------------------------------------------------
+
+
+@register_jitable(**_JIT)
+def _columns(E, d, wc, base, plus, minus):
+    """``plus = [base, √w_i e_i]`` over the positive weights and ``minus = [√-w_i e_i]`` over the negative
+    ones (linearize.sigma_points.slr_sqrt's Ω₊ and Ω₋ after the noise's factor); returns their widths."""
+    r = base.shape[1]
+    for a in range(d):
+        for c in range(r):
+            plus[a, c] = base[a, c]
+    q = r
+    p = 0
+    for i in range(wc.shape[0]):
+        if wc[i] > 0.0:
+            root = math.sqrt(wc[i])
+            for a in range(d):
+                plus[a, q] = E[i, a] * root
+            q += 1
+        elif wc[i] < 0.0:
+            root = math.sqrt(-wc[i])
+            for a in range(d):
+                minus[a, p] = E[i, a] * root
+            p += 1
+    return q, p
+
+
+@jit(inline="always", **_JIT)
+def _draw_sqrt(cursor, bel, prob, g, predicted, s, t, fail):
+    """The points ``m + L ξ_i`` of the factor itself; READABLE (a FAILED status) where it has a zero pivot."""
+    mean, L, X = (bel.pmean, bel.pcov, bel.Xh) if predicted else (bel.mean, bel.cov, bel.X)
+    n = mean.shape[0]
+    for a in range(n):
+        if not L[a, a] > 0.0:  # a singular factor: the readable path's least-squares regression
+            record(fail, s, READABLE, t)
+            return FAILED
+        g.keep[a] = True
+        for b in range(n):
+            g.L[a, b] = L[a, b] if b <= a else 0.0
+    points(mean, prob.rule, g, X)
+    return DRAWN
+
+
+@jit(inline="always", **_JIT)
+def _forecast_sqrt(s, t, Y, prob, bel, out, w, gf, fail):
+    """kalman.forecast_sqrt through SigmaPoints.transition_sqrt, with f's values Y; False if it fails.
+
+    When smoothing, the joint factor of :math:`(x_t, x_{t-1})` from the same
+    regression (kalman.joint_factor, what run_smoother re-linearises at)
+    is stored for the backward pass.
+    """
+    n = bel.mean.shape[0]
+    regress_sqrt(Y, n, prob.rule, bel.mean, prob.state_angles, gf, bel.E, bel.dev, bel.At)
+    q, p = _columns(bel.E, n, prob.rule.wc, at(prob.Qf, t), bel.Qc, bel.Qm)
+    predict_sqrt(bel.sw, bel.mean, bel.cov, gf.A, bel.Qc[:, :q], gf.b, bel.pmean, bel.pcov)
+    if p > 0 and not downdate(bel.pcov, bel.Qm, n, p, bel.sw.v):
+        record(fail, s, READABLE, t)
+        return False
+    if bel.joint.shape[1] and t > 0:
+        if not joint_factor(bel.bw, bel.cov, gf.A, bel.Qc[:, :q], bel.Qm[:, :p]):
+            record(fail, s, READABLE, t)
+            return False
+        copy2(bel.joint[s, t - 1], bel.bw.T)
+        predict_mean(bel.mean, gf.A, gf.b, bel.jpm[s, t - 1])
+    for a in range(n):
+        if prob.state_angles[a]:
+            bel.pmean[a] = wrap(bel.pmean[a])
+    if not_finite_factor(bel.pmean, bel.pcov, 0.0):
+        record(fail, s, PREDICTED_NOT_FINITE, t)
+        return False
+    if out.predicted_means.shape[1]:
+        copy1(out.predicted_means[s, t], bel.pmean)
+    if out.predicted_covs.shape[1]:
+        square(bel.pcov, out.predicted_covs[s, t])
+        copy2(out.predicted_factors[s, t], bel.pcov)
+    return True
+
+
+@jit(inline="always", **_JIT)
+def _correct_sqrt(s, t, Z, prob, bel, out, w, gh, fail):
+    """kalman.correct_sqrt through SigmaPoints.measurement_sqrt, with h's values Z; False if it fails."""
+    n = bel.mean.shape[0]
+    m = prob.zs.shape[2]
+    regress_sqrt(Z, m, prob.rule, bel.pmean, prob.measurement_angles, gh, bel.E, bel.dev, bel.At)
+    q, p = _columns(bel.E, m, prob.rule.wc, at(prob.Rf, t), bel.Rc, bel.Rm)
+    ok, ll, mo = update_sqrt(w, bel.sw, bel.pmean, bel.pcov, prob.zs[s, t], gh.A, bel.Rc[:, :q], bel.Rm[:, :p],
+                             gh.b, prob.measurement_angles, bel.mean, bel.cov, bel.innovation)
+    if not ok:  # the readable path downdates, or raises, naming the matrix
+        record(fail, s, READABLE, t)
+        return False
+    for a in range(n):
+        if prob.state_angles[a]:
+            bel.mean[a] = wrap(bel.mean[a])
+    if not_finite_factor(bel.mean, bel.cov, ll):
+        record(fail, s, FILTERED_NOT_FINITE, t)
+        return False
+    bel.loglik[0] += ll
+    if out.means.shape[1]:
+        copy1(out.means[s, t], bel.mean)
+        copy1(out.innovations[s, t], bel.innovation)
+        out.nis[s, t] = nis(w, prob.zs[s, t])
+    if out.covs.shape[1]:
+        square(bel.cov, out.covs[s, t])
+        copy2(out.factors[s, t], bel.cov)
+        S = out.innovation_covs[s, t]  # sym(H L⁻ (H L⁻)ᵀ + [L_R, Ω₊][L_R, Ω₊]ᵀ - Ω₋ Ω₋ᵀ), as sqrt_gain
+        HL = bel.sw.HL
+        for a in range(m):
+            for b in range(a + 1):
+                x = 0.0
+                for j in range(n):
+                    x += HL[a, j] * HL[b, j]
+                r = 0.0
+                for c in range(q):
+                    r += bel.Rc[a, c] * bel.Rc[b, c]
+                for c in range(p):
+                    r -= bel.Rm[a, c] * bel.Rm[b, c]
+                S[a, b] = x + r
+                S[b, a] = x + r
+    return True
+
+
+# ---------------------------------------------------------------------------
+# The form of a run is the type of its belief: each stage resolves, when compiled, to its form's version
+# ---------------------------------------------------------------------------
+
+
+def _is_sqrt(bel) -> bool:
+    return isinstance(bel, types.BaseNamedTuple) and bel.instance_class is SqrtBelief
+
+
+def _begin(prob, bel):  # pragma: no cover - replaced by the overload in compiled code
+    raise NotImplementedError
+
+
+@overload(_begin)
+def _begin_overload(prob, bel):
+    """A series starts at the prior: its covariance, or its factor."""
+    if _is_sqrt(bel):
+        def impl(prob, bel):
+            copy1(bel.mean, prob.m0)
+            copy2(bel.cov, prob.L0)
+            bel.loglik[0] = 0.0
+    else:
+        def impl(prob, bel):
+            copy1(bel.mean, prob.m0)
+            copy2(bel.cov, prob.P0)
+            bel.loglik[0] = 0.0
+    return impl
+
+
+def _end(s, bel, out):  # pragma: no cover - replaced by the overload in compiled code
+    raise NotImplementedError
+
+
+@overload(_end)
+def _end_overload(s, bel, out):
+    """A series is done: its log-likelihood and last belief (the covariance squared from its factor)."""
+    if _is_sqrt(bel):
+        def impl(s, bel, out):
+            out.loglik[s] = bel.loglik[0]
+            copy1(out.last_mean[s], bel.mean)
+            square(bel.cov, out.last_cov[s])
+    else:
+        def impl(s, bel, out):
+            out.loglik[s] = bel.loglik[0]
+            copy1(out.last_mean[s], bel.mean)
+            copy2(out.last_cov[s], bel.cov)
+    return impl
+
+
+def _draw_any(cursor, bel, prob, g, predicted, s, t, fail):  # pragma: no cover - replaced by the overload
+    raise NotImplementedError
+
+
+@overload(_draw_any)
+def _draw_any_overload(cursor, bel, prob, g, predicted, s, t, fail):
+    if _is_sqrt(bel):
+        return lambda cursor, bel, prob, g, predicted, s, t, fail: _draw_sqrt(cursor, bel, prob, g, predicted, s, t,
+                                                                              fail)
+    return lambda cursor, bel, prob, g, predicted, s, t, fail: _draw(cursor, bel, prob, g, predicted, s, t, fail)
+
+
+def _forecast_any(s, t, Y, prob, bel, out, w, gf, fail):  # pragma: no cover - replaced by the overload
+    raise NotImplementedError
+
+
+@overload(_forecast_any)
+def _forecast_any_overload(s, t, Y, prob, bel, out, w, gf, fail):
+    if _is_sqrt(bel):
+        return lambda s, t, Y, prob, bel, out, w, gf, fail: _forecast_sqrt(s, t, Y, prob, bel, out, w, gf, fail)
+    return lambda s, t, Y, prob, bel, out, w, gf, fail: _forecast(s, t, Y, prob, bel, out, w, gf, fail)
+
+
+def _correct_any(s, t, Z, prob, bel, out, w, gh, fail):  # pragma: no cover - replaced by the overload
+    raise NotImplementedError
+
+
+@overload(_correct_any)
+def _correct_any_overload(s, t, Z, prob, bel, out, w, gh, fail):
+    if _is_sqrt(bel):
+        return lambda s, t, Z, prob, bel, out, w, gh, fail: _correct_sqrt(s, t, Z, prob, bel, out, w, gh, fail)
+    return lambda s, t, Z, prob, bel, out, w, gh, fail: _correct(s, t, Z, prob, bel, out, w, gh, fail)
 
 
 @jit(inline="always", **_JIT)
@@ -231,24 +500,21 @@ def _advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
     status = DONE
     while True:
         if stage == START:  # series s begins at the prior
-            copy1(bel.mean, prob.m0)
-            copy2(bel.cov, prob.P0)
-            bel.loglik[0] = 0.0
+            _begin(prob, bel)
             t = 0
             stage = DRAW_F
         if stage == DRAW_F:
             if t == T:  # series s is done
-                out.loglik[s] = bel.loglik[0]
-                copy1(out.last_mean[s], bel.mean)
-                copy2(out.last_cov[s], bel.cov)
+                _end(s, bel, out)
                 s += 1
                 if s == N:
                     status = DONE
                     break
                 stage = START
                 continue
-            if not _draw(cursor, bel.mean, bel.cov, prob.rule, gf, bel.X):
-                status = NEED_ROOT
+            got = _draw_any(cursor, bel, prob, gf, False, s, t, fail)
+            if got != DRAWN:
+                status = got
                 break
             stage = FORECAST
             status = NEED_F
@@ -260,13 +526,14 @@ def _advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
                 record(fail, s, F_NOT_FINITE, t)
                 status = FAILED
                 break
-            if not _forecast(s, t, Y, prob, bel, out, w, gf, fail):
+            if not _forecast_any(s, t, Y, prob, bel, out, w, gf, fail):
                 status = FAILED
                 break
             stage = DRAW_H
         if stage == DRAW_H:
-            if not _draw(cursor, bel.pmean, bel.pcov, prob.rule, gh, bel.Xh):
-                status = NEED_ROOT
+            got = _draw_any(cursor, bel, prob, gh, True, s, t, fail)
+            if got != DRAWN:
+                status = got
                 break
             stage = CORRECT
             status = NEED_H
@@ -278,7 +545,7 @@ def _advance(cursor, Y, prob, bel, out, w, gf, gh, fail):
                 record(fail, s, H_NOT_FINITE, t)
                 status = FAILED
                 break
-            if not _correct(s, t, Y, prob, bel, out, w, gh, fail):
+            if not _correct_any(s, t, Y, prob, bel, out, w, gh, fail):
                 status = FAILED
                 break
             t += 1
@@ -434,7 +701,7 @@ _LOOPS: dict = {}
 
 def _run_for(f_sig, h_sig, args) -> object:
     """:func:`run` compiled for these function signatures and the types of `args` (compiled once, cached on disk)."""
-    key = (f_sig, h_sig, args[0] is None)
+    key = (f_sig, h_sig, args[0] is None, type(args[5]).__name__)  # args[5]: the belief, whose type is the form
     if key not in _LOOPS:
         from numba import typeof
 
@@ -561,6 +828,8 @@ def _raise_failed(cursor: Cursor, fail, model, k: int, N: int) -> None:
     """Raise the readable path's error for a stopped series."""
     s = int(cursor.series[0])
     code, step = int(fail.code[s]), int(fail.step[s])
+    if code == READABLE:
+        raise ReadablePath(f"{where(s, step, N)}: the square-root step needs the readable path")
     if code in (F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE):
         name = "f" if code in (F_NOT_FINITE, F_SHAPE) else "h"
         d = model.n if name == "f" else model.m
@@ -576,22 +845,35 @@ def _raise_failed(cursor: Cursor, fail, model, k: int, N: int) -> None:
     raise_failure(fail)
 
 
-def _problem(lin, model, prior, zs) -> Problem:
+def _problem(lin, model, prior, zs, sqrt: bool) -> Problem:
     rule = lin.rule
-    stacked = (readonly(a if a.ndim == 3 else a[None]) for a in (model.Q, model.R))
+    Q, R = (readonly(a if a.ndim == 3 else a[None]) for a in (model.Q, model.R))
     angles = (np.array(model.state_angles, dtype=np.bool_), np.array(model.measurement_angles, dtype=np.bool_))
-    return Problem(readonly(zs), *stacked, Rule(readonly(rule.points), readonly(rule.wm), readonly(rule.wc)),
-                   *angles, readonly(prior.mean), readonly(prior.cov))
+    if sqrt:  # kalman.cov_factor of each Q_k, R_k and P0, as SigmaPoints.transition_sqrt's `factors`
+        factors = (readonly(np.stack([cov_factor(a, name) for a in stack])) for stack, name in ((Q, "Q"), (R, "R")))
+        Qf, Rf = factors
+        L0 = readonly(cov_factor(prior.cov, "the prior covariance"))
+    else:
+        Qf, Rf, L0 = Q[:0], R[:0], readonly(prior.cov)
+    return Problem(readonly(zs), Q, R, Rule(readonly(rule.points), readonly(rule.wm), readonly(rule.wc)), *angles,
+                   readonly(prior.mean), readonly(prior.cov), Qf, Rf, L0)
 
 
-def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool):
-    """The forward pass over the series `zs` (N, T, m): the kernel's outputs (see :mod:`._step`)."""
+def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool = False):
+    """The forward pass over the series `zs` (N, T, m): the kernel's outputs (see :mod:`._step`), and the belief.
+
+    With `sqrt`, the square-root form: the belief is a :class:`SqrtBelief`,
+    which (when smoothing) holds the joint factors for the backward pass.
+    Raises :class:`gaussfuse.errors.ReadablePath` where a square-root step
+    needs the readable path.
+    """
     N, T, m = zs.shape
     n = model.n
-    prob = _problem(lin, model, prior, zs)
+    prob = _problem(lin, model, prior, zs, sqrt)
     k = prob.rule.points.shape[0]
-    out, fail, w = outputs(N, T, n, m, keep, smoothing), failures(N, m), workspace(n, m)
-    bel, gf, gh = _belief(k, n, m), regression(k, n, n), regression(k, n, m)
+    out, fail, w = outputs(N, T, n, m, keep, smoothing and not sqrt, sqrt), failures(N, m), workspace(n, m)
+    bel = _sqrt_belief(k, n, m, N, T, smoothing) if sqrt else _belief(k, n, m)
+    gf, gh = regression(k, n, n), regression(k, n, m)
     cursor = _cursor(0)
     us = None if us is None else np.require(us, np.float64, ["C", "W"])
     Yf, Yh = np.empty((k, n)), np.empty((k, m))
@@ -604,7 +886,7 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool):
             sigs = None
     if sigs is None:
         _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k, N)
-        return out
+        return out, bel
     while True:
         try:
             status = kernel(model.f, model.h, *args)
@@ -623,7 +905,7 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool):
         elif status == FAILED:
             _raise_failed(cursor, fail, model, k, N)
         else:
-            return out
+            return out, bel
 
 
 def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: int, N: int) -> None:
@@ -651,16 +933,42 @@ def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: 
             return
 
 
-def filter(lin, model, prior, zs, us, keep):
-    """The sigma-point filter over N series (see the module notes); results carry the N axis."""
-    return filter_result(_forward(lin, model, prior, zs, us, keep, smoothing=False))
+def filter(lin, model, prior, zs, us, keep, form: str = "cov"):
+    """The sigma-point filter over N series (see the module notes); results carry the N axis.
+
+    With ``form="sqrt"``, the square-root filter (kalman.step_sqrt through
+    SigmaPoints); it raises :class:`gaussfuse.errors.ReadablePath` where a
+    step needs the readable path.
+    """
+    return filter_result(_forward(lin, model, prior, zs, us, keep, smoothing=False, sqrt=form == "sqrt")[0])
 
 
 def smooth(lin, model, prior, zs, us) -> SmoothResult:
     """The sigma-point RTS smoother over N series; results carry the N axis."""
-    out = _forward(lin, model, prior, zs, us, "all", smoothing=True)
+    out = _forward(lin, model, prior, zs, us, "all", smoothing=True)[0]
     _rts.least_squares_gains(out.gains, out.failed, out.predicted_covs)
     angles = np.array(model.state_angles, dtype=np.bool_)
     sm_means, sm_covs = _rts.smooth(out.means, out.covs, out.predicted_means, out.predicted_covs, out.gains, angles)
     check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, out.gains, filter_result(out))
+
+
+def smooth_sqrt(lin, model, prior, zs, us) -> tuple[SmoothResult, np.ndarray]:
+    """The square-root sigma-point filter and RTS smoother over N series, and which series the readable path must smooth.
+
+    The forward pass stores the joint factor of each transition from its
+    regression; :func:`._rts.backward_sqrt` reads them. Returns the result
+    and a bool array (N,), True for a series whose backward pass met a
+    singular prediction or an overflow (as :func:`.linear.smooth_sqrt`).
+    """
+    out, bel = _forward(lin, model, prior, zs, us, "all", smoothing=True, sqrt=True)
+    N, T, n = out.means.shape
+    sm_means, sm_factors = np.empty_like(out.means), np.empty_like(out.factors)
+    gains, failed = np.empty((N, max(T - 1, 0), n, n)), np.zeros(N, dtype=np.bool_)
+    if T:
+        none = np.empty((1, n, n))
+        _rts.backward_sqrt(0, N, out.means, out.factors, none, none, np.empty((1, 1, n)), bel.joint, bel.jpm,
+                           np.array(model.state_angles, dtype=np.bool_), sm_means, sm_factors, gains, failed)
+    sm_means[failed], sm_factors[failed] = 0.0, 0.0  # left unwritten where they stopped: the driver fills them in
+    return SmoothResult(sm_means, symmetrize(sm_factors @ sm_factors.swapaxes(-1, -2)), gains, filter_result(out),
+                        cov_factors=sm_factors), failed

@@ -85,10 +85,12 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         regress on the factor (:func:`gaussfuse.linearize.slr_sqrt`) and
         downdate it, by hyperbolic rotations, where a weight is negative
         (the unscented rule's centre past three states).
-        ``engine="numba"`` runs the "kf" filter and smoother compiled (the
-        nonlinear methods run on the readable path, and ``"auto"`` takes
-        the readable path); a ``"diffuse"`` prior is for the covariance
-        form.
+        ``engine="numba"`` runs the "kf", "ukf", "ckf" and "ghkf" filters
+        and smoothers compiled (a sigma-point call that meets a singular
+        factor, or a downdate that fails, runs on the readable path, which
+        takes the least-squares regression or raises the error); ``"auto"``
+        takes the readable path; a ``"diffuse"`` prior is for the
+        covariance form.
     steady : bool, default False
         The steady-state filter, for a time-invariant LinearModel (method
         "kf", covariance form): once a step's filtered covariance is within

@@ -20,7 +20,7 @@ from .. import kalman
 from .._kernels import compiled_state
 from .._linalg import symmetrize, wrap_components
 from .. import diagnostics
-from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, at_step, diverging
+from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, diverging
 from ..gaussian import Gaussian
 from ..linearize import Nominal
 from ..steady import steady_state
@@ -342,7 +342,10 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
-            return compiled.filter(lin, model, prior, zs, us, keep, form="sqrt")
+            try:
+                return compiled.filter(lin, model, prior, zs, us, keep, form="sqrt")
+            except ReadablePath:  # a singular factor or a failed downdate: the readable steps decide
+                return filter_batch(spec, model, prior, zs, us, options, "python", keep, form)
         if target is None:
             return compiled.filter(lin, model, prior, zs, us, keep)
         return compiled.filter(lin, model, prior, zs, us, keep, target)
@@ -356,11 +359,11 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
 def _readable_only(spec: Method, engine: str, form: str, gate, option: str | None = None) -> tuple[str, str | None]:
     """The engine to ask for, and the option (if any) that only the readable path runs.
 
-    The compiled square-root kernels exist for the linear engine only, and
-    ``engine="auto"`` does not pick them (they are compiled apart); a gate,
-    and `option` when given, are the readable path's.
+    ``engine="auto"`` does not pick the compiled square-root kernels (they
+    are compiled apart); a gate, and `option` when given, are the readable
+    path's.
     """
-    sqrt_compiled = form == "sqrt" and spec.compiled == "linear" and option is None
+    sqrt_compiled = form == "sqrt" and spec.compiled is not None and option is None
     if sqrt_compiled and engine == "auto":
         engine = "python"
     if option is None and gate is not None:
@@ -386,7 +389,10 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
-            result, failed = compiled.smooth_sqrt(lin, model, prior, zs, us)
+            try:
+                result, failed = compiled.smooth_sqrt(lin, model, prior, zs, us)
+            except ReadablePath:  # a singular factor or a failed downdate: the readable steps decide
+                return smooth_batch(spec, model, prior, zs, us, options, "python", to_prior, form)
             for s in np.flatnonzero(failed):  # a singular prediction or an overflow: the readable step decides
                 one = _method_smooth(spec, model, prior, zs[s], None if us is None else us[s], options, False, form)[0]
                 result.means[s], result.covs[s], result.gains[s], result.cov_factors[s] = (
