@@ -97,15 +97,15 @@ def main(argv: list[str] | None = None) -> int:
         F, H = p.F, p.H
         curved = gf.NonlinearModel(lambda X: X @ F.T, lambda X: X @ H.T, p.Q, p.R, vectorized=True)
         for method in SIGMA_POINTS:
-            for form in ("cov", "sqrt"):
+            for form, engine in (("cov", "python"), ("sqrt", "python"), ("sqrt", "numba")):
                 try:
-                    res = gf.smooth(curved, prior, p.zs, method=method, form=form, engine="python", check="off")
+                    res = gf.smooth(curved, prior, p.zs, method=method, form=form, engine=engine, check="off")
                 except (ValueError, FloatingPointError) as exc:  # the covariance form can stop on an indefinite P
-                    row(p.name, form, "python", "filter + smooth", exc, method)
+                    row(p.name, form, engine, "filter + smooth", exc, method)
                     continue
-                row(p.name, form, "python", "filter", errors(res.filtered.means, res.filtered.covs, *ref["filter"]),
+                row(p.name, form, engine, "filter", errors(res.filtered.means, res.filtered.covs, *ref["filter"]),
                     method)
-                row(p.name, form, "python", "smooth", errors(res.means, res.covs, *ref["smooth"]), method)
+                row(p.name, form, engine, "smooth", errors(res.means, res.covs, *ref["smooth"]), method)
     T = args.long_steps
     start = time.perf_counter()
     model, prior, zs, means, variances = long_run(T)
