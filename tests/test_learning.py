@@ -492,3 +492,21 @@ def test_standard_errors_are_the_observed_information():
     np.testing.assert_allclose([res.bse["Q"], res.bse["R"]], se, rtol=1e-3)
     em = gf.fit(_nile_start(), "diffuse", flow, iterations=5000, tol=1e-13)
     np.testing.assert_allclose([em.bse["Q"], em.bse["R"]], se, rtol=5e-3)
+
+
+def test_a_fit_that_stops_near_a_singular_learned_covariance_says_so():
+    """The non-convergence warning's hint: a learned covariance with eigenvalues 1e-6 apart or more is named,
+    with its eigenvalues; a well-conditioned one, a fixed one, or a diffuse prior add nothing."""
+    from gaussfuse.learning import _boundary
+
+    Q = 0.83 * np.outer([0.6, 0.8], [0.6, 0.8]) + 2e-7 * np.eye(2)  # eigenvalues 2e-07 and 0.83
+    model = gf.LinearModel(np.eye(2), np.eye(2)[:1], Q, np.eye(1))
+    prior = gf.Gaussian(np.zeros(2), np.eye(2))
+    hint = _boundary(model, prior, ("Q", "R"))
+    assert "learned Q is nearly singular (eigenvalues 2e-07 to 0.83)" in hint
+    assert _boundary(model, prior, ("R",)) == ""
+    assert _boundary(gf.LinearModel(np.eye(2), np.eye(2)[:1], np.eye(2), np.eye(1)), prior, ("Q", "R")) == ""
+    assert _boundary(model, "diffuse", ("P0", "R")) == ""
+    flat = gf.Gaussian(np.zeros(2), np.diag([1.0, 1e-9]))
+    assert "learned P0 is nearly singular" in _boundary(gf.LinearModel(np.eye(2), np.eye(2)[:1], np.eye(2),
+                                                                        np.eye(1)), flat, ("P0",))

@@ -1032,6 +1032,28 @@ def _evaluator(build, data, engine):
     return evaluate
 
 
+def _boundary(model, prior, learn) -> str:
+    """A hint for a fit that stopped near a singular learned covariance, where its maximum may lie ("" if none).
+
+    There a variance tends to 0, a search in the covariance's Cholesky
+    factor (MLE) or EM's fixed-point steps slow down, and they can stop
+    short of their tolerance with a model that is as good as the maximum.
+    """
+    for name in ("Q", "R", "P0"):
+        if name not in learn:
+            continue
+        cov = getattr(prior, "cov", None) if name == "P0" else getattr(model, name, None)
+        if not isinstance(cov, np.ndarray) or cov.ndim != 2 or cov.shape[0] < 2:
+            continue
+        values = np.linalg.eigvalsh(cov)
+        if values[-1] > 0.0 and values[0] <= 1e-6 * values[-1]:
+            return (f" The learned {name} is nearly singular (eigenvalues {values[0]:.3g} to {values[-1]:.3g}): the "
+                    f"maximum may lie where one of its variances is 0, which the search approaches slowly; the model "
+                    f"found may be as good, or constrain {name} (`structure={{{name!r}: 'diagonal'}}`, or a "
+                    f"physical noise model through `params`).")
+    return ""
+
+
 def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     n_obs = max(n_obs, 1)
     evaluate = _evaluator(build, data, engine)
@@ -1417,7 +1439,8 @@ def fit(
         how = "EM" if method == "em" else "maximum likelihood"
         warnings.warn(ConvergenceWarning(
             f"{how} did not converge: {message.rstrip('.')}. The result is the best model found (loglik "
-            f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model."), stacklevel=2)
+            f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model.{_boundary(model, prior, learn)}"),
+            stacklevel=2)
     return FitResult(model, prior, float(history[-1]), history, method, converged, message, errors,
                      params=dict(zip(names, map(float, values))), bse=dict(zip(names, map(float, bse))),
                      nobs=nobs)
