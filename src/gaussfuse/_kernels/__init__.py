@@ -30,7 +30,6 @@ importing a module in it does.
 from __future__ import annotations
 
 import hashlib
-import importlib.metadata
 import os
 import pickle
 import sys
@@ -107,6 +106,8 @@ def _cached(module: str, function: str) -> bool:
     32 bytes appear verbatim in the pickle, so it is not unpickled: that
     would import numba).
     """
+    import importlib.metadata  # here, not at the top: it costs 40 ms of `import gaussfuse`
+
     try:
         version = importlib.metadata.version("numba")
     except importlib.metadata.PackageNotFoundError:
