@@ -490,3 +490,14 @@ def test_the_compiled_sigma_point_square_root_forms_leave_singular_factors_to_th
         np.testing.assert_array_equal(a.means, b.means)
         np.testing.assert_array_equal(a.cov_factors, b.cov_factors)
         assert (a.covs[:, 2, :] == 0).all()
+
+
+def test_the_square_root_kernel_is_not_taken_for_the_covariance_forms():
+    """engine="auto" reads the covariance form's kernel (sigma_points.advance) to tell whether it is compiled;
+    a square-root run compiles a kernel of its own, so it does not make the covariance form look compiled."""
+    from gaussfuse._kernels import sigma_points as sp
+
+    model, prior, zs = _tracking(T=30)
+    gf.filter(model, prior, zs, method="ckf", form="sqrt", engine="numba")
+    assert any("SqrtBelief" in str(sig) for sig in sp.advance_sqrt.signatures)
+    assert not any("SqrtBelief" in str(sig) for sig in sp.advance.signatures)

@@ -90,7 +90,7 @@ from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, SqrtBack, SqrtWor
                     predict_mean, predict_sqrt, raise_failure, record, record_not_pd, smoother_gain, sqrt_back_workspace,
                     sqrt_workspace, square, update, update_sqrt, where, workspace, wrap)
 
-__all__ = ["filter", "smooth", "smooth_sqrt", "execution_mode", "advance", "hold"]
+__all__ = ["filter", "smooth", "smooth_sqrt", "execution_mode", "advance", "advance_sqrt", "hold"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 _F64 = np.dtype(np.float64)
@@ -586,6 +586,13 @@ def hold(cursor, prob, bel, out, w, gf, gh, fail):
     return _Held((cursor, prob, bel, out, w, gf, gh, fail))
 
 
+@jit(inline="always", **_JIT)
+def _advance_held(held, Y):
+    cursor, prob, bel, out, w, gf, gh, fail = held.args
+    cursor, Y, prob, bel, out, w, gf, gh, fail = borrow((cursor, Y, prob, bel, out, w, gf, gh, fail))
+    return _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
+
+
 @jit(**_JIT)
 def advance(held, Y):
     """The Python mode's kernel: :func:`_advance` with f's or h's values `Y` (k, n or m) from the caller.
@@ -594,9 +601,19 @@ def advance(held, Y):
     outputs, workspace, regressions and failures. The caller holds every
     array for the call (see :mod:`._nrt`).
     """
-    cursor, prob, bel, out, w, gf, gh, fail = held.args
-    cursor, Y, prob, bel, out, w, gf, gh, fail = borrow((cursor, Y, prob, bel, out, w, gf, gh, fail))
-    return _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
+    return _advance_held(held, Y)
+
+
+@jit(**_JIT)
+def advance_sqrt(held, Y):
+    """:func:`advance` for the square-root form (a :class:`SqrtBelief` in `held`).
+
+    A function of its own, so that numba's cache and its compiled
+    signatures name it apart: :func:`gaussfuse._kernels.compiled_state`
+    reads those of :func:`advance` to tell whether the covariance form's
+    kernel is compiled, and must not take this one for it.
+    """
+    return _advance_held(held, Y)
 
 
 # ---------------------------------------------------------------------------
@@ -912,7 +929,8 @@ def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: 
     """The Python mode (see the module notes): f and h called here, :func:`advance` between the calls."""
     f, h, vectorized = model.f, model.h, model.vectorized
     held = hold(cursor, prob, bel, out, w, gf, gh, fail)
-    step = entry_point(advance, held, Yf)  # the compiled function, without numba's dispatch per call
+    kernel = advance_sqrt if isinstance(bel, SqrtBelief) else advance
+    step = entry_point(kernel, held, Yf)  # the compiled function, without numba's dispatch per call
     Y = Yf
     while True:
         status = step(held, Y)
