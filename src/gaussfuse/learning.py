@@ -101,10 +101,10 @@ from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_sol
 from ._validation import as_vector
 from .errors import ConvergenceWarning
 from .gaussian import Gaussian
-from .inference.diffuse import Moments, augmented_runs, diffuse_moments, not_identified
+from .inference.diffuse import augmented_runs, diffuse_moments, not_identified
+from .inference.results import first
 from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
 from .inference.registry import METHODS as _METHODS
-from .inference.results import first
 from .inference import chunked, frames, timing
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.compose import TimedModel
@@ -250,20 +250,6 @@ def _fmt(x: float) -> str:
 # ---------------------------------------------------------------------------
 
 
-def moments(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | None, engine: str = "auto") -> list[Moments]:
-    """Smoothed moments of each series of `zs` (N, T, m) from time 0 (the prior's) to T, with lag-one covariances.
-
-    The series are smoothed in one call of the batch smoother (compiled: in
-    parallel), one by one with a diffuse prior.
-    """
-    if isinstance(prior, str):
-        return [diffuse_moments(model, z, None if us is None else us[i], engine) for i, z in enumerate(zs)]
-    sm = smooth_batch(_METHODS["kf"], model, prior, zs, us, {}, engine, to_prior=True)
-    cross = sm.covs[:, 1:] @ np.swapaxes(sm.gains, -1, -2)
-    return [Moments(sm.means[i], sm.covs[i], cross[i], float(sm.filtered.loglik[i]), first(sm.filtered, i),
-                    sm.gains[i]) for i in range(zs.shape[0])]
-
-
 def _per_step(a: np.ndarray | None, T: int) -> np.ndarray | None:
     """A matrix as a stack over T steps (broadcast when time-invariant)."""
     if a is None:
@@ -272,59 +258,77 @@ def _per_step(a: np.ndarray | None, T: int) -> np.ndarray | None:
 
 
 class Statistics:
-    """Expected first and second moments of one series (see the module notes).
+    """Expected first and second moments of a block of N series (see the module notes), their steps in one stack.
+
+    The steps of the N series follow each other, series after series: a
+    sum over the stack is a sum over steps and series, and a per-step
+    quantity is the stack reshaped to (N, steps, ...) and summed over N.
 
     Attributes
     ----------
-    mu, sig : ndarray of shape (T_w, d), (T_w, d, d)
+    mu, sig : ndarray of shape (N·T_w, d), (N·T_w, d, d)
         Mean and covariance of s_t = (x_t, x_{t-1}, u_t, 1), d = 2n + p + 1,
         over the T_w = T - `start` transitions of the model.
-    nu, tau : ndarray of shape (T, e), (T, e, e)
+    nu, tau : ndarray of shape (N·T, e), (N·T, e, e)
         Mean and covariance of r_t = (z_t, x_t, 1), e = m + n + 1.
     start : int
         The first transition that is part of the model (1 for a diffuse x_1).
-    x0_mean, x0_cov : ndarray
+    x0_mean, x0_cov : ndarray of shape (N, n), (N, n, n)
         Smoothed moments of x_0.
     """
 
-    def __init__(self, model: LinearModel, mom: Moments, zs: np.ndarray, us: np.ndarray | None):
-        T, n, m = zs.shape[0], model.n, model.m
-        p = 0 if us is None else us.shape[1]
-        a = self.start = mom.first
-        mean, cov, cross = mom.means, mom.covs, mom.cross
+    def __init__(self, model: LinearModel, means: np.ndarray, covs: np.ndarray, cross: np.ndarray, zs: np.ndarray,
+                 us: np.ndarray | None, start: int = 0):
+        N, T, m = zs.shape
+        n = model.n
+        p = 0 if us is None else us.shape[2]
+        self.n, self.m, self.p, self.T, self.N = n, m, p, T, N
+        a = self.start = start
         d = 2 * n + p + 1
-        mu = np.zeros((T, d))
-        mu[:, :n], mu[:, n:2 * n], mu[:, 2 * n:2 * n + p], mu[:, -1] = mean[1:], mean[:-1], \
-            (us if p else np.zeros((T, 0))), 1.0
-        sig = np.zeros((T, d, d))
-        sig[:, :n, :n], sig[:, n:2 * n, n:2 * n] = cov[1:], cov[:-1]
-        sig[:, :n, n:2 * n] = cross
-        sig[:, n:2 * n, :n] = np.swapaxes(cross, -1, -2)
-        self.mu, self.sig = mu[a:], sig[a:]
+        mu = np.zeros((N, T, d))
+        mu[..., :n], mu[..., n:2 * n], mu[..., -1] = means[:, 1:], means[:, :-1], 1.0
+        if p:
+            mu[..., 2 * n:2 * n + p] = us
+        sig = np.zeros((N, T, d, d))
+        sig[..., :n, :n], sig[..., n:2 * n, n:2 * n] = covs[:, 1:], covs[:, :-1]
+        sig[..., :n, n:2 * n] = cross
+        sig[..., n:2 * n, :n] = np.swapaxes(cross, -1, -2)
+        self.mu, self.sig = mu[:, a:].reshape(-1, d), sig[:, a:].reshape(-1, d, d)
 
-        H, R = _per_step(model.H, T), _per_step(model.R, T)
+        H, R = self.per_step(model.H), self.per_step(model.R)
+        z, x, P = zs.reshape(-1, m), means[:, 1:].reshape(-1, n), covs[:, 1:].reshape(-1, n, n)
         e = m + n + 1
-        nu = np.zeros((T, e))
-        nu[:, :m], nu[:, m:m + n], nu[:, -1] = np.nan_to_num(zs), mean[1:], 1.0
-        tau = np.zeros((T, e, e))
-        tau[:, m:m + n, m:m + n] = cov[1:]
-        for t in np.flatnonzero(np.isnan(zs).any(axis=1)):
+        nu = np.zeros((N * T, e))
+        nu[:, :m], nu[:, m:m + n], nu[:, -1] = np.nan_to_num(z), x, 1.0
+        tau = np.zeros((N * T, e, e))
+        tau[:, m:m + n, m:m + n] = P
+        for t in np.flatnonzero(np.isnan(z).any(axis=1)):
             # z = A x + c + noise, A and the noise zero on the observed rows o;
             # the missing rows given the observed: H_μ x + L (z_o - H_o x) + noise.
-            o = ~np.isnan(zs[t])
+            o = ~np.isnan(z[t])
             mis = ~o
-            A, c, E = np.zeros((m, n)), np.where(o, zs[t], 0.0), np.zeros((m, m))
+            A, c, E = np.zeros((m, n)), np.where(o, z[t], 0.0), np.zeros((m, m))
             L = psd_solve(R[t][np.ix_(o, o)], R[t][np.ix_(o, mis)]).T if o.any() else np.zeros((mis.sum(), 0))
             A[mis] = H[t][mis] - L @ H[t][o]
-            c[mis] = L @ zs[t][o]
+            c[mis] = L @ z[t][o]
             E[np.ix_(mis, mis)] = R[t][np.ix_(mis, mis)] - L @ R[t][np.ix_(o, mis)]
-            nu[t, :m] = A @ mean[t + 1] + c
-            tau[t, :m, :m] = A @ cov[t + 1] @ A.T + E
-            tau[t, :m, m:m + n] = A @ cov[t + 1]
+            nu[t, :m] = A @ x[t] + c
+            tau[t, :m, :m] = A @ P[t] @ A.T + E
+            tau[t, :m, m:m + n] = A @ P[t]
             tau[t, m:m + n, :m] = tau[t, :m, m:m + n].T
         self.nu, self.tau = nu, tau
-        self.x0_mean, self.x0_cov = mean[0], cov[0]
-        self.n, self.m, self.p, self.T = n, m, p, T
+        self.x0_mean, self.x0_cov = means[:, 0], covs[:, 0]
+
+    def per_step(self, M: np.ndarray | None, start: int = 0) -> np.ndarray | None:
+        """A model matrix (time-invariant, or one per step) at each step of the stack from step `start` on."""
+        if M is None:
+            return None
+        steps = _per_step(M, self.T)[start:]
+        return np.broadcast_to(steps, (self.N, *steps.shape)).reshape(-1, *steps.shape[1:])
+
+    def per_series_sum(self, stack: np.ndarray) -> np.ndarray:
+        """A per-step quantity of the stack (N·steps, ...) summed over the series: (steps, ...)."""
+        return stack.reshape(self.N, -1, *stack.shape[1:]).sum(axis=0)
 
     @property
     def Phi(self) -> np.ndarray:
@@ -338,21 +342,21 @@ class Statistics:
 
     # selectors into s_t = (x_t, x_{t-1}, u_t, 1) and r_t = (z_t, x_t, 1)
     def w_map(self, F: np.ndarray, B: np.ndarray | None) -> np.ndarray:
-        """``[I, -F_t, -B_t, 0]`` over the transitions, shape (T_w, n, d)."""
-        n, p, T, a = self.n, self.p, self.T, self.start
-        W = np.zeros((T - a, n, 2 * n + p + 1))
+        """``[I, -F_t, -B_t, 0]`` over the transitions, shape (N·T_w, n, d)."""
+        n, p, a = self.n, self.p, self.start
+        W = np.zeros((self.mu.shape[0], n, 2 * n + p + 1))
         W[:, :, :n] = np.eye(n)
-        W[:, :, n:2 * n] = -_per_step(F, T)[a:]
+        W[:, :, n:2 * n] = -self.per_step(F, a)
         if p:
-            W[:, :, 2 * n:2 * n + p] = -_per_step(B, T)[a:]
+            W[:, :, 2 * n:2 * n + p] = -self.per_step(B, a)
         return W
 
     def v_map(self, H: np.ndarray) -> np.ndarray:
-        """``[I, -H_t, 0]`` of shape (T, m, e)."""
-        m, n, T = self.m, self.n, self.T
-        V = np.zeros((T, m, m + n + 1))
+        """``[I, -H_t, 0]`` of shape (N·T, m, e)."""
+        m, n = self.m, self.n
+        V = np.zeros((self.nu.shape[0], m, m + n + 1))
         V[:, :, :m] = np.eye(m)
-        V[:, :, m:m + n] = -_per_step(H, T)
+        V[:, :, m:m + n] = -self.per_step(H)
         return V
 
     def residual_second_moment(self, which: str, M: np.ndarray) -> np.ndarray:
@@ -371,12 +375,34 @@ def _quad(M: np.ndarray, S: np.ndarray, N: np.ndarray | None = None) -> np.ndarr
     return M @ S @ np.swapaxes(M if N is None else N, -1, -2)
 
 
+_BLOCK = 1 << 21
+"""About how many numbers a block of series' statistics holds (N·T·d², 16 MB): memory stays bounded on a
+long panel while the numpy calls per series vanish."""
+
+
 def _e_step(model, prior, zs, us, engine: str = "auto") -> tuple[float, list[Statistics]]:
-    loglik, stats = 0.0, []
-    for i, mom in enumerate(moments(model, prior, zs, us, engine)):
-        loglik += mom.loglik
-        stats.append(Statistics(model, mom, zs[i], None if us is None else us[i]))
-    return loglik, stats
+    """The log-likelihood of the series `zs` (N, T, m) and their statistics, in blocks of series.
+
+    One call of the batch smoother for all series (compiled: in parallel),
+    then the statistics of each block of series at once; with a diffuse
+    prior, series by series (:func:`gaussfuse.inference.diffuse.diffuse_moments`).
+    """
+    if isinstance(prior, str):
+        loglik, stats = 0.0, []
+        for i, z in enumerate(zs):
+            mom = diffuse_moments(model, z, None if us is None else us[i], engine)
+            loglik += mom.loglik
+            stats.append(Statistics(model, mom.means[None], mom.covs[None], mom.cross[None], zs[i:i + 1],
+                                    None if us is None else us[i:i + 1], mom.first))
+        return loglik, stats
+    sm = smooth_batch(_METHODS["kf"], model, prior, zs, us, {}, engine, to_prior=True)
+    cross = sm.covs[:, 1:] @ np.swapaxes(sm.gains, -1, -2)
+    N, T = zs.shape[:2]
+    d = 2 * model.n + (0 if us is None else us.shape[2]) + 1
+    size = max(1, _BLOCK // max(1, (T + 1) * d * d))
+    stats = [Statistics(model, sm.means[i:i + size], sm.covs[i:i + size], cross[i:i + size], zs[i:i + size],
+                        None if us is None else us[i:i + size]) for i in range(0, N, size)]
+    return float(np.sum(sm.filtered.loglik)), stats
 
 
 # ---------------------------------------------------------------------------
@@ -424,7 +450,8 @@ def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, st
 def _first_sums(model: LinearModel, stats: list[Statistics], learn: tuple) -> dict:
     """The M-step's first-stage sums over `stats`: counts, and the regressions of F, B and H and the mean of x₀."""
     n, p, m = model.n, model.p, model.m
-    out = {"T_w": sum(s.T - s.start for s in stats), "T_v": sum(s.T for s in stats), "series": len(stats)}
+    out = {"T_w": sum(s.mu.shape[0] for s in stats), "T_v": sum(s.nu.shape[0] for s in stats),
+           "series": sum(s.N for s in stats)}
     if "F" in learn or "B" in learn:
         # Regress x_t on the learned regressors, the known parts moved to the target.
         rows = ([np.arange(n, 2 * n)] if "F" in learn else []) + \
@@ -440,7 +467,7 @@ def _first_sums(model: LinearModel, stats: list[Statistics], learn: tuple) -> di
         out["zx"] = sum(np.sum(ps[:, :m, m:m + n], axis=0) for ps in Psi)
         out["xx"] = sum(np.sum(ps[:, m:m + n, m:m + n], axis=0) for ps in Psi)
     if "m0" in learn:
-        out["x0"] = sum(s.x0_mean for s in stats)
+        out["x0"] = sum(s.x0_mean.sum(axis=0) for s in stats)
     return out
 
 
@@ -468,7 +495,7 @@ def _second_sums(stats: list[Statistics], new: dict, learn: tuple) -> dict:
     if "R" in learn:
         out["R"] = sum(np.sum(s.residual_second_moment("v", s.v_map(new["H"])), axis=0) for s in stats)
     if "P0" in learn:
-        out["P0"] = sum(s.x0_cov + np.outer(s.x0_mean - new["m0"], s.x0_mean - new["m0"]) for s in stats)
+        out["P0"] = sum(np.sum(s.x0_cov + _outer(s.x0_mean - new["m0"]), axis=0) for s in stats)
     return out
 
 
@@ -862,35 +889,40 @@ def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics], needed
     T = stats[0].T
     g: dict = {}
 
-    def add(name, value, start=0):
+    def add(name, s, value, start=0):
         full = np.zeros((T, *value.shape[1:]))
-        full[start:] = value
+        full[start:] = s.per_series_sum(value)
         g[name] = g.get(name, 0.0) + full
 
     for s in stats:
         if needed & {"F", "B", "Q"}:
-            Q = _per_step(model.Q, T)[s.start:]
+            Q = s.per_step(model.Q, s.start)
             W = s.w_map(model.F, model.B)
             if "Q" in needed:
-                add("Q", _covariance_gradient(Q, s.residual_second_moment("w", W)), s.start)
-            Qi_wS = cho_solve(cholesky(Q), W @ s.Phi)               # Q⁻¹ E[w sᵀ], (T_w, n, d)
+                add("Q", s, _covariance_gradient(Q, s.residual_second_moment("w", W)), s.start)
+            Qi_wS = cho_solve(cholesky(Q), W @ s.Phi)               # Q⁻¹ E[w sᵀ], (N·T_w, n, d)
             if "F" in needed:
-                add("F", Qi_wS[:, :, n:2 * n], s.start)
+                add("F", s, Qi_wS[:, :, n:2 * n], s.start)
             if "B" in needed and model.B is not None:
-                add("B", Qi_wS[:, :, 2 * n:2 * n + s.p], s.start)
+                add("B", s, Qi_wS[:, :, 2 * n:2 * n + s.p], s.start)
         if needed & {"H", "R"}:
-            R = _per_step(model.R, T)
+            R = s.per_step(model.R)
             V = s.v_map(model.H)
             if "R" in needed:
-                add("R", _covariance_gradient(R, s.residual_second_moment("v", V)))
+                add("R", s, _covariance_gradient(R, s.residual_second_moment("v", V)))
             if "H" in needed:
-                add("H", cho_solve(cholesky(R), (V @ s.Psi)[:, :, m:m + n]))
+                add("H", s, cho_solve(cholesky(R), (V @ s.Psi)[:, :, m:m + n]))
     if needed & {"m0", "P0"} and not isinstance(prior, str):
         dev = [s.x0_mean - prior.mean for s in stats]
-        g["m0"] = cho_solve(cholesky(prior.cov), sum(dev))
-        second = sum(s.x0_cov + np.outer(d, d) for s, d in zip(stats, dev))
-        g["P0"] = _covariance_gradient(prior.cov, second, count=len(stats))
+        g["m0"] = cho_solve(cholesky(prior.cov), sum(d.sum(axis=0) for d in dev))
+        second = sum(np.sum(s.x0_cov + _outer(d), axis=0) for s, d in zip(stats, dev))
+        g["P0"] = _covariance_gradient(prior.cov, second, count=sum(s.N for s in stats))
     return g
+
+
+def _outer(v: np.ndarray) -> np.ndarray:
+    """``v vᵀ`` for each row of `v` (N, n): (N, n, n)."""
+    return v[:, :, None] * v[:, None, :]
 
 
 def _contract(G: np.ndarray, D: np.ndarray) -> float:
