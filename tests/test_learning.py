@@ -510,3 +510,39 @@ def test_a_fit_that_stops_near_a_singular_learned_covariance_says_so():
     flat = gf.Gaussian(np.zeros(2), np.diag([1.0, 1e-9]))
     assert "learned P0 is nearly singular" in _boundary(gf.LinearModel(np.eye(2), np.eye(2)[:1], np.eye(2),
                                                                         np.eye(1)), flat, ("P0",))
+
+
+def test_pooled_statistics_equal_those_of_each_series_and_of_each_step():
+    """The E-step's statistics of a block of series equal those of each series alone, and the conditioning of
+    missing components by pattern (a time-invariant H and R) equals the one made step by step (the same R
+    given per step, which takes the per-step path)."""
+    from gaussfuse.inference.drivers import smooth_batch
+    from gaussfuse.inference.registry import METHODS
+    from gaussfuse.learning import Statistics
+
+    rng = np.random.default_rng(4)
+    n, m, N, T = 3, 3, 4, 12
+    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    H = rng.standard_normal((m, n))
+    B = rng.standard_normal((m, m))
+    R = B @ B.T + 0.5 * np.eye(m)
+    model = gf.LinearModel(F, H, 0.3 * np.eye(n), R, B=rng.standard_normal((n, 1)))
+    prior = gf.Gaussian(np.zeros(n), np.eye(n))
+    zs = rng.standard_normal((N, T, m))
+    zs[0, 2, 1] = zs[1, 5, :2] = zs[2, 7] = zs[3, 2, 1] = np.nan  # patterns shared and not, all missing
+    us = rng.standard_normal((N, T, 1))
+    sm = smooth_batch(METHODS["kf"], model, prior, zs, us, {}, "python", to_prior=True)  # as the E-step
+    cross = sm.covs[:, 1:] @ np.swapaxes(sm.gains, -1, -2)
+    pooled = Statistics(model, sm.means, sm.covs, cross, zs, us)
+    stepwise = Statistics(gf.LinearModel(F, H, model.Q, np.repeat(R[None], T, axis=0), B=model.B), sm.means,
+                          sm.covs, cross, zs, us)
+    for name in ("mu", "sig", "nu", "tau"):
+        np.testing.assert_allclose(getattr(pooled, name), getattr(stepwise, name), rtol=1e-12, atol=1e-12,
+                                   err_msg=name)
+    for i in range(N):
+        alone = Statistics(model, sm.means[i:i + 1], sm.covs[i:i + 1], cross[i:i + 1], zs[i:i + 1], us[i:i + 1])
+        for name, rows in (("mu", T), ("sig", T), ("nu", T), ("tau", T)):
+            np.testing.assert_allclose(getattr(pooled, name)[i * rows:(i + 1) * rows], getattr(alone, name),
+                                       rtol=1e-12, atol=1e-12, err_msg=f"{name}, series {i}")
+    assert np.isnan(zs[2, 7]).all() and pooled.nu[2 * T + 7, :m] @ np.ones(m) == pytest.approx(
+        (H @ sm.means[2, 8]).sum())  # all missing: the prediction of z from x

@@ -302,20 +302,29 @@ class Statistics:
         nu[:, :m], nu[:, m:m + n], nu[:, -1] = np.nan_to_num(z), x, 1.0
         tau = np.zeros((N * T, e, e))
         tau[:, m:m + n, m:m + n] = P
-        for t in np.flatnonzero(np.isnan(z).any(axis=1)):
+        gaps = np.isnan(z)
+        rows = np.flatnonzero(gaps.any(axis=1))
+        if model.H.ndim == 2 and model.R.ndim == 2:  # one conditioning per pattern of missing components
+            patterns, which = np.unique(gaps[rows], axis=0, return_inverse=True)
+            groups = [(rows[which.ravel() == g], ~patterns[g]) for g in range(len(patterns))]
+        else:
+            groups = [(rows[i:i + 1], ~gaps[t]) for i, t in enumerate(rows)]
+        for t, o in groups:
             # z = A x + c + noise, A and the noise zero on the observed rows o;
             # the missing rows given the observed: H_μ x + L (z_o - H_o x) + noise.
-            o = ~np.isnan(z[t])
             mis = ~o
-            A, c, E = np.zeros((m, n)), np.where(o, z[t], 0.0), np.zeros((m, m))
-            L = psd_solve(R[t][np.ix_(o, o)], R[t][np.ix_(o, mis)]).T if o.any() else np.zeros((mis.sum(), 0))
-            A[mis] = H[t][mis] - L @ H[t][o]
-            c[mis] = L @ z[t][o]
-            E[np.ix_(mis, mis)] = R[t][np.ix_(mis, mis)] - L @ R[t][np.ix_(o, mis)]
-            nu[t, :m] = A @ x[t] + c
-            tau[t, :m, :m] = A @ P[t] @ A.T + E
-            tau[t, :m, m:m + n] = A @ P[t]
-            tau[t, m:m + n, :m] = tau[t, :m, m:m + n].T
+            Ht, Rt = H[t[0]], R[t[0]]
+            A, E = np.zeros((m, n)), np.zeros((m, m))
+            L = psd_solve(Rt[np.ix_(o, o)], Rt[np.ix_(o, mis)]).T if o.any() else np.zeros((mis.sum(), 0))
+            A[mis] = Ht[mis] - L @ Ht[o]
+            E[np.ix_(mis, mis)] = Rt[np.ix_(mis, mis)] - L @ Rt[np.ix_(o, mis)]
+            c = np.where(o, z[t], 0.0)
+            c[:, mis] = z[t][:, o] @ L.T
+            nu[t, :m] = x[t] @ A.T + c
+            AP = A @ P[t]
+            tau[t, :m, :m] = AP @ A.T + E
+            tau[t, :m, m:m + n] = AP
+            tau[t, m:m + n, :m] = np.swapaxes(AP, -1, -2)
         self.nu, self.tau = nu, tau
         self.x0_mean, self.x0_cov = means[:, 0], covs[:, 0]
 
@@ -889,29 +898,31 @@ def _matrix_gradients(model: LinearModel, prior, stats: list[Statistics], needed
     T = stats[0].T
     g: dict = {}
 
-    def add(name, s, value, start=0):
+    def add(name, value, start=0):
         full = np.zeros((T, *value.shape[1:]))
-        full[start:] = s.per_series_sum(value)
+        full[start:] = value
         g[name] = g.get(name, 0.0) + full
 
+    # Q, R, F, H and B are the same for every series at a step, and each gradient is linear in the
+    # statistics: so the statistics are summed over the series first, and each step solves once.
     for s in stats:
         if needed & {"F", "B", "Q"}:
-            Q = s.per_step(model.Q, s.start)
+            Q = _per_step(model.Q, T)[s.start:]
             W = s.w_map(model.F, model.B)
             if "Q" in needed:
-                add("Q", s, _covariance_gradient(Q, s.residual_second_moment("w", W)), s.start)
-            Qi_wS = cho_solve(cholesky(Q), W @ s.Phi)               # Q⁻¹ E[w sᵀ], (N·T_w, n, d)
+                add("Q", _covariance_gradient(Q, s.per_series_sum(s.residual_second_moment("w", W)), s.N), s.start)
+            Qi_wS = cho_solve(cholesky(Q), s.per_series_sum(W @ s.Phi))  # Q⁻¹ E[w sᵀ], (T_w, n, d)
             if "F" in needed:
-                add("F", s, Qi_wS[:, :, n:2 * n], s.start)
+                add("F", Qi_wS[:, :, n:2 * n], s.start)
             if "B" in needed and model.B is not None:
-                add("B", s, Qi_wS[:, :, 2 * n:2 * n + s.p], s.start)
+                add("B", Qi_wS[:, :, 2 * n:2 * n + s.p], s.start)
         if needed & {"H", "R"}:
-            R = s.per_step(model.R)
+            R = _per_step(model.R, T)
             V = s.v_map(model.H)
             if "R" in needed:
-                add("R", s, _covariance_gradient(R, s.residual_second_moment("v", V)))
+                add("R", _covariance_gradient(R, s.per_series_sum(s.residual_second_moment("v", V)), s.N))
             if "H" in needed:
-                add("H", s, cho_solve(cholesky(R), (V @ s.Psi)[:, :, m:m + n]))
+                add("H", cho_solve(cholesky(R), s.per_series_sum((V @ s.Psi)[:, :, m:m + n])))
     if needed & {"m0", "P0"} and not isinstance(prior, str):
         dev = [s.x0_mean - prior.mean for s in stats]
         g["m0"] = cho_solve(cholesky(prior.cov), sum(d.sum(axis=0) for d in dev))
