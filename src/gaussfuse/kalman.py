@@ -396,6 +396,11 @@ def rts_step(
 
     Notes
     -----
+    `pred_mean`, `next_mean` and `next_cov` may be stacks, (N, n) and
+    (N, n, n), of beliefs that share the prediction's covariance and the
+    cross-covariance, as the series of a batch do at the prior's time; the
+    mean and covariance are then stacks too, and the gain is shared.
+
     .. math::
 
         G_k &= C_{k+1} (P^-_{k+1})^{-1}, \\
@@ -408,7 +413,8 @@ def rts_step(
     conditional.
     """
     gain = psd_solve(pred_cov, cross_cov.T).T
-    mean = filt_mean + gain @ wrap_components(next_mean - pred_mean, angles)
+    diff = wrap_components(next_mean - pred_mean, angles)
+    mean = filt_mean + (gain @ diff if diff.ndim == 1 else diff @ gain.T)
     cov = symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T)
     return mean, cov, gain
 

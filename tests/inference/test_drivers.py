@@ -559,3 +559,35 @@ def test_nis_is_the_same_on_both_engines_and_names_the_series(engine):
     assert np.isnan(res.nis[0, 50])
     with pytest.raises(ValueError, match="`check` must be one of"):
         gf.filter(model, prior, zs, check="loud")
+
+
+def test_the_step_back_to_the_prior_is_kalman_rts_step_for_every_series():
+    """smooth_batch(to_prior=True) continues each series one RTS step back to the prior's time: in one stacked
+    call of kalman.rts_step when the series share the prediction's covariance, series by series otherwise."""
+    from dataclasses import replace
+
+    from gaussfuse import kalman
+    from gaussfuse.inference.drivers import _back_to_prior, smooth_batch
+    from gaussfuse.inference.registry import METHODS
+
+    rng = np.random.default_rng(5)
+    model = gf.LinearModel(np.array([[1.0, 0.5], [0.0, 0.9]]), np.array([[1.0, 0.0]]), 0.2 * np.eye(2),
+                           np.array([[0.5]]), B=np.array([[0.0], [1.0]]))
+    prior = gf.Gaussian([0.3, -0.2], np.array([[2.0, 0.3], [0.3, 1.0]]))
+    zs, us = rng.standard_normal((3, 8, 1)), rng.standard_normal((3, 8, 1))
+    sm = smooth_batch(METHODS["kf"], model, prior, zs, us, {}, "python")
+    shared = _back_to_prior(model, prior, sm)
+    filt = sm.filtered
+    changed = filt.predicted_covs.copy()
+    changed[1, 0] *= 1.5  # series 1 with a prediction of its own: the series-by-series path
+    apart = _back_to_prior(model, prior, replace(sm, filtered=replace(filt, predicted_covs=changed)))
+    for res, pcovs in ((shared, filt.predicted_covs), (apart, changed)):
+        for i in range(3):
+            m0, P0, G0 = kalman.rts_step(prior.mean, prior.cov, filt.predicted_means[i, 0], pcovs[i, 0],
+                                         sm.means[i, 0], sm.covs[i, 0], prior.cov @ model.F.T)
+            np.testing.assert_allclose(res.means[i, 0], m0, rtol=1e-13, atol=1e-14)
+            np.testing.assert_allclose(res.covs[i, 0], P0, rtol=1e-13, atol=1e-14)
+            np.testing.assert_allclose(res.gains[i, 0], G0, rtol=1e-13, atol=1e-14)
+            np.testing.assert_array_equal(res.means[i, 1:], sm.means[i])
+            np.testing.assert_array_equal(res.gains[i, 1:], sm.gains[i])
+    assert not np.allclose(apart.covs[1, 0], shared.covs[1, 0])

@@ -413,13 +413,19 @@ def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
     """A compiled linear smoother's result, continued one RTS step back to the prior's time 0."""
     F = model.at(0)[0]
     filt = sm.filtered
-    out = [], [], []
-    for i in range(sm.means.shape[0]):
-        m0, P0, G0 = kalman.rts_step(prior.mean, prior.cov, filt.predicted_means[i, 0], filt.predicted_covs[i, 0],
-                                     sm.means[i, 0], sm.covs[i, 0], prior.cov @ F.T)
-        for acc, first, rest in zip(out, (m0, P0, G0), (sm.means[i], sm.covs[i], sm.gains[i])):
-            acc.append(np.concatenate([first[None], rest]))
-    return SmoothResult(*(np.stack(a) for a in out), filt, sm.iterations)
+    pcov = filt.predicted_covs[:, 0]
+    N, n = sm.means.shape[0], model.n
+    if (pcov == pcov[0]).all():  # one model and prior: every series shares P⁻_1, so one step does all
+        m0, P0, G0 = kalman.rts_step(prior.mean, prior.cov, filt.predicted_means[:, 0], pcov[0], sm.means[:, 0],
+                                     sm.covs[:, 0], prior.cov @ F.T)
+        G0 = np.broadcast_to(G0, (N, n, n))
+    else:
+        m0, P0, G0 = (np.stack(a) for a in zip(*(
+            kalman.rts_step(prior.mean, prior.cov, filt.predicted_means[i, 0], pcov[i], sm.means[i, 0],
+                            sm.covs[i, 0], prior.cov @ F.T) for i in range(N))))
+    back = (np.concatenate([first[:, None], rest], axis=1) for first, rest in ((m0, sm.means), (P0, sm.covs),
+                                                                               (G0, sm.gains)))
+    return SmoothResult(*back, filt, sm.iterations)
 
 
 def divergence_message(ranges: list[str]) -> str:
