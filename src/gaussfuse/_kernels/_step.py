@@ -42,7 +42,7 @@ from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
 __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
-           "SqrtBack", "sqrt_back_workspace", "joint_factor", "rts_back", "downdate",
+           "SqrtBack", "sqrt_back_workspace", "joint_factor", "rts_back", "downdate", "times_factor",
            "not_finite_factor", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
            "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
            "not_finite",
@@ -318,18 +318,26 @@ def tria(M, rows, cols, u, L):
                 L[r, i] = -L[r, i]
 
 
+@register_jitable(**_JIT)
+def times_factor(A, L, out, col):
+    """``out[:, col:col + n] = A L`` for a lower-triangular L (n, n): the zeros above its diagonal are skipped."""
+    n = L.shape[0]
+    for i in range(A.shape[0]):
+        for j in range(n):
+            s = 0.0
+            for k in range(j, n):
+                s += A[i, k] * L[k, j]
+            out[i, col + j] = s
+
+
 @jit(inline="always", **_JIT)
 def predict_sqrt(sw, mean, factor, A, Q_factor, b, pred_mean, pred_factor):
     r"""kalman.predict_sqrt: :math:`m^- = A m + b`, :math:`L^- = \mathrm{tria}[A L, L_Q]`, `Q_factor` (n, q)."""
     n = mean.shape[0]
     q = Q_factor.shape[1]
     predict_mean(mean, A, b, pred_mean)
+    times_factor(A, factor, sw.M, 0)
     for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(j, n):  # L is lower triangular
-                s += A[i, k] * factor[k, j]
-            sw.M[i, j] = s
         for j in range(q):
             sw.M[i, n + j] = Q_factor[i, j]
     tria(sw.M, n, n + q, sw.u, pred_factor)
@@ -349,12 +357,7 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, po
     n = mean.shape[0]
     m = z.shape[0]
     mo = innovate(w, mean, z, H, d, angles, innovation)
-    for a in range(m):
-        for j in range(n):
-            s = 0.0
-            for k in range(j, n):
-                s += H[a, k] * factor[k, j]
-            sw.HL[a, j] = s
+    times_factor(H, factor, sw.HL, 0)
     if mo == 0:
         copy1(post_mean, mean)
         copy2(post_factor, factor)
@@ -433,15 +436,12 @@ def joint_factor(bw, filt_factor, A, Q_factor, D):
     n = filt_factor.shape[0]
     q = Q_factor.shape[1]
     M = bw.M
+    times_factor(A, filt_factor, M, q)
     for i in range(n):
         for j in range(q):
             M[i, j] = Q_factor[i, j]
             M[n + i, j] = 0.0
         for j in range(n):
-            s = 0.0
-            for k in range(j, n):  # L_k is lower triangular
-                s += A[i, k] * filt_factor[k, j]
-            M[i, q + j] = s
             M[n + i, q + j] = filt_factor[i, j]
     tria(M, 2 * n, q + n, bw.u, bw.T)
     p = D.shape[1]

@@ -221,6 +221,24 @@ def _noise(base, omega, out):
             out[a, b] = base[a, b] + omega[a, b]
 
 
+@register_jitable(**_JIT)
+def _wrap_angles(x, angles):
+    """The components of x that are angles, wrapped to [-π, π)."""
+    for a in range(x.shape[0]):
+        if angles[a]:
+            x[a] = wrap(x[a])
+
+
+@jit(inline="always", **_JIT)
+def _accept(s, t, prob, bel, out, w, ll):
+    """A finite update of either form: its log-likelihood added, its mean, innovation and NIS kept."""
+    bel.loglik[0] += ll
+    if out.means.shape[1]:
+        copy1(out.means[s, t], bel.mean)
+        copy1(out.innovations[s, t], bel.innovation)
+        out.nis[s, t] = nis(w, prob.zs[s, t])
+
+
 @jit(inline="always", **_JIT)
 def _forecast(s, t, Y, prob, bel, out, w, gf, fail):
     """kalman.forecast through SigmaPoints.transition, with f's values Y at ``bel.X``; False on an overflow."""
@@ -228,9 +246,7 @@ def _forecast(s, t, Y, prob, bel, out, w, gf, fail):
     regress(Y, n, prob.rule, bel.mean, prob.state_angles, gf)
     _noise(at(prob.Q, t), gf.noise, bel.Q)
     predict(w, bel.mean, bel.cov, gf.A, bel.Q, gf.b, bel.pmean, bel.pcov)
-    for a in range(n):
-        if prob.state_angles[a]:
-            bel.pmean[a] = wrap(bel.pmean[a])
+    _wrap_angles(bel.pmean, prob.state_angles)
     if not_finite(bel.pmean, bel.pcov, 0.0):
         record(fail, s, PREDICTED_NOT_FINITE, t)
         return False
@@ -248,7 +264,6 @@ def _forecast(s, t, Y, prob, bel, out, w, gf, fail):
 @jit(inline="always", **_JIT)
 def _correct(s, t, Z, prob, bel, out, w, gh, fail):
     """kalman.correct through SigmaPoints.measurement, with h's values Z at ``bel.Xh``; False if it fails."""
-    n = bel.mean.shape[0]
     m = prob.zs.shape[2]
     regress(Z, m, prob.rule, bel.pmean, prob.measurement_angles, gh)
     _noise(at(prob.R, t), gh.noise, bel.R)
@@ -257,17 +272,11 @@ def _correct(s, t, Z, prob, bel, out, w, gh, fail):
     if not ok:
         record_not_pd(fail, s, t, w, mo)
         return False
-    for a in range(n):
-        if prob.state_angles[a]:
-            bel.mean[a] = wrap(bel.mean[a])
+    _wrap_angles(bel.mean, prob.state_angles)
     if not_finite(bel.mean, bel.cov, ll):
         record(fail, s, FILTERED_NOT_FINITE, t)
         return False
-    bel.loglik[0] += ll
-    if out.means.shape[1]:
-        copy1(out.means[s, t], bel.mean)
-        copy1(out.innovations[s, t], bel.innovation)
-        out.nis[s, t] = nis(w, prob.zs[s, t])
+    _accept(s, t, prob, bel, out, w, ll)
     if out.covs.shape[1]:
         copy2(out.covs[s, t], bel.cov)
         copy2(out.innovation_covs[s, t], bel.S)
@@ -352,9 +361,7 @@ def _forecast_sqrt(s, t, Y, prob, bel, out, w, gf, fail):
             return False
         copy2(bel.joint[s, t - 1], bel.bw.T)
         predict_mean(bel.mean, gf.A, gf.b, bel.jpm[s, t - 1])
-    for a in range(n):
-        if prob.state_angles[a]:
-            bel.pmean[a] = wrap(bel.pmean[a])
+    _wrap_angles(bel.pmean, prob.state_angles)
     if not_finite_factor(bel.pmean, bel.pcov, 0.0):
         record(fail, s, PREDICTED_NOT_FINITE, t)
         return False
@@ -378,17 +385,11 @@ def _correct_sqrt(s, t, Z, prob, bel, out, w, gh, fail):
     if not ok:  # the readable path downdates, or raises, naming the matrix
         record(fail, s, READABLE, t)
         return False
-    for a in range(n):
-        if prob.state_angles[a]:
-            bel.mean[a] = wrap(bel.mean[a])
+    _wrap_angles(bel.mean, prob.state_angles)
     if not_finite_factor(bel.mean, bel.cov, ll):
         record(fail, s, FILTERED_NOT_FINITE, t)
         return False
-    bel.loglik[0] += ll
-    if out.means.shape[1]:
-        copy1(out.means[s, t], bel.mean)
-        copy1(out.innovations[s, t], bel.innovation)
-        out.nis[s, t] = nis(w, prob.zs[s, t])
+    _accept(s, t, prob, bel, out, w, ll)
     if out.covs.shape[1]:
         square(bel.cov, out.covs[s, t])
         copy2(out.factors[s, t], bel.cov)
