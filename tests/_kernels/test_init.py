@@ -13,9 +13,11 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 
-from gaussfuse._kernels import BATCH_ENTRY_POINTS, ENTRY_POINTS, compiled_state, source_stamp
+from gaussfuse._kernels import (BATCH_ENTRY_POINTS, ENTRY_POINTS, JITTED_LOOP, compiled_state, kernel_states,
+                                kernels, source_stamp)
 
 PROBE = textwrap.dedent("""
     import json, sys
@@ -77,10 +79,39 @@ def test_every_entry_point_exists():
     import importlib
 
     for entries in [*ENTRY_POINTS.values(), *BATCH_ENTRY_POINTS.values(), (("_rts", "backward"),
-                                                                           ("_rts", "backward_parallel"))]:
+                                                                           ("_rts", "backward_parallel"), JITTED_LOOP)]:
         for module, name in entries:
             assert hasattr(importlib.import_module(f"gaussfuse._kernels.{module}"), name)
 
 
 def test_the_stamp_covers_every_kernel_source():
     assert len(source_stamp()) == 32 and source_stamp() == source_stamp()
+
+
+def test_the_kernels_a_call_runs():
+    assert kernels("linear") == (("linear", "forward"),)
+    assert kernels("linear", batch=True, smoothing=True) == (("linear", "forward_parallel"),
+                                                             ("_rts", "backward_parallel"))
+    assert kernels("sigma_points", smoothing=True) == (("sigma_points", "advance"), ("sigma_points", "hold"),
+                                                       ("_rts", "backward"))
+    # a batch of sigma-point series runs them one after the other, but smooths them in parallel
+    assert kernels("sigma_points", batch=True, smoothing=True)[-1] == ("_rts", "backward_parallel")
+    # jitted f and h: the loop compiled around them, instead of the Python mode's kernels
+    assert kernels("sigma_points", jitted=True) == (JITTED_LOOP,)
+    assert kernels("linear", jitted=True) == kernels("linear")
+
+
+def test_the_jitted_loop_state_is_the_one_given():
+    for loop in ("loaded", "cached", "cold"):
+        states = kernel_states("sigma_points", smoothing=True, loop=loop)
+        assert list(states) == [JITTED_LOOP, ("_rts", "backward")]
+        assert states[JITTED_LOOP] == loop
+    assert JITTED_LOOP not in kernel_states("sigma_points")
+
+
+def test_jitted_tells_numba_functions_from_others():
+    numba = pytest.importorskip("numba")
+    from gaussfuse._kernels import jitted
+
+    assert jitted(numba.njit(lambda x: x))
+    assert not jitted(lambda x: x) and not jitted(None) and not jitted(np.sin)

@@ -19,7 +19,7 @@ from numba.core.runtime import _nrt_python, rtsys
 
 import _oracle
 import gaussfuse as gf
-from gaussfuse._kernels import _jit, _rts, linear
+from gaussfuse._kernels import _jit, _rts, kernels, linear
 
 TOL = 1e-10
 EPS = np.finfo(float).eps
@@ -363,7 +363,7 @@ def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
     """With the kernels in memory, "auto" compiles from 1000 steps (all series together) on."""
     from gaussfuse.inference import drivers
 
-    monkeypatch.setattr(drivers, "compiled_state", lambda *args: "loaded")
+    monkeypatch.setattr(drivers, "kernel_states", lambda *args: dict.fromkeys(kernels(*args[:3]), "loaded"))
     calls = []
     original = getattr(linear, front)
 

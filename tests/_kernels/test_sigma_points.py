@@ -7,6 +7,9 @@ and h, and numba-compiled f and h (the whole loop compiled).
 """
 
 import json
+import os
+import subprocess
+import sys
 from dataclasses import fields
 from pathlib import Path
 
@@ -492,15 +495,59 @@ def test_jitted_functions_that_do_not_fit_run_in_python_mode():
     assert_same(res, ref)
 
 
-def test_auto_engine_compiles_long_series(pendulum):
+def test_auto_engine_compiles_long_series(pendulum, monkeypatch):
+    """With the kernels loaded in this process, "auto" runs them from 1000 steps on, in both modes."""
     _, zs = pendulum
-    model = pendulum_model("jitted")
     prior = gf.Gaussian([0.0, 0.0], np.eye(2))
     zz = np.concatenate([zs, zs])  # 1000 steps
-    assert drivers.compiled_engine(gf.METHODS["ckf"], "auto", zz.shape[0]) is sp
-    assert sp.execution_mode(model, prior) == "compiled"
-    res = gf.filter(model, prior, zz, method="ckf")
-    assert_same(res, gf.filter(model, prior, zz, method="ckf", engine="python"))
+    calls = []
+    original = sp.filter
+    monkeypatch.setattr(sp, "filter", lambda *args, **kwargs: calls.append(1) or original(*args, **kwargs))
+    for mode in ("plain", "jitted"):
+        model = pendulum_model(mode)
+        gf.filter(model, prior, zz[:5], method="ckf", engine="numba")  # loads (or compiles) the kernels
+        assert sp.execution_mode(model, prior) == ("compiled" if mode == "jitted" else "python")
+        del calls[:]
+        assert_same(gf.filter(model, prior, zz[:999], method="ckf"), gf.filter(model, prior, zz[:999], method="ckf",
+                                                                               engine="python"))
+        assert calls == []  # 999 steps: readable
+        res = gf.filter(model, prior, zz, method="ckf")
+        assert calls == [1]
+        assert_same(res, gf.filter(model, prior, zz, method="ckf", engine="python"))
+
+
+LOOP_PROBE = """
+import sys
+import numba, numpy as np, gaussfuse as gf
+from gaussfuse._kernels import sigma_points as sp
+f, h = numba.njit(lambda x: x * 1.0), numba.njit(lambda x: np.sin(x[:1]))
+model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+print(sp.loop_state(model, gf.Gaussian([0.0, 0.0], np.eye(2)), form=sys.argv[1]))
+"""
+
+
+def probe_loop(form: str, cache_dir=None) -> str:
+    env = dict(os.environ)
+    if cache_dir is not None:
+        env["NUMBA_CACHE_DIR"] = str(cache_dir)
+    child = subprocess.run([sys.executable, "-c", LOOP_PROBE, form], env=env, capture_output=True, text=True,
+                           timeout=600)
+    assert child.returncode == 0, child.stderr
+    return child.stdout.strip().splitlines()[-1]
+
+
+def test_the_loop_around_jitted_functions_is_loaded_cached_or_cold(tmp_path):
+    """What "auto" weighs for jitted f and h: the loop for their signatures, in this process, on disk, or neither."""
+    f, h = numba.njit(lambda x: x * 1.0), numba.njit(lambda x: np.sin(x[:1]))
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    gf.filter(model, prior, np.ones(5), method="ukf", engine="numba")  # compiled, or loaded from the cache
+    assert sp.loop_state(model, prior) == "loaded"
+    assert sp.loop_state(model, prior, us=np.zeros((1, 5, 1))) != "loaded"  # f(x, u): another signature
+    assert sp.loop_state(pendulum_model("plain"), prior) is None  # the Python mode's kernels instead
+    assert probe_loop("cov") == "cached"  # a new process, with this one's cache
+    assert probe_loop("cov", tmp_path) == "cold"
+    assert probe_loop("sqrt", tmp_path) == "cold"
 
 
 # ---------------------------------------------------------------------------

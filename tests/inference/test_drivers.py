@@ -464,24 +464,26 @@ def test_smoothed_beliefs_are_checked_after_a_compiled_backward_pass():
 
 
 @pytest.mark.parametrize("state, steps, passes, compiled", [
-    ("cold", 5_000, 1, False),       # 15 s of compilation against 0.15 s of readable steps
-    ("cold", 2_000_000, 1, True),    # 60 s of readable steps
-    ("cached", 5_000, 1, False),     # loading (1 s) against 0.15 s
+    ("cold", 5_000, 1, False),       # 14 s of compilation against 0.1 s of readable steps
+    ("cold", 2_000_000, 1, True),    # 40 s of readable steps
+    ("cached", 5_000, 1, False),     # loading (1 s) against 0.1 s
     ("cached", 100_000, 1, True),
-    ("cached", 5_000, 30, True),     # a fit's thirty passes: 4.5 s
+    ("cached", 5_000, 30, True),     # a fit's thirty passes: 3 s
     ("loaded", 1_000, 1, True),
     ("loaded", 999, 1, False),       # short calls stay readable, the same in every process
     ("loaded", 100, 30, False),      # ... however many passes
 ])
 def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatch, state, steps, passes, compiled):
+    from gaussfuse._kernels import kernels
     from gaussfuse.inference import drivers
     from gaussfuse.inference.registry import METHODS
 
     seen = []
-    monkeypatch.setattr(drivers, "compiled_state", lambda *args: seen.append(args) or state)
+    monkeypatch.setattr(drivers, "kernel_states",
+                        lambda *args: seen.append(args) or dict.fromkeys(kernels(*args[:3]), state))
     chosen = drivers.compiled_engine(METHODS["kf"], "auto", steps, passes)
     assert (chosen is not None) == compiled
-    assert seen == ([] if steps < drivers.AUTO_NUMBA_STEPS else [("linear", False, False)])
+    assert seen == ([] if steps < drivers.AUTO_NUMBA_STEPS else [("linear", False, False, None)])
     # "numba" and "python" are not weighed
     assert drivers.compiled_engine(METHODS["kf"], "numba", 1) is not None
     assert drivers.compiled_engine(METHODS["kf"], "python", 10**9) is None
@@ -494,7 +496,7 @@ def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     from gaussfuse.inference import drivers
 
     seen = []
-    monkeypatch.setattr(drivers, "compiled_state", lambda *args: seen.append(args) or "cold")
+    monkeypatch.setattr(drivers, "kernel_states", lambda *args: seen.append(args) or {("linear", "forward"): "cold"})
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     prior = gf.Gaussian(0.0, 1.0)
     y = np.zeros((2, 500, 1))
@@ -503,7 +505,44 @@ def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     gf.smooth(model, prior, y[0])  # 500 steps: readable without asking
     with pytest.warns(ConvergenceWarning):
         gf.fit(model, prior, np.zeros(1200), iterations=2)
-    assert seen == [("linear", True, False), ("linear", True, True), ("linear", False, True)]
+    assert seen == [("linear", True, False, None), ("linear", True, True, None), ("linear", False, True, None)]
+
+
+def test_the_start_is_the_compilation_of_each_cold_kernel_plus_one_load():
+    from gaussfuse.inference.drivers import COMPILE, START, start_seconds
+
+    assert start_seconds({("linear", "forward"): "loaded", ("_rts", "backward"): "loaded"}) == 0.0
+    assert start_seconds({("linear", "forward"): "cached", ("_rts", "backward"): "cached"}) == START["cached"]
+    assert start_seconds({("linear", "forward_parallel"): "cold", ("_rts", "backward_parallel"): "cached"}) == (
+        COMPILE["linear.forward_parallel"] + START["cached"])
+    assert start_seconds({("sigma_points", "advance"): "cold", ("sigma_points", "hold"): "cold"}) == (
+        COMPILE["sigma_points.advance"] + COMPILE["sigma_points.hold"])
+
+
+def test_every_kernel_has_a_compile_estimate():
+    from gaussfuse._kernels import kernels
+    from gaussfuse.inference.drivers import COMPILE
+
+    names = {f"{m}.{n}" for module in ("linear", "sigma_points") for batch in (False, True) for smoothing in
+             (False, True) for jitted in (False, True) for m, n in kernels(module, batch, smoothing, jitted)}
+    assert names == set(COMPILE)
+
+
+@pytest.mark.parametrize("loop, steps, compiled", [
+    ("cold", 50_000, False),    # compiling the loop around jitted f and h (27 s) against 20 s of readable steps
+    ("cold", 100_000, True),
+    ("cached", 2_000, False),   # loading it (1 s) against 0.8 s
+    ("cached", 5_000, True),
+    ("loaded", 1_000, True),
+])
+def test_auto_weighs_the_loop_compiled_around_jitted_functions(loop, steps, compiled):
+    """For numba-jitted f and h the sigma-point engine runs a loop compiled for their signatures, not its
+    Python mode: "auto" weighs that loop's state, whatever the Python mode's."""
+    from gaussfuse.inference import drivers
+    from gaussfuse.inference.registry import METHODS
+
+    chosen = drivers.compiled_engine(METHODS["ukf"], "auto", steps, loop=lambda: loop)
+    assert (chosen is not None) == compiled
 
 
 # ---------------------------------------------------------------------------

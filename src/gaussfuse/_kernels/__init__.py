@@ -21,10 +21,11 @@ An engine module provides, for the methods that name it in
 with validated measurements ``zs`` of shape (N, T, m), controls ``us`` of
 shape (N, T, p) or None, the method's linearisation strategy `lin`, and
 results that carry the leading N axis. Kernels are compiled on first use
-and cached on disk (:mod:`._jit`); :func:`compiled_state` tells, without
-importing numba, whether a call would compile them, load them from the
-cache, or find them loaded. Importing this package does not import numba;
-importing a module in it does.
+and cached on disk (:mod:`._jit`); :func:`kernel_states` tells, without
+importing numba, whether a call would compile each kernel it runs
+(:func:`kernels`), load it from the cache, or find it loaded, and
+:func:`compiled_state` sums that up. Importing this package does not import
+numba; importing a module in it does.
 """
 
 from __future__ import annotations
@@ -36,26 +37,31 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["compiled_state", "source_stamp", "ENTRY_POINTS", "BATCH_ENTRY_POINTS"]
+__all__ = ["compiled_state", "kernel_states", "kernels", "jitted", "source_stamp", "ENTRY_POINTS",
+           "BATCH_ENTRY_POINTS", "JITTED_LOOP"]
 
 _HERE = Path(__file__).resolve().parent
 
 ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
     "linear": (("linear", "forward"),),
-    "sigma_points": (("sigma_points", "advance"),),
+    "sigma_points": (("sigma_points", "advance"), ("sigma_points", "hold")),
 }
 """The compiled functions an engine's filter runs on one series, as (module,
-function) pairs: what :func:`compiled_state` looks for. A smoother runs
-``_rts.backward`` too; a batch of series the parallel forms
-(:data:`BATCH_ENTRY_POINTS`). The sigma-point loop compiled around
-numba-jitted f and h is compiled separately, when used."""
+function) pairs: what :func:`kernel_states` looks for."""
 
 BATCH_ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
     "linear": (("linear", "forward_parallel"),),
-    "sigma_points": (),
+    "sigma_points": ENTRY_POINTS["sigma_points"],
 }
-"""What a batch of series runs in addition (the sigma-point engine runs its
-series one after the other)."""
+"""What an engine's filter runs instead on a batch of series: the linear
+engine's ``parallel=True`` form (compiled apart); the sigma-point engine runs
+its series one after the other."""
+
+JITTED_LOOP = ("sigma_points", "run")
+"""The sigma-point loop compiled around numba-jitted f and h, once per
+signature of f and h (:func:`gaussfuse._kernels.sigma_points.loop_state`
+tells its state): what a filter with such a model runs instead of
+``ENTRY_POINTS["sigma_points"]``."""
 
 
 @lru_cache(maxsize=None)
@@ -128,46 +134,89 @@ def _cached(module: str, function: str) -> bool:
     return False
 
 
-def compiled_state(module: str, batch: bool = False, smoothing: bool = False) -> str:
-    """Whether the kernels of an engine are compiled: "loaded", "cached" or "cold".
+def jitted(fn) -> bool:
+    """Whether `fn` is a numba-jitted function (:func:`numba.extending.is_jitted`), without importing numba.
+
+    A jitted function exists only once numba is imported, so when it is not,
+    nothing is.
+    """
+    dispatcher = sys.modules.get("numba.core.dispatcher")
+    return dispatcher is not None and isinstance(fn, dispatcher.Dispatcher)
+
+
+def kernels(module: str, batch: bool = False, smoothing: bool = False,
+            jitted: bool = False) -> tuple[tuple[str, str], ...]:
+    """The compiled functions a call of an engine runs, as (module, function) pairs.
+
+    `batch`: several series at once; `smoothing`: the backward pass too
+    (:mod:`._rts`, whose ``parallel=True`` form runs a batch); `jitted`:
+    the sigma-point engine with numba-jitted f and h (:data:`JITTED_LOOP`).
+    """
+    if module not in ENTRY_POINTS:
+        raise ValueError(f"`module` must be one of {sorted(ENTRY_POINTS)}; got {module!r}.")
+    entries = (BATCH_ENTRY_POINTS if batch else ENTRY_POINTS)[module]
+    if jitted and module == "sigma_points":
+        entries = (JITTED_LOOP,)
+    if smoothing:
+        entries += (("_rts", "backward_parallel" if batch else "backward"),)
+    return entries
+
+
+def kernel_states(module: str, batch: bool = False, smoothing: bool = False,
+                  loop: str | None = None) -> dict[tuple[str, str], str]:
+    """Whether each kernel a call runs (:func:`kernels`) is "loaded", "cached" or "cold".
 
     Parameters
     ----------
     module : str
         An engine module of this package: "linear" or "sigma_points" (a
         method's ``compiled`` entry in :data:`gaussfuse.inference.METHODS`).
+    batch, smoothing : bool
+        As for :func:`kernels`.
+    loop : str, optional
+        When the call runs the sigma-point loop compiled around its
+        numba-jitted f and h (:data:`JITTED_LOOP`), that loop's state
+        (:func:`gaussfuse._kernels.sigma_points.loop_state`: numba is
+        imported already, since f and h are jitted).
 
     Returns
     -------
-    str
-        "loaded" when the engine's kernels (:data:`ENTRY_POINTS`) are
-        compiled, or loaded from the cache, in this process: a call pays
-        neither; "cached" when numba's on-disk cache holds them for the
-        current sources: a new process (or this one) loads them, paying for
-        numba's import and start-up but not for compilation; "cold"
-        otherwise: the first call compiles them.
+    dict
+        For each kernel: "loaded" when it is compiled, or loaded from the
+        cache, in this process: a call pays nothing for it; "cached" when
+        numba's on-disk cache holds it for the current sources: a new
+        process (or this one) loads it, paying for numba's import and
+        start-up but not for compilation; "cold" otherwise: the first call
+        compiles it.
 
     Notes
     -----
-    It decides without importing numba. "loaded": the engine's module is
-    imported and each of its entry points has a compiled signature. "cached":
-    for each entry point, an index file in the cache directory numba would
-    use (:func:`_cache_dirs`) written by the installed numba version for the
-    current sources (:func:`source_stamp`), with a compiled object beside it.
-    The stamp covers every kernel module, so any change to their sources
-    makes the state "cold" again.
+    It decides without importing numba. "loaded": the kernel's module is
+    imported and the kernel has a compiled signature. "cached": an index
+    file in the cache directory numba would use (:func:`_cache_dirs`)
+    written by the installed numba version for the current sources
+    (:func:`source_stamp`), with a compiled object beside it. The stamp
+    covers every kernel module, so any change to their sources makes every
+    kernel "cold" again.
     """
-    if module not in ENTRY_POINTS:
-        raise ValueError(f"`module` must be one of {sorted(ENTRY_POINTS)}; got {module!r}.")
-    entries = ENTRY_POINTS[module] + (BATCH_ENTRY_POINTS[module] if batch else ())
-    if smoothing:
-        entries += (("_rts", "backward_parallel" if batch and module == "linear" else "backward"),)
-    loaded = []
-    for mod, name in entries:
+    out = {}
+    for mod, name in kernels(module, batch, smoothing, jitted=loop is not None):
+        if (mod, name) == JITTED_LOOP:
+            out[mod, name] = loop
+            continue
         imported = sys.modules.get(f"{__name__}.{mod}")
-        loaded.append(imported is not None and bool(getattr(getattr(imported, name, None), "signatures", ())))
-    if all(loaded):
-        return "loaded"
-    if all(done or _cached(mod, name) for done, (mod, name) in zip(loaded, entries)):
-        return "cached"
-    return "cold"
+        if imported is not None and bool(getattr(getattr(imported, name, None), "signatures", ())):
+            out[mod, name] = "loaded"
+        else:
+            out[mod, name] = "cached" if _cached(mod, name) else "cold"
+    return out
+
+
+def compiled_state(module: str, batch: bool = False, smoothing: bool = False) -> str:
+    """Whether the kernels of an engine are compiled: "loaded", "cached" or "cold" (see :func:`kernel_states`).
+
+    "loaded" when every kernel a call runs is loaded, "cached" when each is
+    loaded or cached, "cold" when any must be compiled.
+    """
+    states = set(kernel_states(module, batch, smoothing).values())
+    return "loaded" if states == {"loaded"} else "cold" if "cold" in states else "cached"

@@ -27,7 +27,7 @@ from numba.core.caching import CompileResultCacheImpl, FunctionCache
 
 from . import source_stamp
 
-__all__ = ["CacheUnavailableWarning", "jit", "launch", "parallel_launch", "entry_point"]
+__all__ = ["CacheUnavailableWarning", "jit", "launch", "parallel_launch", "entry_point", "cached_signatures"]
 
 _CHUNKS_PER_THREAD = 16  # chunks of series per thread, handed out dynamically, for balance
 
@@ -111,6 +111,22 @@ def jit(*signature, **options) -> Callable[[Callable], numba.core.registry.CPUDi
         return dispatcher
 
     return decorate
+
+
+def cached_signatures(fn: Callable) -> list:
+    """The signatures numba's disk cache holds compiled for the kernel function `fn`, from the current sources.
+
+    Read from the cache's index (:class:`_KernelCache`, the one :func:`jit`
+    gives `fn`), without compiling or loading anything; empty when nothing
+    is cached, or nothing can be.
+    """
+    if not _cache:
+        return []
+    try:
+        index = _KernelCache(fn)._cache_file._load_index()
+    except Exception:  # no locator, an unreadable or foreign index: as good as none
+        return []
+    return [key[0] for key in index]
 
 
 _parallel = threading.Lock()

@@ -82,7 +82,7 @@ from .._validation import call_checked, size_reason
 from ..errors import ModelFunctionError, ReadablePath
 from ..inference.results import SmoothResult, check_smoothed
 from . import _rts
-from ._jit import entry_point, jit
+from ._jit import cached_signatures, entry_point, jit
 from ._nrt import borrow, readonly
 from ._slr import Rule, draw, points, regress, regress_sqrt, regression
 from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, SqrtBack, SqrtWork, at, copy1, copy2, downdate,
@@ -90,7 +90,7 @@ from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, SqrtBack, SqrtWor
                     predict_mean, predict_sqrt, raise_failure, record, record_not_pd, smoother_gain, sqrt_back_workspace,
                     sqrt_workspace, square, update, update_sqrt, where, workspace, wrap)
 
-__all__ = ["filter", "smooth", "smooth_sqrt", "execution_mode", "advance", "advance_sqrt", "hold"]
+__all__ = ["filter", "smooth", "smooth_sqrt", "execution_mode", "loop_state", "advance", "advance_sqrt", "hold"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 _F64 = np.dtype(np.float64)
@@ -717,9 +717,14 @@ _C2 = types.float64[:, ::1]
 _LOOPS: dict = {}
 
 
+def _loop_key(f_sig, h_sig, controls: bool, sqrt: bool) -> tuple:
+    """What a compiled :func:`run` is specialised on: f's and h's signatures, controls or none, the form."""
+    return f_sig, h_sig, controls, sqrt
+
+
 def _run_for(f_sig, h_sig, args) -> object:
     """:func:`run` compiled for these function signatures and the types of `args` (compiled once, cached on disk)."""
-    key = (f_sig, h_sig, args[0] is None, type(args[5]).__name__)  # args[5]: the belief, whose type is the form
+    key = _loop_key(f_sig, h_sig, args[0] is not None, isinstance(args[5], SqrtBelief))  # args[5]: the belief
     if key not in _LOOPS:
         from numba import typeof
 
@@ -758,6 +763,30 @@ def _jitted_signatures(model, prior, us):
             return None
         sigs.append(ret(x_type, *([_C1] * len(fargs))))
     return sigs
+
+
+def loop_state(model, prior, us=None, form: str = "cov") -> str | None:
+    """Whether :func:`run` is compiled for the model's numba-jitted f and h: "loaded", "cached" or "cold".
+
+    None when f and h do not fit the compiled mode (the call runs the
+    Python mode's :func:`advance`). "loaded": compiled, or loaded, in this
+    process; "cached": numba's disk cache holds it for these signatures of
+    f and h (and controls and form), from the current sources; "cold"
+    otherwise. `us`, when given, is the (N, T, p) array of controls.
+    """
+    sigs = _jitted_signatures(model, prior, us)
+    if sigs is None:
+        return None
+    key = _loop_key(sigs[0], sigs[1], us is not None, form == "sqrt")
+    if key in _LOOPS:
+        return "loaded"
+    for sig in cached_signatures(run):  # run(f, h, us, cursor, Yf, Yh, prob, bel, ...)
+        args = sig.args
+        if (len(args) > 7 and args[0] == types.FunctionType(sigs[0]) and args[1] == types.FunctionType(sigs[1])
+                and (args[2] != types.none) == key[2]
+                and getattr(args[7], "instance_class", None) is (SqrtBelief if key[3] else Belief)):
+            return "cached"
+    return "cold"
 
 
 def execution_mode(model, prior, us=None) -> str:

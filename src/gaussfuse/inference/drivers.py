@@ -13,11 +13,12 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import warnings
+from typing import Callable
 
 import numpy as np
 
 from .. import kalman
-from .._kernels import compiled_state
+from .._kernels import jitted, kernel_states
 from .._linalg import symmetrize, wrap_components
 from .. import diagnostics
 from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, diverging
@@ -28,6 +29,7 @@ from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
 
 __all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
+           "start_seconds", "jitted_loop",
            "CHECKS", "check_divergence", "divergence_message"]
 
 ENGINES = ("auto", "python", "numba")
@@ -41,13 +43,21 @@ so that a short call gives the same numbers, to the bit, in every process."""
 START = {"loaded": 0.0, "cached": 1.0}
 """Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
 process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-1.1 s)."""
-COMPILE = {"linear": 15.0, "sigma_points": 20.0}
-"""Compiling an engine's kernels with an empty cache (``benchmarks/first_call.py --cache cold --engine numba``:
-filter 14 s, an unscented filter 18 s)."""
-READABLE_STEP = {"linear": 3e-5, "sigma_points": 4e-4}
-"""What the readable path spends on a filter step beyond the compiled one, for a small state
-(``benchmarks/run.py``: W1 readable 47k steps/s against 1.5-4.8M compiled; an unscented filter with
-plain Python f and h, W4, 1.7k against 12k; a smoother counts as two passes)."""
+COMPILE = {"linear.forward": 14.0, "linear.forward_parallel": 35.0, "_rts.backward": 5.0,
+           "_rts.backward_parallel": 10.0, "sigma_points.advance": 28.0, "sigma_points.hold": 4.0,
+           "sigma_points.run": 27.0}
+"""Compiling each kernel with an empty cache, at the upper end of what this 2-core machine measured
+(numba's compile events, one fresh process and cache per call, 2026-12-01): the linear filter's loop
+11-12.5 s, its parallel form 31-32 s, the backward pass 3-5.4 s and its parallel form 9 s; the
+sigma-point engine's loop 24-27.5 s and the structure holding its arguments 3-3.6 s; the loop compiled
+around numba-jitted f and h 22-25 s for each of their signatures."""
+READABLE_STEP = {"linear": 2e-5, "sigma_points": 4e-4}
+"""What the readable path spends on a filter step beyond the compiled one, at the low end of what was
+measured for small states (a smoother counts as two passes): the linear filter 18.5-42 µs a step
+(``benchmarks/run.py``, W1 and W5 at n = 2: 54k and 47k steps/s; 34-42 µs for n = 1, 2 and 4 on a
+busier day), the compiled one under 1.5 µs; an unscented filter with plain Python f and h 410-490 µs
+(n = 2 and 4), its compiled Python mode 25-60 µs. Low estimates of the readable cost and high ones of
+:data:`COMPILE` make "auto" compile only where that clearly pays."""
 
 def _angles(model):
     """The model's angle masks, None where it has none (so that nothing is wrapped)."""
@@ -276,20 +286,25 @@ def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passe
 
 
 def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, batch: bool = False,
-                    smoothing: bool = False, readable: str | None = None):
+                    smoothing: bool = False, readable: str | None = None,
+                    loop: Callable[[], str | None] | None = None):
     """The compiled module to run `steps` steps (all series together) with, or None for the readable path.
 
     With ``engine="auto"`` the compiled path is taken only for
     :data:`AUTO_NUMBA_STEPS` steps or more, and only when it is expected to
-    cost less: starting its kernels (:data:`START`, or
-    :data:`COMPILE` when nothing is cached: :func:`gaussfuse._kernels.compiled_state`
-    tells which, without importing numba) against what the readable path
-    would spend on ``steps * passes`` steps beyond it (:data:`READABLE_STEP`).
+    cost less: starting the kernels the call runs (:data:`START` for those
+    loaded or cached, :data:`COMPILE` for each that must be compiled:
+    :func:`gaussfuse._kernels.kernel_states` tells which, without importing
+    numba) against what the readable path would spend on
+    ``steps * passes`` steps beyond it (:data:`READABLE_STEP`).
     `passes` is how many times the caller will run the steps (a fit's
     filter passes); `batch` says that several series run at once (their
     parallel kernels are compiled separately), `smoothing` that the
     backward pass runs too; `readable` names an option that only the
-    readable path has (then ``engine="numba"`` is an error).
+    readable path has (then ``engine="numba"`` is an error); `loop`, when
+    given, is asked (once the call is long enough to weigh) for the state of
+    the sigma-point loop compiled around numba-jitted f and h, None when the
+    call would not run it (:func:`jitted_loop`).
 
     Raises
     ------
@@ -313,18 +328,42 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
         if not available:
             raise ValueError("`engine='numba'` needs numba: pip install numba.")
     elif spec.compiled is None or not available or not _worth_compiling(spec.compiled, steps, passes, batch,
-                                                                        smoothing):
+                                                                        smoothing, loop):
         return None
     return importlib.import_module(f".._kernels.{spec.compiled}", __package__)
 
 
-def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smoothing: bool) -> bool:
+def start_seconds(states: dict) -> float:
+    """What starting kernels in these states (:func:`gaussfuse._kernels.kernel_states`) is expected to cost, in s.
+
+    Each cold kernel's :data:`COMPILE`, plus :data:`START` ``["cached"]``
+    once when any is to be loaded from the cache.
+    """
+    cold = sum(COMPILE[f"{module}.{name}"] for (module, name), state in states.items() if state == "cold")
+    return cold + (START["cached"] if "cached" in states.values() else START["loaded"])
+
+
+def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smoothing: bool,
+                     loop: Callable[[], str | None] | None) -> bool:
     """Whether starting `module`'s kernels costs less than the readable path would spend on its passes."""
     if steps < AUTO_NUMBA_STEPS:
         return False
-    state = compiled_state(module, batch, smoothing)
-    start = COMPILE[module] if state == "cold" else START[state]
+    start = start_seconds(kernel_states(module, batch, smoothing, None if loop is None else loop()))
     return start < steps * passes * READABLE_STEP[module]
+
+
+def jitted_loop(spec: Method, model, prior: Gaussian, us, form: str = "cov") -> str | None:
+    """The state of the sigma-point loop compiled around the model's numba-jitted f and h (see :func:`compiled_engine`).
+
+    None when the call would not run that loop: another engine, or f and
+    h not jitted (or not fitting it). Deciding imports numba only when it
+    is imported already: jitted f and h mean that it is.
+    """
+    if spec.compiled != "sigma_points" or not (jitted(getattr(model, "f", None)) and jitted(getattr(model, "h", None))):
+        return None
+    from .._kernels import sigma_points  # numba is imported: f and h are jitted
+
+    return sigma_points.loop_state(model, prior, us, form)
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
@@ -338,7 +377,8 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     """
     target = steady_state(model).cov if steady else None
     engine, readable = _readable_only(spec, engine, form, gate, "gains=True" if gains else None)
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable)
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable,
+                               loop=lambda: jitted_loop(spec, model, prior, us, form))
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
@@ -385,7 +425,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
            else "an ending" if ending is not None and (form == "sqrt" or spec.compiled != "linear") else None)
     engine, readable = _readable_only(spec, engine, form, gate, why)
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
-                               readable=readable)
+                               readable=readable, loop=lambda: jitted_loop(spec, model, prior, us, form))
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
