@@ -1,4 +1,4 @@
-"""``gaussfuse._kernels.compiled_state``: "cold", "cached" or "loaded", decided without importing numba.
+"""``gaussfuse._kernels.kernel_states``: each kernel "cold", "cached" or "loaded", decided without importing numba.
 
 Each probe runs in a new interpreter with its own ``NUMBA_CACHE_DIR``, so
 the states are those a new user (an empty cache), a new process (a filled
@@ -16,16 +16,18 @@ import textwrap
 import numpy as np
 import pytest
 
-from gaussfuse._kernels import (BATCH_ENTRY_POINTS, ENTRY_POINTS, JITTED_LOOP, compiled_state, kernel_states,
-                                kernels, source_stamp)
+from gaussfuse._kernels import BATCH_ENTRY_POINTS, ENTRY_POINTS, JITTED_LOOP, kernel_states, kernels, source_stamp
 
 PROBE = textwrap.dedent("""
     import json, sys
     import gaussfuse._kernels as kernels
     if sys.argv[1] == "changed":  # as if a kernel's source had changed since the cache was written
         kernels.source_stamp = lambda: b"x" * 32
-    out = {"before": {m: kernels.compiled_state(m) for m in ("linear", "sigma_points")},
-           "numba imported": "numba" in sys.modules}
+
+    def states(module, batch=False, smoothing=False):
+        return {f"{m}.{n}": state for (m, n), state in kernels.kernel_states(module, batch, smoothing).items()}
+
+    out = {"before": {**states("linear"), **states("sigma_points")}, "numba imported": "numba" in sys.modules}
     if sys.argv[1] == "run":
         import numpy as np
         import gaussfuse as gf
@@ -34,9 +36,8 @@ PROBE = textwrap.dedent("""
         from gaussfuse._kernels import linear
         stats = linear.forward.stats  # compiled and written to the cache, or loaded from it
         out["forward"] = {"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}
-        out["after"] = {m: kernels.compiled_state(m) for m in ("linear", "sigma_points")}
-        out["after, smoothing"] = {m: kernels.compiled_state(m, smoothing=True) for m in ("linear", "sigma_points")}
-        out["after, batch"] = kernels.compiled_state("linear", batch=True)
+        out["after, smoothing"] = {**states("linear", smoothing=True), **states("sigma_points", smoothing=True)}
+        out["after, batch"] = states("linear", batch=True, smoothing=True)
     print(json.dumps(out))
 """)
 
@@ -52,27 +53,28 @@ def probe(cache_dir, what: str) -> dict:
 def test_cold_then_loaded_then_cached(tmp_path):
     """One cold compilation (a new user), then what a new process and a changed source see."""
     first = probe(tmp_path, "run")
-    assert first["before"] == {"linear": "cold", "sigma_points": "cold"}
+    cold = {"linear.forward": "cold", "sigma_points.advance": "cold", "sigma_points.hold": "cold"}
+    assert first["before"] == cold
     assert first["forward"] == {"hits": 0, "misses": 1}  # compiled, and written to the cache
     assert any(tmp_path.rglob("*.nbi"))
     assert not first["numba imported"]  # deciding does not import numba
     # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only,
-    # and a batch of series would compile the parallel kernel.
-    assert first["after"] == {"linear": "loaded", "sigma_points": "cold"}
-    assert first["after, smoothing"] == {"linear": "loaded", "sigma_points": "cold"}
-    assert first["after, batch"] == "cold"
+    # and a batch of series would compile the parallel kernels.
+    assert first["after, smoothing"] == {"linear.forward": "loaded", "_rts.backward": "loaded",
+                                         "sigma_points.advance": "cold", "sigma_points.hold": "cold"}
+    assert first["after, batch"] == {"linear.forward_parallel": "cold", "_rts.backward_parallel": "cold"}
     second = probe(tmp_path, "run")
-    assert second["before"] == {"linear": "cached", "sigma_points": "cold"}
+    assert second["before"] == {**cold, "linear.forward": "cached"}
     assert not second["numba imported"]
     assert second["forward"] == {"hits": 1, "misses": 0}  # a new process loads it
-    assert second["after"] == {"linear": "loaded", "sigma_points": "cold"}
+    assert second["after, smoothing"] == first["after, smoothing"]
     third = probe(tmp_path, "changed")
-    assert third["before"] == {"linear": "cold", "sigma_points": "cold"}
+    assert third["before"] == cold
 
 
 def test_an_unknown_module_is_refused():
     with pytest.raises(ValueError, match=r"`module` must be one of \['linear', 'sigma_points'\]; got 'kalman'"):
-        compiled_state("kalman")
+        kernel_states("kalman")
 
 
 def test_every_entry_point_exists():

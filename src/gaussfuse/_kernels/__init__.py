@@ -23,9 +23,8 @@ shape (N, T, p) or None, the method's linearisation strategy `lin`, and
 results that carry the leading N axis. Kernels are compiled on first use
 and cached on disk (:mod:`._jit`); :func:`kernel_states` tells, without
 importing numba, whether a call would compile each kernel it runs
-(:func:`kernels`), load it from the cache, or find it loaded, and
-:func:`compiled_state` sums that up. Importing this package does not import
-numba; importing a module in it does.
+(:func:`kernels`), load it from the cache, or find it loaded. Importing this
+package does not import numba; importing a module in it does.
 """
 
 from __future__ import annotations
@@ -37,8 +36,8 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["compiled_state", "kernel_states", "kernels", "jitted", "source_stamp", "ENTRY_POINTS",
-           "BATCH_ENTRY_POINTS", "JITTED_LOOP"]
+__all__ = ["kernel_states", "kernels", "jitted", "source_stamp", "ENTRY_POINTS", "BATCH_ENTRY_POINTS",
+           "JITTED_LOOP"]
 
 _HERE = Path(__file__).resolve().parent
 
@@ -210,13 +209,3 @@ def kernel_states(module: str, batch: bool = False, smoothing: bool = False,
         else:
             out[mod, name] = "cached" if _cached(mod, name) else "cold"
     return out
-
-
-def compiled_state(module: str, batch: bool = False, smoothing: bool = False) -> str:
-    """Whether the kernels of an engine are compiled: "loaded", "cached" or "cold" (see :func:`kernel_states`).
-
-    "loaded" when every kernel a call runs is loaded, "cached" when each is
-    loaded or cached, "cold" when any must be compiled.
-    """
-    states = set(kernel_states(module, batch, smoothing).values())
-    return "loaded" if states == {"loaded"} else "cold" if "cold" in states else "cached"

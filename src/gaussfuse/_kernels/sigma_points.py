@@ -610,7 +610,7 @@ def advance_sqrt(held, Y):
     """:func:`advance` for the square-root form (a :class:`SqrtBelief` in `held`).
 
     A function of its own, so that numba's cache and its compiled
-    signatures name it apart: :func:`gaussfuse._kernels.compiled_state`
+    signatures name it apart: :func:`gaussfuse._kernels.kernel_states`
     reads those of :func:`advance` to tell whether the covariance form's
     kernel is compiled, and must not take this one for it.
     """
