@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 import tracemalloc
 import warnings
 
@@ -474,7 +476,7 @@ def test_smoothed_beliefs_are_checked_after_a_compiled_backward_pass():
     ("loaded", 100, 30, False),      # ... however many passes
 ])
 def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatch, state, steps, passes, compiled):
-    from gaussfuse._kernels import kernels
+    from gaussfuse._kernels import kernels, linear  # noqa: F401  (imported: its kernels may be loaded)
     from gaussfuse.inference import drivers
     from gaussfuse.inference.registry import METHODS
 
@@ -506,6 +508,29 @@ def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     with pytest.warns(ConvergenceWarning):
         gf.fit(model, prior, np.zeros(1200), iterations=2)
     assert seen == [("linear", True, False, None), ("linear", True, True, None), ("linear", False, True, None)]
+
+
+SHORT_DECISION = """
+import sys
+import gaussfuse as gf
+from gaussfuse.inference import drivers
+from gaussfuse.inference.registry import METHODS
+asked = []
+drivers.kernel_states = lambda *args: asked.append(args) or {}
+short = drivers.compiled_engine(METHODS["kf"], "auto", 5_000)
+print(short is None, len(asked), "gaussfuse._kernels.linear" in sys.modules, "importlib.metadata" in sys.modules)
+drivers.compiled_engine(METHODS["kf"], "auto", 5_000_000)
+print(len(asked))
+"""
+
+
+def test_a_call_that_loading_alone_would_not_pay_for_looks_at_nothing_on_disk():
+    """With no kernel of the engine imported, starting it costs at least a load (1 s): a call whose readable
+    steps cost less is readable without reading numba's cache (which costs 30-40 ms of imports)."""
+    child = subprocess.run([sys.executable, "-c", SHORT_DECISION], capture_output=True, text=True, timeout=300)
+    assert child.returncode == 0, child.stderr
+    # readable, without asking about the kernels or reading the cache; a long call asks
+    assert child.stdout.split() == ["True", "0", "False", "False", "1"]
 
 
 def test_the_start_is_the_compilation_of_each_cold_kernel_plus_one_load():

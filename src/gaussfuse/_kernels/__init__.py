@@ -36,8 +36,8 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["kernel_states", "kernels", "jitted", "source_stamp", "ENTRY_POINTS", "BATCH_ENTRY_POINTS",
-           "JITTED_LOOP"]
+__all__ = ["kernel_states", "kernels", "jitted", "jitted_loop_state", "source_stamp", "ENTRY_POINTS",
+           "BATCH_ENTRY_POINTS", "JITTED_LOOP"]
 
 _HERE = Path(__file__).resolve().parent
 
@@ -141,6 +141,25 @@ def jitted(fn) -> bool:
     """
     dispatcher = sys.modules.get("numba.core.dispatcher")
     return dispatcher is not None and isinstance(fn, dispatcher.Dispatcher)
+
+
+def jitted_loop_state(model, prior, us=None, form: str = "cov") -> str | None:
+    """The state of :data:`JITTED_LOOP` for the model's numba-jitted f and h: "loaded", "cached" or "cold".
+
+    None when f and h are not both jitted, or do not fit the compiled loop
+    (:func:`gaussfuse._kernels.sigma_points.loop_state`, which tells the
+    state for their signatures). When the loop is neither compiled in this
+    process nor on disk for any f and h, it is "cold" without importing the
+    sigma-point engine (0.5-1 s a process): deciding for the readable path
+    then costs nothing.
+    """
+    if not (jitted(getattr(model, "f", None)) and jitted(getattr(model, "h", None))):
+        return None
+    if f"{__name__}.sigma_points" not in sys.modules and not _cached(*JITTED_LOOP):
+        return "cold"
+    from . import sigma_points  # numba is imported: f and h are jitted
+
+    return sigma_points.loop_state(model, prior, us, form)
 
 
 def kernels(module: str, batch: bool = False, smoothing: bool = False,

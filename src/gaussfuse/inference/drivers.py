@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import sys
 import warnings
 from typing import Callable
 
 import numpy as np
 
 from .. import kalman
-from .._kernels import jitted, kernel_states
+from .. import _kernels
+from .._kernels import jitted_loop_state, kernel_states, kernels
 from .._linalg import symmetrize, wrap_components
 from .. import diagnostics
 from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, diverging
@@ -348,22 +350,20 @@ def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smooth
     """Whether starting `module`'s kernels costs less than the readable path would spend on its passes."""
     if steps < AUTO_NUMBA_STEPS:
         return False
-    start = start_seconds(kernel_states(module, batch, smoothing, None if loop is None else loop()))
-    return start < steps * passes * READABLE_STEP[module]
+    readable = steps * passes * READABLE_STEP[module]
+    if readable <= START["cached"] and not any(f"{_kernels.__name__}.{mod}" in sys.modules
+                                               for mod, _ in kernels(module, batch, smoothing)):
+        return False  # nothing is loaded, and loading alone would cost more: no need to look at the disk
+    return start_seconds(kernel_states(module, batch, smoothing, None if loop is None else loop())) < readable
 
 
 def jitted_loop(spec: Method, model, prior: Gaussian, us, form: str = "cov") -> str | None:
     """The state of the sigma-point loop compiled around the model's numba-jitted f and h (see :func:`compiled_engine`).
 
     None when the call would not run that loop: another engine, or f and
-    h not jitted (or not fitting it). Deciding imports numba only when it
-    is imported already: jitted f and h mean that it is.
+    h not jitted (or not fitting it); :func:`gaussfuse._kernels.jitted_loop_state`.
     """
-    if spec.compiled != "sigma_points" or not (jitted(getattr(model, "f", None)) and jitted(getattr(model, "h", None))):
-        return None
-    from .._kernels import sigma_points  # numba is imported: f and h are jitted
-
-    return sigma_points.loop_state(model, prior, us, form)
+    return jitted_loop_state(model, prior, us, form) if spec.compiled == "sigma_points" else None
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
