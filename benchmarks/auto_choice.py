@@ -26,7 +26,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from first_call import _environment, compile_package  # noqa: E402  (a sibling script)
+from first_call import RANGE_BEARING, _environment, compile_package  # noqa: E402  (a sibling script)
 
 CHILD = r"""
 import json, math, sys, time
@@ -34,21 +34,9 @@ import numpy as np
 import gaussfuse as gf
 scenario, engine = sys.argv[1], sys.argv[2]
 rng = np.random.default_rng(0)
-dt = 0.1
-F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-
-def f(x):
-    return F @ x
-
-def h(x):
-    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
-
-def bearings(T):
-    truth = np.array([10.0, 5.0, 1.0, 0.5]) + np.arange(1, T + 1)[:, None] * np.array([dt, dt * 0.5, 0, 0])
-    return np.array([h(x) for x in truth]) + rng.normal(size=(T, 2)) * [0.5, 0.005]
-
+""" + RANGE_BEARING + r"""
 ukf = dict(method="ukf", alpha=1.0, beta=0.0, kappa=-1.0)
-prior4 = gf.Gaussian([10.0, 5.0, 1.0, 0.5], np.eye(4))
+prior4 = PRIOR
 if scenario.startswith("kf"):
     N, T = (600, 1000) if scenario == "kf-batch" else (1, 5000)
     model = gf.constant_velocity(1.0, 0.1, 1.0, dim=1)

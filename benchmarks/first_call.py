@@ -24,6 +24,27 @@ import subprocess
 import sys
 import tempfile
 
+RANGE_BEARING = r"""
+dt = 0.1
+F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+PRIOR = gf.Gaussian([10.0, 5.0, 1.0, 0.5], np.eye(4))
+
+
+def f(x):
+    return F @ x
+
+
+def h(x):
+    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+
+def bearings(T):  # T range-bearing measurements of a target moving away from the prior mean (draws from rng)
+    truth = PRIOR.mean + np.arange(1, T + 1)[:, None] * np.array([dt, dt * 0.5, 0, 0])
+    return np.array([h(x) for x in truth]) + rng.normal(size=(T, 2)) * [0.5, 0.005]
+"""
+"""The UKF's model and data in a child (needs ``np``, ``gf`` and ``rng``): a constant-velocity target,
+a range-bearing sensor; shared with ``auto_choice.py``."""
+
 CHILD = r"""
 import sys, time, json
 t0 = time.perf_counter()
@@ -32,6 +53,7 @@ t_import = time.perf_counter() - t0
 import numpy as np
 call, steps, engine = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 rng = np.random.default_rng(0)
+""" + RANGE_BEARING + r"""
 if call in ("filter", "smooth", "fit"):
     model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)
     prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], np.eye(4))
@@ -44,16 +66,8 @@ if call in ("filter", "smooth", "fit"):
         fn = getattr(gf, call)
         run = lambda: fn(model, prior, zs, engine=engine)
 else:
-    dt = 0.1
-    F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-    def f(x):
-        return F @ x
-    def h(x):
-        return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
     model = gf.NonlinearModel(f, h, 0.01 * np.eye(4), np.diag([0.25, 2.5e-5]))
-    prior = gf.Gaussian([10.0, 5.0, 1.0, 0.5], np.eye(4))
-    truth = prior.mean + np.arange(1, steps + 1)[:, None] * np.array([dt, dt * 0.5, 0, 0]) * 1.0
-    zs = np.array([h(x) for x in truth]) + rng.normal(size=(steps, 2)) * [0.5, 0.005]
+    prior, zs = PRIOR, bearings(steps)
     run = lambda: gf.filter(model, prior, zs, method="ukf", alpha=1.0, beta=0.0, kappa=-1.0, engine=engine)
 t1 = time.perf_counter()
 run()

@@ -367,15 +367,20 @@ def test_sigma_point_square_root_forms_equal_their_covariance_forms(method, opti
         assert np.array_equal(L, np.tril(L)) and (np.diagonal(L, axis1=1, axis2=2) >= 0).all()
 
 
-@pytest.mark.parametrize("method, options", [("ukf", {"alpha": 0.5}), ("ckf", {})])
-def test_sigma_point_square_root_forms_take_singular_beliefs(method, options):
-    """A state known exactly and no process noise on it: its variance stays exactly 0, as in the covariance form."""
+def known_gravity():
+    """A pendulum whose third state, g, is known exactly and has no process noise: (model, prior, zs)."""
     dt = 0.1
     model = gf.NonlinearModel(
         lambda x: np.array([x[0] + dt * x[1], x[1] - dt * x[2] * np.sin(x[0]), x[2]]),
         lambda x: np.array([np.sin(x[0])]), np.diag([1e-4, 1e-3, 0.0]), np.array([[0.05]]))
     prior = gf.Gaussian([0.5, 0.0, 9.81], np.diag([0.2, 0.1, 0.0]))
-    zs = np.sin(0.5 * np.cos(np.arange(1, 81) * dt * 3.0))[:, None]
+    return model, prior, np.sin(0.5 * np.cos(np.arange(1, 81) * dt * 3.0))[:, None]
+
+
+@pytest.mark.parametrize("method, options", [("ukf", {"alpha": 0.5}), ("ckf", {})])
+def test_sigma_point_square_root_forms_take_singular_beliefs(method, options):
+    """A state known exactly and no process noise on it: its variance stays exactly 0, as in the covariance form."""
+    model, prior, zs = known_gravity()
     a = gf.smooth(model, prior, zs, method=method, form="sqrt", **options)
     b = gf.smooth(model, prior, zs, method=method, form="cov", engine="python", **options)
     assert (a.covs[:, 2, :] == 0).all() and (a.filtered.covs[:, 2, :] == 0).all()
@@ -478,12 +483,7 @@ def test_the_compiled_square_root_ukf_runs_jitted_f_and_h_and_batches():
 def test_the_compiled_sigma_point_square_root_forms_leave_singular_factors_to_the_readable_path(method, options):
     """A state known exactly has a zero pivot in its factor, where the regression is the readable least-squares
     solve: the compiled engine then runs the call there, with the readable numbers to the bit."""
-    dt = 0.1
-    model = gf.NonlinearModel(
-        lambda x: np.array([x[0] + dt * x[1], x[1] - dt * x[2] * np.sin(x[0]), x[2]]),
-        lambda x: np.array([np.sin(x[0])]), np.diag([1e-4, 1e-3, 0.0]), np.array([[0.05]]))
-    prior = gf.Gaussian([0.5, 0.0, 9.81], np.diag([0.2, 0.1, 0.0]))
-    zs = np.sin(0.5 * np.cos(np.arange(1, 81) * dt * 3.0))[:, None]
+    model, prior, zs = known_gravity()
     for call in (gf.filter, gf.smooth):
         a = call(model, prior, zs, method=method, form="sqrt", engine="numba", **options)
         b = call(model, prior, zs, method=method, form="sqrt", engine="python", **options)

@@ -31,7 +31,7 @@ from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
 
 __all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
-           "start_seconds", "jitted_loop",
+           "start_seconds",
            "CHECKS", "check_divergence", "divergence_message"]
 
 ENGINES = ("auto", "python", "numba")
@@ -304,9 +304,9 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
     parallel kernels are compiled separately), `smoothing` that the
     backward pass runs too; `readable` names an option that only the
     readable path has (then ``engine="numba"`` is an error); `loop`, when
-    given, is asked (once the call is long enough to weigh) for the state of
-    the sigma-point loop compiled around numba-jitted f and h, None when the
-    call would not run it (:func:`jitted_loop`).
+    given, is asked (once a sigma-point call is long enough to weigh) for the
+    state of the loop compiled around numba-jitted f and h, None when the
+    call would not run it (:func:`gaussfuse._kernels.jitted_loop_state`).
 
     Raises
     ------
@@ -354,16 +354,8 @@ def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smooth
     if readable <= START["cached"] and not any(f"{_kernels.__name__}.{mod}" in sys.modules
                                                for mod, _ in kernels(module, batch, smoothing)):
         return False  # nothing is loaded, and loading alone would cost more: no need to look at the disk
-    return start_seconds(kernel_states(module, batch, smoothing, None if loop is None else loop())) < readable
-
-
-def jitted_loop(spec: Method, model, prior: Gaussian, us, form: str = "cov") -> str | None:
-    """The state of the sigma-point loop compiled around the model's numba-jitted f and h (see :func:`compiled_engine`).
-
-    None when the call would not run that loop: another engine, or f and
-    h not jitted (or not fitting it); :func:`gaussfuse._kernels.jitted_loop_state`.
-    """
-    return jitted_loop_state(model, prior, us, form) if spec.compiled == "sigma_points" else None
+    jitted = loop() if loop is not None and module == "sigma_points" else None
+    return start_seconds(kernel_states(module, batch, smoothing, jitted)) < readable
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
@@ -378,7 +370,7 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     target = steady_state(model).cov if steady else None
     engine, readable = _readable_only(spec, engine, form, gate, "gains=True" if gains else None)
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable,
-                               loop=lambda: jitted_loop(spec, model, prior, us, form))
+                               loop=lambda: jitted_loop_state(model, prior, us, form))
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
@@ -425,7 +417,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
            else "an ending" if ending is not None and (form == "sqrt" or spec.compiled != "linear") else None)
     engine, readable = _readable_only(spec, engine, form, gate, why)
     compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
-                               readable=readable, loop=lambda: jitted_loop(spec, model, prior, us, form))
+                               readable=readable, loop=lambda: jitted_loop_state(model, prior, us, form))
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
         if form == "sqrt":
