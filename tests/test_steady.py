@@ -43,6 +43,24 @@ def test_steady_state_is_the_limit_of_the_recursion(seed):
     np.testing.assert_allclose(ss.cov, P - P @ H.T @ np.linalg.solve(S, H @ P), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("scale", [1e-150, 1e-36, 1e-24, 1e32, 1e150])
+def test_scaling_q_and_r_together_scales_the_covariances_and_keeps_the_gain(scale):
+    """Q and R times c: the same gain, covariances times c (SciPy's solver alone returned zeros at 1e-100 and
+    refused at 1e32); and filter(steady=True) at that scale equals the full filter."""
+    F, H, Q, R = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]]), np.diag([0.1, 0.2]), np.array([[0.5]])
+    ref = gf.steady_state(gf.LinearModel(F, H, Q, R))
+    model = gf.LinearModel(F, H, scale * Q, scale * R)
+    ss = gf.steady_state(model)
+    np.testing.assert_allclose(ss.gain, ref.gain, rtol=1e-13)
+    for name in ("predicted_cov", "cov", "innovation_cov"):
+        np.testing.assert_allclose(getattr(ss, name) / scale, getattr(ref, name), rtol=1e-13, err_msg=name)
+    prior = gf.Gaussian([0.0, 0.0], scale * np.eye(2))
+    zs = np.sqrt(scale) * np.random.default_rng(0).normal(size=300).cumsum()
+    steady, full = (gf.filter(model, prior, zs, steady=s, check="off", engine="python") for s in (True, False))
+    np.testing.assert_allclose(steady.covs / scale, full.covs / scale, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(steady.means, full.means, rtol=0, atol=1e-9 * np.abs(full.means).max())
+
+
 def test_an_unstable_but_observed_model_has_a_steady_state():
     """Constant velocity (F has a double eigenvalue 1): the filter still converges, to the filter's own limit."""
     model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)

@@ -81,7 +81,10 @@ def steady_state(model: LinearModel) -> Stationary:
     Notes
     -----
     The predicted covariance solves the discrete algebraic Riccati equation
-    (module notes), as ``solve_discrete_are(Fᵀ, Hᵀ, Q, R)``; then, as in
+    (module notes), as ``c solve_discrete_are(Fᵀ, Hᵀ, Q / c, R / c)``:
+    scaling Q and R together scales the solution and leaves the gain as it
+    is, so it is solved with c a power of two within a factor 2 of their
+    largest entry, whatever their scale. Then, as in
     :func:`gaussfuse.kalman.update`,
 
     .. math::
@@ -104,8 +107,11 @@ def steady_state(model: LinearModel) -> Stationary:
                          "same matrices at every step.")
     from scipy.linalg import solve_discrete_are  # SciPy on first use: `import gaussfuse` loads NumPy only
 
+    # P scales with Q and R together, but SciPy's solver is not scale-free (its residual checks and pencil
+    # are absolute): solve at unit scale, by a power of two, which is exact.
+    scale = np.ldexp(1.0, int(np.frexp(max(np.abs(model.Q).max(), np.abs(model.R).max()))[1]))
     try:
-        P = solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
+        P = scale * solve_discrete_are(model.F.T, model.H.T, model.Q / scale, model.R / scale)
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise ValueError(
             "the filter of `model` has no steady state: the Riccati equation has no stabilising solution "
