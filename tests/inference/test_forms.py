@@ -253,6 +253,31 @@ def test_the_compiled_square_root_filter_is_the_readable_one(n, m, T, p, N, vary
                                            err_msg=f"{keep} {name}")
 
 
+@pytest.mark.parametrize("call", [gf.filter, gf.smooth])
+def test_a_compiled_square_root_update_that_fails_is_the_readable_paths(call):
+    """An innovation factor with a zero pivot stops the compiled square-root filter; the readable path decides.
+
+    A singular S gives the readable path's error, naming S (the kernel used
+    to print scratch memory it never wrote); an H whose square overflows
+    (1e160) gives the readable result (the kernel used to raise).
+    """
+    model = gf.LinearModel(F=np.eye(2), H=[[1.0, 0.0], [2.0, 0.0]], Q=np.zeros((2, 2)), R=np.zeros((2, 2)))
+    zs = np.array([[np.nan, np.nan], [1.0, 2.0], [1.0, 2.0]])
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    messages = []
+    for engine in ("python", "numba"):
+        with pytest.raises(np.linalg.LinAlgError) as caught:
+            call(model, prior, zs, engine=engine, form="sqrt")
+        messages.append(str(caught.value))
+    assert messages[0] == messages[1] and "at step 1" in messages[0]
+    huge = gf.LinearModel(F=1.0, H=1e160, Q=1.0, R=1.0)
+    fast, slow = (call(huge, gf.Gaussian(0.0, 1.0), [1.0, 2.0], engine=e, form="sqrt", check="off")
+                  for e in ("numba", "python"))
+    np.testing.assert_array_equal(fast.means, slow.means)
+    filtered = fast.filtered if call is gf.smooth else fast
+    np.testing.assert_allclose(filtered.means.ravel() * 1e160, [1.0, 2.0], rtol=1e-12)  # z / H, nearly exactly
+
+
 def test_auto_runs_the_square_root_forms_on_the_readable_path():
     """The compiled square-root kernels are compiled apart, so engine="auto" does not pick them; the iterated
     methods have no compiled engine."""

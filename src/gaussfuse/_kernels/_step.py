@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import register_jitable
 
-from ..errors import not_finite as not_finite_message
+from ..errors import ReadablePath, not_finite as not_finite_message
 from ..inference.results import FilterResult
 from ..kalman import _S_NAME
 from ._jit import jit
@@ -794,7 +794,9 @@ def not_finite_mean(mean, loglik):
 # Failures: recorded per series by the compiled loops, raised in Python
 # ---------------------------------------------------------------------------
 
-OK, NOT_POSITIVE_DEFINITE, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE = 0, 1, 2, 3
+# READABLE: a square-root step that needs the readable path (a zero pivot, a downdate or an update that fails),
+# which takes the least-squares step or raises the error, naming the matrix.
+OK, NOT_POSITIVE_DEFINITE, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE, READABLE = 0, 1, 2, 3, 4
 
 
 class Failures(NamedTuple):
@@ -803,8 +805,8 @@ class Failures(NamedTuple):
     Attributes
     ----------
     code : int64 array of shape (N,)
-        OK, NOT_POSITIVE_DEFINITE, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE
-        (or a kernel's own codes, above these).
+        OK, NOT_POSITIVE_DEFINITE, PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE,
+        READABLE (or a kernel's own codes, above these).
     step : int64 array of shape (N,)
         The step it stopped at.
     size : int64 array of shape (N,)
@@ -860,6 +862,8 @@ def raise_failure(fail: Failures) -> None:
         return
     s = int(stopped[0])
     code, step, N = int(fail.code[s]), int(fail.step[s]), fail.code.shape[0]
+    if code == READABLE:
+        raise ReadablePath(f"{where(s, step, N)}: the square-root step needs the readable path")
     if code == NOT_POSITIVE_DEFINITE:
         size = int(fail.size[s])
         with np.printoptions(precision=4, threshold=36):

@@ -48,7 +48,7 @@ from . import _rts
 from ._dense import BLAS_FROM, congruence
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
-from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, Outputs, at, copy1, copy2, failures,
+from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, READABLE, Outputs, at, copy1, copy2, failures,
                     filter_result, fixed, hold_fixed, nis, not_finite, not_finite_factor, not_finite_mean,
                     outputs, predict, predict_mean, predict_sqrt, raise_failure, record, record_not_pd, settled,
                     smoother_gain, sqrt_workspace, square, steady_update, update, update_sqrt, workspace)
@@ -187,7 +187,9 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     ``sym(L Lᵀ)`` where kept, with the factors. A time-invariant model's
     steps reuse the fixed point once the covariance ``L Lᵀ`` settles
     (kalman.SteadyState, as :func:`forward`): then only the means are
-    computed, with the held ``K̄`` and ``L_S``.
+    computed, with the held ``K̄`` and ``L_S``. An update whose ``L_S`` has a
+    zero pivot stops the series with READABLE: the driver runs the call on
+    the readable path, which names S or downdates where it can.
     """
     model, Qf, Rf, zs, m0, L0, out, fail, w, sw = borrow((model, Qf, Rf, zs, m0, L0, out, fail, w, sw))
     T = zs.shape[1]
@@ -229,7 +231,11 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                         record(fail, s, PREDICTED_NOT_FINITE, k)
                         break
                 ok, ll, mo = update_sqrt(w, sw, pm, pL, z, H, at(Rf, k), at(Rf, k)[:, :0], model.d, model.angles, mean, L, v)
-                if update_failed(fail, s, k, w, ok, mo, ok and not_finite_factor(mean, L, ll)):
+                if not ok:  # L_S has a zero pivot: the readable path names S (or downdates, where it can)
+                    record(fail, s, READABLE, k)
+                    break
+                if not_finite_factor(mean, L, ll):
+                    record(fail, s, FILTERED_NOT_FINITE, k)
                     break
                 if invariant and mo > 0:  # the fixed point's test, on the covariances L Lᵀ
                     square(L, cov0)

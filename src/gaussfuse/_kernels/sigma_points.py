@@ -79,13 +79,13 @@ from numba.extending import is_jitted, overload, register_jitable
 from .._linalg import sqrt_cov, symmetrize
 from ..kalman import cov_factor
 from .._validation import call_checked, size_reason
-from ..errors import ModelFunctionError, ReadablePath
+from ..errors import ModelFunctionError
 from ..inference.results import SmoothResult, check_smoothed
 from . import _rts
 from ._jit import cached_signatures, entry_point, jit
 from ._nrt import borrow, readonly
 from ._slr import Rule, draw, points, regress, regress_sqrt, regression
-from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, SqrtBack, SqrtWork, at, copy1, copy2, downdate,
+from ._step import (FILTERED_NOT_FINITE, PREDICTED_NOT_FINITE, READABLE, SqrtBack, SqrtWork, at, copy1, copy2, downdate,
                     failures, filter_result, joint_factor, nis, not_finite, not_finite_factor, outputs, predict,
                     predict_mean, predict_sqrt, raise_failure, record, record_not_pd, smoother_gain, sqrt_back_workspace,
                     sqrt_workspace, square, update, update_sqrt, where, workspace, wrap)
@@ -100,7 +100,7 @@ START, DRAW_F, FORECAST, DRAW_H, CORRECT = range(5)
 DONE, NEED_F, NEED_H, NEED_ROOT, FAILED = range(5)
 # Failure codes beyond _step's: f or h returned a non-finite value, or (compiled mode) a wrong shape; and a
 # square-root step that needs the readable path (a singular factor, or a downdate or update that fails).
-F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE, READABLE = 10, 11, 12, 13, 14
+F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE = 10, 11, 12, 13
 DRAWN = -1  # a draw's status when the points are drawn
 
 
@@ -875,8 +875,6 @@ def _raise_failed(cursor: Cursor, fail, model, k: int, N: int) -> None:
     """Raise the readable path's error for a stopped series."""
     s = int(cursor.series[0])
     code, step = int(fail.code[s]), int(fail.step[s])
-    if code == READABLE:
-        raise ReadablePath(f"{where(s, step, N)}: the square-root step needs the readable path")
     if code in (F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE):
         name = "f" if code in (F_NOT_FINITE, F_SHAPE) else "h"
         d = model.n if name == "f" else model.m
