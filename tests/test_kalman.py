@@ -365,3 +365,14 @@ def test_the_optimal_gain_minimises_the_trace_of_the_posterior_covariance(seed):
             excess = np.trace(other.cov) - np.trace(best.cov)
             assert excess > 0
             assert excess == pytest.approx(eps**2 * np.trace(D @ S @ D.T), rel=1e-6, abs=1e-13)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_a_variance_near_the_largest_float_is_finite_on_both_engines(engine):
+    """Q = 1e308: P⁻ = 1 + 1e308 and S are finite, and the filtered variance is R's, 1 (the readable path's
+    symmetrisation used to overflow, (P + Pᵀ) = 2e308, and raise where the compiled one did not)."""
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1e308, R=1.0)
+    res = gf.filter(model, gf.Gaussian(1.0, 1.0), [1.0, 2.0, 3.0], engine=engine, check="off")
+    np.testing.assert_array_equal(res.predicted_covs.ravel(), 1e308)
+    np.testing.assert_allclose(res.covs.ravel(), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(res.means.ravel(), [1.0, 2.0, 3.0], rtol=1e-15)

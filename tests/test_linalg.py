@@ -178,3 +178,13 @@ def test_factor_solve_is_exact_on_the_range_of_a_singular_factor():
     np.testing.assert_allclose(L @ _linalg.factor_solve(L, L @ x), L @ x, atol=1e-14)
     full = np.tril(np.random.default_rng(3).normal(size=(3, 3))) + 3 * np.eye(3)
     np.testing.assert_allclose(_linalg.factor_solve(full, x), np.linalg.solve(full, x), rtol=1e-13)
+
+
+def test_symmetrize_is_the_average_without_overflow():
+    """``(P + Pᵀ) / 2`` to the last bit on normal numbers, and finite for entries above half the largest float."""
+    rng = np.random.default_rng(0)
+    for scale in (1e-300, 1.0, 1e300):
+        P = rng.normal(size=(3, 4, 4)) * scale
+        np.testing.assert_array_equal(_linalg.symmetrize(P), 0.5 * (P + P.swapaxes(-1, -2)))
+    big = np.array([[1.5e308, 1.2e308], [1.0e308, 1.7e308]])
+    np.testing.assert_array_equal(_linalg.symmetrize(big), [[1.5e308, 1.1e308], [1.1e308, 1.7e308]])

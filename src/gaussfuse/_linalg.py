@@ -27,8 +27,14 @@ except ImportError:  # pragma: no cover - every NumPy since 1.8 has them
 
 
 def symmetrize(cov: np.ndarray) -> np.ndarray:
-    """``(P + Pᵀ) / 2``: removes round-off asymmetry (a stack too)."""
-    return 0.5 * (cov + cov.swapaxes(-1, -2))
+    """``P / 2 + Pᵀ / 2``: removes round-off asymmetry (a stack too).
+
+    Halving first is exact (bar the last bit of a subnormal number), so
+    this is ``(P + Pᵀ) / 2`` without the overflow of ``P + Pᵀ`` for entries
+    above half the largest float: a variance of 1e308 stays finite.
+    """
+    half = 0.5 * cov
+    return half + half.swapaxes(-1, -2)
 
 
 _EYES: dict[int, np.ndarray] = {}

@@ -1147,7 +1147,7 @@ def _hessian(evaluate, theta: np.ndarray) -> np.ndarray:
         up[j] += h
         down[j] -= h
         hess[:, j] = (evaluate(up)[1] - evaluate(down)[1]) / (2 * h)
-    return 0.5 * (hess + hess.T)
+    return symmetrize(hess)
 
 
 def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[np.ndarray, bool]:

@@ -107,7 +107,7 @@ def congruence(B, P, Y, out, BP, k, n):
         for j in range(i + 1):
             x = out[i, j] + (0.0 if Y is None else Y[i, j])
             y = out[j, i] + (0.0 if Y is None else Y[j, i])
-            out[i, j] = 0.5 * (x + y)
+            out[i, j] = 0.5 * x + 0.5 * y  # as _linalg.symmetrize: no overflow of x + y
             out[j, i] = out[i, j]
 
 

@@ -189,7 +189,7 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, of
             t = 0.0
             for j in range(r):
                 t += Xi[j, a] * Xi[j, b]
-            x = 0.5 * ((S[a, b] - t) + (S[b, a] - t))
+            x = 0.5 * (S[a, b] - t) + 0.5 * (S[b, a] - t)  # as _linalg.symmetrize
             noise[a, b] = x
             noise[b, a] = x
     for j in range(r - 1, -1, -1):

@@ -27,6 +27,7 @@ from math import ceil, factorial, log2
 
 import numpy as np
 
+from .._linalg import symmetrize
 from .._validation import as_matrix, check_psd, integer, real
 
 __all__ = ["van_loan", "continuous_white_noise", "piecewise_white_noise"]
@@ -119,10 +120,9 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     E = expm(M * h)
     F = E[n:, n:].T
     Q = F @ E[:n, n:]
-    Q = 0.5 * (Q + Q.T)
+    Q = symmetrize(Q)
     for _ in range(halvings):
-        Q = F @ Q @ F.T + Q
-        Q = 0.5 * (Q + Q.T)
+        Q = symmetrize(F @ Q @ F.T + Q)
         F = F @ F
     return F, Q
 
