@@ -1067,9 +1067,10 @@ class Factors:
 def transition_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors):
     r"""Step k's transition for the square-root form: ``(A, b, L_Q, D_Q)``, the noise :math:`L_Q L_Q^\top - D_Q D_Q^\top`.
 
-    A strategy that reads the belief's covariance (sigma points) regresses
-    on its factor (``lin.transition_sqrt``); for the others, ``L_Q`` is the
-    factor of their Q (:class:`Factors`) and ``D_Q`` is None.
+    A strategy that reads the belief's covariance reads its factor instead
+    (``lin.transition_sqrt``: sigma points regress on it, Taylor scales its
+    finite-difference steps by it); for the others, ``L_Q`` is the factor of
+    their Q (:class:`Factors`) and ``D_Q`` is None.
 
     Parameters
     ----------

@@ -1,10 +1,13 @@
 """Automatic Jacobians against analytic ones."""
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import gaussfuse as gf
 from gaussfuse.linearize.taylor import (
     Taylor,
     complex_step_jacobian,
@@ -98,3 +101,51 @@ def test_bad_user_jacobian_shape_is_named():
                            f_jacobian=lambda x: np.eye(3))
     with pytest.raises(ModelFunctionError, match=r"`f_jacobian` must return shape \(2, 2\).*got shape \(3, 3\)"):
         Taylor(model).transition(0, np.zeros(2), np.eye(2))
+
+
+def _h_real_only(x):
+    """Rejects complex input (math.sin): finite differences."""
+    return np.array([x[0], math.sin(x[1])])
+
+
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_finite_difference_steps_follow_each_components_scale(form):
+    """A bearing of 0.3 rad beside a range of 1e6: stepped on its own scale (the state's used to give a step of
+    1e4 rad and d sin / dx = 0.009 instead of 0.955); the EKF equals the one with the analytic Jacobian."""
+    x, cov = np.array([1e6, 0.3]), np.diag([100.0, 0.01])
+    H, _, _ = Taylor(NonlinearModel(lambda s: s, _h_real_only, np.eye(2), np.eye(2))).measurement(0, x, cov)
+    # To round-off: an entry's error is about ε |h_i| / step_j (ε 1e6 / 1e-4 here), a 1e-7 part of h's noise
+    np.testing.assert_allclose(H, [[1.0, 0.0], [0.0, math.cos(0.3)]], rtol=1e-10, atol=1e-5)
+    assert H[1, 1] == pytest.approx(math.cos(0.3), rel=1e-10)
+    Q, R = np.diag([1.0, 1e-4]), np.diag([1.0, 1e-4])
+    prior = gf.Gaussian(x, cov)
+    zs = np.array([[1e6 + 3, math.sin(0.32)], [1e6 + 5, math.sin(0.31)]])
+    auto = gf.filter(NonlinearModel(lambda s: s, _h_real_only, Q, R), prior, zs, method="ekf", form=form,
+                     check="off")
+    exact = gf.filter(NonlinearModel(lambda s: s, _h_real_only, Q, R,
+                                     h_jacobian=lambda s: np.array([[1.0, 0.0], [0.0, math.cos(s[1])]])),
+                      prior, zs, method="ekf", form=form, check="off")
+    sd = np.sqrt(np.diagonal(exact.covs, axis1=1, axis2=2))
+    assert np.all(np.abs(auto.means - exact.means) <= 1e-6 * sd)  # within 1e-6 standard deviations
+    assert np.all(np.abs(auto.covs - exact.covs) <= 1e-6 * sd[:, :, None] * sd[:, None, :])  # and correlations
+
+
+def test_finite_differences_call_a_vectorized_function_on_stacks():
+    """A vectorized f that rejects complex input is differenced on stacks (k, n), never on one state (n,)."""
+    shapes = []
+
+    def f(X):
+        shapes.append(X.shape)
+        out = np.empty((X.shape[0], 2))  # float: a complex argument cannot be stored
+        out[:, 0] = X[:, 0] + X[:, 1]
+        out[:, 1] = X[:, 1]
+        return out
+
+    model = NonlinearModel(f, lambda X: X[:, :1], 0.1 * np.eye(2), 0.5, vectorized=True)
+    prior, zs = gf.Gaussian([0.1, 1.0], np.eye(2)), [1.0, 2.0, 3.0]
+    ekf = gf.filter(model, prior, zs, method="ekf", check="off")
+    kf = gf.filter(gf.LinearModel([[1.0, 1.0], [0.0, 1.0]], [1.0, 0.0], 0.1 * np.eye(2), 0.5), prior, zs,
+                   check="off")
+    np.testing.assert_allclose(ekf.means, kf.means, rtol=1e-10)
+    np.testing.assert_allclose(ekf.covs, kf.covs, rtol=1e-10)
+    assert all(len(s) == 2 for s in shapes)

@@ -27,14 +27,32 @@ _COMPLEX_STEP = 1e-100
 
 
 def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
-             vectorized: bool = False) -> np.ndarray:
+             vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
     """Jacobian of ``fn(x, *args)`` (returning shape (size,)) at x of shape (n,).
 
     Complex-step differentiation [1]_ when `fn` accepts complex input:
     ``J[:, i] = Im fn(x + i h e_i) / h`` with h = 1e-100, exact to round-off
     for analytic functions (no subtractive cancellation). Otherwise adaptive
     central differences with Richardson extrapolation
-    (:func:`scipy.differentiate.jacobian`).
+    (:func:`scipy.differentiate.jacobian`), with steps on each component's
+    own scale (:func:`finite_difference_jacobian`).
+
+    Parameters
+    ----------
+    name : str
+        The function's name, for error messages ("f" or "h").
+    fn : callable
+        ``fn(x, *args)``; with `vectorized`, it takes a stack of states (k, n).
+    x : ndarray of shape (n,)
+    args : tuple
+        Further arguments (the control).
+    size : int
+        The length of ``fn``'s output.
+    vectorized : bool
+        Whether `fn` takes a stack of states.
+    spread : ndarray of shape (n,), optional
+        Each component's standard deviation under the belief, the scale of
+        a finite-difference step where it exceeds the component's size.
 
     Returns
     -------
@@ -48,7 +66,7 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
     try:
         return complex_step_jacobian(name, fn, x, args, size, vectorized)
     except _RejectsComplex:
-        return finite_difference_jacobian(name, fn, x, args, size)
+        return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread)
 
 
 class _RejectsComplex(Exception):
@@ -77,22 +95,39 @@ def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, s
     return J
 
 
-def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple,
-                               size: int) -> np.ndarray:
-    """Adaptive finite-difference Jacobian, shape (size, n); see :func:`jacobian`."""
+def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
+                               vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
+    """Adaptive finite-difference Jacobian, shape (size, n); see :func:`jacobian`.
+
+    The steps along component j start at a tenth of its scale,
+    ``max(|x_j|, spread_j)`` (so domains like log(x) hold, and a component
+    of size 0.3 beside one of size 1e6 is not stepped by 1e4). A component
+    with neither (zero, and no spread given or a spread of zero) takes the
+    state's scale, ``max(0.01, 0.1 max_i |x_i|)``, so that it is not stepped
+    into round-off; without `spread`, that scale is every component's
+    floor. SciPy then shrinks the steps until its error estimate meets
+    1e-11 relative.
+    """
     from scipy.differentiate import jacobian as scipy_jacobian
 
     n = x.shape[0]
+    because = size_reason(name, size)
 
     def stacked(xi: np.ndarray) -> np.ndarray:
         # scipy passes shape (n, ...) and expects (size, ...).
         flat = xi.reshape(n, -1).T
-        out = np.stack([call_checked(name, fn, p, args, (size,), size_reason(name, size)) for p in flat], axis=-1)
-        return out.reshape(size, *xi.shape[1:])
+        if vectorized:
+            out = call_checked(name, fn, flat, args, (flat.shape[0], size), because)
+        else:
+            out = np.stack([call_checked(name, fn, p, args, (size,), because) for p in flat])
+        return out.T.reshape(size, *xi.shape[1:])
 
-    # Steps scale with each component (so domains like log(x) hold) and with
-    # the state as a whole (so a component at zero is not stepped into round-off).
-    scale = np.maximum(np.abs(x), max(1e-2, 0.1 * np.max(np.abs(x))))
+    whole = max(1e-2, 0.1 * np.max(np.abs(x)))
+    if spread is None:
+        scale = np.maximum(np.abs(x), whole)
+    else:
+        scale = np.maximum(np.abs(x), spread)
+        scale[scale == 0.0] = whole
     res = scipy_jacobian(stacked, x, initial_step=0.1 * scale,
                          tolerances=dict(rtol=1e-11, atol=1e-300))
     J = np.asarray(res.df).reshape(size, n)
@@ -114,24 +149,43 @@ class Taylor:
     def __init__(self, model, us: np.ndarray | None = None) -> None:
         self.model, self.us = model, us
 
-    def _affine(self, name, fn, jac, x, args, size, vectorized):
+    def _affine(self, name, fn, jac, x, spread, args, size, vectorized):
         y = (self.model.transition(x, *args) if name == "f" else self.model.measurement(x))
         if jac is not None:
             A = call_checked(f"{name}_jacobian", jac, x, args, (size, x.shape[0]),
                              size_reason(f"{name}_jacobian", size, x.shape[0]))
         else:
-            A = jacobian(name, fn, x, args, size, vectorized)
+            A = jacobian(name, fn, x, args, size, vectorized, spread)
         return A, y - A @ x
 
-    def transition(self, k: int, mean: np.ndarray, cov: np.ndarray):
-        """``(A, b, Q)`` with A the Jacobian of f at `mean`."""
+    def transition(self, k: int, mean: np.ndarray, cov: np.ndarray | None, spread: np.ndarray | None = None):
+        """``(A, b, Q)`` with A the Jacobian of f at `mean`.
+
+        The belief's covariance `cov` (or, without it, the standard
+        deviations `spread`) only scales finite-difference steps.
+        """
         m = self.model
         args = () if self.us is None else (self.us[k],)
-        A, b = self._affine("f", m.f, m.f_jacobian, mean, args, m.n, m.vectorized)
+        A, b = self._affine("f", m.f, m.f_jacobian, mean, _spread(cov, spread), args, m.n, m.vectorized)
         return A, b, m.noise(k)[0]
 
-    def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
-        """``(H, d, R)`` with H the Jacobian of h at `mean`."""
+    def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray | None, spread: np.ndarray | None = None):
+        """``(H, d, R)`` with H the Jacobian of h at `mean` (`cov` and `spread` as for :meth:`transition`)."""
         m = self.model
-        H, d = self._affine("h", m.h, m.h_jacobian, mean, (), m.m, m.vectorized)
+        H, d = self._affine("h", m.h, m.h_jacobian, mean, _spread(cov, spread), (), m.m, m.vectorized)
         return H, d, m.noise(k)[1]
+
+    def transition_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
+        """kalman.transition_factors' ``(A, b, L_Q, None)``, the steps scaled by the rows of `factor`."""
+        A, b, Q = self.transition(k, mean, None, np.linalg.norm(factor, axis=1))
+        return A, b, factors("Q", Q), None
+
+    def measurement_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
+        """kalman.measurement_factors' ``(H, d, L_R, None)`` (see :meth:`transition_sqrt`)."""
+        H, d, R = self.measurement(k, mean, None, np.linalg.norm(factor, axis=1))
+        return H, d, factors("R", R), None
+
+
+def _spread(cov: np.ndarray | None, spread: np.ndarray | None) -> np.ndarray | None:
+    """The standard deviations of the belief: from `cov` when given, else `spread` (or None)."""
+    return spread if cov is None else np.sqrt(np.clip(np.diagonal(cov), 0.0, None))
