@@ -72,6 +72,8 @@ def test_unscented_rejects_degenerate_scaling():
         unscented(2, alpha=1.0, kappa=-2.0)
     with pytest.raises(ValueError, match="`order` must be a positive integer"):
         gauss_hermite(2, 0)
+    with pytest.raises(ValueError, match="`order` must be at least 2: .* ignore every measurement"):
+        gauss_hermite(2, 1)  # the mean alone: no slope (it used to filter, ignoring the data)
 
 
 def test_julier_uhlmann_polar_to_cartesian():

@@ -49,8 +49,8 @@ def test_immutable():
          r"same number of steps; `Q` has 3, `R` has 4"),
         (dict(vectorized="yes"), TypeError, r"`vectorized` must be True or False; got 'yes'"),
         (dict(state_angles=[2]), ValueError,
-         r"`state_angles` must hold component indices in \[0, 2\) or be a boolean mask of length 2; got \[2\]"),
-        (dict(measurement_angles=[0.5]), ValueError, r"`measurement_angles` must hold component indices in \[0, 1\)"),
+         r"`state_angles` must hold component indices in \[-2, 2\) \(negative ones count from the end\) or be a boolean mask of length 2; got \[2\]"),
+        (dict(measurement_angles=[0.5]), ValueError, r"`measurement_angles` must hold component indices in \[-1, 1\)"),
     ],
 )
 def test_validation(kwargs, error, match):
@@ -114,8 +114,8 @@ def test_angles_are_a_boolean_mask_or_indices(angles, mask):
     [([True, False], r"`state_angles` as a boolean mask must have length 3, one entry per component; got length 2"),
      ([True, 2], r"`state_angles` must be a boolean mask of length 3 or a sequence of component indices, "
                  r"not a mix of booleans and numbers; got \[True, 2\]"),
-     ([1.0], r"`state_angles` must hold component indices in \[0, 3\) or be a boolean mask of length 3; got \[1.0\]"),
-     ([3], r"`state_angles` must hold component indices in \[0, 3\)")],
+     ([1.0], r"`state_angles` must hold component indices in \[-3, 3\) \(negative ones count from the end\) or be a boolean mask of length 3; got \[1.0\]"),
+     ([3], r"`state_angles` must hold component indices in \[-3, 3\)")],
 )
 def test_ambiguous_angles_are_refused(angles, match):
     with pytest.raises(ValueError, match=match):

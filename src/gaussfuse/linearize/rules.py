@@ -97,12 +97,17 @@ def gauss_hermite(n: int, order: int = 3) -> SigmaRule:
     Raises
     ------
     ValueError
-        When `order` is not a positive integer, exceeds
+        When `order` is not an integer of at least 2, exceeds
         ``MAX_GAUSS_HERMITE_ORDER`` (200), or gives more than
         ``MAX_SIGMA_POINTS`` (10**6) points in n dimensions; the message
         says how many points that would be.
     """
     order = integer("order", order)
+    if order < 2:
+        raise ValueError(
+            f"`order` must be at least 2: a rule of {order} point(s) per dimension sits at the mean only, so its "
+            f"regression has no slope and the filter would ignore every measurement; got {order}."
+        )
     if order > MAX_GAUSS_HERMITE_ORDER:
         raise ValueError(
             f"`order` must be at most {MAX_GAUSS_HERMITE_ORDER} (the 1-D Gauss–Hermite rule is not "

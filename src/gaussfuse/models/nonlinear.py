@@ -38,7 +38,8 @@ def _indices(name: str, value, size: int) -> np.ndarray:
         for i in items:
             if not isinstance(i, (int, np.integer)) or not -size <= i < size:
                 raise ValueError(
-                    f"`{name}` must hold component indices in [0, {size}) or be a boolean mask of "
+                    f"`{name}` must hold component indices in [-{size}, {size}) (negative ones count from the end) "
+                    f"or be a boolean mask of "
                     f"length {size}; got {items}."
                 )
             mask[i] = True
