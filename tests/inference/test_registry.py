@@ -133,6 +133,8 @@ def test_iterations_used_on_a_linear_model():
         batch = gf.smooth(model, prior, np.stack([zs, zs + 1.0])[..., None], method=method)
         assert batch.filtered.iterations.shape == (2, 5) and batch.iterations.shape == (2,)
         assert gf.filter(model, prior, zs, method=method, keep="last").iterations is None
+        once = gf.filter(model, prior, zs, method=method, iterations=1, check="off")  # the limit met at once
+        np.testing.assert_array_equal(once.iterations, [1, 1, 1, 1, 1])
     for method in ("ekf", "ukf"):
         sm = gf.smooth(model, prior, zs, method=method)
         assert sm.iterations is None and sm.filtered.iterations is None

@@ -90,7 +90,8 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     (:class:`gaussfuse.kalman.SteadyState`). With `gains`, the result
     holds the gain of each step (zero columns for missing components).
     With `gate` (:class:`gaussfuse.kalman.Gate`), the components it rejects
-    are missing, and ``rejected`` says which.
+    are missing, and ``rejected`` says which. With `tol` (the iterated
+    methods), ``iterations`` holds each step's passes.
     """
     T, n, m = zs.shape[0], prior.dim, zs.shape[1]
     rows = 0 if keep == "last" else T
@@ -100,7 +101,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     pmeans, pcovs = np.empty((rows, n)), np.empty((crows, n, n))
     innov, icovs = np.empty((rows, m)), np.empty((crows, m, m))
     factors, pfactors = np.empty((crows if sqrt else 0, n, n)), np.empty((crows if sqrt else 0, n, n))
-    used = np.empty(rows if iterations > 1 else 0, dtype=np.int64)
+    used = np.empty(rows if tol is not None else 0, dtype=np.int64)  # an iterated method's passes, even 1
     K = np.zeros((rows if gains else 0, n, m))
     rejected = np.zeros((T if gate is not None else 0, m), dtype=bool)
     nis = np.empty(rows)
