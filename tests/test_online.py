@@ -92,9 +92,9 @@ def test_the_belief_is_immutable_and_x_and_P_are_the_users_to_change():
     kf.x = [1.0, 2.0]
     np.testing.assert_array_equal(kf.belief.mean, [1.0, 2.0])
     kf.P[0, 1] = 5.0  # not symmetric: refused when the next step reads it
-    with pytest.raises(ValueError, match="`cov` must be symmetric"):
+    with pytest.raises(ValueError, match="`P` must be symmetric"):
         kf.update(1.0)
-    with pytest.raises(ValueError, match="`cov` must be positive semi-definite"):
+    with pytest.raises(ValueError, match="`P` must be positive semi-definite"):
         kf.P = [[1.0, 2.0], [2.0, 1.0]]
 
 
@@ -419,3 +419,15 @@ def test_predict_dt_steps_a_timed_model_as_the_batch_filter_does(motion, sensor,
         kf.predict()
     with pytest.raises(ValueError, match="`dt` is for a model built by gf.model"):
         gf.KalmanFilter(gf.constant_velocity(1.0, 1.0, 1.0), gf.Gaussian([0.0, 1.0], np.eye(2))).predict(dt=1.0)
+
+
+def test_errors_in_x_and_p_name_x_and_p():
+    """filterpy's names in the messages, whether x and P are set or changed in place."""
+    kf = gf.KalmanFilter(gf.LinearModel(F=np.eye(2), H=[1.0, 0.0], Q=np.eye(2), R=1.0), gf.Gaussian([0, 0], np.eye(2)))
+    with pytest.raises(ValueError, match=r"`x` must have shape \(2,\); got shape \(3,\)"):
+        kf.x = [1.0, 2.0, 3.0]
+    with pytest.raises(ValueError, match=r"`P` must have shape \(2, 2\); got shape \(3, 3\)"):
+        kf.P = np.eye(3)
+    kf.x[0] = np.nan
+    with pytest.raises(ValueError, match="`x` must be finite"):
+        kf.predict()

@@ -6,7 +6,7 @@ import numpy as np
 
 from . import kalman
 from ._linalg import symmetrize
-from ._validation import as_array, as_matrix, check_psd, real, shape_error
+from ._validation import as_array, as_matrix, as_vector, check_psd, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
@@ -170,7 +170,7 @@ class KalmanFilter:
     @x.setter
     def x(self, value) -> None:
         self._views.pop("x", None)  # replaced: what the old copy holds no longer counts
-        self.belief = Gaussian(value, self.belief.cov)
+        self.belief = self._checked(value, self.belief.cov)
 
     @property
     def P(self) -> np.ndarray:
@@ -180,7 +180,13 @@ class KalmanFilter:
     @P.setter
     def P(self, value) -> None:
         self._views.pop("P", None)
-        self.belief = Gaussian(self.belief.mean, value)
+        self.belief = self._checked(self.belief.mean, value)
+
+    def _checked(self, x, P) -> Gaussian:
+        """``Gaussian(x, P)``, checked as a prior is, the errors naming `x` and `P` (filterpy's names)."""
+        n = self.model.n
+        mean = as_vector("x", x, n)
+        return Gaussian._trusted(mean, check_psd("P", as_matrix("P", P, n, n, time_varying=False)))
 
     def _view(self, name: str, value: np.ndarray) -> np.ndarray:
         """A writable copy of the belief's `value`, the same one until the belief changes."""
@@ -193,8 +199,7 @@ class KalmanFilter:
         x, P = self._views.get("x"), self._views.get("P")
         if (x is None or np.array_equal(x, self._belief.mean)) and (P is None or np.array_equal(P, self._belief.cov)):
             return
-        belief = Gaussian(self._belief.mean if x is None else x, self._belief.cov if P is None else P)
-        self.belief = belief
+        self.belief = self._checked(self._belief.mean if x is None else x, self._belief.cov if P is None else P)
 
     @property
     def L(self) -> np.ndarray:
