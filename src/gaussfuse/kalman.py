@@ -285,6 +285,13 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     Gain
         The gain, the posterior covariance and the innovation covariance;
         with nothing observed, no gain and `cov` unchanged.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When S (of the observed components) is not positive definite.
+    FloatingPointError
+        When it holds inf or NaN: the step overflowed.
     """
     HP = H @ cov
     S_full = symmetrize(HP @ H.T + R)
@@ -295,7 +302,12 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     else:
         H_o, R_o, HP_o = H[observed], R[np.ix_(observed, observed)], HP[observed]
         S = S_full[np.ix_(observed, observed)]
-    L = cholesky(S, _S_NAME)
+    try:
+        L = cholesky(S, _S_NAME)
+    except np.linalg.LinAlgError:
+        if not np.isfinite(S).all():  # an overflow upstream, not a covariance that is indefinite
+            raise FloatingPointError(not_finite("filtered")) from None
+        raise
     if K is None:
         K = cho_solve(L, HP_o).T                  # Kᵀ = S⁻¹ H_o P⁻
     elif observed is not None:

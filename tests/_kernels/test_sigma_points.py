@@ -727,6 +727,26 @@ def test_overflow_of_the_log_likelihood_names_the_step(mode):
                match=r"^at step 1: the filtered mean, covariance or log-likelihood is not finite")
 
 
+def h_huge(x):
+    return 1e160 * x[:1]
+
+
+def test_an_innovation_covariance_that_overflows_is_an_overflow():
+    """h = 1e160 x: S overflows to inf - inf = NaN. An overflow on both engines, as the EKF's and the linear
+    filter's (it was a LinAlgError calling S not positive definite)."""
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    prior, zs = gf.Gaussian([0.1, 0.2], 0.01 * np.eye(2)), [1.0, 5.0]
+    model = gf.NonlinearModel(identity, h_huge, 0.1 * np.eye(2), 0.5)
+    match = r"^at step 0: the filtered mean, covariance or log-likelihood is not finite"
+    same_error(FloatingPointError, model, prior, zs, method="ukf", match=match)
+    with pytest.raises(FloatingPointError, match=match):
+        gf.filter(model, prior, zs, method="ekf")
+    linear = gf.LinearModel(F=F, H=[1e160, 0.0], Q=0.1 * np.eye(2), R=0.5)
+    for engine in ("python", "numba"):
+        with pytest.raises(FloatingPointError, match=match):
+            gf.filter(linear, prior, zs, engine=engine)
+
+
 h_complex_jit = numba.njit(cache=True)(lambda x: x[:1] + 0j)
 h_bool_jit = numba.njit(cache=True)(lambda x: x[:1] > 0.0)
 

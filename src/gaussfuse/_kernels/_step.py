@@ -836,12 +836,18 @@ def record(fail, s, code, step):
 
 @jit(inline="always", **_JIT)
 def record_not_pd(fail, s, step, w, size):
-    """Record an innovation covariance ``w.S[:size, :size]`` that is not positive definite."""
+    """Record an innovation covariance ``w.S[:size, :size]`` that is not positive definite.
+
+    One holding inf or NaN is an overflow upstream: FILTERED_NOT_FINITE, as
+    kalman.gain raises it.
+    """
     record(fail, s, NOT_POSITIVE_DEFINITE, step)
     fail.size[s] = size
     for a in range(size):
         for b in range(size):
             fail.S[s, a, b] = w.S[a, b]
+            if not math.isfinite(w.S[a, b]):
+                record(fail, s, FILTERED_NOT_FINITE, step)
 
 
 def where(s: int, step: int, series: int) -> str:
