@@ -1511,7 +1511,7 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         H, d, R = lin.measurement(k, mean, cov)
         z, rejected = gate(z, *predict(mean, cov, H, R, d), measurement_angles)
     post_mean, post_cov = mean, cov
-    changed = iterate_changed(cov) if tol is not None else None
+    changed = iterate_changed(cov, mean) if tol is not None else None
     passes, converged = iterations, changed is None
     for i in range(iterations):
         H, d, R = lin.measurement(k, post_mean, post_cov)
@@ -1597,7 +1597,7 @@ def check_finite(stage: str, mean: np.ndarray, cov: np.ndarray, loglik: float = 
         raise FloatingPointError(not_finite(stage))
 
 
-def iterate_changed(cov: np.ndarray):
+def iterate_changed(cov: np.ndarray, start: np.ndarray | None = None):
     r"""The change of an iterate in the norm of `cov`: a function ``(new, old, angles) -> float``.
 
     .. math::
@@ -1608,13 +1608,17 @@ def iterate_changed(cov: np.ndarray):
     :func:`gaussfuse._linalg.semidefinite_cholesky` on the range of a singular
     P, where the iterates move). It is scale-free: the change in standard
     deviations of P. A component that changed by no more than its round-off,
-    ``4 ε max(|new|, |old|)``, counts as unchanged, so that a component whose
-    variance is itself round-off does not keep the iteration going.
+    ``4 ε max(|new|, |old|, |start|)``, counts as unchanged, so that a
+    component whose variance is itself round-off, or iterates that cycle in
+    their last bits, do not keep the iteration going.
 
     Parameters
     ----------
     cov : array of shape (n, n)
         The covariance P of the norm, positive semi-definite.
+    start : array of shape (n,), optional
+        The mean the iterates are computed from (an update's ``m⁻``, to
+        which ``K v`` is added): their round-off is relative to it too.
 
     Returns
     -------
@@ -1634,7 +1638,9 @@ def iterate_changed(cov: np.ndarray):
 
     def changed(new: np.ndarray, old: np.ndarray, angles=None) -> float:
         delta = wrap_components(new - old, angles)
-        delta = np.where(np.abs(delta) <= eps4 * np.maximum(np.abs(new), np.abs(old)), 0.0, delta)[rows]
+        size = np.maximum(np.abs(new), np.abs(old)) if start is None else np.maximum.reduce(
+            [np.abs(new), np.abs(old), np.abs(start)])
+        delta = np.where(np.abs(delta) <= eps4 * size, 0.0, delta)[rows]
         if not delta.any():
             return 0.0
         white = whiten(L, delta)

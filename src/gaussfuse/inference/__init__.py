@@ -184,7 +184,8 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
 
     the change in predicted standard deviations (scale-free; on the range of
     :math:`P^-` when it is singular, and a component changing by no more than
-    its round-off, :math:`4 \varepsilon |x|`, counts as unchanged), or after
+    its round-off, :math:`4 \varepsilon \max(|x|, |m^-|)`, counts as
+    unchanged), or after
     `iterations` passes. ``tol=0`` makes every step run to a fixed point or
     the limit. ``FilterResult.iterations`` holds the passes made at each
     step.
