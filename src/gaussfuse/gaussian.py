@@ -13,6 +13,13 @@ from ._validation import as_array, as_matrix, as_vector, check_psd
 __all__ = ["Gaussian", "fuse", "moment_match"]
 
 
+def _checked(mean, cov, dim: int | None = None, names: tuple[str, str] = ("mean", "cov")):
+    """`mean` (dim,) and `cov` (dim, dim) as float64 arrays, finite, `cov` symmetric PSD; errors name `names`."""
+    mean = as_vector(names[0], mean, dim)
+    n = mean.shape[0]
+    return mean, check_psd(names[1], as_matrix(names[1], cov, n, n, time_varying=False))
+
+
 @dataclass(frozen=True, eq=False, init=False)
 class Gaussian:
     """An immutable multivariate Gaussian ``N(mean, cov)``.
@@ -46,13 +53,17 @@ class Gaussian:
     cov: np.ndarray
 
     def __init__(self, mean, cov) -> None:
-        mean = as_vector("mean", mean)
-        cov = as_matrix("cov", cov, mean.shape[0], mean.shape[0], time_varying=False)
-        cov = check_psd("cov", cov)
+        mean, cov = _checked(mean, cov)
         mean.setflags(write=False)
         cov.setflags(write=False)
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "cov", cov)
+
+    @classmethod
+    def _named(cls, mean, cov, dim: int, names: tuple[str, str]) -> Gaussian:
+        """The constructor's checks, with the arguments called `names` (an online filter's ``x`` and ``P``)
+        and the dimension `dim` required."""
+        return cls._trusted(*_checked(mean, cov, dim, names))
 
     def __reduce__(self):
         # Pickled and copied by its arguments: the constructor makes the arrays read-only

@@ -1638,8 +1638,7 @@ def iterate_changed(cov: np.ndarray, start: np.ndarray | None = None):
 
     def changed(new: np.ndarray, old: np.ndarray, angles=None) -> float:
         delta = wrap_components(new - old, angles)
-        size = np.maximum(np.abs(new), np.abs(old)) if start is None else np.maximum.reduce(
-            [np.abs(new), np.abs(old), np.abs(start)])
+        size = np.maximum(np.abs(new), np.abs(old) if start is None else np.maximum(np.abs(old), np.abs(start)))
         delta = np.where(np.abs(delta) <= eps4 * size, 0.0, delta)[rows]
         if not delta.any():
             return 0.0

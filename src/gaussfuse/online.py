@@ -6,7 +6,7 @@ import numpy as np
 
 from . import kalman
 from ._linalg import symmetrize
-from ._validation import as_array, as_matrix, as_vector, check_psd, real, shape_error
+from ._validation import as_array, as_matrix, check_psd, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
@@ -183,10 +183,8 @@ class KalmanFilter:
         self.belief = self._checked(self.belief.mean, value)
 
     def _checked(self, x, P) -> Gaussian:
-        """``Gaussian(x, P)``, checked as a prior is, the errors naming `x` and `P` (filterpy's names)."""
-        n = self.model.n
-        mean = as_vector("x", x, n)
-        return Gaussian._trusted(mean, check_psd("P", as_matrix("P", P, n, n, time_varying=False)))
+        """``Gaussian(x, P)``, its errors naming `x` and `P` (filterpy's names, the ones the user wrote)."""
+        return Gaussian._named(x, P, self.model.n, ("x", "P"))
 
     def _view(self, name: str, value: np.ndarray) -> np.ndarray:
         """A writable copy of the belief's `value`, the same one until the belief changes."""

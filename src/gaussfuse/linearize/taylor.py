@@ -158,34 +158,36 @@ class Taylor:
             A = jacobian(name, fn, x, args, size, vectorized, spread)
         return A, y - A @ x
 
-    def transition(self, k: int, mean: np.ndarray, cov: np.ndarray | None, spread: np.ndarray | None = None):
-        """``(A, b, Q)`` with A the Jacobian of f at `mean`.
+    def transition(self, k: int, mean: np.ndarray, cov: np.ndarray | None):
+        """``(A, b, Q)`` with A the Jacobian of f at `mean` (`cov`, if given, only scales finite differences)."""
+        return self._transition(k, mean, _deviations(cov))
 
-        The belief's covariance `cov` (or, without it, the standard
-        deviations `spread`) only scales finite-difference steps.
-        """
-        m = self.model
-        args = () if self.us is None else (self.us[k],)
-        A, b = self._affine("f", m.f, m.f_jacobian, mean, _spread(cov, spread), args, m.n, m.vectorized)
-        return A, b, m.noise(k)[0]
-
-    def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray | None, spread: np.ndarray | None = None):
-        """``(H, d, R)`` with H the Jacobian of h at `mean` (`cov` and `spread` as for :meth:`transition`)."""
-        m = self.model
-        H, d = self._affine("h", m.h, m.h_jacobian, mean, _spread(cov, spread), (), m.m, m.vectorized)
-        return H, d, m.noise(k)[1]
+    def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray | None):
+        """``(H, d, R)`` with H the Jacobian of h at `mean` (`cov` as for :meth:`transition`)."""
+        return self._measurement(k, mean, _deviations(cov))
 
     def transition_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
-        """kalman.transition_factors' ``(A, b, L_Q, None)``, the steps scaled by the rows of `factor`."""
-        A, b, Q = self.transition(k, mean, None, np.linalg.norm(factor, axis=1))
+        """kalman.transition_factors' ``(A, b, L_Q, None)``, finite differences scaled by the rows of `factor`."""
+        A, b, Q = self._transition(k, mean, np.linalg.norm(factor, axis=1))
         return A, b, factors("Q", Q), None
 
     def measurement_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
         """kalman.measurement_factors' ``(H, d, L_R, None)`` (see :meth:`transition_sqrt`)."""
-        H, d, R = self.measurement(k, mean, None, np.linalg.norm(factor, axis=1))
+        H, d, R = self._measurement(k, mean, np.linalg.norm(factor, axis=1))
         return H, d, factors("R", R), None
 
+    def _transition(self, k: int, mean: np.ndarray, spread: np.ndarray | None):
+        m = self.model
+        args = () if self.us is None else (self.us[k],)
+        A, b = self._affine("f", m.f, m.f_jacobian, mean, spread, args, m.n, m.vectorized)
+        return A, b, m.noise(k)[0]
 
-def _spread(cov: np.ndarray | None, spread: np.ndarray | None) -> np.ndarray | None:
-    """The standard deviations of the belief: from `cov` when given, else `spread` (or None)."""
-    return spread if cov is None else np.sqrt(np.clip(np.diagonal(cov), 0.0, None))
+    def _measurement(self, k: int, mean: np.ndarray, spread: np.ndarray | None):
+        m = self.model
+        H, d = self._affine("h", m.h, m.h_jacobian, mean, spread, (), m.m, m.vectorized)
+        return H, d, m.noise(k)[1]
+
+
+def _deviations(cov: np.ndarray | None) -> np.ndarray | None:
+    """The standard deviations of a belief's components, or None without its covariance."""
+    return None if cov is None else np.sqrt(np.clip(np.diagonal(cov), 0.0, None))
