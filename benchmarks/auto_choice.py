@@ -72,7 +72,7 @@ t = time.perf_counter()
 call(engine)
 first = time.perf_counter() - t
 linear, sigma = (sys.modules.get(f"gaussfuse._kernels.{m}") for m in ("linear", "sigma_points"))
-compiled = bool((linear and (linear.forward.signatures or linear.forward_parallel.signatures))
+compiled = bool((linear and linear.forward.signatures)
                 or (sigma and (sigma._LOOPS or sigma.advance.signatures)))
 print(json.dumps({"first": first, "compiled": compiled}))
 """

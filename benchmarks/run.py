@@ -79,10 +79,9 @@ def machine_lines() -> list[str]:
         "- peers: " + "; ".join(f"{p} {version(p)}" for p in workloads.PEERS),
     ]
     try:
-        import numba
+        from gaussfuse._kernels._jit import threads
 
-        lines.append(f"- numba threads: {numba.get_num_threads()} "
-                     f"(NUMBA_NUM_THREADS={numba.config.NUMBA_NUM_THREADS})")
+        lines.append(f"- threads a batch of series runs on: {threads()} (NUMBA_NUM_THREADS)")
     except ImportError:
         pass
     return lines

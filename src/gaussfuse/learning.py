@@ -1433,7 +1433,7 @@ def fit(
     if engine == "auto":  # decided once for the whole fit, on the whole work it is expected to do
         passes = 3 * iterations if tol == 0 else min(FIT_PASSES[method], 3 * iterations)
         compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1] * passes, 1.0,
-                                   zs.shape[0] > 1, smoothing=True)
+                                   smoothing=True)
         engine = "python" if compiled is None else "numba"
     if callback is not None and not callable(callback):
         raise TypeError(f"`callback` must be callable as callback(iteration, loglik); got {type(callback).__name__}.")

@@ -16,7 +16,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from gaussfuse._kernels import BATCH_ENTRY_POINTS, ENTRY_POINTS, JITTED_LOOP, kernel_states, kernels, source_stamp
+from gaussfuse._kernels import ENTRY_POINTS, JITTED_LOOP, kernel_states, kernels, source_stamp
 
 PROBE = textwrap.dedent("""
     import json, sys
@@ -24,8 +24,8 @@ PROBE = textwrap.dedent("""
     if sys.argv[1] == "changed":  # as if a kernel's source had changed since the cache was written
         kernels.source_stamp = lambda: b"x" * 32
 
-    def states(module, batch=False, smoothing=False):
-        return {f"{m}.{n}": state for (m, n), state in kernels.kernel_states(module, batch, smoothing).items()}
+    def states(module, smoothing=False):
+        return {f"{m}.{n}": state for (m, n), state in kernels.kernel_states(module, smoothing).items()}
 
     out = {"before": {**states("linear"), **states("sigma_points")}, "numba imported": "numba" in sys.modules}
     if sys.argv[1] == "run":
@@ -37,7 +37,6 @@ PROBE = textwrap.dedent("""
         stats = linear.forward.stats  # compiled and written to the cache, or loaded from it
         out["forward"] = {"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}
         out["after, smoothing"] = {**states("linear", smoothing=True), **states("sigma_points", smoothing=True)}
-        out["after, batch"] = states("linear", batch=True, smoothing=True)
     print(json.dumps(out))
 """)
 
@@ -58,11 +57,9 @@ def test_cold_then_loaded_then_cached(tmp_path):
     assert first["forward"] == {"hits": 0, "misses": 1}  # compiled, and written to the cache
     assert any(tmp_path.rglob("*.nbi"))
     assert not first["numba imported"]  # deciding does not import numba
-    # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only,
-    # and a batch of series would compile the parallel kernels.
+    # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only.
     assert first["after, smoothing"] == {"linear.forward": "loaded", "_rts.backward": "loaded",
                                          "sigma_points.advance": "cold", "sigma_points.hold": "cold"}
-    assert first["after, batch"] == {"linear.forward_parallel": "cold", "_rts.backward_parallel": "cold"}
     second = probe(tmp_path, "run")
     assert second["before"] == {**cold, "linear.forward": "cached"}
     assert not second["numba imported"]
@@ -80,8 +77,7 @@ def test_an_unknown_module_is_refused():
 def test_every_entry_point_exists():
     import importlib
 
-    for entries in [*ENTRY_POINTS.values(), *BATCH_ENTRY_POINTS.values(), (("_rts", "backward"),
-                                                                           ("_rts", "backward_parallel"), JITTED_LOOP)]:
+    for entries in [*ENTRY_POINTS.values(), (("_rts", "backward"), JITTED_LOOP)]:
         for module, name in entries:
             assert hasattr(importlib.import_module(f"gaussfuse._kernels.{module}"), name)
 
@@ -92,12 +88,9 @@ def test_the_stamp_covers_every_kernel_source():
 
 def test_the_kernels_a_call_runs():
     assert kernels("linear") == (("linear", "forward"),)
-    assert kernels("linear", batch=True, smoothing=True) == (("linear", "forward_parallel"),
-                                                             ("_rts", "backward_parallel"))
+    assert kernels("linear", smoothing=True) == (("linear", "forward"), ("_rts", "backward"))
     assert kernels("sigma_points", smoothing=True) == (("sigma_points", "advance"), ("sigma_points", "hold"),
                                                        ("_rts", "backward"))
-    # a batch of sigma-point series runs them one after the other, but smooths them in parallel
-    assert kernels("sigma_points", batch=True, smoothing=True)[-1] == ("_rts", "backward_parallel")
     # jitted f and h: the loop compiled around them, instead of the Python mode's kernels
     assert kernels("sigma_points", jitted=True) == (JITTED_LOOP,)
     assert kernels("linear", jitted=True) == kernels("linear")

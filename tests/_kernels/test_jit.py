@@ -6,9 +6,8 @@ writable. The tests take that condition into a subprocess by emptying
 numba's list of cache locators before gaussfuse imports its kernels: as
 root, file permissions would not stop the writes.
 
-Launched: threads may call the batched (parallel) kernels at once on every
-threading layer; numba's ``workqueue`` layer aborts the process when two
-parallel regions start at once, so those tests run in a subprocess too.
+Launched: threads may call the batched kernels at once; their chunks share
+one pool of threads.
 """
 
 import json
@@ -106,27 +105,25 @@ def test_without_a_cache_location_the_cli_filters_a_long_file(tmp_path):
 
 
 # ---------------------------------------------------------------------------
-# Launching: concurrent calls from threads, on every threading layer
+# Launching: concurrent calls from threads share one pool and get the one-thread results
 # ---------------------------------------------------------------------------
 
-THREADS = textwrap.dedent("""
+
+def test_threads_calling_batched_filters_at_once_get_the_single_thread_results():
     import threading
-    import numba
-    import numpy as np
+
     import gaussfuse as gf
+    from gaussfuse._kernels import _jit
 
     model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
     prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
-    zs = np.random.default_rng(0).normal(size=(64, 200, 1))  # many series: the parallel kernels
-
+    zs = np.random.default_rng(0).normal(size=(64, 200, 1))  # many series: chunks on the pool
 
     def f(x):
         return np.array([x[0] + 0.01 * x[1], x[1] - 0.0981 * np.sin(x[0])])
 
-
     def h(x):
         return np.sin(x[:1])
-
 
     pendulum = gf.NonlinearModel(f, h, 1e-4 * np.eye(2), 0.1)
     start = gf.Gaussian([0.0, 0.0], 0.1 * np.eye(2))
@@ -135,8 +132,7 @@ THREADS = textwrap.dedent("""
         "smooth": lambda: gf.smooth(model, prior, zs, engine="numba"),
         "ukf": lambda: gf.smooth(pendulum, start, zs[:4, :50], engine="numba"),
     }
-    reference = {name: call() for name, call in calls.items()}  # one thread
-
+    reference = {name: call() for name, call in calls.items()}  # one call at a time
 
     def same(a, b):
         if hasattr(a, "filtered"):
@@ -146,34 +142,25 @@ THREADS = textwrap.dedent("""
                    for k in ("means", "covs", "predicted_means", "predicted_covs", "innovations",
                              "innovation_covs", "loglik", "last_mean", "last_cov"))
 
-
     start_together = threading.Barrier(4)
-    differ = []
-
+    differ, errors = [], []
 
     def work():
-        start_together.wait()
-        for _ in range(8):
-            for name, call in calls.items():
-                if not same(call(), reference[name]):
-                    differ.append(name)
+        try:
+            start_together.wait()
+            for _ in range(8):
+                for name, call in calls.items():
+                    if not same(call(), reference[name]):
+                        differ.append(name)
+        except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+            errors.append(exc)
 
-
-    threads = [threading.Thread(target=work) for _ in range(4)]
-    for t in threads:
+    callers = [threading.Thread(target=work) for _ in range(4)]
+    for t in callers:
         t.start()
-    for t in threads:
+    for t in callers:
         t.join()
-    print(numba.threading_layer(), sorted(set(differ)))
-""")
-
-
-@pytest.mark.parametrize("layer", ["workqueue", "default"])
-def test_threads_calling_batched_filters_at_once_get_the_single_thread_results(layer):
-    child = subprocess.run([sys.executable, "-c", THREADS], capture_output=True, text=True, timeout=900,
-                           env={**os.environ, "NUMBA_THREADING_LAYER": layer})
-    assert child.returncode == 0, child.stderr  # the workqueue layer aborted (SIGABRT: -6)
-    used, differ = child.stdout.split(maxsplit=1)
-    if layer != "default":
-        assert used == layer
-    assert differ.strip() == "[]"
+    assert errors == []
+    assert sorted(set(differ)) == []
+    pool = [t.name for t in threading.enumerate() if t.name.startswith("gaussfuse_")]
+    assert 0 < len(pool) <= _jit.threads()  # four callers, one pool of the machine's threads

@@ -363,7 +363,7 @@ def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
     """With the kernels in memory, "auto" compiles from 1000 steps (all series together) on."""
     from gaussfuse.inference import drivers
 
-    monkeypatch.setattr(drivers, "kernel_states", lambda *args: dict.fromkeys(kernels(*args[:3]), "loaded"))
+    monkeypatch.setattr(drivers, "kernel_states", lambda *args: dict.fromkeys(kernels(*args[:2]), "loaded"))
     calls = []
     original = getattr(linear, front)
 
@@ -392,60 +392,99 @@ def test_auto_engine_compiles_from_1000_steps(monkeypatch, front):
 
 
 # ---------------------------------------------------------------------------
-# Threads: one parallel launch at a time; the others run the serial kernel
+# Batches: chunks of series on a pool of threads, with the numbers of one series at a time
 # ---------------------------------------------------------------------------
 
 
 def assert_identical(got, want) -> None:
-    """Every field of two Filter/SmoothResults is bit for bit the same."""
+    """Every field of two Filter/SmoothResults is bit for bit the same (None where the other is None)."""
     for field in fields(want):
         a, b = getattr(got, field.name), getattr(want, field.name)
         if field.name == "filtered":
             assert_identical(a, b)
+        elif b is None:
+            assert a is None, field.name
         else:
             np.testing.assert_array_equal(a, b, err_msg=field.name)
 
 
-@pytest.mark.parametrize("front", ["filter", "smooth"])
-def test_a_batch_run_while_another_runs_in_parallel_runs_serially_with_the_same_numbers(
-        monkeypatch, front):
+def _batch_problem():
     model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
     prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
-    zs = np.random.default_rng(5).normal(size=(40, 30, 1))
+    return model, prior, np.random.default_rng(5).normal(size=(40, 30, 1)).cumsum(axis=1)
+
+
+@pytest.mark.parametrize("front", ["filter", "smooth"])
+def test_a_batch_runs_in_chunks_on_several_threads_with_each_series_own_numbers(monkeypatch, front):
+    model, prior, zs = _batch_problem()
     run = getattr(gf, front)
-    launched = []
-    for module, name in ((linear, "forward_parallel"), (_rts, "backward_parallel")):
+    monkeypatch.setattr(_jit, "threads", lambda: 3)  # a pool whatever this machine's cores
+    ran = []  # (kernel, lo, hi, thread) of every launch
+    for module, name in ((linear, "forward"), (_rts, "backward")):
         kernel = getattr(module, name)
-        monkeypatch.setattr(module, name, lambda *args, _k=kernel: launched.append(_k) or _k(*args))
 
-    parallel = run(model, prior, zs, engine="numba")
-    assert len(launched) == (1 if front == "filter" else 2)
-    launched.clear()
-    with _jit.parallel_launch() as mine:  # as if another thread were running a parallel kernel
-        assert mine
-        serial = run(model, prior, zs, engine="numba")
-    assert launched == []
-    assert_identical(serial, parallel)
+        def spy(lo, hi, *args, _k=kernel, _name=name):
+            ran.append((_name, lo, hi, threading.current_thread().name))
+            return _k(lo, hi, *args)
+        monkeypatch.setattr(module, name, spy)
+
+    batch = run(model, prior, zs, engine="numba")
+    for name in ("forward",) + (("backward",) if front == "smooth" else ()):
+        chunks = sorted((lo, hi) for kernel, lo, hi, _ in ran if kernel == name)
+        assert len(chunks) == len(zs)  # 40 series, up to 16 chunks per thread: one series a chunk
+        assert [lo for lo, _ in chunks] == [0] + [hi for _, hi in chunks[:-1]] and chunks[-1][1] == len(zs)
+    assert {thread for *_, thread in ran} <= {f"gaussfuse_{i}" for i in range(3)}  # the pool's threads only
+
+    ran.clear()
+    for s in (0, 17, 39):  # a series alone runs on the calling thread, with the same bits
+        alone = run(model, prior, zs[s:s + 1], engine="numba")
+        assert {thread for *_, thread in ran} == {threading.current_thread().name}
+        assert_identical(_series(batch, s), alone)
 
 
-def test_parallel_launch_goes_to_one_thread_at_a_time_and_others_do_not_wait():
-    def other_thread() -> bool:
-        got = []
+def _series(result, s: int):
+    """Series `s` of a batch's Filter/SmoothResult, as a batch of one."""
+    return type(result)(**{f.name: _series(v, s) if f.name == "filtered" else None if v is None else v[s:s + 1]
+                           for f in fields(result) for v in [getattr(result, f.name)]})
 
-        def take():
-            with _jit.parallel_launch() as mine:
-                got.append(mine)
 
-        thread = threading.Thread(target=take)
-        thread.start()
-        thread.join(timeout=300)  # a guard only: the thread does not wait for the launch
-        assert not thread.is_alive()
-        return got[0]
+def test_launch_waits_for_every_chunk_and_raises_what_one_raised(monkeypatch):
+    monkeypatch.setattr(_jit, "threads", lambda: 2)
+    done = []
 
-    with _jit.parallel_launch() as mine:
-        assert mine
-        assert other_thread() is False
-    assert other_thread() is True  # released
+    def kernel(lo, hi):
+        if lo == 0:
+            raise ZeroDivisionError("chunk 0")
+        threading.Event().wait(0.01)  # still running when chunk 0 has failed
+        done.append(lo)
+
+    with pytest.raises(ZeroDivisionError, match="chunk 0"):
+        _jit.launch(kernel, 10)
+    assert sorted(done) == list(range(1, 10))  # every other chunk had ended when the error came
+
+
+def _filter_in_a_child(queue):
+    model, prior, zs = _batch_problem()
+    queue.put(float(gf.filter(model, prior, zs, engine="numba").loglik.sum()))
+
+
+def test_a_forked_child_runs_batches_on_a_pool_of_its_own(monkeypatch):
+    """The parent's pool threads are not copied by fork(): a child that reused the pool would wait forever."""
+    import multiprocessing
+
+    monkeypatch.setattr(_jit, "threads", lambda: 2)
+    model, prior, zs = _batch_problem()
+    want = float(gf.filter(model, prior, zs, engine="numba").loglik.sum())  # the parent's pool has started
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_filter_in_a_child, args=(queue,))
+    child.start()
+    child.join(timeout=120)  # a guard only: the child ends in well under a second
+    if child.is_alive():
+        child.kill()
+        pytest.fail("the forked child hung on the parent's pool")
+    assert child.exitcode == 0
+    assert queue.get(timeout=10) == want
 
 
 @pytest.mark.parametrize("engine", ["numba", "python"])

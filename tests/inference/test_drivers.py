@@ -482,10 +482,10 @@ def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatc
 
     seen = []
     monkeypatch.setattr(drivers, "kernel_states",
-                        lambda *args: seen.append(args) or dict.fromkeys(kernels(*args[:3]), state))
+                        lambda *args: seen.append(args) or dict.fromkeys(kernels(*args[:2]), state))
     chosen = drivers.compiled_engine(METHODS["kf"], "auto", steps, passes)
     assert (chosen is not None) == compiled
-    assert seen == ([] if steps < drivers.AUTO_NUMBA_STEPS else [("linear", False, False, None)])
+    assert seen == ([] if steps < drivers.AUTO_NUMBA_STEPS else [("linear", False, None)])
     # "numba" and "python" are not weighed
     assert drivers.compiled_engine(METHODS["kf"], "numba", 1) is not None
     assert drivers.compiled_engine(METHODS["kf"], "python", 10**9) is None
@@ -493,7 +493,8 @@ def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatc
 
 
 def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
-    """A batch asks about the parallel kernels, a smoother and a fit about the backward pass."""
+    """A filter asks about the forward kernel, a smoother and a fit about the backward pass too."""
+    from gaussfuse._kernels import linear  # noqa: F401  (imported: otherwise short calls skip asking)
     from gaussfuse.errors import ConvergenceWarning
     from gaussfuse.inference import drivers
 
@@ -507,7 +508,7 @@ def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     gf.smooth(model, prior, y[0])  # 500 steps: readable without asking
     with pytest.warns(ConvergenceWarning):
         gf.fit(model, prior, np.zeros(1200), iterations=2)
-    assert seen == [("linear", True, False, None), ("linear", True, True, None), ("linear", False, True, None)]
+    assert seen == [("linear", False, None), ("linear", True, None), ("linear", True, None)]
 
 
 SHORT_DECISION = """
@@ -538,8 +539,8 @@ def test_the_start_is_the_compilation_of_each_cold_kernel_plus_one_load():
 
     assert start_seconds({("linear", "forward"): "loaded", ("_rts", "backward"): "loaded"}) == 0.0
     assert start_seconds({("linear", "forward"): "cached", ("_rts", "backward"): "cached"}) == START["cached"]
-    assert start_seconds({("linear", "forward_parallel"): "cold", ("_rts", "backward_parallel"): "cached"}) == (
-        COMPILE["linear.forward_parallel"] + START["cached"])
+    assert start_seconds({("linear", "forward"): "cold", ("_rts", "backward"): "cached"}) == (
+        COMPILE["linear.forward"] + START["cached"])
     assert start_seconds({("sigma_points", "advance"): "cold", ("sigma_points", "hold"): "cold"}) == (
         COMPILE["sigma_points.advance"] + COMPILE["sigma_points.hold"])
 
@@ -548,8 +549,8 @@ def test_every_kernel_has_a_compile_estimate():
     from gaussfuse._kernels import kernels
     from gaussfuse.inference.drivers import COMPILE
 
-    names = {f"{m}.{n}" for module in ("linear", "sigma_points") for batch in (False, True) for smoothing in
-             (False, True) for jitted in (False, True) for m, n in kernels(module, batch, smoothing, jitted)}
+    names = {f"{m}.{n}" for module in ("linear", "sigma_points") for smoothing in (False, True)
+             for jitted in (False, True) for m, n in kernels(module, smoothing, jitted)}
     assert names == set(COMPILE)
 
 

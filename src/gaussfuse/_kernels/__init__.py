@@ -37,7 +37,7 @@ from functools import lru_cache
 from pathlib import Path
 
 __all__ = ["kernel_states", "kernels", "jitted", "jitted_loop_state", "source_stamp", "ENTRY_POINTS",
-           "BATCH_ENTRY_POINTS", "JITTED_LOOP"]
+           "JITTED_LOOP"]
 
 _HERE = Path(__file__).resolve().parent
 
@@ -45,16 +45,9 @@ ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
     "linear": (("linear", "forward"),),
     "sigma_points": (("sigma_points", "advance"), ("sigma_points", "hold")),
 }
-"""The compiled functions an engine's filter runs on one series, as (module,
-function) pairs: what :func:`kernel_states` looks for."""
-
-BATCH_ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
-    "linear": (("linear", "forward_parallel"),),
-    "sigma_points": ENTRY_POINTS["sigma_points"],
-}
-"""What an engine's filter runs instead on a batch of series: the linear
-engine's ``parallel=True`` form (compiled apart); the sigma-point engine runs
-its series one after the other."""
+"""The compiled functions an engine's filter runs, as (module, function)
+pairs: what :func:`kernel_states` looks for. A batch of series runs the same
+ones, over chunks of series on a pool of threads (:func:`._jit.launch`)."""
 
 JITTED_LOOP = ("sigma_points", "run")
 """The sigma-point loop compiled around numba-jitted f and h, once per
@@ -162,26 +155,23 @@ def jitted_loop_state(model, prior, us=None, form: str = "cov") -> str | None:
     return sigma_points.loop_state(model, prior, us, form)
 
 
-def kernels(module: str, batch: bool = False, smoothing: bool = False,
-            jitted: bool = False) -> tuple[tuple[str, str], ...]:
+def kernels(module: str, smoothing: bool = False, jitted: bool = False) -> tuple[tuple[str, str], ...]:
     """The compiled functions a call of an engine runs, as (module, function) pairs.
 
-    `batch`: several series at once; `smoothing`: the backward pass too
-    (:mod:`._rts`, whose ``parallel=True`` form runs a batch); `jitted`:
-    the sigma-point engine with numba-jitted f and h (:data:`JITTED_LOOP`).
+    `smoothing`: the backward pass too (:mod:`._rts`); `jitted`: the
+    sigma-point engine with numba-jitted f and h (:data:`JITTED_LOOP`).
     """
     if module not in ENTRY_POINTS:
         raise ValueError(f"`module` must be one of {sorted(ENTRY_POINTS)}; got {module!r}.")
-    entries = (BATCH_ENTRY_POINTS if batch else ENTRY_POINTS)[module]
+    entries = ENTRY_POINTS[module]
     if jitted and module == "sigma_points":
         entries = (JITTED_LOOP,)
     if smoothing:
-        entries += (("_rts", "backward_parallel" if batch else "backward"),)
+        entries += (("_rts", "backward"),)
     return entries
 
 
-def kernel_states(module: str, batch: bool = False, smoothing: bool = False,
-                  loop: str | None = None) -> dict[tuple[str, str], str]:
+def kernel_states(module: str, smoothing: bool = False, loop: str | None = None) -> dict[tuple[str, str], str]:
     """Whether each kernel a call runs (:func:`kernels`) is "loaded", "cached" or "cold".
 
     Parameters
@@ -189,7 +179,7 @@ def kernel_states(module: str, batch: bool = False, smoothing: bool = False,
     module : str
         An engine module of this package: "linear" or "sigma_points" (a
         method's ``compiled`` entry in :data:`gaussfuse.inference.METHODS`).
-    batch, smoothing : bool
+    smoothing : bool
         As for :func:`kernels`.
     loop : str, optional
         When the call runs the sigma-point loop compiled around its
@@ -218,7 +208,7 @@ def kernel_states(module: str, batch: bool = False, smoothing: bool = False,
     kernel "cold" again.
     """
     out = {}
-    for mod, name in kernels(module, batch, smoothing, jitted=loop is not None):
+    for mod, name in kernels(module, smoothing, jitted=loop is not None):
         if (mod, name) == JITTED_LOOP:
             out[mod, name] = loop
             continue

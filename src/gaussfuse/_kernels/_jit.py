@@ -10,24 +10,26 @@
   ``NUMBA_CACHE_DIR``) it compiles them in memory instead, with one
   :class:`CacheUnavailableWarning` per process.
 * :func:`launch` runs a kernel over a batch of series, in parallel over
-  chunks of series when there are several, and :func:`parallel_launch`
-  lets one thread at a time launch a ``parallel=True`` kernel; the others
-  run the serial kernel meanwhile.
+  chunks of series on a pool of threads. The kernels release the GIL
+  (``nogil=True``), so plain Python threads run them on every core: no
+  ``parallel=True`` variant is compiled, and numba's threading layers are
+  never started.
 """
 
 from __future__ import annotations
 
-import contextlib
+import os
 import threading
 import warnings
-from typing import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor, wait
+from typing import Callable
 
 import numba
 from numba.core.caching import CompileResultCacheImpl, FunctionCache
 
 from . import source_stamp
 
-__all__ = ["CacheUnavailableWarning", "jit", "launch", "parallel_launch", "entry_point", "cached_signatures"]
+__all__ = ["CacheUnavailableWarning", "jit", "launch", "threads", "entry_point", "cached_signatures"]
 
 _CHUNKS_PER_THREAD = 16  # chunks of series per thread, handed out dynamically, for balance
 
@@ -129,56 +131,54 @@ def cached_signatures(fn: Callable) -> list:
     return [key[0] for key in index]
 
 
-_parallel = threading.Lock()
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
 
 
-@contextlib.contextmanager
-def parallel_launch() -> Iterator[bool]:
-    """Whether this thread may launch a parallel kernel, for the duration of the block.
+def threads() -> int:
+    """How many threads a batch of series runs on: numba's ``NUMBA_NUM_THREADS`` (by default, the cores)."""
+    return max(1, int(numba.config.NUMBA_NUM_THREADS))
 
-    Yields True to one thread at a time and False, at once and without
-    waiting, to any other: that thread runs its serial kernel instead, so
-    concurrent callers neither block each other nor launch two parallel
-    regions at once. Numba's ``workqueue`` threading layer (the one used
-    when neither OpenMP nor TBB is installed) is not thread-safe: two
-    threads launching parallel regions at once abort the process. On the
-    other layers two such launches would only share the same cores.
 
-    Yields
-    ------
-    bool
-        True if this thread holds the right to launch until the block ends.
+def _executor() -> ThreadPoolExecutor:
+    """The pool the batches of this process share, started on first use."""
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(threads(), thread_name_prefix="gaussfuse")
+        return _pool
+
+
+def _forget_pool() -> None:
+    """In a forked child: the parent's pool threads do not exist there, so start a new pool when needed."""
+    global _pool, _pool_lock
+    _pool, _pool_lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
+def launch(kernel: Callable[..., None], items: int, *args) -> None:
+    """``kernel(lo, hi, *args)`` over contiguous chunks ``lo..hi-1`` of the items, in parallel.
+
+    `kernel` runs items ``lo..hi-1`` (series, each independent of the
+    others, so the results do not depend on the chunks) and releases the
+    GIL. With more than one item and thread, the items are cut into up to
+    16 chunks per thread, handed to the threads of a pool shared by every
+    call as they finish: a thread slowed down by other work on the machine
+    takes fewer of them, and calls from several threads at once share the
+    same :func:`threads` threads rather than multiplying them.
     """
-    mine = _parallel.acquire(blocking=False)
-    try:
-        yield mine
-    finally:
-        if mine:
-            _parallel.release()
-
-
-def launch(serial, parallel, items: int, *args) -> None:
-    """``serial(0, items, *args)``, or ``parallel(chunks, *args)`` over chunks of the items.
-
-    `serial` runs items ``lo..hi-1``; `parallel` is its ``parallel=True``
-    form over `chunks` contiguous groups (compiled only when a batch needs
-    it). Chunks are handed to the threads one at a time as they finish
-    (numba's parallel chunk size 1), so a thread slowed down by other work
-    on the machine takes fewer of them. One call at a time runs in parallel
-    (:func:`parallel_launch`): a call made while another thread's runs takes
-    the serial kernel, which gives the same numbers.
-    """
-    chunks = max(1, min(items, _CHUNKS_PER_THREAD * numba.get_num_threads()))
-    if chunks > 1:
-        with parallel_launch() as mine:
-            if mine:
-                previous = numba.set_parallel_chunksize(1)
-                try:
-                    parallel(chunks, *args)
-                finally:
-                    numba.set_parallel_chunksize(previous)
-                return
-    serial(0, items, *args)
+    workers = threads()
+    chunks = max(1, min(items, _CHUNKS_PER_THREAD * workers))
+    if chunks == 1 or workers == 1:
+        kernel(0, items, *args)
+        return
+    pool = _executor()
+    done = [pool.submit(kernel, c * items // chunks, (c + 1) * items // chunks, *args) for c in range(chunks)]
+    wait(done)  # every chunk has ended before the caller sees its arrays, or an error
+    for chunk in done:
+        chunk.result()  # raises what the chunk raised
 
 
 def entry_point(dispatcher, *args):

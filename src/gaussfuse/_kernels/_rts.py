@@ -12,7 +12,7 @@ of the gain, and :func:`least_squares_gains` replaces it, in Python, by the
 readable path's minimum-norm solution (:func:`gaussfuse._linalg.psd_solve`).
 Then :func:`backward` runs the recursion (:func:`._step.rts_step`) over
 each series, in parallel over chunks of series for a batch
-(:func:`backward_parallel`). The square-root smoother's recursion,
+(:func:`._jit.launch`). The square-root smoother's recursion,
 :func:`backward_sqrt` (:func:`._step.rts_back`), computes its gains
 from the joint factor of each transition as it goes (computed from a
 linear model, or stored by the sigma-point forward pass, which has the
@@ -23,14 +23,13 @@ the readable path.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
 from .._linalg import psd_solve
 from ._jit import jit, launch
 from ._step import (at, copy1, copy2, joint_factor, not_finite_factor, predict_mean, rts_back, rts_step,
                     sqrt_back_workspace, workspace, wrap)
 
-__all__ = ["backward", "backward_parallel", "backward_sqrt", "least_squares_gains", "smooth"]
+__all__ = ["backward", "backward_sqrt", "least_squares_gains", "smooth"]
 
 _JIT = {"nogil": True, "error_model": "numpy"}
 
@@ -50,15 +49,6 @@ def backward(lo, hi, means, covs, pmeans, pcovs, gains, angles, sm_means, sm_cov
             for i in range(n):
                 if angles[i]:
                     sm_means[s, j, i] = wrap(sm_means[s, j, i])
-
-
-@jit(parallel=True, **_JIT)
-def backward_parallel(chunks, means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs):
-    """:func:`backward` over `chunks` contiguous groups of series, in parallel."""
-    N = means.shape[0]
-    for c in prange(chunks):
-        backward(c * N // chunks, (c + 1) * N // chunks, means, covs, pmeans, pcovs, gains, angles,
-                 sm_means, sm_covs)
 
 
 @jit(**_JIT)
@@ -114,5 +104,5 @@ def least_squares_gains(gains: np.ndarray, failed: np.ndarray, pcovs: np.ndarray
 def smooth(means, covs, pmeans, pcovs, gains, angles):
     """The smoothed means and covariances (N, T, ...) from the forward pass's arrays and gains (see the module notes)."""
     sm_means, sm_covs = np.empty_like(means), np.empty_like(covs)
-    launch(backward, backward_parallel, means.shape[0], means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs)
+    launch(backward, means.shape[0], means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs)
     return sm_means, sm_covs

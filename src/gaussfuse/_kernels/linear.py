@@ -26,12 +26,11 @@ filtering or smoothing):
   that is not positive definite, an overflow), raised in Python as the
   readable path's error.
 
-Kernels: :func:`forward`, and its ``parallel=True`` form
-:func:`forward_parallel` over chunks of a batch of series (compiled only
-when a batch runs), each compiled on first use and cached on disk. A state
-of :data:`._dense.BLAS_FROM` components or more has its products computed by
-BLAS (see :mod:`._dense`), which parallelises them itself: its series run
-one after the other.
+Kernels: :func:`forward` (and :func:`forward_sqrt`), compiled on first use
+and cached on disk; a batch of series runs them over chunks of series on a
+pool of threads (:func:`._jit.launch`). A state of :data:`._dense.BLAS_FROM`
+components or more has its products computed by BLAS (see :mod:`._dense`),
+which parallelises them itself: its series run one after the other.
 """
 
 from __future__ import annotations
@@ -39,8 +38,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
-
 from .._linalg import symmetrize
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ..kalman import SETTLED, STEADY_TOL, cov_factor
@@ -167,16 +164,6 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     scratch[1][0] = 0.0  # alive until here
 
 
-@jit(parallel=True, **_JIT)
-def forward_parallel(chunks, model, zs, m0, P0, out, fail):
-    """:func:`forward` over `chunks` contiguous groups of series in parallel, each with its own workspace."""
-    N = zs.shape[0]
-    n = m0.shape[0]
-    m = zs.shape[2]
-    for c in prange(chunks):
-        forward(c * N // chunks, (c + 1) * N // chunks, model, zs, m0, P0, out, fail, workspace(n, m))
-
-
 @jit(**_JIT)
 def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     """The square-root filter over series ``lo..hi-1``: inference.drivers.run_filter's loop with ``form="sqrt"``.
@@ -263,7 +250,7 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     scratch[1][0] = 0.0  # alive until here
 
 
-KERNELS = (forward, forward_parallel, forward_sqrt)
+KERNELS = (forward, forward_sqrt)
 """The forward kernels (numba dispatchers); the backward ones are :mod:`._rts`'s."""
 
 # ---------------------------------------------------------------------------
@@ -298,7 +285,7 @@ def _run_forward(model, prior, zs, us, keep: str, smoothing: bool, target: np.nd
     if n >= BLAS_FROM:  # BLAS parallelises the products itself: the series one after another
         forward(0, N, *args, workspace(n, m))
     else:
-        launch(lambda lo, hi, *a: forward(lo, hi, *a, workspace(n, m)), forward_parallel, N, *args)
+        launch(lambda lo, hi, *a: forward(lo, hi, *a, workspace(n, m)), N, *args)
     raise_failure(fail)
     if smoothing:
         _rts.least_squares_gains(out.gains, out.failed, out.predicted_covs)

@@ -45,12 +45,11 @@ so that a short call gives the same numbers, to the bit, in every process."""
 START = {"loaded": 0.0, "cached": 1.0}
 """Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
 process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-1.1 s)."""
-COMPILE = {"linear.forward": 14.0, "linear.forward_parallel": 35.0, "_rts.backward": 5.0,
-           "_rts.backward_parallel": 10.0, "sigma_points.advance": 28.0, "sigma_points.hold": 4.0,
+COMPILE = {"linear.forward": 14.0, "_rts.backward": 5.0, "sigma_points.advance": 28.0, "sigma_points.hold": 4.0,
            "sigma_points.run": 27.0}
 """Compiling each kernel with an empty cache, at the upper end of what this 2-core machine measured
 (numba's compile events, one fresh process and cache per call, 2026-12-01): the linear filter's loop
-11-12.5 s, its parallel form 31-32 s, the backward pass 3-5.4 s and its parallel form 9 s; the
+11-12.5 s, the backward pass 3-5.4 s (a batch of series runs them too, on a pool of threads); the
 sigma-point engine's loop 24-27.5 s and the structure holding its arguments 3-3.6 s; the loop compiled
 around numba-jitted f and h 22-25 s for each of their signatures."""
 READABLE_STEP = {"linear": 2e-5, "sigma_points": 4e-4}
@@ -288,9 +287,8 @@ def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passe
 # ---------------------------------------------------------------------------
 
 
-def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, batch: bool = False,
-                    smoothing: bool = False, readable: str | None = None,
-                    loop: Callable[[], str | None] | None = None):
+def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, smoothing: bool = False,
+                    readable: str | None = None, loop: Callable[[], str | None] | None = None):
     """The compiled module to run `steps` steps (all series together) with, or None for the readable path.
 
     With ``engine="auto"`` the compiled path is taken only for
@@ -301,9 +299,7 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
     numba) against what the readable path would spend on
     ``steps * passes`` steps beyond it (:data:`READABLE_STEP`).
     `passes` is how many times the caller will run the steps (a fit's
-    filter passes); `batch` says that several series run at once (their
-    parallel kernels are compiled separately), `smoothing` that the
-    backward pass runs too; `readable` names an option that only the
+    filter passes); `smoothing` says that the backward pass runs too; `readable` names an option that only the
     readable path has (then ``engine="numba"`` is an error); `loop`, when
     given, is asked (once a sigma-point call is long enough to weigh) for the
     state of the loop compiled around numba-jitted f and h, None when the
@@ -330,8 +326,7 @@ def compiled_engine(spec: Method, engine: str, steps: int, passes: float = 1.0, 
             raise ValueError(f"`engine='numba'` is not available for method {spec.name!r}; it is for {fits}.")
         if not available:
             raise ValueError("`engine='numba'` needs numba: pip install numba.")
-    elif spec.compiled is None or not available or not _worth_compiling(spec.compiled, steps, passes, batch,
-                                                                        smoothing, loop):
+    elif spec.compiled is None or not available or not _worth_compiling(spec.compiled, steps, passes, smoothing, loop):
         return None
     return importlib.import_module(f".._kernels.{spec.compiled}", __package__)
 
@@ -346,17 +341,17 @@ def start_seconds(states: dict) -> float:
     return cold + (START["cached"] if "cached" in states.values() else START["loaded"])
 
 
-def _worth_compiling(module: str, steps: int, passes: float, batch: bool, smoothing: bool,
+def _worth_compiling(module: str, steps: int, passes: float, smoothing: bool,
                      loop: Callable[[], str | None] | None) -> bool:
     """Whether starting `module`'s kernels costs less than the readable path would spend on its passes."""
     if steps < AUTO_NUMBA_STEPS:
         return False
     readable = steps * passes * READABLE_STEP[module]
     if readable <= START["cached"] and not any(f"{_kernels.__name__}.{mod}" in sys.modules
-                                               for mod, _ in kernels(module, batch, smoothing)):
+                                               for mod, _ in kernels(module, smoothing)):
         return False  # nothing is loaded, and loading alone would cost more: no need to look at the disk
     jitted = loop() if loop is not None and module == "sigma_points" else None
-    return start_seconds(kernel_states(module, batch, smoothing, jitted)) < readable
+    return start_seconds(kernel_states(module, smoothing, jitted)) < readable
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
@@ -370,7 +365,7 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     """
     target = steady_state(model).cov if steady else None
     engine, readable = _readable_only(spec, engine, form, gate, "gains=True" if gains else None)
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], batch=zs.shape[0] > 1, readable=readable,
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], readable=readable,
                                loop=lambda: jitted_loop_state(model, prior, us, form))
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
@@ -417,7 +412,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     why = ("form='sqrt' to the prior's time" if to_prior and form == "sqrt"
            else "an ending" if ending is not None and (form == "sqrt" or spec.compiled != "linear") else None)
     engine, readable = _readable_only(spec, engine, form, gate, why)
-    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, zs.shape[0] > 1, smoothing=True,
+    compiled = compiled_engine(spec, engine, zs.shape[0] * zs.shape[1], 2.0, smoothing=True,
                                readable=readable, loop=lambda: jitted_loop_state(model, prior, us, form))
     if compiled is not None:
         lin = linearisation(spec, model, None, options)[0]
