@@ -47,7 +47,9 @@ ENTRY_POINTS: dict[str, tuple[tuple[str, str], ...]] = {
 }
 """The compiled functions an engine's filter runs, as (module, function)
 pairs: what :func:`kernel_states` looks for. A batch of series runs the same
-ones, over chunks of series on a pool of threads (:func:`._jit.launch`)."""
+ones: the linear filter and the backward pass over chunks of series on a
+pool of threads (:func:`._jit.launch`), the sigma-point engine one series
+after the other."""
 
 JITTED_LOOP = ("sigma_points", "run")
 """The sigma-point loop compiled around numba-jitted f and h, once per
