@@ -101,7 +101,7 @@ from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_sol
 from ._validation import as_vector
 from .errors import ConvergenceWarning
 from .gaussian import Gaussian
-from .inference.diffuse import augmented_runs, diffuse_moments, not_identified
+from .inference.diffuse import NotIdentified, augmented_runs, diffuse_moments, not_identified
 from .inference.results import first
 from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
 from .inference.registry import METHODS as _METHODS
@@ -619,7 +619,15 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
     message, converged = f"stopped at the limit of {iterations} iterations", False
     try:
         for it in range(iterations + 1):
-            loglik, m_step = data.e_step(model, prior, learn, structure, fixed, engine)
+            try:
+                loglik, m_step = data.e_step(model, prior, learn, structure, fixed, engine)
+            except NotIdentified as exc:
+                if it == 0:
+                    raise
+                raise NotIdentified(
+                    f"EM iteration {it}: the learned model no longer identifies the diffuse initial state "
+                    f"(the log-likelihood rose to {history[-1]:.6g} on the way): {exc} Or learn fewer of F "
+                    "and H, whose smallest singular values EM can shrink toward zero.") from None
             history.append(loglik)
             best = (model, prior)
             if callback is not None:

@@ -83,7 +83,7 @@ from .registry import METHODS
 from .results import FilterResult, SmoothResult, first
 
 __all__ = ["diffuse_filter", "diffuse_smooth", "diffuse_moments", "augmented_runs", "AugmentedRuns",
-           "not_identified"]
+           "NotIdentified", "not_identified"]
 
 
 class AugmentedRuns(NamedTuple):
@@ -186,8 +186,12 @@ def _spread(L: np.ndarray, score: np.ndarray, M: np.ndarray) -> tuple[np.ndarray
     return (M @ delta)[..., 0], np.swapaxes(W, -1, -2) @ W
 
 
-def not_identified() -> ValueError:
-    return ValueError(
+class NotIdentified(ValueError):
+    """The measurements do not determine every component of a diffuse x_0 (a ValueError, as other bad input)."""
+
+
+def not_identified() -> NotIdentified:
+    return NotIdentified(
         "the diffuse initial state is not identified by the measurements: "
         "no combination of them determines every component of x_0; "
         "give a proper Gaussian prior instead."
