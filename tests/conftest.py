@@ -2,6 +2,12 @@
 
 The test folder is put on ``sys.path`` (whatever pytest's import mode), so
 test modules import the dense reference as ``import _oracle``.
+
+Hypothesis draws the same examples on every run ("ci", the default profile:
+derandomised, no example database), so that a run of the suite does not
+depend on which examples it happened to draw; run
+``python -m pytest --hypothesis-profile=explore`` to search with new random
+examples, and pin what that finds as an example test.
 """
 
 from __future__ import annotations
@@ -12,6 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+settings.register_profile("ci", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile("ci")
 
 TESTS_DIR = Path(__file__).resolve().parent
 DATA_DIR = TESTS_DIR / "data"
