@@ -1635,10 +1635,11 @@ def iterate_changed(cov: np.ndarray, start: np.ndarray | None = None):
         rows = np.diag(L) > 0.0
         L = L[np.ix_(rows, rows)]
     eps4 = 4.0 * np.finfo(np.float64).eps
+    floor = 0.0 if start is None else np.abs(start)  # the same for every iterate
 
     def changed(new: np.ndarray, old: np.ndarray, angles=None) -> float:
         delta = wrap_components(new - old, angles)
-        size = np.maximum(np.abs(new), np.abs(old) if start is None else np.maximum(np.abs(old), np.abs(start)))
+        size = np.maximum(np.maximum(np.abs(new), np.abs(old)), floor)
         delta = np.where(np.abs(delta) <= eps4 * size, 0.0, delta)[rows]
         if not delta.any():
             return 0.0
