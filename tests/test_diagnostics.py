@@ -132,6 +132,17 @@ def test_divergence_skips_missing_steps_merges_ranges_and_names_series():
     assert dg.divergence(np.full(10, 50.0), np.ones(10))[0][1:3] == (0, 9)  # a run shorter than a window
 
 
+def test_divergence_takes_a_scalar_dof_as_that_dof_at_every_step():
+    """A scalar dof is the per-step array it stands for, flagged ranges and averages alike."""
+    v = np.random.default_rng(3).chisquare(2, size=(3, 260))
+    v[2, 100:180] *= 4.0
+    per_step = dg.divergence(v, np.full(v.shape, 2))
+    assert {s for s, *_ in per_step} == {2}
+    assert dg.divergence(v, 2) == per_step
+    v[0, 7] = np.nan  # a step with nothing observed still counts no degrees of freedom
+    assert dg.divergence(v, 2) == dg.divergence(v, np.where(np.isnan(v), 0, 2))
+
+
 def test_divergence_rarely_flags_consistent_filters():
     """Seeded χ² draws of 400 consistent runs of 300 steps with 2 components: the rate is at most 1e-3 per run."""
     rng = np.random.default_rng(12)

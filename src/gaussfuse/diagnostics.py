@@ -136,8 +136,9 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     nis_values : array_like of shape (T,) or (N, T)
         :attr:`FilterResult.nis <gaussfuse.FilterResult>` of one series or N;
         NaN steps (nothing observed) are left out.
-    dof : array_like of int, shape like `nis_values`
-        The observed components at each step (its χ² degrees of freedom).
+    dof : array_like of int, shape like `nis_values` or broadcastable to it
+        The observed components at each step (its χ² degrees of freedom);
+        a scalar when every step observes as many.
     window : int, default 50
         Steps per window; consecutive windows overlap by half, and the last
         one ends at the last step.
@@ -177,7 +178,7 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     ([], [(0, 100, 199, 3.0)])
     """
     v = np.atleast_2d(np.asarray(nis_values, dtype=float))
-    k = np.atleast_2d(np.asarray(dof, dtype=float))
+    k = np.broadcast_to(np.asarray(dof, dtype=float), v.shape)
     T = v.shape[-1]
     if T == 0:
         return []
@@ -186,17 +187,19 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     lo = np.arange(0, T - window + 1, stride)
     if lo[-1] + window < T:
         lo = np.append(lo, T - window)
-    # Sums over the segments between window edges (one pass, no per-step temporary but the NaN mask),
-    # then over the windows from their running sums.
+    # Sums over the segments between window edges (one pass, no per-step temporary but the NaN mask,
+    # and the zero-filled copies only where a step is missing), then over the windows from their running sums.
     edges = np.unique(np.concatenate([lo, lo + window]))
     seen = ~np.isnan(v)
+    if not seen.all():
+        v, k = np.where(seen, v, 0.0), np.where(seen, k, 0.0)
     at = np.searchsorted(edges, [lo, lo + window])
 
     def running(x):
         segments = np.add.reduceat(x, edges[:-1], axis=1)
         return np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(segments, axis=1)], axis=1)
 
-    total, count = running(np.where(seen, v, 0.0)), running(np.where(seen, k, 0.0))
+    total, count = running(v), running(k)
     sums, dofs = total[:, at[1]] - total[:, at[0]], count[:, at[1]] - count[:, at[0]]
     flagged = (dofs > 0) & (sums >= _threshold(dofs, np.log(sums.size / false_alarm)))
     out = []

@@ -471,9 +471,12 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0) ->
     if check == "off" or result.nis is None:
         return
     seen = ~np.isnan(result.innovations)
-    dof = seen[..., 0].astype(np.float64)
-    for j in range(1, seen.shape[-1]):  # m is small: m vector additions beat a reduction over the last axis
-        dof += seen[..., j]
+    if seen.all():  # every component of every step: m degrees of freedom at each (no per-step array)
+        dof = seen.shape[-1]
+    else:
+        dof = seen[..., 0].astype(np.float64)
+        for j in range(1, seen.shape[-1]):  # m is small: m vector additions beat a reduction over the last axis
+            dof += seen[..., j]
     flagged = diagnostics.divergence(result.nis, dof)
     if not flagged:
         return
