@@ -248,24 +248,3 @@ def test_downdate_is_linalg_downdate(n, p, scale, zero_row, seed):
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
         if zero_row:
             assert got[0, 0] == L[0, 0]
-
-
-@pytest.mark.parametrize("keep, smoothing, sqrt", [("all", False, False), ("all", True, True), ("means", False, False),
-                                                   ("last", False, False)])
-def test_outputs_are_separate_arrays_of_their_shapes(keep, smoothing, sqrt):
-    """The outputs share one allocation: no two of them overlap, and each has its documented shape."""
-    N, T, n, m = 3, 5, 4, 2
-    out = _step.outputs(N, T, n, m, keep, smoothing, sqrt)
-    rows, crows = (0 if keep == "last" else T), (T if keep == "all" else 0)
-    assert out.means.shape == out.predicted_means.shape == (N, rows, n)
-    assert out.covs.shape == out.predicted_covs.shape == (N, crows, n, n)
-    assert (out.innovations.shape, out.innovation_covs.shape, out.nis.shape) == ((N, rows, m), (N, crows, m, m),
-                                                                                 (N, rows))
-    assert out.gains.shape == out.failed.shape + (n, n) == (N, T - 1 if smoothing else 0, n, n)
-    assert out.factors.shape == out.predicted_factors.shape == (N, crows if sqrt else 0, n, n)
-    assert not out.failed.any()
-    arrays = [a for a in out if a.size]
-    for i, a in enumerate(arrays):
-        assert a.flags.c_contiguous and a.flags.writeable
-        for b in arrays[i + 1:]:
-            assert not np.shares_memory(a, b)

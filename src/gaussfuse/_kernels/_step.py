@@ -915,21 +915,11 @@ def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool, sqrt: bo
     crows = T if keep == "all" else 0
     frows = crows if sqrt else 0
     grows = T - 1 if smoothing else 0
-    shapes = ((N, rows, n), (N, crows, n, n), (N, rows, n), (N, crows, n, n), (N, rows, m), (N, crows, m, m),
-              (N,), (N, n), (N, n, n), (N, grows, n, n), None, (N, rows), (N, frows, n, n), (N, frows, n, n))
-    # One allocation for all the float arrays: written once, by the kernel, so its first touch of fresh
-    # memory dominates a short series' cost, and one large block is mapped in huge pages where the
-    # system has them (NumPy asks for them from 4 MiB) where fourteen smaller ones mostly are not.
-    block = np.empty(sum(math.prod(shape) for shape in shapes if shape is not None))
-    arrays, start = [], 0
-    for shape in shapes:
-        if shape is None:
-            arrays.append(np.zeros((N, grows), dtype=np.bool_))
-            continue
-        size = math.prod(shape)
-        arrays.append(block[start:start + size].reshape(shape))
-        start += size
-    return Outputs(*arrays)
+    return Outputs(np.empty((N, rows, n)), np.empty((N, crows, n, n)), np.empty((N, rows, n)),
+                   np.empty((N, crows, n, n)), np.empty((N, rows, m)), np.empty((N, crows, m, m)),
+                   np.empty(N), np.empty((N, n)), np.empty((N, n, n)), np.empty((N, grows, n, n)),
+                   np.zeros((N, grows), dtype=np.bool_), np.empty((N, rows)), np.empty((N, frows, n, n)),
+                   np.empty((N, frows, n, n)))
 
 
 def filter_result(out: Outputs) -> FilterResult:
