@@ -541,3 +541,82 @@ def test_the_fixed_point_is_reused_and_agrees_with_computing_every_step(keep):
     readable = gf.filter(model, prior, zs[0], engine="python", keep=keep)
     np.testing.assert_allclose(fast.last_cov[0], readable.last_cov, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(fast.loglik[0], readable.loglik, rtol=1e-12)
+
+
+def _gappy_batch(T: int, varying: bool):
+    """Six series whose missing components leave series 0's pattern at different steps (see the test)."""
+    rng = np.random.default_rng(29)
+    n, m, p = 3, 2, 1
+    F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.2], [0.0, 0.0, 0.8]])
+    if varying:
+        F = F * (1.0 + 0.1 * rng.random((T, 1, 1)))
+    model = gf.LinearModel(F, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], 0.1 * np.eye(n), np.diag([0.5, 2.0]),
+                           B=[[0.0], [1.0], [0.0]])
+    zs = rng.normal(size=(6, T, m)).cumsum(axis=1)
+    zs[[0, 1, 3], 4, 1] = np.nan  # series 0's gaps: component 1 at step 4, all at step 10
+    zs[[0, 1, 3], 10] = np.nan
+    zs[3, T - 5, 0] = np.nan      # series 3 leaves series 0's pattern late, series 2 (no gaps) at step 4
+    zs[4, 0] = np.nan             # series 4 at once
+    zs[5, T // 2:T // 2 + 3] = np.nan
+    us = rng.normal(size=(6, T, p))
+    return model, gf.Gaussian(np.zeros(n), 4.0 * np.eye(n)), zs, us
+
+
+@pytest.mark.parametrize("varying, T", [(True, 30), (False, 200)])
+@pytest.mark.parametrize("front", ["filter", "smooth"])
+def test_series_sharing_the_first_series_covariances_keep_their_own_numbers(monkeypatch, front, varying, T):
+    """A batch's series reuse series 0's covariances and gains while they observe what it observed.
+
+    With one thread the whole batch is one chunk: series 0 records its
+    steps, and every other series reuses them until its first step that
+    observes other components (step 0, 4, T - 5, T // 2, or never). Each
+    series has bit for bit the numbers it has alone, where nothing is
+    shared, time-varying or not; the time-invariant model reaches its fixed
+    point before T // 2, so series leave the table from the fixed point too.
+    """
+    monkeypatch.setattr(_jit, "threads", lambda: 1)
+    model, prior, zs, us = _gappy_batch(T, varying)
+    run = getattr(gf, front)
+    keeps = ("all", "means", "last") if front == "filter" else (None,)
+    for keep in keeps:
+        options = {} if keep is None else {"keep": keep}
+        batch = run(model, prior, zs, us, engine="numba", **options)
+        for s in range(len(zs)):
+            assert_identical(_series(batch, s), run(model, prior, zs[s:s + 1], us[s:s + 1], engine="numba", **options))
+        assert_same(batch, run(model, prior, zs, us, engine="python", **options))
+
+
+def test_a_series_leaving_the_shared_fixed_point_is_not_tested_for_one_at_that_step(monkeypatch):
+    """As alone: the step that leaves the fixed point is not a candidate for a new one.
+
+    Component 1's noise is so large that missing it changes the covariance
+    by less than the fixed point's tolerance, so only that rule keeps a
+    series that leaves series 0's table from holding a fixed point a step
+    earlier than it would alone.
+    """
+    monkeypatch.setattr(_jit, "threads", lambda: 1)
+    model = gf.LinearModel([[1.0, 0.5], [0.0, 0.9]], np.eye(2), 0.1 * np.eye(2), np.diag([0.5, 1e20]))
+    prior = gf.Gaussian(np.zeros(2), np.eye(2))
+    zs = np.random.default_rng(3).normal(size=(3, 200, 2)).cumsum(axis=1)
+    zs[1, 150, 1] = np.nan
+    zs[2, 150:152, 1] = np.nan
+    batch = gf.filter(model, prior, zs, engine="numba")
+    for s in range(3):
+        assert_identical(_series(batch, s), gf.filter(model, prior, zs[s:s + 1], engine="numba"))
+
+
+def test_a_large_state_batch_shares_covariances_with_each_series_own_numbers():
+    """From BLAS_FROM states a batch runs as one chunk whatever the threads: series 0's table serves the rest."""
+    from gaussfuse._kernels._dense import BLAS_FROM
+
+    rng = np.random.default_rng(41)
+    n, m, T = BLAS_FROM, 4, 12
+    model = gf.LinearModel(0.9 * np.eye(n) + 0.01 * rng.normal(size=(n, n)), rng.normal(size=(m, n)),
+                           _oracle.random_spd(rng, n), _oracle.random_spd(rng, m))
+    prior = gf.Gaussian(np.zeros(n), np.eye(n))
+    zs = rng.normal(size=(4, T, m))
+    zs[2, 5, 0] = np.nan
+    batch = gf.filter(model, prior, zs, engine="numba")
+    for s in range(len(zs)):
+        assert_identical(_series(batch, s), gf.filter(model, prior, zs[s:s + 1], engine="numba"))
+    assert_same(batch, gf.filter(model, prior, zs, engine="python"))

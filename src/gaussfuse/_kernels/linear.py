@@ -26,6 +26,12 @@ filtering or smoothing):
   that is not positive definite, an overflow), raised in Python as the
   readable path's error.
 
+The series of a batch share the model and the prior, and a linear filter's
+covariances depend only on which components are observed: the covariance
+form's :func:`forward` computes them once per chunk of series, in its first
+series, and the others reuse them (a :class:`Table`) while they observe the
+same components, computing their means only.
+
 Kernels: :func:`forward` (and :func:`forward_sqrt`), compiled on first use
 and cached on disk; a batch of series runs them over chunks of series on a
 pool of threads (:func:`._jit.launch`). A state of :data:`._dense.BLAS_FROM`
@@ -46,7 +52,7 @@ from ._dense import BLAS_FROM, congruence
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
 from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, READABLE, Outputs, at, copy1, copy2, failures,
-                    filter_result, fixed, hold_fixed, nis, not_finite, not_finite_factor, not_finite_mean,
+                    filter_result, Fixed, fixed, hold_fixed, nis, not_finite, not_finite_factor, not_finite_mean,
                     outputs, predict, predict_mean, predict_sqrt, raise_failure, record, record_not_pd, settled,
                     smoother_gain, sqrt_workspace, square, steady_update, update, update_sqrt, workspace)
 
@@ -81,6 +87,25 @@ def update_failed(fail, s, k, w, ok, mo, overflowed):
     return False
 
 
+@jit(inline="always", **_JIT)
+def keep_gain(table, k, Kt, L, z, held):
+    """Record in row k of `table` the ``Kᵀ`` and ``L`` step k used, what it observed, and whether it started at the fixed point."""
+    copy2(table.Kt[k], Kt)
+    copy2(table.L[k], L)
+    for a in range(z.shape[0]):
+        table.observed[k, a] = z[a] == z[a]
+    table.held[k] = held
+
+
+class Table(NamedTuple):
+    """Series lo's steps, for the other series of a batch (see :func:`forward`); T rows, or none."""
+
+    Kt: np.ndarray        # (T, m, n) the gain Kᵀ over the observed components (leading rows)
+    L: np.ndarray         # (T, m, m) the Cholesky factor of S_oo
+    observed: np.ndarray  # (T, m) bool: the observed components
+    held: np.ndarray      # (T,) bool: the step started from the fixed point (at_fixed)
+
+
 @jit(**_JIT)
 def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     """Filter series ``lo..hi-1``: inference.drivers.run_filter's loop, with the workspace `w`.
@@ -88,6 +113,17 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     `w` is a :func:`._step.workspace`, which the caller keeps alive. A
     time-invariant model's steps reuse the covariance fixed point once it
     is reached (:class:`._step.Fixed`, as kalman.SteadyState).
+
+    The series share one model and one prior, and a linear model's
+    covariances do not depend on the measurements, only on which components
+    are observed: series ``lo``'s predicted and filtered covariances, S, gain
+    and factor of S at step k are every other series' while the same
+    components have been observed at every step so far. When the
+    covariances are kept, series ``lo`` records its gains and factors (a
+    table of T rows) and the other series' steps reuse them, computing the
+    means only (:func:`._step.steady_update`, bitwise the numbers of
+    :func:`._step.update`); a series leaves the table at its first step that
+    observes other components, and runs its own steps from there.
     """
     model, zs, m0, P0, out, fail, w = borrow((model, zs, m0, P0, out, fail, w))
     T = zs.shape[1]
@@ -98,12 +134,14 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     smoothing = out.gains.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and model.Q.shape[0] == 1
                  and model.R.shape[0] == 1 and not smoothing)
+    rows = T if keep_covs and hi - lo > 1 else 0  # series lo's steps, for the others: a Table of T rows, or none
     # The fixed point, and where a step's belief goes when it is not kept: two covariances, so that
-    # the last one is still there to compare with the next (the fixed point's test). Borrowed, as
-    # the arguments are; `scratch` owns them until the end.
+    # the last one is still there to compare with the next (the fixed point's test); the table. Borrowed,
+    # as the arguments are; `scratch` owns them until the end.
     scratch = (fixed(n, m), np.empty(n), np.empty(n), np.empty((n, n)), np.empty((2, n, n)), np.empty(m),
-               np.empty((m, m)))
-    fx, mean0, pm0, pc0, covs0, v0, S0 = borrow(scratch)
+               np.empty((m, m)), Table(np.empty((rows, m, n)), np.empty((rows, m, m)),
+                                       np.zeros((rows, m), dtype=np.bool_), np.zeros(rows, dtype=np.bool_)))
+    fx, mean0, pm0, pc0, covs0, v0, S0, table = borrow(scratch)
     for s in range(lo, hi):
         mean, cov = mean0, covs0[1]
         copy1(mean, m0)
@@ -111,14 +149,18 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
         total = 0.0
         fail.code[s] = OK
         at_fixed = False  # cov is the fixed point's posterior covariance
+        sharing = rows > 0 and s > lo and fail.code[lo] == OK  # cov is series lo's at this step
         b = model.b[s if model.b.shape[0] > 1 else 0]
         for k in range(T):
             pm = out.predicted_means[s, k] if keep_means else pm0
             pc = out.predicted_covs[s, k] if keep_covs else pc0
             F = at(model.F, k)
-            if at_fixed:
+            held = at_fixed or sharing  # the step's covariances, gain and factor are held: in hx
+            hx = (Fixed(out.covs[lo, k], out.predicted_covs[lo, k], table.Kt[k], table.L[k],
+                        out.innovation_covs[lo, k], table.observed[k]) if sharing else fx)
+            if held:
                 predict_mean(mean, F, at(b, k), pm)
-                copy2(pc, fx.pred_cov)
+                copy2(pc, hx.pred_cov)
                 if not_finite_mean(pm, 0.0):
                     record(fail, s, PREDICTED_NOT_FINITE, k)
                     break
@@ -128,7 +170,10 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                     record(fail, s, PREDICTED_NOT_FINITE, k)
                     break
             if smoothing and k > 0:  # G_{k-1} = C (P⁻_k)⁻¹, Cᵀ = F_k P_{k-1} from predict
-                if not smoother_gain(w, pc, w.A1, out.gains[s, k - 1]):
+                if sharing:
+                    copy2(out.gains[s, k - 1], out.gains[lo, k - 1])
+                    out.failed[s, k - 1] = out.failed[lo, k - 1]
+                elif not smoother_gain(w, pc, w.A1, out.gains[s, k - 1]):
                     out.failed[s, k - 1] = True  # Cᵀ left for the least-squares gain
                     copy2(out.gains[s, k - 1], w.A1)
             previous = cov
@@ -138,23 +183,30 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             S = out.innovation_covs[s, k] if keep_covs else S0
             H = at(model.H, k)
             reused = False
-            if at_fixed:
-                reused, ll = steady_update(fx, w, pm, zs[s, k], H, model.d, model.angles, mean, v)
+            if held:
+                reused, ll = steady_update(hx, w, pm, zs[s, k], H, model.d, model.angles, mean, v)
             if reused:
-                copy2(cov, fx.cov)
-                copy2(S, fx.S)
+                copy2(cov, hx.cov)
+                copy2(S, hx.S)
                 if not_finite_mean(mean, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
+                if s == lo and rows > 0:
+                    keep_gain(table, k, hx.Kt, hx.L, zs[s, k], True)
             else:
+                # As series lo would: a step that leaves the fixed point is not tested for one.
+                was_fixed = at_fixed or (sharing and table.held[k])
+                sharing = False
                 ok, ll, mo = update(w, pm, pc, zs[s, k], H, at(model.R, k), model.d, model.angles, mean, cov, v, S)
                 if update_failed(fail, s, k, w, ok, mo, ok and not_finite(mean, cov, ll)):
                     break
-                if invariant and not at_fixed and settled(cov, model.target if model.target.shape[0] else previous,
+                if s == lo and rows > 0:
+                    keep_gain(table, k, w.Kt, w.L, zs[s, k], was_fixed)
+                if invariant and not was_fixed and settled(cov, model.target if model.target.shape[0] else previous,
                                                           model.tol):
                     hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
                     reused = True  # the posterior is the fixed point's: the next step reuses it
-            at_fixed = reused
+            at_fixed = reused and not sharing
             total += ll
             if keep_means:
                 out.nis[s, k] = nis(w, zs[s, k])
