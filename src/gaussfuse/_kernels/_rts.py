@@ -12,7 +12,9 @@ of the gain, and :func:`least_squares_gains` replaces it, in Python, by the
 readable path's minimum-norm solution (:func:`gaussfuse._linalg.psd_solve`).
 Then :func:`backward` runs the recursion (:func:`._step.rts_step`) over
 each series, in parallel over chunks of series for a batch
-(:func:`._jit.launch`). The square-root smoother's recursion,
+(:func:`._jit.launch`); a series that had another's covariances at every
+step of the forward pass (:attr:`._step.Outputs.leader`) copies its smoothed
+covariances and computes only its means. The square-root smoother's recursion,
 :func:`backward_sqrt` (:func:`._step.rts_back`), computes its gains
 from the joint factor of each transition as it goes (computed from a
 linear model, or stored by the sigma-point forward pass, which has the
@@ -26,7 +28,8 @@ import numpy as np
 
 from .._linalg import psd_solve
 from ._jit import jit, launch
-from ._step import (at, copy1, copy2, joint_factor, not_finite_factor, predict_mean, rts_back, rts_step,
+from ._nrt import borrow
+from ._step import (at, copy1, copy2, joint_factor, not_finite_factor, predict_mean, rts_back, rts_mean, rts_step,
                     sqrt_back_workspace, workspace, wrap)
 
 __all__ = ["backward", "backward_sqrt", "least_squares_gains", "smooth"]
@@ -35,20 +38,37 @@ _JIT = {"nogil": True, "error_model": "numpy"}
 
 
 @jit(**_JIT)
-def backward(lo, hi, means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs):
-    """The RTS recursion of run_smoother over series ``lo..hi-1``: (N, T, ...) arrays, gains (N, T - 1, n, n)."""
+def backward(lo, hi, means, covs, pmeans, pcovs, gains, angles, leader, sm_means, sm_covs):
+    """The RTS recursion of run_smoother over series ``lo..hi-1``: (N, T, ...) arrays, gains (N, T - 1, n, n).
+
+    A series whose filtered and predicted covariances and gains are those
+    of ``leader[s]`` at every step (the forward kernel's
+    :attr:`._step.Outputs.leader`) has its smoothed covariances too: when
+    that series has been smoothed already in this chunk, they are copied
+    and only the means are computed (bitwise :func:`._step.rts_step`'s).
+    """
+    means, covs, pmeans, pcovs, gains, angles, leader, sm_means, sm_covs = borrow(
+        (means, covs, pmeans, pcovs, gains, angles, leader, sm_means, sm_covs))
     T = means.shape[1]
     n = means.shape[2]
-    w = workspace(n, 1)
+    scratch = workspace(n, 1)
+    w = borrow(scratch)
     for s in range(lo, hi):
         copy1(sm_means[s, T - 1], means[s, T - 1])
         copy2(sm_covs[s, T - 1], covs[s, T - 1])
+        first = leader[s]
+        shared = lo <= first < s
         for j in range(T - 2, -1, -1):
-            rts_step(w, means[s, j], covs[s, j], pmeans[s, j + 1], pcovs[s, j + 1], sm_means[s, j + 1],
-                     sm_covs[s, j + 1], gains[s, j], angles, sm_means[s, j], sm_covs[s, j])
+            if shared:
+                rts_mean(w, means[s, j], pmeans[s, j + 1], sm_means[s, j + 1], gains[s, j], angles, sm_means[s, j])
+                copy2(sm_covs[s, j], sm_covs[first, j])
+            else:
+                rts_step(w, means[s, j], covs[s, j], pmeans[s, j + 1], pcovs[s, j + 1], sm_means[s, j + 1],
+                         sm_covs[s, j + 1], gains[s, j], angles, sm_means[s, j], sm_covs[s, j])
             for i in range(n):
                 if angles[i]:
                     sm_means[s, j, i] = wrap(sm_means[s, j, i])
+    scratch.A1[0, 0] = 0.0  # alive until here
 
 
 @jit(**_JIT)
@@ -64,9 +84,12 @@ def backward_sqrt(lo, hi, means, factors, F, Qf, b, joint, jpm, angles, sm_means
     prediction's factor is singular or a smoothed belief is not finite;
     the caller smooths those series on the readable path.
     """
+    means, factors, F, Qf, b, joint, jpm, angles, sm_means, sm_factors, gains, failed = borrow(
+        (means, factors, F, Qf, b, joint, jpm, angles, sm_means, sm_factors, gains, failed))
     T = means.shape[1]
     n = means.shape[2]
-    bw = sqrt_back_workspace(n)
+    scratch = sqrt_back_workspace(n)
+    bw = borrow(scratch)
     stored = joint.shape[1] > 0
     for s in range(lo, hi):
         failed[s] = False
@@ -89,6 +112,7 @@ def backward_sqrt(lo, hi, means, factors, F, Qf, b, joint, jpm, angles, sm_means
             for i in range(n):
                 if angles[i]:
                     sm_means[s, j, i] = wrap(sm_means[s, j, i])
+    scratch.pm[0] = 0.0  # alive until here
 
 
 def least_squares_gains(gains: np.ndarray, failed: np.ndarray, pcovs: np.ndarray) -> None:
@@ -101,8 +125,12 @@ def least_squares_gains(gains: np.ndarray, failed: np.ndarray, pcovs: np.ndarray
         gains[s, j] = psd_solve(pcovs[s, j + 1], gains[s, j]).T
 
 
-def smooth(means, covs, pmeans, pcovs, gains, angles):
-    """The smoothed means and covariances (N, T, ...) from the forward pass's arrays and gains (see the module notes)."""
+def smooth(means, covs, pmeans, pcovs, gains, angles, leader=None):
+    """The smoothed means and covariances (N, T, ...) from the forward pass's arrays and gains (see the module notes).
+
+    `leader` (N,) is the forward kernel's :attr:`._step.Outputs.leader`; by default each series its own.
+    """
     sm_means, sm_covs = np.empty_like(means), np.empty_like(covs)
-    launch(backward, means.shape[0], means, covs, pmeans, pcovs, gains, angles, sm_means, sm_covs)
+    leader = np.arange(means.shape[0]) if leader is None else leader
+    launch(backward, means.shape[0], means, covs, pmeans, pcovs, gains, angles, leader, sm_means, sm_covs)
     return sm_means, sm_covs

@@ -44,7 +44,7 @@ from ._dense import cho_solve, cholesky, congruence, matmul
 __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
            "SqrtBack", "sqrt_back_workspace", "joint_factor", "rts_back", "downdate", "times_factor",
            "not_finite_factor", "at", "predict", "predict_mean", "update", "innovate", "gain_mean", "log_density",
-           "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "wrap",
+           "nis", "copy1", "copy2", "Fixed", "fixed", "hold_fixed", "steady_update", "settled", "smoother_gain", "rts_step", "rts_mean", "wrap",
            "not_finite",
            "not_finite_mean", "Failures", "failures", "raise_failure", "OK", "NOT_POSITIVE_DEFINITE",
            "PREDICTED_NOT_FINITE", "FILTERED_NOT_FINITE", "LOG_2PI", "Outputs", "outputs", "filter_result"]
@@ -752,6 +752,17 @@ def rts_step(w, filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, g
         P^s_k = \mathrm{sym}\left(P_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^\top\right).
     """
     n = filt_mean.shape[0]
+    rts_mean(w, filt_mean, pred_mean, next_mean, gain, angles, mean)
+    for i in range(n):
+        for j in range(n):
+            w.A1[i, j] = next_cov[i, j] - pred_cov[i, j]
+    congruence(gain, w.A1, filt_cov, cov, w.A2, n, n)  # sym(P + G (P^s - P⁻) Gᵀ)
+
+
+@jit(inline="always", **_JIT)
+def rts_mean(w, filt_mean, pred_mean, next_mean, gain, angles, mean):
+    """The mean half of :func:`rts_step`: :math:`m^s_k = m_k + G_k (m^s_{k+1} - m^-_{k+1})`."""
+    n = filt_mean.shape[0]
     for j in range(n):
         diff = next_mean[j] - pred_mean[j]
         w.diff[j] = wrap(diff) if angles[j] else diff
@@ -760,9 +771,6 @@ def rts_step(w, filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, g
         for j in range(n):
             s += gain[i, j] * w.diff[j]
         mean[i] = filt_mean[i] + s
-        for j in range(n):
-            w.A1[i, j] = next_cov[i, j] - pred_cov[i, j]
-    congruence(gain, w.A1, filt_cov, cov, w.A2, n, n)  # sym(P + G (P^s - P⁻) Gᵀ)
 
 
 @jit(inline="always", **_JIT)
@@ -904,6 +912,7 @@ class Outputs(NamedTuple):
     nis: np.ndarray              # (N, T or 0): vᵀ S⁻¹ v over the observed components, NaN with none
     factors: np.ndarray          # (N, T or 0, n, n): the square-root form's L_k
     predicted_factors: np.ndarray  # (N, T or 0, n, n): its L⁻_k
+    leader: np.ndarray           # (N,) int64: a series with the same covariances at every step (s itself if none)
 
 
 def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool, sqrt: bool = False) -> Outputs:
@@ -919,7 +928,7 @@ def outputs(N: int, T: int, n: int, m: int, keep: str, smoothing: bool, sqrt: bo
                    np.empty((N, crows, n, n)), np.empty((N, rows, m)), np.empty((N, crows, m, m)),
                    np.empty(N), np.empty((N, n)), np.empty((N, n, n)), np.empty((N, grows, n, n)),
                    np.zeros((N, grows), dtype=np.bool_), np.empty((N, rows)), np.empty((N, frows, n, n)),
-                   np.empty((N, frows, n, n)))
+                   np.empty((N, frows, n, n)), np.arange(N))
 
 
 def filter_result(out: Outputs) -> FilterResult:

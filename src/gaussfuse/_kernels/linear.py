@@ -213,6 +213,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
         out.loglik[s] = total
         copy1(out.last_mean[s], mean)
         copy2(out.last_cov[s], cov)
+        out.leader[s] = lo if sharing else s  # shared series lo's covariances to the end: the smoother may too
     scratch[1][0] = 0.0  # alive until here
 
 
@@ -393,7 +394,8 @@ def smooth(lin, model, prior, zs, us, ending=None) -> SmoothResult:
     if ending is not None:
         means, covs = means.copy(), covs.copy()
         means[:, -1], covs[:, -1] = ending.mean, ending.cov
-    sm_means, sm_covs = _rts.smooth(means, covs, out.predicted_means, out.predicted_covs, out.gains, angles)
+    sm_means, sm_covs = _rts.smooth(means, covs, out.predicted_means, out.predicted_covs, out.gains, angles,
+                                    out.leader)
     check_smoothed(sm_means, sm_covs)
     return SmoothResult(sm_means, sm_covs, out.gains, filter_result(out))
 
