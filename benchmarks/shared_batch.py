@@ -7,7 +7,9 @@ series (so every step of every series would compute its covariance):
 2,000 series x 200 steps of a 2-state model whose F and Q change with the
 step, and 20 series x 200 steps of a 64-state random walk. Prints steps/s
 (series x steps), best of several calls after a warm-up. Run it on two
-versions of gaussfuse to compare them.
+versions of gaussfuse to compare them. Then the RTS smoother (both forms)
+on 2,000 series of W2's model (``benchmarks/run.py``), whose series all
+share the first one's covariances.
 """
 import time
 
@@ -38,3 +40,14 @@ n, m = 64, 32
 large = gf.LinearModel(np.eye(n), np.eye(m, n), 0.1 * np.eye(n), np.eye(m))
 rate = best_rate(large, gf.Gaussian(np.zeros(n), np.eye(n)), rng.normal(size=(20, T, m)), 3)
 print(f"20 series x {T} steps, {n} states, {m} measurements (random walk): {rate / 1e3:.1f} k steps/s")
+w2 = gf.constant_velocity(dt=1.0, q=0.1, r=1.0, dim=1)
+zs = np.random.default_rng(7).normal(size=(2000, T, 1)).cumsum(axis=1)
+prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+for form in ("cov", "sqrt"):
+    gf.smooth(w2, prior, zs[:2], engine="numba", form=form)
+    best = float("inf")
+    for _ in range(7):
+        start = time.perf_counter()
+        gf.smooth(w2, prior, zs, engine="numba", form=form)
+        best = min(best, time.perf_counter() - start)
+    print(f"2,000 series x {T} steps, W2's model, smoother, form={form!r}: {zs.size / best / 1e6:.2f} M steps/s")
