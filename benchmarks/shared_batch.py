@@ -1,15 +1,15 @@
-"""A batch of series sharing one model: compiled filter throughput where the covariances are computed once per chunk.
+"""Batches of series that share one model: compiled throughput, where a chunk computes its covariances once.
 
     python benchmarks/shared_batch.py
 
-Two batches whose models never reach a covariance fixed point within the
-series (so every step of every series would compute its covariance):
+First two batches whose models never reach a covariance fixed point within
+the series (so every step of every series would compute its covariance):
 2,000 series x 200 steps of a 2-state model whose F and Q change with the
-step, and 20 series x 200 steps of a 64-state random walk. Prints steps/s
-(series x steps), best of several calls after a warm-up. Run it on two
-versions of gaussfuse to compare them. Then the RTS smoother (both forms)
-on 2,000 series of W2's model (``benchmarks/run.py``), whose series all
-share the first one's covariances.
+step, and 20 series x 200 steps of a 64-state random walk. Then W2's batch
+(``benchmarks/run.py``: 2,000 series x 200 steps), filtered and smoothed in
+both forms. Prints steps/s (series x steps), best of several calls after a
+warm-up, the calls back to back (``run.py`` interleaves other libraries'
+calls between them). Run it on two versions of gaussfuse to compare them.
 """
 import time
 
@@ -44,6 +44,13 @@ w2 = gf.constant_velocity(dt=1.0, q=0.1, r=1.0, dim=1)
 zs = np.random.default_rng(7).normal(size=(2000, T, 1)).cumsum(axis=1)
 prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
 for form in ("cov", "sqrt"):
+    gf.filter(w2, prior, zs[:2], engine="numba", form=form)
+    best = float("inf")
+    for _ in range(7):
+        start = time.perf_counter()
+        gf.filter(w2, prior, zs, engine="numba", form=form)
+        best = min(best, time.perf_counter() - start)
+    print(f"2,000 series x {T} steps, W2's model, filter, form={form!r}: {zs.size / best / 1e6:.2f} M steps/s")
     gf.smooth(w2, prior, zs[:2], engine="numba", form=form)
     best = float("inf")
     for _ in range(7):

@@ -577,9 +577,10 @@ def _gappy_batch(T: int, varying: bool):
     return model, gf.Gaussian(np.zeros(n), 4.0 * np.eye(n)), zs, us
 
 
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
 @pytest.mark.parametrize("varying, T", [(True, 30), (False, 200)])
 @pytest.mark.parametrize("front", ["filter", "smooth"])
-def test_series_sharing_the_first_series_covariances_keep_their_own_numbers(monkeypatch, front, varying, T):
+def test_series_sharing_the_first_series_covariances_keep_their_own_numbers(monkeypatch, front, varying, T, form):
     """A batch's series reuse series 0's covariances and gains while they observe what it observed.
 
     With one thread the whole batch is one chunk: series 0 records its
@@ -588,13 +589,14 @@ def test_series_sharing_the_first_series_covariances_keep_their_own_numbers(monk
     series has bit for bit the numbers it has alone, where nothing is
     shared, time-varying or not; the time-invariant model reaches its fixed
     point before T // 2, so series leave the table from the fixed point too.
+    The square-root form's series share factors the same way.
     """
     monkeypatch.setattr(_jit, "threads", lambda: 1)
     model, prior, zs, us = _gappy_batch(T, varying)
     run = getattr(gf, front)
     keeps = ("all", "means", "last") if front == "filter" else (None,)
     for keep in keeps:
-        options = {} if keep is None else {"keep": keep}
+        options = {"form": form} if keep is None else {"keep": keep, "form": form}
         batch = run(model, prior, zs, us, engine="numba", **options)
         for s in range(len(zs)):
             assert_identical(_series(batch, s), run(model, prior, zs[s:s + 1], us[s:s + 1], engine="numba", **options))

@@ -27,8 +27,8 @@ filtering or smoothing):
   readable path's error.
 
 The series of a batch share the model and the prior, and a linear filter's
-covariances depend only on which components are observed: the covariance
-form's :func:`forward` computes them once per chunk of series, in its first
+covariances depend only on which components are observed: :func:`forward`
+and :func:`forward_sqrt` compute them once per chunk of series, in its first
 series, and the others reuse them (a :class:`Table`) while they observe the
 same components, computing their means only.
 
@@ -229,7 +229,9 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     (kalman.SteadyState, as :func:`forward`): then only the means are
     computed, with the held ``K̄`` and ``L_S``. An update whose ``L_S`` has a
     zero pivot stops the series with READABLE: the driver runs the call on
-    the readable path, which names S or downdates where it can.
+    the readable path, which names S or downdates where it can. The
+    series share series ``lo``'s factors, ``K̄`` and ``L_S`` while they
+    observe what it observed, as in :func:`forward`.
     """
     model, Qf, Rf, zs, m0, L0, out, fail, w, sw = borrow((model, Qf, Rf, zs, m0, L0, out, fail, w, sw))
     T = zs.shape[1]
@@ -238,34 +240,44 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     keep_means = out.means.shape[1] > 0
     keep_covs = out.covs.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and Qf.shape[0] == 1 and Rf.shape[0] == 1)
-    # the fixed point (a Fixed holding factors, K̄ᵀ and L_S), and the step's belief and scratch
+    rows = T if keep_covs and hi - lo > 1 else 0  # series lo's K̄ᵀ and L_S, for the others (as in forward)
+    # the fixed point (a Fixed holding factors, K̄ᵀ and L_S), the step's belief and scratch, the table
     scratch = (fixed(n, m), np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m),
-               np.empty((n, n)), np.empty((n, n)))
-    fx, mean, L, pm, pL, v0, cov0, prevL = borrow(scratch)
+               np.empty((n, n)), np.empty((n, n)),
+               Table(np.empty((rows, m, n)), np.empty((rows, m, m)), np.zeros((rows, m), dtype=np.bool_),
+                     np.zeros(rows, dtype=np.bool_)))
+    fx, mean, L, pm, pL, v0, cov0, prevL, table = borrow(scratch)
     for s in range(lo, hi):
         copy1(mean, m0)
         copy2(L, L0)
         total = 0.0
         fail.code[s] = OK
         at_fixed = False
+        sharing = rows > 0 and s > lo and fail.code[lo] == OK  # L is series lo's at this step
         b = model.b[s if model.b.shape[0] > 1 else 0]
         for k in range(T):
             v = out.innovations[s, k] if keep_means else v0
             H = at(model.H, k)
             z = zs[s, k]
             reused = False
-            if at_fixed:  # the fixed point's prediction, and its gain when the same components are observed
+            held = at_fixed or sharing  # the step's factors, K̄ᵀ and L_S are held: in hx
+            hx = (Fixed(out.factors[lo, k], out.predicted_factors[lo, k], table.Kt[k], table.L[k],
+                        out.innovation_covs[lo, k], table.observed[k]) if sharing else fx)
+            if held:  # the held prediction, and its gain when the same components are observed
                 predict_mean(mean, at(model.F, k), at(b, k), pm)
-                copy2(pL, fx.pred_cov)
-                reused, ll = steady_update(fx, w, pm, z, H, model.d, model.angles, mean, v, True)
+                copy2(pL, hx.pred_cov)
+                reused, ll = steady_update(hx, w, pm, z, H, model.d, model.angles, mean, v, True)
                 if reused:
-                    copy2(L, fx.cov)
+                    copy2(L, hx.cov)
                     if not_finite_mean(mean, ll):
                         record(fail, s, FILTERED_NOT_FINITE, k)
                         break
+                    if s == lo and rows > 0:
+                        keep_gain(table, k, hx.Kt, hx.L, z, True)
             if not reused:
+                sharing = False
                 copy2(prevL, L)  # the factor this step's prediction started from: the fixed point's test
-                if not at_fixed:
+                if not held:
                     predict_sqrt(sw, mean, L, at(model.F, k), at(Qf, k), at(b, k), pm, pL)
                     if not_finite_factor(pm, pL, 0.0):
                         record(fail, s, PREDICTED_NOT_FINITE, k)
@@ -277,19 +289,27 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                 if not_finite_factor(mean, L, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
+                if s == lo and rows > 0:
+                    keep_gain(table, k, w.Kt, w.L, z, at_fixed)
                 if invariant and mo > 0:  # the fixed point's test, on the covariances L Lᵀ
                     square(L, cov0)
                     square(prevL, fx.cov)
                     if settled(cov0, fx.cov, model.tol):
                         hold_fixed(fx, w, L, pL, fx.S, z, mo)
                         reused = True
-            at_fixed = reused
+            at_fixed = reused and not sharing
             total += ll
             if keep_means:
                 copy1(out.means[s, k], mean)
                 copy1(out.predicted_means[s, k], pm)
                 out.nis[s, k] = nis(w, z)
-            if keep_covs:
+            if sharing:  # series lo's, which these are
+                copy2(out.factors[s, k], L)
+                copy2(out.predicted_factors[s, k], pL)
+                copy2(out.covs[s, k], out.covs[lo, k])
+                copy2(out.predicted_covs[s, k], out.predicted_covs[lo, k])
+                copy2(out.innovation_covs[s, k], out.innovation_covs[lo, k])
+            elif keep_covs:
                 copy2(out.factors[s, k], L)
                 copy2(out.predicted_factors[s, k], pL)
                 square(L, out.covs[s, k])
