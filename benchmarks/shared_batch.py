@@ -18,12 +18,13 @@ import numpy as np
 import gaussfuse as gf
 
 
-def best_rate(model, prior, zs, calls):
-    gf.filter(model, prior, zs[:2], engine="numba")  # compile or load
+def best_rate(model, prior, zs, calls, run=gf.filter, **options):
+    """Series x steps per second of ``run(model, prior, zs, engine="numba", **options)``, best of `calls`."""
+    run(model, prior, zs[:2], engine="numba", **options)  # compile or load
     best = float("inf")
     for _ in range(calls):
         start = time.perf_counter()
-        gf.filter(model, prior, zs, engine="numba")
+        run(model, prior, zs, engine="numba", **options)
         best = min(best, time.perf_counter() - start)
     return zs.shape[0] * zs.shape[1] / best
 
@@ -44,17 +45,6 @@ w2 = gf.constant_velocity(dt=1.0, q=0.1, r=1.0, dim=1)
 zs = np.random.default_rng(7).normal(size=(2000, T, 1)).cumsum(axis=1)
 prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
 for form in ("cov", "sqrt"):
-    gf.filter(w2, prior, zs[:2], engine="numba", form=form)
-    best = float("inf")
-    for _ in range(7):
-        start = time.perf_counter()
-        gf.filter(w2, prior, zs, engine="numba", form=form)
-        best = min(best, time.perf_counter() - start)
-    print(f"2,000 series x {T} steps, W2's model, filter, form={form!r}: {zs.size / best / 1e6:.2f} M steps/s")
-    gf.smooth(w2, prior, zs[:2], engine="numba", form=form)
-    best = float("inf")
-    for _ in range(7):
-        start = time.perf_counter()
-        gf.smooth(w2, prior, zs, engine="numba", form=form)
-        best = min(best, time.perf_counter() - start)
-    print(f"2,000 series x {T} steps, W2's model, smoother, form={form!r}: {zs.size / best / 1e6:.2f} M steps/s")
+    for run, what in ((gf.filter, "filter"), (gf.smooth, "smoother")):
+        rate = best_rate(w2, prior, zs, 7, run, form=form)
+        print(f"2,000 series x {T} steps, W2's model, {what}, form={form!r}: {rate / 1e6:.2f} M steps/s")

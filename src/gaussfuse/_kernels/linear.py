@@ -44,6 +44,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
+
 from .._linalg import symmetrize
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ..kalman import SETTLED, STEADY_TOL, cov_factor
@@ -88,13 +90,13 @@ def update_failed(fail, s, k, w, ok, mo, overflowed):
 
 
 @jit(inline="always", **_JIT)
-def keep_gain(table, k, Kt, L, z, held):
-    """Record in row k of `table` the ``Kᵀ`` and ``L`` step k used, what it observed, and whether it started at the fixed point."""
-    copy2(table.Kt[k], Kt)
-    copy2(table.L[k], L)
+def keep_gain(steps, k, Kt, L, z, held):
+    """Record in row k of `steps` the ``Kᵀ`` and ``L`` step k used, what it observed, and whether it started at the fixed point."""
+    copy2(steps.Kt[k], Kt)
+    copy2(steps.L[k], L)
     for a in range(z.shape[0]):
-        table.observed[k, a] = z[a] == z[a]
-    table.held[k] = held
+        steps.observed[k, a] = z[a] == z[a]
+    steps.held[k] = held
 
 
 class Table(NamedTuple):
@@ -104,6 +106,14 @@ class Table(NamedTuple):
     L: np.ndarray         # (T, m, m) the Cholesky factor of S_oo
     observed: np.ndarray  # (T, m) bool: the observed components
     held: np.ndarray      # (T,) bool: the step started from the fixed point (at_fixed)
+
+
+@register_jitable
+def table(T, n, m, shared):
+    """A :class:`Table` of T rows when `shared` (covariances kept, more than one series in the chunk), else of none."""
+    rows = T if shared else 0
+    return Table(np.empty((rows, m, n)), np.empty((rows, m, m)), np.zeros((rows, m), dtype=np.bool_),
+                 np.zeros(rows, dtype=np.bool_))
 
 
 @jit(**_JIT)
@@ -134,14 +144,13 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     smoothing = out.gains.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and model.Q.shape[0] == 1
                  and model.R.shape[0] == 1 and not smoothing)
-    rows = T if keep_covs and hi - lo > 1 else 0  # series lo's steps, for the others: a Table of T rows, or none
     # The fixed point, and where a step's belief goes when it is not kept: two covariances, so that
-    # the last one is still there to compare with the next (the fixed point's test); the table. Borrowed,
-    # as the arguments are; `scratch` owns them until the end.
+    # the last one is still there to compare with the next (the fixed point's test); series lo's steps,
+    # for the others. Borrowed, as the arguments are; `scratch` owns them until the end.
     scratch = (fixed(n, m), np.empty(n), np.empty(n), np.empty((n, n)), np.empty((2, n, n)), np.empty(m),
-               np.empty((m, m)), Table(np.empty((rows, m, n)), np.empty((rows, m, m)),
-                                       np.zeros((rows, m), dtype=np.bool_), np.zeros(rows, dtype=np.bool_)))
-    fx, mean0, pm0, pc0, covs0, v0, S0, table = borrow(scratch)
+               np.empty((m, m)), table(T, n, m, keep_covs and hi - lo > 1))
+    fx, mean0, pm0, pc0, covs0, v0, S0, steps_lo = borrow(scratch)
+    rows = steps_lo.held.shape[0]
     for s in range(lo, hi):
         mean, cov = mean0, covs0[1]
         copy1(mean, m0)
@@ -156,8 +165,8 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             pc = out.predicted_covs[s, k] if keep_covs else pc0
             F = at(model.F, k)
             held = at_fixed or sharing  # the step's covariances, gain and factor are held: in hx
-            hx = (Fixed(out.covs[lo, k], out.predicted_covs[lo, k], table.Kt[k], table.L[k],
-                        out.innovation_covs[lo, k], table.observed[k]) if sharing else fx)
+            hx = (Fixed(out.covs[lo, k], out.predicted_covs[lo, k], steps_lo.Kt[k], steps_lo.L[k],
+                        out.innovation_covs[lo, k], steps_lo.observed[k]) if sharing else fx)
             if held:
                 predict_mean(mean, F, at(b, k), pm)
                 copy2(pc, hx.pred_cov)
@@ -192,16 +201,16 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
                 if s == lo and rows > 0:
-                    keep_gain(table, k, hx.Kt, hx.L, zs[s, k], True)
+                    keep_gain(steps_lo, k, hx.Kt, hx.L, zs[s, k], True)
             else:
                 # As series lo would: a step that leaves the fixed point is not tested for one.
-                was_fixed = at_fixed or (sharing and table.held[k])
+                was_fixed = at_fixed or (sharing and steps_lo.held[k])
                 sharing = False
                 ok, ll, mo = update(w, pm, pc, zs[s, k], H, at(model.R, k), model.d, model.angles, mean, cov, v, S)
                 if update_failed(fail, s, k, w, ok, mo, ok and not_finite(mean, cov, ll)):
                     break
                 if s == lo and rows > 0:
-                    keep_gain(table, k, w.Kt, w.L, zs[s, k], was_fixed)
+                    keep_gain(steps_lo, k, w.Kt, w.L, zs[s, k], was_fixed)
                 if invariant and not was_fixed and settled(cov, model.target if model.target.shape[0] else previous,
                                                           model.tol):
                     hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
@@ -240,13 +249,11 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
     keep_means = out.means.shape[1] > 0
     keep_covs = out.covs.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and Qf.shape[0] == 1 and Rf.shape[0] == 1)
-    rows = T if keep_covs and hi - lo > 1 else 0  # series lo's K̄ᵀ and L_S, for the others (as in forward)
-    # the fixed point (a Fixed holding factors, K̄ᵀ and L_S), the step's belief and scratch, the table
+    # the fixed point (a Fixed holding factors, K̄ᵀ and L_S), the step's belief and scratch, series lo's steps
     scratch = (fixed(n, m), np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m),
-               np.empty((n, n)), np.empty((n, n)),
-               Table(np.empty((rows, m, n)), np.empty((rows, m, m)), np.zeros((rows, m), dtype=np.bool_),
-                     np.zeros(rows, dtype=np.bool_)))
-    fx, mean, L, pm, pL, v0, cov0, prevL, table = borrow(scratch)
+               np.empty((n, n)), np.empty((n, n)), table(T, n, m, keep_covs and hi - lo > 1))
+    fx, mean, L, pm, pL, v0, cov0, prevL, steps_lo = borrow(scratch)
+    rows = steps_lo.held.shape[0]
     for s in range(lo, hi):
         copy1(mean, m0)
         copy2(L, L0)
@@ -261,8 +268,8 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
             z = zs[s, k]
             reused = False
             held = at_fixed or sharing  # the step's factors, K̄ᵀ and L_S are held: in hx
-            hx = (Fixed(out.factors[lo, k], out.predicted_factors[lo, k], table.Kt[k], table.L[k],
-                        out.innovation_covs[lo, k], table.observed[k]) if sharing else fx)
+            hx = (Fixed(out.factors[lo, k], out.predicted_factors[lo, k], steps_lo.Kt[k], steps_lo.L[k],
+                        out.innovation_covs[lo, k], steps_lo.observed[k]) if sharing else fx)
             if held:  # the held prediction, and its gain when the same components are observed
                 predict_mean(mean, at(model.F, k), at(b, k), pm)
                 copy2(pL, hx.pred_cov)
@@ -273,7 +280,7 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                         record(fail, s, FILTERED_NOT_FINITE, k)
                         break
                     if s == lo and rows > 0:
-                        keep_gain(table, k, hx.Kt, hx.L, z, True)
+                        keep_gain(steps_lo, k, hx.Kt, hx.L, z, True)
             if not reused:
                 sharing = False
                 copy2(prevL, L)  # the factor this step's prediction started from: the fixed point's test
@@ -290,7 +297,7 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
                 if s == lo and rows > 0:
-                    keep_gain(table, k, w.Kt, w.L, z, at_fixed)
+                    keep_gain(steps_lo, k, w.Kt, w.L, z, at_fixed)
                 if invariant and mo > 0:  # the fixed point's test, on the covariances L Lᵀ
                     square(L, cov0)
                     square(prevL, fx.cov)
