@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import gaussfuse as gf
-from gaussfuse._validation import as_array, as_matrix, as_vector, check_psd, shape_error
+from gaussfuse._validation import as_array, as_matrix, as_vector, call_checked, call_each, check_psd, shape_error
+from gaussfuse.errors import ModelFunctionError
 
 FRONTS = [gf.filter, gf.smooth]
 front = pytest.mark.parametrize("run", FRONTS, ids=["filter", "smooth"])
@@ -70,6 +71,83 @@ def test_as_vector():
         as_vector("v", 1.0, size=2)
     with pytest.raises(ValueError, match=r"^`v` must have shape \(n,\) with n >= 1; got shape \(2, 2\)\.$"):
         as_vector("v", np.eye(2))
+
+
+def _one_by_one(name, fn, X, size):
+    """What call_each replaces: call_checked at each point in turn, stacked (or the first error's message)."""
+    try:
+        return np.stack([call_checked(name, fn, x, (), (size,)) for x in X])
+    except ModelFunctionError as exc:
+        return str(exc)
+
+
+def _together(name, fn, X, size, finite=True):
+    try:
+        return call_each(name, fn, X, (), size, finite=finite)
+    except ModelFunctionError as exc:
+        return str(exc)
+
+
+def _at(bad_point, value):
+    """h of two outputs that returns `value` at point `bad_point` (a callable value raises)."""
+    def h(x):
+        if x[0] == bad_point:
+            return value(x) if callable(value) else value
+        return np.array([x[0] * 2.0, np.sin(x[1])])
+    return h
+
+
+X5 = np.column_stack([np.arange(5.0), np.linspace(-1.0, 1.0, 5)])
+
+
+@pytest.mark.parametrize("h", [
+    _at(-1, None),                                   # every point fine
+    _at(2, [1, 2]),                                   # integers: cast, as one by one
+    _at(2, np.array([1.0, np.nan])),                  # non-finite
+    _at(2, np.array([1.0, np.inf])),
+    _at(1, np.array([1.0, 2.0, 3.0])),                # wrong shape
+    _at(3, np.array([[1.0, 2.0]])),                   # (1, 2): wrong shape, not squeezed
+    _at(0, np.array([1.0 + 1j, 2.0])),                # complex
+    _at(4, np.array([True, False])),                  # booleans
+    _at(2, "text"),
+    _at(2, [1.0, [2.0]]),                             # ragged
+    _at(3, lambda x: 1 / 0),                          # raises
+    _at(2, lambda x: np.array([1.0, np.nan]) if x[0] == 2 else 1 / 0),
+])
+def test_call_each_is_call_checked_at_each_point_in_turn(h):
+    """The stacked outputs, or the error of the first bad point, as call_checked one point at a time gives."""
+    expected = _one_by_one("h", h, X5, 2)
+    got = _together("h", h, X5, 2)
+    if isinstance(expected, str):
+        assert got == expected
+    else:
+        np.testing.assert_array_equal(got, expected)
+        assert got.dtype == np.float64 and got.shape == (5, 2)
+
+
+def test_call_each_reports_the_first_bad_point_before_a_later_exception():
+    def h(x):
+        if x[0] == 1:
+            return np.array([1.0])  # wrong shape at point 1
+        if x[0] == 3:
+            raise RuntimeError("boom")
+        return x * 1.0
+
+    assert _together("h", h, X5, 2) == _one_by_one("h", h, X5, 2)
+    assert "must return shape (2,)" in _together("h", h, X5, 2)
+
+
+def test_call_each_passes_non_finite_values_when_asked():
+    h = _at(2, np.array([1.0, np.nan]))
+    out = _together("h", h, X5, 2, finite=False)
+    assert np.isnan(out[2, 1]) and np.isfinite(np.delete(out, 2, axis=0)).all()
+    # a wrong shape is still an error
+    assert "must return shape" in _together("h", _at(1, np.array([1.0])), X5, 2, finite=False)
+
+
+def test_call_each_of_a_size_one_output_takes_scalars():
+    np.testing.assert_array_equal(call_each("h", lambda x: float(x[0]), X5, (), 1), X5[:, :1])
+    np.testing.assert_array_equal(call_each("h", lambda x: x[:1], X5[:0], (), 1), np.empty((0, 1)))
 
 
 def test_as_matrix_forms():

@@ -37,16 +37,21 @@ def symmetrize(cov: np.ndarray) -> np.ndarray:
     return half + half.swapaxes(-1, -2)
 
 
-_EYES: dict[int, np.ndarray] = {}
+_MADE: dict[tuple, np.ndarray] = {}
+
+
+def _made_once(key: tuple, make) -> np.ndarray:
+    """``make()``, read-only, made once for each `key` (constants that filter steps need every time)."""
+    out = _MADE.get(key)
+    if out is None:
+        out = _MADE[key] = make()
+        out.setflags(write=False)
+    return out
 
 
 def eye(n: int) -> np.ndarray:
     """The n × n identity, read-only and made once (a filter step needs it every time)."""
-    out = _EYES.get(n)
-    if out is None:
-        out = _EYES[n] = np.eye(n)
-        out.setflags(write=False)
-    return out
+    return _made_once(("eye", n), lambda: np.eye(n))
 
 
 def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
@@ -147,7 +152,7 @@ def sqrt_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     except np.linalg.LinAlgError:
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0
-    return L, np.ones(cov.shape[0], dtype=bool)
+    return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
 
 
 def tria(M: np.ndarray) -> np.ndarray:

@@ -8,14 +8,17 @@ backticks, the expected shape and what was given (the style of SciPy's
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
 
 from .errors import ModelFunctionError
 
+_F64 = np.dtype(np.float64)
+
 __all__ = ["as_array", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
-           "size_reason"]
+           "call_each", "raise_call", "size_reason"]
 
 
 def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
@@ -221,6 +224,7 @@ def integer(name: str, value, minimum: int = 1) -> int:
 # ---------------------------------------------------------------------------
 
 
+@lru_cache(maxsize=64)  # asked for on every call of f and h
 def size_reason(name: str, size: int, n: int | None = None) -> str | None:
     """What fixes the size of f's or h's output (or their Jacobians'), for the shape messages.
 
@@ -287,3 +291,48 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
             f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x.shape}."
         )
     return out
+
+
+def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, because: str | None = None,
+              finite: bool = True) -> np.ndarray:
+    """``fn(x, *args)`` at each row x of `X` (k, n), stacked to (k, `size`) and checked as :func:`call_checked` does.
+
+    The outputs are checked together, once; only when that finds something
+    wrong are they checked one by one, in order, so that the error is
+    :func:`call_checked`'s for the first bad point. With ``finite=False``
+    non-finite values pass (a caller that finds them later).
+
+    Raises
+    ------
+    ModelFunctionError
+        As :func:`call_checked`, for the first point whose call raised or
+        whose output is wrong.
+    """
+    outs = []
+    try:
+        for x in X:
+            outs.append(fn(x, *args))
+    except Exception as exc:  # the points before it are checked first, as one by one they would have been
+        _check_each(name, outs, X, size, because)
+        raise_call(name, exc, X[len(outs)])
+    # Only float64 arrays of the right shape are stacked as they are: stacking would turn a boolean output
+    # among them into numbers, and put a wrong shape's error in NumPy's words.
+    if {(getattr(out, "dtype", None), getattr(out, "shape", None)) for out in outs} == {(_F64, (size,))}:
+        out = np.array(outs)
+        if not finite or np.isfinite(out).all():
+            return out
+    return _check_each(name, outs, X, size, because)
+
+
+def raise_call(name: str, exc: Exception, x: np.ndarray) -> None:
+    """Raise :func:`call_checked`'s error for a function `name` that raised `exc` on the input `x`."""
+    def again(*_):
+        raise exc
+
+    call_checked(name, again, x, (), ())
+
+
+def _check_each(name: str, outs: list, X: np.ndarray, size: int, because: str | None) -> np.ndarray:
+    """`outs` (returned by a function at the rows of X) through :func:`call_checked`, in order, stacked."""
+    checked = [call_checked(name, lambda *_: out, x, (), (size,), because) for out, x in zip(outs, X)]
+    return np.stack(checked) if checked else np.empty((0, size))

@@ -651,6 +651,14 @@ def test_wrong_type_from_a_plain_function():
                match=r"at step 0: `f` must return an array of real numbers; got str 'x'")
 
 
+def test_a_boolean_output_at_one_point_is_refused_on_both_engines():
+    """Stacked with the float outputs of the other points, it would have been read as numbers (0 and 1)."""
+    h = lambda x: x[:1] > 0.5 if x[0] > 0.5 else x[:1].copy()  # noqa: E731
+    model = gf.NonlinearModel(identity, h, np.eye(2), 1.0)
+    same_error(ModelFunctionError, model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), method="ukf",
+               match=r"at step 0: `h` must return an array of real numbers; got boolean values")
+
+
 def constant(x):
     return np.array([0.0, 1.0])
 

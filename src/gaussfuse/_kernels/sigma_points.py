@@ -78,7 +78,7 @@ from numba.extending import is_jitted, overload, register_jitable
 
 from .._linalg import sqrt_cov, symmetrize
 from ..kalman import cov_factor
-from .._validation import call_checked, size_reason
+from .._validation import call_checked, call_each, raise_call, size_reason
 from ..errors import ModelFunctionError
 from ..inference.results import SmoothResult, check_smoothed
 from . import _rts
@@ -814,48 +814,14 @@ def _evaluate(name, fn, X, Y, u, vectorized):
         try:
             out = fn(X, *args)
         except Exception as exc:
-            _raise_call(name, exc, X)
+            raise_call(name, exc, X)
         if type(out) is not np.ndarray or out.shape != Y.shape or out.dtype is not _F64:
             out = call_checked(name, lambda *_: out, X, (), Y.shape, size_reason(name, Y.shape[1]))
         if out.strides != Y.strides or not out.flags.writeable:  # a view (say X[:, :1]): copy it
             Y[...] = out
             return Y
         return out
-    outs = []
-    append = outs.append
-    try:
-        if u is None:
-            for x in X:
-                append(fn(x))
-        else:
-            for x in X:
-                append(fn(x, u))
-    except Exception as exc:
-        _check_each(name, outs, X, Y)  # the readable path would have stopped at an earlier point
-        _raise_call(name, exc, X[len(outs)])
-    try:
-        out = np.array(outs)
-    except (TypeError, ValueError):  # ragged, say
-        out = None
-    if out is None or out.shape != Y.shape or out.dtype is not _F64:
-        _check_each(name, outs, X, Y)
-        return Y
-    return out
-
-
-def _check_each(name, outs, X, Y):
-    """Each output through call_checked, in order, into Y: raises at the first bad one."""
-    shape = (Y.shape[1],)
-    for i, out in enumerate(outs):
-        Y[i] = call_checked(name, lambda *_: out, X[i], (), shape, size_reason(name, shape[0]))
-
-
-def _raise_call(name, exc, x):
-    """Raise call_checked's message for a function that raised `exc` on `x`."""
-    def again(*_):
-        raise exc
-
-    call_checked(name, again, x, (), ())
+    return call_each(name, fn, X, args, Y.shape[1], size_reason(name, Y.shape[1]), finite=False)
 
 
 def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int) -> None:
@@ -941,7 +907,7 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool =
                 raise
             name = "f" if stage == FORECAST else "h"
             try:
-                _raise_call(name, exc, np.empty((k, n)) if model.vectorized else np.empty(n))
+                raise_call(name, exc, np.empty((k, n)) if model.vectorized else np.empty(n))
             except ModelFunctionError as err:
                 where_ = where(int(cursor.series[0]), int(cursor.step[0]), N)
                 raise ModelFunctionError(f"{where_}: {err}") from err

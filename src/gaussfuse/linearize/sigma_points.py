@@ -117,10 +117,15 @@ def slr(
     """
     L, keep = sqrt_cov(cov)
     y_mean, dY = _spread(g, rule, mean, L, angles)
-    S = (dY * rule.wc[:, None]).T @ dY
-    Xi = (rule.points[:, keep] * rule.wc[:, None]).T @ dY  # C = L Ξ, over the nonzero columns
-    A = np.zeros((dY.shape[1], mean.shape[0]))
-    A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
+    weighted = dY * rule.wc[:, None]
+    S = weighted.T @ dY
+    if keep.all():
+        Xi = rule.points.T @ weighted                   # C = L Ξ
+        A = whiten(L.T, Xi).T                           # Aᵀ = L⁻ᵀ Ξ: back substitution
+    else:  # over the nonzero columns only
+        Xi = rule.points[:, keep].T @ weighted
+        A = np.zeros((dY.shape[1], mean.shape[0]))
+        A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T
     return A, y_mean - A @ mean, symmetrize(S - Xi.T @ Xi)
 
 

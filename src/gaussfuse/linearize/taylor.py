@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import call_checked, size_reason
+from .._validation import call_checked, call_each, size_reason
 from ..errors import ModelFunctionError
 
 __all__ = ["Taylor", "jacobian", "complex_step_jacobian", "finite_difference_jacobian"]
@@ -119,7 +119,7 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
         if vectorized:
             out = call_checked(name, fn, flat, args, (flat.shape[0], size), because)
         else:
-            out = np.stack([call_checked(name, fn, p, args, (size,), because) for p in flat])
+            out = call_each(name, fn, flat, args, size, because)
         return out.T.reshape(size, *xi.shape[1:])
 
     whole = max(1e-2, 0.1 * np.max(np.abs(x)))

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, call_checked, check_psd, real, size_reason
+from .._validation import as_matrix, call_checked, call_each, check_psd, real, size_reason
 
 __all__ = ["NonlinearModel"]
 
@@ -255,4 +255,4 @@ def _evaluate(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, ve
         return call_checked(name, fn, X, args, (size,), because)
     if vectorized:
         return call_checked(name, fn, X, args, (X.shape[0], size), because)
-    return np.stack([call_checked(name, fn, x, args, (size,), because) for x in X])
+    return call_each(name, fn, X, args, size, because)
