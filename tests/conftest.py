@@ -31,6 +31,17 @@ if str(TESTS_DIR) not in sys.path:
     sys.path.insert(0, str(TESTS_DIR))
 
 
+@pytest.fixture(autouse=True)
+def _no_readable_history():
+    """Each test starts with no readable calls behind "auto" (``drivers._SPENT``): what it chooses must not
+    depend on which tests ran before in the same process."""
+    from gaussfuse.inference import drivers
+
+    drivers._SPENT.clear()
+    yield
+    drivers._SPENT.clear()
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     """The folder of test data files, found relative to this file."""

@@ -555,10 +555,10 @@ def test_every_kernel_has_a_compile_estimate():
 
 
 @pytest.mark.parametrize("loop, steps, compiled", [
-    ("cold", 50_000, False),    # compiling the loop around jitted f and h (27 s) against 20 s of readable steps
-    ("cold", 100_000, True),
-    ("cached", 2_000, False),   # loading it (1 s) against 0.8 s
-    ("cached", 5_000, True),
+    ("cold", 400_000, False),   # compiling the loop around jitted f and h (27 s) against 24 s of readable steps
+    ("cold", 500_000, True),
+    ("cached", 5_000, False),   # loading it (1 s) against 0.3 s
+    ("cached", 20_000, True),
     ("loaded", 1_000, True),
 ])
 def test_auto_weighs_the_loop_compiled_around_jitted_functions(loop, steps, compiled):
@@ -569,6 +569,27 @@ def test_auto_weighs_the_loop_compiled_around_jitted_functions(loop, steps, comp
 
     chosen = drivers.compiled_engine(METHODS["ukf"], "auto", steps, loop=lambda: loop)
     assert (chosen is not None) == compiled
+
+
+@pytest.mark.parametrize("module, method", [("linear", "kf"), ("sigma_points", "ukf")])
+def test_auto_starts_the_kernels_once_the_readable_calls_would_have_paid_for_them(monkeypatch, module, method):
+    """Ski rental: calls that each would not pay for a load stay readable until, together with the next, they
+    would; then the kernels are started. Each engine keeps its own account, and short calls are not counted."""
+    from gaussfuse._kernels import kernels
+    from gaussfuse.inference import drivers
+    from gaussfuse.inference.registry import METHODS
+
+    monkeypatch.setattr(drivers, "kernel_states", lambda *args: dict.fromkeys(kernels(*args[:2]), "cached"))
+    share = drivers.START["cached"] / 3.5  # a call's readable cost beyond the compiled one: 3.5 calls buy a load
+    steps = int(share / drivers.READABLE_STEP[module])
+    other = "sigma_points" if module == "linear" else "linear"
+    choices = []
+    for _ in range(5):
+        drivers.compiled_engine(METHODS[method], "auto", drivers.AUTO_NUMBA_STEPS - 1)  # short: not counted
+        choices.append(drivers.compiled_engine(METHODS[method], "auto", steps) is not None)
+    assert choices == [False, False, False, True, True]  # the fourth call's share reaches the load
+    assert drivers._SPENT[module] == pytest.approx(3 * share, rel=1e-3)
+    assert other not in drivers._SPENT
 
 
 # ---------------------------------------------------------------------------

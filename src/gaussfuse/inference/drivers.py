@@ -52,13 +52,19 @@ COMPILE = {"linear.forward": 14.0, "_rts.backward": 5.0, "sigma_points.advance":
 11-12.5 s, the backward pass 3-5.4 s (a batch of series runs them too, on a pool of threads); the
 sigma-point engine's loop 24-27.5 s and the structure holding its arguments 3-3.6 s; the loop compiled
 around numba-jitted f and h 22-25 s for each of their signatures."""
-READABLE_STEP = {"linear": 2e-5, "sigma_points": 4e-4}
+READABLE_STEP = {"linear": 2e-5, "sigma_points": 6e-5}
 """What the readable path spends on a filter step beyond the compiled one, at the low end of what was
 measured for small states (a smoother counts as two passes): the linear filter 18.5-42 µs a step
 (``benchmarks/run.py``, W1 and W5 at n = 2: 54k and 47k steps/s; 34-42 µs for n = 1, 2 and 4 on a
-busier day), the compiled one under 1.5 µs; an unscented filter with plain Python f and h 410-490 µs
-(n = 2 and 4), its compiled Python mode 25-60 µs. Low estimates of the readable cost and high ones of
-:data:`COMPILE` make "auto" compile only where that clearly pays."""
+busier day), the compiled one under 1.5 µs; an unscented or cubature filter with plain Python f and h
+82-104 µs (n = 2 and 4, 2026-12-02), its compiled Python mode 13-34 µs. Low estimates of the readable
+cost and high ones of :data:`COMPILE` make "auto" compile only where that clearly pays."""
+_SPENT: dict[str, float] = {}
+"""What this process's calls that "auto" kept readable were expected to spend beyond the compiled path,
+per compiled module (calls of at least :data:`AUTO_NUMBA_STEPS` steps): the kernels are started once
+that and the next call's share reach what starting them costs, as one rents skis until the rent would
+buy them. A process of many calls then pays at most about twice what the better choice in hindsight
+would have cost, and a process of one call never waits for kernels the call could not win back."""
 
 def _angles(model):
     """The model's angle masks, None where it has none (so that nothing is wrapped)."""
@@ -343,15 +349,20 @@ def start_seconds(states: dict) -> float:
 
 def _worth_compiling(module: str, steps: int, passes: float, smoothing: bool,
                      loop: Callable[[], str | None] | None) -> bool:
-    """Whether starting `module`'s kernels costs less than the readable path would spend on its passes."""
+    """Whether starting `module`'s kernels costs less than the readable path would spend on its passes
+    and has spent on earlier calls in this process (:data:`_SPENT`); a call kept readable adds its share."""
     if steps < AUTO_NUMBA_STEPS:
         return False
-    readable = steps * passes * READABLE_STEP[module]
+    readable = steps * passes * READABLE_STEP[module] + _SPENT.get(module, 0.0)
     if readable <= START["cached"] and not any(f"{_kernels.__name__}.{mod}" in sys.modules
                                                for mod, _ in kernels(module, smoothing)):
-        return False  # nothing is loaded, and loading alone would cost more: no need to look at the disk
-    jitted = loop() if loop is not None and module == "sigma_points" else None
-    return start_seconds(kernel_states(module, smoothing, jitted)) < readable
+        worth = False  # nothing is loaded, and loading alone would cost more: no need to look at the disk
+    else:
+        jitted = loop() if loop is not None and module == "sigma_points" else None
+        worth = start_seconds(kernel_states(module, smoothing, jitted)) < readable
+    if not worth:
+        _SPENT[module] = readable
+    return worth
 
 
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
