@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import gaussfuse as gf
-from gaussfuse._validation import as_array, as_matrix, as_vector, call_checked, call_each, check_psd, shape_error
+from gaussfuse._validation import (as_array, as_matrix, as_vector, call_checked, call_each, check_psd, shape_error,
+                                   size_reason)
 from gaussfuse.errors import ModelFunctionError
 
 FRONTS = [gf.filter, gf.smooth]
@@ -76,14 +77,14 @@ def test_as_vector():
 def _one_by_one(name, fn, X, size):
     """What call_each replaces: call_checked at each point in turn, stacked (or the first error's message)."""
     try:
-        return np.stack([call_checked(name, fn, x, (), (size,)) for x in X])
+        return np.stack([call_checked(name, fn, x, (), (size,), size_reason(name, size)) for x in X])
     except ModelFunctionError as exc:
         return str(exc)
 
 
 def _together(name, fn, X, size, finite=True):
     try:
-        return call_each(name, fn, X, (), size, finite=finite)
+        return call_each(name, fn, X, (), size, finite)
     except ModelFunctionError as exc:
         return str(exc)
 

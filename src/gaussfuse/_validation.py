@@ -9,6 +9,7 @@ backticks, the expected shape and what was given (the style of SciPy's
 from __future__ import annotations
 
 from functools import lru_cache
+from operator import attrgetter
 from typing import Callable
 
 import numpy as np
@@ -16,6 +17,7 @@ import numpy as np
 from .errors import ModelFunctionError
 
 _F64 = np.dtype(np.float64)
+_DTYPE = attrgetter("dtype")
 
 __all__ = ["as_array", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
            "call_each", "raise_call", "size_reason"]
@@ -293,8 +295,7 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
     return out
 
 
-def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, because: str | None = None,
-              finite: bool = True) -> np.ndarray:
+def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, finite: bool = True) -> np.ndarray:
     """``fn(x, *args)`` at each row x of `X` (k, n), stacked to (k, `size`) and checked as :func:`call_checked` does.
 
     The outputs are checked together, once; only when that finds something
@@ -309,19 +310,31 @@ def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, be
         whose output is wrong.
     """
     outs = []
+    append = outs.append
     try:
-        for x in X:
-            outs.append(fn(x, *args))
+        if args:
+            for x in X:
+                append(fn(x, *args))
+        else:
+            for x in X:
+                append(fn(x))
     except Exception as exc:  # the points before it are checked first, as one by one they would have been
-        _check_each(name, outs, X, size, because)
+        _check_each(name, outs, X, size)
         raise_call(name, exc, X[len(outs)])
     # Only float64 arrays of the right shape are stacked as they are: stacking would turn a boolean output
     # among them into numbers, and put a wrong shape's error in NumPy's words.
-    if {(getattr(out, "dtype", None), getattr(out, "shape", None)) for out in outs} == {(_F64, (size,))}:
-        out = np.array(outs)
-        if not finite or np.isfinite(out).all():
+    try:
+        stackable = set(map(_DTYPE, outs)) == {_F64}
+    except AttributeError:  # not an array
+        stackable = False
+    if stackable:
+        try:
+            out = np.array(outs)
+        except ValueError:  # shapes that differ
+            out = None
+        if out is not None and out.shape == (X.shape[0], size) and (not finite or np.isfinite(out).all()):
             return out
-    return _check_each(name, outs, X, size, because)
+    return _check_each(name, outs, X, size)
 
 
 def raise_call(name: str, exc: Exception, x: np.ndarray) -> None:
@@ -332,7 +345,8 @@ def raise_call(name: str, exc: Exception, x: np.ndarray) -> None:
     call_checked(name, again, x, (), ())
 
 
-def _check_each(name: str, outs: list, X: np.ndarray, size: int, because: str | None) -> np.ndarray:
-    """`outs` (returned by a function at the rows of X) through :func:`call_checked`, in order, stacked."""
+def _check_each(name: str, outs: list, X: np.ndarray, size: int) -> np.ndarray:
+    """`outs` (returned by f or h at the rows of X) through :func:`call_checked`, in order, stacked."""
+    because = size_reason(name, size)
     checked = [call_checked(name, lambda *_: out, x, (), (size,), because) for out, x in zip(outs, X)]
     return np.stack(checked) if checked else np.empty((0, size))

@@ -821,7 +821,7 @@ def _evaluate(name, fn, X, Y, u, vectorized):
             Y[...] = out
             return Y
         return out
-    return call_each(name, fn, X, args, Y.shape[1], size_reason(name, Y.shape[1]), finite=False)
+    return call_each(name, fn, X, args, Y.shape[1], finite=False)
 
 
 def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int) -> None:

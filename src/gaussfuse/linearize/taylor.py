@@ -119,7 +119,7 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
         if vectorized:
             out = call_checked(name, fn, flat, args, (flat.shape[0], size), because)
         else:
-            out = call_each(name, fn, flat, args, size, because)
+            out = call_each(name, fn, flat, args, size)
         return out.T.reshape(size, *xi.shape[1:])
 
     whole = max(1e-2, 0.1 * np.max(np.abs(x)))

@@ -255,4 +255,4 @@ def _evaluate(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, ve
         return call_checked(name, fn, X, args, (size,), because)
     if vectorized:
         return call_checked(name, fn, X, args, (X.shape[0], size), because)
-    return call_each(name, fn, X, args, size, because)
+    return call_each(name, fn, X, args, size)
