@@ -103,6 +103,20 @@ def test_bad_user_jacobian_shape_is_named():
         Taylor(model).transition(0, np.zeros(2), np.eye(2))
 
 
+def _mixed(x):
+    """Outputs that do not depend on some components, one of them 0 at the point, beside a large derivative."""
+    return np.array([x[0] * x[2], 1e8 * np.sin(x[1]), x[2] ** 3])
+
+
+def test_a_derivative_that_is_zero_does_not_keep_shrinking_the_steps():
+    """Its estimates are round-off, which a relative test never accepts: the steps used to shrink through all of
+    SciPy's iterations, the round-off growing with them, to 2.5e-4 of the row's largest derivative here."""
+    x, spread = np.array([0.0, 1e-8, 3.0]), np.array([1.0, 1e-9, 0.1])
+    J = finite_difference_jacobian("h", _mixed, x, (), 3, spread=spread)
+    exact = np.array([[3.0, 0.0, 0.0], [0.0, 1e8 * np.cos(1e-8), 0.0], [0.0, 0.0, 27.0]])
+    assert np.all(np.abs(J - exact) <= 1e-12 * np.abs(exact).max(axis=1, keepdims=True))
+
+
 def _h_real_only(x):
     """Rejects complex input (math.sin): finite differences."""
     return np.array([x[0], math.sin(x[1])])

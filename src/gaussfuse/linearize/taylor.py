@@ -95,6 +95,11 @@ def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, s
     return J
 
 
+_TINY_OUTPUT = 1e-150
+"""An output smaller than this at x is measured in its own units (1), not by its size: dividing by a
+near-underflow value could overflow where the output is of order 1 a step away."""
+
+
 def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
                                vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
     """Adaptive finite-difference Jacobian, shape (size, n); see :func:`jacobian`.
@@ -105,8 +110,17 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     with neither (zero, and no spread given or a spread of zero) takes the
     state's scale, ``max(0.01, 0.1 max_i |x_i|)``, so that it is not stepped
     into round-off; without `spread`, that scale is every component's
-    floor. SciPy then shrinks the steps until its error estimate meets
-    1e-11 relative.
+    floor. SciPy then shrinks the steps until its error estimate is within
+    1e-11 of the derivative or of :math:`|f_i(x)| / s_j` (:math:`s_j` the
+    component's scale; 1 for an output that is 0 at x), the derivative
+    that would move f's output by that fraction of itself over the
+    component's scale. It differentiates f with steps in units of each
+    component's scale and outputs in units of their size at x, where both
+    tolerances are one number. Without the second, a derivative that is 0
+    (an output that does not depend on a component) would never meet a
+    relative test: its estimates are round-off, which grows as the steps
+    shrink, so every Jacobian took SciPy's 10 iterations and ended up to
+    1e-3 off beside a large derivative (tested).
     """
     from scipy.differentiate import jacobian as scipy_jacobian
 
@@ -128,9 +142,16 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     else:
         scale = np.maximum(np.abs(x), spread)
         scale[scale == 0.0] = whole
-    res = scipy_jacobian(stacked, x, initial_step=0.1 * scale,
-                         tolerances=dict(rtol=1e-11, atol=1e-300))
-    J = np.asarray(res.df).reshape(size, n)
+    value = np.abs(stacked(x[:, None])[:, 0])
+    unit = np.where(value > _TINY_OUTPUT, value, 1.0)
+
+    def scaled(u: np.ndarray) -> np.ndarray:
+        # f at x + scale ⊙ u, divided by each output's size at x.
+        shape = (n,) + (1,) * (u.ndim - 1)
+        return stacked(x.reshape(shape) + scale.reshape(shape) * u) / unit.reshape((size,) + shape[1:])
+
+    res = scipy_jacobian(scaled, np.zeros(n), initial_step=0.1, tolerances=dict(rtol=1e-11, atol=1e-11))
+    J = np.asarray(res.df).reshape(size, n) * unit[:, None] / scale
     if not np.all(np.isfinite(J)):
         raise ModelFunctionError(f"the Jacobian of `{name}` could not be computed at x = {x}.")
     return J
