@@ -103,6 +103,21 @@ def test_bad_user_jacobian_shape_is_named():
         Taylor(model).transition(0, np.zeros(2), np.eye(2))
 
 
+SCALES = [(1e-99, 1.0), (1.0, 1e-250), (1e99, 1e250), (1e-99, 1e-250), (1e99, 1e-100), (1e-60, 1e120)]
+
+
+@pytest.mark.parametrize("s, c", SCALES)
+def test_derivatives_hold_at_tiny_and_huge_scales(s, c):
+    """``c g(x / s)`` has the Jacobian ``c J_g / s``. A complex step of 1e-100 in absolute terms was 1.5% off for
+    states of size 1e-99, and its imaginary part underflowed for outputs of 1e-250; finite differences too."""
+    u = np.array([0.7, -0.3])
+    exact = c * smooth_jacobian(u) / s
+    scaled = lambda x: c * smooth(x / s)  # noqa: E731
+    for J in (jacobian("g", scaled, u * s, (), 3), finite_difference_jacobian("g", scaled, u * s, (), 3)):
+        assert np.all(np.abs(J - exact) <= 1e-9 * np.abs(exact).max(axis=1, keepdims=True))
+    np.testing.assert_allclose(complex_step_jacobian("g", scaled, u * s, (), 3), exact, rtol=1e-13)
+
+
 def _mixed(x):
     """Outputs that do not depend on some components, one of them 0 at the point, beside a large derivative."""
     return np.array([x[0] * x[2], 1e8 * np.sin(x[1]), x[2] ** 3])

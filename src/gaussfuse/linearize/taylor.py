@@ -23,7 +23,11 @@ from ..errors import ModelFunctionError
 
 __all__ = ["Taylor", "jacobian", "complex_step_jacobian", "finite_difference_jacobian"]
 
-_COMPLEX_STEP = 1e-100
+_COMPLEX_STEP = 1e-20
+"""The complex step, relative to each component's scale (:func:`_scales`): its error is of order
+(step / the length over which f curves)², and ``Im f`` is the derivative times the step, which must
+not underflow; a step of 1e-100 in absolute terms had a 1.5% error on a state of size 1e-99 and lost
+an output below about 1e-208 to underflow."""
 
 
 def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
@@ -31,8 +35,10 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
     """Jacobian of ``fn(x, *args)`` (returning shape (size,)) at x of shape (n,).
 
     Complex-step differentiation [1]_ when `fn` accepts complex input:
-    ``J[:, i] = Im fn(x + i h e_i) / h`` with h = 1e-100, exact to round-off
-    for analytic functions (no subtractive cancellation). Otherwise adaptive
+    ``J[:, i] = Im fn(x + i h_i e_i) / h_i`` with :math:`h_i` 1e-20 times the
+    component's scale (``max(|x_i|, spread_i)``, the state's where that is
+    0), exact to round-off for analytic functions (no subtractive
+    cancellation) at any scale. Otherwise adaptive
     central differences with Richardson extrapolation
     (:func:`scipy.differentiate.jacobian`), with steps on each component's
     own scale (:func:`finite_difference_jacobian`).
@@ -64,9 +70,22 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
        derivative approximation", ACM TOMS 29(3), 2003.
     """
     try:
-        return complex_step_jacobian(name, fn, x, args, size, vectorized)
+        return complex_step_jacobian(name, fn, x, args, size, vectorized, spread)
     except _RejectsComplex:
         return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread)
+
+
+def _scales(x: np.ndarray, spread: np.ndarray | None, floor: bool = True) -> np.ndarray:
+    """Each component's scale for a derivative's step: ``max(|x_j|, spread_j)``, the state's,
+    ``0.1 max_i |x_i|`` (0.01 for a state of zeros), where that is 0 or below 1e-280 (a step of 1e-20 of it would
+    underflow), and without `spread` the state's as a floor too unless ``floor=False`` (see
+    :func:`finite_difference_jacobian`)."""
+    largest = np.max(np.abs(x))
+    whole = 0.1 * largest if largest > 1e-279 else 1e-2  # an all-zero state has no scale: a guess
+    own = np.abs(x) if spread is None else np.maximum(np.abs(x), spread)
+    if floor and spread is None:
+        return np.maximum(own, whole)
+    return np.where(own > 1e-280, own, whole)
 
 
 class _RejectsComplex(Exception):
@@ -74,10 +93,11 @@ class _RejectsComplex(Exception):
 
 
 def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
-                          vectorized: bool = False) -> np.ndarray:
+                          vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
     """Complex-step Jacobian, shape (size, n); see :func:`jacobian`."""
     n = x.shape[0]
-    X = x + 1j * _COMPLEX_STEP * np.eye(n)
+    step = _COMPLEX_STEP * _scales(x, spread, floor=False)  # no cancellation to fear: no state-wide floor
+    X = x + 1j * np.diag(step)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", np.exceptions.ComplexWarning)
@@ -89,7 +109,7 @@ def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, s
         raise _RejectsComplex from exc
     if not np.iscomplexobj(Y) or Y.size != n * size:
         raise _RejectsComplex
-    J = Y.reshape(n, size).imag.T / _COMPLEX_STEP
+    J = Y.reshape(n, size).imag.T / step
     if not np.all(np.isfinite(J)):
         raise _RejectsComplex
     return J
@@ -108,9 +128,10 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     ``max(|x_j|, spread_j)`` (so domains like log(x) hold, and a component
     of size 0.3 beside one of size 1e6 is not stepped by 1e4). A component
     with neither (zero, and no spread given or a spread of zero) takes the
-    state's scale, ``max(0.01, 0.1 max_i |x_i|)``, so that it is not stepped
-    into round-off; without `spread`, that scale is every component's
-    floor. SciPy then shrinks the steps until its error estimate is within
+    state's scale, ``0.1 max_i |x_i|`` (0.01 for a state of zeros), so
+    that it is not stepped into round-off; without `spread`, that scale is
+    every component's floor (it was at least 0.01, which stepped a state of
+    size 1e-99 out of its function's domain). SciPy then shrinks the steps until its error estimate is within
     1e-11 of the derivative or of :math:`|f_i(x)| / s_j` (:math:`s_j` the
     component's scale; 1 for an output that is 0 at x), the derivative
     that would move f's output by that fraction of itself over the
@@ -136,12 +157,7 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
             out = call_each(name, fn, flat, args, size)
         return out.T.reshape(size, *xi.shape[1:])
 
-    whole = max(1e-2, 0.1 * np.max(np.abs(x)))
-    if spread is None:
-        scale = np.maximum(np.abs(x), whole)
-    else:
-        scale = np.maximum(np.abs(x), spread)
-        scale[scale == 0.0] = whole
+    scale = _scales(x, spread)
     value = np.abs(stacked(x[:, None])[:, 0])
     unit = np.where(value > _TINY_OUTPUT, value, 1.0)
 
