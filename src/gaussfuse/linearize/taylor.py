@@ -24,10 +24,10 @@ from ..errors import ModelFunctionError
 __all__ = ["Taylor", "jacobian", "complex_step_jacobian", "finite_difference_jacobian"]
 
 _COMPLEX_STEP = 1e-20
-"""The complex step, relative to each component's scale (:func:`_scales`): its error is of order
+"""The complex step, relative to each component's scale (:func:`_scales`). Its error is of order
 (step / the length over which f curves)², and ``Im f`` is the derivative times the step, which must
-not underflow; a step of 1e-100 in absolute terms had a 1.5% error on a state of size 1e-99 and lost
-an output below about 1e-208 to underflow."""
+not underflow: an absolute step such as 1e-100 would be 1.5% off on a state of size 1e-99, and would
+lose an output below about 1e-208 to underflow."""
 
 
 def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
@@ -76,10 +76,13 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
 
 
 def _scales(x: np.ndarray, spread: np.ndarray | None, floor: bool = True) -> np.ndarray:
-    """Each component's scale for a derivative's step: ``max(|x_j|, spread_j)``, the state's,
-    ``0.1 max_i |x_i|`` (0.01 for a state of zeros), where that is 0 or below 1e-280 (a step of 1e-20 of it would
-    underflow), and without `spread` the state's as a floor too unless ``floor=False`` (see
-    :func:`finite_difference_jacobian`)."""
+    """Each component's scale for a derivative's step (see :func:`finite_difference_jacobian`).
+
+    ``max(|x_j|, spread_j)``; the state's, ``0.1 max_i |x_i|`` (0.01 for a
+    state of zeros), where that is 0 or below 1e-280 (a complex step of
+    1e-20 of it would underflow); and without `spread`, the state's as a
+    floor for every component, unless ``floor=False``.
+    """
     largest = np.max(np.abs(x))
     whole = 0.1 * largest if largest > 1e-279 else 1e-2  # an all-zero state has no scale: a guess
     own = np.abs(x) if spread is None else np.maximum(np.abs(x), spread)
@@ -130,18 +133,19 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     with neither (zero, and no spread given or a spread of zero) takes the
     state's scale, ``0.1 max_i |x_i|`` (0.01 for a state of zeros), so
     that it is not stepped into round-off; without `spread`, that scale is
-    every component's floor (it was at least 0.01, which stepped a state of
-    size 1e-99 out of its function's domain). SciPy then shrinks the steps until its error estimate is within
-    1e-11 of the derivative or of :math:`|f_i(x)| / s_j` (:math:`s_j` the
-    component's scale; 1 for an output that is 0 at x), the derivative
-    that would move f's output by that fraction of itself over the
-    component's scale. It differentiates f with steps in units of each
+    every component's floor.
+
+    SciPy then shrinks the steps until its error estimate is within 1e-11
+    of the derivative or of :math:`|f_i(x)| / s_j` (:math:`s_j` the
+    component's scale; 1 for an output that is 0 at x): the derivative
+    that would move the output by that fraction of itself over the
+    component's scale. f is differentiated with steps in units of each
     component's scale and outputs in units of their size at x, where both
-    tolerances are one number. Without the second, a derivative that is 0
-    (an output that does not depend on a component) would never meet a
-    relative test: its estimates are round-off, which grows as the steps
-    shrink, so every Jacobian took SciPy's 10 iterations and ended up to
-    1e-3 off beside a large derivative (tested).
+    tolerances are one number. The second matters for a derivative that is
+    0 (an output that does not depend on a component): its estimates are
+    round-off, which a relative test never accepts and which grows as the
+    steps shrink, up to 1e-3 of the row's largest derivative after SciPy's
+    10 iterations.
     """
     from scipy.differentiate import jacobian as scipy_jacobian
 
