@@ -44,10 +44,11 @@ print("measurements", zs.shape)
 # specification, easy to read and to step through. ``engine="numba"`` runs
 # compiled kernels that filter the series of a batch in parallel, and agree
 # with the readable path to round-off. The default, ``engine="auto"``,
-# picks the compiled path only when it is expected to pay off.
+# picks the compiled path only when it is expected to pay off, counting
+# what the process's earlier readable calls would have saved.
 #
 # The kernels must first be compiled. numba caches them on disk, so a new
-# process only loads them, which takes about a second; the very first use
+# process only loads them, which takes under a second; the very first use
 # (an empty cache) compiles them, which takes much longer. A small warm-up
 # call pays that cost before anything is timed.
 
