@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
-    "psd_solve", "sqrt_cov", "tria", "downdate", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
+    "psd_solve", "sqrt_cov", "tria", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
     "observed_gram", "wrap_angle", "wrap_components",
 ]
 
@@ -257,16 +257,34 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
     return L
 
 
+def zero_pivots(L: np.ndarray) -> np.ndarray:
+    r"""Where the pivots of a lower-triangular factor are zero to round-off: :math:`L_{jj} \le 8 n \epsilon \|L_{j,:}\|`.
+
+    :math:`\|L_{j,:}\|` is component j's standard deviation, and a factor
+    from an orthogonal triangularisation (:func:`tria`) carries an error of
+    about ε times it: a component that is exactly an affine function of the
+    earlier ones (a copy of one, say) gets a pivot of that size, not 0. The
+    test is relative to each component's own spread, so it does not depend
+    on units.
+    """
+    return np.diagonal(L) <= 8 * L.shape[0] * np.finfo(np.float64).eps * np.linalg.norm(L, axis=1)
+
+
 def factor_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``L⁻¹ B`` for a lower-triangular factor L: a forward solve, or least squares where L is singular.
 
-    A factor with a zero on its diagonal is that of a singular covariance;
-    the vectors it is applied to lie in its range, where the minimum-norm
-    least-squares solution is exact.
+    A factor with a zero pivot (:func:`zero_pivots`) is that of a singular
+    covariance; the vectors it is applied to lie in its range, where the
+    minimum-norm least-squares solution is exact. It is computed with each
+    component scaled to unit variance (the rows of L to unit norm), and
+    directions below the round-off of :func:`zero_pivots` cut off, so that
+    dividing by a round-off pivot does not turn round-off into a step.
     """
-    if np.all(np.diagonal(L) > 0.0):
+    if not zero_pivots(L).any():
         return whiten(L, B)
-    return np.linalg.lstsq(L, B, rcond=None)[0]
+    scale = np.linalg.norm(L, axis=1)
+    unit = np.where(scale > 0.0, scale, 1.0)[:, None]
+    return np.linalg.lstsq(L / unit, B / unit, rcond=8 * L.shape[0] * np.finfo(np.float64).eps)[0]
 
 
 def back_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:

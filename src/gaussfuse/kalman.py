@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, psd_solve,
-                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, whiten, wrap_components)
+                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, whiten, wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -889,15 +889,20 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     squares. Nothing is subtracted: where :math:`P^-` is nearly singular
     (no process noise, a huge prior) :math:`I - G_k A` would be the
     difference of nearly equal matrices. The solves with :math:`L^-` are
-    triangular; where it is singular, least-squares (the vectors it is
-    applied to lie in its range).
+    triangular; where it is singular (a pivot zero to round-off,
+    :func:`gaussfuse._linalg.zero_pivots`), least-squares (the vectors it is
+    applied to lie in its range), and the columns :math:`Y_0` of Y at its
+    zero pivots join X: they are spread of :math:`x_k` that
+    :math:`x_{k+1}` does not see, :math:`P_k - G_k P^- G_k^\top = X X^\top
+    + Y_0 Y_0^\top` (a state that copies another, for example).
     """
     n = filt_mean.shape[0]
     pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus)
     rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
     steps = Y @ factor_solve(pred_factor, rhs)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
     mean = filt_mean + steps[:, 0]
-    factor = tria(np.concatenate([X, steps[:, 1:n + 1]], axis=1))
+    # Y's columns at zero pivots of L⁻ are spread of x_k that x_{k+1} does not see: P_k - G P⁻ Gᵀ = X Xᵀ + Y_0 Y_0ᵀ
+    factor = tria(np.concatenate([X, Y[:, zero_pivots(pred_factor)], steps[:, 1:n + 1]], axis=1))
     return mean, factor, steps[:, n + 1:]
 
 
@@ -964,7 +969,8 @@ def backward_conditional(filt_mean: np.ndarray, filt_factor: np.ndarray, next_st
         :math:`m_k + G_k (x_{k+1} - m^-_{k+1})`, one row per next state.
     factor : array of shape (n, n)
         :math:`X`, with :math:`X X^\top = P_k - G_k P^-_{k+1} G_k^\top`, the
-        same for every next state.
+        same for every next state (with the columns of Y at zero pivots of
+        :math:`L^-` where the prediction is singular; see :func:`rts_step_sqrt`).
 
     Notes
     -----
@@ -973,7 +979,8 @@ def backward_conditional(filt_mean: np.ndarray, filt_factor: np.ndarray, next_st
     """
     pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b)
     steps = Y @ factor_solve(pred_factor, (next_states - pred_mean).T)
-    return filt_mean + steps.T, X
+    zero = zero_pivots(pred_factor)  # as in rts_step_sqrt: spread that x_{k+1} does not see
+    return filt_mean + steps.T, tria(np.concatenate([X, Y[:, zero]], axis=1)) if zero.any() else X
 
 
 # ---------------------------------------------------------------------------

@@ -70,6 +70,43 @@ def test_a_prediction_squeezed_toward_singular_is_the_square_root_smoothers_case
     assert worst("cov") > 0.01
 
 
+COPY_F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.0], [1.0, 0.5, 0.0]])  # x2 copies x0 after every step
+COPY_Q = np.array([[0.2, 0.0, 0.2], [0.0, 0.3, 0.0], [0.2, 0.0, 0.2]])
+COPY_P0 = np.array([[2.0, 0.0, 2.0], [0.0, 1.0, 0.0], [2.0, 0.0, 2.0]])
+COPY_H, COPY_R = np.array([[1.0, 0.0, 0.0], [0.3, 0.0, 1.0]]), np.diag([0.5, 0.4])
+
+
+@pytest.mark.parametrize("engine, method", [("python", "kf"), ("numba", "kf"), ("python", "ekf"), ("python", "ukf"),
+                                            ("numba", "ukf")])  # the EKF is readable only
+def test_a_state_that_copies_another_smooths_in_the_square_root_form(engine, method):
+    """P⁻ is singular along x0 - x2, but its factor's pivot there is round-off (2.5e-16), not 0: the backward
+    step divided by it (smoothed means off by 579), and then left out the spread that the next state does not
+    see (variances 0.046 for 0.114)."""
+    zs = np.random.default_rng(1).standard_normal((25, 2)) * 2 + np.arange(25)[:, None] * 0.1
+    ref = _oracle.reference(COPY_F, COPY_H, COPY_Q, COPY_R, np.array([1.0, -2.0, 1.0]), COPY_P0, zs)
+    ref_means, ref_covs = ref["smoothed_means"], ref["smoothed_covs"]
+    prior = gf.Gaussian([1.0, -2.0, 1.0], COPY_P0)
+    model = gf.LinearModel(F=COPY_F, H=COPY_H, Q=COPY_Q, R=COPY_R) if method == "kf" else gf.NonlinearModel(
+        lambda x: COPY_F @ x, lambda x: COPY_H @ x, COPY_Q, COPY_R)
+    got = gf.smooth(model, prior, zs, method=method, engine=engine, form="sqrt", check="off")
+    np.testing.assert_allclose(got.means, ref_means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.covs, ref_covs, rtol=0, atol=1e-12)
+
+
+def test_backward_sampling_keeps_the_spread_the_next_state_does_not_see():
+    """kalman.backward_conditional's factor: X Xᵀ + Y₀ Y₀ᵀ = P_k - G P⁻ Gᵀ, with G = P_k Fᵀ (P⁻)⁺, for the copy."""
+    from gaussfuse import kalman
+
+    filt = gf.filter(gf.LinearModel(F=COPY_F, H=COPY_H, Q=COPY_Q, R=COPY_R), gf.Gaussian([1.0, -2.0, 1.0], COPY_P0),
+                     np.ones((3, 2)), check="off")
+    P = filt.covs[1]
+    pred = COPY_F @ P @ COPY_F.T + COPY_Q
+    G = P @ COPY_F.T @ np.linalg.pinv(pred)
+    L, Lq = kalman.cov_factor(P, "P"), kalman.cov_factor(COPY_Q, "Q")
+    _, factor = kalman.backward_conditional(filt.means[1], L, filt.means[2][None], COPY_F, Lq)
+    np.testing.assert_allclose(factor @ factor.T, P - G @ pred @ G.T, rtol=0, atol=1e-13)
+
+
 def test_a_sensor_below_eps_squared_of_the_prior_is_lost_by_the_square_root_form():
     """The README's limit: the factors carry about ε of the step's largest entry, so R = 1e-34 against a unit
     prior is lost (variance 0) and R = 1e-30 is 23% off; the covariance form is exact in 1-D."""

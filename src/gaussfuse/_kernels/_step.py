@@ -459,11 +459,15 @@ def rts_back(bw, filt_mean, next_mean, next_factor, angles, mean, factor, gain):
 
     :math:`G_k = Y (L^-)^{-1}`, :math:`m^s_k = m_k + G_k (m^s_{k+1} - m^-_{k+1})`
     and :math:`L^s_k = \mathrm{tria}[X, G_k L^s_{k+1}]`, by one forward
-    substitution with :math:`L^-`. Returns False when :math:`L^-` has a zero pivot.
+    substitution with :math:`L^-`. Returns False when :math:`L^-` has a zero pivot, to round-off
+    (:func:`gaussfuse._linalg.zero_pivots`).
     """
     n = filt_mean.shape[0]
     for i in range(n):
-        if not bw.T[i, i] > 0.0:
+        row = 0.0
+        for k in range(i + 1):
+            row += bw.T[i, k] * bw.T[i, k]
+        if not bw.T[i, i] > 8.0 * n * _EPS * np.sqrt(row):
             return False
     rhs = bw.rhs
     for i in range(n):
