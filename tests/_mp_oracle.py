@@ -41,12 +41,13 @@ def _forward(F, H, Q, R, m0, P0, zs):
     return F, pred, filt
 
 
-def filter_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
+def filter_50_digits(F, H, Q, R, m0, P0, zs, digits: int = 50) -> tuple[np.ndarray, np.ndarray]:
     """Filtered means (T, n) and covariances (T, n, n) of a time-invariant linear model, prior one step before z_1.
 
-    x_k = F x_{k-1} + w_k, w_k ~ N(0, Q); z_k = H x_k + v_k, v_k ~ N(0, R) (see :func:`_forward`).
+    x_k = F x_{k-1} + w_k, w_k ~ N(0, Q); z_k = H x_k + v_k, v_k ~ N(0, R) (see :func:`_forward`). A
+    prior variance of 1e300 against R = 1 needs more than 600 `digits`: 50 lose R altogether.
     """
-    with mp.workdps(50):
+    with mp.workdps(digits):
         filt = _forward(F, H, Q, R, m0, P0, zs)[2]
         return (np.array([_to_float(m).ravel() for m, _ in filt]), np.array([_to_float(P) for _, P in filt]))
 

@@ -178,10 +178,33 @@ def tria(M: np.ndarray) -> np.ndarray:
     filters avoid. Columns are flipped where R's diagonal is negative
     (:math:`L L^\top` is unchanged), so the factor of a positive definite
     matrix is its Cholesky factor.
+
+    The nonzero columns of M, the rows of :math:`M^\top`, are taken in
+    decreasing order of the binary exponent of their largest entry (a
+    stable sort: columns of one binade keep their order, and zero columns
+    their places). :math:`M M^\top` does not depend on the order, and
+    Householder QR of a matrix whose rows differ widely in scale is accurate
+    row by row when they are sorted so [1]_ (to within a factor of 2 is
+    enough). Unsorted, a prior variance 1e30 times the sensor's lost the
+    sensor's information in the update's pre-array (a posterior variance of
+    0.41, or 0 from 1e50, where it is 1). The exponent rather than the
+    value, and zero columns left in place, keep the factor of a singular
+    :math:`M M^\top`, which is not unique, from hanging on round-off: it
+    keeps the zero columns it would have without the sort.
+
+    References
+    ----------
+    .. [1] A. J. Cox and N. J. Higham, "Stability of Householder QR
+       factorization for weighted least squares problems", in Numerical
+       Analysis 1997, Longman, 1998, pp. 57-73.
     """
     n, k = M.shape
     if k < n:
         M = np.concatenate([M, np.zeros((n, n - k))], axis=1)
+    big = np.max(np.abs(M), axis=0)
+    nonzero = np.flatnonzero(big > 0.0)  # zero columns keep their places: a singular factor keeps its zero columns
+    M = M.copy()
+    M[:, nonzero] = M[:, nonzero[np.argsort(-np.frexp(big[nonzero])[1], kind="stable")]]
     L = np.linalg.qr(M.T, mode="r").T
     return L * np.where(np.diagonal(L) < 0.0, -1.0, 1.0)
 

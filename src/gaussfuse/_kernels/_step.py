@@ -53,6 +53,7 @@ LOG_2PI = math.log(2.0 * math.pi)
 _TWO_PI = 2.0 * math.pi
 _JIT = {"nogil": True, "error_model": "numpy"}
 _EPS = float(np.finfo(np.float64).eps)
+_ZERO_COLUMN = -1e9  # tria's mark for a column of zeros, below every binary exponent
 
 
 class Work(NamedTuple):
@@ -286,8 +287,30 @@ def tria(M, rows, cols, u, L):
     lower triangular in place (the LQ factorisation, which is the QR of
     :math:`M^\top` that LAPACK's ``geqrf`` computes); its first ``rows``
     columns are L, with each column's sign made that of a non-negative
-    diagonal. ``u`` (length ``cols``) holds a reflection's vector.
+    diagonal. The nonzero columns are first put in decreasing order of the
+    binary exponent of their largest entry, stably, zero columns staying in
+    place, as the readable tria does. ``u`` (length ``cols``) holds those
+    exponents, then a reflection's vector.
     """
+    for j in range(cols):
+        big = 0.0
+        for r in range(rows):
+            big = max(big, abs(M[r, j]))
+        u[j] = math.frexp(big)[1] if big > 0.0 else _ZERO_COLUMN
+    for j in range(1, cols):  # insertion sort of the nonzero columns, by swaps: stable, zero columns stay put
+        if u[j] == _ZERO_COLUMN:
+            continue
+        k = j
+        while True:
+            prev = k - 1
+            while prev >= 0 and u[prev] == _ZERO_COLUMN:
+                prev -= 1
+            if prev < 0 or not u[prev] < u[k]:
+                break
+            u[prev], u[k] = u[k], u[prev]
+            for r in range(rows):
+                M[r, prev], M[r, k] = M[r, k], M[r, prev]
+            k = prev
     for i in range(rows):
         if i < cols:
             scale = 0.0
