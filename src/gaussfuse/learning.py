@@ -615,6 +615,7 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
     history: list[float] = []
     fixed = {name: (_fixed_zeros(_current(model, prior, name), structure[name]) if name in learn else None)
              for name in COVARIANCES}
+    model, prior = _structured_start(model, prior, learn, structure, fixed)
     best = (model, prior)
     message, converged = f"stopped at the limit of {iterations} iterations", False
     try:
@@ -644,6 +645,24 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
         message = "interrupted: the best model so far"
     model, prior = best
     return model, prior, np.array(history), converged, message
+
+
+def _structured_start(model: LinearModel, prior, learn: tuple, structure: dict, fixed: dict):
+    """The start with each learned covariance projected onto its `structure`, as every M-step leaves it.
+
+    Otherwise the history would start from a model EM cannot return to: a
+    non-scalar R under ``"scalar"`` scored above the scalar optimum, and the
+    first iteration "lowered" the log-likelihood.
+    """
+    new = {name: _structured(_current(model, prior, name), structure[name], fixed[name])
+           for name in COVARIANCES if name in learn and structure[name] != "full"}
+    if not new:
+        return model, prior
+    if "Q" in new or "R" in new:
+        model = LinearModel(model.F, model.H, new.get("Q", model.Q), new.get("R", model.R), model.B)
+    if "P0" in new:
+        prior = Gaussian(prior.mean, new["P0"])
+    return model, prior
 
 
 def _current(model: LinearModel, prior, name: str) -> np.ndarray:
@@ -1336,7 +1355,9 @@ def fit(
         learned covariance is constrained (default full). Learned
         covariances stay symmetric positive semi-definite; a variance that
         starts at exactly 0 stays at 0 (a noise-free component), with its
-        row and column.
+        row and column. A start outside its structure is first projected
+        onto it (the mean of its variances for "scalar", its diagonal for
+        "diagonal"), and the history starts from that model.
     iterations : int, optional
         Maximum iterations (EM: 500; MLE: 1000).
     tol : float, optional
