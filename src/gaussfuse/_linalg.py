@@ -136,10 +136,21 @@ def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
     return L
 
 
-def sqrt_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+UNRESOLVED = 8 * float(np.finfo(np.float64).eps)
+"""A standard deviation at most this times the mean's size is below what sigma points resolve (:func:`sqrt_cov`)."""
+
+
+def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The square root that draws sigma points: lower-triangular ``L Lᵀ = cov``, and its nonzero columns.
 
     Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`.
+    With the belief's `mean`, a component whose standard deviation is at
+    most :data:`UNRESOLVED` times its mean's size is taken as known exactly
+    (its row and column of `cov` as 0): points cannot spread around such a
+    mean (they round to it, or one unit in the last place off), and what
+    they would measure is round-off. A sensor with zero variance leaves
+    such a variance (1e-32, round-off of 0), with round-off correlations
+    that, divided by its square root, made the regression's slope 1e16.
 
     Returns
     -------
@@ -147,6 +158,11 @@ def sqrt_cov(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keep : ndarray of bool, shape (n,)
         The columns of L that are not zero.
     """
+    if mean is not None:
+        unresolved = np.sqrt(np.maximum(np.diagonal(cov), 0.0)) <= UNRESOLVED * np.abs(mean)
+        if unresolved.any():
+            cov = cov.copy()
+            cov[unresolved], cov[:, unresolved] = 0.0, 0.0
     try:
         L = cholesky(cov)
     except np.linalg.LinAlgError:

@@ -93,6 +93,26 @@ def test_a_state_that_copies_another_smooths_in_the_square_root_form(engine, met
     np.testing.assert_allclose(got.covs, ref_covs, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("method, form", [("ukf", "cov"), ("ckf", "cov"), ("ghkf", "cov"), ("ukf", "sqrt"),
+                                          ("ckf", "sqrt"), ("ghkf", "sqrt")])
+def test_a_noise_free_sensor_leaves_the_sigma_point_filters_exact(engine, method, form):
+    """R[0, 0] = 0 leaves x0 with a variance of round-off (1e-32) around a mean of order 1, which sigma points
+    cannot resolve: taken as known exactly, the filters equal the Kalman filter on a linear model (the UKF's
+    means were off by 1.3, the square-root GHKF's by 5)."""
+    F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.2], [0.1, 0.0, 0.95]])
+    H, Q, R = np.array([[1.0, 0.0, 0.0], [0.3, 0.0, 1.0]]), np.diag([0.2, 0.3, 0.1]), np.diag([0.0, 0.4])
+    prior = gf.Gaussian([1.0, -2.0, 0.5], np.diag([2.0, 1.0, 3.0]))
+    zs = np.random.default_rng(1).standard_normal((25, 2)) * 2 + np.arange(25)[:, None] * 0.1
+    kf = gf.smooth(gf.LinearModel(F=F, H=H, Q=Q, R=R), prior, zs, check="off")
+    got = gf.smooth(gf.NonlinearModel(lambda x: F @ x, lambda x: H @ x, Q, R), prior, zs, method=method, form=form,
+                    engine=engine, check="off")
+    for a, b in ((got.filtered, kf.filtered), (got, kf)):
+        np.testing.assert_allclose(a.means, b.means, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.covs, b.covs, rtol=0, atol=1e-12)
+    assert got.filtered.loglik == pytest.approx(kf.filtered.loglik, rel=1e-12)
+
+
 def test_backward_sampling_keeps_the_spread_the_next_state_does_not_see():
     """kalman.backward_conditional's factor: X Xᵀ + Y₀ Y₀ᵀ = P_k - G P⁻ Gᵀ, with G = P_k Fᵀ (P⁻)⁺, for the copy."""
     from gaussfuse import kalman

@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import register_jitable
 
+from .._linalg import UNRESOLVED
 from ._dense import cholesky
 from ._jit import jit
 from ._step import wrap
@@ -111,6 +112,9 @@ def draw(mean, cov, rule, g, X):
 @register_jitable(**_JIT)
 def _draw(mean, cov, xi, L, keep, X):
     n = mean.shape[0]
+    for a in range(n):  # a spread below the mean's resolution: _linalg.sqrt_cov's, given the mean, in Python
+        if not cov[a, a] > 0.0 or math.sqrt(cov[a, a]) <= UNRESOLVED * abs(mean[a]):
+            return False
     if not cholesky(cov, L, n):
         return False
     for a in range(n):

@@ -76,7 +76,7 @@ from numba.experimental import structref
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload, register_jitable
 
-from .._linalg import sqrt_cov, symmetrize
+from .._linalg import UNRESOLVED, sqrt_cov, symmetrize
 from ..kalman import cov_factor
 from .._validation import call_checked, call_each, raise_call, size_reason
 from ..errors import ModelFunctionError
@@ -330,7 +330,11 @@ def _draw_sqrt(cursor, bel, prob, g, predicted, s, t, fail):
     mean, L, X = (bel.pmean, bel.pcov, bel.Xh) if predicted else (bel.mean, bel.cov, bel.X)
     n = mean.shape[0]
     for a in range(n):
-        if not L[a, a] > 0.0:  # a singular factor: the readable path's least-squares regression
+        row = 0.0
+        for b in range(a + 1):
+            row += L[a, b] * L[a, b]
+        # a singular factor, or a spread below the mean's resolution: the readable path's least-squares regression
+        if not L[a, a] > 0.0 or math.sqrt(row) <= UNRESOLVED * abs(mean[a]):
             record(fail, s, READABLE, t)
             return FAILED
         g.keep[a] = True
@@ -827,9 +831,9 @@ def _evaluate(name, fn, X, Y, u, vectorized):
 def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int) -> None:
     """The semi-definite square root of the covariance the stopped draw needs (kalman's sqrt_cov), into gf or gh."""
     stage = int(cursor.stage[0])
-    cov, g = (bel.cov, gf) if stage == DRAW_F else (bel.pcov, gh)
+    mean, cov, g = (bel.mean, bel.cov, gf) if stage == DRAW_F else (bel.pmean, bel.pcov, gh)
     try:
-        L, keep = sqrt_cov(cov)
+        L, keep = sqrt_cov(cov, mean)
     except np.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(f"{where(int(cursor.series[0]), int(cursor.step[0]), N)}: {exc}") from exc
     g.L[...] = L

@@ -64,7 +64,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._linalg import back_solve, circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten, wrap_angle
+from .._linalg import (UNRESOLVED, back_solve, circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten,
+                       wrap_angle)
 from .rules import SigmaRule, unscented
 
 __all__ = ["SigmaPoints", "slr", "slr_sqrt"]
@@ -115,7 +116,7 @@ def slr(
     >>> print(np.round(A @ mean + b, 5))
     [0.96631]
     """
-    L, keep = sqrt_cov(cov)
+    L, keep = sqrt_cov(cov, mean)
     y_mean, dY = _spread(g, rule, mean, L, angles)
     weighted = dY * rule.wc[:, None]
     S = weighted.T @ dY
@@ -193,6 +194,10 @@ def slr_sqrt(
     and for a linear g (all residuals at round-off) it would otherwise leave
     an indefinite :math:`\Omega` of round-off size to downdate.
     """
+    unresolved = np.linalg.norm(factor, axis=1) <= UNRESOLVED * np.abs(mean)  # as sqrt_cov: known exactly
+    if unresolved.any():
+        factor = factor.copy()
+        factor[unresolved] = 0.0
     y_mean, dY = _spread(g, rule, mean, factor, angles)
     wc, points = rule.wc, rule.points
     Xi = (points * wc[:, None]).T @ dY                 # C = L Ξ
