@@ -226,6 +226,22 @@ def test_fuse_matches_information_form(n, seed):
     np.testing.assert_allclose(swapped.cov, fused.cov, rtol=1e-10, atol=1e-11)
 
 
+@pytest.mark.parametrize("ratio", [1e20, 1e24, 1e30, 1e50, 1e100, 1e200, 1e300])
+def test_fuse_is_exact_and_symmetric_however_far_apart_the_variances(ratio):
+    """The product's variance is v1 v2 / (v1 + v2), exactly in Fraction arithmetic; written as the update
+    (1 - K) v1, it rounded to v1 ε² (4.9e68 for 1 at a ratio of 1e100) when `a` was the vaguer belief."""
+    for v1, v2 in ((ratio, 1.0), (1.0, ratio), (3.7 * ratio, 0.3), (1e-300 * ratio, 1e-300)):
+        exact = Fraction(v1) * Fraction(v2) / (Fraction(v1) + Fraction(v2))
+        mean = (Fraction(v2) * Fraction(1.5) + Fraction(v1) * Fraction(-2.0)) / (Fraction(v1) + Fraction(v2))
+        for a, b in ((gf.Gaussian(1.5, v1), gf.Gaussian(-2.0, v2)), (gf.Gaussian(-2.0, v2), gf.Gaussian(1.5, v1))):
+            got = gf.fuse(a, b)
+            assert got.cov[0, 0] == pytest.approx(float(exact), rel=1e-15)
+            assert got.mean[0] == pytest.approx(float(mean), rel=1e-15, abs=1e-300)
+    # and a belief certain about the value keeps it, whatever the other's variance
+    certain = gf.fuse(gf.Gaussian(1.0, ratio), gf.Gaussian(3.0, 0.0))
+    assert certain.cov[0, 0] == 0.0 and certain.mean[0] == pytest.approx(3.0, rel=1e-15)
+
+
 def test_fuse_doc_example():
     fused = gf.fuse(gf.Gaussian(0.0, 1.0), gf.Gaussian(2.0, 1.0))
     assert fused.mean[0] == pytest.approx(1.0) and fused.cov[0, 0] == pytest.approx(0.5)

@@ -170,13 +170,17 @@ def test_rts_step_with_singular_prediction_uses_a_least_squares_gain():
 
 
 def test_fuse_moments_is_the_update_with_identity_measurement():
+    """To round-off (it writes I - K as B (A + B)⁻¹), and the same whichever belief comes first."""
     rng = np.random.default_rng(6)
     a, A = rng.normal(size=2), _oracle.random_spd(rng, 2)
     b, B = rng.normal(size=2), _oracle.random_spd(rng, 2)
     mean, cov = kalman.fuse_moments(a, A, b, B)
     post = kalman.update(a, A, b, np.eye(2), B)
-    np.testing.assert_array_equal(mean, post.mean)
-    np.testing.assert_array_equal(cov, post.cov)
+    np.testing.assert_allclose(mean, post.mean, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(cov, post.cov, rtol=1e-14, atol=1e-15)
+    swapped = kalman.fuse_moments(b, B, a, A)
+    np.testing.assert_allclose(swapped[0], mean, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(swapped[1], cov, rtol=1e-14, atol=1e-15)
 
 
 # ---------------------------------------------------------------------------

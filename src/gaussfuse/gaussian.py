@@ -200,7 +200,9 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     In n dimensions this is the Kalman update of `a` by the measurement
     ``z = b.mean`` with ``H = I`` and ``R = b.cov`` (see
     :func:`gaussfuse.kalman.fuse_moments`): a Cholesky solve with
-    :math:`\Sigma_a + \Sigma_b`, never an explicit inverse.
+    :math:`\Sigma_a + \Sigma_b`, never an explicit inverse, and written so
+    that nothing is subtracted: ``fuse(a, b)`` equals ``fuse(b, a)`` to
+    round-off however far apart their variances are.
 
     Examples
     --------
