@@ -188,3 +188,15 @@ def test_symmetrize_is_the_average_without_overflow():
         np.testing.assert_array_equal(_linalg.symmetrize(P), 0.5 * (P + P.swapaxes(-1, -2)))
     big = np.array([[1.5e308, 1.2e308], [1.0e308, 1.7e308]])
     np.testing.assert_array_equal(_linalg.symmetrize(big), [[1.5e308, 1.1e308], [1.1e308, 1.7e308]])
+
+
+@pytest.mark.parametrize("q", [0.3, 1.0, 7.1e-5, 3.3e40])
+def test_a_matrix_singular_in_exact_arithmetic_gets_a_zero_column_not_round_off_noise(q):
+    """q g gᵀ (piecewise white acceleration, dt = 1): Cholesky can succeed with a pivot of round-off, whose root
+    (about 1e-8 of the scale) drew noise in a direction the process cannot move; it is a zero pivot."""
+    g = np.array([0.5, 1.0])
+    Q = q * np.outer(g, g)
+    L, keep = _linalg.sqrt_cov(Q)
+    assert L[1, 1] == 0.0 and keep.tolist() == [True, False]
+    np.testing.assert_allclose(L @ L.T, Q, rtol=0, atol=4e-16 * q)
+

@@ -143,7 +143,12 @@ UNRESOLVED = 8 * float(np.finfo(np.float64).eps)
 def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The square root that draws sigma points: lower-triangular ``L Lᵀ = cov``, and its nonzero columns.
 
-    Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`.
+    Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`,
+    which also takes over where Cholesky succeeds with a pivot of round-off
+    (at most ``n ε cov[j, j]``, its own test): an exactly singular matrix in
+    exact arithmetic, such as ``g gᵀ``, otherwise gets a factor with about
+    √ε of spread where it has none (1e-8 of noise in a direction it cannot
+    move).
     With the belief's `mean`, a component whose standard deviation is at
     most :data:`UNRESOLVED` times its mean's size is taken as known exactly
     (its row and column of `cov` as 0): points cannot spread around such a
@@ -165,6 +170,8 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
             cov[unresolved], cov[:, unresolved] = 0.0, 0.0
     try:
         L = cholesky(cov)
+        if np.any(np.diagonal(L) ** 2 <= cov.shape[0] * np.finfo(np.float64).eps * np.diagonal(cov)):
+            raise np.linalg.LinAlgError  # a pivot of round-off: semidefinite_cholesky's zero, not √ε of noise
     except np.linalg.LinAlgError:
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0

@@ -117,6 +117,9 @@ def _draw(mean, cov, xi, L, keep, X):
             return False
     if not cholesky(cov, L, n):
         return False
+    for a in range(n):  # a pivot of round-off: _linalg.sqrt_cov's semi-definite factor instead, in Python
+        if L[a, a] * L[a, a] <= n * _EPS * cov[a, a]:
+            return False
     for a in range(n):
         keep[a] = True
         for b in range(a + 1, n):
