@@ -153,6 +153,36 @@ def test_errors_are_one_line(tmp_path, capsys, scheduler):
     assert code == 2 and "series 'u0' is in two partitions" in err
 
 
+BAD_TABLES = [
+    ("unit,t,x\nu1,1.0,0.5\n,2.0,0.7\n", "line 3: column `unit`: a row has no series id"),
+    ("unit,t,x\n", "no data rows: the table has a header only"),
+    ("unit,t,x\nu1,1.0,0.5,9\nu1,2.0,0.7\n", "line 2: expected 3 cells (unit, t, x); found 4"),
+    ("unit,t,x\nu1,1.0\nu1,2.0,0.7\n", "line 2: expected 3 cells (unit, t, x); found 2"),
+    ("unit,t,x\nu1,True,0.5\nu1,False,0.7\n", "column `t`: a time is True or False"),
+    ("unit,t,x\nu1,1.0,True\nu1,2.0,False\n", "column `x`: a measurement is True or False"),
+    ("", "the file is empty"),
+]
+
+
+@pytest.mark.parametrize("table, match", BAD_TABLES)
+def test_a_malformed_table_is_one_line_and_leaves_no_output(tmp_path, capsys, scheduler, table, match):
+    """pandas read a longer row with its first cell as a row name (shifting every cell), padded a shorter one,
+    took True/False as 1/0 and an empty id as a series of its own (an IndexError); a second partition's output was
+    left behind when the first failed."""
+    (tmp_path / "cv.toml").write_text(NAMED)
+    data = tmp_path / "data"
+    os.makedirs(data)
+    good = "unit,t,x\n" + "".join(f"u2,{k}.0,{0.1 * k}\n" for k in range(1, 6))
+    (data / "a.csv").write_text(good)
+    (data / "b.csv").write_text(table)
+    out = tmp_path / "made" / "out"
+    code, _, err = run(capsys, "filter", data, "-m", tmp_path / "cv.toml", "--series-column", "unit",
+                       "--scheduler", scheduler, "--out", out)
+    assert code == 2 and err.startswith("gaussfuse: error: ") and err.count("\n") == 1, err
+    assert f"b.csv: {match}" in err, err
+    assert not (tmp_path / "made").exists()  # nothing written, and the directories it made are gone again
+
+
 def test_partitions_of_a_path(tmp_path):
     dataset(tmp_path / "d")
     assert [os.path.relpath(p, tmp_path) for p in panels.partitions(str(tmp_path / "d"))] == \

@@ -289,21 +289,42 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
         raise ValueError(f"`--out` {args.out} is the data's own directory; choose another, so no input is replaced.")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"`--out` {args.out} is a file; with --series-column it is a directory (created if missing).")
-    with _cluster(args) as client:
-        import distributed
+    # Each partition is written under a temporary name beside its output, and all are renamed once every one has
+    # succeeded: a failed run leaves no output, and no earlier output replaced.
+    finals = [panels.output_path(args.data, part, args.out) for part in parts]
+    temps = [os.path.join(os.path.dirname(f), f".partial-{os.getpid()}-{os.path.basename(f)}") for f in finals]
+    created = set()  # the directories this run will make, to take away again if it fails
+    for final in finals:
+        directory = os.path.dirname(os.path.abspath(final))
+        while not os.path.exists(directory):
+            created.add(directory)
+            directory = os.path.dirname(directory)
+    try:
+        with _cluster(args) as client:
+            import distributed
 
-        futures = [client.submit(panels.filter_partition, part, panels.output_path(args.data, part, args.out), spec,
-                                 args.series_column, smooth=args.smooth, time_column=args.time_column,
-                                 columns=columns, engine=args.engine, check=args.check, pure=False)
-                   for part in parts]
-        progress = _RowProgress()
-        try:
-            for future in distributed.as_completed(futures):
-                future.result()  # a partition's error stops the command here
-                progress.add("partitions", 1)
-        finally:
-            progress.close()
-        done = client.gather(futures)
+            futures = [client.submit(panels.filter_partition, part, temp, spec, args.series_column,
+                                     smooth=args.smooth, time_column=args.time_column, columns=columns,
+                                     engine=args.engine, check=args.check, pure=False)
+                       for part, temp in zip(parts, temps)]
+            progress = _RowProgress()
+            try:
+                for future in distributed.as_completed(futures):
+                    future.result()  # a partition's error stops the command here
+                    progress.add("partitions", 1)
+            finally:
+                progress.close()
+            done = client.gather(futures)
+        for temp, final in zip(temps, finals):
+            os.replace(temp, final)
+    except BaseException:
+        for temp in temps:
+            with suppress(FileNotFoundError):
+                os.remove(temp)
+        for directory in sorted(created, key=len, reverse=True):  # deepest first; only if left empty
+            with suppress(OSError):
+                os.rmdir(directory)
+        raise
     seen: dict = {}
     for part, (ids, _, messages) in zip(parts, done):
         for message in messages:

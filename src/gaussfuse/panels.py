@@ -107,7 +107,13 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     """
     import pandas as pd
 
-    frame = pd.read_parquet(path) if _format(path) == "parquet" else pd.read_csv(path)
+    if _format(path) == "parquet":
+        frame = pd.read_parquet(path)
+    else:
+        _check_cells(path)
+        frame = pd.read_csv(path, index_col=False)
+    if len(frame) == 0:
+        raise InputFileError(path, "no data rows: the table has a header only.")
     header = [str(c) for c in frame.columns]
     frame.columns = header
     if series_column not in header:
@@ -123,6 +129,9 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
         raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
                                    f"`{time_col}`{'' if not missing else f' ({missing} missing)'}, but the model "
                                    f"measures m = {m} component(s).")
+    for name in wanted:
+        if pd.api.types.is_bool_dtype(frame[name]):
+            raise InputFileError(path, "a measurement is True or False, not a number.", field=f"column `{name}`")
     try:
         values = frame[wanted].apply(pd.to_numeric).to_numpy(dtype=np.float64, na_value=np.nan)
     except (TypeError, ValueError) as exc:
@@ -131,6 +140,10 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
         raise InputFileError(path, "a measurement is infinite.")
     seconds = _seconds(path, frame[time_col], time_col)
     codes, ids = pd.factorize(frame[series_column], sort=False)
+    if (codes < 0).any():
+        row = int(np.flatnonzero(codes < 0)[0])
+        raise InputFileError(path, "a row has no series id.", field=f"column `{series_column}`",
+                             line=row + 2 if _format(path) == "csv" else None)
     order = np.lexsort((seconds, codes))  # by series (first appearance), then time
     codes, seconds, values = codes[order], seconds[order], values[order]
     bounds = np.flatnonzero(np.diff(codes)) + 1
@@ -144,10 +157,33 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
                      [series_column, time_col, *wanted])
 
 
+def _check_cells(path: str) -> None:
+    """Every row of a CSV partition has as many cells as its header.
+
+    pandas would read a longer row as a row name and shift its cells into
+    the wrong columns, and pad a shorter one with missing values, where the
+    single-file reader refuses both (:func:`gaussfuse.io.read_measurements`).
+    """
+    import csv
+
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        rows = csv.reader(f)
+        header = next(rows, None)
+        if header is None:
+            raise InputFileError(path, "the file is empty: expected a header row, then one row per measurement.")
+        for row in rows:
+            if row and len(row) != len(header):
+                raise InputFileError(path, f"expected {len(header)} cells ({', '.join(header)}); found {len(row)}.",
+                                     line=rows.line_num)
+
+
 def _seconds(path: str, column, name: str) -> np.ndarray:
     """A time column as float seconds: numbers as they are, datetimes (or ISO-8601 text) since 1970 UTC."""
     import pandas as pd
 
+    if pd.api.types.is_bool_dtype(column):
+        raise InputFileError(path, "a time is True or False, not a number of seconds or a time.",
+                             field=f"column `{name}`")
     if pd.api.types.is_numeric_dtype(column):
         seconds = column.to_numpy(dtype=np.float64)
     else:
