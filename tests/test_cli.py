@@ -1086,3 +1086,25 @@ def test_row_progress_on_a_terminal_only():
     assert shown.getvalue().endswith("\rfiltered: 1,500 rows, smoothed: 1,500 rows\n")
     assert "\rfiltered: 1,000 rows" in shown.getvalue()
     assert hidden.getvalue() == ""
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_matrices_given_per_step_filter_a_file_longer_than_one_piece(tmp_path, capsys, monkeypatch, smooth):
+    """The file is read in pieces (65,536 rows for this model), and a Q given per step was checked against one
+    piece: "time-varying over 100000 steps but `zs` has 65536 steps". It is for the whole file, read whole."""
+    monkeypatch.setattr(cli, "_piece_rows", lambda n, m: 7)
+    rng = np.random.default_rng(3)
+    T = 30
+    Q = rng.uniform(0.5, 2.0, T)
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nR = [[2.0]]\nQ = ["
+                                     + ", ".join(f"[[{float(q)!r}]]" for q in Q) + "]\n[prior]\nvar = 10.0\n")
+    zs = np.cumsum(rng.normal(size=T))
+    (tmp_path / "d.csv").write_text("t,z\n" + "".join(f"{k},{float(z)!r}\n" for k, z in enumerate(zs)))
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "-o", tmp_path / "o.csv",
+                       *(["--smooth"] if smooth else []))
+    assert code == 0, err
+    model = gf.LinearModel(F=1.0, H=1.0, Q=Q[:, None, None], R=2.0)
+    want = (gf.smooth if smooth else gf.filter)(model, gf.Gaussian(0.0, 10.0), zs, check="off")
+    got = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(got[:, 1], want.means[:, 0], rtol=1e-13, atol=1e-13)
+

@@ -233,7 +233,9 @@ def _run_filter(args: argparse.Namespace) -> int:
     if args.series_column is not None:
         return _run_many(args, spec, columns)
     read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns}
-    if args.smooth and isinstance(spec.prior, str):  # a diffuse prior is smoothed whole
+    if (args.smooth and isinstance(spec.prior, str)) or spec.model.steps is not None:
+        # A diffuse prior is smoothed whole; matrices given per step are for the whole file, which they already
+        # hold in memory step by step.
         pieces = iter([gfio.read_measurements(args.data, **read)])
     else:
         pieces = gfio.iter_measurements(args.data, rows=_piece_rows(spec.model.n, spec.model.m), **read)
