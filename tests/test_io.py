@@ -119,6 +119,15 @@ def test_read_named_model_with_default_prior(tmp_path):
     np.testing.assert_array_equal(prior.cov, 1e6 * np.eye(4))
 
 
+def test_a_model_file_with_a_byte_order_mark_reads_as_without(tmp_path):
+    """As the measurements' CSV does; it was 'invalid TOML: Invalid statement (at line 1, column 1)'."""
+    text = '[model]\nkind = "constant_velocity"\ndt = 0.5\nq = 2\nr = 0.25\n'
+    plain, marked = read_model(write(tmp_path / "a.toml", text)), read_model(write(tmp_path / "b.toml", "\ufeff" + text))
+    for a, b in zip(plain.model.at(0), marked.model.at(0)):
+        np.testing.assert_array_equal(a, b)
+    assert plain.state_names == marked.state_names
+
+
 def test_read_named_constant_acceleration_default_dim_and_var_prior(tmp_path):
     path = write(tmp_path / "m.toml", '[model]\nkind = "constant_acceleration"\ndt = 1\nq = 0.1\nr = 4\n'
                                       "[prior]\nmean = [1, 2, 3]\nvar = 9\n")

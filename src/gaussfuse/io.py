@@ -536,7 +536,7 @@ def read_model(path: StrPath) -> ModelFile:
         raise InputFileError(path, f"larger than {MAX_MODEL_BYTES} bytes; not a model file.")
     too_deep = f"invalid TOML: tables and arrays nested more than {MAX_NESTING} levels deep."
     try:
-        doc = tomllib.loads(data.decode("utf-8"))
+        doc = tomllib.loads(data.decode("utf-8-sig"))  # a byte-order mark, as some editors write, is not content
     except UnicodeDecodeError as exc:
         raise InputFileError(path, f"not UTF-8 text: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
