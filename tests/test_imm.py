@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import doctest
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -289,3 +290,15 @@ def test_mixed_linear_and_nonlinear_models():
 def test_docstring_examples():
     result = doctest.testmod(gaussfuse.imm, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_an_overflow_is_the_filters_error_without_numpy_warnings_first():
+    """z = 1e200: gf.filter raises FloatingPointError with no warning; the IMM printed three RuntimeWarnings first
+    (and, with warnings as errors, raised one of them instead)."""
+    m1, m2 = gf.LinearModel(F=1.0, H=1.0, Q=0.01, R=1e-6), gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1e-6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FloatingPointError, match=r"at step 1, in `models\[0\]`: .*overflowed"):
+            gf.imm_filter([m1, m2], gf.Gaussian([0.0], [[1.0]]), [0.0, 1e200, 0.0],
+                          transition=[[0.9, 0.1], [0.1, 0.9]])
+

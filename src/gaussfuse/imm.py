@@ -265,8 +265,9 @@ class _Mode:
 
     def step(self, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> kalman.Update:
         try:
-            return kalman.step(self.lin, k, mean, cov, z, self.iterations, self.tol, self.state_angles,
-                               self.measurement_angles).update
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step, as in run_filter
+                return kalman.step(self.lin, k, mean, cov, z, self.iterations, self.tol, self.state_angles,
+                                   self.measurement_angles).update
         except (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError) as exc:
             raise type(exc)(f"at step {k}, in `models[{self.j}]`: {exc}") from exc
 
