@@ -71,6 +71,7 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
         ("t,x\n1,-inf\n", r"data\.csv: line 2: column `x`: '-inf' is not finite", 2),
         ("t,x\n1,\"2\n", r"data\.csv: line 2: unexpected end of data", 2),
         ("t,x\n1,\"2\"x\n", r"data\.csv: line 2: .*expected after", 2),
+        ("t,x,x\n1,2,3\n", r"data\.csv: line 1: the header names column\(s\) \['x'\] more than once", 1),
     ],
 )
 def test_read_measurements_errors(tmp_path, text, match, line):

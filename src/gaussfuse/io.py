@@ -417,6 +417,10 @@ def _measurement_columns(path, header: list[str], time_col: int, columns) -> lis
     if columns is None:
         if len(header) < 2:
             raise InputFileError(path, f"no measurement columns besides `{header[time_col]}`.")
+        twice = sorted({h for h in header if header.count(h) > 1})
+        if twice:  # which column is which would be a guess (the output names them)
+            raise InputFileError(path, f"the header names column(s) {twice} more than once; found columns {header}.",
+                                 line=1)
         return [i for i in range(len(header)) if i != time_col]
     out = []
     for name in columns:
