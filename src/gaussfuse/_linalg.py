@@ -136,7 +136,8 @@ def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
     return L
 
 
-UNRESOLVED = 8 * float(np.finfo(np.float64).eps)
+_EPS = float(np.finfo(np.float64).eps)
+UNRESOLVED = 8 * _EPS
 """A standard deviation at most this times the mean's size is below what sigma points resolve (:func:`sqrt_cov`)."""
 
 
@@ -163,14 +164,20 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
     keep : ndarray of bool, shape (n,)
         The columns of L that are not zero.
     """
+    # Python floats in these two tests: on the few entries of a diagonal they cost a fifth of NumPy's calls, and
+    # t * t is inf, with no warning, where it would overflow (for a mean past 1e168 every spread is unresolved).
+    variances = cov.diagonal().tolist()
     if mean is not None:
-        unresolved = np.sqrt(np.maximum(np.diagonal(cov), 0.0)) <= UNRESOLVED * np.abs(mean)
-        if unresolved.any():
+        spreads = [UNRESOLVED * m for m in mean.tolist()]
+        unresolved = [j for j, (v, t) in enumerate(zip(variances, spreads)) if v <= t * t]
+        if unresolved:
             cov = cov.copy()
             cov[unresolved], cov[:, unresolved] = 0.0, 0.0
+            variances = cov.diagonal().tolist()
     try:
         L = cholesky(cov)
-        if np.any(np.diagonal(L) ** 2 <= cov.shape[0] * np.finfo(np.float64).eps * np.diagonal(cov)):
+        tol = cov.shape[0] * _EPS
+        if any(p * p <= tol * v for p, v in zip(L.diagonal().tolist(), variances)):
             raise np.linalg.LinAlgError  # a pivot of round-off: semidefinite_cholesky's zero, not √ε of noise
     except np.linalg.LinAlgError:
         L = semidefinite_cholesky(cov)
