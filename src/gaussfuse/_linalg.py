@@ -15,7 +15,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components",
+    "observed_gram", "wrap_angle", "wrap_components", "unseen_slopes", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -183,6 +183,34 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
+
+
+def unseen_slopes(H: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> list[int]:
+    r"""The components along which a belief has no spread (:data:`UNRESOLVED`) and the slope `H` there is 0.
+
+    A regression at such a belief (:func:`sqrt_cov`'s zero column) cannot
+    see a function's slope along them and gives 0: for a sensor with zero
+    variance, :math:`S = H P H^\top + R` is then singular. A caller that
+    linearised with spread there before passes that slope to
+    :func:`with_slopes`. A slope of 0 where there is spread is the
+    function's own.
+    """
+    return [j for j, (v, m) in enumerate(zip(cov.diagonal().tolist(), mean.tolist()))
+            if v <= (UNRESOLVED * m) * (UNRESOLVED * m) and not H[:, j].any()]
+
+
+def with_slopes(H: np.ndarray, d: np.ndarray, slopes: np.ndarray, mean: np.ndarray,
+                columns: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    r"""``(H, d)`` with the `columns` of `slopes` in place of H's, the line still through ``H m + d`` at `mean`.
+
+    :math:`H'_j = S_j`, :math:`d' = d - \sum_j S_j m_j` over the replaced
+    columns j, where :math:`H_j = 0` (:func:`unseen_slopes`).
+    """
+    if not columns:
+        return H, d
+    H = H.copy()
+    H[:, columns] = slopes[:, columns]
+    return H, d - slopes[:, columns] @ mean[columns]
 
 
 def tria(M: np.ndarray) -> np.ndarray:

@@ -22,8 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (UNRESOLVED, cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, psd_solve,
-                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, whiten, wrap_components, zero_pivots)
+from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, psd_solve,
+                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten, with_slopes,
+                      wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -1544,8 +1545,8 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     slope = None
     for i in range(iterations):
         H, d, R = lin.measurement(k, post_mean, post_cov)
-        if slope is not None:
-            H, d = _keep_unseen_slope(H, d, slope, post_mean, post_cov)
+        if slope is not None:  # a slope the posterior cannot see: the previous pass's (see unseen_slopes)
+            H, d = with_slopes(H, d, slope, post_mean, unseen_slopes(H, post_mean, post_cov))
         slope = H
         post = update(mean, cov, z, H, R, d, measurement_angles)
         previous, post_mean, post_cov = post_mean, post.mean, post.cov
@@ -1558,27 +1559,6 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         post = post._replace(mean=post_mean, rejected=rejected)
     check_finite("filtered", post.mean, post.cov, post.loglik)
     return post, passes, converged
-
-
-def _keep_unseen_slope(H: np.ndarray, d: np.ndarray, previous: np.ndarray, mean: np.ndarray,
-                       cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    r"""Where the belief has no spread along a component and this pass's slope there is 0, the previous pass's.
-
-    A regression at a belief with no spread along :math:`x_j` (a sensor with
-    zero variance measured it exactly; :func:`gaussfuse._linalg.sqrt_cov`)
-    cannot see h's slope there and gives 0, which for that sensor leaves
-    :math:`S = H P H^	op + R` singular. The slope of the last pass that had
-    spread there is kept, and the offset moved so that the line still passes
-    through this pass's value at the mean: :math:`d' = d - (H'_j - H_j)\, m_j`.
-    A slope that is 0 where there is spread (a Jacobian's, say) is h's own.
-    """
-    flat = [j for j, (v, m) in enumerate(zip(cov.diagonal().tolist(), mean.tolist()))
-            if v <= (UNRESOLVED * m) * (UNRESOLVED * m) and not H[:, j].any()]
-    if not flat:
-        return H, d
-    H = H.copy()
-    H[:, flat] = previous[:, flat]
-    return H, d - previous[:, flat] @ mean[flat]
 
 
 def _correct_once(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, state_angles,

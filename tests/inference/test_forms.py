@@ -113,19 +113,24 @@ def test_a_noise_free_sensor_leaves_the_sigma_point_filters_exact(engine, method
     assert got.filtered.loglik == pytest.approx(kf.filtered.loglik, rel=1e-12)
 
 
-def test_the_iplf_filter_keeps_the_slope_its_posterior_cannot_see():
+def test_the_iplf_keeps_the_slope_its_posterior_cannot_see():
     """R[0, 0] = 0: the posterior knows x0 exactly, so the regression at it sees no slope along x0 and S was
-    singular (LinAlgError at step 1); the slope of the pass that had spread there is kept. Readable only."""
+    singular (LinAlgError at step 1); the filter keeps its previous pass's slope there, and the smoother, which
+    linearises about the filtered trajectory, the prediction's. Readable only."""
     F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.2], [0.1, 0.0, 0.95]])
     H, Q, R = np.array([[1.0, 0.0, 0.0], [0.3, 0.0, 1.0]]), np.diag([0.2, 0.3, 0.1]), np.diag([0.0, 0.4])
     prior = gf.Gaussian([1.0, -2.0, 0.5], np.diag([2.0, 1.0, 3.0]))
     zs = np.random.default_rng(1).standard_normal((25, 2)) * 2 + np.arange(25)[:, None] * 0.1
     kf = gf.filter(gf.LinearModel(F=F, H=H, Q=Q, R=R), prior, zs, check="off")
-    got = gf.filter(gf.NonlinearModel(lambda x: F @ x, lambda x: H @ x, Q, R), prior, zs, method="iplf",
-                    check="off")
+    model = gf.NonlinearModel(lambda x: F @ x, lambda x: H @ x, Q, R)
+    got = gf.filter(model, prior, zs, method="iplf", check="off")
     np.testing.assert_allclose(got.means, kf.means, rtol=0, atol=1e-12)
     np.testing.assert_allclose(got.covs, kf.covs, rtol=0, atol=1e-12)
     assert got.loglik == pytest.approx(kf.loglik, rel=1e-9)  # its passes stop at tol = 1e-9
+    smoothed = gf.smooth(model, prior, zs, method="iplf", check="off")
+    ks = gf.smooth(gf.LinearModel(F=F, H=H, Q=Q, R=R), prior, zs, check="off")
+    np.testing.assert_allclose(smoothed.means, ks.means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(smoothed.covs, ks.covs, rtol=0, atol=1e-12)
 
 
 def test_backward_sampling_keeps_the_spread_the_next_state_does_not_see():

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._linalg import unseen_slopes, with_slopes
+
 __all__ = ["Exact", "Nominal"]
 
 
@@ -68,4 +70,11 @@ class Nominal:
         return self.strategy.transition(k, self.means[k], self.covs[k])
 
     def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
-        return self.strategy.measurement(k, self.means[k + 1], self.covs[k + 1])
+        """At the nominal state of time k + 1; a slope it has no spread to see is taken at the belief given (the
+        prediction), which has (:func:`gaussfuse._linalg.unseen_slopes`)."""
+        at = self.means[k + 1]
+        H, d, R = self.strategy.measurement(k, at, self.covs[k + 1])
+        unseen = unseen_slopes(H, at, self.covs[k + 1])
+        if unseen:
+            H, d = with_slopes(H, d, self.strategy.measurement(k, mean, cov)[0], at, unseen)
+        return H, d, R
