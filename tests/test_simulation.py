@@ -129,3 +129,23 @@ def test_bad_arguments_are_named(call, error, message):
     model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
     with pytest.raises(error, match=message):
         call(model, gf.Gaussian([0.0, 1.0], np.eye(2)))
+
+
+def test_posterior_draws_take_the_filters_divergence_check():
+    """A model whose R is far too small for its data: the filter's DivergenceWarning, raised, or nothing."""
+    import warnings
+
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1e-4, R=1e-4)
+    zs = np.random.default_rng(0).normal(size=60) * 3.0
+    prior = gf.Gaussian([0.0], [[1.0]])
+    with pytest.warns(gf.DivergenceWarning):
+        gf.sample_posterior(model, prior, zs, 5, rng=0)
+    with pytest.raises(gf.DivergenceWarning):
+        gf.sample_posterior(model, prior, zs, 5, rng=0, check="raise")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        quiet = gf.sample_posterior(model, prior, zs, 5, rng=0, check="off")
+    np.testing.assert_array_equal(quiet, gf.sample_posterior(model, prior, zs, 5, rng=0, check="warn"))
+    with pytest.raises(ValueError, match="`check`"):
+        gf.sample_posterior(model, prior, zs, 5, check="loud")
+

@@ -166,7 +166,8 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     return Simulation(*out)
 
 
-def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None, form: str = "cov") -> np.ndarray:
+def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None, form: str = "cov",
+                     check: str = "warn") -> np.ndarray:
     """Draw n state trajectories from the smoothing distribution, by forward filtering, backward sampling.
 
     Parameters
@@ -185,6 +186,8 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None
         The filter's form (see :func:`gaussfuse.filter`): ``"sqrt"`` where
         the covariance form loses its accuracy (a huge prior with a precise
         sensor); its factors are then used as they are.
+    check : {"warn", "raise", "off"}, default "warn"
+        The filter's divergence test (see :func:`gaussfuse.filter`).
 
     Returns
     -------
@@ -226,7 +229,7 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None
     us = check_controls(us, model, 1, T)
     u = None if us is None else us[0]
     rng = _generator(rng)
-    filt = run_filter(model, prior, arr[0], u, form=form)
+    filt = run_filter(model, prior, arr[0], u, form=form, check=check)
     roots = kalman.Factors()
     factors = (filt.cov_factors if filt.cov_factors is not None
                else [kalman.cov_factor(P, "a filtered covariance") for P in filt.covs])
