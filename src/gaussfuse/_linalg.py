@@ -15,7 +15,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "unseen_slopes", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "unresolved", "unseen_slopes", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -164,25 +164,33 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
     keep : ndarray of bool, shape (n,)
         The columns of L that are not zero.
     """
-    # Python floats in these two tests: on the few entries of a diagonal they cost a fifth of NumPy's calls, and
-    # t * t is inf, with no warning, where it would overflow (for a mean past 1e168 every spread is unresolved).
     variances = cov.diagonal().tolist()
     if mean is not None:
-        spreads = [UNRESOLVED * m for m in mean.tolist()]
-        unresolved = [j for j, (v, t) in enumerate(zip(variances, spreads)) if v <= t * t]
-        if unresolved:
+        flat = unresolved(variances, mean)
+        if flat:
             cov = cov.copy()
-            cov[unresolved], cov[:, unresolved] = 0.0, 0.0
+            cov[flat], cov[:, flat] = 0.0, 0.0
             variances = cov.diagonal().tolist()
     try:
         L = cholesky(cov)
-        tol = cov.shape[0] * _EPS
+        tol = cov.shape[0] * _EPS  # on Python floats, as unresolved's test
         if any(p * p <= tol * v for p, v in zip(L.diagonal().tolist(), variances)):
             raise np.linalg.LinAlgError  # a pivot of round-off: semidefinite_cholesky's zero, not √ε of noise
     except np.linalg.LinAlgError:
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
+
+
+def unresolved(variances: list[float], mean: np.ndarray) -> list[int]:
+    """The components whose standard deviation is at most :data:`UNRESOLVED` times their mean's size.
+
+    On Python floats: on the few entries of a diagonal they cost a fifth of
+    NumPy's calls, and ``t * t`` is inf, with no warning, where it would
+    overflow (for a mean past 1e168 every spread is unresolved).
+    """
+    spreads = [UNRESOLVED * m for m in mean.tolist()]
+    return [j for j, (v, t) in enumerate(zip(variances, spreads)) if v <= t * t]
 
 
 def unseen_slopes(H: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> list[int]:
@@ -195,8 +203,7 @@ def unseen_slopes(H: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> list[int]
     :func:`with_slopes`. A slope of 0 where there is spread is the
     function's own.
     """
-    return [j for j, (v, m) in enumerate(zip(cov.diagonal().tolist(), mean.tolist()))
-            if v <= (UNRESOLVED * m) * (UNRESOLVED * m) and not H[:, j].any()]
+    return [j for j in unresolved(cov.diagonal().tolist(), mean) if not H[:, j].any()]
 
 
 def with_slopes(H: np.ndarray, d: np.ndarray, slopes: np.ndarray, mean: np.ndarray,

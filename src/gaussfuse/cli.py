@@ -291,42 +291,22 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
         raise ValueError(f"`--out` {args.out} is the data's own directory; choose another, so no input is replaced.")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"`--out` {args.out} is a file; with --series-column it is a directory (created if missing).")
-    # Each partition is written under a temporary name beside its output, and all are renamed once every one has
-    # succeeded: a failed run leaves no output, and no earlier output replaced.
     finals = [panels.output_path(args.data, part, args.out) for part in parts]
-    temps = [os.path.join(os.path.dirname(f), f".partial-{os.getpid()}-{os.path.basename(f)}") for f in finals]
-    created = set()  # the directories this run will make, to take away again if it fails
-    for final in finals:
-        directory = os.path.dirname(os.path.abspath(final))
-        while not os.path.exists(directory):
-            created.add(directory)
-            directory = os.path.dirname(directory)
-    try:
-        with _cluster(args) as client:
-            import distributed
+    with _written_together(finals) as temps, _cluster(args) as client:
+        import distributed
 
-            futures = [client.submit(panels.filter_partition, part, temp, spec, args.series_column,
-                                     smooth=args.smooth, time_column=args.time_column, columns=columns,
-                                     engine=args.engine, check=args.check, pure=False)
-                       for part, temp in zip(parts, temps)]
-            progress = _RowProgress()
-            try:
-                for future in distributed.as_completed(futures):
-                    future.result()  # a partition's error stops the command here
-                    progress.add("partitions", 1)
-            finally:
-                progress.close()
-            done = client.gather(futures)
-        for temp, final in zip(temps, finals):
-            os.replace(temp, final)
-    except BaseException:
-        for temp in temps:
-            with suppress(FileNotFoundError):
-                os.remove(temp)
-        for directory in sorted(created, key=len, reverse=True):  # deepest first; only if left empty
-            with suppress(OSError):
-                os.rmdir(directory)
-        raise
+        futures = [client.submit(panels.filter_partition, part, temp, spec, args.series_column,
+                                 smooth=args.smooth, time_column=args.time_column, columns=columns,
+                                 engine=args.engine, check=args.check, pure=False)
+                   for part, temp in zip(parts, temps)]
+        progress = _RowProgress()
+        try:
+            for future in distributed.as_completed(futures):
+                future.result()  # a partition's error stops the command here
+                progress.add("partitions", 1)
+        finally:
+            progress.close()
+        done = client.gather(futures)
     seen: dict = {}
     for part, (ids, _, messages) in zip(parts, done):
         for message in messages:
@@ -340,6 +320,34 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
     print(f"{'smooth' if args.smooth else 'filter'}: {len(seen):,} series, {rows:,} rows in {len(parts)} "
           f"partition(s); wrote {args.out}", file=sys.stderr)
     return 0
+
+
+@contextmanager
+def _written_together(finals: list[str]):
+    """Temporary names beside the output files `finals`, renamed to them once the block succeeds.
+
+    On an error, the temporary files and the directories made for them are
+    removed: a failed run leaves no output, and replaces no earlier one.
+    """
+    temps = [os.path.join(os.path.dirname(f), f".partial-{os.getpid()}-{os.path.basename(f)}") for f in finals]
+    made = set()
+    for final in finals:
+        directory = os.path.dirname(os.path.abspath(final))
+        while not os.path.exists(directory):
+            made.add(directory)
+            directory = os.path.dirname(directory)
+    try:
+        yield temps
+        for temp, final in zip(temps, finals):
+            os.replace(temp, final)
+    except BaseException:
+        for temp in temps:
+            with suppress(FileNotFoundError):
+                os.remove(temp)
+        for directory in sorted(made, key=len, reverse=True):  # deepest first; only if left empty
+            with suppress(OSError):
+                os.rmdir(directory)
+        raise
 
 
 @contextmanager

@@ -64,7 +64,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._linalg import (UNRESOLVED, back_solve, circular_mean, sqrt_cov, symmetrize, weighted_mean, whiten,
+from .._linalg import (back_solve, circular_mean, sqrt_cov, symmetrize, unresolved, weighted_mean, whiten,
                        wrap_angle)
 from .rules import SigmaRule, unscented
 
@@ -194,10 +194,10 @@ def slr_sqrt(
     and for a linear g (all residuals at round-off) it would otherwise leave
     an indefinite :math:`\Omega` of round-off size to downdate.
     """
-    unresolved = np.linalg.norm(factor, axis=1) <= UNRESOLVED * np.abs(mean)  # as sqrt_cov: known exactly
-    if unresolved.any():
+    flat = unresolved(np.einsum("ij,ij->i", factor, factor).tolist(), mean)  # as sqrt_cov: known exactly
+    if flat:
         factor = factor.copy()
-        factor[unresolved] = 0.0
+        factor[flat] = 0.0
     y_mean, dY = _spread(g, rule, mean, factor, angles)
     wc, points = rule.wc, rule.points
     Xi = (points * wc[:, None]).T @ dY                 # C = L Ξ
