@@ -304,6 +304,9 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
             for future in distributed.as_completed(futures):
                 future.result()  # a partition's error stops the command here
                 progress.add("partitions", 1)
+        except Exception:
+            distributed.wait(futures)  # the partitions still running finish first: none writes after the cleanup
+            raise
         finally:
             progress.close()
         done = client.gather(futures)
