@@ -461,7 +461,7 @@ class _Stamp(float):
     """Seconds since 1970 read from an ISO-8601 time (a float that remembers it was one)."""
 
 
-def wrong_cells(path, header: list[str], row: list[str], line: int) -> InputFileError:
+def _wrong_cells(path, header: list[str], row: list[str], line: int) -> InputFileError:
     """The error for a data row with another number of cells than the header (both CSV readers)."""
     return InputFileError(path, f"expected {len(header)} cells ({', '.join(header)}); found {len(row)}.", line=line)
 
@@ -469,7 +469,7 @@ def wrong_cells(path, header: list[str], row: list[str], line: int) -> InputFile
 def _parse_row(path, line: int, header: list[str], time_col: int, wanted: list[int], row: list[str]) -> list:
     """One data row as ``[time, z_1, ..., z_m]``; empty and NaN cells are NaN."""
     if len(row) != len(header):
-        raise wrong_cells(path, header, row, line)
+        raise _wrong_cells(path, header, row, line)
     values = [_parse_time(path, row[time_col].strip(), {"line": line, "field": f"column `{header[time_col]}`"})]
     for i in wanted:
         where = {"line": line, "field": f"column `{header[i]}`"}

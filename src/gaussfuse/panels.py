@@ -28,7 +28,7 @@ import numpy as np
 
 from . import diagnostics, inference
 from .errors import DivergenceWarning
-from .io import InputFileError, ModelFile, TIME_COLUMNS, open_atomic, wrong_cells
+from .io import InputFileError, ModelFile, TIME_COLUMNS, open_atomic, _wrong_cells
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
            "filter_partition"]
@@ -173,7 +173,7 @@ def _check_cells(path: str) -> None:
             raise InputFileError(path, "the file is empty: expected a header row, then one row per measurement.")
         for row in rows:
             if row and len(row) != len(header):
-                raise wrong_cells(path, header, row, rows.line_num)
+                raise _wrong_cells(path, header, row, rows.line_num)
 
 
 def _seconds(path: str, column, name: str) -> np.ndarray:
