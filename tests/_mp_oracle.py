@@ -12,7 +12,7 @@ from __future__ import annotations
 import mpmath as mp
 import numpy as np
 
-__all__ = ["filter_50_digits", "smooth_50_digits", "smallest_eigenvalue"]
+__all__ = ["filter_50_digits", "smooth_50_digits", "smooth_dense_50_digits", "smallest_eigenvalue"]
 
 
 def _to_float(a) -> np.ndarray:
@@ -72,6 +72,56 @@ def smooth_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
             means.append(_to_float(sm_m).ravel())
             covs.append(_to_float(sm_P))
     return np.array(means[::-1]), np.array(covs[::-1])
+
+
+def smooth_dense_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
+    """Smoothed means (T, n) and covariances (T, n, n) by dense joint-Gaussian conditioning, in 50 digits.
+
+    No recursion and no inverse of a state covariance, so a singular P⁻ (a state that copies another) is
+    valid input: with the independent sources e = (x_0, w_1..w_T, v_1..v_T), x = M_x e + c_x and
+    z = M_z e + c_z; then E[x | z] = c_x + Σ_xz Σ_zz⁻¹ (z - c_z), Cov[x | z] = Σ_xx - Σ_xz Σ_zz⁻¹ Σ_zx,
+    where only Σ_zz (positive definite for R > 0) is inverted. Time-invariant models only.
+    """
+    zs = np.asarray(zs, float).reshape(len(zs), -1)
+    F, H, Q, R, P0 = (np.atleast_2d(np.asarray(a, float)) for a in (F, H, Q, R, P0))
+    T, n, m = len(zs), F.shape[0], H.shape[0]
+    ne = n + T * n + T * m
+    with mp.workdps(50):
+        Fm, Hm = mp.matrix(F.tolist()), mp.matrix(H.tolist())
+        cov_e = mp.zeros(ne, ne)
+        for (block, start) in [(P0, 0)] + [(Q, n + k * n) for k in range(T)] + [(R, n + T * n + k * m)
+                                                                                 for k in range(T)]:
+            for i, j in np.ndindex(block.shape):
+                cov_e[start + i, start + j] = block[i, j]
+        MX, MZ = mp.zeros(T * n, ne), mp.zeros(T * m, ne)
+        cX, cZ = mp.zeros(T * n, 1), mp.zeros(T * m, 1)
+        M_prev, c_prev = mp.zeros(n, ne), mp.matrix(np.asarray(m0, float).tolist())
+        for i in range(n):
+            M_prev[i, i] = 1
+        for k in range(T):
+            M_k, c_k = Fm * M_prev, Fm * c_prev
+            for i in range(n):
+                M_k[i, n + k * n + i] += 1
+            Z_k, d_k = Hm * M_k, Hm * c_k
+            for i in range(m):
+                Z_k[i, n + T * n + k * m + i] += 1
+            for i in range(n):
+                cX[k * n + i] = c_k[i]
+                for j in range(ne):
+                    MX[k * n + i, j] = M_k[i, j]
+            for i in range(m):
+                cZ[k * m + i] = d_k[i]
+                for j in range(ne):
+                    MZ[k * m + i, j] = Z_k[i, j]
+            M_prev, c_prev = M_k, c_k
+        S_xz = MX * cov_e * MZ.T
+        gain = S_xz * mp.inverse(MZ * cov_e * MZ.T)
+        mean = cX + gain * (mp.matrix(zs.ravel().tolist()) - cZ)
+        cov = MX * cov_e * MX.T - gain * S_xz.T
+        means = _to_float(mean).reshape(T, n)
+        full = _to_float(cov)
+    covs = np.array([full[k * n:(k + 1) * n, k * n:(k + 1) * n] for k in range(T)])
+    return means, (covs + covs.transpose(0, 2, 1)) / 2
 
 
 def smallest_eigenvalue(P: np.ndarray) -> float:
