@@ -27,22 +27,32 @@ NO_CACHE = textwrap.dedent("""
     impl._locator_classes = []
 """)
 
-FILTERS = NO_CACHE + textwrap.dedent("""
+WARNING = NO_CACHE + textwrap.dedent("""
     import json, warnings
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")  # record every warning, not one per location
+        from gaussfuse._kernels import _rts, linear, sigma_points  # each defines kernels: numba looks for a cache
+    print(json.dumps([f"{w.category.__name__}: {w.message}" for w in caught]))
+""")
+
+# The command line first (compiling the linear filter in memory), then the library in the same process.
+RUNS = NO_CACHE + textwrap.dedent("""
+    import contextlib, io, json, sys, warnings
     import numba
     import numpy as np
     import gaussfuse as gf
+    from gaussfuse import cli
 
-    out = {}
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        out = {"cli": cli.main(sys.argv[1:]), "cli stderr": err.getvalue()}
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")  # record every warning, not one per location
+        warnings.simplefilter("always")
         model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
         prior = gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
         zs = np.sin(np.arange(1500) / 40.0)
-        for front in ("filter", "smooth"):
-            run = getattr(gf, front)
-            got, want = run(model, prior, zs), run(model, prior, zs, engine="python")
-            out[front] = float(np.max(np.abs(got.means - want.means)))
+        got, want = gf.filter(model, prior, zs, engine="numba"), gf.filter(model, prior, zs, engine="python")
+        out["filter"] = float(np.max(np.abs(got.means - want.means)))  # the kernel the command line compiled
 
         @numba.njit
         def f(x):
@@ -72,36 +82,34 @@ def run_child(code: str, *args: str) -> subprocess.CompletedProcess:
                           text=True, timeout=900)
 
 
-def test_without_a_cache_location_kernels_compile_in_memory_with_one_warning():
-    child = run_child(FILTERS)
+def test_without_a_cache_location_kernels_warn_once_naming_the_setting():
+    child = run_child(WARNING)
     assert child.returncode == 0, child.stderr
-    out = json.loads(child.stdout.strip().splitlines()[-1])
-    assert out["filter"] < 1e-10 and out["smooth"] < 1e-10
-    assert out["mode"] == "compiled" and out["ukf"] < 1e-10
-    assert len(out["warnings"]) == 1, out["warnings"]
-    warning = out["warnings"][0]
-    assert warning.startswith("CacheUnavailableWarning: ")
-    assert "NUMBA_CACHE_DIR" in warning
+    warnings = json.loads(child.stdout.strip().splitlines()[-1])
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith("CacheUnavailableWarning: ") and "NUMBA_CACHE_DIR" in warnings[0]
 
 
-CLI = NO_CACHE + textwrap.dedent("""
-    import runpy, sys
-    sys.argv = ["gaussfuse", *sys.argv[1:]]
-    runpy.run_module("gaussfuse", run_name="__main__")
-""")
-
-
-def test_without_a_cache_location_the_cli_filters_a_long_file(tmp_path):
+def test_without_a_cache_location_the_cli_and_the_library_compile_in_memory(tmp_path):
+    """One process: the command line filters a long file, with the warning as one line of its own; then the
+    library's compiled filter and UKF equal the readable path, and nothing warns again."""
     t = np.arange(1200)
-    data = tmp_path / "data.csv"
+    data, result = tmp_path / "data.csv", tmp_path / "out.csv"
     np.savetxt(data, np.column_stack([t, np.sin(t / 30.0)]), delimiter=",", header="t,z", comments="")
     model = tmp_path / "model.toml"
     model.write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.01\nr = 0.5\n')
-    child = run_child(CLI, "filter", str(data), "--model", str(model), "--engine", "numba")
+    child = run_child(RUNS, "filter", str(data), "--model", str(model), "--engine", "numba", "--out", str(result))
     assert child.returncode == 0, child.stderr
-    assert "Traceback" not in child.stderr
-    assert child.stderr.count("gaussfuse: warning: gaussfuse's compiled kernels cannot be cached") == 1, child.stderr
-    assert len(child.stdout.splitlines()) == 1201  # the header and one row a step
+    out = json.loads(child.stdout.strip().splitlines()[-1])
+    assert out["cli"] == 0, out["cli stderr"]
+    assert "Traceback" not in out["cli stderr"]
+    lines = out["cli stderr"].splitlines()
+    assert len(lines) == 1 and lines[0].startswith("gaussfuse: warning: gaussfuse's compiled kernels cannot be "
+                                                   "cached") and "NUMBA_CACHE_DIR" in lines[0], lines
+    assert len(result.read_text().splitlines()) == 1201  # the header and one row a step
+    assert out["filter"] < 1e-10
+    assert out["mode"] == "compiled" and out["ukf"] < 1e-10
+    assert out["warnings"] == []  # once a process
 
 
 # ---------------------------------------------------------------------------
