@@ -116,8 +116,8 @@ def test_pooled_em_and_mle_over_chunks_equal_the_in_memory_fit(client):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", gf.ConvergenceWarning)
         for learn in (("Q", "R"), ("F", "Q", "R", "m0", "P0")):  # the second needs two passes per M-step
-            a = gf.fit(start, prior, zs, learn=learn, method="em", iterations=8, tol=0, engine="numba")
-            b = gf.fit(start, prior, lazy, learn=learn, method="em", iterations=8, tol=0, engine="numba")
+            a = gf.fit(start, prior, zs, learn=learn, method="em", iterations=3, tol=0, engine="numba")
+            b = gf.fit(start, prior, lazy, learn=learn, method="em", iterations=3, tol=0, engine="numba")
             np.testing.assert_allclose(b.history, a.history, rtol=1e-12)
             for name in ("F", "Q", "R"):
                 np.testing.assert_allclose(getattr(b.model, name), getattr(a.model, name), rtol=1e-10, atol=1e-12)
