@@ -43,6 +43,8 @@ def pytest_configure(config):
     if hasattr(config, "workerinput") or not isinstance(workers, int) or workers < 2:
         return
     script = str(TESTS_DIR / "_warm_kernels.py")
+    print(f"compiling (or loading) the kernels in numba's cache, {workers} processes ...", file=sys.stderr,
+          flush=True)  # minutes when the cache is empty: say what the pause is
     children = [subprocess.Popen([sys.executable, script, str(i), str(workers)]) for i in range(workers)]
     for child in children:
         child.wait()  # a failure here shows again, with its test, when the suite meets it
