@@ -13,6 +13,7 @@ examples, and pin what that finds as an example test.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -42,6 +43,7 @@ def pytest_configure(config):
     workers = getattr(config.option, "numprocesses", None)
     if hasattr(config, "workerinput") or not isinstance(workers, int) or workers < 2:
         return
+    workers = min(workers, os.cpu_count() or 1)
     script = str(TESTS_DIR / "_warm_kernels.py")
     print(f"compiling (or loading) the kernels in numba's cache, {workers} processes ...", file=sys.stderr,
           flush=True)  # minutes when the cache is empty: say what the pause is
