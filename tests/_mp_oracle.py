@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import mpmath as mp
 import numpy as np
+from scipy.linalg import block_diag
 
 __all__ = ["filter_50_digits", "smooth_50_digits", "smooth_dense_50_digits", "smallest_eigenvalue"]
 
@@ -83,43 +84,27 @@ def smooth_dense_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarr
     where only Σ_zz (positive definite for R > 0) is inverted. Time-invariant models only.
     """
     zs = np.asarray(zs, float).reshape(len(zs), -1)
-    F, H, Q, R, P0 = (np.atleast_2d(np.asarray(a, float)) for a in (F, H, Q, R, P0))
-    T, n, m = len(zs), F.shape[0], H.shape[0]
+    T, n, m = len(zs), np.shape(F)[0], np.atleast_2d(H).shape[0]
     ne = n + T * n + T * m
     with mp.workdps(50):
-        Fm, Hm = mp.matrix(F.tolist()), mp.matrix(H.tolist())
-        cov_e = mp.zeros(ne, ne)
-        for (block, start) in [(P0, 0)] + [(Q, n + k * n) for k in range(T)] + [(R, n + T * n + k * m)
-                                                                                 for k in range(T)]:
-            for i, j in np.ndindex(block.shape):
-                cov_e[start + i, start + j] = block[i, j]
-        MX, MZ = mp.zeros(T * n, ne), mp.zeros(T * m, ne)
-        cX, cZ = mp.zeros(T * n, 1), mp.zeros(T * m, 1)
-        M_prev, c_prev = mp.zeros(n, ne), mp.matrix(np.asarray(m0, float).tolist())
-        for i in range(n):
-            M_prev[i, i] = 1
+        F, H, Q, R, P0 = (np.vectorize(mp.mpf, otypes=[object])(np.atleast_2d(np.asarray(a, float)))
+                          for a in (F, H, Q, R, P0))
+        cov_e = block_diag(P0, *[Q] * T, *[R] * T)
+        MX, MZ = np.zeros((T, n, ne), object), np.zeros((T, m, ne), object)
+        cX, cZ = np.zeros((T, n), object), np.zeros((T, m), object)
+        M, c = np.eye(n, ne).astype(object), np.asarray(m0, float).astype(object)
         for k in range(T):
-            M_k, c_k = Fm * M_prev, Fm * c_prev
-            for i in range(n):
-                M_k[i, n + k * n + i] += 1
-            Z_k, d_k = Hm * M_k, Hm * c_k
-            for i in range(m):
-                Z_k[i, n + T * n + k * m + i] += 1
-            for i in range(n):
-                cX[k * n + i] = c_k[i]
-                for j in range(ne):
-                    MX[k * n + i, j] = M_k[i, j]
-            for i in range(m):
-                cZ[k * m + i] = d_k[i]
-                for j in range(ne):
-                    MZ[k * m + i, j] = Z_k[i, j]
-            M_prev, c_prev = M_k, c_k
+            M, c = F @ M, F @ c
+            M[:, n + k * n:n + (k + 1) * n] += np.eye(n)
+            MX[k], cX[k] = M, c
+            MZ[k], cZ[k] = H @ M, H @ c
+            MZ[k][:, n + T * n + k * m:n + T * n + (k + 1) * m] += np.eye(m)
+        # the products in mpmath's matrices, which multiply faster than NumPy's object arrays
+        MX, MZ, cov_e = (mp.matrix(a.tolist()) for a in (MX.reshape(T * n, ne), MZ.reshape(T * m, ne), cov_e))
         S_xz = MX * cov_e * MZ.T
         gain = S_xz * mp.inverse(MZ * cov_e * MZ.T)
-        mean = cX + gain * (mp.matrix(zs.ravel().tolist()) - cZ)
-        cov = MX * cov_e * MX.T - gain * S_xz.T
-        means = _to_float(mean).reshape(T, n)
-        full = _to_float(cov)
+        means = _to_float(mp.matrix(cX.ravel().tolist()) + gain * mp.matrix((zs.ravel() - cZ.ravel()).tolist()))
+        means, full = means.reshape(T, n), _to_float(MX * cov_e * MX.T - gain * S_xz.T)
     covs = np.array([full[k * n:(k + 1) * n, k * n:(k + 1) * n] for k in range(T)])
     return means, (covs + covs.transpose(0, 2, 1)) / 2
 
