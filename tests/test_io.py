@@ -333,6 +333,69 @@ def test_open_atomic_missing_directory_names_the_target(tmp_path):
             pass
     assert info.value.filename == str(path)
 
+def _open_descriptors() -> set[str]:
+    return set(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs /proc/self/fd to count descriptors")
+@pytest.mark.parametrize("existing", [False, True])
+def test_open_atomic_interrupted_while_the_file_object_is_built(tmp_path, monkeypatch, existing):
+    # A signal (Ctrl-C, or the CLI's SIGTERM) raised inside open(): the file object built so far is dropped.
+    # The interruption must come out as itself, not as an EBADF from closing that descriptor a second time,
+    # leaving no temporary file and no open descriptor.
+    path = tmp_path / "out.csv"
+    if existing:
+        path.write_text("old")
+
+    def interrupted_open(fd, *args, **kwargs):
+        open(fd, *args, **kwargs)  # built, then dropped (as the signal leaves it)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(gaussfuse.io, "open", interrupted_open, raising=False)
+    before = _open_descriptors()
+    with pytest.raises(KeyboardInterrupt):
+        with open_atomic(path, "w", newline=""):
+            pass
+    assert _open_descriptors() == before
+    assert os.listdir(tmp_path) == (["out.csv"] if existing else [])
+    assert not existing or path.read_text() == "old"
+
+
+def test_open_atomic_interrupted_as_the_temporary_file_is_created(tmp_path, monkeypatch):
+    # A signal that lands after os.open has created the file but before its descriptor is kept: the
+    # descriptor is lost to the interruption, but the temporary file is still removed.
+    path, opened = tmp_path / "out.csv", []
+    real_open = os.open
+
+    def interrupted(*args, **kwargs):
+        opened.append(real_open(*args, **kwargs))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(gaussfuse.io.os, "open", interrupted)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with open_atomic(path):
+                pass
+    finally:
+        monkeypatch.undo()
+        for fd in opened:
+            os.close(fd)
+    assert len(opened) == 1 and os.listdir(tmp_path) == []
+
+
+def test_open_atomic_does_not_remove_a_temporary_name_it_did_not_create(tmp_path, monkeypatch):
+    # os.open refusing the temporary name (here: it exists) creates nothing, so nothing is removed.
+    path = tmp_path / "out.csv"
+    monkeypatch.setattr(gaussfuse.io.secrets, "token_hex", lambda _: "taken")
+    other = tmp_path / ".out.csv.taken.tmp"
+    other.write_text("someone else's")
+    with pytest.raises(FileExistsError) as info:
+        with open_atomic(path):
+            pass
+    assert info.value.filename == str(path)
+    assert other.read_text() == "someone else's" and sorted(os.listdir(tmp_path)) == [other.name]
+
+
 
 def test_docstring_examples():
     result = doctest.testmod(gaussfuse.io, optionflags=doctest.NORMALIZE_WHITESPACE)

@@ -918,31 +918,39 @@ def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: 
         raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
     directory, name = os.path.split(target)
     tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
+    # The descriptor stays ours (the file object does not close it), so that the clean-up knows whether it is
+    # open whatever instant an interruption (Ctrl-C, SIGTERM) picks: a file object that open() had begun to
+    # build closes its descriptor as it goes, and closing that again raised EBADF in place of the interruption.
+    fd, f, made = -1, None, True
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-    except OSError as exc:
-        raise _naming(exc, path) from None
-    f = None
-    try:
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+        except OSError as exc:
+            made = False  # nothing was created, or the name is another's: nothing to remove
+            raise _naming(exc, path) from None
         if info is not None:  # keep what the user had; chown first, as it clears set-user-ID bits
             with suppress(OSError):  # only root may give a file away
                 os.fchown(fd, info.st_uid, info.st_gid)
             os.fchmod(fd, stat.S_IMODE(info.st_mode))
-        f = open(fd, mode, **kwargs)
+        f = open(fd, mode, closefd=False, **kwargs)
         yield f
         try:
             f.close()
+            closing, fd = fd, -1  # forgotten before it is closed: a descriptor is never closed twice
+            os.close(closing)
             os.replace(tmp, target)
         except OSError as exc:
             raise _naming(exc, path) from None
     except BaseException:  # includes KeyboardInterrupt and SIGTERM turned into an exception
-        if f is None:
-            os.close(fd)
-        else:
+        if f is not None:
             with suppress(OSError):
                 f.close()
-        with suppress(FileNotFoundError):
-            os.unlink(tmp)
+        if fd >= 0:
+            with suppress(OSError):  # the interruption is what the caller must see
+                os.close(fd)
+        if made:
+            with suppress(FileNotFoundError):
+                os.unlink(tmp)
         raise
 
 
