@@ -166,10 +166,20 @@ def test_downdate_leaves_untouched_components_and_refuses_an_indefinite_result()
     np.testing.assert_allclose(D @ D.T, L @ L.T - np.diag([0.0, 0.0, 0.25]), atol=1e-15)
     D = _linalg.downdate(L, V)
     np.testing.assert_allclose(D @ D.T, L @ L.T - V @ V.T, atol=1e-15)
-    with pytest.raises(np.linalg.LinAlgError, match="the predicted covariance is not positive definite"):
+    with pytest.raises(np.linalg.LinAlgError, match="the predicted covariance is not positive semi-definite"):
         _linalg.downdate(L, 2.0 * V, "the predicted covariance")
-    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+    with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
         _linalg.downdate(L, np.array([[0.0], [0.1], [0.0]]))  # a direction with no variance
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-150, 1e150])
+def test_a_downdate_to_a_singular_result_is_its_semidefinite_factor(scale):
+    """A pivot of exactly zero (the rotation cannot go on) is a singular result, not an error: the difference's
+    semi-definite factor, lower triangular, with a zero column where the result has no variance left."""
+    L = scale * np.array([[1.0, 0.0], [1.0, 1.0]])
+    V = scale * np.array([[0.0], [1.0]])  # takes away all of the second component's own variance
+    D = _linalg.downdate(L, V)
+    np.testing.assert_array_equal(D, scale * np.array([[1.0, 0.0], [1.0, 0.0]]))
 
 
 def test_factor_solve_is_exact_on_the_range_of_a_singular_factor():

@@ -294,8 +294,7 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
     Raises
     ------
     numpy.linalg.LinAlgError
-        When ``L Lᵀ - V Vᵀ`` is not positive definite in a direction `V`
-        touches.
+        When ``L Lᵀ - V Vᵀ`` is not positive semi-definite.
 
     Notes
     -----
@@ -321,22 +320,38 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
     the component's standard deviation, the norm of row k of L) is taken as
     0, and the component is left as it is (a zero variance stays exactly
     zero); that changes its variance by at most :math:`(8 n \epsilon)^2
-    \sigma_k^2`. Otherwise the result must be positive definite in every
-    direction v touches: a pivot :math:`\rho^2 \le 0` raises.
+    \sigma_k^2`.
+
+    A pivot :math:`\rho^2 \le 0` means that the result is singular in a
+    direction v touches, or indefinite. The rotations cannot go on there
+    (:math:`c = 0`), and a result that is singular in exact arithmetic, such
+    as the joint covariance of :math:`x_{k+1} = A x_k` and :math:`x_k`
+    without process noise, meets such a pivot by round-off. So the
+    difference :math:`\mathrm{sym}(L L^\top - V V^\top)` is then formed and
+    factored by :func:`semidefinite_cholesky`, which keeps the lower-triangular
+    layout (and so the blocks a joint factor is read in) and raises, naming
+    the matrix, when it is not positive semi-definite: an eigenvalue below
+    :math:`-10^{-9} \lambda_{max}`. That factor has the covariance form's
+    accuracy, not the rotations'.
     """
     L = np.array(L, dtype=np.float64)
+    V = np.array(V, dtype=np.float64, ndmin=2)
+    given = L.copy()
     floor = 8 * L.shape[0] * np.finfo(np.float64).eps
-    for v in np.array(V, dtype=np.float64, ndmin=2).T:
+    for v in V.T.copy():
         for k in range(L.shape[0]):
             if abs(v[k]) <= floor * np.sqrt(L[k, :k + 1] @ L[k, :k + 1]):
                 continue
             a = L[k, k]
             rho2 = (a - v[k]) * (a + v[k])
             if not rho2 > 0.0:
-                raise np.linalg.LinAlgError(
-                    f"{name} is not positive definite: taking away a negatively weighted term leaves "
-                    f"component {k} a variance of {rho2:.3g}"
-                )
+                try:
+                    return semidefinite_cholesky(symmetrize(given @ given.T - V @ V.T))
+                except np.linalg.LinAlgError:
+                    raise np.linalg.LinAlgError(
+                        f"{name} is not positive semi-definite: taking away a negatively weighted term leaves "
+                        f"component {k} a variance of {rho2:.3g}"
+                    ) from None
             rho = np.sqrt(rho2)
             c, s = rho / a, v[k] / a
             L[k, k] = rho

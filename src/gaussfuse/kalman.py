@@ -968,7 +968,8 @@ def joint_factor(filt_mean: np.ndarray, filt_factor: np.ndarray, A: np.ndarray, 
     pre[n:, q:] = filt_factor
     post = tria(pre)
     if Q_minus is not None:
-        post = downdate(post, np.concatenate([Q_minus, np.zeros((n, Q_minus.shape[1]))]), "the predicted covariance")
+        post = downdate(post, np.concatenate([Q_minus, np.zeros((n, Q_minus.shape[1]))]),
+                        "the joint covariance of the prediction and the state")
     return predict_mean(filt_mean, A, b), post[:n, :n], post[n:, :n], post[n:, n:]
 
 

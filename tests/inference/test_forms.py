@@ -556,6 +556,24 @@ def test_sigma_point_square_root_forms_take_singular_beliefs(method, options):
     np.testing.assert_allclose(a.covs, b.covs, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("alpha", [1e-2, 1e-3])
+@pytest.mark.parametrize("P0", [np.eye(3), np.diag([1.0, 1.0, 0.0])], ids=["full", "singular"])
+def test_the_square_root_ukf_smooths_a_model_without_process_noise(engine, alpha, P0):
+    """Q = 0: the joint covariance of x_{k+1} = A x_k and x_k is singular, and with a small alpha its downdate met
+    a pivot of round-off and raised. A linear model through the UKF: the smoother is the joint Gaussian's."""
+    A = np.array([[1.0, 0.1, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    H = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    Q, R = np.zeros((3, 3)), np.diag([0.5, 0.2])
+    zs = np.random.default_rng(0).standard_normal((25, 2))
+    model = gf.NonlinearModel(lambda x: A @ x, lambda x: H @ x, Q, R)
+    got = gf.smooth(model, gf.Gaussian(np.zeros(3), P0), zs, method="ukf", alpha=alpha, beta=2.0, kappa=0.0,
+                    form="sqrt", engine=engine, check="off")
+    want = _oracle.reference(A, H, Q, R, np.zeros(3), P0, zs)
+    np.testing.assert_allclose(got.means, want["smoothed_means"], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(got.covs, want["smoothed_covs"], rtol=0, atol=1e-10)
+
+
 @pytest.mark.parametrize("method, options, engine", [("ukf", {}, "python"), ("ukf", {"alpha": 0.5}, "python"),
                                                      ("ckf", {}, "python"), ("ukf", {}, "numba")])
 def test_sigma_point_square_root_forms_stay_accurate_where_their_covariance_forms_fail(problem, method, options,

@@ -253,7 +253,8 @@ def downdate(L, V, q, p, v):
     V (copied into `v`, so V is left as it is), with the same floor: a
     component :math:`v_k` within :math:`8 q \epsilon` of its standard
     deviation is left alone. Returns False where a pivot :math:`\rho^2 \le 0`
-    (the readable path then raises, naming the matrix).
+    (the readable path then factors the difference itself, or raises naming
+    the matrix when it is not positive semi-definite).
     """
     floor = 8 * q * _EPS
     for c in range(p):
