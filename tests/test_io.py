@@ -333,6 +333,7 @@ def test_open_atomic_missing_directory_names_the_target(tmp_path):
             pass
     assert info.value.filename == str(path)
 
+
 def _open_descriptors() -> set[str]:
     return set(os.listdir("/proc/self/fd"))
 
@@ -394,7 +395,6 @@ def test_open_atomic_does_not_remove_a_temporary_name_it_did_not_create(tmp_path
             pass
     assert info.value.filename == str(path)
     assert other.read_text() == "someone else's" and sorted(os.listdir(tmp_path)) == [other.name]
-
 
 
 def test_docstring_examples():
