@@ -103,6 +103,26 @@ def test_filter_csv_partitions_with_explicit_matrices_on_a_cluster_of_its_own(tm
         np.testing.assert_array_equal(got[got.unit == name][["x0", "x1"]].to_numpy(), want.means)
 
 
+@pytest.mark.parametrize("smooth", [False, True])
+def test_filter_series_with_a_diffuse_prior(tmp_path, capsys, smooth):
+    """A diffuse prior failed with "'NoneType' object is not subscriptable" (no NIS for the divergence check)."""
+    rng = np.random.default_rng(4)
+    series = {f"s{i}": np.cumsum(rng.normal(size=12 + i)) + rng.normal(size=12 + i) for i in range(3)}
+    pd.concat([pd.DataFrame({"id": name, "t": np.arange(len(x), dtype=float), "z": x})
+               for name, x in series.items()]).to_csv(tmp_path / "d.csv", index=False)
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.5]]\nR = [[1.0]]\n"
+                                     "[prior]\ndiffuse = true\n")
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
+                       "-o", out, *(["--smooth"] if smooth else []))
+    assert code == 0, err
+    got = pd.concat([pd.read_csv(p) for p in sorted(out.rglob("*.csv"))])
+    spec = gfio.read_model(tmp_path / "m.toml")
+    for name, x in series.items():
+        want = (gf.smooth if smooth else gf.filter)(spec.model, "diffuse", x)
+        np.testing.assert_allclose(got[got.id == name]["x0"].to_numpy(), want.means[:, 0], rtol=1e-12)
+
+
 def test_pooled_fit_of_a_partitioned_dataset(tmp_path, capsys, scheduler):
     data = tmp_path / "data"
     series = dataset(data, seed=2)

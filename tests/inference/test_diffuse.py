@@ -115,6 +115,33 @@ def test_noise_free_first_measurement():
     np.testing.assert_allclose(sm_res.means[:, 0], y, rtol=1e-9, atol=1e-9)
 
 
+def test_nis_is_that_of_the_filter_restarted_from_the_identified_belief():
+    """Markov property: once x is identified at step d, the rest of the diffuse filter is the proper
+    filter started from the belief after step d, NIS included (NaN before, and where nothing is observed).
+    The NIS was None for a diffuse prior, which broke the command's per-series filter."""
+    rng = np.random.default_rng(5)
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[[1, 0]], Q=np.diag([0.3, 0.05]), R=1.2)
+    y = np.cumsum(np.cumsum(0.1 * rng.standard_normal(40))) + rng.standard_normal(40)
+    y[[0, 7, 8]] = np.nan
+    res = gf.filter(model, "diffuse", y)
+    d = 2  # y_2 and y_3 identify level and slope
+    assert np.isnan(res.nis[:d + 1]).all()
+    rest = gf.filter(model, gf.Gaussian(res.means[d], res.covs[d]), y[d + 1:], check="off")
+    np.testing.assert_allclose(res.nis[d + 1:], rest.nis, rtol=1e-9, equal_nan=True)
+    assert np.isnan(res.nis[[7, 8]]).all() and np.isfinite(np.delete(res.nis, [0, 1, 2, 7, 8])).all()
+    smoothed = gf.smooth(model, "diffuse", y)
+    np.testing.assert_array_equal(smoothed.filtered.nis, res.nis)
+
+
+def test_divergence_check_runs_with_a_diffuse_prior():
+    _, flow = nile()
+    wrong = gf.LinearModel(F=1, H=1, Q=SIG_ETA / 100, R=SIG_EPS / 100)  # noise 100 times too small
+    for run in (gf.filter, gf.smooth):
+        with pytest.raises(gf.DivergenceWarning, match="over steps"):
+            run(wrong, "diffuse", flow, check="raise")
+        run(_local_level(), "diffuse", flow, check="raise")  # the fitted model passes
+
+
 def test_batch_and_keep():
     _, flow = nile()
     zs = np.stack([flow, flow[::-1]])[:, :, None]

@@ -114,8 +114,9 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         with probability at most 1e-3 per call:
         :func:`gaussfuse.diagnostics.divergence`), issue a
         :class:`gaussfuse.DivergenceWarning` naming the steps, raise it, or
-        do nothing. Not made with ``keep="last"`` (no per-step values) or a
-        ``"diffuse"`` prior.
+        do nothing. Not made with ``keep="last"`` (no per-step values); with
+        a ``"diffuse"`` prior, made from the step after the state is
+        identified.
     gate : float, optional
         Outlier gating at this chi-square probability (0.99, say): a
         measurement whose normalised innovation squared is beyond the
@@ -223,7 +224,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
                         for i, z in enumerate(zs)])
     else:
         result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains, gate)
-        drivers.check_divergence(result, check)
+    drivers.check_divergence(result, check)
     return result if batch else _labelled(first(result), table, names)
 
 
@@ -317,7 +318,7 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
                         for i, z in enumerate(zs)])
     else:
         result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form, gate=gate)
-        drivers.check_divergence(result.filtered, check)
+    drivers.check_divergence(result.filtered, check)
     if batch:
         return result
     result = first(result)
