@@ -373,17 +373,18 @@ def zero_pivots(L: np.ndarray) -> np.ndarray:
     return np.diagonal(L) <= 8 * L.shape[0] * np.finfo(np.float64).eps * np.linalg.norm(L, axis=1)
 
 
-def factor_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+def factor_solve(L: np.ndarray, B: np.ndarray, zero: np.ndarray | None = None) -> np.ndarray:
     """``L⁻¹ B`` for a lower-triangular factor L: a forward solve, or least squares where L is singular.
 
-    A factor with a zero pivot (:func:`zero_pivots`) is that of a singular
+    A factor with a zero pivot (:func:`zero_pivots`, or where the caller's
+    `zero` says, when it knows better) is that of a singular
     covariance; the vectors it is applied to lie in its range, where the
     minimum-norm least-squares solution is exact. It is computed with each
     component scaled to unit variance (the rows of L to unit norm), and
     directions below the round-off of :func:`zero_pivots` cut off, so that
     dividing by a round-off pivot does not turn round-off into a step.
     """
-    if not zero_pivots(L).any():
+    if not (zero_pivots(L) if zero is None else zero).any():
         return whiten(L, B)
     scale = np.linalg.norm(L, axis=1)
     unit = np.where(scale > 0.0, scale, 1.0)[:, None]

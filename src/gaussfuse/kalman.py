@@ -28,7 +28,7 @@ from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det,
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
-           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "joint_factor", "backward_conditional", "SqrtGain",
+           "fuse_moments", "SqrtUpdate", "cov_factor", "predict_sqrt", "update_sqrt", "rts_step_sqrt", "joint_factor", "singular_pivots", "backward_conditional", "SqrtGain",
            "sqrt_gain", "Factors", "transition_factors", "measurement_factors", "forecast_sqrt", "correct_sqrt", "step_sqrt", "Update", "Gain",
            "Step", "Gate", "SteadyState", "SETTLED", "STEADY_TOL", "settled", "step", "forecast", "correct", "check_finite",
            "iterate_changed"]
@@ -911,8 +911,8 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     squares. Nothing is subtracted: where :math:`P^-` is nearly singular
     (no process noise, a huge prior) :math:`I - G_k A` would be the
     difference of nearly equal matrices. The solves with :math:`L^-` are
-    triangular; where it is singular (a pivot zero to round-off,
-    :func:`gaussfuse._linalg.zero_pivots`), least-squares (the vectors it is
+    triangular; where it is singular (a pivot zero to round-off that can
+    be zero, :func:`singular_pivots`), least-squares (the vectors it is
     applied to lie in its range), and the columns :math:`Y_0` of Y at its
     zero pivots join X: they are spread of :math:`x_k` that
     :math:`x_{k+1}` does not see, :math:`P_k - G_k P^- G_k^\top = X X^\top
@@ -920,12 +920,47 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     """
     n = filt_mean.shape[0]
     pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus)
+    zero = singular_pivots(pred_factor, filt_factor, A, Q_minus)
     rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
-    steps = Y @ factor_solve(pred_factor, rhs)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
+    steps = Y @ factor_solve(pred_factor, rhs, zero)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
     mean = filt_mean + steps[:, 0]
     # Y's columns at zero pivots of L⁻ are spread of x_k that x_{k+1} does not see: P_k - G P⁻ Gᵀ = X Xᵀ + Y_0 Y_0ᵀ
-    factor = tria(np.concatenate([X, Y[:, zero_pivots(pred_factor)], steps[:, 1:n + 1]], axis=1))
+    factor = tria(np.concatenate([X, Y[:, zero], steps[:, 1:n + 1]], axis=1))
     return mean, factor, steps[:, n + 1:]
+
+
+def singular_pivots(pred_factor: np.ndarray, filt_factor: np.ndarray, A: np.ndarray,
+                    Q_minus: np.ndarray | None = None) -> np.ndarray:
+    r"""The pivots of the prediction's factor :math:`L^-` that are zero: where the prediction is singular.
+
+    Parameters
+    ----------
+    pred_factor, filt_factor : arrays of shape (n, n)
+        :math:`L^-_{k+1}` and :math:`L_k`.
+    A : array of shape (n, n)
+        The transition between them.
+    Q_minus : array of shape (n, r), optional
+        The negative terms of the noise (see :func:`rts_step_sqrt`).
+
+    Returns
+    -------
+    array of bool, shape (n,)
+
+    Notes
+    -----
+    A pivot of :math:`L^-` smaller than the round-off of its row
+    (:func:`gaussfuse._linalg.zero_pivots`) is zero, unless the prediction
+    cannot be singular: :math:`P^- \succeq A P_k A^	op`, which is
+    non-singular when :math:`A` and :math:`L_k` both are (and the noise
+    has no negative terms). That case is a real pivot far below its row's
+    size, as after a huge prior with no process noise (the variance of the
+    velocity given the position is 1 where each is :math:`10^{30}`): the
+    triangular solve with it is what the exact answer needs.
+    """
+    zero = zero_pivots(pred_factor)
+    if zero.any() and Q_minus is None and not zero_pivots(filt_factor).any() and not zero_pivots(tria(A)).any():
+        return np.zeros_like(zero)
+    return zero
 
 
 def joint_factor(filt_mean: np.ndarray, filt_factor: np.ndarray, A: np.ndarray, Q_factor: np.ndarray,
@@ -1001,8 +1036,8 @@ def backward_conditional(filt_mean: np.ndarray, filt_factor: np.ndarray, next_st
     triangular solve; the step of backward sampling (:func:`gaussfuse.sample_posterior`).
     """
     pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b)
-    steps = Y @ factor_solve(pred_factor, (next_states - pred_mean).T)
-    zero = zero_pivots(pred_factor)  # as in rts_step_sqrt: spread that x_{k+1} does not see
+    zero = singular_pivots(pred_factor, filt_factor, A)  # as in rts_step_sqrt: spread that x_{k+1} does not see
+    steps = Y @ factor_solve(pred_factor, (next_states - pred_mean).T, zero)
     return filt_mean + steps.T, tria(np.concatenate([X, Y[:, zero]], axis=1)) if zero.any() else X
 
 

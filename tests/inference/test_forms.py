@@ -174,6 +174,29 @@ def test_a_prior_far_wider_than_the_sensor_keeps_the_sensor_in_the_square_root_f
 
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("variance, r", [(1e30, 1.0), (1e100, 1.0), (1e12, 1e-18), (1e200, 1e-6)])
+def test_a_huge_prior_without_process_noise_smooths_to_least_squares(engine, variance, r):
+    """No process noise: every state is A^k x_1, and the smoother's x_1 is the least-squares fit of the line,
+    covariance r (XᵀX)⁻¹ (the prior's 1/variance is below round-off of it). The prediction's factor has a real
+    pivot of 1 in rows of 1e15 and more, which the smoother and the sampler took for a singular one:
+    covs[0] was [[1, -1], [-1, 1.075]] and the sampled trajectories left the line."""
+    A = np.array([[1.0, 1.0], [0.0, 1.0]])
+    model = gf.LinearModel(F=A, H=[[1.0, 0.0]], Q=np.zeros((2, 2)), R=r)
+    zs = np.array([3.0, 4.5, 5.0, 7.0])
+    X = np.array([[1.0, k] for k in range(4)])
+    C = r * np.linalg.inv(X.T @ X)
+    x1 = np.linalg.lstsq(X, zs, rcond=None)[0]
+    powers = [np.linalg.matrix_power(A, k) for k in range(4)]
+    prior = gf.Gaussian([0.0, 0.0], variance * np.eye(2))
+    got = gf.smooth(model, prior, zs, form="sqrt", engine=engine, check="off")
+    np.testing.assert_allclose(got.means, [Ak @ x1 for Ak in powers], rtol=1e-12)
+    np.testing.assert_allclose(got.covs, [Ak @ C @ Ak.T for Ak in powers], rtol=1e-10, atol=1e-12 * r)
+    draws = gf.sample_posterior(model, prior, zs, 4000, rng=np.random.default_rng(0), form="sqrt", check="off")
+    np.testing.assert_allclose(draws[:, 1:], draws[:, :-1] @ A.T, atol=1e-12)  # on the line, exactly
+    np.testing.assert_allclose(np.cov(draws[:, 0].T), C, atol=0.1 * C[0, 0])  # 4,000 draws: ±2% sampling error
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
 def test_a_sensor_far_more_precise_than_the_prior_is_kept_by_the_square_root_form(engine):
     """R from 1e-20 to 1e-300 against a unit prior: the update's pre-array has rows 1e10 to 1e150 apart. Before
     tria sorted them, the factors kept only about ε of the largest: R = 1e-30 was 23% off, 1e-34 lost (0)."""
