@@ -204,6 +204,22 @@ def test_check_psd_judges_relative_to_scale():
         check_psd("P", np.array([[1.0, 0.0], [0.0, -1e-6]]))
 
 
+def test_check_psd_judges_each_entry_on_its_components_scale():
+    """A negative variance or an asymmetry passed when it was small next to another component's variance."""
+    for bad, what in ((np.diag([1e10, -0.5]), "positive semi-definite"), (np.diag([1e10, -1e-4]), "positive"),
+                      (np.array([[1e10, 0.5], [0.0, 1.0]]), "symmetric"),
+                      (np.array([[1e10, 1e5], [1e5, 0.999]]), "positive")):  # a correlation just above 1
+        with pytest.raises(ValueError, match=what):
+            check_psd("Q", bad)
+        with pytest.raises(ValueError, match=what):
+            gf.Gaussian([0.0, 0.0], bad)
+    rng = np.random.default_rng(0)
+    for _ in range(50):  # G Gᵀ with rows 1e-150 to 1e150 apart, of rank 1 to 4: PSD, whatever the round-off
+        G = 10.0 ** rng.uniform(-150, 150, (4, 1)) * rng.standard_normal((4, rng.integers(1, 5)))
+        check_psd("Q", G @ G.T)
+    check_psd("Q", np.diag([1.0, -1e-20]))  # a zero variance computed to round-off of the largest entry
+
+
 # ---------------------------------------------------------------------------
 # filter / smooth
 # ---------------------------------------------------------------------------

@@ -145,15 +145,26 @@ def as_matrix(
 
 
 def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
-    """Check that `cov` (..., n, n) is symmetric positive semi-definite; return it symmetrised.
+    r"""Check that `cov` (..., n, n) is symmetric positive semi-definite; return it symmetrised.
 
-    Symmetry and the smallest eigenvalue are judged relative to the matrix's
-    scale, so round-off in a user's matrix is accepted but a real asymmetry
-    or a negative direction is not.
+    Each entry is judged on its own components' scale: symmetry and the
+    smallest eigenvalue of :math:`K_{ij} = c_{ij} / (s_i s_j)`, with
+    :math:`s_i = \sqrt{|c_{ii}|}` (the correlation matrix of a covariance),
+    must hold to `rtol`. So round-off in a user's matrix is accepted, but a
+    negative variance or an asymmetry is not, however small next to the
+    other components' variances (``diag(1e10, -0.5)`` is refused). A
+    diagonal entry within round-off of the largest entry (:math:`8 n
+    \epsilon` of it: a zero variance computed as -1e-20, say) is judged on
+    the largest entry's scale instead.
     """
-    scale = np.max(np.abs(cov), axis=(-2, -1), keepdims=True)
-    scale = np.where(scale > 0, scale, 1.0)
-    asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > rtol * scale
+    n = cov.shape[-1]
+    top = np.max(np.abs(cov), axis=(-2, -1))[..., None]
+    top = np.where(top > 0, top, 1.0)
+    diag = np.abs(np.diagonal(cov, axis1=-2, axis2=-1))
+    s = np.sqrt(np.where(diag > 8 * n * np.finfo(np.float64).eps * top, diag, top))
+    K = cov / s[..., :, None] / s[..., None, :]  # divided twice: s_i s_j may overflow
+    K_t = np.swapaxes(K, -1, -2)
+    asym = np.abs(K - K_t) > rtol * np.maximum(1.0, np.abs(K))
     if asym.any():
         where = _where(np.argwhere(asym)[0], cov.ndim)
         raise ValueError(f"`{name}` must be symmetric; it is not{where}.")
@@ -161,7 +172,7 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
     # averaged halves first, so that entries near the largest float do not overflow.
     cov_t = np.swapaxes(cov, -1, -2)
     sym = np.where(cov == cov_t, cov, 0.5 * cov + 0.5 * cov_t)
-    low = np.linalg.eigvalsh(sym)[..., 0] < -rtol * scale[..., 0, 0]
+    low = np.linalg.eigvalsh(0.5 * K + 0.5 * K_t)[..., 0] < -rtol
     if np.any(low):
         where = _where(np.argwhere(np.atleast_1d(low))[0], cov.ndim) if cov.ndim > 2 else ""
         eig = float(np.min(np.linalg.eigvalsh(sym)))
