@@ -1043,6 +1043,21 @@ def test_an_error_in_a_later_piece_leaves_no_output(tmp_path, capsys, monkeypatc
         assert_one_line_error(err, r"line 26: column `px`: 'x' is not a number")
 
 
+def test_an_error_in_a_later_piece_names_the_file_and_the_step_of_the_file(tmp_path, capsys, monkeypatch):
+    """The step was counted within its piece ("at step 808" for step 9000 of a file read 1,024 rows at a time)."""
+    data, _, _ = _irregular(tmp_path, 30)
+    lines = data.read_text().splitlines()
+    lines[23] = lines[23].split(",")[0] + ",1e308,1.0"  # data row 22: step 22
+    data.write_text("\n".join(lines) + "\n")
+    model = tmp_path / "m.toml"
+    model.write_text(NAMED_TOML.replace("r = ", "r = 1e-300 # "))
+    monkeypatch.setattr(cli, "_piece_rows", lambda n, m: 4)
+    for argv in ([], ["--smooth"]):
+        code, stdout, err = run(capsys, "filter", data, "-m", model, *argv)
+        assert code == 2 and stdout == ""
+        assert_one_line_error(err, rf"^gaussfuse: error: {re.escape(str(data))}: at step 22: the \w+ mean")
+
+
 def _traced_peak(argv):
     import tracemalloc
     tracemalloc.start()

@@ -261,6 +261,10 @@ def _run_filter(args: argparse.Namespace) -> int:
                     progress.add("smoothed", piece.zs.shape[0])
                 if drawn is not None:
                     drawn.add(piece, result)
+        except (ValueError, FloatingPointError) as exc:
+            if not str(exc).startswith("at step "):
+                raise
+            raise type(exc)(f"{args.data}: {exc}") from exc  # a step of the data's series: name the file
         finally:
             progress.close()
         steps.warn()

@@ -135,6 +135,20 @@ def test_divergence_over_pieces_is_the_online_monitors(track):
         list(filter_pieces(model, prior, cut(bad, times, 30), timed=True, check="off"))
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
+def test_an_error_names_the_step_of_the_whole_series(track, engine, run):
+    """The oracle is the whole series' own error; the pieces named the step within the piece (808 for 9000)."""
+    model, prior, zs, times = track
+    zs = zs.copy()
+    zs[130, 1] = 1e300
+    with pytest.raises(FloatingPointError, match=r"^at step 130: ") as whole:
+        gf.filter(model, prior, zs, times=times, engine=engine, check="off")
+    with pytest.raises(FloatingPointError) as pieces:
+        list(run(model, prior, cut(zs, times, 51), timed=True, engine=engine, check="off"))
+    assert str(pieces.value) == str(whole.value)
+
+
 def test_bad_check():
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="`check` must be one of"):

@@ -30,6 +30,8 @@ is not known in advance.
 from __future__ import annotations
 
 import pickle
+import re
+from contextlib import contextmanager
 from dataclasses import fields, replace
 import tempfile
 import warnings
@@ -85,13 +87,14 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         Each piece with its filtered beliefs (no series axis), in order.
     """
     monitor = _Monitor(check)
-    belief, before = prior, None
+    belief, before, start = prior, None, 0
     for piece, engine_k in _engines(pieces, engine):
-        result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
-                            smooth=False))
+        with _steps_from(start):
+            result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
+                                smooth=False))
         monitor.add(result)
         belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
-        before = piece.times[-1]
+        before, start = piece.times[-1], start + piece.zs.shape[0]
         yield piece, result
     monitor.finish()
 
@@ -112,17 +115,18 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         result's ``.filtered`` is the forward pass over the piece.
     """
     with tempfile.TemporaryFile(dir=spool_dir) as spool:
-        offsets, belief, before = [], prior, None
+        offsets, belief, before, start = [], prior, None, 0
         for piece, result in filter_pieces(model, prior, pieces, timed=timed, engine=engine, check=check):
             offsets.append(spool.tell())
-            pickle.dump((piece, belief, before), spool, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump((piece, belief, before, start), spool, protocol=pickle.HIGHEST_PROTOCOL)
+            start += piece.zs.shape[0]
             belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
             before = piece.times[-1]
         engine = engine if engine != "auto" or len(offsets) == 1 else "numba"
         after = None  # the next piece and its smoothed result
         for offset in reversed(offsets):
             spool.seek(offset)
-            piece, belief, before = pickle.load(spool)
+            piece, belief, before, start = pickle.load(spool)
             zs, times, ending = piece.zs, piece.times, None
             if after is not None:  # one step more, whose smoothed belief the pass starts from
                 zs = np.concatenate([zs, after[0].zs[:1]])
@@ -131,11 +135,27 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
                 if isinstance(belief, str):
                     raise ValueError("smoothing in pieces needs a Gaussian prior; give a 'diffuse' one the "
                                      "whole series as one piece.")
-            result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending, smooth=True))
+            with _steps_from(start):
+                result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending,
+                                    smooth=True))
             if after is not None:
                 result = _head(result, piece.zs.shape[0])
             after = (piece, result)
             yield piece, result
+
+
+@contextmanager
+def _steps_from(start: int):
+    """An error of one piece's run names the step of the whole series: its step in the piece plus `start`."""
+    try:
+        yield
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as err:
+        message = str(err)
+        renumbered = re.sub(r"\bat step (\d+)", lambda m: f"at step {int(m.group(1)) + start}", message, count=1)
+        if start == 0 or renumbered == message or type(err) not in (ValueError, FloatingPointError,
+                                                                     np.linalg.LinAlgError):
+            raise
+        raise type(err)(renumbered) from err
 
 
 def _engines(pieces: Iterable[Piece], engine: str) -> Iterator[tuple[Piece, str]]:
