@@ -511,6 +511,29 @@ def test_fit_time_column_and_columns(tmp_path, capsys):
     assert code == 0 and "gaussfuse: warning: the times are irregular (steps from 1 s to 3 s)" in err
 
 
+def test_fit_discretises_a_named_model_for_the_datas_step(tmp_path, capsys):
+    """A named model with dt = 2 on data every 0.5 s was fitted, silently, as steps of 2 s, where filter warns
+    and steps by the data. The oracle is the library's fit of the TimedModel at the data's times."""
+    rng = np.random.default_rng(2)
+    times = 0.5 * np.arange(120)
+    x = np.cumsum(np.cumsum(rng.normal(size=120)) * 0.1) + 0.5 * rng.normal(size=120)
+    data = tmp_path / "d.csv"
+    data.write_text("t,x\n" + "".join(f"{float(t)!r},{float(v)!r}\n" for t, v in zip(times, x)))
+    toml = tmp_path / "m.toml"
+    toml.write_text('[model]\nkind = "constant_velocity"\ndt = 2.0\nq = 3.0\nr = 1.0\n[prior]\nvar = 10.0\n')
+    code, stdout, err = run(capsys, "fit", data, "-m", toml, "--learn", "Q,R", "--iterations", "20", "--tol", "0")
+    assert code == 0, err
+    assert err.startswith("gaussfuse: warning: the model file's dt = 2 s, but the times step by 0.5 s; "), err
+    fitted = gfio.tomllib.loads(stdout)["model"]
+    spec = gfio.read_model(toml)
+    want = gf.fit(spec.timed, spec.prior, x, times=times, learn=("Q", "R"), iterations=20, tol=0)
+    np.testing.assert_array_equal(fitted["F"], [[1.0, 0.5], [0.0, 1.0]])
+    np.testing.assert_allclose(fitted["Q"], want.model.Q, rtol=1e-12)
+    np.testing.assert_allclose(fitted["R"], want.model.R, rtol=1e-12)
+    code, help_text, _ = run(capsys, "fit", "--help")
+    assert "A named model is fitted at the data's step" in help_text and "Output CSV" not in help_text
+
+
 def test_help_documents_the_non_convergence_status(capsys):
     code, stdout, _ = run(capsys, "--help")
     assert code == 0 and "3    `fit` did not converge" in stdout

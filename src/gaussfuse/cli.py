@@ -69,12 +69,15 @@ and optionally the belief one step before the first measurement
     mean = [0.0, 0.0, 1.0, 0.0]    # default: zeros
     var = 100.0                    # var * I, or cov = [[...]]
 Without [prior] the prior is N(0, 1e6 I); `diffuse = true` alone in [prior]
-is a flat prior, handled exactly. A named model steps by the data's own
-times: each step is discretised exactly for its dt (the file's dt is used
-only for a single row, and a warning says when the times step otherwise).
-Explicit matrices are for one fixed step: with irregular times a warning
-says so, and every row is one step. A control input (B) is not supported
-yet.
+is a flat prior, handled exactly. A control input (B) is not supported
+yet."""
+
+_FILTER_STEPS = """\
+A named model steps by the data's own times: each step is discretised
+exactly for its dt (the file's dt is used only for a single row, and a
+warning says when the times step otherwise). Explicit matrices are for one
+fixed step: with irregular times a warning says so, and every row is one
+step.
 
 Output CSV: the time column as written in DATA.csv, the state means, then
 std_<state> for each state, written with full float precision.
@@ -83,8 +86,20 @@ Files of any length: DATA.csv is read in pieces and the estimates are
 spooled to a temporary file (in TMPDIR, about the output's size; the
 smoother also keeps the pieces there), then copied to the output, so memory
 does not grow with the file (except for --plot, and for the smoother with a
-diffuse prior, which reads the file whole).
+diffuse prior, which reads the file whole)."""
 
+_FIT_STEPS = """\
+A named model is fitted at the data's step: times on a regular grid are
+steps of the model discretised for that grid's dt (a warning says when the
+file's dt differs). A fitted model has one set of matrices, so with
+irregular times every row is fitted as one step of the file's dt, and a
+warning says so; explicit matrices are always for one step per row. The
+fitted model is written as explicit matrices.
+
+DATA.csv is read whole; with --series-column, each partition where a
+worker runs, and every series is fitted with one step per row."""
+
+_LIMITS = """\
 Limits, so that a wrong file fails at once: DATA.csv must be text (no NUL
 character) with lines of at most 1 Mi characters; MODEL.toml at most 8 MiB,
 its tables and arrays nested at most 16 levels deep."""
@@ -593,9 +608,15 @@ def _run_fit(args: argparse.Namespace) -> int:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
         steps = np.diff(data.times)
         if steps.size and steps.max() - steps.min() > 1e-9 * steps.max():
+            of = f"the file's dt = {spec.model.dt:g} s" if spec.timed is not None else "it"
             print(f"gaussfuse: warning: the times are irregular (steps from {steps.min():g} s to {steps.max():g} s),"
-                  " but a fitted model has one set of matrices: every row is fitted as one step of it.",
+                  f" but a fitted model has one set of matrices: every row is fitted as one step of {of}.",
                   file=sys.stderr)
+        elif steps.size and spec.timed is not None:  # a named model on a regular grid: discretised for its dt
+            if abs(steps[0] - spec.model.dt) > 1e-9 * spec.model.dt:
+                print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by "
+                      f"{steps[0]:g} s; the model is fitted for the times' step.", file=sys.stderr)
+            spec = spec._replace(model=spec.timed.at(steps)[0])
         return _fit_and_write(args, spec, learn, data.zs)
     with _cluster(args) as client:
         return _fit_and_write(args, spec, learn, _pooled(args, spec, columns, client))
@@ -699,7 +720,7 @@ def build_parser() -> argparse.ArgumentParser:
         "filter", help="filter (or smooth) a CSV file of measurements with a TOML model",
         description="Filter (or, with --smooth, smooth) the measurements in DATA.csv with the\n"
                     "model in MODEL.toml and write the state estimates as CSV.\n\n" + _FORMATS
-                    + "\n\n" + _OUTPUTS,
+                    + "\n\n" + _FILTER_STEPS + "\n\n" + _LIMITS + "\n\n" + _OUTPUTS,
         epilog="example:\n  gaussfuse filter track.csv --model cv2d.toml --smooth "
                "--out track-smoothed.csv --plot track.png",
         formatter_class=raw,
@@ -732,7 +753,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "maximum likelihood, and write the fitted model as a TOML model file.\n"
                     "A prior `diffuse = true` in MODEL.toml is handled exactly. Ctrl-C stops the\n"
                     "fit and writes the best model so far (exit status 130; 143 for SIGTERM).\n\n"
-                    + _FORMATS + "\n\n" + _OUTPUTS,
+                    + _FORMATS + "\n\n" + _FIT_STEPS + "\n\n" + _LIMITS + "\n\n" + _OUTPUTS,
         epilog="example:\n  gaussfuse fit examples/data/nile.csv --model examples/models/local_level.toml "
                "--learn Q,R --method mle --out nile-fitted.toml",
         formatter_class=raw,
