@@ -77,6 +77,11 @@ def test_models_without_a_steady_state_are_named():
         gf.steady_state(gf.LinearModel(np.ones((3, 1, 1)), 1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="no steady state"):  # x grows by 2 a step and nothing measures it
         gf.steady_state(gf.LinearModel([[2.0, 0.0], [0.0, 0.5]], [[0.0, 1.0]], np.eye(2), [[1.0]]))
+    # no noise at all: P∞ = 0 and S∞ = 0, so there is no gain (this raised the update's LinAlgError about S)
+    ca = gf.LinearModel([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]], np.zeros((3, 3)), 0.0)
+    with pytest.raises(ValueError, match=r"no steady gain: its stationary innovation covariance S .* is singular") as e:
+        gf.steady_state(ca)
+    assert type(e.value) is ValueError
 
 
 @pytest.mark.parametrize("engine", ["python", "numba"])

@@ -76,7 +76,9 @@ def steady_state(model: LinearModel) -> Stationary:
         stabilising solution (an unstable mode that the measurements do not
         see, or one that the process noise does not reach while R is
         singular): then the filter's covariance has no steady state to
-        converge to.
+        converge to. Also when the steady state has a singular innovation
+        covariance (no noise reaches a measured component and R is zero
+        there), which leaves the gain undefined.
 
     Notes
     -----
@@ -115,10 +117,18 @@ def steady_state(model: LinearModel) -> Stationary:
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise ValueError(
             "the filter of `model` has no steady state: the Riccati equation has no stabilising solution "
-            f"(SciPy: {exc}). Check that every unstable mode of F is seen through H and reached by Q."
+            f"(SciPy: {exc}). Check that every unstable mode of F is seen through H and reached by Q, and that "
+            "R is positive definite where Q does not reach."
         ) from None
     P = symmetrize(P)
-    g = kalman.gain(P, model.H, model.R)
+    try:
+        g = kalman.gain(P, model.H, model.R)
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            "the filter of `model` has no steady gain: its stationary innovation covariance S = H P Hᵀ + R is "
+            f"singular ({np.array2string(symmetrize(model.H @ P @ model.H.T + model.R), separator=', ')}): the "
+            "state is known exactly in the long run and R = 0 where it is measured. Give R a positive variance."
+        ) from None
     out = Stationary(P, g.cov, g.K, g.innovation_cov)
     for f in fields(out):
         getattr(out, f.name).setflags(write=False)
