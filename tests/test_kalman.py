@@ -105,6 +105,18 @@ def test_non_positive_definite_innovation_covariance_raises_naming_S():
         kalman.update(np.zeros(2), np.zeros((2, 2)), np.array([1.0]), np.array([[1.0, 0.0]]), np.zeros((1, 1)))
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_a_noise_free_sensor_on_a_known_state_says_why(engine, form):
+    """R = 0 on a component the prior knows exactly (S = 0 exactly, not to round-off, so every path raises at
+    step 0): the error says why and what to change."""
+    model = gf.LinearModel(F=np.eye(2), H=[[1.0, 0.0]], Q=np.diag([0.0, 1.0]), R=0.0)
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: the innovation covariance S .* give R a "
+                                                    r"variance above round-off\.\)$"):
+        gf.filter(model, gf.Gaussian([0.0, 0.0], np.diag([0.0, 1.0])), [1.0, 2.0], engine=engine, form=form,
+                  check="off")
+
+
 def test_filter_names_the_step_of_a_singular_innovation_covariance():
     # The prior is certain about x1, and H measures x1; R is 0 only at step 2.
     model = gf.LinearModel(

@@ -34,6 +34,8 @@ __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_
            "iterate_changed"]
 
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
+_S_WHY = ("(S is singular to round-off where a component measured without noise, R = 0 or below the round-off of "
+          "H P Hᵀ, meets a state already known exactly: give R a variance above round-off.)")
 
 
 class Update(NamedTuple):
@@ -305,10 +307,10 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
         S = S_full[np.ix_(observed, observed)]
     try:
         L = cholesky(S, _S_NAME)
-    except np.linalg.LinAlgError:
+    except np.linalg.LinAlgError as exc:
         if not np.isfinite(S).all():  # an overflow upstream, not a covariance that is indefinite
             raise FloatingPointError(not_finite("filtered")) from None
-        raise
+        raise np.linalg.LinAlgError(f"{exc} {_S_WHY}") from None
     if K is None:
         K = cho_solve(L, HP_o).T                  # Kᵀ = S⁻¹ H_o P⁻
     elif observed is not None:
@@ -852,7 +854,7 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
         post = downdate(post, np.concatenate([D_o, np.zeros((n, D_o.shape[1]))]), "the innovation covariance")
     L_S = post[:mo, :mo]
     if not np.all(np.diagonal(L_S) > 0.0):
-        raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite")
+        raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite. {_S_WHY}")
     Kbar = post[mo:, :mo]
     return SqrtGain(Kbar, L_S, np.ascontiguousarray(post[mo:, mo:]), innovation_cov, observed,
                     whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹

@@ -214,7 +214,9 @@ def test_failures_raise_the_readable_messages():
     fail.code[1], fail.step[1], fail.size[1] = _step.NOT_POSITIVE_DEFINITE, 4, 1
     with pytest.raises(np.linalg.LinAlgError, match=r"^in series 1, at step 4: the innovation covariance S = "
                                                      r"H P Hᵀ \+ R is not positive definite, so it cannot be "
-                                                     r"factorised: \[\[0\.\]\]$"):
+                                                     r"factorised: \[\[0\.\]\] \(S is singular to round-off where a "
+                                                     r"component measured without noise.*give R a variance "
+                                                     r"above round-off\.\)$"):
         _step.raise_failure(fail)
     one = _step.failures(1, 2)
     one.code[0], one.step[0] = _step.FILTERED_NOT_FINITE, 2

@@ -37,7 +37,7 @@ from numba.extending import register_jitable
 
 from ..errors import ReadablePath, not_finite as not_finite_message
 from ..inference.results import FilterResult
-from ..kalman import _S_NAME
+from ..kalman import _S_NAME, _S_WHY
 from ._jit import jit
 from ._dense import cho_solve, cholesky, congruence, matmul
 
@@ -911,7 +911,7 @@ def raise_failure(fail: Failures) -> None:
         with np.printoptions(precision=4, threshold=36):
             shown = np.array2string(fail.S[s, :size, :size], separator=", ").replace("\n", "")
         raise np.linalg.LinAlgError(
-            f"{where(s, step, N)}: {_S_NAME} is not positive definite, so it cannot be factorised: {shown}")
+            f"{where(s, step, N)}: {_S_NAME} is not positive definite, so it cannot be factorised: {shown} {_S_WHY}")
     if code in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):
         stage = "predicted" if code == PREDICTED_NOT_FINITE else "filtered"
         raise FloatingPointError(f"{where(s, step, N)}: {not_finite_message(stage)}")

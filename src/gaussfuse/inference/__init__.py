@@ -157,6 +157,12 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         names the function and the step.
     numpy.linalg.LinAlgError
         When an innovation covariance is not positive definite (at step k).
+        That happens when a component measured without noise (R = 0 there)
+        meets a state that earlier measurements already determine exactly
+        (no process noise): S is then zero only to round-off, so round-off
+        decides the step that raises, and where it leaves S slightly
+        positive, the filter goes on with log-likelihood terms that
+        round-off sets, on either engine. Give R a variance above round-off.
     FloatingPointError
         When a step's predicted or filtered mean, covariance or log-likelihood
         term is not finite: the computation overflowed (say a transition of
