@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent / "_kernels"))
 
 import gaussfuse as gf  # noqa: E402
 
@@ -29,14 +28,14 @@ def _linear(form: str, smooth: bool) -> None:
 
 
 def _toy(mode: str, controls: bool, form: str) -> None:
-    from test_sigma_points import toy_problem
+    from _kernels.test_sigma_points import toy_problem
 
     model, prior, zs, us = toy_problem(0, mode, controls=controls)
     gf.smooth(model, prior, zs, us, method="ukf", engine="numba", form=form)
 
 
 def _scalar_h() -> None:
-    from test_sigma_points import pendulum_model
+    from _kernels.test_sigma_points import pendulum_model
 
     gf.smooth(pendulum_model("jitted-scalar-h"), gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(5), method="ukf",
               engine="numba")
