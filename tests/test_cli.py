@@ -542,10 +542,15 @@ def test_help_documents_the_non_convergence_status(capsys):
 @pytest.mark.parametrize(
     "extra, match",
     [
-        (["--learn", "Q,Z"], r"--learn must be a comma-separated list of F, H, Q, R, B, m0, P0; got 'Q,Z'"),
+        (["--learn", "Q,Z"], r"--learn must be a comma-separated list of F, H, Q, R, m0, P0; got 'Q,Z'"),
+        (["--learn", "Q,B"], r"--learn must be a comma-separated list of F, H, Q, R, m0, P0; got 'Q,B'"),
         (["--structure", "Q"], r"--structure takes NAME=KIND pairs"),
         (["--structure", "Q=banded"], r"`structure` maps \['Q', 'R', 'P0'\] to one of"),
-        (["--iterations", "0"], r"`iterations` must be a positive integer; got 0"),
+        (["--iterations", "0"], r"--iterations must be a positive integer; got 0"),
+        (["--tol", "-1"], r"--tol must be a non-negative finite number; got -1.0"),
+        (["--tol", "nan"], r"--tol must be a non-negative finite number; got nan"),
+        (["--workers", "2"], r"--workers run the series of --series-column on Dask; give --series-column"),
+        (["--scheduler", "tcp://h:1", "--workers", "-3"], r"--scheduler and --workers run the series of"),
     ],
 )
 def test_fit_bad_arguments(tmp_path, capsys, extra, match):
@@ -555,6 +560,18 @@ def test_fit_bad_arguments(tmp_path, capsys, extra, match):
     assert code == 2 and stdout == ""
     assert_one_line_error(err, match)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--workers", "2"], r"--workers run the series of --series-column on Dask"),
+    (["--series-column", "id", "--workers", "-3"], r"--workers must be a positive integer; got -3\."),
+])
+def test_filter_dask_options_without_their_series_are_errors(tmp_path, capsys, extra, match):
+    """--workers -3 without --series-column was ignored (exit status 0)."""
+    code, stdout, err = run(capsys, "filter", EXAMPLES / "data" / "track.csv", "--model",
+                            EXAMPLES / "models" / "cv2d.toml", "--out", tmp_path / "o", *extra)
+    assert code == 2 and stdout == "" and not (tmp_path / "o").exists()
+    assert_one_line_error(err, match)
 
 
 def test_fit_ctrl_c_writes_the_best_model_so_far(tmp_path, capsys, monkeypatch):

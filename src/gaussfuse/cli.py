@@ -243,6 +243,7 @@ def _run_filter(args: argparse.Namespace) -> int:
     computed: an error leaves no output, and no partial standard output.
     """
     _check_paths(args, {"--out": args.out, "--plot": args.plot})
+    _check_many(args)
     spec = gfio.read_model(args.model)
     columns = _columns(args)
     if args.series_column is not None:
@@ -386,8 +387,6 @@ def _cluster(args: argparse.Namespace):
             yield client
         return
     workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
-    if workers < 1:
-        raise ValueError(f"--workers must be a positive integer; got {workers}.")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the local cluster's notes about ports and dashboards
         cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -523,6 +522,18 @@ class _Drawn:
             title=f"{os.path.basename(data)}: {what} estimates, ±2σ", track=len(columns) == 3)
 
 
+def _check_many(args: argparse.Namespace) -> None:
+    """--scheduler and --workers are for --series-column; --workers is a positive count."""
+    if args.series_column is None:
+        given = [name for name, value in (("--scheduler", args.scheduler), ("--workers", args.workers))
+                 if value is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} run the series of --series-column on Dask; give --series-column "
+                             "or leave them out.")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be a positive integer; got {args.workers}.")
+
+
 def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
     """Refuse, before any work, outputs that would destroy an input or each other.
 
@@ -601,9 +612,14 @@ class _Progress:
 
 def _run_fit(args: argparse.Namespace) -> int:
     _check_paths(args, {"--out": args.out})
+    _check_many(args)
+    if args.iterations is not None and args.iterations < 1:
+        raise ValueError(f"--iterations must be a positive integer; got {args.iterations}.")
+    if args.tol is not None and not 0.0 <= args.tol < np.inf:  # NaN too
+        raise ValueError(f"--tol must be a non-negative finite number; got {args.tol}.")
     spec = gfio.read_model(args.model)
     columns = _columns(args)
-    learn = _names(args.learn, "--learn", learning.LEARNABLE)
+    learn = _names(args.learn, "--learn", [name for name in learning.LEARNABLE if name != "B"])  # no B in a file
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
         steps = np.diff(data.times)
