@@ -457,6 +457,9 @@ def test_auto_runs_the_square_root_forms_on_the_readable_path():
     curved = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), np.eye(1))
     with pytest.raises(ValueError, match="not available for method 'iekf'"):
         gf.smooth(curved, prior, zs, form="sqrt", engine="numba", method="iekf")
+    for call in (gf.filter, gf.smooth):  # the EKF has no compiled kernel in either form: not "cannot run form='sqrt'"
+        with pytest.raises(ValueError, match=r"^`engine='numba'` is not available for method 'ekf'; it is for "):
+            call(curved, prior, zs[:5], form="sqrt", engine="numba", method="ekf")
 
 
 @settings(max_examples=25, deadline=None, derandomize=True)

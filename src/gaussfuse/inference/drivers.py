@@ -407,8 +407,8 @@ def _readable_only(spec: Method, engine: str, form: str, gate, option: str | Non
         engine = "python"
     if option is None and gate is not None:
         option = f"gate={gate.probability!r}"
-    if option is None and form != "cov" and not sqrt_compiled:
-        option = f"form={form!r}"
+    if option is None and form != "cov" and not sqrt_compiled and spec.compiled is not None:
+        option = f"form={form!r}"  # (a method with no compiled kernel at all is named as such by compiled_engine)
     return engine, option
 
 
