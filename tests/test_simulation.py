@@ -131,6 +131,21 @@ def test_bad_arguments_are_named(call, error, message):
         call(model, gf.Gaussian([0.0, 1.0], np.eye(2)))
 
 
+def test_a_model_function_error_names_the_step():
+    """As a filter names it; simulate named only the function."""
+    def f(x):  # a counter of steps, without noise: fails on its fourth call, the transition into step 3
+        if x[0] >= 3.0:
+            raise RuntimeError("out of range")
+        return x + 1.0
+
+    model = gf.NonlinearModel(f, lambda x: x, np.zeros((1, 1)), np.eye(1))
+    with pytest.raises(gf.ModelFunctionError, match=r"^at step 3: `f` raised RuntimeError .*out of range"):
+        gf.simulate(model, gf.Gaussian([0.0], [[0.0]]), 6, rng=0)
+    bad_h = gf.NonlinearModel(lambda x: x + 1.0, lambda x: np.log(2.5 - x), np.zeros((1, 1)), np.eye(1))
+    with pytest.raises(gf.ModelFunctionError, match=r"^at step 2: `h` returned a non-finite value"):
+        gf.simulate(bad_h, gf.Gaussian([0.0], [[0.0]]), 6, rng=0)
+
+
 def test_posterior_draws_take_the_filters_divergence_check():
     """A model whose R is far too small for its data: the filter's DivergenceWarning, raised, or nothing."""
     import warnings

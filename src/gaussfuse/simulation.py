@@ -41,6 +41,7 @@ import numpy as np
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
 from ._validation import integer
+from .errors import ModelFunctionError, at_step
 from .inference import filter as run_filter
 from .inference.timing import resolve
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
@@ -154,9 +155,15 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
                 x = x @ F.T + (0.0 if B is None else B @ u[k])
             else:
                 Q, R = model.noise(k)
-                x = model.transition(x, None if u is None else u[k])  # f at each row (checked)
+                try:
+                    x = model.transition(x, None if u is None else u[k])  # f at each row (checked)
+                except ModelFunctionError as exc:
+                    raise at_step(exc, k) from None
             x = x + _draw(rng, roots("Q", Q), count)
-            z = x @ H.T if linear else model.measurement(x)
+            try:
+                z = x @ H.T if linear else model.measurement(x)
+            except ModelFunctionError as exc:
+                raise at_step(exc, k) from None
             states[:, k], measurements[:, k] = x, z + _draw(rng, roots("R", R), count)
     if not (np.all(np.isfinite(states)) and np.all(np.isfinite(measurements))):
         raise FloatingPointError("the simulation overflowed: its states or measurements are not finite.")
