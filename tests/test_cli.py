@@ -1083,6 +1083,20 @@ def test_an_error_in_a_later_piece_leaves_no_output(tmp_path, capsys, monkeypatc
         assert_one_line_error(err, r"line 26: column `px`: 'x' is not a number")
 
 
+@pytest.mark.parametrize("times, match", [
+    ("0\n1e300\n2e300", r"a step of dt = 1e\+300 s is too long for ConstantVelocity"),
+    ("-1.7e308\n1.7e308\n1.75e308", r"`times` step 0 is longer than the largest float64"),
+])
+@pytest.mark.parametrize("command", ["filter", "fit"])
+def test_times_too_far_apart_are_one_line(tmp_path, capsys, command, times, match):
+    """They gave NumPy's overflow warnings, then "`Q` must be finite" or "`dt` must be a positive number; got inf"."""
+    data = tmp_path / "d.csv"
+    data.write_text("t,x,y\n" + "".join(f"{t},1.0,2.0\n" for t in times.split()))
+    code, stdout, err = run(capsys, command, data, "-m", EXAMPLES / "models" / "cv2d.toml")
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, match)
+
+
 def test_an_error_in_a_later_piece_names_the_file_and_the_step_of_the_file(tmp_path, capsys, monkeypatch):
     """The step was counted within its piece ("at step 808" for step 9000 of a file read 1,024 rows at a time)."""
     data, _, _ = _irregular(tmp_path, 30)

@@ -33,7 +33,7 @@ from . import io as gfio
 from .errors import ConvergenceWarning, DivergenceWarning
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
-from .inference import streaming
+from .inference import streaming, timing
 from .inference.drivers import ENGINES
 from .models import LinearModel, constant_velocity
 
@@ -444,7 +444,8 @@ class _Steps:
         for piece in pieces:
             times = piece.times if self.last is None else np.concatenate([[self.last], piece.times])
             if times.shape[0] >= 2:
-                steps = np.diff(times)
+                with np.errstate(over="ignore"):  # times ±1e308 apart: the filter names that step
+                    steps = np.diff(times)
                 self.low, self.high = min(self.low, float(steps.min())), max(self.high, float(steps.max()))
             self.last = piece.times[-1]
             yield piece
@@ -622,17 +623,19 @@ def _run_fit(args: argparse.Namespace) -> int:
     learn = _names(args.learn, "--learn", [name for name in learning.LEARNABLE if name != "B"])  # no B in a file
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
-        steps = np.diff(data.times)
+        steps = timing.step_sizes("times", data.times, data.times.shape[0])[1:] if data.times.shape[0] > 1 else \
+            np.empty(0)  # checked: finite and increasing
         if steps.size and steps.max() - steps.min() > 1e-9 * steps.max():
             of = f"the file's dt = {spec.model.dt:g} s" if spec.timed is not None else "it"
             print(f"gaussfuse: warning: the times are irregular (steps from {steps.min():g} s to {steps.max():g} s),"
                   f" but a fitted model has one set of matrices: every row is fitted as one step of {of}.",
                   file=sys.stderr)
         elif steps.size and spec.timed is not None:  # a named model on a regular grid: discretised for its dt
+            stepped = spec.timed.at(steps)[0]
             if abs(steps[0] - spec.model.dt) > 1e-9 * spec.model.dt:
                 print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by "
                       f"{steps[0]:g} s; the model is fitted for the times' step.", file=sys.stderr)
-            spec = spec._replace(model=spec.timed.at(steps)[0])
+            spec = spec._replace(model=stepped)
         return _fit_and_write(args, spec, learn, data.zs)
     with _cluster(args) as client:
         return _fit_and_write(args, spec, learn, _pooled(args, spec, columns, client))

@@ -356,7 +356,8 @@ class _Rows:
         if self.last is not None:
             times = np.concatenate([[self.last[0]], times])
             lines = [self.last[1], *lines]
-        back = np.flatnonzero(np.diff(times) <= 0)
+        with np.errstate(over="ignore"):  # an infinite step is increasing; the filter says it is too long
+            back = np.flatnonzero(np.diff(times) <= 0)
         if back.size:
             k = back[0] + 1
             raise InputFileError(

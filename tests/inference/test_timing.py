@@ -132,6 +132,11 @@ def test_a_nonlinear_motion_steps_by_each_dt():
     (np.array(["a", "b", "c", "d", "e"]), "timed", "`times` must be numbers"),
     (np.arange(10.0).reshape(5, 2), "timed", "one-dimensional"),
     (np.array([0.0, 1.0, np.nan, 3.0, 4.0]), "timed", "finite"),
+    # steps too long for float64: said so, not "`Q` must be finite" or "`dt` must be a positive number; got inf"
+    (np.array([0.0, 1.0, 1e300, 2e300, 3e300]), "timed",
+     r"^a step of dt = 1e\+300 s is too long for ConstantVelocity: its F or Q overflows float64"),
+    (np.array([-1.7e308, -1.6e308, 1.7e308, 1.71e308, 1.72e308]), "timed",
+     r"^`times` step 2 is longer than the largest float64 \(dt = inf s\)"),
 ])
 def test_times_that_do_not_fit_are_named(times, model, message):
     models = {"fixed": gf.constant_velocity(1.0, 0.5, 0.1), "dt2": gf.constant_velocity(2.0, 0.5, 0.1),

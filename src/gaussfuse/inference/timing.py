@@ -76,9 +76,11 @@ def step_sizes(name: str, times, T: int) -> np.ndarray:
     """
     t = as_seconds(name, times)
     if t.shape[0] == T + 1:
-        dts = np.diff(t)
+        with np.errstate(over="ignore"):
+            dts = np.diff(t)
     elif t.shape[0] == T and T >= 2:
-        dts = np.diff(t)
+        with np.errstate(over="ignore"):
+            dts = np.diff(t)
         dts = np.concatenate([dts[:1], dts])
     else:
         more = " (with one measurement, give two: the prior's time, then the measurement's)" if T == 1 else ""
@@ -88,6 +90,10 @@ def step_sizes(name: str, times, T: int) -> np.ndarray:
     if bad.size:
         k = int(bad[0])
         raise ValueError(f"`{name}` must be strictly increasing; step {k} has dt = {dts[k]:g} s.")
+    if np.isinf(dts).any():
+        k = int(np.flatnonzero(np.isinf(dts))[0])
+        raise ValueError(f"`{name}` step {k} is longer than the largest float64 (dt = inf s): times so far apart "
+                         "cannot be stepped.")
     return dts
 
 

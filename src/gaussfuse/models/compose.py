@@ -94,7 +94,7 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
         return TimedModel(motion, sensor)
 
     if isinstance(motion, LinearMotion):
-        F, Q = motion.transition(dt)
+        F, Q = _transition(motion, dt)
         B = motion.control(dt)
     else:
         Q = motion.noise(real("dt", dt, positive=True))  # noise() accepts dt = 0; a model's step must be positive
@@ -214,7 +214,7 @@ class TimedModel(Frozen):
             return model(self.motion, self.sensor, float(unique[0])), us
         n = self.n
         if isinstance(self.motion, LinearMotion):
-            pairs = [self.motion.transition(float(d)) for d in unique]
+            pairs = [_transition(self.motion, float(d)) for d in unique]
             if self.linear:  # checked once per distinct dt, then indexed by step
                 H, R = self.sensor.linear(n)
                 controls = [self.motion.control(float(d)) for d in unique]
@@ -240,6 +240,16 @@ class TimedModel(Frozen):
                               measurement_angles=self.sensor.measurement_angles), controls
 
 
+def _transition(motion, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``motion.transition(dt)``, refused with the step named when a step this long overflows float64."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        F, Q = motion.transition(dt)
+    if not (np.isfinite(F).all() and np.isfinite(Q).all()):
+        raise ValueError(f"a step of dt = {dt:g} s is too long for {type(motion).__name__}: its F or Q overflows "
+                         "float64 (inf or NaN).")
+    return F, Q
+
+
 class _Stepped:
     """f(x, u) of a motion over the step ``u[0]`` (with controls ``u[1:]`` for a linear motion's B)."""
 
@@ -252,7 +262,7 @@ class _Stepped:
 
     def _at(self, dt: float):
         if dt != self._dt:  # the sigma points of a step share their dt: computed once
-            F, _ = self.motion.transition(dt)
+            F, _ = _transition(self.motion, dt)
             self._dt, self._matrices = dt, (F, self.motion.control(dt))
         return self._matrices
 
