@@ -577,3 +577,27 @@ def test_pooled_statistics_equal_those_of_each_series_and_of_each_step():
                                        rtol=1e-12, atol=1e-12, err_msg=f"{name}, series {i}")
     assert np.isnan(zs[2, 7]).all() and pooled.nu[2 * T + 7, :m] @ np.ones(m) == pytest.approx(
         (H @ sm.means[2, 8]).sum())  # all missing: the prediction of z from x
+
+
+@pytest.mark.parametrize("method", ["em", "mle"])
+def test_too_few_observations_for_a_diffuse_prior_are_named(method):
+    """One observation of a diffuse local level only places the level: EM blamed the user's Q ("`Q` must be
+    finite") and MLE reported convergence with NaN standard errors."""
+    start = gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0)
+    with pytest.raises(ValueError, match=r"with a 'diffuse' prior, the first 1 observed value\(s\) of a series only "
+                                         r"determine its initial state; `zs` has 1 in 1 series"):
+        gf.fit(start, "diffuse", [5.0], method=method)
+    trend = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.eye(2), R=1.0)
+    with pytest.raises(ValueError, match=r"`zs` has 4 in 2 series"):
+        gf.fit(trend, "diffuse", np.array([[1.0, 2.0, np.nan], [3.0, np.nan, 5.0]])[..., None], method=method)
+
+
+@pytest.mark.parametrize("method", ["em", "mle"])
+def test_data_fitted_exactly_say_the_likelihood_has_no_maximum(method):
+    """Constant data: the log-likelihood grows without bound as Q and R go to 0. MLE raised the filter's
+    LinAlgError from a trial step with R = 0; both now stop unconverged and say why."""
+    start = gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0)
+    with pytest.warns(gf.ConvergenceWarning, match=r"The learned Q and R went to 0 .* the likelihood has no maximum"):
+        res = gf.fit(start, gf.Gaussian([0.0], [[1e6]]), np.full(50, 3.0), method=method)
+    assert not res.converged and res.loglik > 1000.0  # far above any fit with noise: exp(loglik / 50) per point
+    assert res.model.R[0, 0] <= 1e-100 * 10000.0

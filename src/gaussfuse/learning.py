@@ -1102,13 +1102,24 @@ def _evaluator(build, data, engine):
     return evaluate
 
 
-def _boundary(model, prior, learn) -> str:
+def _boundary(model, prior, learn, start) -> str:
     """A hint for a fit that stopped near a singular learned covariance, where its maximum may lie ("" if none).
 
     There a variance tends to 0, a search in the covariance's Cholesky
     factor (MLE) or EM's fixed-point steps slow down, and they can stop
     short of their tolerance with a model that is as good as the maximum.
+    Where the learned noise vanished altogether (below 1e-100 of the
+    `start` model's), the data are fitted exactly and the likelihood has no
+    maximum at all.
     """
+    vanished = [name for name in ("Q", "R") if name in learn and isinstance(getattr(start, name, None), np.ndarray)
+                and np.max(np.abs(getattr(model, name))) <= 1e-100 * np.max(np.abs(getattr(start, name)))]
+    if vanished:
+        names = " and ".join(vanished)
+        return (f" The learned {names} went to 0 (below 1e-100 of the start) as the log-likelihood grew: a model "
+                f"without that noise fits the data exactly (constant or noise-free data, say), so the likelihood has "
+                f"no maximum; keep {names} fixed (leave {'them' if len(vanished) > 1 else 'it'} out of `learn`), or learn "
+                f"{'them' if len(vanished) > 1 else 'it'} through `params` with a floor.")
     for name in ("Q", "R", "P0"):
         if name not in learn:
             continue
@@ -1131,7 +1142,10 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     best = [theta0, -np.inf]
 
     def objective(theta):
-        ll, grad = evaluate(theta)
+        try:
+            ll, grad = evaluate(theta)
+        except (np.linalg.LinAlgError, FloatingPointError):  # a trial step where S is singular or a pass overflows:
+            return np.inf, np.zeros_like(theta)              # no likelihood there; the line search steps back
         if ll > best[1]:
             best[0], best[1] = theta.copy(), ll
         return -ll / n_obs, -grad / n_obs
@@ -1420,6 +1434,7 @@ def fit(
     (15099, 1469.1)
     """
     timed = isinstance(model, TimedModel)
+    start = model
     zs, times, _ = frames.unpack(zs, times)
     pooled = chunked.is_dask(zs)
     if pooled and zs.ndim != 3:
@@ -1451,6 +1466,10 @@ def fit(
         data = _Series(zs, us)
     if nobs == 0:
         raise ValueError("`zs` has no observed value (every entry is NaN): there is nothing to learn from.")
+    if prior == "diffuse" and nobs <= zs.shape[0] * model.n:
+        raise ValueError(f"with a 'diffuse' prior, the first {model.n} observed value(s) of a series only determine "
+                         f"its initial state; `zs` has {nobs} in {zs.shape[0]} series, which leaves none to learn the "
+                         "model from. Give more data, or a Gaussian prior.")
     check_steps(model, zs.shape[1])
     if iterations is None:
         iterations = 500 if method == "em" else 1000
@@ -1511,7 +1530,7 @@ def fit(
         how = "EM" if method == "em" else "maximum likelihood"
         warnings.warn(ConvergenceWarning(
             f"{how} did not converge: {message.rstrip('.')}. The result is the best model found (loglik "
-            f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model.{_boundary(model, prior, learn)}"),
+            f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model.{_boundary(model, prior, learn, start)}"),
             stacklevel=2)
     return FitResult(model, prior, float(history[-1]), history, method, converged, message, errors,
                      params=dict(zip(names, map(float, values))), bse=dict(zip(names, map(float, bse))),
