@@ -1102,7 +1102,7 @@ def _evaluator(build, data, engine):
     return evaluate
 
 
-def _boundary(model, prior, learn, start) -> str:
+def _boundary(model, prior, learn, start=None) -> str:
     """A hint for a fit that stopped near a singular learned covariance, where its maximum may lie ("" if none).
 
     There a variance tends to 0, a search in the covariance's Cholesky
