@@ -601,3 +601,17 @@ def test_data_fitted_exactly_say_the_likelihood_has_no_maximum(method):
         res = gf.fit(start, gf.Gaussian([0.0], [[1e6]]), np.full(50, 3.0), method=method)
     assert not res.converged and res.loglik > 1000.0  # far above any fit with noise: exp(loglik / 50) per point
     assert res.model.R[0, 0] <= 1e-100 * 10000.0
+
+
+def test_em_stops_where_round_off_takes_the_likelihood_over():
+    """Constant data with a diffuse prior: as Q and R shrink, the diffuse log-likelihood (terms of 1e31 that
+    cancel) swung by ±1e15, and EM reported convergence at 4.5e15. An EM step cannot lower the likelihood, so
+    a fall is round-off: EM stops there, unconverged, with the model before it. MLE raised the filter's
+    LinAlgError from its final Newton steps."""
+    start = gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0)
+    with pytest.warns(gf.ConvergenceWarning, match=r"the log-likelihood fell from .* which an EM step cannot do"):
+        res = gf.fit(start, "diffuse", np.full(50, 3.0), method="em")
+    assert not res.converged and np.all(np.diff(res.history) > 0) and res.loglik == res.history[-1] < 1e4
+    with pytest.warns(gf.ConvergenceWarning, match="maximum likelihood did not converge"):
+        res = gf.fit(start, "diffuse", np.full(50, 3.0), method="mle")
+    assert not res.converged and np.isfinite(res.loglik)

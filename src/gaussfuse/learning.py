@@ -630,6 +630,12 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
                     f"(the log-likelihood rose to {history[-1]:.6g} on the way): {exc} Or learn fewer of F "
                     "and H, whose smallest singular values EM can shrink toward zero.") from None
             history.append(loglik)
+            if it > 0 and not loglik >= history[-2] - 1e-6 * (1.0 + abs(history[-2])):
+                message = (f"stopped at iteration {it}: the log-likelihood fell from {history[-2]:.6g} to {loglik:.6g}, "
+                           "which an EM step cannot do, so round-off has taken it over (a learned variance near 0, "
+                           "say); the model before it is returned")
+                history.pop()
+                break
             best = (model, prior)
             if callback is not None:
                 callback(it, loglik)
@@ -1201,12 +1207,14 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
         ll, grad = evaluate(theta)
         if np.max(np.abs(grad), initial=0.0) <= gtol:
             return theta, True
-        information = -_hessian(evaluate, theta)
-        if not is_positive_definite(information):
-            break
-        L = cholesky(information)
-        step = theta + cho_solve(L, grad)
-        if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
+        try:
+            information = -_hessian(evaluate, theta)
+            if not is_positive_definite(information):
+                break
+            step = theta + cho_solve(cholesky(information), grad)
+            if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
+                break
+        except (np.linalg.LinAlgError, FloatingPointError):  # a neighbour where the filter fails: no step
             break
         theta = step
     return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
@@ -1223,7 +1231,10 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     nan = np.full(natural(theta).size, np.nan)
     if k == 0:
         return None, nan
-    information = -_hessian(evaluate, theta)
+    try:
+        information = -_hessian(evaluate, theta)
+    except (np.linalg.LinAlgError, FloatingPointError):  # a neighbour where the filter fails (a variance near 0)
+        return None, nan
     if not is_positive_definite(information):  # it is at a maximum
         return None, nan
     L = cholesky(information)
