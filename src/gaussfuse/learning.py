@@ -630,7 +630,7 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
                     f"(the log-likelihood rose to {history[-1]:.6g} on the way): {exc} Or learn fewer of F "
                     "and H, whose smallest singular values EM can shrink toward zero.") from None
             history.append(loglik)
-            if it > 0 and not loglik >= history[-2] - 1e-6 * (1.0 + abs(history[-2])):
+            if it > 0 and np.isfinite(loglik) and loglik < history[-2] - 1e-6 * (1.0 + abs(history[-2])):
                 message = (f"stopped at iteration {it}: the log-likelihood fell from {history[-2]:.6g} to {loglik:.6g}, "
                            "which an EM step cannot do, so round-off has taken it over (a learned variance near 0, "
                            "say); the model before it is returned")
