@@ -242,6 +242,45 @@ def test_fuse_is_exact_and_symmetric_however_far_apart_the_variances(ratio):
     assert certain.cov[0, 0] == 0.0 and certain.mean[0] == pytest.approx(3.0, rel=1e-15)
 
 
+def _fuse_80_digits(a, A, b, B):
+    """a + A (A+B)⁻¹ (b - a) and A - A (A+B)⁻¹ A in 80 digits (mpmath)."""
+    import mpmath as mp
+
+    with mp.workdps(80):
+        A_, B_ = mp.matrix(np.asarray(A, float).tolist()), mp.matrix(np.asarray(B, float).tolist())
+        a_, b_ = mp.matrix(np.asarray(a, float).tolist()), mp.matrix(np.asarray(b, float).tolist())
+        K = A_ * mp.inverse(A_ + B_)
+        mean, cov = a_ + K * (b_ - a_), A_ - K * A_
+        return (np.array([float(v) for v in mean]),
+                np.array([[float(cov[i, j]) for j in range(cov.cols)] for i in range(cov.rows)]))
+
+
+@pytest.mark.parametrize("a, A, b, B", [
+    # a singular belief 1e8 times wider than a positive definite one: the moments' check of their own
+    # result refused it ("`cov` must be positive semi-definite; its smallest eigenvalue is -9.69e-09")
+    ([0.0, 0.0], [[2.0, 1.0], [1.0, 1.0]], [1.0, 2.0], [[1e8, 3e8], [3e8, 9e8]]),
+    # a belief certain along x0 = x1 beside one 1e17 wider: 15% off (every entry 0.575 for 0.5)
+    ([0.0, 0.0], [[1.0, 0.0], [0.0, 1.0]], [1.0, 1.0], [[1e17, 1e17], [1e17, 1e17]]),
+    # a positive definite belief of 1e-20 beside a singular one: refused as "both certain in a common direction"
+    ([0.0, 0.0], [[1e-20, 0.0], [0.0, 1e-20]], [1.0, 1.0], [[1.0, 1.0], [1.0, 1.0]]),
+])
+def test_fuse_where_the_sum_of_the_covariances_is_ill_conditioned(a, A, b, B):
+    mean, cov = _fuse_80_digits(a, A, b, B)
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    for first, second in ((gf.Gaussian(a, A), gf.Gaussian(b, B)), (gf.Gaussian(b, B), gf.Gaussian(a, A))):
+        got = gf.fuse(first, second)
+        np.testing.assert_allclose(got.cov, cov, rtol=0, atol=1e-12 * scale.max())
+        np.testing.assert_allclose(got.mean, mean, rtol=1e-12, atol=1e-12 * np.abs(np.r_[a, b]).max())  # inputs' scale
+    assert np.array_equal(gf.fuse(gf.Gaussian(a, A), gf.Gaussian(b, B)).cov,
+                          gf.fuse(gf.Gaussian(b, B), gf.Gaussian(a, A)).cov)  # the same numbers, either order
+
+
+def test_fuse_of_variances_near_the_largest_float():
+    """A + B overflowed, and solves with its infinite factor gave N(0, 0) without an error."""
+    fused = gf.fuse(gf.Gaussian(1.0, 1e308), gf.Gaussian(3.0, 1e308))
+    assert fused.mean[0] == pytest.approx(2.0, rel=1e-15) and fused.cov[0, 0] == pytest.approx(5e307, rel=1e-15)
+
+
 def test_fuse_doc_example():
     fused = gf.fuse(gf.Gaussian(0.0, 1.0), gf.Gaussian(2.0, 1.0))
     assert fused.mean[0] == pytest.approx(1.0) and fused.cov[0, 0] == pytest.approx(0.5)

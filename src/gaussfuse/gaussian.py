@@ -199,10 +199,11 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
 
     In n dimensions this is the Kalman update of `a` by the measurement
     ``z = b.mean`` with ``H = I`` and ``R = b.cov`` (see
-    :func:`gaussfuse.kalman.fuse_moments`): a Cholesky solve with
-    :math:`\Sigma_a + \Sigma_b`, never an explicit inverse, and written so
-    that nothing is subtracted: ``fuse(a, b)`` equals ``fuse(b, a)`` to
-    round-off however far apart their variances are.
+    :func:`gaussfuse.kalman.fuse_moments`), in the square-root form: no
+    inverse, and :math:`\Sigma_a + \Sigma_b` is never formed, so variances
+    far apart (1e300 times, or near the largest float) and singular
+    beliefs lose nothing. ``fuse(a, b)`` and ``fuse(b, a)`` are the same
+    numbers.
 
     Examples
     --------
@@ -228,7 +229,7 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
         raise FloatingPointError("the fused mean or covariance is not finite (inf or NaN): the computation "
                                  "overflowed; check the scale of `a` and `b`.")
-    return Gaussian(mean, cov)
+    return Gaussian._trusted(mean, cov)  # positive semi-definite by construction (L Lᵀ), and symmetric
 
 
 def moment_match(weights: np.ndarray, means: np.ndarray, covs: np.ndarray,
