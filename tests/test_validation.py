@@ -218,6 +218,11 @@ def test_check_psd_judges_each_entry_on_its_components_scale():
         G = 10.0 ** rng.uniform(-150, 150, (4, 1)) * rng.standard_normal((4, rng.integers(1, 5)))
         check_psd("Q", G @ G.T)
     check_psd("Q", np.diag([1.0, -1e-20]))  # a zero variance computed to round-off of the largest entry
+    # a variance judged on the largest scale still bounds its covariances: correlation 3.16 passed, and the
+    # filter then gave a variance of -8.99 without a word
+    with pytest.raises(ValueError, match=r"entry \[0, 1\] is larger than the variances \[0, 0\] and \[1, 1\] allow"):
+        gf.Gaussian([0.0, 0.0], [[1.0, 1e-8], [1e-8, 1e-17]])
+    check_psd("Q", np.array([[1.0, 1e-17], [1e-17, 0.0]]))  # a covariance at round-off beside a zero variance
 
 
 # ---------------------------------------------------------------------------

@@ -155,7 +155,9 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
     other components' variances (``diag(1e10, -0.5)`` is refused). A
     diagonal entry within round-off of the largest entry (:math:`8 n
     \epsilon` of it: a zero variance computed as -1e-20, say) is judged on
-    the largest entry's scale instead.
+    the largest entry's scale instead, and its covariances must still obey
+    :math:`|c_{ij}| \le \sqrt{c_{ii} c_{jj}}` to the round-off that scale
+    leaves.
     """
     n = cov.shape[-1]
     top = np.max(np.abs(cov), axis=(-2, -1))[..., None]
@@ -179,6 +181,17 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
         raise ValueError(
             f"`{name}` must be positive semi-definite; its smallest eigenvalue is {eig:.3g}{where}."
         )
+    # |c_ij| <= √(c_ii c_jj), to round-off: the eigenvalue test cannot see it where a variance is judged on the
+    # largest scale. A variance that is 0 by cancellation of terms of the largest scale leaves c_ij off by about
+    # ε √(c_max) √(c_jj).
+    d = np.sqrt(np.clip(np.diagonal(sym, axis1=-2, axis2=-1), 0.0, None))
+    slack = 8 * n * np.finfo(np.float64).eps * np.sqrt(top[..., None]) * np.maximum(d[..., :, None], d[..., None, :])
+    wide = (np.abs(sym) > d[..., :, None] * d[..., None, :] * (1.0 + rtol) + slack) & ~np.eye(n, dtype=bool)
+    if wide.any():
+        at = np.argwhere(wide)[0]
+        i, j = int(at[-2]), int(at[-1])
+        raise ValueError(f"`{name}` must be positive semi-definite; its entry [{i}, {j}] is larger than the variances "
+                         f"[{i}, {i}] and [{j}, {j}] allow (|c_ij| <= √(c_ii c_jj)){_where(at, cov.ndim)}.")
     return sym
 
 
