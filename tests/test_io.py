@@ -210,6 +210,14 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         (EXPLICIT + "[prior]\nvar = 1\ncov = [[1, 0], [0, 1]]\n",
          r"m\.toml: \[prior\]: give either `cov` or `var` \(var \* I\), not both\."),
         (EXPLICIT + "prior = 1\n", r"\[model\]: unknown key\(s\) \['prior'\]"),
+        # a traceback (OverflowError) and silent casts of strings and booleans inside arrays
+        (EXPLICIT.replace("R = 1", "R = 1" + "0" * 400), r"\[model\] R: `R` must be finite; got an integer too large"),
+        (EXPLICIT + "[prior]\nmean = [1, 1" + "0" * 400 + "]\n", r"\[prior\] mean: `mean` must be finite; got an int"),
+        (EXPLICIT.replace("Q = [[1, 0], [0, 1]]", 'Q = [["1", 0], [0, 1]]'), r"\[model\] Q: `Q` must be an array of "
+                                                                            r"numbers; got strings\."),
+        (EXPLICIT.replace("Q = [[1, 0], [0, 1]]", "Q = [[true, 0], [0, 1]]"), r"\[model\] Q: `Q` must be an array of "
+                                                                            r"numbers; got booleans\."),
+        (EXPLICIT + '[prior]\nmean = ["1", "2"]\n', r"\[prior\] mean: `mean` must be an array of numbers; got strings"),
         ("prior = 1\n" + EXPLICIT, r"m\.toml: `prior` must be a table"),
     ],
 )

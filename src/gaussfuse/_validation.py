@@ -49,8 +49,10 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
     if kind == "c":
         # Checked before the cast, which would warn and drop the imaginary part.
         raise TypeError(f"`{name}` must be real; got complex values.")
-    if kind == "b":
+    if kind == "b" or (isinstance(value, (list, tuple)) and _holds_bool(value)):
         raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
+    if kind in ("U", "S"):  # the cast below would read "1" as 1.0
+        raise TypeError(f"`{name}` must be an array of numbers; got strings.")
     if kind in ("M", "m"):
         what = "datetime64" if kind == "M" else "timedelta64"
         raise TypeError(f"`{name}` must be an array of numbers; got {what} values (dates and times "
@@ -69,6 +71,8 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
             value = np.ma.getdata(value)
     try:
         arr = np.array(value, dtype=np.float64, copy=copy or None)
+    except OverflowError:  # a Python integer beyond float64 (from a TOML file, say)
+        raise ValueError(f"`{name}` must be finite; got an integer too large for float64 (above 1.8e308).") from None
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`{name}` must be an array of real numbers; got {value!r:.80}.") from exc
     # The extremes are ±inf if any entry is, and NaN if any is (fmin/fmax skip NaN):
@@ -81,6 +85,11 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
             index = tuple(int(i) for i in np.argwhere(bad)[0])
             raise ValueError(f"`{name}` must be finite; got {what} value at index {index}.")
     return arr
+
+
+def _holds_bool(items) -> bool:
+    """Whether nested lists or tuples hold a bool anywhere (NumPy would cast it to 0 or 1 among numbers)."""
+    return any(isinstance(x, (bool, np.bool_)) or (isinstance(x, (list, tuple)) and _holds_bool(x)) for x in items)
 
 
 def as_vector(name: str, value, size: int | None = None) -> np.ndarray:
