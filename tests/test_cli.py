@@ -1157,6 +1157,20 @@ def test_row_progress_on_a_terminal_only():
     assert hidden.getvalue() == ""
 
 
+def test_matrices_given_per_row_that_do_not_fit_the_file_are_named_before_any_work(tmp_path, capsys):
+    """A count that differs from the file's rows gave "the model is time-varying over 1 steps but `zs` has 5 steps",
+    naming no file; fit ran the whole fit, then refused to write a time-varying model."""
+    (tmp_path / "m.toml").write_text("[model]\nF = 1\nH = 1\nQ = 1\nR = [[[1.0]]]\n")
+    (tmp_path / "d.csv").write_text("t,z\n0,1\n1,2\n2,3\n3,2\n4,1\n")
+    for command, match in (("filter", r"m\.toml: \[model\]: the matrices are given for 1 steps, but .*d\.csv has 5 "
+                                      r"rows; give one per row\."),
+                           ("fit", r"m\.toml: \[model\]: matrices given per row cannot be written back as a model "
+                                   r"file; `fit` takes one set of matrices\.")):
+        code, stdout, err = run(capsys, command, tmp_path / "d.csv", "-m", tmp_path / "m.toml")
+        assert code == 2 and stdout == ""
+        assert_one_line_error(err, match)
+
+
 @pytest.mark.parametrize("smooth", [False, True])
 def test_matrices_given_per_step_filter_a_file_longer_than_one_piece(tmp_path, capsys, monkeypatch, smooth):
     """The file is read in pieces (65,536 rows for this model), and a Q given per step was checked against one

@@ -57,7 +57,8 @@ MODEL.toml: explicit matrices
     Q = [[0.25, 0.5], [0.5, 1.0]]
     R = [[4.0]]
     states = ["x", "v"]            # optional; default x0, x1, ...
-or a named model
+(with `filter`, any of F, H, Q and R may instead be an array of matrices,
+one per row of DATA.csv: Q = [[[0.25]], [[0.5]], ...]), or a named model
     [model]
     kind = "constant_velocity"     # or "constant_acceleration"
     dim = 2                        # 1, 2 or 3 axes (default 1)
@@ -75,9 +76,9 @@ yet."""
 _FILTER_STEPS = """\
 A named model steps by the data's own times: each step is discretised
 exactly for its dt (the file's dt is used only for a single row, and a
-warning says when the times step otherwise). Explicit matrices are for one
-fixed step: with irregular times a warning says so, and every row is one
-step.
+warning says when the times step otherwise). Explicit matrices make every
+row one step (of the same matrices, or of that row's): with irregular times
+a warning says so.
 
 Output CSV: the time column as written in DATA.csv, the state means, then
 std_<state> for each state, written with full float precision.
@@ -256,6 +257,9 @@ def _run_filter(args: argparse.Namespace) -> int:
     else:
         pieces = gfio.iter_measurements(args.data, rows=_piece_rows(spec.model.n, spec.model.m), **read)
     head = next(pieces)
+    if spec.model.steps is not None and spec.model.steps != head.zs.shape[0]:
+        raise ValueError(f"{args.model}: [model]: the matrices are given for {spec.model.steps} steps, but "
+                         f"{args.data} has {head.zs.shape[0]} rows; give one per row.")
     steps = _Steps(spec, head)
     pieces = steps.watch(itertools.chain([head], pieces))
     model = spec.timed if steps.timed else spec.model
@@ -619,6 +623,9 @@ def _run_fit(args: argparse.Namespace) -> int:
     if args.tol is not None and not 0.0 <= args.tol < np.inf:  # NaN too
         raise ValueError(f"--tol must be a non-negative finite number; got {args.tol}.")
     spec = gfio.read_model(args.model)
+    if spec.model.steps is not None:
+        raise ValueError(f"{args.model}: [model]: matrices given per row cannot be written back as a model file; "
+                         "`fit` takes one set of matrices.")
     columns = _columns(args)
     learn = _names(args.learn, "--learn", [name for name in learning.LEARNABLE if name != "B"])  # no B in a file
     if args.series_column is None:
