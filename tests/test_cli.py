@@ -534,6 +534,18 @@ def test_fit_discretises_a_named_model_for_the_datas_step(tmp_path, capsys):
     assert "A named model is fitted at the data's step" in help_text and "Output CSV" not in help_text
 
 
+def test_demo_checks_its_options_before_printing(tmp_path, capsys):
+    """--seed -1 and an --out that is a file were found after the tables were printed, as NumPy's
+    "expected non-negative integer" and "File exists"."""
+    (tmp_path / "afile").write_text("")
+    for argv, match in ((["--seed", "-1", "--out", tmp_path / "d"], r"--seed must be a non-negative integer; got -1\."),
+                        (["--out", tmp_path / "afile"], r"--out .*afile is a file; it must be a directory")):
+        code, stdout, err = run(capsys, "demo", *argv)
+        assert code == 2 and stdout == ""
+        assert_one_line_error(err, match)
+    assert not (tmp_path / "d").exists()
+
+
 def test_help_documents_the_non_convergence_status(capsys):
     code, stdout, _ = run(capsys, "--help")
     assert code == 0 and "3    `fit` did not converge" in stdout

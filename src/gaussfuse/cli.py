@@ -207,6 +207,10 @@ def tracking_demo(seed: int = 0, steps: int = 150, dt: float = 0.1, q: float = 1
 
 
 def _run_demo(args: argparse.Namespace) -> int:
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer; got {args.seed}.")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ValueError(f"--out {args.out} is a file; it must be a directory (created if missing).")
     zs, res = textbook_example()
     print("1-D textbook example: x0 = [0, 1], P0 = 500 I, F = [[1, 1], [0, 1]], H = [1, 0],")
     print("Q = diag(1, 3), R = 10")
