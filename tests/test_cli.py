@@ -117,8 +117,8 @@ def test_demo_out_is_a_file(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("keep")
     code, out, err = run(capsys, "demo", "--out", blocker)
-    assert code == 2
-    assert_one_line_error(err, r"file: File exists")
+    assert code == 2 and out == ""
+    assert_one_line_error(err, r"file is a file; it must be a directory")
     assert blocker.read_text() == "keep"
 
 
