@@ -191,3 +191,21 @@ def test_monitor_in_pieces_matches_the_rule_update_by_update(seed):
     for got in (singly, pieces, mixed):
         assert [(a, b) for a, b, _ in got] == [(a, b) for a, b, _ in want]
         np.testing.assert_allclose([avg for *_, avg in got], [avg for *_, avg in want], rtol=1e-12)
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda: dg.divergence(np.ones(10), 1, window=0), ValueError, r"`window` must be a positive integer; got 0"),
+    (lambda: dg.divergence(np.ones(10), 1, window=-1), ValueError, r"`window` must be a positive integer"),
+    (lambda: dg.divergence(np.ones(10), 1, window=2.5), TypeError, r"`window` must be a positive integer"),
+    (lambda: dg.divergence(np.ones(10), 1, false_alarm=0), ValueError, r"`false_alarm` must be a probability"),
+    (lambda: dg.divergence(np.ones(10), 1, false_alarm=-1), ValueError, r"`false_alarm` must be a probab"),
+    (lambda: dg.chi2_interval(0), ValueError, r"`dof` must be a positive integer; got 0"),
+    (lambda: dg.chi2_interval(2, 0), ValueError, r"`count` must be a positive integer; got 0"),
+    (lambda: dg.DivergenceMonitor(window=-3), ValueError, r"`window` must be a positive integer"),
+    (lambda: dg.DivergenceMonitor(false_alarm=2.0), ValueError, r"`false_alarm` must be a probability"),
+])
+def test_test_settings_are_checked(call, error, match):
+    """window=0 ran no test and answered "not diverging"; -1 gave an IndexError, 2.5 a cast error, false_alarm=0 a
+    ZeroDivisionError, chi2_interval(0) (nan, nan)."""
+    with pytest.raises(error, match=match):
+        call()

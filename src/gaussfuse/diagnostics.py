@@ -29,7 +29,7 @@ import numpy as np
 
 from ._linalg import cholesky, observed_gram, whiten
 from .errors import DivergenceWarning, diverging
-from ._validation import as_array, shape_error
+from ._validation import as_array, integer, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
            "DIVERGENCE_FALSE_ALARM", "whiteness", "rmse", "consistency", "ConsistencyReport", "Whiteness"]
@@ -119,6 +119,7 @@ def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[f
     """
     from scipy.special import chdtri  # here: `import gaussfuse` loads only NumPy
 
+    dof, count = integer("dof", dof), integer("count", count)
     if not 0 < confidence < 1:
         raise ValueError(f"`confidence` must be in (0, 1); got {confidence!r}.")
     k = count * dof
@@ -177,6 +178,7 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     >>> divergence(calm, np.ones(200)), divergence(wild, np.ones(200))
     ([], [(0, 100, 199, 3.0)])
     """
+    window, false_alarm = _test_settings(window, false_alarm)
     v = np.atleast_2d(np.asarray(nis_values, dtype=float))
     k = np.broadcast_to(np.asarray(dof, dtype=float), v.shape)
     T = v.shape[-1]
@@ -217,6 +219,15 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     return out
 
 
+def _test_settings(window, false_alarm) -> tuple[int, float]:
+    """`window` a positive integer and `false_alarm` a probability in (0, 1), or a ValueError/TypeError naming them."""
+    window = integer("window", window)
+    if isinstance(false_alarm, (bool, np.bool_)) or not isinstance(false_alarm, (int, float, np.integer, np.floating)) \
+            or not 0.0 < false_alarm < 1.0:
+        raise ValueError(f"`false_alarm` must be a probability in (0, 1); got {false_alarm!r}.")
+    return window, float(false_alarm)
+
+
 def _threshold(dof, t):
     """Laurent & Massart: a χ²_dof exceeds ``dof + 2√(dof t) + 2t`` with probability at most e^-t."""
     return dof + 2.0 * np.sqrt(dof * t) + 2.0 * t
@@ -247,7 +258,8 @@ class DivergenceMonitor:
 
     def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
                  check: str = "warn") -> None:
-        self.window, self.false_alarm, self.check = window, false_alarm, check
+        self.window, self.false_alarm = _test_settings(window, false_alarm)
+        self.check = check
         self._values: list[float] = []  # the last `window` updates with observations: NIS, dof, step
         self._dofs: list[int] = []
         self._steps: list = []
@@ -590,6 +602,8 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
     q, dof = _quadratic("innovations", result.innovations, result.innovation_covs)
     seen = ~np.isnan(q)
     runs = 1 if np.ndim(result.innovations) == 2 else np.shape(result.innovations)[0]
+    if not seen.any():
+        raise ValueError("`result` has no observed innovation (every measurement is missing): nothing to test.")
     # the sum of the K observed NIS values is χ² with their total degrees of freedom
     lo, hi = chi2_interval(int(dof[seen].sum()), 1, confidence)
     nis_interval = (lo / seen.sum(), hi / seen.sum())
