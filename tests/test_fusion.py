@@ -433,3 +433,11 @@ def test_datetimes_are_seconds_since_1970_in_utc():
     np.testing.assert_allclose(fuser.belief.mean, online.belief.mean, rtol=1e-12)
     with pytest.raises(TypeError, match="a real number of seconds or a datetime"):
         gf.Fuser(motion, sensors, prior, "2026-01-01")
+    # output times and Fused.at take them too ("`times` must be an array of real numbers" before)
+    outputs = [t0 + pd.Timedelta(seconds=3.0), np.datetime64("2026-03-29T01:00:05")]
+    c = gf.fuse_timeline(motion, sensors, prior, t0, stamped, times=outputs)
+    d = gf.fuse_timeline(motion, sensors, prior, 0.0, plain, times=[3.0, 5.0])
+    np.testing.assert_allclose(c.means, d.means, rtol=1e-12)
+    for when, seconds_ in ((outputs[0], 3.0), (outputs[1], 5.0), (stamped[1][0].to_pydatetime(), 2.5)):
+        np.testing.assert_allclose(c.at(when)[0], d.at(seconds_)[0], rtol=1e-12)
+    np.testing.assert_allclose(c.at(pd.DatetimeIndex(outputs[:1]))[0], d.at([3.0])[0], rtol=1e-12)

@@ -120,7 +120,7 @@ class Fused:
         ValueError
             For a time that is not a step of the timeline, naming it.
         """
-        query = as_array("times", times)
+        query = _times("times", times)
         if query.ndim > 1:
             raise shape_error("times", "() or (k,)", query.shape)
         flat = np.atleast_1d(query)
@@ -245,6 +245,20 @@ def _time(name: str, value) -> float:
     if not np.isfinite(value):
         raise ValueError(f"`{name}` must be finite; got {value}.")
     return value
+
+
+def _times(name: str, values) -> np.ndarray:
+    """Times of shape () or (k,) as float seconds: numbers, or datetimes as seconds since 1970-01-01 UTC (as `t0`)."""
+    if np.ndim(values) == 0:
+        item = values.item() if isinstance(values, np.ndarray) and values.dtype.kind != "M" else values
+        stamp = isinstance(item, (datetime.datetime, np.datetime64)) or hasattr(item, "tz_localize")
+        return np.asarray(_time(name, item)) if stamp else as_array(name, values)
+    kind = getattr(getattr(values, "dtype", None), "kind", None) or np.asarray(values, dtype=object).dtype.kind
+    if kind == "O":  # a list: datetimes, or numbers, or a mix
+        kind = np.asarray(values).dtype.kind
+    if kind in ("M", "O"):
+        return np.array([_time(f"{name}[{i}]", v) for i, v in enumerate(values)], dtype=float)
+    return as_array(name, values)
 
 
 def _parse(measurements, timeline: _Timeline, t0: float) -> list[tuple[float, str, np.ndarray]]:
@@ -407,7 +421,7 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
         raise TypeError("`keep` is not an option of fuse_timeline: it returns every step.")
     outputs = np.zeros(0)
     if times is not None:
-        outputs = as_array("times", times)
+        outputs = _times("times", times)
         if outputs.ndim == 0:
             outputs = outputs.reshape(1)
         if outputs.ndim != 1:
