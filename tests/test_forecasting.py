@@ -104,3 +104,11 @@ def test_bad_arguments_are_named(call, error, message):
     model = gf.constant_velocity(dt=1.0, q=0.1, r=1.0)
     with pytest.raises(error, match=message):
         call(model, gf.Gaussian([0.0, 1.0], np.eye(2)))
+
+
+def test_errors_name_forecasts_own_arguments():
+    """They named `prior` and "matching `zs`", which forecast does not have."""
+    with pytest.raises(ValueError, match=r"^`belief` must have dimension 1 \(the model's state\); got 2\.$"):
+        gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian([0.0, 0.0], np.eye(2)), 2)
+    with pytest.raises(ValueError, match=r"`us` must have shape \(T, p\) = \(2, 1\) .*matching `steps`; got shape"):
+        gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, B=1.0), gf.Gaussian(0.0, 1.0), 2, us=np.ones((3, 1)))

@@ -441,3 +441,16 @@ def test_datetimes_are_seconds_since_1970_in_utc():
     for when, seconds_ in ((outputs[0], 3.0), (outputs[1], 5.0), (stamped[1][0].to_pydatetime(), 2.5)):
         np.testing.assert_allclose(c.at(when)[0], d.at(seconds_)[0], rtol=1e-12)
     np.testing.assert_allclose(c.at(pd.DatetimeIndex(outputs[:1]))[0], d.at([3.0])[0], rtol=1e-12)
+
+
+def test_a_divergence_warning_points_at_the_caller():
+    """It was attributed to gaussfuse/fusion.py, where gf.filter's points at the caller's line."""
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.001), {"gps": gf.Position(dim=1, r=0.01)}
+    quadratic = [(float(t), "gps", float(t) ** 2) for t in range(1, 60)]
+    with pytest.warns(gf.DivergenceWarning) as caught:
+        gf.fuse_timeline(motion, sensors, gf.Gaussian([0.0, 0.0], np.eye(2)), 0.0, quadratic)
+    assert caught[0].filename == __file__
+    with pytest.raises(gf.DivergenceWarning):
+        gf.fuse_timeline(motion, sensors, gf.Gaussian([0.0, 0.0], np.eye(2)), 0.0, quadratic, check="raise")
+    with pytest.raises(ValueError, match="`check` must be one of"):
+        gf.fuse_timeline(motion, sensors, gf.Gaussian([0.0, 0.0], np.eye(2)), 0.0, quadratic, check="loud")

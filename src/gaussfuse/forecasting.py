@@ -160,7 +160,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     model_steps = getattr(model, "steps", None)
     if model_steps is not None and model_steps < steps:
         raise ValueError(f"the model is time-varying over {model_steps} steps, fewer than `steps` = {steps}.")
-    us = check_controls(us, model, 1, steps)
+    us = check_controls(us, model, 1, steps, matching="`steps`")
     lin = linearisation(spec, model, None if us is None else us[0], options)[0]
     xa = _angles(model, "state_angles")
     za = _angles(model, "measurement_angles")
@@ -201,4 +201,4 @@ def _last_belief(belief, n: int) -> Gaussian:
     if not isinstance(belief, Gaussian):
         raise TypeError(f"`belief` must be a gaussfuse.Gaussian, FilterResult or SmoothResult; "
                         f"got {type(belief).__name__}.")
-    return check_prior(belief, n)
+    return check_prior(belief, n, name="belief")

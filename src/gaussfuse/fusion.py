@@ -34,7 +34,9 @@ from ._validation import as_array, shape_error
 from .diagnostics import DivergenceMonitor
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
+from .inference import drivers
 from .inference.registry import resolve_method
+from .inference.results import stack
 from .inference.validation import check_prior
 from .models.compose import model as compose_model
 from .models.compose import stack_sensors
@@ -437,10 +439,13 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     dts = np.diff(step_times, prepend=t0)
     model, us = timeline.model(dts)
     method = timeline.default_method() if method is None else method
-    if smooth:
-        res = inference.smooth(model, prior, zs, us, method, **options)
-    else:
-        res = inference.filter(model, prior, zs, us, method, **options)
+    check = options.pop("check", "warn")
+    if not isinstance(check, str) or check not in drivers.CHECKS:
+        raise ValueError(f"`check` must be one of {list(drivers.CHECKS)}; got {check!r}.")
+    run = inference.smooth if smooth else inference.filter
+    res = run(model, prior, zs, us, method, check="off", **options)
+    # checked here, so that a DivergenceWarning points at the caller's line, as gf.filter's does
+    drivers.check_divergence(stack([res.filtered if smooth else res]), check)
     for a in (step_times, res.means, res.covs):
         a.setflags(write=False)
     return Fused(step_times, res.means, res.covs, sources, float(res.loglik), res)

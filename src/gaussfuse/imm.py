@@ -28,7 +28,7 @@ from ._frozen import reduce_frozen, shapes_repr
 from ._validation import as_array, shape_error
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
-from .inference.registry import linearisation, resolve_method
+from .inference.registry import METHODS, linearisation, resolve_method
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.linear import LinearModel
 from .models.nonlinear import NonlinearModel
@@ -226,9 +226,10 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
     models = _check_models(models)
     M, n, m = len(models), models[0].n, models[0].m
     prior = check_prior(prior, n)
+    shape = np.shape(zs) if not isinstance(zs, (str, bytes)) else None
+    if shape is not None and not (len(shape) == 2 and shape[1] == m or len(shape) == 1 and m == 1):
+        raise shape_error("zs", f"(T, {m}){' or (T,)' if m == 1 else ''} (one series)", shape)
     arr = check_measurements(zs, m)
-    if np.ndim(zs) == 3:
-        raise shape_error("zs", f"(T, {m}){' or (T,)' if m == 1 else ''} (one series)", np.shape(zs))
     zs = arr[0]
     T = zs.shape[0]
     P = _probabilities("transition", transition, M, matrix=True)
@@ -280,7 +281,7 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
     for j, model in enumerate(models):
         check_steps(model, T)
         controls = check_controls(us, model, 1, T)
-        if isinstance(model, LinearModel) and any_nonlinear:
+        if isinstance(model, LinearModel) and (any_nonlinear or method in METHODS and method != "kf"):  # exact
             spec, opts = resolve_method(model, "kf", {})
         else:
             spec, opts = resolve_method(model, method, options)

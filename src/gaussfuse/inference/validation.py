@@ -17,18 +17,18 @@ __all__ = ["check_prior", "check_measurements", "check_controls", "check_steps",
            "prepare"]
 
 
-def check_prior(prior, n: int, *, diffuse_ok: bool = False) -> Gaussian | str:
-    """Check that `prior` is a Gaussian over the n-dimensional state (or "diffuse", where allowed)."""
+def check_prior(prior, n: int, *, diffuse_ok: bool = False, name: str = "prior") -> Gaussian | str:
+    """Check that `prior` (the argument `name`) is a Gaussian over the n-dimensional state (or "diffuse", where allowed)."""
     if diffuse_ok and isinstance(prior, str) and prior == "diffuse":
         return prior
     if not isinstance(prior, Gaussian):
         also = " or 'diffuse'" if diffuse_ok else ""
         shown = repr(prior) if isinstance(prior, str) else type(prior).__name__
         raise TypeError(
-            f"`prior` must be a gaussfuse.Gaussian(mean, cov){also}; got {shown}."
+            f"`{name}` must be a gaussfuse.Gaussian(mean, cov){also}; got {shown}."
         )
     if prior.dim != n:
-        raise ValueError(f"`prior` must have dimension {n} (the model's state); got {prior.dim}.")
+        raise ValueError(f"`{name}` must have dimension {n} (the model's state); got {prior.dim}.")
     return prior
 
 
@@ -53,7 +53,7 @@ def check_measurements(zs, m: int) -> np.ndarray:
     return arr
 
 
-def check_controls(us, model, N: int, T: int) -> np.ndarray | None:
+def check_controls(us, model, N: int, T: int, matching: str = "`zs`") -> np.ndarray | None:
     """Return `us` as an array (N, T, p), or None when there are no controls.
 
     A LinearModel needs controls exactly when it has ``B``; for a
@@ -74,7 +74,7 @@ def check_controls(us, model, N: int, T: int) -> np.ndarray | None:
     shown = "p" if p is None else p
     if arr.ndim != 3 or arr.shape[1] != T or (p is not None and arr.shape[2] != p) \
             or arr.shape[0] not in (1, N):
-        raise shape_error("us", f"(T, p) = ({T}, {shown}) or ({N}, {T}, {shown}), matching `zs`",
+        raise shape_error("us", f"(T, p) = ({T}, {shown}) or ({N}, {T}, {shown}), matching {matching}",
                           np.shape(us))
     return np.broadcast_to(arr, (N, *arr.shape[1:]))
 
