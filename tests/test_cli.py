@@ -554,10 +554,15 @@ def test_help_documents_the_non_convergence_status(capsys):
 @pytest.mark.parametrize(
     "extra, match",
     [
-        (["--learn", "Q,Z"], r"--learn must be a comma-separated list of F, H, Q, R, m0, P0; got 'Q,Z'"),
-        (["--learn", "Q,B"], r"--learn must be a comma-separated list of F, H, Q, R, m0, P0; got 'Q,B'"),
+        (["--learn", "Q,Z"], r"--learn must be a comma-separated list of distinct names from F, H, Q, R, m0, P0; "
+                             r"got 'Q,Z'"),
+        (["--learn", "Q,B"], r"--learn must be a comma-separated list of distinct names from .*; got 'Q,B'"),
+        (["--learn", "Q,Q"], r"--learn must be a comma-separated list of distinct names from .*; got 'Q,Q'"),
+        # the library's errors, in the command's words
+        (["--learn", "m0,P0"], r"^gaussfuse: error: --learn cannot include 'm0' with a diffuse prior\.$"),
+        (["--structure", "Q=banana"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
         (["--structure", "Q"], r"--structure takes NAME=KIND pairs"),
-        (["--structure", "Q=banded"], r"`structure` maps \['Q', 'R', 'P0'\] to one of"),
+        (["--structure", "Q=banded"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
         (["--iterations", "0"], r"--iterations must be a positive integer; got 0"),
         (["--tol", "-1"], r"--tol must be a non-negative finite number; got -1.0"),
         (["--tol", "nan"], r"--tol must be a non-negative finite number; got nan"),
@@ -934,6 +939,12 @@ def test_an_overflow_is_one_line_and_exit_code_2(tmp_path, capsys):
     code, stdout, err = run(capsys, "filter", data, "--model", model, "--out", out)
     assert code == 2 and stdout == "" and not out.exists()
     assert_one_line_error(err, r"at step \d+: the (predicted|filtered) mean.*not finite")
+
+
+def test_library_words_are_the_commands_options():
+    """Errors and warnings from the library named `learn`, method='em', check='off', structure={...}."""
+    assert cli._options("use method='em'; check='off' turns it off; `learn` and `structure={'Q': 'diagonal'}`") == \
+        "use --method em; --check off turns it off; --learn and --structure Q=diagonal"
 
 
 def test_check_raise_makes_divergence_an_error(tmp_path, capsys, series):

@@ -16,6 +16,7 @@ import argparse
 import csv
 import itertools
 import os
+import re
 import signal
 import stat
 import sys
@@ -580,8 +581,9 @@ def _same_file(a: str, b: str) -> bool:
 def _names(text: str, what: str, valid) -> list[str]:
     items = [item.strip() for item in text.split(",") if item.strip()]
     bad = [item for item in items if item not in valid]
-    if bad or not items:
-        raise ValueError(f"{what} must be a comma-separated list of {', '.join(valid)}; got {text!r}.")
+    if bad or not items or len(set(items)) < len(items):
+        raise ValueError(f"{what} must be a comma-separated list of distinct names from {', '.join(valid)}; "
+                         f"got {text!r}.")
     return items
 
 
@@ -708,7 +710,7 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
     if res.message.startswith("interrupted"):
         return 130
     if unconverged:
-        print(f"gaussfuse: warning: {unconverged[0].message}", file=sys.stderr)
+        print(f"gaussfuse: warning: {_options(str(unconverged[0].message))}", file=sys.stderr)
         return NOT_CONVERGED
     return 0
 
@@ -846,7 +848,7 @@ class _Terminated(KeyboardInterrupt):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """A warning as one line on stderr: ``gaussfuse: warning: <message>`` (a DivergenceWarning, say)."""
-    print(f"gaussfuse: warning: {message}", file=sys.stderr)
+    print(f"gaussfuse: warning: {_options(str(message))}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -920,9 +922,24 @@ def _silence_stdout() -> None:
 
 
 def _message(exc: Exception) -> str:
-    """The error as one line; an OSError as ``<file>: <reason>``."""
+    """The error as one line; an OSError as ``<file>: <reason>``; the library's argument names as the options."""
     if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
         text = f"{exc.filename}: {exc.strerror}"
     else:
         text = str(exc) or type(exc).__name__
-    return " ".join(text.splitlines())
+    return _options(" ".join(text.splitlines()))
+
+
+# The library's words for what the command spells as options (its errors and warnings reach the command's user).
+_OPTION_WORDS = [(re.compile(pattern), replacement) for pattern, replacement in (
+    (r"`(learn|structure|iterations|tol|check|engine)`", r"--\1"),
+    (r"\b(method|check|engine)='(\w+)'", r"--\1 \2"),
+    (r"`?structure=\{'(\w+)': '(\w+)'\}`?", r"--structure \1=\2"),
+)]
+
+
+def _options(text: str) -> str:
+    """`text` with the library's argument names as the command's options (`learn` as --learn, method='em' as --method em)."""
+    for pattern, replacement in _OPTION_WORDS:
+        text = pattern.sub(replacement, text)
+    return text
