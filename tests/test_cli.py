@@ -561,6 +561,8 @@ def test_help_documents_the_non_convergence_status(capsys):
         # the library's errors, in the command's words
         (["--learn", "m0,P0"], r"^gaussfuse: error: --learn cannot include 'm0' with a diffuse prior\.$"),
         (["--structure", "Q=banana"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
+        (["--structure", "P0=scalar"], r"--structure constrains P0, which --learn does not learn \(Q,R\): add it to "
+                                       r"--learn, or leave it out of --structure\."),  # was silently ignored
         (["--structure", "Q"], r"--structure takes NAME=KIND pairs"),
         (["--structure", "Q=banded"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
         (["--iterations", "0"], r"--iterations must be a positive integer; got 0"),

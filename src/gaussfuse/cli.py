@@ -689,8 +689,14 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
+            structure = _structure(args.structure)
+            idle = sorted(set(structure) - set(learn))
+            if idle:  # it would constrain nothing
+                raise ValueError(f"--structure constrains {', '.join(idle)}, which --learn does not learn "
+                                 f"({','.join(learn)}): add {'it' if len(idle) == 1 else 'them'} to --learn, or leave "
+                                 f"{'it' if len(idle) == 1 else 'them'} out of --structure.")
             res = learning.fit(spec.model, spec.prior, zs, learn=learn, method=args.method,
-                               structure=_structure(args.structure), iterations=iterations, tol=args.tol,
+                               structure=structure, iterations=iterations, tol=args.tol,
                                callback=progress, engine=args.engine)
     finally:
         progress.close()
