@@ -60,6 +60,9 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
         ("t\n1\n", r"data\.csv: no measurement columns besides `t`", None),
         ("t,x\n", r"data\.csv: no data rows", None),
         ("t,x,y\n1,2,3\n2,abc,4\n", r"data\.csv: line 3: column `x`: 'abc' is not a number\.", 3),
+        # float() reads Python's digit separator: "1_000" was 1000
+        ("t,x,y\n1,2,3\n2,1_000,4\n", r"data\.csv: line 3: column `x`: '1_000' is not a number\.", 3),
+        ("t,x\n1,2\n1_0,3\n", r"data\.csv: line 3: column `t`: '1_0' is neither a number of seconds", 3),
         ("t,x,y\n1,2,3\n2,3\n", r"data\.csv: line 3: expected 3 cells \(t, x, y\); found 2\.", 3),
         ("t,x,y\n1,2,3\n2,3,4,5\n", r"data\.csv: line 3: expected 3 cells", 3),
         ("t,x\n1,2\n2,3\n2,4\n", r"data\.csv: line 4: column `t`: times must be strictly increasing; "

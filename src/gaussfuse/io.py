@@ -333,7 +333,8 @@ class _Rows:
             times = np.array(texts, dtype=np.float64)
             stamps = np.zeros(len(rows), dtype=bool)
             values = np.array([c if c.strip() else "nan" for c in cells], dtype=np.float64)
-            good = np.isfinite(times).all() and not np.isinf(values).any()
+            # float() reads "1_000" as 1000, as Python source would; a CSV cell with "_" is not a number
+            good = np.isfinite(times).all() and not np.isinf(values).any() and "_" not in "".join(texts) + "".join(cells)
         except ValueError:  # ISO-8601 times, or a cell that is not a number
             good = False
         if not good:
@@ -436,12 +437,19 @@ def _measurement_columns(path, header: list[str], time_col: int, columns) -> lis
     return out
 
 
+def _float(text: str) -> float:
+    """A number cell as ``float`` reads it, except "1_000": Python source's digit separator is not a CSV number."""
+    if "_" in text:
+        raise ValueError(text)
+    return float(text)
+
+
 def _parse_time(path, text: str, where: dict):
     """A time cell: seconds (a float), or an ISO-8601 time as a `_Stamp` of seconds since 1970 UTC."""
     if not text:
         raise InputFileError(path, "the time is missing; every row needs a time.", **where)
     try:
-        value = float(text)
+        value = _float(text)
     except ValueError:
         try:
             when = datetime.datetime.fromisoformat(text)
@@ -476,7 +484,7 @@ def _parse_row(path, line: int, header: list[str], time_col: int, wanted: list[i
         where = {"line": line, "field": f"column `{header[i]}`"}
         text = row[i].strip()
         try:
-            value = float(text) if text else math.nan
+            value = _float(text) if text else math.nan
         except ValueError:
             raise InputFileError(path, f"{row[i]!r} is not a number.", **where) from None
         if math.isinf(value):
