@@ -208,7 +208,7 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         (EXPLICIT + "[prior]\nmean = [1, 2, 3]\n", r"m\.toml: \[prior\] mean: `mean` must have shape \(2,\)"),
         (EXPLICIT + "[prior]\ncov = [[1]]\n", r"m\.toml: \[prior\] cov: `cov` must have shape \(2, 2\)"),
         (EXPLICIT + "[prior]\ncov = [[1, 0], [0, -1]]\n", r"\[prior\] cov: `cov` must be positive semi-definite"),
-        (EXPLICIT + "[prior]\nvar = -2\n", r"m\.toml: \[prior\] var: `cov` must be positive semi-definite"),
+        (EXPLICIT + "[prior]\nvar = -2\n", r"m\.toml: \[prior\] var: `var` must be a non-negative number; got -2\.0\."),
         (EXPLICIT + "[prior]\nvar = [1, 2]\n", r"m\.toml: \[prior\] var: `var` must have shape \(\) \(one number\)"),
         (EXPLICIT + "[prior]\nvar = 1\ncov = [[1, 0], [0, 1]]\n",
          r"m\.toml: \[prior\]: give either `cov` or `var` \(var \* I\), not both\."),

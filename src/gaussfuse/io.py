@@ -694,6 +694,8 @@ def _prior(path, table: dict, n: int) -> Gaussian | str:
             var = as_array("var", table.get("var", DEFAULT_PRIOR_VAR))
             if var.ndim != 0:
                 raise shape_error("var", "() (one number)", var.shape)
+            if var < 0:
+                raise ValueError(f"`var` must be a non-negative number; got {float(var)!r}.")
             cov = var * np.eye(n)
         return Gaussian(mean, cov)
 
