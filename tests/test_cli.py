@@ -1122,6 +1122,16 @@ def test_times_too_far_apart_are_one_line(tmp_path, capsys, command, times, matc
     assert_one_line_error(err, match)
 
 
+def test_a_diffuse_state_the_file_does_not_identify_names_the_file(tmp_path, capsys):
+    (tmp_path / "one.csv").write_text("t,z\n5,1\n")
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0, 1.0], [0.0, 1.0]]\nH = [[1.0, 0.0]]\nQ = [[0.25, 0.5], "
+                                     "[0.5, 1.0]]\nR = [[4.0]]\n[prior]\ndiffuse = true\n")
+    code, _, err = run(capsys, "filter", tmp_path / "one.csv", "-m", tmp_path / "m.toml")
+    assert code == 2
+    assert_one_line_error(err, rf"^gaussfuse: error: {re.escape(str(tmp_path / 'one.csv'))}: the diffuse initial "
+                               r"state is not identified")
+
+
 def test_an_error_in_a_later_piece_names_the_file_and_the_step_of_the_file(tmp_path, capsys, monkeypatch):
     """The step was counted within its piece ("at step 808" for step 9000 of a file read 1,024 rows at a time)."""
     data, _, _ = _irregular(tmp_path, 30)

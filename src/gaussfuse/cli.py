@@ -287,9 +287,9 @@ def _run_filter(args: argparse.Namespace) -> int:
                 if drawn is not None:
                     drawn.add(piece, result)
         except (ValueError, FloatingPointError) as exc:
-            if not str(exc).startswith("at step "):
-                raise
-            raise type(exc)(f"{args.data}: {exc}") from exc  # a step of the data's series: name the file
+            if isinstance(exc, gfio.InputFileError):
+                raise  # a reading error, which names the file and line already
+            raise type(exc)(f"{args.data}: {exc}") from exc  # the data's series: name the file
         finally:
             progress.close()
         steps.warn()
