@@ -375,6 +375,8 @@ def test_unknown_or_bad_option_is_rejected():
         gf.smooth(model, prior, np.zeros(3), method="iekf", iterations=0)
     with pytest.raises(ValueError, match=r"`alpha` must be a positive number; got -1"):
         gf.filter(model, prior, np.zeros(3), method="ukf", alpha=-1)
+    with pytest.raises(ValueError, match=r"^`alpha` = 1e\+200 is too large: .* overflows float64"):  # an OverflowError
+        gf.filter(model, prior, np.zeros(3), method="ukf", alpha=1e200)
     with pytest.raises(TypeError, match=r"`order` must be a positive integer; got 2.5"):
         gf.filter(model, prior, np.zeros(3), method="ghkf", order=2.5)
 

@@ -57,7 +57,10 @@ def unscented(n: int, alpha: float = 1.0, beta: float = 0.0, kappa: float | None
     :math:`w_i = 1 / (2 (n + \lambda))` otherwise.
     """
     kappa = 3.0 - n if kappa is None else float(kappa)
-    lam = alpha**2 * (n + kappa) - n
+    lam = float(alpha) * float(alpha) * (n + kappa) - n  # (float ** raises OverflowError; * gives inf)
+    if not np.isfinite(lam):
+        raise ValueError(f"`alpha` = {alpha} is too large: the unscented rule's spread alpha**2 * (n + kappa) "
+                         f"overflows float64 (kappa = {kappa}, n = {n}).")
     if not n + lam > 0:
         raise ValueError(
             f"the unscented rule needs alpha**2 * (n + kappa) > 0; got alpha={alpha}, kappa={kappa}, n={n}."
@@ -67,7 +70,7 @@ def unscented(n: int, alpha: float = 1.0, beta: float = 0.0, kappa: float | None
     wm = np.full(2 * n + 1, 0.5 / (n + lam))
     wm[0] = lam / (n + lam)
     wc = wm.copy()
-    wc[0] += 1.0 - alpha**2 + beta
+    wc[0] += 1.0 - float(alpha) * float(alpha) + beta
     return SigmaRule(points, wm, wc)
 
 
