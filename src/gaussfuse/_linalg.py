@@ -15,7 +15,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "unresolved", "unseen_slopes", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "unseen_slopes", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -536,6 +536,15 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     -2.7831853071795862
     """
     return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def near(x: np.ndarray, ref: np.ndarray, angles: np.ndarray | None) -> np.ndarray:
+    """`x` with its angle components moved by whole turns to within π of `ref`'s (the others as they are)."""
+    if angles is None or not angles.any():
+        return x
+    x = x.copy()
+    x[..., angles] = ref[..., angles] + wrap_angle(x[..., angles] - ref[..., angles])
+    return x
 
 
 def wrap_components(diff: np.ndarray, angles: np.ndarray | None) -> np.ndarray:

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, psd_solve,
+from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, near, psd_solve,
                       semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten, with_slopes,
                       wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
@@ -1576,9 +1576,12 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     passes, converged = iterations, changed is None
     slope = None
     for i in range(iterations):
-        H, d, R = lin.measurement(k, post_mean, post_cov)
+        # linearised at the previous posterior on the prediction's side of ±π: the affine map is applied to the
+        # prediction, and one made at the wrapped point would be 2π off there
+        point = near(post_mean, mean, state_angles)
+        H, d, R = lin.measurement(k, point, post_cov)
         if slope is not None:  # a slope the posterior cannot see: the previous pass's (see unseen_slopes)
-            H, d = with_slopes(H, d, slope, post_mean, unseen_slopes(H, post_mean, post_cov))
+            H, d = with_slopes(H, d, slope, point, unseen_slopes(H, point, post_cov))
         slope = H
         post = update(mean, cov, z, H, R, d, measurement_angles)
         previous, post_mean, post_cov = post_mean, post.mean, post.cov

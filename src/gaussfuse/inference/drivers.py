@@ -256,7 +256,7 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
     covs = np.concatenate([prior.cov[None], filt.covs])
     converged = False
     for used in range(1, passes + 1):
-        nominal = Nominal(lin, means, covs)
+        nominal = Nominal(lin, means, covs, xa)
         last = run_filter(nominal, prior, zs, state_angles=xa, measurement_angles=za)[0]
         new_means, covs, gains, _ = run_smoother(nominal, last, prior, state_angles=xa)
         norms = (prior.cov, *last.predicted_covs)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._linalg import unseen_slopes, with_slopes
+from .._linalg import near, unseen_slopes, with_slopes
 
 __all__ = ["Exact", "Nominal"]
 
@@ -56,23 +56,27 @@ class Nominal:
         before the first measurement).
     covs : ndarray of shape (T + 1, n, n)
         Nominal covariances (used by sigma-point strategies).
+    angles : array of bool, shape (n,), optional
+        State components that are angles.
 
     Notes
     -----
     Step k's transition is linearised at the nominal state at time k (the
-    state it starts from) and its measurement at time k + 1.
+    state it starts from) and its measurement at time k + 1, each taken on
+    the side of ±π of the belief it is applied to: the affine map is used
+    at that belief, and one made 2π away would be off by the jump.
     """
 
-    def __init__(self, strategy, means: np.ndarray, covs: np.ndarray) -> None:
-        self.strategy, self.means, self.covs = strategy, means, covs
+    def __init__(self, strategy, means: np.ndarray, covs: np.ndarray, angles: np.ndarray | None = None) -> None:
+        self.strategy, self.means, self.covs, self.angles = strategy, means, covs, angles
 
     def transition(self, k: int, mean: np.ndarray, cov: np.ndarray):
-        return self.strategy.transition(k, self.means[k], self.covs[k])
+        return self.strategy.transition(k, near(self.means[k], mean, self.angles), self.covs[k])
 
     def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
         """At the nominal state of time k + 1; a slope it has no spread to see is taken at the belief given (the
         prediction), which has (:func:`gaussfuse._linalg.unseen_slopes`)."""
-        at = self.means[k + 1]
+        at = near(self.means[k + 1], mean, self.angles)
         H, d, R = self.strategy.measurement(k, at, self.covs[k + 1])
         unseen = unseen_slopes(H, at, self.covs[k + 1])
         if unseen:
