@@ -1,5 +1,7 @@
 """gf.fit: the published Nile estimates, EM monotonicity and recovery, MLE against EM, exact gradients."""
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -615,3 +617,25 @@ def test_em_stops_where_round_off_takes_the_likelihood_over():
     with pytest.warns(gf.ConvergenceWarning, match="maximum likelihood did not converge"):
         res = gf.fit(start, "diffuse", np.full(50, 3.0), method="mle")
     assert not res.converged and np.isfinite(res.loglik)
+
+
+@pytest.mark.parametrize("scale", [1e100, 1e-100])
+def test_standard_errors_scale_with_the_data(scale):
+    """The estimates scaled exactly, but the delta method squared entries of 1e203 (inf) or 1e-197 (0)."""
+    _, flow = nile()
+    one = gf.fit(gf.LinearModel(1, 1, 1000.0, 1e4), "diffuse", flow, method="mle")
+    s2 = scale * scale
+    far = gf.fit(gf.LinearModel(1, 1, 1000.0 * s2, 1e4 * s2), "diffuse", flow * scale, method="mle")
+    for name in ("Q", "R"):  # central differences of the gradient: to about 1e-6
+        assert far.bse[name] / s2 == pytest.approx(one.bse[name], rel=1e-5)
+
+
+def test_a_trial_step_whose_model_is_invalid_is_no_likelihood():
+    """From R = 1e-6 the line search tried a step whose R overflowed: "`R` must be finite" from LinearModel, as a
+    traceback out of SciPy's line search."""
+    rng = np.random.default_rng(1)
+    y = np.cumsum(rng.normal(size=200)) + 1e-4 * rng.normal(size=200)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        res = gf.fit(gf.LinearModel(1, 1, 1.0, 1e-6), "diffuse", y, method="mle")
+    assert np.isfinite(res.loglik) and res.loglik <= -267.8964 + 1e-3  # statsmodels' maximum, -267.8964

@@ -1150,8 +1150,8 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     def objective(theta):
         try:
             ll, grad = evaluate(theta)
-        except (np.linalg.LinAlgError, FloatingPointError):  # a trial step where S is singular or a pass overflows:
-            return np.inf, np.zeros_like(theta)              # no likelihood there; the line search steps back
+        except (ValueError, FloatingPointError):  # a trial step where S is singular, a variance overflows
+            return np.inf, np.zeros_like(theta)   # (LinAlgError and the model's ValueError): the line search steps back
         if ll > best[1]:
             best[0], best[1] = theta.copy(), ll
         return -ll / n_obs, -grad / n_obs
@@ -1214,7 +1214,7 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
             step = theta + cho_solve(cholesky(information), grad)
             if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
                 break
-        except (np.linalg.LinAlgError, FloatingPointError):  # a neighbour where the filter fails: no step
+        except (ValueError, FloatingPointError):  # a neighbour where the filter or the model fails: no step
             break
         theta = step
     return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
@@ -1233,7 +1233,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         return None, nan
     try:
         information = -_hessian(evaluate, theta)
-    except (np.linalg.LinAlgError, FloatingPointError):  # a neighbour where the filter fails (a variance near 0)
+    except (ValueError, FloatingPointError):  # a neighbour where the filter or the model fails (a variance near 0)
         return None, nan
     if not is_positive_definite(information):  # it is at a maximum
         return None, nan
@@ -1250,8 +1250,11 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
             J[:, j] = (fn(up) - fn(down)) / (2 * h)
         return J
 
-    def delta(J):
-        return np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, cov_theta, J), 0, None))
+    def delta(J):  # each row scaled to its largest entry first: J C Jᵀ of estimates of 1e200 overflows
+        s = np.max(np.abs(J), axis=1)
+        s = np.where(s > 0, s, 1.0)
+        unit = J / s[:, None]
+        return s * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", unit, cov_theta, unit), 0, None))
 
     bse = delta(jacobian(natural))
     if learn is None:
