@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._linalg import wrap_angle
 from .._validation import call_checked, call_each, size_reason
 from ..errors import ModelFunctionError
 
@@ -31,7 +32,8 @@ lose an output below about 1e-208 to underflow."""
 
 
 def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
-             vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
+             vectorized: bool = False, spread: np.ndarray | None = None,
+             angles: np.ndarray | None = None) -> np.ndarray:
     """Jacobian of ``fn(x, *args)`` (returning shape (size,)) at x of shape (n,).
 
     Complex-step differentiation [1]_ when `fn` accepts complex input:
@@ -59,6 +61,9 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
     spread : ndarray of shape (n,), optional
         Each component's standard deviation under the belief, the scale of
         a finite-difference step where it exceeds the component's size.
+    angles : array of bool, shape (size,), optional
+        Outputs that are angles: their finite differences are wrapped to
+        [-π, π), so that a step across the ±π cut is not a jump of 2π.
 
     Returns
     -------
@@ -72,7 +77,7 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
     try:
         return complex_step_jacobian(name, fn, x, args, size, vectorized, spread)
     except _RejectsComplex:
-        return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread)
+        return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread, angles)
 
 
 def _scales(x: np.ndarray, spread: np.ndarray | None, floor: bool = True) -> np.ndarray:
@@ -124,8 +129,13 @@ near-underflow value could overflow where the output is of order 1 a step away."
 
 
 def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
-                               vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
+                               vectorized: bool = False, spread: np.ndarray | None = None,
+                               angles: np.ndarray | None = None) -> np.ndarray:
     """Adaptive finite-difference Jacobian, shape (size, n); see :func:`jacobian`.
+
+    Outputs that are `angles` are taken as their value at x plus the
+    wrapped difference from it: a wrap or arctan2 output stepped across
+    ±π would otherwise jump by 2π (a slope of 1e8 for a bearing of 1).
 
     The steps along component j start at a tenth of its scale,
     ``max(|x_j|, spread_j)`` (so domains like log(x) hold, and a component
@@ -162,13 +172,19 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
         return out.T.reshape(size, *xi.shape[1:])
 
     scale = _scales(x, spread)
-    value = np.abs(stacked(x[:, None])[:, 0])
+    at_x = stacked(x[:, None])[:, 0]
+    value = np.abs(at_x)
     unit = np.where(value > _TINY_OUTPUT, value, 1.0)
+    turning = angles is not None and angles.any()
 
     def scaled(u: np.ndarray) -> np.ndarray:
-        # f at x + scale ⊙ u, divided by each output's size at x.
+        # f at x + scale ⊙ u (angles within π of their value at x), divided by each output's size at x.
         shape = (n,) + (1,) * (u.ndim - 1)
-        return stacked(x.reshape(shape) + scale.reshape(shape) * u) / unit.reshape((size,) + shape[1:])
+        out = stacked(x.reshape(shape) + scale.reshape(shape) * u)
+        if turning:
+            base = at_x[angles].reshape((-1,) + shape[1:])
+            out[angles] = base + wrap_angle(out[angles] - base)
+        return out / unit.reshape((size,) + shape[1:])
 
     res = scipy_jacobian(scaled, np.zeros(n), initial_step=0.1, tolerances=dict(rtol=1e-11, atol=1e-11))
     J = np.asarray(res.df).reshape(size, n) * unit[:, None] / scale
@@ -196,7 +212,8 @@ class Taylor:
             A = call_checked(f"{name}_jacobian", jac, x, args, (size, x.shape[0]),
                              size_reason(f"{name}_jacobian", size, x.shape[0]))
         else:
-            A = jacobian(name, fn, x, args, size, vectorized, spread)
+            angles = self.model.state_angles if name == "f" else self.model.measurement_angles
+            A = jacobian(name, fn, x, args, size, vectorized, spread, angles)
         return A, y - A @ x
 
     def transition(self, k: int, mean: np.ndarray, cov: np.ndarray | None):
