@@ -1381,9 +1381,14 @@ def fit(
     structure : dict, optional
         ``{"Q" | "R" | "P0": "full" | "diagonal" | "scalar"}``: how a
         learned covariance is constrained (default full). Learned
-        covariances stay symmetric positive semi-definite; a variance that
-        starts at exactly 0 stays at 0 (a noise-free component), with its
-        row and column. A start outside its structure is first projected
+        covariances stay symmetric positive semi-definite; with "full" or
+        "diagonal", a variance that starts at exactly 0 stays at 0 (a
+        noise-free component), with its row and column ("scalar" has one
+        variance for every component, so it keeps 0 only when all start
+        there). EM keeps the rows of F and B of a noise-free state (a zero
+        variance of Q) at their start, as its M-step has no noise there to
+        weigh them by: learn those rows with ``method="mle"``.
+        A start outside its structure is first projected
         onto it (the mean of its variances for "scalar", its diagonal for
         "diagonal"), and the history starts from that model.
     iterations : int, optional
