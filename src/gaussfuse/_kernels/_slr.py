@@ -14,12 +14,12 @@ the readable ``slr`` does, in the points' own coordinates (see
     \bar y &= \mathcal Y_0 + \textstyle\sum_i w^m_i (\mathcal Y_i - \mathcal Y_0)
         \quad\text{(centred; circular for angles)}, \qquad
     \delta\mathcal Y_i = \mathcal Y_i - \bar y \quad\text{(wrapped for angles)}, \\
-    S &= \textstyle\sum_i w^c_i\, \delta\mathcal Y_i \delta\mathcal Y_i^\top, \qquad
     \Xi = \textstyle\sum_i w^c_i\, \xi_{i,r}\, \delta\mathcal Y_i^\top, \qquad
     A_{:, r} = \Xi^\top L_{rr}^{-1}, \quad A_{:, \bar r} = 0, \\
-    b &= \bar y - A m, \qquad \Omega = \mathrm{sym}(S - \Xi^\top \Xi),
+    b &= \bar y - A m, \qquad \Omega = \mathrm{sym}\textstyle\sum_i w^c_i e_i e_i^\top, \quad
+    e_i = \delta\mathcal Y_i - \Xi^\top \xi_{i,r}
 
-with r the nonzero columns of L. The filters then add :math:`\Omega` to Q
+(residuals at round-off set to 0), with r the nonzero columns of L. The filters then add :math:`\Omega` to Q
 or R and run the affine step of :mod:`._step`.
 """
 
@@ -58,7 +58,7 @@ class Regression(NamedTuple):
     Lr: np.ndarray     # (n, n) L_rr, in the leading block
     ybar: np.ndarray   # (d,) the mean of the outputs
     dY: np.ndarray     # (k, d) the residuals δY_i
-    S: np.ndarray      # (d, d)
+    E: np.ndarray      # (k, d) the regression's residuals e_i
     Xi: np.ndarray     # (n, d) Ξ, in its first |r| rows
     A: np.ndarray      # (d, n)
     b: np.ndarray      # (d,)
@@ -69,7 +69,7 @@ class Regression(NamedTuple):
 def regression(k, n, d):
     """A :class:`Regression` for k points, n states and d outputs."""
     return Regression(np.zeros((n, n)), np.ones(n, dtype=np.bool_), np.empty((n, n)), np.empty(d),
-                      np.empty((k, d)), np.empty((d, d)), np.empty((n, d)), np.empty((d, n)), np.empty(d),
+                      np.empty((k, d)), np.empty((k, d)), np.empty((n, d)), np.empty((d, n)), np.empty(d),
                       np.empty((d, d)))
 
 
@@ -136,7 +136,7 @@ def regress(Y, d, rule, mean, angles, g):
     (see the module notes), with the root ``g.L`` and its columns ``g.keep``
     that drew the points.
     """
-    _regress(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.keep, g.Lr, g.ybar, g.dY, g.S, g.Xi, g.A,
+    _regress(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.keep, g.Lr, g.ybar, g.dY, g.E, g.Xi, g.A,
              g.b, g.noise)
 
 
@@ -165,19 +165,12 @@ def _spread(Y, d, wm, angles, ybar, dY):
 
 
 @register_jitable(**_JIT)
-def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, offset, noise):
+def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, offset, noise):
     k = Y.shape[0]
     n = mean.shape[0]
     _spread(Y, d, wm, angles, ybar, dY)
-    # S = (δY wc)ᵀ δY, Ξ = (ξ_r wc)ᵀ δY
-    for a in range(d):
-        for b in range(d):
-            t = 0.0
-            for i in range(k):
-                t += dY[i, a] * wc[i] * dY[i, b]
-            S[a, b] = t
     r = 0
-    for j in range(n):
+    for j in range(n):  # Ξ = (ξ_r wc)ᵀ δY, and L_rr
         if keep[j]:
             for a in range(d):
                 t = 0.0
@@ -190,15 +183,16 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, of
                     Lr[r, rr] = L[j, jj]
                     rr += 1
             r += 1
-    # Aᵀ_r = L_rr⁻ᵀ Ξ (back substitution), in place in Ξ; Ω = sym(S - ΞᵀΞ) first, from Ξ itself.
-    for a in range(d):
-        for b in range(a + 1):
+    for i in range(k):  # e_i = δY_i - Ξᵀ ξ_{i,r}, before Ξ becomes Aᵀ
+        for a in range(d):
             t = 0.0
-            for j in range(r):
-                t += Xi[j, a] * Xi[j, b]
-            x = 0.5 * (S[a, b] - t) + 0.5 * (S[b, a] - t)  # as _linalg.symmetrize
-            noise[a, b] = x
-            noise[b, a] = x
+            rr = 0
+            for j in range(n):
+                if keep[j]:
+                    t += xi[i, j] * Xi[rr, a]
+                    rr += 1
+            E[i, a] = dY[i, a] - t
+    # Aᵀ_r = L_rr⁻ᵀ Ξ (back substitution), in place in Ξ
     for j in range(r - 1, -1, -1):
         for a in range(d):
             t = Xi[j, a]
@@ -219,6 +213,24 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, S, Xi, A, of
         for j in range(n):
             t += A[a, j] * mean[j]
         offset[a] = ybar[a] - t
+    cut = 4.0 * k * _EPS
+    for i in range(k):  # residuals at the round-off of (|m| + |L ξ_i|) |A|ᵀ + |δY_i| + |ȳ| are zero (slr's _resolved)
+        for a in range(d):
+            size = abs(dY[i, a]) + abs(ybar[a])
+            for j in range(n):
+                t = 0.0
+                for jj in range(j + 1):
+                    t += L[j, jj] * xi[i, jj]
+                size += (abs(mean[j]) + abs(t)) * abs(A[a, j])
+            if abs(E[i, a]) <= cut * size:
+                E[i, a] = 0.0
+    for a in range(d):  # Ω = sym(Σ_i w_i e_i e_iᵀ), each pair once
+        for b in range(a + 1):
+            t = 0.0
+            for i in range(k):
+                t += E[i, a] * wc[i] * E[i, b]
+            noise[a, b] = t
+            noise[b, a] = t
 
 
 @jit(inline="always", **_JIT)

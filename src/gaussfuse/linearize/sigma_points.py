@@ -32,7 +32,14 @@ These are computed in the points' own coordinates. Since
     \Omega = S - \Xi^\top \Xi,
 
 so :math:`A` is one triangular solve with the Cholesky factor that drew the
-points, and neither :math:`P^{-1}` nor :math:`A P A^\top` is formed. For a
+points, and neither :math:`P^{-1}` nor :math:`A P A^\top` is formed.
+:math:`\Omega` is computed as :math:`\sum_i w^c_i e_i e_i^\top` from the
+residuals :math:`e_i = \delta\mathcal Y_i - \Xi^\top \xi_i` (the same in
+exact arithmetic, as :math:`\sum_i w^c_i \xi_i \xi_i^\top = I`), those at
+round-off set to 0, and not as the difference: for a huge prior and a
+precise sensor the round-off of :math:`S - \Xi^\top \Xi` exceeded R (a
+posterior variance of 3 for 1, and means hundreds of standard deviations
+off). For a
 singular :math:`P` the factor is its semi-definite Cholesky factor
 (:func:`gaussfuse._linalg.semidefinite_cholesky`: a component that is, to round-off, an affine
 function of the earlier ones gets a zero column). With :math:`r` the nonzero
@@ -119,15 +126,27 @@ def slr(
     L, keep = sqrt_cov(cov, mean)
     y_mean, dY = _spread(g, rule, mean, L, angles)
     weighted = dY * rule.wc[:, None]
-    S = weighted.T @ dY
-    if keep.all():
-        Xi = rule.points.T @ weighted                   # C = L Ξ
-        A = whiten(L.T, Xi).T                           # Aᵀ = L⁻ᵀ Ξ: back substitution
-    else:  # over the nonzero columns only
-        Xi = rule.points[:, keep].T @ weighted
-        A = np.zeros((dY.shape[1], mean.shape[0]))
-        A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T
-    return A, y_mean - A @ mean, symmetrize(S - Xi.T @ Xi)
+    points = rule.points if keep.all() else rule.points[:, keep]  # (over the nonzero columns only)
+    Xi = points.T @ weighted                            # C = L Ξ
+    A = np.zeros((dY.shape[1], mean.shape[0]))
+    A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
+    # Ω = Σ w_i e_i e_iᵀ from the residuals e_i = δY_i - Ξᵀ ξ_i, not as S - ΞᵀΞ: that difference of terms of the
+    # prior's size left its round-off (more than R, for a huge prior and a precise sensor) in Ω
+    E = _resolved(dY - points @ Xi, rule, mean, L, A, dY, y_mean)
+    return A, y_mean - A @ mean, symmetrize((E * rule.wc[:, None]).T @ E)
+
+
+def _resolved(E: np.ndarray, rule: SigmaRule, mean: np.ndarray, L: np.ndarray, A: np.ndarray, dY: np.ndarray,
+              y_mean: np.ndarray) -> np.ndarray:
+    r"""The residuals `E` (k, d) with those at the round-off of the points and outputs set to 0 (see :func:`slr_sqrt`).
+
+    :math:`|e_{ij}| \le 4 k \epsilon\, (|A| (|m| + |L \xi_i|) + |\delta\mathcal Y_i| + |\bar y|)_j`: not
+    information about g's curvature, and for a linear g (all residuals at round-off) they would leave an Ω of
+    round-off size, indefinite in the square-root form.
+    """
+    size = (np.abs(mean) + np.abs(rule.points @ L.T)) @ np.abs(A).T + np.abs(dY) + np.abs(y_mean)
+    E[np.abs(E) <= 4 * len(rule.wc) * np.finfo(np.float64).eps * size] = 0.0
+    return E
 
 
 def _spread(g, rule: SigmaRule, mean: np.ndarray, L: np.ndarray, angles) -> tuple[np.ndarray, np.ndarray]:
@@ -202,10 +221,7 @@ def slr_sqrt(
     wc, points = rule.wc, rule.points
     Xi = (points * wc[:, None]).T @ dY                 # C = L Ξ
     A = back_solve(factor, Xi).T                        # Aᵀ = L⁻ᵀ Ξ
-    E = dY - points @ Xi                                # e_i = δY_i - Ξᵀ ξ_i, by rows
-    # Residuals at the round-off of the points and outputs are zero: a linear g leaves none to downdate.
-    size = (np.abs(mean) + np.abs(points @ factor.T)) @ np.abs(A).T + np.abs(dY) + np.abs(y_mean)
-    E[np.abs(E) <= 4 * len(wc) * np.finfo(np.float64).eps * size] = 0.0
+    E = _resolved(dY - points @ Xi, rule, mean, factor, A, dY, y_mean)  # e_i = δY_i - Ξᵀ ξ_i, by rows
     plus, minus = wc > 0.0, wc < 0.0
     Omega_plus = (E[plus] * np.sqrt(wc[plus])[:, None]).T
     Omega_minus = (E[minus] * np.sqrt(-wc[minus])[:, None]).T if minus.any() else None
