@@ -639,3 +639,16 @@ def test_a_trial_step_whose_model_is_invalid_is_no_likelihood():
         warnings.simplefilter("ignore", gf.ConvergenceWarning)
         res = gf.fit(gf.LinearModel(1, 1, 1.0, 1e-6), "diffuse", y, method="mle")
     assert np.isfinite(res.loglik) and res.loglik <= -267.8964 + 1e-3  # statsmodels' maximum, -267.8964
+
+
+@pytest.mark.parametrize("method, structure", [("em", None), ("mle", None), ("em", {"R": "scalar"})])
+def test_the_fitted_model_keeps_the_start_models_dt(method, structure):
+    """It was rebuilt without it, so the check that `times` step by the model's dt was lost."""
+    start = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.Position(dim=1, r=0.1), dt=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        res = gf.fit(start, "diffuse", np.arange(30.0) ** 1.5, learn=("R",), method=method, structure=structure,
+                     iterations=5, tol=0)
+    assert res.model.dt == 1.0
+    with pytest.raises(ValueError, match="step by 2 s but the model is for dt = 1 s"):
+        gf.filter(res.model, "diffuse", np.ones(4), times=2.0 * np.arange(4))
