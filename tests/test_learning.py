@@ -652,3 +652,15 @@ def test_the_fitted_model_keeps_the_start_models_dt(method, structure):
     assert res.model.dt == 1.0
     with pytest.raises(ValueError, match="step by 2 s but the model is for dt = 1 s"):
         gf.filter(res.model, "diffuse", np.ones(4), times=2.0 * np.arange(4))
+
+
+@pytest.mark.parametrize("method", ["em", "mle"])
+def test_a_series_with_nothing_observed_leaves_a_diffuse_fit_as_it_is(method):
+    """It made the whole fit fail: "the diffuse initial state is not identified ... give a proper Gaussian prior"
+    (with a Gaussian prior it already added nothing). The oracle is the fit without it."""
+    rng = np.random.default_rng(2)
+    zs = np.cumsum(rng.normal(size=(3, 20, 1)), axis=1)
+    zs[1] = np.nan
+    start = gf.LinearModel(1, 1, 1.0, 1.0)
+    got, want = (gf.fit(start, "diffuse", z, method=method) for z in (zs, zs[[0, 2]]))
+    assert got.params == want.params and got.loglik == want.loglik and got.nobs == want.nobs

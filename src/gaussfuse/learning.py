@@ -1482,6 +1482,10 @@ def fit(
         zs = check_measurements(zs, model.m)
         nobs = int(np.sum(~np.isnan(zs)))
         us = check_controls(us, model, zs.shape[0], zs.shape[1])
+        if prior == "diffuse" and 0 < nobs:  # a series with nothing observed adds nothing, and identifies no x_0
+            seen = ~np.isnan(zs).all(axis=(1, 2))
+            if not seen.all():
+                zs, us = zs[seen], None if us is None else us[seen]
         data = _Series(zs, us)
     if nobs == 0:
         raise ValueError("`zs` has no observed value (every entry is NaN): there is nothing to learn from.")
