@@ -664,3 +664,16 @@ def test_a_series_with_nothing_observed_leaves_a_diffuse_fit_as_it_is(method):
     start = gf.LinearModel(1, 1, 1.0, 1.0)
     got, want = (gf.fit(start, "diffuse", z, method=method) for z in (zs, zs[[0, 2]]))
     assert got.params == want.params and got.loglik == want.loglik and got.nobs == want.nobs
+
+
+def test_a_learned_covariance_that_ends_singular_keeps_its_parameters():
+    """EM from a singular full Q (rank 1) ends with a singular Q, which θ cannot encode: params came back {} and
+    df_model 0, so AIC equalled -2 loglik though four values were learned."""
+    rng = np.random.default_rng(7)
+    y = np.cumsum(rng.normal(size=100)) + rng.normal(size=100)
+    start = gf.LinearModel([[1.0, 1.0], [0.0, 1.0]], [1.0, 0.0], [[1.0, 3.0], [3.0, 9.0]], 1.0)
+    res = gf.fit(start, gf.Gaussian([0.0, 0.0], np.eye(2)), y, learn=("Q", "R"), iterations=1, tol=0)
+    assert list(res.params) == ["Q[0,0]", "Q[1,0]", "Q[1,1]", "R"] and res.df_model == 4
+    assert res.params["Q[1,0]"] == res.model.Q[1, 0] and res.params["R"] == res.model.R[0, 0]
+    assert all(np.isnan(v) for v in res.bse.values())
+    assert res.aic == pytest.approx(-2 * res.loglik + 8)

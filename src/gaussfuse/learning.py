@@ -692,10 +692,13 @@ class _Parametrisation:
     a positive variance at the start; the others stay at zero.
     """
 
-    def __init__(self, model: LinearModel, prior, learn: tuple, structure: dict):
+    def __init__(self, model: LinearModel, prior, learn: tuple, structure: dict, *, labels_only: bool = False):
+        """With `labels_only`, only :meth:`names` and :meth:`values` (no θ: a full covariance may be singular)."""
         self.model, self.prior, self.learn, self.structure = model, prior, learn, structure
         self.free = {name: ~_fixed_zeros(_current(model, prior, name), structure[name])
                      for name in learn if name in COVARIANCES}
+        if labels_only:
+            return
         for name, free in self.free.items():
             if structure[name] == "full" and free.any():
                 block = _current(model, prior, name)[np.ix_(free, free)]
@@ -823,7 +826,10 @@ class _Parametrisation:
 
     def natural(self, theta: np.ndarray) -> np.ndarray:
         """The learned values named by :meth:`names`, at θ."""
-        model, prior = self(theta)
+        return self.values(*self(theta))
+
+    def values(self, model: LinearModel, prior) -> np.ndarray:
+        """The learned values named by :meth:`names`, of `model` and `prior`."""
         out = []
         for name in self.learn:
             value = _current(model, prior, name)
@@ -1545,9 +1551,10 @@ def fit(
         if build is not None:
             errors, bse = _standard_errors(evaluate, build, theta, learn)
             names, values = build.names(), build.natural(theta)
-        else:
-            errors, names = None, []
-            values = bse = np.zeros(0)
+        else:  # a learned full covariance ended singular: its values, without standard errors
+            labels = _Parametrisation(model, prior, learn, structure, labels_only=True)
+            errors, names, values = None, labels.names(), labels.values(model, prior)
+            bse = np.full(values.size, np.nan)
     _check_fitted(model, prior, history, values)
     if not converged and not message.startswith("interrupted") and not (method == "em" and tol == 0):
         how = "EM" if method == "em" else "maximum likelihood"
