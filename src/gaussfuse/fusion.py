@@ -439,9 +439,7 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     dts = np.diff(step_times, prepend=t0)
     model, us = timeline.model(dts)
     method = timeline.default_method() if method is None else method
-    check = options.pop("check", "warn")
-    if not isinstance(check, str) or check not in drivers.CHECKS:
-        raise ValueError(f"`check` must be one of {list(drivers.CHECKS)}; got {check!r}.")
+    check = drivers.checked(options.pop("check", "warn"))
     run = inference.smooth if smooth else inference.filter
     res = run(model, prior, zs, us, method, check="off", **options)
     # checked here, so that a DivergenceWarning points at the caller's line, as gf.filter's does

@@ -280,8 +280,7 @@ def _divergence(path: str, ids: list, nis: list, seen: list, check: str) -> list
 
     Raises a DivergenceWarning for the first with ``check="raise"``.
     """
-    if check not in ("warn", "raise", "off"):
-        raise ValueError(f"`check` must be one of ['warn', 'raise', 'off']; got {check!r}.")
+    inference.drivers.checked(check)
     out = []
     if check == "off":
         return out

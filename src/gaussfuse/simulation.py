@@ -150,17 +150,14 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     linear = isinstance(model, LinearModel)
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
         for k in range(T):
-            if linear:
-                F, H, Q, R, B = model.at(k)
-                x = x @ F.T + (0.0 if B is None else B @ u[k])
-            else:
-                Q, R = model.noise(k)
-                try:
-                    x = model.transition(x, None if u is None else u[k])  # f at each row (checked)
-                except ModelFunctionError as exc:
-                    raise at_step(exc, k) from None
-            x = x + _draw(rng, roots("Q", Q), count)
-            try:
+            try:  # (f and h are checked at each row; their errors name the step, as a filter's do)
+                if linear:
+                    F, H, Q, R, B = model.at(k)
+                    x = x @ F.T + (0.0 if B is None else B @ u[k])
+                else:
+                    Q, R = model.noise(k)
+                    x = model.transition(x, None if u is None else u[k])
+                x = x + _draw(rng, roots("Q", Q), count)
                 z = x @ H.T if linear else model.measurement(x)
             except ModelFunctionError as exc:
                 raise at_step(exc, k) from None

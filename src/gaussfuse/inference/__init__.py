@@ -212,7 +212,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     if keep not in KEEP:
         raise ValueError(f"`keep` must be one of {list(KEEP)}; got {keep!r}.")
     if chunked.is_dask(zs):
-        _check_check(check)
+        drivers.checked(check)
         return chunked.map_series(filter, zs, us, dict(
             model=model, prior=prior, method=method, engine=engine, keep=keep, form=form, steady=steady,
             gains=gains, check=check, gate=gate, gate_by=gate_by, times=times, **options))
@@ -224,7 +224,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")
     gate = _gate(gate, gate_by, prior)
-    _check_check(check)
+    drivers.checked(check)
     if prior == "diffuse":
         result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
                         for i, z in enumerate(zs)])
@@ -311,14 +311,14 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     ((5, 2), (5, 2))
     """
     if chunked.is_dask(zs):
-        _check_check(check)
+        drivers.checked(check)
         return chunked.map_series(smooth, zs, us, dict(
             model=model, prior=prior, method=method, engine=engine, form=form, check=check, gate=gate,
             gate_by=gate_by, times=times, **options))
     model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     gate = _gate(gate, gate_by, prior)
-    _check_check(check)
+    drivers.checked(check)
     if prior == "diffuse":
         result = stack([diffuse.diffuse_smooth(model, z, None if us is None else us[i], engine)
                         for i, z in enumerate(zs)])
@@ -349,8 +349,3 @@ def _gate(gate, gate_by: str, prior) -> kalman.Gate | None:
     if gate is not None and prior == "diffuse":
         raise ValueError("`gate` is not available with a 'diffuse' prior.")
     return kalman.Gate.of(gate, gate_by)
-
-
-def _check_check(check) -> None:
-    if not isinstance(check, str) or check not in drivers.CHECKS:
-        raise ValueError(f"`check` must be one of {list(drivers.CHECKS)}; got {check!r}.")

@@ -76,6 +76,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._linalg import cho_solve, cholesky, is_positive_definite, observed_gram, symmetrize, whiten
+from ..diagnostics import nis
 from ..gaussian import Gaussian
 from ..models.linear import LinearModel
 from .drivers import filter_batch, smooth_batch
@@ -240,12 +241,8 @@ def _filter(model, runs: AugmentedRuns, inf: _Information) -> FilterResult:
         shift, spread = _spread(L, sc, sens[d + 1:])
         out[name][d + 1:] = getattr(base, name)[d + 1:] + shift
         out[base_name][d + 1:] = symmetrize(getattr(base, base_name)[d + 1:] + spread)
-    out["nis"] = np.full(len(out["means"]), np.nan)  # vᵀ S⁻¹ v over the observed components, once identified
-    v = out["innovations"][d + 1:]
-    seen = ~np.isnan(v)
-    gram, _ = observed_gram(out["innovation_covs"][d + 1:], np.nan_to_num(v)[..., None], seen,
-                            "the innovation covariance S")
-    out["nis"][d + 1:] = np.where(seen.any(axis=1), gram[:, 0, 0], np.nan)
+    out["nis"] = np.full(len(out["means"]), np.nan)  # once identified
+    out["nis"][d + 1:] = nis(out["innovations"][d + 1:], out["innovation_covs"][d + 1:])
     loglik = _diffuse_loglik(inf, (cholesky(inf.info[-1]), inf.score[-1]))
     return FilterResult(**out, loglik=loglik, last_mean=out["means"][-1], last_cov=out["covs"][-1])
 

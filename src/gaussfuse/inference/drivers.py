@@ -32,7 +32,7 @@ from .results import FilterResult, SmoothResult, stack
 
 __all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
            "start_seconds",
-           "CHECKS", "check_divergence", "divergence_message"]
+           "CHECKS", "checked", "check_divergence", "divergence_message"]
 
 ENGINES = ("auto", "python", "numba")
 CHECKS = ("warn", "raise", "off")
@@ -470,6 +470,13 @@ def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
 def divergence_message(ranges: list[str]) -> str:
     """The DivergenceWarning's message for flagged `ranges` ("<average> over steps a-b ..."): the first five, and a count."""
     return diverging(ranges[:5], diagnostics.DIVERGENCE_FALSE_ALARM, max(len(ranges) - 5, 0))
+
+
+def checked(check) -> str:
+    """`check` if it is one of :data:`CHECKS`, else a ValueError naming it."""
+    if not isinstance(check, str) or check not in CHECKS:
+        raise ValueError(f"`check` must be one of {list(CHECKS)}; got {check!r}.")
+    return check
 
 
 def check_divergence(result: FilterResult, check: str, first_series: int = 0) -> None:
