@@ -1127,11 +1127,11 @@ def _boundary(model, prior, learn, start=None) -> str:
     vanished = [name for name in ("Q", "R") if name in learn and isinstance(getattr(start, name, None), np.ndarray)
                 and np.max(np.abs(getattr(model, name))) <= 1e-100 * np.max(np.abs(getattr(start, name)))]
     if vanished:
-        names = " and ".join(vanished)
+        names, it = " and ".join(vanished), "them" if len(vanished) > 1 else "it"
         return (f" The learned {names} went to 0 (below 1e-100 of the start) as the log-likelihood grew: a model "
                 f"without that noise fits the data exactly (constant or noise-free data, say), so the likelihood has "
-                f"no maximum; keep {names} fixed (leave {'them' if len(vanished) > 1 else 'it'} out of `learn`), or learn "
-                f"{'them' if len(vanished) > 1 else 'it'} through `params` with a floor.")
+                f"no maximum; keep {names} fixed (leave {it} out of `learn`), or learn {it} through `params` with a "
+                "floor.")
     for name in ("Q", "R", "P0"):
         if name not in learn:
             continue
@@ -1147,6 +1147,12 @@ def _boundary(model, prior, learn, start=None) -> str:
     return ""
 
 
+NO_LIKELIHOOD = (ValueError, FloatingPointError)
+"""What evaluating θ raises where it has no likelihood: a singular S (LinAlgError), a pass that overflows, or
+a model the constructors refuse (a variance that overflowed). Only θ the search tried meet it: the start is
+evaluated first, outside these handlers."""
+
+
 def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     n_obs = max(n_obs, 1)
     evaluate = _evaluator(build, data, engine)
@@ -1156,8 +1162,8 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     def objective(theta):
         try:
             ll, grad = evaluate(theta)
-        except (ValueError, FloatingPointError):  # a trial step where S is singular, a variance overflows
-            return np.inf, np.zeros_like(theta)   # (LinAlgError and the model's ValueError): the line search steps back
+        except NO_LIKELIHOOD:  # a trial step with no likelihood: the line search steps back
+            return np.inf, np.zeros_like(theta)
         if ll > best[1]:
             best[0], best[1] = theta.copy(), ll
         return -ll / n_obs, -grad / n_obs
@@ -1220,7 +1226,7 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
             step = theta + cho_solve(cholesky(information), grad)
             if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
                 break
-        except (ValueError, FloatingPointError):  # a neighbour where the filter or the model fails: no step
+        except NO_LIKELIHOOD:  # a neighbour with no likelihood: no step
             break
         theta = step
     return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
@@ -1239,7 +1245,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         return None, nan
     try:
         information = -_hessian(evaluate, theta)
-    except (ValueError, FloatingPointError):  # a neighbour where the filter or the model fails (a variance near 0)
+    except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan
     if not is_positive_definite(information):  # it is at a maximum
         return None, nan
