@@ -149,6 +149,26 @@ def test_an_error_names_the_step_of_the_whole_series(track, engine, run):
     assert str(pieces.value) == str(whole.value)
 
 
+@pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
+def test_a_model_function_error_names_the_step_of_the_whole_series(run):
+    """The oracle is the whole series' own ModelFunctionError; the pieces named the step within the piece."""
+    def h(x):
+        if x[0] > 100:
+            raise RuntimeError("out of range")
+        return x[:1]
+
+    model = gf.NonlinearModel(f=lambda x: x, h=h, Q=0.01 * np.eye(1), R=np.eye(1))
+    prior = gf.Gaussian([0.0], [[1.0]])
+    zs = np.zeros((200, 1))
+    zs[130] = 1e6
+    times = np.arange(200.0)
+    with pytest.raises(gf.ModelFunctionError, match=r"^at step 131: `h` raised") as whole:
+        gf.filter(model, prior, zs, check="off")
+    with pytest.raises(gf.ModelFunctionError) as pieces:
+        list(run(model, prior, cut(zs, times, 51), check="off"))
+    assert str(pieces.value) == str(whole.value)
+
+
 def test_bad_check():
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="`check` must be one of"):

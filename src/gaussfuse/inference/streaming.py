@@ -41,7 +41,7 @@ from typing import Protocol
 import numpy as np
 
 from .. import diagnostics
-from ..errors import DivergenceWarning
+from ..errors import DivergenceWarning, ModelFunctionError
 from ..gaussian import Gaussian
 from . import diffuse, drivers, timing
 from .results import FilterResult, SmoothResult, first, stack
@@ -153,7 +153,7 @@ def _steps_from(start: int):
         message = str(err)
         renumbered = re.sub(r"\bat step (\d+)", lambda m: f"at step {int(m.group(1)) + start}", message, count=1)
         if start == 0 or renumbered == message or type(err) not in (ValueError, FloatingPointError,
-                                                                     np.linalg.LinAlgError):
+                                                                     np.linalg.LinAlgError, ModelFunctionError):
             raise
         raise type(err)(renumbered) from err
 
