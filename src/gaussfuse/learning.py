@@ -545,6 +545,10 @@ class _Series(NamedTuple):
         """The log-likelihood and its derivative along each direction."""
         return _loglik_and_gradient(model, prior, self.zs, self.us, directions, engine)
 
+    def scores(self, requests, engine):
+        """:meth:`score` of each ``(model, prior, directions)`` in `requests`."""
+        return [self.score(*request, engine) for request in requests]
+
 
 class _Chunks:
     """The measurements of a fit as a dask array chunked over series: each sum computed chunk by chunk.
@@ -565,9 +569,10 @@ class _Chunks:
         """``fn(zs_c, us_c, *args)`` summed over the chunks c (numbers, arrays, and tuples or dicts of them)."""
         import dask
 
-        parts = [dask.delayed(fn, pure=True)(z, u, *args) for z, u in zip(self.zs, self.us)]
+        shared = dask.delayed(args, traverse=False)  # one node for every chunk: not searched, hashed or sent again
+        parts = [dask.delayed(_apply)(fn, z, u, shared) for z, u in zip(self.zs, self.us)]
         while len(parts) > 1:
-            parts = [dask.delayed(_add, pure=True)(*parts[i:i + 2]) for i in range(0, len(parts), 2)]
+            parts = [dask.delayed(_add)(*parts[i:i + 2]) for i in range(0, len(parts), 2)]
         return dask.compute(parts[0])[0]
 
     def e_step(self, model, prior, learn, structure, fixed, engine):
@@ -582,6 +587,14 @@ class _Chunks:
 
     def score(self, model, prior, directions, engine):
         return self.total(_chunk_score, model, prior, directions, engine)
+
+    def scores(self, requests, engine):
+        """Each request's score, in one pass over the chunks (one task a chunk, rather than one a request)."""
+        return list(self.total(_chunk_scores, tuple(requests), engine))
+
+
+def _apply(fn, zs, us, args):
+    return fn(zs, us, *args)
 
 
 def _chunk_e_step(zs, us, model, prior, learn, engine):
@@ -598,6 +611,11 @@ def _chunk_second_sums(zs, us, model, prior, new, learn, engine):
 
 def _chunk_score(zs, us, model, prior, directions, engine):
     return _loglik_and_gradient(model, prior, zs, us, directions, engine)
+
+
+def _chunk_scores(zs, us, requests, engine):
+    return tuple(_loglik_and_gradient(model, prior, zs, us, directions, engine)
+                 for model, prior, directions in requests)
 
 
 def _add(a, b=None):
@@ -1101,7 +1119,12 @@ def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: s
 
 
 def _evaluator(build, data, engine):
-    """``theta -> (loglik, gradient)``, cached on θ."""
+    """``theta -> (loglik, gradient)``, cached on θ.
+
+    ``evaluate.prefetch(thetas)`` evaluates many θ together, each pass over
+    the data independent of the others: one round trip to a cluster for the
+    2k points of a Hessian rather than 2k.
+    """
     cache: dict[bytes, tuple[float, np.ndarray]] = {}
 
     def evaluate(theta: np.ndarray) -> tuple[float, np.ndarray]:
@@ -1111,6 +1134,15 @@ def _evaluator(build, data, engine):
             cache[key] = data.score(mdl, pri, build.directions(theta), engine)
         return cache[key]
 
+    def prefetch(thetas: list[np.ndarray]) -> None:
+        todo = {theta.tobytes(): theta for theta in thetas if theta.tobytes() not in cache}
+        try:
+            results = data.scores([(*build(theta), build.directions(theta)) for theta in todo.values()], engine)
+        except NO_LIKELIHOOD:  # left to evaluate(), one θ at a time, to raise where it does alone
+            return
+        cache.update(zip(todo, results))
+
+    evaluate.prefetch = prefetch
     return evaluate
 
 
@@ -1199,13 +1231,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
 def _hessian(evaluate, theta: np.ndarray) -> np.ndarray:
     """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised)."""
     k = theta.size
+    steps = [1e-5 * max(1.0, abs(value)) for value in theta]
+    up = [theta + h * e for h, e in zip(steps, np.eye(k))]
+    down = [theta - h * e for h, e in zip(steps, np.eye(k))]
+    evaluate.prefetch(up + down)
     hess = np.zeros((k, k))
     for j in range(k):
-        h = 1e-5 * max(1.0, abs(theta[j]))
-        up, down = theta.copy(), theta.copy()
-        up[j] += h
-        down[j] -= h
-        hess[:, j] = (evaluate(up)[1] - evaluate(down)[1]) / (2 * h)
+        hess[:, j] = (evaluate(up[j])[1] - evaluate(down[j])[1]) / (2 * steps[j])
     return symmetrize(hess)
 
 

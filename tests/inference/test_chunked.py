@@ -131,6 +131,32 @@ def test_pooled_em_and_mle_over_chunks_equal_the_in_memory_fit(client):
     assert b.nobs == a.nobs == int(np.sum(~np.isnan(zs)))
 
 
+def test_the_standard_errors_of_a_chunked_fit_are_one_pass_over_the_chunks():
+    """The Hessian's 2k scores are computed together: on a cluster each pass is a round trip (it was 2k of them).
+
+    Counted as dask computes on the synchronous scheduler; the oracle for the numbers is the in-memory fit.
+    """
+    from dask.callbacks import Callback
+
+    class Computes(Callback):
+        count = 0
+
+        def _start(self, dsk):
+            Computes.count += 1
+
+    model, prior, zs = panel(N=6, T=30, seed=2)
+    start = gf.constant_velocity(0.5, 1.0, 2.0, dim=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        want = gf.fit(start, prior, zs, learn=("Q", "R"), iterations=2, tol=0)
+        with dask.config.set(scheduler="synchronous"), Computes():
+            got = gf.fit(start, prior, da.from_array(zs, chunks=(2, 30, 2)), learn=("Q", "R"), iterations=2, tol=0)
+    k = 10 + 3  # Q (4 x 4) and R (2 x 2), symmetric
+    assert Computes.count <= 2 + 3 < 2 * k  # EM's passes (the start's, one an iteration, the last), and one more
+    for name in ("Q", "R"):
+        np.testing.assert_allclose(got.standard_errors[name], want.standard_errors[name], rtol=1e-6)
+
+
 def test_dask_input_errors():
     model, prior, zs = panel(N=4, T=5)
     with pytest.raises(ValueError, match=r"leading series axis, shape \(N, T, k\); got shape \(5, 2\)"):
