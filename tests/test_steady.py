@@ -61,6 +61,45 @@ def test_scaling_q_and_r_together_scales_the_covariances_and_keeps_the_gain(scal
     np.testing.assert_allclose(steady.means, full.means, rtol=0, atol=1e-9 * np.abs(full.means).max())
 
 
+def _joseph_limit(F, H, Q, R, steps=5000):
+    """The predicted covariance as the limit of the Riccati map in Joseph form (written here), from Q: until a
+    step changes it by round-off."""
+    P = Q.copy()
+    for _ in range(steps):
+        K = np.linalg.solve(H @ P @ H.T + R, H @ P).T
+        A = np.eye(len(P)) - K @ H
+        P, before = F @ (A @ P @ A.T + K @ R @ K.T) @ F.T + Q, P
+        P = 0.5 * (P + P.T)
+        if np.abs(P - before).max() <= 1e-15 * np.abs(P).max():
+            break
+    return P
+
+
+@pytest.mark.parametrize("radius, ratio", [(0.81, r) for r in (1e-100, 1e4, 1e8, 1e12, 0.7e20, 1e100)]
+                         + [(1.3, r) for r in (1e-100, 1e4, 1e8, 1e12)])
+def test_r_far_larger_or_smaller_than_q(radius, ratio):
+    """R of 0.7e20 beside a Q of order 1 gave a P wrong in sign (its smallest eigenvalue -178), solved in units
+    of R; an unstable F needs those units (in Q's, 1e8 gave 5e-8 relative errors). The oracle iterates the
+    Riccati map to its fixed point, where it converges in float64 (the unstable model up to a ratio of 1e12)."""
+    rng = np.random.default_rng(5)
+    F, H, A = rng.normal(size=(3, 3)), rng.normal(size=(1, 3)), rng.normal(size=(3, 3))
+    F *= radius / np.max(np.abs(np.linalg.eigvals(F)))
+    Q, R = A @ A.T, np.array([[ratio]])
+    P = gf.steady_state(gf.LinearModel(F, H, Q, R)).predicted_cov
+    want = _joseph_limit(F, H, Q, R)
+    np.testing.assert_allclose(P, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    assert np.linalg.eigvalsh(P)[0] >= -1e-14 * np.abs(P).max()
+
+
+def test_no_process_noise_and_a_stable_f_is_known_exactly():
+    """P = 0 solves the equation (and stabilises: F does); then R = 0 leaves S singular, which is said so (SciPy
+    failed there, reported as a missing stabilising solution)."""
+    ss = gf.steady_state(gf.LinearModel(F=0.5 * np.eye(2), H=np.eye(2), Q=np.zeros((2, 2)), R=np.eye(2)))
+    assert not ss.predicted_cov.any() and not ss.cov.any() and not ss.gain.any()
+    with pytest.raises(ValueError, match="no steady gain: its stationary innovation covariance S"):
+        gf.steady_state(gf.LinearModel(F=0.5 * np.eye(2), H=np.eye(2), Q=np.zeros((2, 2)), R=np.zeros((2, 2))))
+
+
 def test_an_unstable_but_observed_model_has_a_steady_state():
     """Constant velocity (F has a double eigenvalue 1): the filter still converges, to the filter's own limit."""
     model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)

@@ -85,8 +85,10 @@ def steady_state(model: LinearModel) -> Stationary:
     The predicted covariance solves the discrete algebraic Riccati equation
     (module notes), as ``c solve_discrete_are(Fᵀ, Hᵀ, Q / c, R / c)``:
     scaling Q and R together scales the solution and leaves the gain as it
-    is, so it is solved with c a power of two within a factor 2 of their
-    largest entry, whatever their scale. Then, as in
+    is, so it is solved with c a power of two within a factor 2 of Q's
+    largest entry and of the largest of Q's and R's, and the solution that
+    satisfies the equation more closely is kept (R far larger than Q needs
+    the first for a stable F, the second for an unstable one). Then, as in
     :func:`gaussfuse.kalman.update`,
 
     .. math::
@@ -107,20 +109,7 @@ def steady_state(model: LinearModel) -> Stationary:
     if any(a.ndim == 3 for a in (model.F, model.H, model.Q, model.R)):
         raise ValueError("`model` is time-varying (F, H, Q or R has a time axis): a steady state needs the "
                          "same matrices at every step.")
-    from scipy.linalg import solve_discrete_are  # SciPy on first use: `import gaussfuse` loads NumPy only
-
-    # P scales with Q and R together, but SciPy's solver is not scale-free (its residual checks and pencil
-    # are absolute): solve at unit scale, by a power of two, which is exact.
-    scale = np.ldexp(1.0, int(np.frexp(max(np.abs(model.Q).max(), np.abs(model.R).max()))[1]))
-    try:
-        P = scale * solve_discrete_are(model.F.T, model.H.T, model.Q / scale, model.R / scale)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise ValueError(
-            "the filter of `model` has no steady state: the Riccati equation has no stabilising solution "
-            f"(SciPy: {exc}). Check that every unstable mode of F is seen through H and reached by Q, and that "
-            "R is positive definite where Q does not reach."
-        ) from None
-    P = symmetrize(P)
+    P = _riccati_solution(model)
     try:
         g = kalman.gain(P, model.H, model.R)
     except np.linalg.LinAlgError:
@@ -133,3 +122,44 @@ def steady_state(model: LinearModel) -> Stationary:
     for f in fields(out):
         getattr(out, f.name).setflags(write=False)
     return out
+
+
+def _riccati_solution(model: LinearModel) -> np.ndarray:
+    """The stabilising solution of the Riccati equation (module notes), as accurate as SciPy can give it.
+
+    P scales with Q and R together, but SciPy's solver is not scale-free (its residual checks and pencil are
+    absolute), so it solves at unit scale, by a power of two (exact). Which unit matters where R is far larger
+    than Q: in units of R a stable model's P (of Q's size) is lost in round-off (a ratio of 1e20 gave P wrong in
+    sign), in units of Q an unstable one's (of R's size) is. Both are solved, and the one that satisfies the
+    equation more closely is kept. With no process noise and a stable F, P = 0 exactly.
+    """
+    from scipy.linalg import solve_discrete_are  # SciPy on first use: `import gaussfuse` loads NumPy only
+
+    F, H, Q, R = model.F, model.H, model.Q, model.R
+    if not Q.any() and np.max(np.abs(np.linalg.eigvals(F))) < 1.0:
+        return np.zeros_like(Q)
+    q, r = np.abs(Q).max(), np.abs(R).max()
+    found, error = [], None
+    for unit in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
+        unit = np.ldexp(1.0, int(np.frexp(unit)[1]))
+        try:
+            found.append(symmetrize(unit * solve_discrete_are(F.T, H.T, Q / unit, R / unit)))
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            error = exc
+    if not found:
+        raise ValueError(
+            "the filter of `model` has no steady state: the Riccati equation has no stabilising solution "
+            f"(SciPy: {error}). Check that every unstable mode of F is seen through H and reached by Q, and that "
+            "R is positive definite where Q does not reach."
+        ) from None
+    return min(found, key=lambda P: _residual(model, P))
+
+
+def _residual(model: LinearModel, P: np.ndarray) -> float:
+    """How far P is from solving the Riccati equation, relative to its size: max |F P⁺ Fᵀ + Q - P| / max |P|."""
+    try:
+        after = kalman.gain(P, model.H, model.R).cov
+    except np.linalg.LinAlgError:  # a singular S: left to the caller's message
+        return np.inf
+    size = np.abs(P).max()
+    return float(np.abs(model.F @ after @ model.F.T + model.Q - P).max() / size) if size > 0.0 else 0.0
