@@ -112,3 +112,29 @@ def test_errors_name_forecasts_own_arguments():
         gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian([0.0, 0.0], np.eye(2)), 2)
     with pytest.raises(ValueError, match=r"`us` must have shape \(T, p\) = \(2, 1\) .*matching `steps`; got shape"):
         gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, B=1.0), gf.Gaussian(0.0, 1.0), 2, us=np.ones((3, 1)))
+
+
+def test_an_interval_of_a_variance_that_is_zero_to_round_off_is_its_mean():
+    """A rank-1 belief rotated onto an axis: the variance there is 0 (computed -1.4e-18), and the interval was
+    NaN. Oracle: exact arithmetic, x ~ N(0, P0) with P0 = v vᵀ lands on the second axis after F."""
+    x, y = 0.3, 0.7
+    P0 = np.array([[x * x, x * y], [x * y, y * y]])
+    model = gf.LinearModel(F=[[y, -x], [0.0, 1.0]], H=np.eye(2), Q=np.zeros((2, 2)), R=np.zeros((2, 2)))
+    fc = gf.forecast(model, gf.Gaussian([0.0, 0.0], P0), 1)
+    lower, upper = fc.interval(of="states")
+    assert abs(fc.covs[0, 0, 0]) < 1e-16
+    assert lower[0, 0] == upper[0, 0] == fc.means[0, 0]
+    np.testing.assert_allclose(upper[0, 1], 1.959963984540054 * y, rtol=1e-12)
+
+
+def test_a_level_just_below_one_has_its_quantile():
+    """0.5 + level / 2 rounds to 1 for a level within 1e-16 of 1 (StatisticsError); the oracle is SciPy's
+    normal quantile of the tail (1 - level) / 2."""
+    from scipy.stats import norm
+
+    fc = gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian(0.0, 1.0), 1)
+    level = np.nextafter(1.0, 0.0)
+    lower, upper = fc.interval(level)
+    sigma = np.sqrt(fc.measurement_covs[0, 0, 0])
+    np.testing.assert_allclose(upper[0, 0], norm.isf((1.0 - level) / 2.0) * sigma, rtol=1e-12)
+    np.testing.assert_allclose(lower[0, 0], -upper[0, 0])

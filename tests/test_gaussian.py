@@ -354,3 +354,8 @@ def test_covariances_near_the_largest_float_do_not_overflow():
 def test_a_symmetric_covariance_is_kept_bit_for_bit():
     cov = np.array([[1e-310, 5e-324], [5e-324, 3.0]])
     assert np.array_equal(gf.Gaussian([0.0, 0.0], cov).cov, cov)
+
+
+def test_std_of_a_variance_zero_to_round_off_is_zero():
+    g = gf.Gaussian([0.0, 0.0], [[1.0, 0.0], [0.0, -1e-20]])  # valid: -1e-20 is 0 to round-off beside 1
+    np.testing.assert_array_equal(g.std, [1.0, 0.0])

@@ -832,3 +832,11 @@ def test_lines_read_in_blocks_are_the_lines_of_the_file(block, ending):
     bad = text.replace("44444", "44\x0044")
     with pytest.raises(InputFileError, match="line 4: a NUL character"):
         list(gaussfuse.io._text_lines("f.csv", stdio.StringIO(bad, newline=""), block=block))
+
+
+def test_write_estimates_gives_a_variance_of_zero_to_round_off_a_zero_std(tmp_path):
+    """A covariance's product can leave a zero variance at -1e-18: its standard deviation is 0, not nan."""
+    covs = np.array([[[4.0, 0.0], [0.0, -1e-18]]])
+    path = tmp_path / "est.csv"
+    write_estimates(path, np.zeros(1), np.zeros((1, 2)), covs, ["a", "b"])
+    assert path.read_text().splitlines()[1] == "0.0,0.0,0.0,2.0,0.0"

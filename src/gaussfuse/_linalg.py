@@ -26,6 +26,15 @@ except ImportError:  # pragma: no cover - every NumPy since 1.8 has them
     _potrf = _gesv = _gesv1 = None
 
 
+def marginal_std(cov: np.ndarray) -> np.ndarray:
+    """The standard deviations on a covariance's diagonal (a stack too), a variance of -0 to round-off as 0.
+
+    A variance that is 0 in exact arithmetic can come out of a product of
+    covariances as -1e-18: its standard deviation is 0, not NaN.
+    """
+    return np.sqrt(np.maximum(np.diagonal(cov, axis1=-2, axis2=-1), 0.0))
+
+
 def symmetrize(cov: np.ndarray) -> np.ndarray:
     """``P / 2 + Pᵀ / 2``: removes round-off asymmetry (a stack too).
 

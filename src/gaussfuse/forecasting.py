@@ -26,7 +26,7 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import wrap_components
+from ._linalg import marginal_std, wrap_components
 from ._validation import integer
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
@@ -86,7 +86,8 @@ class Forecast:
             raise ValueError(f"`of` must be 'measurements' or 'states'; got {of!r}.")
         means, covs = ((self.measurement_means, self.measurement_covs) if of == "measurements"
                        else (self.means, self.covs))
-        half = NormalDist().inv_cdf(0.5 + level / 2.0) * np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+        z = -NormalDist().inv_cdf((1.0 - level) / 2.0)  # not inv_cdf(0.5 + level / 2): that rounds to 1 near 1
+        half = z * marginal_std(covs)
         return means - half, means + half
 
 

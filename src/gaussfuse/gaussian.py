@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
-from ._linalg import circular_mean, cholesky, is_positive_definite, log_density, symmetrize, whiten, wrap_components
+from ._linalg import (circular_mean, cholesky, is_positive_definite, log_density, marginal_std, symmetrize, whiten,
+                      wrap_components)
 from ._validation import as_array, as_matrix, as_vector, check_psd
 
 __all__ = ["Gaussian", "fuse", "moment_match"]
@@ -93,7 +94,7 @@ class Gaussian:
     @property
     def std(self) -> np.ndarray:
         """Marginal standard deviations, array of shape (n,)."""
-        return np.sqrt(np.diag(self.cov))
+        return marginal_std(self.cov)
 
     def __repr__(self) -> str:
         with np.printoptions(precision=6, suppress=True):

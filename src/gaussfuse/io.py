@@ -90,6 +90,7 @@ from typing import IO, NamedTuple
 
 import numpy as np
 
+from ._linalg import marginal_std
 from ._validation import as_array, as_vector, shape_error
 from .gaussian import Gaussian
 from .models.linear import LinearModel
@@ -759,7 +760,7 @@ def write_estimates(
     for name, arr, shape in (("times", times, (T,)), ("means", means, (T, n)), ("covs", covs, (T, n, n))):
         if arr.shape != shape:
             raise shape_error(name, str(shape), arr.shape)
-    stds = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    stds = marginal_std(covs)
     columns = [time_name, *state_names, *(f"std_{name}" for name in state_names)]
     values = np.column_stack([means, stds]).tolist()  # Python floats: str() is repr
     stamps = stamps if verbatim else [repr(t) for t in times.tolist()]

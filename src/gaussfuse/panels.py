@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import diagnostics, inference
+from ._linalg import marginal_std
 from .errors import DivergenceWarning
 from .io import InputFileError, ModelFile, TIME_COLUMNS, open_atomic, _wrong_cells
 
@@ -263,7 +264,7 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
     table = part.frame.copy()
     for j, name in enumerate(names):
         table[name] = means[:, j]
-    stds = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
+    stds = marginal_std(covs)
     for j, name in enumerate(names):
         table[f"std_{name}"] = stds[:, j]
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)

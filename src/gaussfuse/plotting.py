@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ._linalg import marginal_std
 from ._validation import as_array, shape_error
 
 if TYPE_CHECKING:
@@ -141,7 +142,7 @@ def plot_series(
             covs = covs[:, None, None]
         if covs.shape != (T, n, n):
             raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
-        std = np.sqrt(np.maximum(covs[:, component, component], 0.0))
+        std = marginal_std(covs)[:, component]
     k = _positive("k", k)
     fig, ax = _axes(ax, (7.0, 3.2))
     if zs is not None:
