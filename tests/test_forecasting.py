@@ -138,3 +138,9 @@ def test_a_level_just_below_one_has_its_quantile():
     sigma = np.sqrt(fc.measurement_covs[0, 0, 0])
     np.testing.assert_allclose(upper[0, 0], norm.isf((1.0 - level) / 2.0) * sigma, rtol=1e-12)
     np.testing.assert_allclose(lower[0, 0], -upper[0, 0])
+
+
+@pytest.mark.parametrize("model", ["x", None, 3.0])
+def test_a_model_of_the_wrong_kind_is_named(model):
+    with pytest.raises(TypeError, match=r"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel"):
+        gf.forecast(model, gf.Gaussian(0.0, 1.0), 2)

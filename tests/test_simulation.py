@@ -164,3 +164,14 @@ def test_posterior_draws_take_the_filters_divergence_check():
     with pytest.raises(ValueError, match="`check`"):
         gf.sample_posterior(model, prior, zs, 5, check="loud")
 
+
+
+def test_simulate_names_its_own_arguments():
+    """It said "`zs` has 3 steps" and "matching `zs`": simulate has no `zs`."""
+    model = gf.LinearModel(F=np.stack([np.eye(2)] * 4), H=np.eye(2), Q=np.eye(2), R=np.eye(2))
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    with pytest.raises(ValueError, match=r"time-varying over 4 steps but `T` asks for 3 steps"):
+        gf.simulate(model, prior, 3)
+    controlled = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2), B=np.ones((2, 1)))
+    with pytest.raises(ValueError, match=r"matching `T`; got shape \(2, 3, 1\)"):
+        gf.simulate(controlled, prior, 3, us=np.zeros((2, 3, 1)), size=2)

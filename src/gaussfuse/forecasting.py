@@ -31,6 +31,8 @@ from ._validation import integer
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .models.compose import TimedModel
+from .models.linear import LinearModel
+from .models.nonlinear import NonlinearModel
 from .inference.registry import linearisation, resolve_method
 from .inference.results import FilterResult, SmoothResult
 from .inference.timing import as_seconds, resolve
@@ -126,8 +128,9 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     Raises
     ------
     TypeError, ValueError
-        For a belief of the wrong kind or dimension, a batch result, bad
-        `steps` or `us`, or a time-varying model shorter than `steps`.
+        For a model or belief of the wrong kind, a belief of the wrong
+        dimension, a batch result, bad `steps` or `us`, or a time-varying
+        model shorter than `steps`.
 
     Notes
     -----
@@ -144,6 +147,9 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     >>> fc.covs[:, 0, 0], fc.measurement_covs[:, 0, 0]
     (array([2., 3., 4.]), array([4., 5., 6.]))
     """
+    if not isinstance(model, (LinearModel, NonlinearModel, TimedModel)):
+        raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
+                        f"got {type(model).__name__}.")
     if times is not None:
         if steps is not None:
             raise ValueError("give `steps` or `times`, not both: the number of steps is len(times) - 1.")

@@ -136,9 +136,9 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
         raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
                         f"got {type(model).__name__}.")
     prior = check_prior(prior, model.n)
-    check_steps(model, T)
+    check_steps(model, T, "`T` asks for")
     count = 1 if size is None else integer("size", size)
-    us = check_controls(us, model, 1, T)
+    us = check_controls(us, model, 1, T, matching="`T`")
     u = None if us is None else us[0]
     rng = _generator(rng)
     n, m = model.n, model.m

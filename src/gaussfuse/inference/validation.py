@@ -79,11 +79,12 @@ def check_controls(us, model, N: int, T: int, matching: str = "`zs`") -> np.ndar
     return np.broadcast_to(arr, (N, *arr.shape[1:]))
 
 
-def check_steps(model, T: int) -> None:
+def check_steps(model, T: int, counted: str = "`zs` has") -> None:
+    """A time-varying model's steps against the T steps `counted` ("`zs` has", or the argument that asks)."""
     steps = getattr(model, "steps", None)
     if steps is not None and steps != T:
         raise ValueError(
-            f"the model is time-varying over {steps} steps but `zs` has {T} steps; they must agree."
+            f"the model is time-varying over {steps} steps but {counted} {T} steps; they must agree."
         )
 
 
