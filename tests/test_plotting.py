@@ -444,3 +444,50 @@ def test_figures_go_through_pyplot_only_when_the_caller_uses_it(tmp_path):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["False", "FigureCanvasAgg", "True"]
+
+
+def test_arguments_of_the_wrong_kind_are_named(track):
+    """They gave AttributeError or bare unpacking errors, or were read as something else: "13" as the interval
+    (1, 3), names="ab" as ["a", "b"], stacked="no" as True, component -1 (the message says [0, n))."""
+    times, zs, truth, res = track
+    probs = np.full((40, 2), 0.5)
+    cases = [
+        (lambda: plot_demo(times, zs, truth, [(res.means, res.covs)]), TypeError, "`estimates` must be a mapping"),
+        (lambda: plot_demo(times, zs, truth, {"f": res.means}), TypeError, "`estimates` must be a mapping"),
+        (lambda: plot_demo(times, zs, truth, {}), ValueError, "`estimates` must have at least one"),
+        (lambda: plot_demo(times, zs, truth, {"f": (res.means, res.covs)}, fig="x"), TypeError, "`fig` must be"),
+        (lambda: plot_measurements(times, zs, res.means, res.covs, np.eye(2, 4), fig=3), TypeError, "`fig` must be"),
+        (lambda: plot_measurements(times, zs, res.means, res.covs, np.eye(2, 4), track="yes"), TypeError,
+         "`track` must be True or False"),
+        (lambda: plot_measurements(times, zs, res.means, res.covs, np.eye(2, 4), names="xy"), TypeError,
+         "`names` must be a sequence of strings"),
+        (lambda: save_figure("x", "o.png"), TypeError, "`fig` must be a matplotlib Figure"),
+        (lambda: plot_consistency(np.ones(5), "13"), ValueError, "`interval` must be a pair"),
+        (lambda: plot_mode_probabilities(times, probs, names="ab"), TypeError, "`names` must be a sequence"),
+        (lambda: plot_mode_probabilities(times, probs, stacked="no"), TypeError, "`stacked` must be True or False"),
+        (lambda: plot_series(times, res.means, res.covs, component=-1), ValueError, r"`component` must be an integer in \[0, 4\)"),
+    ]
+    for call, error, match in cases:
+        with pytest.raises(error, match=match):
+            call()
+    fig = plot_mode_probabilities(times, probs, names=np.array(["cv", "ct"]))  # an array of names is a sequence
+    assert [line.get_label() for line in fig.axes[0].get_lines()] == ["cv", "ct"]
+
+
+def test_a_refused_demo_leaves_no_pyplot_figure_open(track):
+    """Through pyplot (the caller imported it) a call makes a figure; one that fails must not leave it open."""
+    times, zs, truth, res = track
+    code = (
+        "import numpy as np, matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot as plt\n"
+        "from gaussfuse.plotting import plot_demo\n"
+        "times, zs = np.arange(5.0), np.zeros((5, 2))\n"
+        "for bad in ({'f': (np.zeros((5, 4)), np.zeros((4, 4, 4)))}, {'f': (np.zeros((3, 4)), None)}):\n"
+        "    try:\n"
+        "        plot_demo(times, zs, np.zeros((5, 4)), bad)\n"
+        "    except ValueError:\n"
+        "        pass\n"
+        "print(len(plt.get_fignums()))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "0"

@@ -132,7 +132,7 @@ def plot_series(
         means = means[:, None]
     n = means.shape[1]
     if isinstance(component, bool) or not isinstance(component, (int, np.integer)) \
-            or not -n <= component < n:
+            or not 0 <= component < n:
         raise ValueError(f"`component` must be an integer in [0, {n}) for `means` with n = {n}; "
                          f"got {component!r}.")
     std = None
@@ -303,6 +303,8 @@ def plot_consistency(values, interval, *, kind: str = "NEES", ax: Axes | None = 
     if not np.isfinite(values).any():
         raise ValueError("`values` must have at least one finite value; all are NaN.")
     try:
+        if isinstance(interval, (str, bytes)):
+            raise TypeError
         low, high = (float(v) for v in interval)
     except (TypeError, ValueError):
         raise ValueError(f"`interval` must be a pair (low, high) of numbers; got {interval!r:.80}.") from None
@@ -362,6 +364,9 @@ def plot_mode_probabilities(
     ------
     ValueError
         If `probs` or `names` does not match `times`.
+    TypeError
+        If `names` is a string rather than a sequence of them, or `stacked`
+        is not a bool.
     """
     times = _times("times", times)
     probs = as_array("probs", probs)
@@ -369,9 +374,10 @@ def plot_mode_probabilities(
     if probs.ndim != 2 or probs.shape[0] != T or probs.shape[1] == 0:
         raise shape_error("probs", f"({T}, M) to match `times`", probs.shape)
     M = probs.shape[1]
-    names = [f"mode {j}" for j in range(M)] if names is None else [str(s) for s in names]
+    names = [f"mode {j}" for j in range(M)] if names is None else _names(names)
     if len(names) != M:
         raise ValueError(f"`names` must have one name per mode ({M}); got {len(names)}.")
+    stacked = _flag("stacked", stacked)
     fig, ax = _axes(ax, (7.0, 3.2))
     if stacked:
         ax.stackplot(times, probs.T, labels=names, alpha=0.8)
@@ -452,6 +458,9 @@ def plot_measurements(
     ValueError
         If an argument has the wrong shape (the message names it), or
         `track` is asked for with other than two components.
+    TypeError
+        If `fig` is not a Figure, `names` is a string rather than a
+        sequence of them, or `track` is not a bool.
     """
     times = _times("times", times)
     T = times.shape[0]
@@ -468,9 +477,10 @@ def plot_measurements(
         H = H[None]
     if H.shape not in ((m, n), (T, m, n)):
         raise shape_error("H", f"({m}, {n}) or ({T}, {m}, {n}) to match `zs` and `means`", H.shape)
-    names = [f"z{j}" for j in range(m)] if names is None else [str(s) for s in names]
+    names = [f"z{j}" for j in range(m)] if names is None else _names(names)
     if len(names) != m:
         raise ValueError(f"`names` must have one name per measurement component ({m}); got {len(names)}.")
+    track = _flag("track", track)
     units = [units] * m if units is None or isinstance(units, str) else list(units)
     if len(units) != m:
         raise ValueError(f"`units` must be one unit, or one per measurement component ({m}); got {len(units)}.")
@@ -478,7 +488,7 @@ def plot_measurements(
         raise ValueError(f"`track` draws two measurement components against each other; these have m = {m}.")
     est = (H @ means[..., None])[..., 0]
     zcov = H @ covs @ np.swapaxes(H, -1, -2)
-    fig = fig if fig is not None else _figure((12.0 if track else 7.0, 1.0 + 2.2 * max(m, 2 if track else 1)))
+    fig = _given_figure(fig) or _figure((12.0 if track else 7.0, 1.0 + 2.2 * max(m, 2 if track else 1)))
     grid = fig.add_gridspec(m, 2 if track else 1, width_ratios=(3, 2) if track else None)
     axes = [fig.add_subplot(grid[0, 0])]
     axes += [fig.add_subplot(grid[j, 0], sharex=axes[0]) for j in range(1, m)]
@@ -529,13 +539,34 @@ def plot_demo(
     Returns
     -------
     matplotlib.figure.Figure
+
+    Raises
+    ------
+    TypeError
+        If `estimates` is not a mapping of labels to (means, covs) pairs, or
+        `fig` is not a Figure.
+    ValueError
+        If `estimates` is empty, or an array has the wrong shape (the
+        message names it); a new figure is then closed, not left open.
     """
-    fig = fig if fig is not None else _figure((11.0, 4.5))
-    track, xt = fig.subplots(1, 2)
-    for i, (label, (means, covs)) in enumerate(estimates.items()):
-        first = dict(zs=zs, truth=truth) if i == 0 else {}
-        plot_trajectory(means, covs if i == 0 else None, ax=track, label=label, **first)
-        plot_series(times, means, covs, component=0, ax=xt, label=label, **first)
+    if not isinstance(estimates, Mapping) or not all(
+            isinstance(pair, Sequence) and not isinstance(pair, str) and len(pair) == 2 for pair in estimates.values()):
+        raise TypeError("`estimates` must be a mapping of labels to (means, covs) pairs, e.g. "
+                        f"{{'filter': (res.means, res.covs)}}; got {type(estimates).__name__}.")
+    if not estimates:
+        raise ValueError("`estimates` must have at least one (means, covs) pair to draw.")
+    given = _given_figure(fig)
+    fig = given or _figure((11.0, 4.5))
+    try:
+        track, xt = fig.subplots(1, 2)
+        for i, (label, (means, covs)) in enumerate(estimates.items()):
+            first = dict(zs=zs, truth=truth) if i == 0 else {}
+            plot_trajectory(means, covs if i == 0 else None, ax=track, label=label, **first)
+            plot_series(times, means, covs, component=0, ax=xt, label=label, **first)
+    except BaseException:
+        if given is None:
+            _close(fig)
+        raise
     track.set_title("trajectory")
     xt.set(ylabel="x", title="x position, ±2σ bands")
     return fig
@@ -553,10 +584,15 @@ def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
 
     Raises
     ------
+    TypeError
+        If `fig` is not a Figure.
     ValueError
         If matplotlib cannot write the extension's format.
     """
     from .io import open_atomic
+
+    if _given_figure(fig, "Figure") is None:
+        raise TypeError("`fig` must be a matplotlib Figure; got None.")
 
     fmt = os.path.splitext(os.fspath(path))[1][1:].lower() or "png"
     supported = fig.canvas.get_supported_filetypes()
@@ -588,6 +624,41 @@ def _figure(figsize: tuple[float, float]) -> Figure:
     fig = Figure(figsize=figsize, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
+
+
+def _given_figure(fig, kind: str = "FigureBase") -> Figure | None:
+    """`fig` checked to be a matplotlib Figure (or SubFigure, unless `kind` is "Figure"); None stays None."""
+    if fig is None:
+        return None
+    from matplotlib import figure
+
+    if not isinstance(fig, getattr(figure, kind)):
+        also = "" if kind == "Figure" else " (or SubFigure)"
+        raise TypeError(f"`fig` must be a matplotlib Figure{also} or None; got {type(fig).__name__}.")
+    return fig
+
+
+def _close(fig: Figure) -> None:
+    """Forget a figure this module made through pyplot (a figure on its own canvas needs nothing)."""
+    pyplot = sys.modules.get("matplotlib.pyplot")
+    if pyplot is not None:
+        pyplot.close(fig)
+
+
+def _names(names) -> list[str]:
+    """The names of a sequence (or array, or index) of them; a single string is refused, not split into letters."""
+    try:
+        if isinstance(names, (str, bytes)):
+            raise TypeError
+        return [str(name) for name in names]
+    except TypeError:
+        raise TypeError(f"`names` must be a sequence of strings, one per component; got {names!r:.80}.") from None
+
+
+def _flag(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"`{name}` must be True or False; got {value!r:.80}.")
+    return bool(value)
 
 
 def _axes(ax: Axes | None, figsize: tuple[float, float]) -> tuple[Figure, Axes]:
