@@ -77,6 +77,8 @@ class Simulation:
 def _generator(rng) -> np.random.Generator:
     """`rng` as a NumPy Generator: None (fresh entropy), a seed, or a Generator (used as is)."""
     try:
+        if isinstance(rng, (bool, np.bool_)):  # default_rng takes True as the seed 1
+            raise TypeError
         return np.random.default_rng(rng)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`rng` must be None, an integer seed or a numpy.random.Generator; got {rng!r}.") from exc
