@@ -123,6 +123,28 @@ def test_filter_series_with_a_diffuse_prior(tmp_path, capsys, smooth):
         np.testing.assert_allclose(got[got.id == name]["x0"].to_numpy(), want.means[:, 0], rtol=1e-12)
 
 
+def test_series_ids_are_the_text_in_the_file(tmp_path, capsys):
+    """pandas read the ids as numbers: "007" and "7" (and "1" and "1.0") were one series, written back as 7,
+    and the id "NA" was refused as missing. Oracle: gf.filter on each series alone."""
+    rows = [("007", 0.0, 1.0), ("7", 1.0, 2.0), ("1", 0.0, 3.0), ("1.0", 0.0, 4.0), ("1e3", 0.0, 5.0),
+            ("1000", 1.0, 6.0), ("NA", 0.0, 7.0), ("NA", 2.0, 8.0)]
+    (tmp_path / "d.csv").write_text("id,t,z\n" + "".join(f"{i},{t},{z}\n" for i, t, z in rows))
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.5]]\nR = [[2.0]]\n"
+                                     "[prior]\nvar = 10.0\n")
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
+                       "-o", out, "--check", "off")
+    assert code == 0, err
+    assert "7 series, 8 rows" in err
+    got = pd.read_csv(next(out.rglob("*.csv")), dtype={"id": str}, keep_default_na=False)
+    assert got["id"].tolist() == [i for i, _, _ in rows]
+    spec = gfio.read_model(tmp_path / "m.toml")
+    for name in dict.fromkeys(i for i, _, _ in rows):
+        zs = np.array([z for i, _, z in rows if i == name])
+        want = gf.filter(spec.model, spec.prior, zs, check="off")  # times 1 apart, or the first of its series
+        np.testing.assert_allclose(got[got.id == name]["x0"].to_numpy(), want.means[:, 0], rtol=1e-12)
+
+
 def test_pooled_fit_of_a_partitioned_dataset(tmp_path, capsys, scheduler):
     data = tmp_path / "data"
     series = dataset(data, seed=2)

@@ -113,6 +113,10 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     else:
         _check_cells(path)
         frame = pd.read_csv(path, index_col=False)
+        if series_column in frame.columns:  # the ids as written: "007" is not 7, "1.0" not 1, "NA" is an id
+            ids = pd.read_csv(path, index_col=False, usecols=[series_column], dtype=str,
+                              keep_default_na=False)[series_column]
+            frame[series_column] = ids.mask(ids == "")  # an empty cell is a missing id
     if len(frame) == 0:
         raise InputFileError(path, "no data rows: the table has a header only.")
     header = [str(c) for c in frame.columns]
@@ -151,7 +155,8 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     times = np.split(seconds, bounds)
     for k, t in enumerate(times):
         if np.any(np.diff(t) <= 0):
-            raise InputFileError(path, f"series {ids[k]!r} has two rows at one time; times must increase strictly.",
+            name = repr(ids[k]) if isinstance(ids[k], str) else str(ids[k])  # not np.int64(7)
+            raise InputFileError(path, f"series {name} has two rows at one time; times must increase strictly.",
                                  field=f"column `{time_col}`")
     return Partition(list(ids), times, np.split(values, bounds),
                      frame[[series_column, time_col]].iloc[order].reset_index(drop=True),
