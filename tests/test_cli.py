@@ -583,10 +583,12 @@ def test_fit_bad_arguments(tmp_path, capsys, extra, match):
 
 @pytest.mark.parametrize("extra, match", [
     (["--workers", "2"], r"--workers run the series of --series-column on Dask"),
-    (["--series-column", "id", "--workers", "-3"], r"--workers must be a positive integer; got -3\."),
+    (["--series-column", "id", "--workers", "-3"], r"--workers must be a positive integer, at most .*; got -3\."),
+    (["--series-column", "id", "--workers", "100000"], r"at most this machine's \d+ cores .*; got 100000\."),
 ])
 def test_filter_dask_options_without_their_series_are_errors(tmp_path, capsys, extra, match):
-    """--workers -3 without --series-column was ignored (exit status 0)."""
+    """--workers -3 without --series-column was ignored (exit status 0); --workers 100000 started a cluster of
+    100,000 processes, and hung."""
     code, stdout, err = run(capsys, "filter", EXAMPLES / "data" / "track.csv", "--model",
                             EXAMPLES / "models" / "cv2d.toml", "--out", tmp_path / "o", *extra)
     assert code == 2 and stdout == "" and not (tmp_path / "o").exists()

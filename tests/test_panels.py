@@ -145,6 +145,18 @@ def test_series_ids_are_the_text_in_the_file(tmp_path, capsys):
         np.testing.assert_allclose(got[got.id == name]["x0"].to_numpy(), want.means[:, 0], rtol=1e-12)
 
 
+def test_matrices_per_row_are_refused_with_series_naming_the_file(tmp_path, capsys):
+    """They failed with the library's "time-varying over 3 steps but `zs` has 2 steps", naming no file."""
+    (tmp_path / "d.csv").write_text("id,t,z\na,0,1\na,1,2\nb,0,3\n")
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[[0.5]], [[1.0]], [[2.0]]]\n"
+                                     "R = [[2.0]]\n[prior]\nvar = 10.0\n")
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
+                       "-o", out)
+    assert code == 2 and not out.exists()
+    assert err.count("\n") == 1 and "m.toml: [model]: matrices given per row (3 of them)" in err
+
+
 def test_pooled_fit_of_a_partitioned_dataset(tmp_path, capsys, scheduler):
     data = tmp_path / "data"
     series = dataset(data, seed=2)

@@ -314,6 +314,10 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
         raise ValueError("--series-column writes one output file per partition: name an output directory with --out.")
     if args.plot:
         raise ValueError("--plot draws one series; leave it out with --series-column.")
+    if spec.model.steps is not None:
+        raise ValueError(f"{args.model}: [model]: matrices given per row ({spec.model.steps} of them) are for one "
+                         "series, the rows of one file; with --series-column give one set of matrices for every "
+                         "series.")
     parts = panels.partitions(args.data)
     source = args.data if os.path.isdir(args.data) else os.path.dirname(os.path.abspath(args.data))
     if os.path.realpath(args.out) == os.path.realpath(source):
@@ -540,8 +544,10 @@ def _check_many(args: argparse.Namespace) -> None:
         if given:
             raise ValueError(f"{' and '.join(given)} run the series of --series-column on Dask; give --series-column "
                              "or leave them out.")
-    if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers must be a positive integer; got {args.workers}.")
+    cores = os.cpu_count() or 1
+    if args.workers is not None and not 1 <= args.workers <= cores:
+        raise ValueError(f"--workers must be a positive integer, at most this machine's {cores} cores (a local "
+                         f"cluster of one process a worker); got {args.workers}.")
 
 
 def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
@@ -838,7 +844,7 @@ def _many_options(command: argparse.ArgumentParser, what: str) -> None:
                       help="with --series-column: the Dask scheduler of an existing cluster (tcp://host:8786)")
     many.add_argument("--workers", metavar="N", type=int,
                       help="with --series-column and no --scheduler: a local cluster of N worker processes "
-                           "(default: one per core)")
+                           "(default, and at most: one per core)")
 
 
 def _engine_option(command: argparse.ArgumentParser) -> None:
