@@ -207,6 +207,17 @@ def test_errors_are_one_line(tmp_path, capsys, scheduler):
     assert code == 2 and "series 'u0' is in two partitions" in err
 
 
+@pytest.mark.parametrize("name", ["nosuch.parquet", "nosuch.csv", "nosuchdir"])
+def test_missing_data_is_named_with_its_reason(tmp_path, capsys, name):
+    """A missing Parquet file said only "gaussfuse: error: nosuch.parquet", a missing directory "not a .csv or
+    .parquet file"."""
+    (tmp_path / "cv.toml").write_text(NAMED)
+    for command in (["filter", "-o", tmp_path / "o"], ["fit"]):
+        code, _, err = run(capsys, command[0], tmp_path / name, "-m", tmp_path / "cv.toml", "--series-column", "unit",
+                           *command[1:])
+        assert code == 2 and err == f"gaussfuse: error: {tmp_path / name}: No such file or directory\n", err
+
+
 BAD_TABLES = [
     ("unit,t,x\nu1,1.0,0.5\n,2.0,0.7\n", "line 3: column `unit`: a row has no series id"),
     ("unit,t,x\n", "no data rows: the table has a header only"),

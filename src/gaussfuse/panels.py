@@ -20,6 +20,7 @@ with the ``dask`` extra.
 
 from __future__ import annotations
 
+import errno
 import glob
 import os
 from typing import NamedTuple
@@ -69,7 +70,11 @@ def partitions(path: str) -> list[str]:
     ------
     ValueError
         When `path` is a directory holding no such file, or files of both kinds.
+    FileNotFoundError
+        When there is nothing at `path` (pyarrow's own error named only the path).
     """
+    if not os.path.exists(path):
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path)
     if not os.path.isdir(path):
         return [path]
     found = sorted(f for f in glob.glob(os.path.join(path, "**", "*"), recursive=True)
