@@ -205,6 +205,11 @@ def test_errors_are_one_line(tmp_path, capsys, scheduler):
     code, _, err = run(capsys, "fit", tmp_path / "split", "-m", tmp_path / "cv.toml", "--series-column", "unit",
                        "--columns", "x", "--scheduler", scheduler)
     assert code == 2 and "series 'u0' is in two partitions" in err
+    # filter only warned, and wrote each part filtered from the prior
+    code, _, err = run(capsys, "filter", tmp_path / "split", "-m", tmp_path / "cv.toml", "--series-column", "unit",
+                       "--columns", "x", "--scheduler", scheduler, "--out", tmp_path / "o3")
+    assert code == 2 and "series 'u0' is in two partitions" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "o3").exists() or not any((tmp_path / "o3").rglob("*.parquet"))
 
 
 @pytest.mark.parametrize("name", ["nosuch.parquet", "nosuch.csv", "nosuchdir"])

@@ -343,15 +343,16 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
         finally:
             progress.close()
         done = client.gather(futures)
-    seen: dict = {}
-    for part, (ids, _, messages) in zip(parts, done):
+        seen: dict = {}
+        for part, (ids, _, _) in zip(parts, done):  # checked before the outputs are kept
+            for i in ids:
+                if i in seen:
+                    raise ValueError(f"series {i!r} is in two partitions ({seen[i]} and {part}); each series must "
+                                     "lie in one partition (a part alone would start again from the prior).")
+                seen[i] = part
+    for _, _, messages in done:
         for message in messages:
             print(f"gaussfuse: warning: {message}", file=sys.stderr)
-        for i in ids:
-            if i in seen:
-                print(f"gaussfuse: warning: series {i!r} is in two partitions ({seen[i]} and {part}); each part was "
-                      "filtered as a series of its own.", file=sys.stderr)
-            seen[i] = part
     rows = sum(r for _, r, _ in done)
     print(f"{'smooth' if args.smooth else 'filter'}: {len(seen):,} series, {rows:,} rows in {len(parts)} "
           f"partition(s); wrote {args.out}", file=sys.stderr)

@@ -4,6 +4,9 @@ A long-format table has one row per (series, time): a series-id column, a
 time column and the measurement columns. It is a CSV or Parquet file, or a
 directory of them (a partitioned dataset, such as pyarrow or Dask writes):
 each file is a **partition**, and every series must lie in one partition.
+The columns are read from the files themselves, not from directory names:
+a dataset partitioned by the series id (``id=a/part.parquet``) needs the id
+written in its files too.
 
 :func:`filter_partition` reads one partition, filters (or smooths) each of
 its series and writes the estimates to one output file, atomically; it runs
