@@ -1228,3 +1228,20 @@ def test_matrices_given_per_step_filter_a_file_longer_than_one_piece(tmp_path, c
     got = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(got[:, 1], want.means[:, 0], rtol=1e-13, atol=1e-13)
 
+
+
+@pytest.mark.parametrize("command, option", [("fit", "--out"), ("filter", "--out"), ("filter", "--plot")])
+def test_an_output_in_a_missing_folder_is_refused_before_the_work(tmp_path, capsys, monkeypatch, command, option):
+    """They failed after the whole fit or filter, losing its results."""
+    def no_work(*args, **kwargs):
+        raise AssertionError("the work started")
+
+    monkeypatch.setattr(gf.learning, "fit", no_work)
+    monkeypatch.setattr(gf.inference, "filter", no_work)
+    path = tmp_path / "missing" / "x" / ("f.png" if option == "--plot" else "out")
+    extra = [option, path] if option == "--out" else ["--out", tmp_path / "o.csv", option, path]
+    code, stdout, err = run(capsys, command, EXAMPLES / "data" / "nile.csv", "--model",
+                            EXAMPLES / "models" / "local_level.toml", *extra)
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, f"No such file or directory \\(the folder of `{option}`\\)")
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "o.csv").exists()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import errno
 import itertools
 import os
 import re
@@ -554,8 +555,9 @@ def _check_many(args: argparse.Namespace) -> None:
 def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
     """Refuse, before any work, outputs that would destroy an input or each other.
 
-    Also refuses to write to a closed standard output, which would lose the
-    results of the work.
+    Also refuses to write to a closed standard output, or into a directory
+    that does not exist (an output directory of --series-column is made),
+    which would lose the results of the work.
     """
     if not outputs["--out"] and sys.stdout is None:
         raise ValueError("standard output is closed; name an output file with `--out`.")
@@ -563,6 +565,9 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
     for option, path in outputs.items():
         if path is None:
             continue
+        folder = os.path.dirname(os.path.abspath(path))
+        if not (option == "--out" and args.series_column is not None) and not os.path.isdir(folder):
+            raise FileNotFoundError(errno.ENOENT, f"{os.strerror(errno.ENOENT)} (the folder of `{option}`)", path)
         for what, other in earlier:
             if _same_file(path, other):
                 raise ValueError(f"`{option}` {path} is the same file as {what} {other}; choose another path.")
