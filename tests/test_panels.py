@@ -223,6 +223,19 @@ def test_missing_data_is_named_with_its_reason(tmp_path, capsys, name):
         assert code == 2 and err == f"gaussfuse: error: {tmp_path / name}: No such file or directory\n", err
 
 
+@pytest.mark.parametrize("smooth", [False, True])
+def test_a_series_the_diffuse_prior_cannot_start_is_named(tmp_path, capsys, smooth):
+    """The error named neither the file nor the series (one observation cannot identify position and velocity)."""
+    (tmp_path / "d.csv").write_text("id,t,z\na,0,1\na,1,2\na,2,3\nb,0,1\n")
+    (tmp_path / "m.toml").write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.5\nr = 1.0\n'
+                                     "[prior]\ndiffuse = true\n")
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
+                       "-o", tmp_path / "o", *(["--smooth"] if smooth else []))
+    assert code == 2 and not (tmp_path / "o").exists()
+    assert err.startswith(f"gaussfuse: error: {tmp_path / 'd.csv'}: series 'b': the diffuse initial state is not "
+                          "identified") and err.count("\n") == 1, err
+
+
 BAD_TABLES = [
     ("unit,t,x\nu1,1.0,0.5\n,2.0,0.7\n", "line 3: column `unit`: a row has no series id"),
     ("unit,t,x\n", "no data rows: the table has a header only"),

@@ -465,7 +465,8 @@ def test_arguments_of_the_wrong_kind_are_named(track):
         (lambda: plot_consistency(np.ones(5), "13"), ValueError, "`interval` must be a pair"),
         (lambda: plot_mode_probabilities(times, probs, names="ab"), TypeError, "`names` must be a sequence"),
         (lambda: plot_mode_probabilities(times, probs, stacked="no"), TypeError, "`stacked` must be True or False"),
-        (lambda: plot_series(times, res.means, res.covs, component=-1), ValueError, r"`component` must be an integer in \[0, 4\)"),
+        (lambda: plot_series(times, res.means, res.covs, component=-1), ValueError,
+         r"`component` must be an integer in \[0, 4\)"),
     ]
     for call, error, match in cases:
         with pytest.raises(error, match=match):

@@ -163,12 +163,17 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     times = np.split(seconds, bounds)
     for k, t in enumerate(times):
         if np.any(np.diff(t) <= 0):
-            name = repr(ids[k]) if isinstance(ids[k], str) else str(ids[k])  # not np.int64(7)
-            raise InputFileError(path, f"series {name} has two rows at one time; times must increase strictly.",
+            raise InputFileError(path, f"series {_shown(ids[k])} has two rows at one time; times must increase "
+                                       "strictly.",
                                  field=f"column `{time_col}`")
     return Partition(list(ids), times, np.split(values, bounds),
                      frame[[series_column, time_col]].iloc[order].reset_index(drop=True),
                      [series_column, time_col, *wanted])
+
+
+def _shown(series_id) -> str:
+    """A series id as a message shows it: a string quoted, a number as it reads (not np.int64(7))."""
+    return repr(series_id) if isinstance(series_id, str) else str(series_id)
 
 
 def _check_cells(path: str) -> None:
@@ -258,14 +263,22 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
     part = read_partition(path, series_column, spec.model.m, time_column, columns)
     run = inference.smooth if smooth else inference.filter
     if spec.timed is not None:  # each series stepped by its own times
-        results = [run(spec.timed if len(t) > 1 else spec.model, spec.prior, z, times=t if len(t) > 1 else None,
-                       engine=engine, check="off") for t, z in zip(part.times, part.zs)]
+        results = []
+        for name, t, z in zip(part.ids, part.times, part.zs):
+            try:
+                results.append(run(spec.timed if len(t) > 1 else spec.model, spec.prior, z,
+                                   times=t if len(t) > 1 else None, engine=engine, check="off"))
+            except (ValueError, FloatingPointError) as exc:  # a LinAlgError and a ModelFunctionError too
+                raise InputFileError(path, str(exc), field=f"series {_shown(name)}") from None
         filtered = [getattr(r, "filtered", r) for r in results]
         means, covs = np.concatenate([r.means for r in results]), np.concatenate([r.covs for r in results])
         nis = [f.nis for f in filtered]
         seen = [np.count_nonzero(~np.isnan(f.innovations), axis=-1) for f in filtered]
     else:  # all at once, padded at the end with missing steps
-        result = run(spec.model, spec.prior, _padded(part, spec.model.m), engine=engine, check="off")
+        try:
+            result = run(spec.model, spec.prior, _padded(part, spec.model.m), engine=engine, check="off")
+        except (ValueError, FloatingPointError) as exc:
+            raise InputFileError(path, str(exc)) from None
         lengths = [len(t) for t in part.times]
         means = np.concatenate([result.means[i, :k] for i, k in enumerate(lengths)])
         covs = np.concatenate([result.covs[i, :k] for i, k in enumerate(lengths)])
@@ -302,7 +315,7 @@ def _divergence(path: str, ids: list, nis: list, seen: list, check: str) -> list
         flagged = diagnostics.divergence(values, dof)
         if flagged:
             where = "; ".join(f"{avg:.2f} over steps {a}-{b}" for _, a, b, avg in flagged[:3])
-            out.append(f"{os.path.basename(path)}: series {name!r} may be diverging: its normalised innovations "
+            out.append(f"{os.path.basename(path)}: series {_shown(name)} may be diverging: its normalised innovations "
                        f"average, per observed component, {where} (1 expected).")
             if check == "raise":
                 raise DivergenceWarning(out[-1])
