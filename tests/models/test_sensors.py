@@ -197,3 +197,28 @@ def test_docstring_examples():
         result = doctest.testmod(sensors_module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted >= 5
     assert result.failed == 0, out.getvalue()
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-170, 1.0, 1e200, 1e300])
+def test_jacobians_at_any_scale(scale):
+    """Sums of squares overflowed beyond 1e154 (a range row of 0) and underflowed below 1e-154 (inf); the oracle
+    is the same derivatives in 60-digit arithmetic."""
+    import mpmath
+
+    mpmath.mp.dps = 60
+    x, y, z = (mpmath.mpf(v) * mpmath.mpf(scale) for v in (3, 4, 12))
+    rxy, r = mpmath.sqrt(x * x + y * y), mpmath.sqrt(x * x + y * y + z * z)
+    want = {
+        "rb": [[x / rxy, y / rxy], [-y / rxy**2, x / rxy**2]],
+        "bearing": [[-y / rxy**2, x / rxy**2]],
+        "rbe": [[x / r, y / r, z / r], [-y / rxy**2, x / rxy**2, 0],
+                [-x * z / (r**2 * rxy), -y * z / (r**2 * rxy), rxy / r**2]],
+    }
+    got = {
+        "rb": gf.RangeBearing().jacobian(np.array([3.0, 4.0]) * scale),
+        "bearing": gf.BearingOnly().jacobian(np.array([3.0, 4.0]) * scale),
+        "rbe": gf.RangeBearingElevation().jacobian(np.array([3.0, 4.0, 12.0]) * scale),
+    }
+    for name, J in got.items():
+        exact = np.array([[float(v) for v in row] for row in want[name]])
+        np.testing.assert_allclose(J, exact, rtol=1e-14, atol=0, err_msg=name)

@@ -354,11 +354,11 @@ class RangeBearing(NonlinearSensor):
         x, n = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            r2 = dx * dx + dy * dy
-            r = np.sqrt(r2)
+            r = np.hypot(dx, dy)  # never dx² + dy²: it overflows beyond 1e154 and underflows below 1e-154
+            ux, uy = dx / r, dy / r
             J = np.zeros(x.shape[:-1] + (2, n))
-            J[..., 0, 0], J[..., 0, 1] = dx / r, dy / r
-            J[..., 1, 0], J[..., 1, 1] = -dy / r2, dx / r2
+            J[..., 0, 0], J[..., 0, 1] = ux, uy
+            J[..., 1, 0], J[..., 1, 1] = -uy / r, ux / r
         return J
 
 
@@ -460,22 +460,21 @@ class RangeBearingElevation(NonlinearSensor):
         -------
         ndarray of shape (3, n) or (j, 3, n)
             The Jacobian, zero past the first 3 columns; on the vertical
-            through the sensor, where the bearing and elevation rows are
-            undefined, they hold NaN.
+            through the sensor, where the bearing and elevation are not
+            differentiable in x and y, their x and y columns hold NaN.
         """
         x, n = _position(x, 3)
         dx, dy, dz = (x[..., i] - self.origin[i] for i in range(3))
         with np.errstate(divide="ignore", invalid="ignore"):
-            rxy2 = dx * dx + dy * dy
-            rxy = np.sqrt(rxy2)
-            r2 = rxy2 + dz * dz
-            r = np.sqrt(r2)
+            rxy = np.hypot(dx, dy)  # never sums of squares: they overflow beyond 1e154 and underflow below 1e-154
+            r = np.hypot(rxy, dz)
+            cx, cy = dx / rxy, dy / rxy  # the bearing's cosine and sine
             J = np.zeros(x.shape[:-1] + (3, n))
             J[..., 0, 0], J[..., 0, 1], J[..., 0, 2] = dx / r, dy / r, dz / r
-            J[..., 1, 0], J[..., 1, 1] = -dy / rxy2, dx / rxy2
-            J[..., 2, 0] = -dx * dz / (r2 * rxy)
-            J[..., 2, 1] = -dy * dz / (r2 * rxy)
-            J[..., 2, 2] = rxy / r2
+            J[..., 1, 0], J[..., 1, 1] = -cy / rxy, cx / rxy
+            J[..., 2, 0] = -cx * (dz / r) / r
+            J[..., 2, 1] = -cy * (dz / r) / r
+            J[..., 2, 2] = (rxy / r) / r
         return J
 
 
@@ -559,7 +558,7 @@ class BearingOnly(NonlinearSensor):
         x, n = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            r2 = dx * dx + dy * dy
+            r = np.hypot(dx, dy)  # never dx² + dy²: it overflows beyond 1e154 and underflows below 1e-154
             J = np.zeros(x.shape[:-1] + (1, n))
-            J[..., 0, 0], J[..., 0, 1] = -dy / r2, dx / r2
+            J[..., 0, 0], J[..., 0, 1] = -(dy / r) / r, (dx / r) / r
         return J
