@@ -580,8 +580,8 @@ class Gate:
         if not observed.any():
             return z, rejected
         if self.by == "component":
-            with np.errstate(divide="ignore", invalid="ignore"):
-                d2 = innovation**2 / np.diagonal(S)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                d2 = np.where(innovation == 0.0, 0.0, innovation**2 / np.diagonal(S))  # 0 of 0: it agrees
             rejected = observed & ~(d2 <= self.quantile(1))  # a zero variance and a nonzero innovation: out
         else:
             v = innovation[observed]

@@ -95,3 +95,18 @@ def test_bad_gates_are_named(kwargs, error, message):
         gf.filter(model, prior, zs, **kwargs)
     with pytest.raises(ValueError, match="not available with a 'diffuse' prior"):
         gf.filter(model, "diffuse", zs, gate=0.9)
+
+
+def test_a_component_that_agrees_exactly_with_a_zero_variance_is_not_rejected():
+    """v = 0 over S_ii = 0 is 0/0 = NaN, which the component gate rejected: it agrees exactly, so the gated filter
+    meets what the ungated one meets (a singular S, documented as an error) rather than silently dropping it."""
+    model = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.zeros((2, 2)), R=np.diag([0.0, 1.0]))
+    prior = gf.Gaussian([2.0, 0.0], np.diag([0.0, 1.0]))
+    zs = [[2.0, 0.1], [2.0, 0.2]]
+    with pytest.raises(np.linalg.LinAlgError) as ungated:
+        gf.filter(model, prior, zs, check="off")
+    with pytest.raises(np.linalg.LinAlgError) as gated:
+        gf.filter(model, prior, zs, gate=0.99, gate_by="component", check="off")
+    assert str(gated.value) == str(ungated.value)
+    z, rejected = gf.kalman.Gate(0.99, "component")(np.array([2.0, 5.0]), np.array([2.0, 0.0]), np.diag([0.0, 1.0]))
+    np.testing.assert_array_equal(rejected, [False, True])  # 5 standard deviations out: rejected
