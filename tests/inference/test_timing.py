@@ -171,3 +171,16 @@ def test_fit_forecast_and_simulate_take_times():
         gf.forecast(timed, prior, 2, times=ahead)
     with pytest.raises(ValueError, match="`times` is required"):
         gf.forecast(timed, prior, 2)
+
+
+@pytest.mark.parametrize("build", [
+    lambda: gf.model(gf.ConstantAcceleration(), gf.Position(), dt=1e160),
+    lambda: gf.constant_acceleration(1e160, 1.0, 1.0),
+    lambda: gf.model(gf.ConstantVelocity(noise="piecewise"), gf.Position(), dt=1e200),
+    lambda: gf.filter(gf.model(gf.ConstantAcceleration(), gf.Position()), gf.Gaussian(np.zeros(3), np.eye(3)),
+                      [1.0, 2.0], times=[0.0, 1e160]),
+])
+def test_a_step_whose_powers_overflow_python_floats_is_named(build):
+    """dt³ of 1e160 in Python floats raised a bare OverflowError (34, 'Numerical result out of range')."""
+    with pytest.raises(ValueError, match=r"^a step of dt = 1e\+(160|200) s is too long for Constant"):
+        build()

@@ -242,8 +242,11 @@ class TimedModel(Frozen):
 
 def _transition(motion, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``motion.transition(dt)``, refused with the step named when a step this long overflows float64."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        F, Q = motion.transition(dt)
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            F, Q = motion.transition(dt)
+    except OverflowError:  # a power of dt in Python floats
+        F = Q = np.full(1, np.inf)
     if not (np.isfinite(F).all() and np.isfinite(Q).all()):
         raise ValueError(f"a step of dt = {dt:g} s is too long for {type(motion).__name__}: its F or Q overflows "
                          "float64 (inf or NaN).")
