@@ -670,3 +670,21 @@ def test_motion_base_classes_are_abstract():
         Still().f(np.zeros(1), 1.0)
     with pytest.raises(NotImplementedError):
         gf.LinearMotion().transition(1.0)
+
+
+@pytest.mark.parametrize("kwargs", [{"tau": 1e-310}, {"sigma": 1e200}])
+def test_singer_refuses_settings_that_overflow_by_name(kwargs):
+    """tau = 1e-310 was accepted and its transition said "`A` must be finite"; sigma = 1e200 raised OverflowError."""
+    with pytest.raises(ValueError, match=r"2 sigma² / tau and the rate 1 / tau must be finite"):
+        gf.Singer(**kwargs)
+
+
+def test_booleans_in_a_list_are_not_states():
+    """[True, 2, ...] was read as [1.0, 2.0, ...] by the coordinated turn and the sensors."""
+    calls = [lambda: gf.CoordinatedTurn().f([True, 2.0, 3.0, 4.0, 5.0], 1.0),
+             lambda: gf.CoordinatedTurn().jacobian([[1.0, 2.0, 3.0, 4.0, False]], 1.0),
+             lambda: gf.RangeBearing().h([True, 1.0]),
+             lambda: gf.RangeBearing().jacobian([[1.0, True]])]
+    for call in calls:
+        with pytest.raises(TypeError, match="must be an array of numbers; got booleans"):
+            call()

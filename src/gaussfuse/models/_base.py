@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import _holds_bool
+
 __all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state"]
 
 def check_dim(value) -> int:
@@ -35,6 +37,8 @@ def check_names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
 def check_state(x, n: int, name: str = "x") -> np.ndarray:
     """`x` as an array of shape (n,) or (k, n), real or complex (for complex-step derivatives)."""
     arr = np.asarray(x)
+    if isinstance(x, (list, tuple)) and _holds_bool(x):  # [True, 2.0] casts to [1.0, 2.0]
+        raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
     if arr.dtype.kind not in "biufc" or arr.dtype.kind == "b":
         raise TypeError(f"`{name}` must be an array of numbers; got {arr.dtype} values.")
     if arr.ndim not in (1, 2) or arr.shape[-1] != n:

@@ -453,6 +453,12 @@ class Singer(LinearMotion):
     sigma : float, default 1.0
         Standard deviation of the stationary acceleration, >= 0.
 
+    Raises
+    ------
+    ValueError
+        For a `tau` or `sigma` out of range, or one that makes 1/τ or
+        2σ²/τ overflow float64 (τ = 1e-310, say).
+
     Notes
     -----
     Per axis, with :math:`\alpha = 1/\tau`,
@@ -492,8 +498,12 @@ class Singer(LinearMotion):
     __slots__ = ("dim", "tau", "sigma")
 
     def __init__(self, dim: int = 1, tau: float = 1.0, sigma: float = 1.0) -> None:
-        self._set(dim=check_dim(dim), tau=real("tau", tau, positive=True),
-                  sigma=real("sigma", sigma, nonnegative=True))
+        tau, sigma = real("tau", tau, positive=True), real("sigma", sigma, nonnegative=True)
+        with np.errstate(over="ignore", divide="ignore"):
+            if not (np.isfinite(1.0 / np.float64(tau)) and np.isfinite(2.0 * np.float64(sigma) ** 2 / tau)):
+                raise ValueError(f"the noise density 2 sigma² / tau and the rate 1 / tau must be finite in float64; "
+                                 f"got sigma = {sigma:g} and tau = {tau:g}.")
+        self._set(dim=check_dim(dim), tau=tau, sigma=sigma)
 
     @property
     def n(self) -> int:
