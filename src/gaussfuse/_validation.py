@@ -14,12 +14,13 @@ from typing import Callable
 
 import numpy as np
 
+from ._linalg import marginal_std
 from .errors import ModelFunctionError
 
 _F64 = np.dtype(np.float64)
 _DTYPE = attrgetter("dtype")
 
-__all__ = ["as_array", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
+__all__ = ["as_array", "as_numbers", "flag", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
            "call_each", "raise_call", "size_reason"]
 
 
@@ -85,6 +86,27 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
             index = tuple(int(i) for i in np.argwhere(bad)[0])
             raise ValueError(f"`{name}` must be finite; got {what} value at index {index}.")
     return arr
+
+
+def as_numbers(name: str, value) -> np.ndarray:
+    """`value` as an array of real or complex numbers (complex for complex-step derivatives), integers as float64.
+
+    Booleans, also inside lists (``[True, 2.0]`` would cast to ``[1.0, 2.0]``), strings and other kinds are
+    refused, naming `name`. The shape is the caller's to check.
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind == "b" or (isinstance(value, (list, tuple)) and _holds_bool(value)):
+        raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
+    if arr.dtype.kind not in "iufc":
+        raise TypeError(f"`{name}` must be an array of numbers; got {arr.dtype} values.")
+    return arr.astype(np.float64) if arr.dtype.kind in "iu" else arr
+
+
+def flag(name: str, value) -> bool:
+    """`value` as a bool if it is one (Python's or NumPy's), else a TypeError naming `name`: "no" is not False."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"`{name}` must be True or False; got {value!r:.80}.")
+    return bool(value)
 
 
 def _holds_bool(items) -> bool:
@@ -193,7 +215,7 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
     # |c_ij| <= √(c_ii c_jj), to round-off: the eigenvalue test cannot see it where a variance is judged on the
     # largest scale. A variance that is 0 by cancellation of terms of the largest scale leaves c_ij off by about
     # ε √(c_max) √(c_jj).
-    d = np.sqrt(np.clip(np.diagonal(sym, axis1=-2, axis2=-1), 0.0, None))
+    d = marginal_std(sym)
     slack = 8 * n * np.finfo(np.float64).eps * np.sqrt(top[..., None]) * np.maximum(d[..., :, None], d[..., None, :])
     wide = (np.abs(sym) > d[..., :, None] * d[..., None, :] * (1.0 + rtol) + slack) & ~np.eye(n, dtype=bool)
     if wide.any():

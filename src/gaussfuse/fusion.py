@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 
 from . import inference, kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._validation import as_array, shape_error
+from ._validation import as_array, flag, shape_error
 from .diagnostics import DivergenceMonitor
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
@@ -417,8 +417,7 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     timeline = _Timeline(motion, sensors)
     prior = check_prior(prior, timeline.n)
     t0 = _time("t0", t0)
-    if not isinstance(smooth, (bool, np.bool_)):
-        raise TypeError(f"`smooth` must be True or False; got {smooth!r}.")
+    smooth = flag("smooth", smooth)
     if "keep" in options:
         raise TypeError("`keep` is not an option of fuse_timeline: it returns every step.")
     outputs = np.zeros(0)

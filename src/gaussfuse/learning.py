@@ -586,7 +586,7 @@ class _Chunks:
         return loglik, m_step
 
     def score(self, model, prior, directions, engine):
-        return self.total(_chunk_score, model, prior, directions, engine)
+        return self.scores([(model, prior, directions)], engine)[0]
 
     def scores(self, requests, engine):
         """Each request's score, in one pass over the chunks (one task a chunk, rather than one a request)."""
@@ -607,10 +607,6 @@ def _chunk_e_step(zs, us, model, prior, learn, engine):
 
 def _chunk_second_sums(zs, us, model, prior, new, learn, engine):
     return _second_sums(_e_step(model, prior, zs, us, engine)[1], new, learn)
-
-
-def _chunk_score(zs, us, model, prior, directions, engine):
-    return _loglik_and_gradient(model, prior, zs, us, directions, engine)
 
 
 def _chunk_scores(zs, us, requests, engine):

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ._linalg import marginal_std
-from ._validation import as_array, shape_error
+from ._validation import as_array, flag, shape_error
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -377,7 +377,7 @@ def plot_mode_probabilities(
     names = [f"mode {j}" for j in range(M)] if names is None else _names(names)
     if len(names) != M:
         raise ValueError(f"`names` must have one name per mode ({M}); got {len(names)}.")
-    stacked = _flag("stacked", stacked)
+    stacked = flag("stacked", stacked)
     fig, ax = _axes(ax, (7.0, 3.2))
     if stacked:
         ax.stackplot(times, probs.T, labels=names, alpha=0.8)
@@ -480,7 +480,7 @@ def plot_measurements(
     names = [f"z{j}" for j in range(m)] if names is None else _names(names)
     if len(names) != m:
         raise ValueError(f"`names` must have one name per measurement component ({m}); got {len(names)}.")
-    track = _flag("track", track)
+    track = flag("track", track)
     units = [units] * m if units is None or isinstance(units, str) else list(units)
     if len(units) != m:
         raise ValueError(f"`units` must be one unit, or one per measurement component ({m}); got {len(units)}.")
@@ -653,12 +653,6 @@ def _names(names) -> list[str]:
         return [str(name) for name in names]
     except TypeError:
         raise TypeError(f"`names` must be a sequence of strings, one per component; got {names!r:.80}.") from None
-
-
-def _flag(name: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"`{name}` must be True or False; got {value!r:.80}.")
-    return bool(value)
 
 
 def _axes(ax: Axes | None, figsize: tuple[float, float]) -> tuple[Figure, Axes]:

@@ -162,4 +162,5 @@ def _residual(model: LinearModel, P: np.ndarray) -> float:
     except np.linalg.LinAlgError:  # a singular S: left to the caller's message
         return np.inf
     size = np.abs(P).max()
-    return float(np.abs(model.F @ after @ model.F.T + model.Q - P).max() / size) if size > 0.0 else 0.0
+    predicted = kalman.predict(np.zeros(P.shape[0]), after, model.F, model.Q)[1]
+    return float(np.abs(predicted - P).max() / size) if size > 0.0 else 0.0

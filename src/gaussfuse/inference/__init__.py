@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from .. import kalman
+from .._validation import flag
 from ..gaussian import Gaussian
 from ..models.compose import TimedModel
 from . import chunked, diffuse, drivers, frames, timing
@@ -219,8 +220,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
     check_steady(steady, spec, form, prior)
-    if not isinstance(gains, (bool, np.bool_)):
-        raise TypeError(f"`gains` must be True or False; got {gains!r}.")
+    gains = flag("gains", gains)
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")
     gate = _gate(gate, gate_by, prior)

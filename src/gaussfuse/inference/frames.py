@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._linalg import marginal_std
+
 __all__ = ["Table", "unpack", "to_frame"]
 
 
@@ -57,7 +59,7 @@ def to_frame(means: np.ndarray, covs: np.ndarray | None, table: Table | None, na
         raise ValueError(f"`names` must have {n} entries, one per state component; got {len(names)}.")
     data = {name: means[:, i] for i, name in enumerate(names)}
     if covs is not None:
-        sds = np.sqrt(np.clip(np.diagonal(covs, axis1=1, axis2=2), 0.0, None))
+        sds = marginal_std(covs)
         data.update({f"{name}_sd": sds[:, i] for i, name in enumerate(names)})
         if covariances:
             for i in range(n):

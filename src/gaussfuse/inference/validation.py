@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, shape_error
+from .._validation import as_array, flag, shape_error
 from ..gaussian import Gaussian
 from ..models.linear import LinearModel
 from .registry import FORMS, METHODS, resolve_method
@@ -100,8 +100,7 @@ def check_form(spec, form) -> None:
 
 def check_steady(steady, spec, form: str, prior) -> None:
     """`steady` must be a bool, and True only for the Kalman filter in the covariance form, with a Gaussian prior."""
-    if not isinstance(steady, (bool, np.bool_)):
-        raise TypeError(f"`steady` must be True or False; got {steady!r}.")
+    flag("steady", steady)
     if steady and (spec.name != "kf" or form != "cov" or isinstance(prior, str)):
         raise ValueError("`steady=True` is for method 'kf' in the covariance form with a Gaussian prior; got "
                          f"method {spec.name!r}, form {form!r}" + (", a 'diffuse' prior." if isinstance(prior, str)

@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._linalg import wrap_angle
+from .._linalg import marginal_std, wrap_angle
 from .._validation import call_checked, call_each, size_reason
 from ..errors import ModelFunctionError
 
@@ -248,4 +248,4 @@ class Taylor:
 
 def _deviations(cov: np.ndarray | None) -> np.ndarray | None:
     """The standard deviations of a belief's components, or None without its covariance."""
-    return None if cov is None else np.sqrt(np.clip(np.diagonal(cov), 0.0, None))
+    return None if cov is None else marginal_std(cov)

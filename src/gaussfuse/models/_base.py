@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import _holds_bool
+from .._validation import as_numbers
 
 __all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state"]
 
@@ -36,15 +36,9 @@ def check_names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
 
 def check_state(x, n: int, name: str = "x") -> np.ndarray:
     """`x` as an array of shape (n,) or (k, n), real or complex (for complex-step derivatives)."""
-    arr = np.asarray(x)
-    if isinstance(x, (list, tuple)) and _holds_bool(x):  # [True, 2.0] casts to [1.0, 2.0]
-        raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
-    if arr.dtype.kind not in "biufc" or arr.dtype.kind == "b":
-        raise TypeError(f"`{name}` must be an array of numbers; got {arr.dtype} values.")
+    arr = as_numbers(name, x)
     if arr.ndim not in (1, 2) or arr.shape[-1] != n:
         raise ValueError(f"`{name}` must have shape ({n},) or (k, {n}); got shape {arr.shape}.")
-    if arr.dtype.kind in "iu":
-        arr = arr.astype(np.float64)
     return arr
 
 

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, call_checked, call_each, check_psd, real, size_reason
+from .._validation import as_matrix, call_checked, call_each, check_psd, flag, real, size_reason
 
 __all__ = ["NonlinearModel"]
 
@@ -144,8 +144,7 @@ class NonlinearModel:
                 f"time-varying matrices must all have the same number of steps; "
                 f"`Q` has {Q.shape[0]}, `R` has {R.shape[0]}."
             )
-        if not isinstance(vectorized, (bool, np.bool_)):
-            raise TypeError(f"`vectorized` must be True or False; got {vectorized!r}.")
+        flag("vectorized", vectorized)
         Q.setflags(write=False)
         R.setflags(write=False)
         values = dict(

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import _holds_bool, as_matrix, as_vector, check_psd, integer, real
+from .._validation import as_matrix, as_numbers, as_vector, check_psd, integer, real
 from ._base import Frozen, check_dim, check_names
 
 __all__ = [
@@ -245,18 +245,12 @@ class NonlinearSensor(Frozen):
 
 def _position(x, k: int) -> tuple[np.ndarray, int]:
     """The state as an array (n,) or (j, n), n >= k (the position components), real or complex."""
-    arr = np.asarray(x)
-    if isinstance(x, (list, tuple)) and _holds_bool(x):  # [True, 1.0] casts to [1.0, 1.0]
-        raise TypeError("`x` must be an array of numbers; got booleans.")
-    if arr.dtype.kind not in "iufc":
-        raise TypeError(f"`x` must be an array of numbers; got {arr.dtype} values.")
+    arr = as_numbers("x", x)
     if arr.ndim not in (1, 2) or arr.shape[-1] < k:
         raise ValueError(
             f"`x` must have shape (n,) or (j, n) with n >= {k} (the position comes first); "
             f"got shape {arr.shape}."
         )
-    if arr.dtype.kind in "iu":
-        arr = arr.astype(np.float64)
     return arr, arr.shape[-1]
 
 
