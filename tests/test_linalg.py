@@ -17,6 +17,24 @@ def test_cholesky_names_the_matrix():
     np.testing.assert_allclose(L @ L.T, [[4.0, 2.0], [2.0, 5.0]], rtol=1e-15)
 
 
+@pytest.mark.parametrize("g", [[0.7, 0.1], [1.3, 1.7], [0.35, 0.4]])
+def test_a_resolved_cholesky_refuses_a_pivot_of_round_off(g):
+    """g gᵀ is singular, yet LAPACK factors these roundings of it, with a second pivot of 2e-9 to 2e-8 (√ε of
+    the row, no digit right); with `resolved` that pivot is zero, as semidefinite_cholesky's test has it."""
+    M = np.outer(g, g)
+    L = _linalg.cholesky(M)
+    assert 0.0 < L[1, 1] ** 2 <= 2 * np.finfo(float).eps * M[1, 1] and _linalg.roundoff_pivot(L, M)
+    with pytest.raises(np.linalg.LinAlgError, match="S is not positive definite, so it cannot be factorised"):
+        _linalg.cholesky(M, "S", resolved=True)
+    near = M + np.diag([0.0, 1e-13 * M[1, 1]])  # a pivot² of 1e-13 of its row, ε of it off (0.2%)
+    L = _linalg.cholesky(near, resolved=True)
+    assert L[1, 1] ** 2 == pytest.approx(1e-13 * M[1, 1], rel=1e-2)
+    stack = np.stack([np.eye(2), M])
+    assert _linalg.roundoff_pivot(_linalg.cholesky(stack), stack)
+    with pytest.raises(np.linalg.LinAlgError):
+        _linalg.cholesky(stack, resolved=True)
+
+
 # ---------------------------------------------------------------------------
 # predict
 # ---------------------------------------------------------------------------

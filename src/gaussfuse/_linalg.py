@@ -63,14 +63,22 @@ def eye(n: int) -> np.ndarray:
     return _made_once(("eye", n), lambda: np.eye(n))
 
 
-def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
-    """Lower Cholesky factor of `mat` (or of each of a stack).
+def cholesky(mat: np.ndarray, name: str = "the matrix", resolved: bool = False) -> np.ndarray:
+    r"""Lower Cholesky factor of `mat` (or of each of a stack).
+
+    With `resolved`, a pivot of round-off counts as zero: :math:`L_{jj}^2
+    \le p \epsilon\, \mathrm{mat}_{jj}` for a p × p matrix (the test of
+    :func:`sqrt_cov`). There the factorisation of a matrix that is singular
+    in exact arithmetic can succeed or fail by one rounding, and a pivot
+    that just succeeds is about √ε of its row with no digit right: whatever
+    is solved with it is round-off divided by round-off.
 
     Raises
     ------
     numpy.linalg.LinAlgError
-        When `mat` is not positive definite; the message names `name` and
-        shows the matrix, so that a driver can prefix the time step.
+        When `mat` is not positive definite (with `resolved`, to round-off);
+        the message names `name` and shows the matrix, so that a driver can
+        prefix the time step.
 
     Notes
     -----
@@ -80,7 +88,9 @@ def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
     """
     if _potrf is None:
         try:
-            return np.linalg.cholesky(mat)
+            L = np.linalg.cholesky(mat)
+            if not resolved or not roundoff_pivot(L, mat):
+                return L
         except np.linalg.LinAlgError:
             pass
     else:
@@ -88,10 +98,26 @@ def cholesky(mat: np.ndarray, name: str = "the matrix") -> np.ndarray:
             L = _potrf(mat)
         corner = L[-1, -1] if L.ndim == 2 else L[..., -1, -1]
         if corner.ndim == 0 and corner == corner or corner.ndim and (corner == corner).all():
-            return L  # (NaN marks a failed factorisation)
+            if not resolved or not roundoff_pivot(L, mat):
+                return L  # (NaN marks a failed factorisation)
     with np.printoptions(precision=4, threshold=36):
         shown = np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
     raise np.linalg.LinAlgError(f"{name} is not positive definite, so it cannot be factorised: {shown}")
+
+
+def roundoff_pivot(L: np.ndarray, mat: np.ndarray) -> bool:
+    r"""Whether a Cholesky factor L of a p × p `mat` has a pivot of round-off: :math:`L_{jj}^2 \le p \epsilon\, \mathrm{mat}_{jj}`.
+
+    The pivot squared is the variance of component j left after the earlier
+    ones, a difference of terms of size :math:`\mathrm{mat}_{jj}` with an
+    error of about ε times it. On Python floats: on the few entries of a
+    diagonal they cost a fifth of NumPy's calls, and a product that would
+    overflow is inf, with no warning.
+    """
+    if L.ndim > 2:
+        return any(roundoff_pivot(Lk, mk) for Lk, mk in zip(L, mat))
+    tol = mat.shape[-1] * _EPS
+    return any(p * p <= tol * v for p, v in zip(L.diagonal().tolist(), mat.diagonal().tolist()))
 
 
 def is_positive_definite(mat: np.ndarray) -> bool:
@@ -173,18 +199,13 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
     keep : ndarray of bool, shape (n,)
         The columns of L that are not zero.
     """
-    variances = cov.diagonal().tolist()
     if mean is not None:
-        flat = unresolved(variances, mean)
+        flat = unresolved(cov.diagonal().tolist(), mean)
         if flat:
             cov = cov.copy()
             cov[flat], cov[:, flat] = 0.0, 0.0
-            variances = cov.diagonal().tolist()
     try:
-        L = cholesky(cov)
-        tol = cov.shape[0] * _EPS  # on Python floats, as unresolved's test
-        if any(p * p <= tol * v for p, v in zip(L.diagonal().tolist(), variances)):
-            raise np.linalg.LinAlgError  # a pivot of round-off: semidefinite_cholesky's zero, not √ε of noise
+        L = cholesky(cov, resolved=True)  # a pivot of round-off: semidefinite_cholesky's zero, not √ε of noise
     except np.linalg.LinAlgError:
         L = semidefinite_cholesky(cov)
         return L, np.diag(L) > 0.0

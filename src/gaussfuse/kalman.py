@@ -306,7 +306,7 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
         H_o, R_o, HP_o = H[observed], R[np.ix_(observed, observed)], HP[observed]
         S = S_full[np.ix_(observed, observed)]
     try:
-        L = cholesky(S, _S_NAME)
+        L = cholesky(S, _S_NAME, resolved=True)
     except np.linalg.LinAlgError as exc:
         if not np.isfinite(S).all():  # an overflow upstream, not a covariance that is indefinite
             raise FloatingPointError(not_finite("filtered")) from None
@@ -585,7 +585,7 @@ class Gate:
             rejected = observed & ~(d2 <= self.quantile(1))  # a zero variance and a nonzero innovation: out
         else:
             v = innovation[observed]
-            L = cholesky(S[np.ix_(observed, observed)], _S_NAME)
+            L = cholesky(S[np.ix_(observed, observed)], _S_NAME, resolved=True)
             white = whiten(L, v)
             if not white @ white <= self.quantile(int(observed.sum())):
                 rejected = observed
@@ -847,11 +847,43 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
     if D_o is not None:
         post = downdate(post, np.concatenate([D_o, np.zeros((n, D_o.shape[1]))]), "the innovation covariance")
     L_S = post[:mo, :mo]
-    if not np.all(np.diagonal(L_S) > 0.0):
+    if not np.all(np.diagonal(L_S) > 0.0) or zero_pivots(L_S).any() and (
+            D_o is not None or _dependent(R_factor if observed is None else R_factor[observed], HL_o, factor)):
         raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite. {_S_WHY}")
     Kbar = post[mo:, :mo]
     return SqrtGain(Kbar, L_S, np.ascontiguousarray(post[mo:, mo:]), innovation_cov, observed,
                     whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹
+
+
+def _dependent(R_factor: np.ndarray, HL: np.ndarray, factor: np.ndarray) -> bool:
+    r"""Whether :math:`S = [L_R\; HL][L_R\; HL]^\top` is singular to the round-off of :func:`sqrt_gain`'s array.
+
+    A pivot of :math:`L_S` at round-off of its row (:func:`gaussfuse._linalg.zero_pivots`)
+    is either a copy of an earlier measurement (two components with the
+    same noise: S is singular and the pivot is noise) or a real one: a
+    measurement whose own noise is tiny beside a prior spread it shares
+    with an earlier one (a prior 1e15 times R gives a pivot 1e-15 of its
+    row, all of it information). The pivot's size cannot tell them apart;
+    its array can. :func:`gaussfuse._linalg.tria` sorts the columns, and
+    Householder triangularisation is then exact for the array with each
+    column changed by about ε of its norm (Cox and Higham's row-wise
+    stability). So the rows of :math:`B = [L_{R,o}\; H_o L^-]` are asked
+    whether they are dependent with each column of B scaled by the norm of
+    that column of the whole array :math:`[[L_{R,o}, H_o L^-], [0, L^-]]`
+    and each row then to unit norm: dependent when the smallest singular
+    value is at most :math:`8 c \epsilon` for c columns. The rows of
+    `R_factor` are used as given, not triangularised, which would leave a
+    round-off column of its own.
+    """
+    top = np.concatenate([R_factor, HL], axis=1)
+    scale = np.concatenate([np.linalg.norm(R_factor, axis=0), np.hypot(np.linalg.norm(HL, axis=0),
+                                                                        np.linalg.norm(factor, axis=0))])
+    used = scale > 0.0
+    B = top[:, used] / scale[used]
+    rows = np.linalg.norm(B, axis=1)
+    if B.shape[1] < B.shape[0] or not rows.all():
+        return True
+    return bool(np.linalg.svd(B / rows[:, None], compute_uv=False)[-1] <= 8 * top.shape[1] * np.finfo(float).eps)
 
 
 def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.ndarray, next_factor: np.ndarray,

@@ -209,6 +209,69 @@ def test_a_sensor_far_more_precise_than_the_prior_is_kept_by_the_square_root_for
             assert got.covs[-1, 0, 0] == pytest.approx(exact, rel=1e-14)
 
 
+TWIN = gf.LinearModel(F=np.eye(2), H=[[1.0, 0.0], [1.0, 0.0]], Q=np.zeros((2, 2)), R=[[1.0, 1.0], [1.0, 1.0]])
+"""One component measured twice with the same noise: S = [[2, 2], [2, 2]] is singular."""
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_a_measurement_taken_twice_with_the_same_noise_is_a_singular_S_in_both_forms(form, engine):
+    """The square-root form took L_S's round-off pivot as real: mean -0.843 and variance 3.6e-32 for 0.15 and
+    0.5, silently; the covariance form's Cholesky just succeeded (a pivot of 2.1e-8) and gave a log-likelihood
+    of 15.5 for a density that does not exist. Both now give the singular-S error, on every path."""
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.full((3, 2), 0.3)
+    match = r"at step 0: the innovation covariance S = H P Hᵀ \+ R is not positive definite"
+    for call in (gf.filter, gf.smooth):
+        with pytest.raises(np.linalg.LinAlgError, match=match):
+            call(TWIN, prior, zs, form=form, engine=engine)
+    with pytest.raises(np.linalg.LinAlgError, match=match):
+        gf.filter(TWIN, prior, zs, form=form, engine="auto" if engine == "numba" else engine, gate=0.99)
+    twin_h = gf.NonlinearModel(lambda x: x, lambda x: np.array([x[0], x[0]]), np.zeros((2, 2)), TWIN.R)
+    for method in ("ukf", "ckf", "ghkf"):
+        with pytest.raises(np.linalg.LinAlgError, match=match):
+            gf.filter(twin_h, prior, zs, method=method, form=form, engine=engine)
+    if engine == "python":
+        online = gf.KalmanFilter(TWIN, prior, form=form)
+        with pytest.raises(np.linalg.LinAlgError, match="the innovation covariance S"):
+            online.update([0.3, 0.3])
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("variance", [1e30, 1e100, 1e300])
+@pytest.mark.parametrize("rho", [0.0, 0.9, -0.5])
+def test_two_sensors_of_one_state_under_a_huge_prior_are_both_kept_by_the_square_root_form(engine, variance, rho):
+    """S = V 11ᵀ + R: L_S's second pivot is R's own, about 1e-15 to 1e-150 of its row, as small beside it as
+    the round-off pivot of a measurement taken twice; the array's columns (R's, apart from the prior's) tell
+    the two apart. Against the information form: precision 1/V + 1ᵀR⁻¹1, mean 1ᵀR⁻¹z over it."""
+    R = np.array([[1.0, rho], [rho, 1.0]])
+    model = gf.LinearModel(F=[[1.0]], H=[[1.0], [1.0]], Q=[[0.0]], R=R)
+    zs = np.array([[3.0, 4.0], [2.5, 3.0]])
+    Ri = np.linalg.inv(R)  # the oracle's: R is well conditioned
+    info, score = 1.0 / variance, 0.0
+    loglik = 0.0
+    for z in zs:  # log N(z; m 1, P 11ᵀ + R) by the matrix determinant lemma, then the posterior
+        a, b, c = Ri.sum(), (Ri @ z).sum(), z @ Ri @ z
+        m, P = score / info, 1.0 / info
+        quad = c - 2 * m * b + m * m * a - (b - m * a) ** 2 / (info + a)
+        loglik -= 0.5 * (quad + np.log(np.linalg.det(R)) + np.log1p(P * a) + 2 * np.log(2 * np.pi))
+        info, score = info + a, score + b
+    prior = gf.Gaussian([0.0], [[variance]])
+    got = gf.filter(model, prior, zs, form="sqrt", engine=engine, check="off")
+    assert got.covs[-1, 0, 0] == pytest.approx(1.0 / info, rel=1e-13)
+    assert got.means[-1, 0] == pytest.approx(score / info, rel=1e-13)
+    assert got.loglik == pytest.approx(loglik, rel=1e-13)
+    smoothed = gf.smooth(model, prior, zs, form="sqrt", engine=engine, check="off")
+    np.testing.assert_allclose(smoothed.means[:, 0], score / info, rtol=1e-13)
+    if engine == "python":
+        online = gf.KalmanFilter(model, prior, form="sqrt")
+        for z in zs:
+            belief = online.update(z)
+            online.predict()
+        assert belief.mean[0] == pytest.approx(score / info, rel=1e-13)
+        assert belief.cov[0, 0] == pytest.approx(1.0 / info, rel=1e-13)
+
+
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(st.integers(1, 4), st.integers(1, 3), st.integers(1, 12), st.integers(0, 2),
        st.sets(st.sampled_from(["F", "H", "Q", "R", "B"])), st.floats(0.0, 0.6), st.integers(0, 2**32 - 1))

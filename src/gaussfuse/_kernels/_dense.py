@@ -10,6 +10,7 @@ components needs no view):
 ``congruence(B, P, Y, out, BP, k, n)``      ``BP = B P``, ``out = sym(BP Bᵀ + Y)``: the k × k
                                             congruence of the n × n ``P`` by the k × n ``B``
 ``cholesky(S, L, p) -> bool``               ``L[:p, :p]``: the lower Cholesky factor of ``S[:p, :p]``
+``roundoff_pivot(L, S, p) -> bool``         whether that factor has a pivot of round-off
 ``cho_solve(L, X, p, r)``                   ``X[:p, :r] = (L Lᵀ)⁻¹ X``, two triangular solves
 ==========================================  ==========================================
 
@@ -40,7 +41,7 @@ from numba.extending import register_jitable
 
 from ._blas import dgemm, dpotrf, dtrsm
 
-__all__ = ["matmul", "congruence", "cholesky", "cho_solve", "BLAS_FROM"]
+__all__ = ["matmul", "congruence", "cholesky", "roundoff_pivot", "cho_solve", "BLAS_FROM"]
 
 BLAS_FROM = 16
 """Products of at least ``BLAS_FROM**3`` multiply-adds (``p q r``), and factorisations and solves of
@@ -48,6 +49,7 @@ BLAS_FROM = 16
 _BLAS_WORK = BLAS_FROM**3
 
 _JIT = {"error_model": "numpy"}
+_EPS = 2.0**-52  # float64's machine epsilon
 # Fortran's option characters, as the integers the BLAS wrappers pass.
 _N, _T, _U, _R = ord("N"), ord("T"), ord("U"), ord("R")
 
@@ -139,6 +141,16 @@ def cholesky(S, L, p):
                 t -= L[i, c] * L[j, c]
             L[i, j] = t / d
     return True
+
+
+@register_jitable(**_JIT)
+def roundoff_pivot(L, S, p):
+    r"""_linalg.roundoff_pivot: whether some :math:`L_{jj}^2 \le p \epsilon S_{jj}` (j < p)."""
+    tol = p * _EPS
+    for j in range(p):
+        if L[j, j] * L[j, j] <= tol * S[j, j]:
+            return True
+    return False
 
 
 @register_jitable(**_JIT)

@@ -39,7 +39,7 @@ from ..errors import ReadablePath, not_finite as not_finite_message
 from ..inference.results import FilterResult
 from ..kalman import _S_NAME, _S_WHY
 from ._jit import jit
-from ._dense import cho_solve, cholesky, congruence, matmul
+from ._dense import cho_solve, cholesky, congruence, matmul, roundoff_pivot
 
 __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
            "SqrtBack", "sqrt_back_workspace", "joint_factor", "rts_back", "downdate", "times_factor",
@@ -164,7 +164,7 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
     Returns
     -------
     ok : bool
-        False when ``S_oo`` is not positive definite (``w.S`` then holds it).
+        False when ``S_oo`` is not positive definite, to round-off (``w.S`` then holds it).
     loglik : float
         :math:`\log N(v_o; 0, S_{oo})`, 0.0 when nothing is observed.
     observed : int
@@ -200,7 +200,7 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
         for b in range(mo):
             w.R_o[a, b] = R[oa, w.obs[b]]
             w.S[a, b] = S_full[oa, w.obs[b]]
-    if not cholesky(w.S, w.L, mo):
+    if not cholesky(w.S, w.L, mo) or roundoff_pivot(w.L, w.S, mo):  # as kalman.gain's cholesky(resolved=True)
         return False, 0.0, mo
     cho_solve(w.L, w.Kt, mo, n)              # Kᵀ = S⁻¹ H_o P⁻
     gain_mean(w.Kt, w.v, mean, post_mean, mo)  # m⁻ + K v
@@ -374,8 +374,8 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, po
     `R_factor` is (m, r); `D` (m, p) the columns :math:`D_R` to take away
     (p = 0 for none): the post-array is downdated by :math:`[D_{R,o};\, 0]`
     before its blocks are read. Returns ``(ok, loglik, mo)``; ``ok`` is
-    False when :math:`L_S` has a zero pivot (the innovation covariance of
-    the observed components is singular) or the downdate fails. Leaves :math:`L_S` in ``w.L``, :math:`\bar K^\top` in ``w.Kt``
+    False when :math:`L_S` has a pivot at round-off of its row (the innovation covariance of
+    the observed components may be singular: kalman.sqrt_gain decides) or the downdate fails. Leaves :math:`L_S` in ``w.L``, :math:`\bar K^\top` in ``w.Kt``
     (what :func:`hold_fixed` keeps) and the whitened innovation in ``w.white``.
     """
     n = mean.shape[0]
@@ -413,7 +413,10 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, po
         if not downdate(sw.T, sw.V, q, p, sw.v):
             return False, 0.0, mo
     for a in range(mo):
-        if not sw.T[a, a] > 0.0:
+        row = 0.0
+        for b in range(a + 1):
+            row += sw.T[a, b] * sw.T[a, b]
+        if not sw.T[a, a] > 8 * mo * _EPS * math.sqrt(row):  # _linalg.zero_pivots: the readable path decides
             return False, 0.0, mo
         w.v[a] = innovation[w.obs[a]]
         for b in range(mo):
