@@ -8,7 +8,8 @@ backticks, the expected shape and what was given (the style of SciPy's
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import lru_cache, wraps
+from inspect import signature
 from operator import attrgetter
 from typing import Callable
 
@@ -21,7 +22,7 @@ _F64 = np.dtype(np.float64)
 _DTYPE = attrgetter("dtype")
 
 __all__ = ["as_array", "as_numbers", "flag", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
-           "call_each", "raise_call", "size_reason"]
+           "call_each", "raise_call", "size_reason", "finite_step"]
 
 
 def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
@@ -405,3 +406,34 @@ def _check_each(name: str, outs: list, X: np.ndarray, size: int) -> np.ndarray:
     because = size_reason(name, size)
     checked = [call_checked(name, lambda *_: out, x, (), (size,), because) for out, x in zip(outs, X)]
     return np.stack(checked) if checked else np.empty((0, size))
+
+
+class StepOverflowError(ValueError):
+    """A step that overflows (:func:`finite_step`); the outermost step function names itself."""
+
+
+def finite_step(result: str) -> Callable:
+    """Decorate a function or method of a step ``dt`` so that a `result` overflowing float64 is a ValueError.
+
+    A step long enough for a power of ``dt`` to pass 1e308 gives inf or NaN
+    (or Python's OverflowError, from a power of a Python float); the message
+    names the step and the model (the class of a method, else the function)
+    instead.
+    """
+    def decorate(fn: Callable) -> Callable:
+        @wraps(fn)
+        def checked(*args, **kwargs):
+            try:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    out = fn(*args, **kwargs)
+                finite = all(a is None or np.isfinite(a).all() for a in (out if isinstance(out, tuple) else (out,)))
+            except (OverflowError, StepOverflowError):  # a power of a Python float; a step function it called
+                finite = False
+            if not finite:
+                dt = signature(fn).bind(*args, **kwargs).arguments["dt"]
+                owner = type(args[0]).__name__ if "." in fn.__qualname__ else f"{fn.__name__}()"
+                raise StepOverflowError(f"a step of dt = {float(dt):g} s is too long for {owner}: its {result} "
+                                        "overflows float64 (inf or NaN).")
+            return out
+        return checked
+    return decorate

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.integrate import quad_vec
@@ -142,6 +144,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 
 from gaussfuse.linearize.taylor import complex_step_jacobian, jacobian  # noqa: E402
 from gaussfuse.models import motion as motion_module  # noqa: E402
+from gaussfuse.models import noise as noise_module  # noqa: E402
 
 
 def linear_motions():
@@ -687,4 +690,22 @@ def test_booleans_in_a_list_are_not_states():
              lambda: gf.RangeBearing().jacobian([[1.0, True]])]
     for call in calls:
         with pytest.raises(TypeError, match="must be an array of numbers; got booleans"):
+            call()
+
+
+@pytest.mark.parametrize("call, owner", [
+    (lambda: gf.ConstantVelocity().transition(1e160), "ConstantVelocity: its F or Q"),
+    (lambda: gf.ConstantAcceleration(noise="piecewise").transition(1e110), "ConstantAcceleration: its F or Q"),
+    (lambda: gf.Singer(tau=1.0, sigma=1.0).transition(1e300), "Singer: its F or Q"),
+    (lambda: gf.ForceInput().control(1e200), "ForceInput: its B"),
+    (lambda: gf.CoordinatedTurn().noise(1e200), "CoordinatedTurn: its Q"),
+    (lambda: noise_module.piecewise_white_noise(1, 1e200, 1.0), r"piecewise_white_noise\(\): its Q"),
+    (lambda: noise_module.continuous_white_noise(2, 1e200, 1.0), r"continuous_white_noise\(\): its Q"),
+])
+def test_a_step_too_long_for_float64_is_named_when_called_directly(call, owner):
+    """Through gf.model the step was named; called directly, the powers of a Python float raised OverflowError
+    (piecewise_white_noise, ForceInput.control, transition(1e160)) or gave inf without a word."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no RuntimeWarning of an overflow on the way
+        with pytest.raises(ValueError, match=rf"^a step of dt = 1e\+\d+ s is too long for {owner}"):
             call()

@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from .._validation import call_checked, integer, real
+from .._validation import call_checked, finite_step, integer, real
 from ._base import Frozen
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
@@ -241,16 +241,12 @@ class TimedModel(Frozen):
 
 
 def _transition(motion, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """``motion.transition(dt)``, refused with the step named when a step this long overflows float64."""
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):
-            F, Q = motion.transition(dt)
-    except OverflowError:  # a power of dt in Python floats
-        F = Q = np.full(1, np.inf)
-    if not (np.isfinite(F).all() and np.isfinite(Q).all()):
-        raise ValueError(f"a step of dt = {dt:g} s is too long for {type(motion).__name__}: its F or Q overflows "
-                         "float64 (inf or NaN).")
-    return F, Q
+    """``motion.transition(dt)``, refused with the step named when a step this long overflows float64.
+
+    The built-in motions' ``transition`` checks that itself; this also covers
+    a motion of the user's own.
+    """
+    return finite_step("F or Q")(type(motion).transition)(motion, dt)
 
 
 class _Stepped:

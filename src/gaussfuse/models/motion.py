@@ -20,7 +20,7 @@ from math import factorial
 
 import numpy as np
 
-from .._validation import integer, real
+from .._validation import finite_step, integer, real
 from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state
 from .linear import LinearModel
 from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan
@@ -83,6 +83,12 @@ class LinearMotion(Frozen):
             Transition matrix.
         Q : ndarray of shape (n, n)
             Process-noise covariance.
+
+        Raises
+        ------
+        ValueError
+            When `dt` is not positive, or so long that F or Q overflows
+            float64.
         """
         raise NotImplementedError
 
@@ -213,6 +219,7 @@ class _IntegratedWhiteNoise(LinearMotion):
         """``x, y, z`` then ``vx, vy, vz`` then ``ax, ay, az`` (as far as the order and dim go)."""
         return tuple(state_names(self._order, self.dim))
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``.
 
@@ -401,6 +408,7 @@ class ForceInput(LinearMotion):
         """Positions then velocities."""
         return tuple(state_names(1, self.dim))
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (2·dim, 2·dim), over a time step ``dt > 0``.
 
@@ -422,6 +430,7 @@ class ForceInput(LinearMotion):
         return (np.kron(_kinematic_transition(1, dt), eye),
                 np.kron(piecewise_white_noise(1, dt, self.q), eye))
 
+    @finite_step("B")
     def control(self, dt: float) -> np.ndarray:
         """B of shape (2·dim, dim): ``[dt²/2, dt]`` per axis.
 
@@ -515,6 +524,7 @@ class Singer(LinearMotion):
         """Positions, velocities, accelerations."""
         return tuple(state_names(2, self.dim))
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (3·dim, 3·dim), over a time step ``dt > 0``.
 
@@ -570,6 +580,7 @@ class RandomWalk(LinearMotion):
         """``x0, x1, ...``."""
         return tuple(f"x{i}" for i in range(self.n))
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(I, q·dt·I)`` of shape (n, n).
 
@@ -622,6 +633,7 @@ class LocalLevel(LinearMotion):
     n = property(lambda self: 1, doc="State dimension, 1.")
     names = property(lambda self: ("level",), doc="``('level',)``.")
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``([[1]], [[q·dt]])``.
 
@@ -678,6 +690,7 @@ class LocalLinearTrend(LinearMotion):
     n = property(lambda self: 2, doc="State dimension, 2.")
     names = property(lambda self: ("level", "slope"), doc="``('level', 'slope')``.")
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)`` of shape (2, 2).
 
@@ -741,6 +754,7 @@ class LinearSDE(LinearMotion):
         """State dimension."""
         return self.A.shape[0]
 
+    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)`` of shape (n, n) by Van Loan's method.
 
@@ -944,6 +958,7 @@ class CoordinatedTurn(NonlinearMotion):
         J[..., 3, 2], J[..., 3, 3], J[..., 3, 4] = sin, cos, dt * (cos * vx - sin * vy)
         return J
 
+    @finite_step("Q")
     def noise(self, dt: float) -> np.ndarray:
         """Q of shape (5, 5): the CV block for x, y, vx, vy and q_turn·dt for omega (dt >= 0).
 

@@ -28,7 +28,7 @@ from math import ceil, factorial, log2
 import numpy as np
 
 from .._linalg import symmetrize
-from .._validation import as_matrix, check_psd, integer, real
+from .._validation import as_matrix, check_psd, finite_step, integer, real
 
 __all__ = ["van_loan", "continuous_white_noise", "piecewise_white_noise"]
 
@@ -45,6 +45,7 @@ def sde_arrays(A, L, Qc) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return A, L, Qc
 
 
+@finite_step("Q")
 def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     r"""Exact discretisation of a linear SDE over a time step (Van Loan's method).
 
@@ -127,6 +128,7 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return F, Q
 
 
+@finite_step("Q")
 def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     r"""Process noise of an integrator chain driven by continuous white noise, for one axis.
 
@@ -175,6 +177,7 @@ def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     return q * dt**power / (power * fact[K - i] * fact[K - j])
 
 
+@finite_step("Q")
 def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
     r"""Process noise of an integrator chain whose K-th derivative jumps once per step, for one axis.
 
