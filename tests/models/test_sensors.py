@@ -58,8 +58,8 @@ def test_linear_sensor():
     ("make", "error", "match"),
     [
         (lambda: gf.Position(dim=0), ValueError, r"^`dim` must be 1, 2 or 3; got 0\.$"),
-        (lambda: gf.Position(r=0.0), ValueError, r"^`r` must be a positive number; got 0\.0\.$"),
-        (lambda: gf.Position(r="1"), TypeError, r"^`r` must be a positive number; got '1'\.$"),
+        (lambda: gf.Position(r=-1e-300), ValueError, r"^`r` must be a non-negative number; got -1e-300\.$"),
+        (lambda: gf.Position(r="1"), TypeError, r"^`r` must be a non-negative number; got '1'\.$"),
         (lambda: gf.Position(dim=2, n=1), ValueError, r"^`n` must be an integer >= 2; got 1\.$"),
         (lambda: gf.Position(dim=2).linear(1), ValueError, r"^`n` must be an integer >= 2; got 1\.$"),
         (lambda: gf.Position(dim=2, n=4).linear(6), ValueError, r"^`n` must be 4, as given to `Position`; got 6\.$"),
@@ -71,15 +71,15 @@ def test_linear_sensor():
          r"^`names` must have 1 entries, one per component; got 2\.$"),
         (lambda: gf.LinearSensor([[1, 0]], 1.0).linear(3), ValueError,
          r"^`n` must be 2, the number of columns of `H`; got 3\.$"),
-        (lambda: gf.RangeBearing(r_range=0.0), ValueError, r"^`r_range` must be a positive number; got 0\.0\.$"),
-        (lambda: gf.RangeBearing(r_bearing=-1.0), ValueError, r"^`r_bearing` must be a positive number; got -1\.0\.$"),
+        (lambda: gf.RangeBearing(r_range=-1.0), ValueError, r"^`r_range` must be a non-negative number; got -1\.0\.$"),
+        (lambda: gf.RangeBearing(r_bearing=-1.0), ValueError, r"^`r_bearing` must be a non-negative number; got -1\.0\.$"),
         (lambda: gf.RangeBearing(origin=(0, 0, 0)), ValueError, r"^`origin` must have shape \(2,\); got shape \(3,\)\.$"),
         (lambda: gf.RangeBearing(origin=(0, np.nan)), ValueError, r"^`origin` must be finite"),
         (lambda: gf.RangeBearingElevation(r_elevation=np.inf), ValueError,
-         r"^`r_elevation` must be a positive number; got inf\.$"),
+         r"^`r_elevation` must be a non-negative number; got inf\.$"),
         (lambda: gf.RangeBearingElevation(origin=(0, 0)), ValueError,
          r"^`origin` must have shape \(3,\); got shape \(2,\)\.$"),
-        (lambda: gf.BearingOnly(r_bearing=None), TypeError, r"^`r_bearing` must be a positive number; got None\.$"),
+        (lambda: gf.BearingOnly(r_bearing=None), TypeError, r"^`r_bearing` must be a non-negative number; got None\.$"),
         (lambda: gf.BearingOnly(origin="here"), TypeError, r"^`origin` must be an array of numbers; got str\.$"),
     ],
 )
@@ -222,3 +222,27 @@ def test_jacobians_at_any_scale(scale):
     for name, J in got.items():
         exact = np.array([[float(v) for v in row] for row in want[name]])
         np.testing.assert_allclose(J, exact, rtol=1e-14, atol=0, err_msg=name)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_a_sensor_with_zero_variance_measures_exactly(form, engine):
+    """A zero variance is valid input (LinearSensor took R = 0; Position, RangeBearing and the others refused
+    it as "must be a positive number"). Position(r=0): the filtered positions are the measurements, with no
+    spread; RangeBearing with zero variances: the EKF's update conditions its linearisation exactly,
+    J (m⁺ - m⁻) = z - h(m⁻) and J P⁺ Jᵀ = 0 (the Kalman update with R = 0)."""
+    zs = np.array([[1.0, 2.0], [1.5, 2.7], [2.2, 3.1]])
+    prior = gf.Gaussian(np.zeros(4), 10.0 * np.eye(4))
+    got = gf.filter(gf.model(gf.ConstantVelocity(dim=2), gf.Position(dim=2, r=0.0), dt=1.0), prior, zs,
+                    form=form, engine=engine)
+    np.testing.assert_allclose(got.means[:, :2], zs, rtol=1e-14)
+    assert np.abs(got.covs[:, :2, :2]).max() <= 1e-28  # round-off of variances of order 10
+    if engine == "python":
+        sensor = gf.RangeBearing(r_range=0.0, r_bearing=0.0)
+        m0 = np.array([3.0, 4.0, 0.0, 0.0])
+        z = np.array([5.1, 0.93])
+        post = gf.filter(gf.model(gf.ConstantVelocity(dim=2), sensor, dt=1.0), gf.Gaussian(m0, np.eye(4)), [z],
+                         method="ekf", form=form)
+        J = sensor.jacobian(m0[:2])
+        np.testing.assert_allclose(J @ (post.means[0, :2] - m0[:2]), z - sensor.h(m0[:2]), rtol=1e-13)
+        assert np.abs(J @ post.covs[0, :2, :2] @ J.T).max() <= 1e-14

@@ -106,7 +106,7 @@ class Position(LinearSensor):
     dim : {1, 2, 3}
         Number of position components measured (x, y, z).
     r : float, default 1.0
-        Variance of each position measurement, > 0.
+        Variance of each position measurement, >= 0 (0: measured exactly).
     n : int, optional
         State dimension, >= dim. When omitted, H is built for the state of
         the motion the sensor is combined with (:meth:`linear`), and the
@@ -133,7 +133,7 @@ class Position(LinearSensor):
 
     def __init__(self, dim: int = 1, r: float = 1.0, n: int | None = None) -> None:
         dim = check_dim(dim)
-        r = real("r", r, positive=True)
+        r = real("r", r, nonnegative=True)
         if n is not None:
             n = integer("n", n, minimum=dim)
         self._set(dim=dim, r=r, n=n)
@@ -264,9 +264,9 @@ class RangeBearing(NonlinearSensor):
     Parameters
     ----------
     r_range : float, default 1.0
-        Variance of the range, > 0.
+        Variance of the range, >= 0.
     r_bearing : float, default 1e-4
-        Variance of the bearing (rad²), > 0.
+        Variance of the bearing (rad²), >= 0.
     origin : array_like of shape (2,), default (0, 0)
         Sensor position.
 
@@ -300,8 +300,8 @@ class RangeBearing(NonlinearSensor):
     __slots__ = ("r_range", "r_bearing", "origin")
 
     def __init__(self, r_range: float = 1.0, r_bearing: float = 1e-4, origin=(0.0, 0.0)) -> None:
-        self._set(r_range=real("r_range", r_range, positive=True),
-                  r_bearing=real("r_bearing", r_bearing, positive=True),
+        self._set(r_range=real("r_range", r_range, nonnegative=True),
+                  r_bearing=real("r_bearing", r_bearing, nonnegative=True),
                   origin=_origin(origin, 2))
 
     m = property(lambda self: 2, doc="Measurement dimension, 2.")
@@ -364,11 +364,11 @@ class RangeBearingElevation(NonlinearSensor):
     Parameters
     ----------
     r_range : float, default 1.0
-        Variance of the range, > 0.
+        Variance of the range, >= 0.
     r_bearing : float, default 1e-4
-        Variance of the bearing (rad²), > 0.
+        Variance of the bearing (rad²), >= 0.
     r_elevation : float, default 1e-4
-        Variance of the elevation (rad²), > 0.
+        Variance of the elevation (rad²), >= 0.
     origin : array_like of shape (3,), default (0, 0, 0)
         Sensor position.
 
@@ -408,9 +408,9 @@ class RangeBearingElevation(NonlinearSensor):
 
     def __init__(self, r_range: float = 1.0, r_bearing: float = 1e-4, r_elevation: float = 1e-4,
                  origin=(0.0, 0.0, 0.0)) -> None:
-        self._set(r_range=real("r_range", r_range, positive=True),
-                  r_bearing=real("r_bearing", r_bearing, positive=True),
-                  r_elevation=real("r_elevation", r_elevation, positive=True),
+        self._set(r_range=real("r_range", r_range, nonnegative=True),
+                  r_bearing=real("r_bearing", r_bearing, nonnegative=True),
+                  r_elevation=real("r_elevation", r_elevation, nonnegative=True),
                   origin=_origin(origin, 3))
 
     m = property(lambda self: 3, doc="Measurement dimension, 3.")
@@ -480,7 +480,7 @@ class BearingOnly(NonlinearSensor):
     Parameters
     ----------
     r_bearing : float, default 1e-4
-        Variance of the bearing (rad²), > 0.
+        Variance of the bearing (rad²), >= 0.
     origin : array_like of shape (2,), default (0, 0)
         Sensor position.
 
@@ -506,7 +506,7 @@ class BearingOnly(NonlinearSensor):
     __slots__ = ("r_bearing", "origin")
 
     def __init__(self, r_bearing: float = 1e-4, origin=(0.0, 0.0)) -> None:
-        self._set(r_bearing=real("r_bearing", r_bearing, positive=True), origin=_origin(origin, 2))
+        self._set(r_bearing=real("r_bearing", r_bearing, nonnegative=True), origin=_origin(origin, 2))
 
     m = property(lambda self: 1, doc="Measurement dimension, 1.")
     dim = property(lambda self: 2, doc="Position components read, 2.")
