@@ -188,13 +188,15 @@ def test_version(capsys):
         (["frobnicate"], r"invalid choice: 'frobnicate'"),
         (["filter", "data.csv"], r"the following arguments are required: -m/--model"),
         (["demo", "--seed", "x"], r"argument --seed: invalid int value: 'x'"),
+        (["filter", "data.csv", "-m", "m.toml", "--workers", "abc"], r"argument --workers: invalid int value"),
     ],
 )
 def test_usage_errors_exit_2(capsys, argv, match):
+    """One line, as every other error of the command (argparse's own printed its usage block first)."""
     code, out, err = run(capsys, *argv)
     assert code == 2 and out == ""
-    assert err.startswith("usage: gaussfuse")
-    assert re.search(match, err)
+    assert err.startswith("gaussfuse: error: ") and err.count("\n") == 1
+    assert re.search(match, err) and re.search(r"\(`gaussfuse( \w+)? --help` lists the options\)$", err)
 
 
 def test_no_matplotlib_for_import_and_help():

@@ -738,10 +738,17 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
 # ---------------------------------------------------------------------------
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose usage errors are one line like the command's other errors (exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"gaussfuse: error: {message} (`{self.prog} --help` lists the options)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``gaussfuse`` command."""
     raw = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="gaussfuse",
         description="Kalman filtering and smoothing of measurement files.",
         epilog="examples:\n  gaussfuse demo --out figures\n"
