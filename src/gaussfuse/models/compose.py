@@ -496,7 +496,7 @@ def constant_velocity(dt: float, q: float, r: float, dim: int = 1) -> LinearMode
     q : float
         Spectral density of the white-noise acceleration, >= 0.
     r : float
-        Variance of each position measurement, > 0.
+        Variance of each position measurement, >= 0.
     dim : {1, 2, 3}
         Number of spatial axes.
 
