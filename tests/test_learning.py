@@ -184,17 +184,17 @@ def test_em_never_lowers_the_likelihood(seed, n, m, learn, missing, controls, di
 
 
 def test_em_that_loses_the_diffuse_state_names_the_iteration():
-    """Learning H on white noise shrinks its smaller singular value (8.6e-7 after 11 iterations) until the
+    """Learning H on white noise shrinks its smaller singular value (5.9e-8 after 13 iterations) until the
     diffuse x_0 is no longer identified: the error says at which iteration, and what to change."""
     model, prior, zs, us, _ = _random_case(4229, 2, 2, (), False, True, True)
     assert prior == "diffuse"
-    res = gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=11, tol=0.0)
+    res = gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=13, tol=0.0)
     assert np.all(np.diff(res.history) > 0)
-    assert np.linalg.svd(res.model.H, compute_uv=False).min() < 1e-6
-    with pytest.raises(ValueError, match=r"^EM iteration 12: the learned model no longer identifies the diffuse "
-                                         r"initial state \(the log-likelihood rose to -75\.875 on the way\): "
+    assert np.linalg.svd(res.model.H, compute_uv=False).min() < 1e-7
+    with pytest.raises(ValueError, match=r"^EM iteration 14: the learned model no longer identifies the diffuse "
+                                         r"initial state \(the log-likelihood rose to -72\.8673 on the way\): "
                                          r"the diffuse initial state is not identified .* learn fewer of F and H"):
-        gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=12, tol=0.0)
+        gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=14, tol=0.0)
 
 
 @pytest.mark.parametrize("kind", ["scalar", "diagonal"])

@@ -12,8 +12,7 @@ Koopman (1997):
 Write :math:`x_1 = \delta + w`, :math:`w \sim N(0, P_*)` for any fixed
 :math:`P_* \succeq 0`: a flat :math:`\delta` makes :math:`x_1` flat whatever
 :math:`P_*`, with the same normalisation, so the diffuse results do not depend
-on it (it is taken as :math:`Q_1`, widened only if the first innovation
-covariance would be singular). Given :math:`\delta`, the model is an ordinary
+on it (it is taken as :math:`Q_1`, widened where that is singular). Given :math:`\delta`, the model is an ordinary
 linear-Gaussian one, and every mean the Kalman filter and RTS smoother produce
 is affine in :math:`\delta` while no covariance depends on it:
 
@@ -101,20 +100,19 @@ def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | No
 
     With ``x_0 = δ`` flat, ``x_1`` is flat (see the module notes), so the
     augmentation over ``x_0`` below is the exact diffuse treatment of ``x_1``.
-    ``P_* = Q_1`` keeps the first innovation covariance ``H_1 P_* H_1ᵀ + R_1``
-    as the model makes it; where that is singular on the observed
-    components (noise-free sensors on a noise-free state), ``P_*`` is widened
-    by a multiple of the identity on the scale of ``Q_1`` and ``R_1``.
+    ``P_* = Q_1`` where that is positive definite; else it is widened by a
+    multiple of the identity on the scale of ``Q_1`` and ``R_1``: with a
+    singular ``P_*`` the base run's innovation covariance can be singular
+    where a noise-free sensor meets a noise-free state (at the first step,
+    or at the first step that sensor is observed), though the diffuse state
+    is not known there.
     """
     T, n = zs.shape[0], model.n
-    F1, H1, Q1, R1, _ = model.at(0)
-    observed = ~np.isnan(zs[0])
+    _, _, Q1, R1, _ = model.at(0)
     P_star = np.array(Q1)
-    if observed.any():
-        S1 = (H1 @ P_star @ H1.T + R1)[np.ix_(observed, observed)]
-        if not is_positive_definite(S1):
-            scale = max(np.max(np.diag(Q1)), np.max(np.diag(R1)))
-            P_star = P_star + (scale if scale > 0 else 1.0) * np.eye(n)
+    if not is_positive_definite(P_star):
+        scale = max(np.max(np.diag(Q1)), np.max(np.diag(R1)))
+        P_star = P_star + (scale if scale > 0 else 1.0) * np.eye(n)
     F = np.array(np.broadcast_to(model.F, (T, n, n)))
     Q = np.array(np.broadcast_to(model.Q, (T, n, n)))
     F[0], Q[0] = np.eye(n), P_star
@@ -175,9 +173,22 @@ def _innovation_sensitivity(model, runs: AugmentedRuns) -> np.ndarray:
 
 
 def _identified(info: np.ndarray) -> np.ndarray:
-    """Which of the information matrices (T, n, n) about x_0 are non-singular."""
-    eig = np.linalg.eigvalsh(info)
-    return eig[:, 0] > 1e-12 * np.maximum(eig[:, -1], 1e-300)
+    r"""Which of the information matrices (T, n, n) about x_0, accumulated step by step, are non-singular.
+
+    Judged on the correlation form :math:`D^{-1/2} \mathcal S D^{-1/2}` (D the
+    diagonal of :math:`\mathcal S`): its smallest eigenvalue above 1e-12 of
+    its largest. The eigenvalues of :math:`\mathcal S` itself span the units
+    of the state's components (a slope in units 1e6 smaller, a sensor 1e13
+    times more precise than another) and the growth of the information with
+    the length of the series (a quadratic trend's grows as T, T³ and T⁵), and
+    refused identified states at 1e-12. Once identified, a state stays so:
+    the information only grows.
+    """
+    diag = np.diagonal(info, axis1=-2, axis2=-1)
+    seen = (diag > 0.0).all(axis=-1)
+    scale = 1.0 / np.sqrt(np.where(diag > 0.0, diag, 1.0))
+    eig = np.linalg.eigvalsh(info * scale[:, :, None] * scale[:, None, :])
+    return np.logical_or.accumulate(seen & (eig[:, 0] > 1e-12 * eig[:, -1]))
 
 
 def _spread(L: np.ndarray, score: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
