@@ -489,6 +489,25 @@ def test_non_convergence_warns():
     assert issubclass(gf.ConvergenceWarning, UserWarning)
 
 
+def test_pooled_series_count_a_diffuse_state_each():
+    """Two series under one model each have their own diffuse level, estimated from their data (fit asks
+    for more than N n observations for that reason), but df_model counted one: AIC and BIC were too small
+    by 2 and log 100, and the summary said "with 1 diffuse state". The loglik is the sum of the two
+    series' own diffuse log-likelihoods, and the criteria follow from their definitions."""
+    _, flow = nile()
+    halves = np.stack([flow[:50], flow[50:]])[..., None]
+    res = gf.fit(gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0), "diffuse", halves, method="mle")
+    assert res.series == 2 and res.df_model == 2 + 2
+    each = sum(gf.filter(res.model, "diffuse", half).loglik for half in halves)
+    assert res.loglik == pytest.approx(each, rel=1e-12)
+    assert res.aic == pytest.approx(-2 * each + 2 * 4, rel=1e-12)
+    assert res.bic == pytest.approx(-2 * each + 4 * np.log(100), rel=1e-12)
+    assert "observations 100 (with 2 diffuse states)" in res.summary()
+    proper = gf.fit(gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0), gf.Gaussian(1000.0, 1e4), halves,
+                    method="mle", learn=("Q", "R"))
+    assert proper.series == 2 and proper.df_model == 2  # a given Gaussian prior estimates nothing
+
+
 def test_params_information_criteria_and_summary_match_statsmodels(nile_mle):
     import statsmodels.api as sm
 

@@ -163,6 +163,9 @@ class FitResult:
     nobs : int
         The number of observed measurement components (NaN ones excluded),
         over all series.
+    series : int
+        The number of series fitted (with a diffuse prior, those with an
+        observed value: each has its own diffuse initial state).
     """
 
     model: LinearModel
@@ -176,6 +179,7 @@ class FitResult:
     params: dict = field(default_factory=dict)
     bse: dict = field(default_factory=dict)
     nobs: int = 0
+    series: int = 1
 
     __reduce__ = reduce_frozen  # pickles and copies keep read-only arrays read-only
     __repr__ = shapes_repr
@@ -185,9 +189,14 @@ class FitResult:
         """The number of estimated quantities: `params`, and the diffuse states when the prior is diffuse.
 
         A diffuse state is estimated from the data too, and counts in the
-        information criteria, as in Harvey (1989) and statsmodels.
+        information criteria, as in Harvey (1989) and statsmodels: n for
+        each series.
         """
-        return len(self.params) + (self.model.n if isinstance(self.prior, str) else 0)
+        return len(self.params) + self._diffuse_states
+
+    @property
+    def _diffuse_states(self) -> int:
+        return self.series * self.model.n if isinstance(self.prior, str) else 0
 
     @property
     def aic(self) -> float:
@@ -222,7 +231,8 @@ class FitResult:
         """
         how = {"em": "EM", "mle": "maximum likelihood"}[self.method]
         state = "converged" if self.converged else f"NOT converged ({self.message})"
-        after = f" (with {self.model.n} diffuse state{'s' * (self.model.n > 1)})" if isinstance(self.prior, str) else ""
+        k = self._diffuse_states
+        after = f" (with {k} diffuse state{'s' * (k > 1)})" if k else ""
         lines = [f"gaussfuse fit: {how}, {state}",
                  f"log-likelihood {self.loglik:.4f}   AIC {self.aic:.4f}   BIC {self.bic:.4f}   "
                  f"observations {self.nobs}{after}",
@@ -1490,7 +1500,7 @@ def fit(
     >>> start = gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0)
     >>> res = gf.fit(start, "diffuse", flow, method="mle")
     >>> round(float(res.model.R[0, 0])), round(float(res.model.Q[0, 0]), 1)
-    (15099, 1469.1)
+    (15099, 1469.2)
     """
     timed = isinstance(model, TimedModel)
     start = model
@@ -1598,4 +1608,4 @@ def fit(
             stacklevel=2)
     return FitResult(model, prior, float(history[-1]), history, method, converged, message, errors,
                      params=dict(zip(names, map(float, values))), bse=dict(zip(names, map(float, bse))),
-                     nobs=nobs)
+                     nobs=nobs, series=int(zs.shape[0]))
