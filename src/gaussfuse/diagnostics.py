@@ -114,7 +114,7 @@ def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[f
     Examples
     --------
     >>> lo, hi = chi2_interval(2, count=100)
-    >>> round(lo, 3), round(hi, 3)
+    >>> round(lo, 2), round(hi, 2)
     (1.63, 2.41)
     """
     from scipy.special import chdtri  # here: `import gaussfuse` loads only NumPy
