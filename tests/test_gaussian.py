@@ -281,6 +281,42 @@ def test_fuse_of_variances_near_the_largest_float():
     assert fused.mean[0] == pytest.approx(2.0, rel=1e-15) and fused.cov[0, 0] == pytest.approx(5e307, rel=1e-15)
 
 
+def _exact_fused_mean(a, A, b, B):
+    """(A⁻¹ + B⁻¹)⁻¹ (A⁻¹ a + B⁻¹ b) in exact rationals (the information form), for n <= 2."""
+    from fractions import Fraction as Q
+
+    def inv(M):
+        M = [[Q(x) for x in row] for row in M]
+        if len(M) == 1:
+            return [[1 / M[0][0]]]
+        det = M[0][0] * M[1][1] - M[0][1] * M[1][0]
+        return [[M[1][1] / det, -M[0][1] / det], [-M[1][0] / det, M[0][0] / det]]
+
+    Ai, Bi = inv(A), inv(B)
+    n = len(A)
+    score = [sum(Ai[r][c] * Q(a[c]) + Bi[r][c] * Q(b[c]) for c in range(n)) for r in range(n)]
+    cov = inv([[Ai[r][c] + Bi[r][c] for c in range(n)] for r in range(n)])
+    return [float(sum(cov[r][c] * score[c] for c in range(n))) for r in range(n)]
+
+
+@pytest.mark.parametrize("a, b, A, B", [
+    ([9e307], [-9e307], [[1.0]], [[1.0]]), ([1e308], [-8e307], [[1.0]], [[3.0]]),
+    ([1.7e308], [-1.7e308], [[2.0]], [[1.0]]), ([-1e308, 1e308], [1e308, -5e307], [[1.0, 0.2], [0.2, 1.0]], np.diag([4.0, 1.0]))])
+def test_fuse_of_means_whose_difference_overflows(a, b, A, B):
+    """b - a overflowed (FloatingPointError) though the fused belief is representable: the means are halved,
+    fused and the mean doubled, exactly. Against the information form in exact rationals, to round-off of the
+    inputs' size (as any formula with a gain that is not exactly 1/2)."""
+    got = gf.fuse(gf.Gaussian(a, A), gf.Gaussian(b, B))
+    exact = _exact_fused_mean(a, A, b, B)
+    assert np.all(np.abs(got.mean - exact) <= 4e-16 * np.abs(np.r_[a, b]).max())
+    assert np.isfinite(got.cov).all()
+
+
+def test_a_tiny_variance_shows_in_the_repr():
+    """The repr suppressed small numbers: a variance of 1e-300 showed as cov=[[0.]]."""
+    assert "1.e-300" in repr(gf.Gaussian(1.7e308, 1e-300))
+
+
 def test_fuse_doc_example():
     fused = gf.fuse(gf.Gaussian(0.0, 1.0), gf.Gaussian(2.0, 1.0))
     assert fused.mean[0] == pytest.approx(1.0) and fused.cov[0, 0] == pytest.approx(0.5)
@@ -359,3 +395,13 @@ def test_a_symmetric_covariance_is_kept_bit_for_bit():
 def test_std_of_a_variance_zero_to_round_off_is_zero():
     g = gf.Gaussian([0.0, 0.0], [[1.0, 0.0], [0.0, -1e-20]])  # valid: -1e-20 is 0 to round-off beside 1
     np.testing.assert_array_equal(g.std, [1.0, 0.0])
+
+
+@pytest.mark.parametrize("rng", ["x", 1.5, -1, True])
+def test_sample_names_a_bad_rng(rng):
+    """NumPy's own messages ("SeedSequence expects int or sequence of ints for entropy not x") named no
+    argument; True was the seed 1."""
+    with pytest.raises(TypeError, match=r"^`rng` must be None, an integer seed or a numpy.random.Generator; got "):
+        gf.Gaussian(0.0, 1.0).sample(2, rng=rng)
+    assert gf.Gaussian(0.0, 1.0).sample(2, rng=3).shape == (2, 1)
+

@@ -22,7 +22,7 @@ _F64 = np.dtype(np.float64)
 _DTYPE = attrgetter("dtype")
 
 __all__ = ["as_array", "as_numbers", "flag", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
-           "call_each", "raise_call", "size_reason", "finite_step"]
+           "call_each", "raise_call", "size_reason", "finite_step", "generator"]
 
 
 def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
@@ -437,3 +437,20 @@ def finite_step(result: str) -> Callable:
             return out
         return checked
     return decorate
+
+
+def generator(rng) -> np.random.Generator:
+    """`rng` as a NumPy Generator: None (fresh entropy), a seed, or a Generator (used as is).
+
+    Raises
+    ------
+    TypeError
+        For anything else, naming `rng` (NumPy's own messages do not; and
+        ``default_rng(True)`` is the seed 1).
+    """
+    try:
+        if isinstance(rng, (bool, np.bool_)):
+            raise TypeError
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"`rng` must be None, an integer seed or a numpy.random.Generator; got {rng!r}.") from exc

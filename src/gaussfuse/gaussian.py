@@ -9,7 +9,7 @@ import numpy as np
 from . import kalman
 from ._linalg import (circular_mean, cholesky, is_positive_definite, log_density, marginal_std, symmetrize, whiten,
                       wrap_components)
-from ._validation import as_array, as_matrix, as_vector, check_psd
+from ._validation import as_array, as_matrix, as_vector, check_psd, generator
 
 __all__ = ["Gaussian", "fuse", "moment_match"]
 
@@ -97,7 +97,7 @@ class Gaussian:
         return marginal_std(self.cov)
 
     def __repr__(self) -> str:
-        with np.printoptions(precision=6, suppress=True):
+        with np.printoptions(precision=6):  # no suppress: a variance of 1e-300 is not 0
             return f"Gaussian(mean={self.mean}, cov={self.cov.tolist() if self.dim > 1 else self.cov})"
 
     def logpdf(self, x) -> np.ndarray | float:
@@ -147,7 +147,8 @@ class Gaussian:
         Raises
         ------
         TypeError
-            When `size` is neither None nor an integer.
+            When `size` is neither None nor an integer, or `rng` is not a seed
+            or a Generator.
         ValueError
             When `size` is negative.
         """
@@ -157,7 +158,7 @@ class Gaussian:
             if size < 0:
                 raise ValueError(f"`size` must be None or a non-negative integer; got {size}.")
             size = int(size)
-        rng = np.random.default_rng(rng)
+        rng = generator(rng)
         method = "cholesky" if is_positive_definite(self.cov) else "eigh"
         return rng.multivariate_normal(
             self.mean, self.cov, size=size, method=method, check_valid="ignore"
@@ -184,8 +185,7 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     ValueError
         When ``a.cov + b.cov`` is singular.
     FloatingPointError
-        When the fused mean or covariance overflows (means near 1e308 of
-        opposite signs, say).
+        When the fused mean or covariance overflows float64.
 
     Notes
     -----

@@ -482,8 +482,12 @@ def fuse_moments(
     """
     if (cov_b.tobytes(), mean_b.tobytes()) < (cov_a.tobytes(), mean_a.tobytes()):
         mean_a, cov_a, mean_b, cov_b = mean_b, cov_b, mean_a, cov_a
+    with np.errstate(over="ignore"):
+        halve = not np.isfinite(mean_b - mean_a).all()  # means near ±1e308: b - a overflows, the result need not
+    if halve:
+        mean_a, mean_b = 0.5 * mean_a, 0.5 * mean_b   # exact: the fused mean of the halves is half the mean
     post = update_sqrt(mean_a, cov_factor(cov_a, "a.cov"), mean_b, eye(mean_a.shape[0]), cov_factor(cov_b, "b.cov"))
-    return post.mean, symmetrize(post.factor @ post.factor.T)
+    return (2.0 * post.mean if halve else post.mean), symmetrize(post.factor @ post.factor.T)
 
 
 # ---------------------------------------------------------------------------

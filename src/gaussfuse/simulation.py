@@ -40,7 +40,7 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._validation import integer
+from ._validation import generator, integer
 from .errors import ModelFunctionError, at_step
 from .inference import filter as run_filter
 from .inference.timing import resolve
@@ -72,16 +72,6 @@ class Simulation:
 
     __reduce__ = reduce_frozen
     __repr__ = shapes_repr
-
-
-def _generator(rng) -> np.random.Generator:
-    """`rng` as a NumPy Generator: None (fresh entropy), a seed, or a Generator (used as is)."""
-    try:
-        if isinstance(rng, (bool, np.bool_)):  # default_rng takes True as the seed 1
-            raise TypeError
-        return np.random.default_rng(rng)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"`rng` must be None, an integer seed or a numpy.random.Generator; got {rng!r}.") from exc
 
 
 def _draw(rng: np.random.Generator, factor: np.ndarray, size: int) -> np.ndarray:
@@ -142,7 +132,7 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     count = 1 if size is None else integer("size", size)
     us = check_controls(us, model, 1, T, matching="`T`")
     u = None if us is None else us[0]
-    rng = _generator(rng)
+    rng = generator(rng)
     n, m = model.n, model.m
     states, measurements = np.empty((count, T, n)), np.empty((count, T, m))
     with np.errstate(over="ignore", invalid="ignore"):
@@ -234,7 +224,7 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None
     check_steps(model, T)
     us = check_controls(us, model, 1, T)
     u = None if us is None else us[0]
-    rng = _generator(rng)
+    rng = generator(rng)
     filt = run_filter(model, prior, arr[0], u, form=form, check=check)
     roots = kalman.Factors()
     factors = (filt.cov_factors if filt.cov_factors is not None
