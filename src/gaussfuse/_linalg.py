@@ -66,9 +66,9 @@ def eye(n: int) -> np.ndarray:
 def cholesky(mat: np.ndarray, name: str = "the matrix", resolved: bool = False) -> np.ndarray:
     r"""Lower Cholesky factor of `mat` (or of each of a stack).
 
-    With `resolved`, a pivot of round-off counts as zero: :math:`L_{jj}^2
-    \le p \epsilon\, \mathrm{mat}_{jj}` for a p × p matrix (the test of
-    :func:`sqrt_cov`). There the factorisation of a matrix that is singular
+    With `resolved`, a pivot of round-off counts as zero
+    (:func:`roundoff_pivot`, the test of :func:`sqrt_cov` and
+    :func:`semidefinite_cholesky`). There the factorisation of a matrix that is singular
     in exact arithmetic can succeed or fail by one rounding, and a pivot
     that just succeeds is about √ε of its row with no digit right: whatever
     is solved with it is round-off divided by round-off.
@@ -106,18 +106,22 @@ def cholesky(mat: np.ndarray, name: str = "the matrix", resolved: bool = False) 
 
 
 def roundoff_pivot(L: np.ndarray, mat: np.ndarray) -> bool:
-    r"""Whether a Cholesky factor L of a p × p `mat` has a pivot of round-off: :math:`L_{jj}^2 \le p \epsilon\, \mathrm{mat}_{jj}`.
+    r"""Whether a Cholesky factor L of `mat` has a pivot of round-off: :math:`L_{jj}^2 \le 2 (j + 1) \epsilon\, \mathrm{mat}_{jj}`.
 
-    The pivot squared is the variance of component j left after the earlier
-    ones, a difference of terms of size :math:`\mathrm{mat}_{jj}` with an
-    error of about ε times it. On Python floats: on the few entries of a
-    diagonal they cost a fifth of NumPy's calls, and a product that would
-    overflow is inf, with no warning.
+    The pivot squared is the variance of component j left after the j
+    earlier ones, :math:`\mathrm{mat}_{jj} - \sum_{k<j} L_{jk}^2`: a sum of
+    j + 1 terms of size at most :math:`\mathrm{mat}_{jj}`, whose rounding
+    error is at most about :math:`(j + 1) \epsilon\, \mathrm{mat}_{jj}`
+    (twice that, for the error already in the :math:`L_{jk}`). The bound
+    grows with j, not with the size of the matrix: a pair of nearly
+    dependent components is judged alike among 2 or 64. On Python floats:
+    on the few entries of a diagonal they cost a fifth of NumPy's calls,
+    and a product that would overflow is inf, with no warning.
     """
     if L.ndim > 2:
         return any(roundoff_pivot(Lk, mk) for Lk, mk in zip(L, mat))
-    tol = mat.shape[-1] * _EPS
-    return any(p * p <= tol * v for p, v in zip(L.diagonal().tolist(), mat.diagonal().tolist()))
+    return any(p * p <= 2 * (j + 1) * _EPS * v
+               for j, (p, v) in enumerate(zip(L.diagonal().tolist(), mat.diagonal().tolist())))
 
 
 def is_positive_definite(mat: np.ndarray) -> bool:
@@ -134,7 +138,7 @@ def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
 
     The Cholesky recursion, column by column, in which a pivot (the variance
     of component j left after conditioning on components 0..j-1) at most
-    ``n ε cov[j, j]`` is zero: component j is, to round-off, an affine
+    ``2 (j + 1) ε cov[j, j]`` (:func:`roundoff_pivot`) is zero: component j is, to round-off, an affine
     function of the earlier ones, and column j of L is zero. The test is
     relative to each component's own variance, so it does not depend on
     units.
@@ -160,11 +164,10 @@ def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
             "so it has no square root"
         )
     n = cov.shape[0]
-    tol = n * np.finfo(np.float64).eps
     L = np.zeros_like(cov, dtype=np.float64)
     for j in range(n):
         pivot = cov[j, j] - L[j, :j] @ L[j, :j]
-        if pivot <= tol * cov[j, j]:
+        if pivot <= 2 * (j + 1) * _EPS * cov[j, j]:  # roundoff_pivot's bound
             continue
         L[j, j] = np.sqrt(pivot)
         L[j + 1:, j] = (cov[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
@@ -181,7 +184,7 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
 
     Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`,
     which also takes over where Cholesky succeeds with a pivot of round-off
-    (at most ``n ε cov[j, j]``, its own test): an exactly singular matrix in
+    (at most ``2 (j + 1) ε cov[j, j]``, :func:`roundoff_pivot`): an exactly singular matrix in
     exact arithmetic, such as ``g gᵀ``, otherwise gets a factor with about
     √ε of spread where it has none (1e-8 of noise in a direction it cannot
     move).
@@ -473,7 +476,7 @@ def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular the
     minimum-norm least-squares solution (exact on the range of C, where B is for a conditional)."""
     try:
-        L = cholesky(C)
+        L = cholesky(C, resolved=True)  # a pivot of round-off: C is singular, and dividing by it is noise
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(C, B, rcond=None)[0]
     return cho_solve(L, B)

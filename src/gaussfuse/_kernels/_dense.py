@@ -145,10 +145,9 @@ def cholesky(S, L, p):
 
 @register_jitable(**_JIT)
 def roundoff_pivot(L, S, p):
-    r"""_linalg.roundoff_pivot: whether some :math:`L_{jj}^2 \le p \epsilon S_{jj}` (j < p)."""
-    tol = p * _EPS
+    r"""_linalg.roundoff_pivot: whether some :math:`L_{jj}^2 \le 2 (j + 1) \epsilon S_{jj}` (j < p)."""
     for j in range(p):
-        if L[j, j] * L[j, j] <= tol * S[j, j]:
+        if L[j, j] * L[j, j] <= 2 * (j + 1) * _EPS * S[j, j]:
             return True
     return False
 

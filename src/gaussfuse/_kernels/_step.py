@@ -742,11 +742,12 @@ def smoother_gain(w, pred_cov, CT, gain):
     Returns
     -------
     bool
-        False when :math:`P^-_{k+1}` is not positive definite: the caller
-        takes the minimum-norm least-squares gain, as kalman.rts_step does.
+        False when :math:`P^-_{k+1}` is not positive definite, to round-off:
+        the caller takes the minimum-norm least-squares gain, as
+        kalman.rts_step does.
     """
     n = pred_cov.shape[0]
-    if not cholesky(pred_cov, w.Ln, n):
+    if not cholesky(pred_cov, w.Ln, n) or roundoff_pivot(w.Ln, pred_cov, n):  # as _linalg.psd_solve
         return False
     copy2(w.A2, CT)
     cho_solve(w.Ln, w.A2, n, n)
