@@ -677,3 +677,18 @@ def test_the_step_back_to_the_prior_is_kalman_rts_step_for_every_series():
             np.testing.assert_array_equal(res.means[i, 1:], sm.means[i])
             np.testing.assert_array_equal(res.gains[i, 1:], sm.gains[i])
     assert not np.allclose(apart.covs[1, 0], shared.covs[1, 0])
+
+
+@pytest.mark.parametrize("call", [gf.filter, gf.smooth])
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_an_error_in_one_of_several_series_names_it_on_every_engine(call, form):
+    """The compiled loops said "in series 2, at step 0: ..."; the readable path (and the square-root form,
+    which falls back to it) said only "at step 0", so a batch on it could not tell which series failed."""
+    twin = gf.LinearModel(F=np.eye(2), H=[[1.0, 0.0], [1.0, 0.0]], Q=np.zeros((2, 2)), R=[[1.0, 1.0], [1.0, 1.0]])
+    zs = np.full((4, 3, 2), 0.3)
+    zs[[0, 1, 3], :, 1] = np.nan  # only series 2 meets the singular S, taking the same measurement twice
+    for engine in ("python", "numba"):
+        with pytest.raises(np.linalg.LinAlgError, match=r"^in series 2, at step 0: the innovation covariance S"):
+            call(twin, gf.Gaussian([0.0, 0.0], np.eye(2)), zs, engine=engine, form=form)
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: "):  # one series: no series to name
+        call(twin, gf.Gaussian([0.0, 0.0], np.eye(2)), zs[2], engine="python", form=form)

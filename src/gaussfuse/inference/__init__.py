@@ -226,8 +226,9 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     gate = _gate(gate, gate_by, prior)
     drivers.checked(check)
     if prior == "diffuse":
-        result = stack([kept(diffuse.diffuse_filter(model, z, None if us is None else us[i], engine), keep)
-                        for i, z in enumerate(zs)])
+        result = stack(drivers.each_series(
+            lambda i: kept(diffuse.diffuse_filter(model, zs[i], None if us is None else us[i], engine), keep),
+            zs.shape[0]))
     else:
         result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains, gate)
     drivers.check_divergence(result, check)
@@ -320,8 +321,8 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     gate = _gate(gate, gate_by, prior)
     drivers.checked(check)
     if prior == "diffuse":
-        result = stack([diffuse.diffuse_smooth(model, z, None if us is None else us[i], engine)
-                        for i, z in enumerate(zs)])
+        result = stack(drivers.each_series(
+            lambda i: diffuse.diffuse_smooth(model, zs[i], None if us is None else us[i], engine), zs.shape[0]))
     else:
         result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form, gate=gate)
     drivers.check_divergence(result.filtered, check)

@@ -30,7 +30,7 @@ from ..steady import steady_state
 from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
 
-__all__ = ["run_filter", "run_smoother", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
+__all__ = ["run_filter", "run_smoother", "each_series", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
            "start_seconds",
            "CHECKS", "checked", "check_divergence", "divergence_message"]
 
@@ -365,6 +365,22 @@ def _worth_compiling(module: str, steps: int, passes: float, smoothing: bool,
     return worth
 
 
+def each_series(run, N: int) -> list:
+    """``[run(i) for i in range(N)]``; an error of one of several series names it, as the compiled kernels do.
+
+    "in series 2, at step 0: ..." (the message of :func:`gaussfuse._kernels._step.raise_failure`).
+    """
+    out = []
+    for i in range(N):
+        try:
+            out.append(run(i))
+        except (ValueError, FloatingPointError) as exc:  # LinAlgError and ModelFunctionError are ValueErrors
+            if N == 1:
+                raise
+            raise type(exc)(f"in series {i}, {exc}") from exc
+    return out
+
+
 def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, options: dict, engine: str,
                  keep: str, form: str = "cov", steady: bool = False, gains: bool = False,
                  gate: kalman.Gate | None = None) -> FilterResult:
@@ -388,8 +404,8 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
         if target is None:
             return compiled.filter(lin, model, prior, zs, us, keep)
         return compiled.filter(lin, model, prior, zs, us, keep, target)
-    runs = [_method_filter(spec, model, prior, z, None if us is None else us[i], options, keep, form, target, gains,
-                           gate) for i, z in enumerate(zs)]
+    runs = each_series(lambda i: _method_filter(spec, model, prior, zs[i], None if us is None else us[i], options,
+                                                keep, form, target, gains, gate), zs.shape[0])
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
     return stack([r[0] for r in runs])
@@ -440,8 +456,8 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
         result = compiled.smooth(lin, model, prior, zs, us) if ending is None else \
             compiled.smooth(lin, model, prior, zs, us, ending)
         return _back_to_prior(model, prior, result) if to_prior else result
-    runs = [_method_smooth(spec, model, prior, z, None if us is None else us[i], options, to_prior, form, gate, ending)
-            for i, z in enumerate(zs)]
+    runs = each_series(lambda i: _method_smooth(spec, model, prior, zs[i], None if us is None else us[i], options,
+                                                to_prior, form, gate, ending), zs.shape[0])
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],
                           passes=sum(r[2] for r in runs), series=zs.shape[0])
