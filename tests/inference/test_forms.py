@@ -850,3 +850,17 @@ def test_the_engines_differ_by_the_condition_of_S_in_the_covariance_form_only(V)
     assert apart("cov") <= 2 * V * np.finfo(float).eps * 10
     assert apart("sqrt") <= 4 * np.finfo(float).eps
 
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_a_component_measured_exactly_twice_is_refused_by_the_square_root_form(engine):
+    """The README's limit of the covariance form: x0 measured with R = 0 at two steps and no process noise
+    between leaves S = 1e-32 of round-off at the second, which the covariance form cannot tell from a real
+    variance (its log-likelihood, 104 or 106 by engine, means nothing); the square-root form's factor has an
+    exact zero there, and it refuses S."""
+    model = gf.LinearModel(F=np.eye(2), H=[[1.0, 0.0]], Q=np.zeros((2, 2)), R=[[0.0]])
+    prior = gf.Gaussian([0.0, 0.0], [[2.0, 0.3], [0.3, 1.0]])
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 1: the innovation covariance S"):
+        gf.filter(model, prior, [[0.3], [0.3], [0.3]], engine=engine, form="sqrt")
+    cov = gf.filter(model, prior, [[0.3], [0.3], [0.3]], engine=engine, form="cov")
+    assert 0.0 < cov.innovation_covs[1, 0, 0] < 1e-30  # round-off, taken for a variance
