@@ -318,7 +318,7 @@ def _call(**changes):
     (dict(prior=gf.Gaussian([0.0, 0.0], np.eye(2))), ValueError,
      "`prior` must have dimension 4 (the model's state); got 2."),
     (dict(t0="0"), TypeError, "`t0` must be a real number of seconds or a datetime; got '0'."),
-    (dict(t0=np.nan), ValueError, "`t0` must be finite; got nan."),
+    (dict(t0=np.nan), ValueError, "`t0` must be a finite number; got nan."),
     (dict(measurements=5), TypeError,
      "`measurements` must be an iterable of Measurement(t, sensor, z) or (t, sensor, z) tuples; got int."),
     (dict(measurements=[(1.0, "pos")]), TypeError,

@@ -192,6 +192,8 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         ("[model]\nkind = 3\n", r"\[model\] kind: unknown model kind 3"),
         (NAMED.replace("dt = 1", "dt = -1"), r"m\.toml: \[model\] dt: `dt` must be a positive number"),
         (NAMED.replace("dt = 1", 'dt = "soon"'), r"m\.toml: \[model\] dt: `dt` must be a positive number"),
+        (NAMED.replace("dt = 1", "dt = 1" + "0" * 400), r"m\.toml: \[model\] dt: `dt` must be a positive number; got an "
+                                                       r"integer of 401 digits, beyond float64"),  # was a traceback
         (NAMED + "dim = 4\n", r"m\.toml: \[model\] dim: `dim` must be 1, 2 or 3"),
         (EXPLICIT.replace("H = [[1, 0]]", "H = [[1, 0, 0]]"), r"m\.toml: \[model\] H: `H` must have shape"),
         (EXPLICIT.replace("F = [[1, 0], [0, 1]]", "F = [[1, 0]]"), r"m\.toml: \[model\] F: `F` must be square"),

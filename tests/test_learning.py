@@ -188,13 +188,15 @@ def test_em_that_loses_the_diffuse_state_names_the_iteration():
     diffuse x_0 is no longer identified: the error says at which iteration, and what to change."""
     model, prior, zs, us, _ = _random_case(4229, 2, 2, (), False, True, True)
     assert prior == "diffuse"
-    res = gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=13, tol=0.0)
+    # the readable engine: near the singular H the engines' roundings part (-72.8673 and -72.8671 by
+    # iteration 13), and "auto" picks by what is compiled already
+    res = gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=13, tol=0.0, engine="python")
     assert np.all(np.diff(res.history) > 0)
     assert np.linalg.svd(res.model.H, compute_uv=False).min() < 1e-7
     with pytest.raises(ValueError, match=r"^EM iteration 14: the learned model no longer identifies the diffuse "
                                          r"initial state \(the log-likelihood rose to -72\.8673 on the way\): "
                                          r"the diffuse initial state is not identified .* learn fewer of F and H"):
-        gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=14, tol=0.0)
+        gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=14, tol=0.0, engine="python")
 
 
 @pytest.mark.parametrize("kind", ["scalar", "diagonal"])
@@ -303,8 +305,10 @@ def test_ctrl_c_returns_the_best_model_so_far(method):
         (dict(x0=[1.0]), ValueError, r"`x0` is the starting point of `params` and is used only with it"),
         (dict(structure=["Q"]), TypeError, r"`structure` must be a dict such as \{'Q': 'diagonal'\}"),
         (dict(callback=3), TypeError, r"`callback` must be callable as callback\(iteration, loglik\); got int"),
-        (dict(tol="small"), ValueError, r"`tol` must be a non-negative finite number; got 'small'"),
-        (dict(tol=-1.0), ValueError, r"`tol` must be a non-negative finite number"),
+        (dict(tol="small"), TypeError, r"`tol` must be a non-negative number; got 'small'"),
+        (dict(tol=-1.0), ValueError, r"`tol` must be a non-negative number"),
+        (dict(tol=10**400), ValueError, r"`tol` must be a non-negative number; got an integer of 401 digits, beyond float64"),
+        (dict(iterations=2.0), TypeError, r"`iterations` must be a positive integer; got 2\.0"),
         (dict(learn=("Q", 3)), ValueError, r"`learn` must name distinct entries"),
         (dict(learn=5), TypeError, r"`learn` must be a sequence of names"),
     ],

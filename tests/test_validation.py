@@ -477,3 +477,14 @@ def test_datetimes_are_not_measurements(run):
             gf.LinearModel(**({"F": 1.0, "H": 1.0, "Q": 1.0, "R": 1.0} | kwargs))
     with pytest.raises(TypeError, match=r"^`mean` must be an array of numbers; got datetime64"):
         gf.Gaussian(times, np.eye(2))
+
+
+@pytest.mark.parametrize("call", [lambda: gf.constant_velocity(10**400, 1.0, 1.0),
+                                  lambda: gf.ConstantVelocity(q=-10**400),
+                                  lambda: gf.Fuser(gf.ConstantVelocity(), {"gps": gf.Position()},
+                                                   gf.Gaussian([0.0, 0.0], np.eye(2)), t0=10**400)])
+def test_an_integer_beyond_float64_is_named(call):
+    """float(10**400) raised OverflowError (a traceback and exit status 1 from a model file's dt), and
+    np.isfinite of an int past 64 bits a TypeError naming nothing."""
+    with pytest.raises(ValueError, match=r"must be a .*number; got an integer of 401 digits, beyond float64"):
+        call()

@@ -8,6 +8,7 @@ backticks, the expected shape and what was given (the style of SciPy's
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache, wraps
 from inspect import signature
 from operator import attrgetter
@@ -249,13 +250,18 @@ def real(name: str, value, *, positive: bool = False, nonnegative: bool = False,
         return None
     number = not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
     kind = "a positive" if positive else "a non-negative" if nonnegative else "a finite"
-    shown = float(value) if number else repr(value)
+    try:
+        as_float = float(value) if number else None
+        shown = as_float if number else repr(value)
+    except OverflowError:  # an int beyond float64 (10**400)
+        as_float = math.inf if value > 0 else -math.inf
+        shown = f"an integer of {len(str(abs(value)))} digits, beyond float64"
     expected = f"`{name}` must be {kind} number{' or None' if optional else ''}; got {shown}."
     if not number:
         raise TypeError(expected)
-    if not np.isfinite(value) or (positive and value <= 0) or (nonnegative and value < 0):
+    if not math.isfinite(as_float) or (positive and as_float <= 0) or (nonnegative and as_float < 0):
         raise ValueError(expected)
-    return float(value)
+    return as_float
 
 
 def integer(name: str, value, minimum: int = 1) -> int:

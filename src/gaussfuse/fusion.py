@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 
 from . import inference, kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._validation import as_array, flag, shape_error
+from ._validation import as_array, flag, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
@@ -243,10 +243,7 @@ def _time(name: str, value) -> float:
         return stamp.astype(np.int64) / 1e9
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise TypeError(f"`{name}` must be a real number of seconds or a datetime; got {value!r:.60}.")
-    value = float(value)
-    if not np.isfinite(value):
-        raise ValueError(f"`{name}` must be finite; got {value}.")
-    return value
+    return real(name, value)
 
 
 def _times(name: str, values) -> np.ndarray:

@@ -98,7 +98,7 @@ import numpy as np
 
 from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize
-from ._validation import as_vector
+from ._validation import as_vector, integer, real
 from .errors import ConvergenceWarning
 from .gaussian import Gaussian
 from .inference.diffuse import NotIdentified, augmented_runs, diffuse_moments, not_identified
@@ -1368,11 +1368,6 @@ def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, di
     return learn, {k: structure.get(k, "full") for k in COVARIANCES}
 
 
-def _check_tol(tol) -> float:
-    if isinstance(tol, bool) or not isinstance(tol, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(tol) or tol < 0:
-        raise ValueError(f"`tol` must be a non-negative finite number; got {tol!r}.")
-    return float(tol)
 
 
 def _check_fitted(model: LinearModel, prior, history: np.ndarray, values: np.ndarray) -> None:
@@ -1546,11 +1541,10 @@ def fit(
     check_steps(model, zs.shape[1])
     if iterations is None:
         iterations = 500 if method == "em" else 1000
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
-        raise ValueError(f"`iterations` must be a positive integer; got {iterations!r}.")
+    iterations = integer("iterations", iterations)
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
-    tol = _check_tol((1e-10 if method == "em" else 1e-8) if tol is None else tol)
+    tol = real("tol", (1e-10 if method == "em" else 1e-8) if tol is None else tol, nonnegative=True)
     if engine == "auto":  # decided once for the whole fit, on the whole work it is expected to do
         passes = 3 * iterations if tol == 0 else min(FIT_PASSES[method], 3 * iterations)
         compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1] * passes, 1.0,

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ._linalg import marginal_std
-from ._validation import as_array, flag, shape_error
+from ._validation import as_array, flag, real, shape_error
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -143,7 +143,7 @@ def plot_series(
         if covs.shape != (T, n, n):
             raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
         std = marginal_std(covs)[:, component]
-    k = _positive("k", k)
+    k = real("k", k, positive=True)
     fig, ax = _axes(ax, (7.0, 3.2))
     if zs is not None:
         ax.plot(times, _column("zs", zs, T, component), label="measurement", **_MEASUREMENT_STYLE)
@@ -226,7 +226,7 @@ def plot_trajectory(
             raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise ValueError(f"`every` must be a positive integer; got {every!r}.")
-    k = _positive("k", k)
+    k = real("k", k, positive=True)
     fig, ax = _axes(ax, (6.0, 5.5))
     if zs is not None:
         zs = _points("zs", zs)
@@ -702,11 +702,6 @@ def _points(name: str, value) -> np.ndarray:
     return arr
 
 
-def _positive(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(value) or value <= 0:
-        raise ValueError(f"`{name}` must be a positive number; got {value!r}.")
-    return float(value)
 
 
 def _nanmean(values: np.ndarray, axis: int) -> np.ndarray:
