@@ -431,3 +431,20 @@ def test_errors_in_x_and_p_name_x_and_p():
     kf.x[0] = np.nan
     with pytest.raises(ValueError, match="`x` must be finite"):
         kf.predict()
+
+
+@pytest.mark.parametrize("name, hint", [("Q", r"kf\.predict\(Q=\.\.\.\)"), ("R", r"kf\.update\(z, R=\.\.\.\)"),
+                                        ("F", r"kf\.predict\(F=\.\.\.\)"), ("H", r"kf\.update\(z, H=\.\.\.\)"),
+                                        ("B", "make a new KalmanFilter"), ("model", "make a new KalmanFilter"),
+                                        ("form", "make a new KalmanFilter"), ("method", "make a new KalmanFilter")])
+def test_assigning_a_model_matrix_says_where_it_goes(name, hint):
+    """filterpy is configured by assignment (f.Q = ...): here kf.Q = ... made an unused attribute and the
+    estimates were those of the old Q, silently; kf.model = ... was half taken (predict used the old Q)."""
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([1.0, 3.0]), R=10.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0, 1], np.eye(2)))
+    before = getattr(kf, name)
+    with pytest.raises(AttributeError, match=rf"^`{name}` of a KalmanFilter cannot be assigned .*{hint}"):
+        setattr(kf, name, 1e6 * np.eye(2))
+    assert getattr(kf, name) is before
+    if name in "FHQR":
+        np.testing.assert_array_equal(getattr(kf, name), getattr(model, name))  # read as filterpy's are

@@ -18,6 +18,24 @@ from .models.linear import LinearModel
 __all__ = ["KalmanFilter"]
 
 
+def _fixed(name: str, read, doc: str) -> property:
+    """A setting of a :class:`KalmanFilter` that is read, and whose assignment says where it goes instead.
+
+    filterpy's filters are configured by assignment (``f.Q = ...``); here the
+    model is fixed when the filter is made, and an assignment that made an
+    unused attribute left the estimates as they were, silently.
+    """
+    per_call = {"F": "kf.predict(F=...)", "Q": "kf.predict(Q=...)", "H": "kf.update(z, H=...)",
+                "R": "kf.update(z, R=...)"}.get(name)
+
+    def refuse(self, value):
+        one_call = f"pass it for one step to {per_call}, or " if per_call else ""
+        raise AttributeError(f"`{name}` of a KalmanFilter cannot be assigned (the model is fixed when the filter is "
+                             f"made): {one_call}make a new KalmanFilter(model, kf.belief, ...) whose model has it.")
+
+    return property(read, refuse, doc=doc)
+
+
 class KalmanFilter:
     """A Kalman filter that takes measurements as they arrive.
 
@@ -59,6 +77,11 @@ class KalmanFilter:
         A lower-triangular factor of it, ``P = L Lᵀ``: the one the
         square-root form propagates (computed from P for the covariance
         form).
+    model, method, form : LinearModel or NonlinearModel, str, str
+        As given (read-only).
+    F, H, Q, R, B : ndarray
+        The model's matrices (read-only: assigning one is an error that
+        says how to change it, as filterpy's ``f.Q = ...`` would not work).
     step : int
         Number of predictions made so far.
     loglik : float
@@ -109,7 +132,7 @@ class KalmanFilter:
         spec, options = resolve_method(model, method, options)
         check_form(spec, form)
         self._monitor = DivergenceMonitor.for_check(check)
-        self.model, self.method, self.form = model, spec.name, form
+        self._model, self._method, self._form = model, spec.name, form
         self._spec, self._options = spec, options
         self._belief = check_prior(prior, model.n)
         self._views: dict[str, np.ndarray] = {}  # x and P as handed out, for in-place changes
@@ -125,6 +148,12 @@ class KalmanFilter:
         self.x_prior = self.P_prior = self.x_post = self.P_post = None
         self.y = self.S = self.K = self.rejected = None
         self.log_likelihood = self.mahalanobis = np.nan
+
+    model = _fixed("model", lambda self: self._model, "The model (read-only).")
+    method = _fixed("method", lambda self: self._method, "The method's name (read-only).")
+    form = _fixed("form", lambda self: self._form, 'The form, "cov" or "sqrt" (read-only).')
+    F, H, Q, R, B = (_fixed(name, lambda self, name=name: getattr(self._model, name), f"The model's {name} (read-only).")
+                     for name in "FHQRB")
 
     def _fresh_steady(self) -> kalman.SteadyState | None:
         """A time-invariant model's covariances reach a fixed point that steps then reuse, exactly."""
@@ -345,7 +374,7 @@ class KalmanFilter:
         if dt is None:
             raise ValueError("`dt` is required: the model was built by gf.model(motion, sensor) without dt, so each "
                              "step is discretised for its own time step.")
-        self.model, controls = self.timed.at(np.array([real("dt", dt, positive=True)]), None if u is None else u[None])
+        self._model, controls = self.timed.at(np.array([real("dt", dt, positive=True)]), None if u is None else u[None])
         self._lin = linearisation(self._spec, self.model, self._controls, self._options)[0]
         return None if controls is None else controls[0]
 
