@@ -66,3 +66,20 @@ def test_to_pandas_needs_one_series_with_its_means():
         gf.filter(model, prior, np.zeros(5), keep="means").to_pandas(covariances=True)
     with pytest.raises(TypeError, match="`zs` must hold numbers"):
         gf.filter(model, prior, pd.Series(["a", "b"]))
+
+
+@pytest.mark.parametrize("column, message", [
+    ([5 + 7j, 2, 3], r"must be real; got complex values in column 'a'"),
+    ([True, False, True], r"must hold numbers; got booleans in column 'a'"),
+    (["1", "2", "3"], r"must hold numbers; got str values in column 'a' \(such as '1'\)"),
+    (np.array([1.0, True, 3.0], dtype=object), r"must hold numbers; got bool values in column 'a'"),
+])
+def test_a_frame_of_what_an_array_may_not_hold_is_refused_alike(column, message):
+    """pandas' cast to float dropped the imaginary part of 5+7j (only its own ComplexWarning), read True as 1
+    and parsed the text "1", where an array of the same values is refused."""
+    model = gf.LinearModel(np.eye(2), np.eye(2), np.eye(2), np.eye(2))
+    frame = pd.DataFrame({"a": column, "b": [1.0, 2.0, 3.0]})
+    with pytest.raises(TypeError, match=rf"^`zs` {message}"):
+        gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), frame)
+    missing = pd.DataFrame({"a": pd.array([1.0, None, 3.0], dtype="Float64"), "b": [1.0, 2.0, 3.0]})
+    assert np.isnan(gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), missing).innovations[1, 0])

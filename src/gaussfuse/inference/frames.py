@@ -33,10 +33,32 @@ def _is_pandas(value) -> bool:
     return type(value).__module__.split(".")[0] == "pandas" and hasattr(value, "to_numpy")
 
 
+def _check_columns(zs) -> None:
+    """Refuse what :func:`gaussfuse._validation.as_array` refuses in an array: complex, boolean and text values.
+
+    pandas' cast to float dropped an imaginary part (with only its own
+    warning), read True as 1.0 and parsed the text "1".
+    """
+    from pandas.api.types import is_bool_dtype, is_complex_dtype, is_numeric_dtype
+
+    columns = zs.items() if hasattr(zs, "columns") else [(zs.name, zs)]
+    for name, column in columns:
+        if is_complex_dtype(column.dtype):
+            raise TypeError(f"`zs` must be real; got complex values in column {name!r}.")
+        if is_bool_dtype(column.dtype):
+            raise TypeError(f"`zs` must hold numbers; got booleans in column {name!r}.")
+        if not is_numeric_dtype(column.dtype):
+            odd = [v for v in column.dropna() if isinstance(v, (str, bytes, bool, np.bool_, complex))]
+            if odd:
+                raise TypeError(f"`zs` must hold numbers; got {type(odd[0]).__name__} values in column {name!r} "
+                                f"(such as {odd[0]!r}).")
+
+
 def unpack(zs, times):
     """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array)."""
     if not _is_pandas(zs) or not hasattr(zs, "index"):
         return zs, times, None
+    _check_columns(zs)
     try:
         values = zs.to_numpy(dtype=np.float64, na_value=np.nan)
     except (TypeError, ValueError) as exc:
