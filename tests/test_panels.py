@@ -157,6 +157,23 @@ def test_matrices_per_row_are_refused_with_series_naming_the_file(tmp_path, caps
     assert err.count("\n") == 1 and "m.toml: [model]: matrices given per row (3 of them)" in err
 
 
+@pytest.mark.parametrize("states, twice, many", [('["t", "id"]', "'id', 't'", True), ('["t", "id"]', "'t'", False),
+                                                 ('["x", "std_x"]', "'std_x'", True),
+                                                 ('["x", "std_x"]', "'std_x'", False)])
+def test_states_named_like_an_output_column_are_refused_before_the_work(tmp_path, capsys, states, twice, many):
+    """States named t and id replaced the series ids and times of the output with their means; a state std_x
+    beside x lost a column to x's standard deviation; one file's header had t or std_x twice. Exit 0, no word."""
+    (tmp_path / "d.csv").write_text("id,t,x\na,1,1\na,2,2\n" if many else "t,x\n1,1\n2,2\n")
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0, 1.0], [0.0, 1.0]]\nH = [[1.0, 0.0]]\n"
+                                     f"Q = [[1.0, 0.0], [0.0, 1.0]]\nR = [[1.0]]\nstates = {states}\n")
+    out = tmp_path / ("out" if many else "out.csv")
+    code, stdout, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "-o", out,
+                            *(["--series-column", "id", "--workers", "1"] if many else []))
+    assert code == 2 and stdout == "" and not out.exists()
+    assert err.count("\n") == 1 and f"the output would have two columns named {twice} " in err
+    assert ("d.csv: " if many else "m.toml: ") in err
+
+
 def test_pooled_fit_of_a_partitioned_dataset(tmp_path, capsys, scheduler):
     data = tmp_path / "data"
     series = dataset(data, seed=2)

@@ -263,6 +263,10 @@ def _run_filter(args: argparse.Namespace) -> int:
     else:
         pieces = gfio.iter_measurements(args.data, rows=_piece_rows(spec.model.n, spec.model.m), **read)
     head = next(pieces)
+    try:  # refused before the work, if ambiguous
+        columns_out = gfio.estimate_columns(head.columns[0], spec.state_names)
+    except ValueError as exc:
+        raise ValueError(f"{args.model}: {exc}") from None
     if spec.model.steps is not None and spec.model.steps != head.zs.shape[0]:
         raise ValueError(f"{args.model}: [model]: the matrices are given for {spec.model.steps} steps, but "
                          f"{args.data} has {head.zs.shape[0]} rows; give one per row.")
@@ -299,7 +303,7 @@ def _run_filter(args: argparse.Namespace) -> int:
         with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_binary_stdout()) as out:
             if drawn is not None:
                 plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
-            out.write(_header([head.columns[0], *spec.state_names, *(f"std_{n}" for n in spec.state_names)]))
+            out.write(_header(columns_out))
             for start, stop in (reversed(spans) if args.smooth else spans):  # the smoother wrote the last first
                 spool.seek(start)
                 while start < stop:

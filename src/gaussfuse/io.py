@@ -107,6 +107,7 @@ __all__ = [
     "iter_measurements",
     "read_model",
     "write_estimates",
+    "estimate_columns",
     "write_model",
     "open_atomic",
     "DEFAULT_PRIOR_VAR",
@@ -706,6 +707,25 @@ def _prior(path, table: dict, n: int) -> Gaussian | str:
 # ---------------------------------------------------------------------------
 
 
+def estimate_columns(time_name: str, state_names, series_name: str | None = None) -> list[str]:
+    """The columns of written estimates: the series id (if any), the time, the means, ``std_<name>``.
+
+    Raises
+    ------
+    ValueError
+        When two of them have one name (a state named like the time column,
+        or ``std_x`` beside a state x): a reader would take the wrong column,
+        and a table by name would keep only one of them.
+    """
+    columns = [*([series_name] if series_name is not None else []), time_name, *state_names,
+               *(f"std_{name}" for name in state_names)]
+    twice = sorted({c for c in columns if columns.count(c) > 1})
+    if twice:
+        raise ValueError(f"the output would have two columns named {', '.join(map(repr, twice))} (columns "
+                         f"{', '.join(columns)}): rename the model's states (`states = [...]` in its [model]).")
+    return columns
+
+
 def write_estimates(
     dest: StrPath | IO[str] | None,
     times,
@@ -761,7 +781,7 @@ def write_estimates(
         if arr.shape != shape:
             raise shape_error(name, str(shape), arr.shape)
     stds = marginal_std(covs)
-    columns = [time_name, *state_names, *(f"std_{name}" for name in state_names)]
+    columns = estimate_columns(time_name, state_names)
     values = np.column_stack([means, stds]).tolist()  # Python floats: str() is repr
     stamps = stamps if verbatim else [repr(t) for t in times.tolist()]
 

@@ -33,7 +33,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning
-from .io import InputFileError, ModelFile, TIME_COLUMNS, open_atomic, _wrong_cells
+from .io import InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _wrong_cells
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
            "filter_partition"]
@@ -261,6 +261,10 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         command runs; with ``check="raise"`` the first is raised instead.
     """
     part = read_partition(path, series_column, spec.model.m, time_column, columns)
+    try:  # refused before the work, if ambiguous
+        estimate_columns(part.frame.columns[1], spec.state_names, part.frame.columns[0])
+    except ValueError as exc:
+        raise InputFileError(path, str(exc)) from None
     run = inference.smooth if smooth else inference.filter
     if spec.timed is not None:  # each series stepped by its own times
         results = []
