@@ -1233,6 +1233,44 @@ def test_matrices_given_per_step_filter_a_file_longer_than_one_piece(tmp_path, c
 
 
 @pytest.mark.parametrize("command, option", [("fit", "--out"), ("filter", "--out"), ("filter", "--plot")])
+def test_an_output_in_a_folder_that_takes_no_file_is_refused_before_the_work(tmp_path, capsys, monkeypatch, command,
+                                                                              option):
+    """A read-only folder (here /proc, which even root cannot write a file in) failed only after the whole fit
+    or filter, at the output's rename."""
+    def no_work(*args, **kwargs):
+        raise AssertionError("the work started")
+
+    monkeypatch.setattr(gf.learning, "fit", no_work)
+    monkeypatch.setattr(gf.inference, "filter", no_work)
+    if not os.path.isdir("/proc"):
+        pytest.skip("no /proc here")
+    path = "/proc/gaussfuse-out.png" if option == "--plot" else "/proc/gaussfuse-out"
+    extra = [option, path] if option == "--out" else ["--out", tmp_path / "o.csv", option, path]
+    code, stdout, err = run(capsys, command, EXAMPLES / "data" / "nile.csv", "--model",
+                            EXAMPLES / "models" / "local_level.toml", *extra)
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, f"cannot write in the folder of `{option}`")
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_failed_csv_leaves_no_figure(tmp_path):
+    """The figure was saved before the CSV was written, so a CSV that failed (a full disk: here a file-size
+    limit of 2,000 bytes, which the 3 kB CSV passes first) left the figure behind."""
+    resource = pytest.importorskip("resource")
+    script = ("import resource, signal, sys\n"
+              "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+              "resource.setrlimit(resource.RLIMIT_FSIZE, (2000, 2000))\n"
+              "from gaussfuse.cli import main\n"
+              "sys.exit(main(sys.argv[1:]))\n")
+    figure = tmp_path / "x.png"
+    done = subprocess.run([sys.executable, "-c", script, "filter", str(EXAMPLES / "data" / "track.csv"), "--model",
+                           str(EXAMPLES / "models" / "cv2d.toml"), "--out", str(tmp_path / "o.csv"), "--plot",
+                           str(figure)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and "File too large" in done.stderr, done.stderr
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("command, option", [("fit", "--out"), ("filter", "--out"), ("filter", "--plot")])
 def test_an_output_in_a_missing_folder_is_refused_before_the_work(tmp_path, capsys, monkeypatch, command, option):
     """They failed after the whole fit or filter, losing its results."""
     def no_work(*args, **kwargs):

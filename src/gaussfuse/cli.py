@@ -299,9 +299,11 @@ def _run_filter(args: argparse.Namespace) -> int:
             progress.close()
         steps.warn()
         spans = list(zip(starts, starts[1:] + [spool.tell()]))
-        # The CSV file appears only once the figure is saved: on an error, neither does.
+        # Into a file, the CSV is written (to its temporary name) before the figure is saved, and appears
+        # after it: on an error, neither does. To standard output, which cannot be taken back, the figure
+        # comes first.
         with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_binary_stdout()) as out:
-            if drawn is not None:
+            if drawn is not None and not args.out:
                 plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
             out.write(_header(columns_out))
             for start, stop in (reversed(spans) if args.smooth else spans):  # the smoother wrote the last first
@@ -310,6 +312,9 @@ def _run_filter(args: argparse.Namespace) -> int:
                     block = spool.read(min(stop - start, 2**24))
                     out.write(block)
                     start += len(block)
+            if drawn is not None and args.out:
+                out.flush()  # a full disk shows here, before the figure is drawn
+                plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
     return 0
 
 
@@ -560,8 +565,9 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
     """Refuse, before any work, outputs that would destroy an input or each other.
 
     Also refuses to write to a closed standard output, or into a directory
-    that does not exist (an output directory of --series-column is made),
-    which would lose the results of the work.
+    that does not exist (an output directory of --series-column is made) or
+    cannot take a new file (read-only, say), which would lose the results of
+    the work.
     """
     if not outputs["--out"] and sys.stdout is None:
         raise ValueError("standard output is closed; name an output file with `--out`.")
@@ -572,6 +578,12 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
         folder = os.path.dirname(os.path.abspath(path))
         if not (option == "--out" and args.series_column is not None) and not os.path.isdir(folder):
             raise FileNotFoundError(errno.ENOENT, f"{os.strerror(errno.ENOENT)} (the folder of `{option}`)", path)
+        special = os.path.exists(path) and not os.path.isfile(path)  # /dev/null, a FIFO: written in place
+        if os.path.isdir(folder) and not special:
+            try:  # a file is written beside its name, then renamed: the folder must take a new file
+                tempfile.TemporaryFile(dir=folder).close()
+            except OSError as exc:
+                raise type(exc)(exc.errno, f"cannot write in the folder of `{option}` ({exc.strerror})", path) from None
         for what, other in earlier:
             if _same_file(path, other):
                 raise ValueError(f"`{option}` {path} is the same file as {what} {other}; choose another path.")
