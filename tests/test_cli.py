@@ -189,6 +189,13 @@ def test_version(capsys):
         (["filter", "data.csv"], r"the following arguments are required: -m/--model"),
         (["demo", "--seed", "x"], r"argument --seed: invalid int value: 'x'"),
         (["filter", "data.csv", "-m", "m.toml", "--workers", "abc"], r"argument --workers: invalid int value"),
+        # an empty option (an unset shell variable) wrote to standard output, drew nothing, started a cluster
+        (["filter", "data.csv", "-m", "m.toml", "--out", ""], r"argument -o/--out: it is empty"),
+        (["filter", "data.csv", "-m", "m.toml", "--plot", ""], r"argument --plot: it is empty"),
+        (["filter", "data.csv", "-m", "m.toml", "--series-column", "id", "--scheduler", ""],
+         r"argument --scheduler: it is empty"),
+        (["demo", "--out", ""], r"argument --out: it is empty"),
+        (["fit", "", "-m", "m.toml"], r"argument DATA.csv: it is empty"),
     ],
 )
 def test_usage_errors_exit_2(capsys, argv, match):

@@ -754,6 +754,13 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
 # ---------------------------------------------------------------------------
 
 
+def _given(text: str) -> str:
+    """An option's text, refused when empty: ``--out "$OUT"`` with OUT unset wrote to standard output."""
+    if not text:
+        raise argparse.ArgumentTypeError("it is empty (an unset shell variable?)")
+    return text
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse's parser, whose usage errors are one line like the command's other errors (exit status 2)."""
 
@@ -783,7 +790,7 @@ def build_parser() -> argparse.ArgumentParser:
                     f"of each; write the figure {DEMO_FIGURE} and print its path.",
         epilog="example:\n  gaussfuse demo --out figures --seed 1", formatter_class=raw,
     )
-    demo.add_argument("--out", metavar="DIR", default=".",
+    demo.add_argument("--out", metavar="DIR", type=_given, default=".",
                       help="directory for the figure, created if missing (default: current directory)")
     demo.add_argument("--seed", metavar="N", type=int, default=0,
                       help="seed of the simulation (default: 0)")
@@ -798,14 +805,14 @@ def build_parser() -> argparse.ArgumentParser:
                "--out track-smoothed.csv --plot track.png",
         formatter_class=raw,
     )
-    filt.add_argument("data", metavar="DATA.csv", help="the measurements")
-    filt.add_argument("-m", "--model", metavar="MODEL.toml", required=True, help="the model and prior")
+    filt.add_argument("data", metavar="DATA.csv", type=_given, help="the measurements")
+    filt.add_argument("-m", "--model", metavar="MODEL.toml", type=_given, required=True, help="the model and prior")
     filt.add_argument("--smooth", action="store_true",
                       help="write smoothed estimates (RTS smoother) instead of filtered ones")
-    filt.add_argument("-o", "--out", metavar="OUT.csv",
+    filt.add_argument("-o", "--out", metavar="OUT.csv", type=_given,
                       help="write the estimates to this file (default: standard output); "
                            "not DATA.csv, MODEL.toml or FIG.png")
-    filt.add_argument("--plot", metavar="FIG.png",
+    filt.add_argument("--plot", metavar="FIG.png", type=_given,
                       help="also draw measurements against the estimates with ±2σ bands, and for two "
                            "measurement columns the x-y track (needs matplotlib; what it draws is held in "
                            "memory, so a very large file needs memory for it)")
@@ -831,8 +838,8 @@ def build_parser() -> argparse.ArgumentParser:
                "--learn Q,R --method mle --out nile-fitted.toml",
         formatter_class=raw,
     )
-    fit.add_argument("data", metavar="DATA.csv", help="the measurements")
-    fit.add_argument("-m", "--model", metavar="MODEL.toml", required=True,
+    fit.add_argument("data", metavar="DATA.csv", type=_given, help="the measurements")
+    fit.add_argument("-m", "--model", metavar="MODEL.toml", type=_given, required=True,
                      help="the starting model and prior")
     fit.add_argument("--learn", metavar="NAMES", default="Q,R",
                      help="comma-separated matrices to learn, of F,H,Q,R,m0,P0 (default: Q,R)")
@@ -847,7 +854,7 @@ def build_parser() -> argparse.ArgumentParser:
     _column_options(fit)
     _many_options(fit, "fit one model to every series of a long-format table (CSV or Parquet file, or a "
                        "directory of them), pooled")
-    fit.add_argument("-o", "--out", metavar="FITTED.toml",
+    fit.add_argument("-o", "--out", metavar="FITTED.toml", type=_given,
                      help="write the fitted model to this file (default: standard output); "
                           "not DATA.csv or MODEL.toml")
     _engine_option(fit)
@@ -856,8 +863,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _column_options(command: argparse.ArgumentParser) -> None:
-    command.add_argument("--time-column", metavar="NAME", help="the time column (default: the one named t or time)")
-    command.add_argument("--columns", metavar="A,B,...",
+    command.add_argument("--time-column", metavar="NAME", type=_given, help="the time column (default: the one named t or time)")
+    command.add_argument("--columns", metavar="A,B,...", type=_given,
                          help="the measurement columns, in order (default: every other column)")
 
 
@@ -868,8 +875,8 @@ def _columns(args: argparse.Namespace) -> list[str] | None:
 
 def _many_options(command: argparse.ArgumentParser, what: str) -> None:
     many = command.add_argument_group("many series (on Dask; pip install -e \".[dask]\")")
-    many.add_argument("--series-column", metavar="NAME", help=f"the series-id column: {what}")
-    many.add_argument("--scheduler", metavar="ADDRESS",
+    many.add_argument("--series-column", metavar="NAME", type=_given, help=f"the series-id column: {what}")
+    many.add_argument("--scheduler", metavar="ADDRESS", type=_given,
                       help="with --series-column: the Dask scheduler of an existing cluster (tcp://host:8786)")
     many.add_argument("--workers", metavar="N", type=int,
                       help="with --series-column and no --scheduler: a local cluster of N worker processes "
