@@ -7,6 +7,7 @@ own (`--workers`).
 """
 
 import os
+import re
 import warnings
 
 import numpy as np
@@ -172,6 +173,32 @@ def test_states_named_like_an_output_column_are_refused_before_the_work(tmp_path
     assert code == 2 and stdout == "" and not out.exists()
     assert err.count("\n") == 1 and f"the output would have two columns named {twice} " in err
     assert ("d.csv: " if many else "m.toml: ") in err
+
+
+@pytest.mark.parametrize("text, extra, message", [
+    ("id,t,x,y\na,1,1,1\na,2,2,2\n", ["--columns", "t,x"], r"measurement column `t` is the time column"),
+    ("id,t,x,y\na,1,1,1\na,2,2,2\n", ["--columns", "x,x"], r"measurement column `x` is named twice"),
+    ("id,t,x,y\na,1,1,1\na,2,2,2\n", ["--columns", "id,x"], r"measurement column `id` is the series-id column"),
+    ("id,t,x,x\na,1,1,1\na,2,2,2\n", [], r"line 1: the header names column\(s\) \['x'\] more than once"),
+    ("t,x,y\na,1,1\na,2,2\n", [], r"the series-id column `t` is named like a time column"),
+])
+def test_series_columns_are_checked_as_one_files_are(tmp_path, capsys, text, extra, message):
+    """With --series-column the time column was taken as a measurement, x twice, the id column as one, and
+    a repeated header name read as x and x.1 (pandas' renaming), all with exit status 0. The partition's
+    reader refuses them (one through the command, the rest on the reader itself: a cluster costs seconds)."""
+    (tmp_path / "d.csv").write_text(text)
+    series = "t" if text.startswith("t,") else "id"
+    columns = extra[1].split(",") if extra else None
+    with pytest.raises(gfio.InputFileError, match=message):
+        panels.read_partition(str(tmp_path / "d.csv"), series, 2, None, columns)
+    if extra == ["--columns", "t,x"]:
+        (tmp_path / "m.toml").write_text(EXPLICIT.replace("H = [[1.0, 0.0]]", "H = [[1.0, 0.0], [0.0, 1.0]]")
+                                         .replace("R = [[2.0]]", "R = [[2.0, 0.0], [0.0, 2.0]]"))
+        out = tmp_path / "out"
+        code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column",
+                           series, "--workers", "1", "-o", out, *extra)
+        assert code == 2 and not out.exists()
+        assert err.count("\n") == 1 and re.search(message, err), err
 
 
 def test_pooled_fit_of_a_partitioned_dataset(tmp_path, capsys, scheduler):

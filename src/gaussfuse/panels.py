@@ -33,7 +33,8 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning
-from .io import InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _wrong_cells
+from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _measurement_columns,
+                 _time_column, _wrong_cells)
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
            "filter_partition"]
@@ -103,6 +104,14 @@ def _format(path: str) -> str:
     return kind
 
 
+def _header(path: str) -> list[str]:
+    """The column names of a CSV file as written (pandas renames a repeated one)."""
+    import csv
+
+    with open(path, newline="", encoding="utf-8") as f:
+        return next(csv.reader(f), [])
+
+
 def read_partition(path: str, series_column: str, m: int, time_column: str | None = None,
                    columns: list[str] | None = None) -> Partition:
     """Read one partition of a long-format table (see the module notes).
@@ -127,21 +136,29 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
             frame[series_column] = ids.mask(ids == "")  # an empty cell is a missing id
     if len(frame) == 0:
         raise InputFileError(path, "no data rows: the table has a header only.")
-    header = [str(c) for c in frame.columns]
+    header = _header(path) if _format(path) == "csv" else [str(c) for c in frame.columns]
+    twice = sorted({h for h in header if header.count(h) > 1})
+    if twice:  # pandas would rename the second x to x.1: which column is which would be a guess
+        raise InputFileError(path, f"the header names column(s) {twice} more than once; found columns {header}.",
+                             line=1 if _format(path) == "csv" else None)
     frame.columns = header
     if series_column not in header:
         raise InputFileError(path, f"no column named `{series_column}` (the series ids); found columns {header}.")
-    named = [time_column] if time_column is not None else [h for h in header if h.lower() in TIME_COLUMNS]
-    if len(named) != 1 or named[0] not in header:
-        raise InputFileError(path, f"expected one time column ({time_column or '`t` or `time`'}); found columns "
-                                   f"{header} (name it with --time-column).")
-    time_col = named[0]
-    wanted = columns if columns is not None else [h for h in header if h not in (series_column, time_col)]
-    missing = [c for c in wanted if c not in header]
-    if missing or len(wanted) != m:
+    if columns is not None and series_column in columns:
+        raise InputFileError(path, f"measurement column `{series_column}` is the series-id column; found columns "
+                                   f"{header}.")
+    rest = [h for h in header if h != series_column]  # the time and measurement columns, as in one series' file
+    try:
+        time_col = rest[_time_column(path, rest, time_column)]
+        wanted = [rest[i] for i in _measurement_columns(path, rest, rest.index(time_col), columns)]
+    except InputFileError as exc:
+        if time_column is None and series_column.lower() in TIME_COLUMNS:
+            raise InputFileError(path, f"the series-id column `{series_column}` is named like a time column; name "
+                                       "the time column with --time-column.") from None
+        raise exc from None
+    if len(wanted) != m:
         raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
-                                   f"`{time_col}`{'' if not missing else f' ({missing} missing)'}, but the model "
-                                   f"measures m = {m} component(s).")
+                                   f"`{time_col}`, but the model measures m = {m} component(s).")
     for name in wanted:
         if pd.api.types.is_bool_dtype(frame[name]):
             raise InputFileError(path, "a measurement is True or False, not a number.", field=f"column `{name}`")
