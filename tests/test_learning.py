@@ -286,6 +286,9 @@ def test_ctrl_c_returns_the_best_model_so_far(method):
     assert not res.converged and res.message.startswith("interrupted")
     assert res.loglik == pytest.approx(max(seen))
     assert res.loglik > seen[0]
+    # and stops: the standard errors' Hessian (2k more gradient passes, a minute on 200,000 rows, NaN away
+    # from a maximum) is not computed after Ctrl-C
+    assert res.standard_errors is None and all(np.isnan(v) for v in res.bse.values())
 
 
 @pytest.mark.parametrize(

@@ -150,7 +150,8 @@ class FitResult:
         Standard errors of every learned matrix (same shape; zero where an
         entry is held fixed), from the observed information (the Hessian of
         the log-likelihood at the estimate), or of the user's parameters
-        under ``"params"``. None when the information could not be computed.
+        under ``"params"``. None when the information could not be computed,
+        and after Ctrl-C (the estimate is not at a maximum).
     params : dict of str to float
         The learned values by name: ``"R"`` for a 1 x 1 matrix, ``"Q[0,1]"``
         for an entry (the lower triangle of a full covariance, the diagonal
@@ -1587,7 +1588,11 @@ def fit(
                                                                 engine)
             model, prior = build(theta)
         if build is not None:
-            errors, bse = _standard_errors(evaluate, build, theta, learn)
+            # Ctrl-C asked to stop: the Hessian's 2k gradient passes (a minute on a long series) would not
+            # be at a maximum anyway
+            interrupted = message.startswith("interrupted")
+            errors, bse = (None, np.full(build.natural(theta).size, np.nan)) if interrupted else \
+                _standard_errors(evaluate, build, theta, learn)
             names, values = build.names(), build.natural(theta)
         else:  # a learned full covariance ended singular: its values, without standard errors
             labels = _Parametrisation(model, prior, learn, structure, labels_only=True)
