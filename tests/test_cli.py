@@ -1292,3 +1292,15 @@ def test_an_output_in_a_missing_folder_is_refused_before_the_work(tmp_path, caps
     assert code == 2 and stdout == ""
     assert_one_line_error(err, f"No such file or directory \\(the folder of `{option}`\\)")
     assert not (tmp_path / "missing").exists() and not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("text, message", [
+    ("t,z\n1,\n2,\n", r"nan\.csv: the data has no observed value"),
+    ("t,z\n1,3\n", r"nan\.csv: with a 'diffuse' prior, .*; the data has 1 in 1 series"),
+])
+def test_fit_names_the_data_file_in_errors_of_the_data(tmp_path, capsys, text, message):
+    """filter named the data file; fit said "`zs` has no observed value", in the library's words, naming none."""
+    (tmp_path / "nan.csv").write_text(text)
+    code, stdout, err = run(capsys, "fit", tmp_path / "nan.csv", "--model", EXAMPLES / "models" / "local_level.toml")
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, message)

@@ -723,9 +723,14 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
                 raise ValueError(f"--structure constrains {', '.join(idle)}, which --learn does not learn "
                                  f"({','.join(learn)}): add {'it' if len(idle) == 1 else 'them'} to --learn, or leave "
                                  f"{'it' if len(idle) == 1 else 'them'} out of --structure.")
-            res = learning.fit(spec.model, spec.prior, zs, learn=learn, method=args.method,
-                               structure=structure, iterations=iterations, tol=args.tol,
-                               callback=progress, engine=args.engine)
+            try:
+                res = learning.fit(spec.model, spec.prior, zs, learn=learn, method=args.method,
+                                   structure=structure, iterations=iterations, tol=args.tol,
+                                   callback=progress, engine=args.engine)
+            except (ValueError, FloatingPointError) as exc:  # of the data, or of the model on them: name the file
+                if isinstance(exc, gfio.InputFileError):
+                    raise
+                raise type(exc)(f"{args.data}: {str(exc).replace('`zs`', 'the data')}") from exc
     finally:
         progress.close()
     unconverged = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
