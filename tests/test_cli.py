@@ -1304,3 +1304,14 @@ def test_fit_names_the_data_file_in_errors_of_the_data(tmp_path, capsys, text, m
     code, stdout, err = run(capsys, "fit", tmp_path / "nan.csv", "--model", EXAMPLES / "models" / "local_level.toml")
     assert code == 2 and stdout == ""
     assert_one_line_error(err, message)
+
+
+@pytest.mark.parametrize("structure, message", [("Q=diagonal,Q=scalar", r"--structure names Q twice"),
+                                                ("=", r"--structure takes NAME=KIND pairs")])
+def test_a_malformed_structure_is_refused(capsys, structure, message):
+    """A repeated name kept the last silently; "=" said "constrains , which --learn does not learn"."""
+    code, _, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "--model", EXAMPLES / "models" / "local_level.toml",
+                       "--learn", "Q,R", "--structure", structure)
+    assert code == 2
+    assert_one_line_error(err, message)
+

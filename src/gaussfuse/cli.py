@@ -32,7 +32,7 @@ import numpy as np
 
 from . import __version__, inference, learning, panels, plotting
 from . import io as gfio
-from .errors import ConvergenceWarning, DivergenceWarning
+from .errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference import streaming, timing
@@ -620,10 +620,11 @@ def _structure(text: str | None) -> dict:
         return {}
     out = {}
     for item in text.split(","):
-        name, sep, kind = item.partition("=")
-        if not sep:
-            raise ValueError(f"--structure takes NAME=KIND pairs such as Q=diagonal,R=scalar; got {text!r}.")
-        out[name.strip()] = kind.strip()
+        name, sep, kind = (part.strip() for part in item.partition("="))
+        if not sep or not name or not kind or name in out:
+            why = "names " + name + " twice" if sep and name and kind else "takes NAME=KIND pairs"
+            raise ValueError(f"--structure {why} (pairs such as Q=diagonal,R=scalar); got {text!r}.")
+        out[name] = kind
     return out
 
 
@@ -728,9 +729,11 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
                                    structure=structure, iterations=iterations, tol=args.tol,
                                    callback=progress, engine=args.engine)
             except (ValueError, FloatingPointError) as exc:  # of the data, or of the model on them: name the file
-                if isinstance(exc, gfio.InputFileError):
-                    raise
-                raise type(exc)(f"{args.data}: {str(exc).replace('`zs`', 'the data')}") from exc
+                text = str(exc)
+                if isinstance(exc, gfio.InputFileError) or not ("`zs`" in text or isinstance(exc, STEP_ERRORS)
+                                                                 or text.startswith(("at step", "EM iteration"))):
+                    raise  # a reading error names the file already; an option's error is the option's
+                raise type(exc)(f"{args.data}: {text.replace('`zs`', 'the data')}") from exc
     finally:
         progress.close()
     unconverged = [w for w in caught if issubclass(w.category, ConvergenceWarning)]

@@ -710,6 +710,19 @@ def _prior(path, table: dict, n: int) -> Gaussian | str:
 def estimate_columns(time_name: str, state_names, series_name: str | None = None) -> list[str]:
     """The columns of written estimates: the series id (if any), the time, the means, ``std_<name>``.
 
+    Parameters
+    ----------
+    time_name : str
+        The time column's name.
+    state_names : sequence of str
+        The states' names (their means' columns).
+    series_name : str, optional
+        The series-id column's name, first when given.
+
+    Returns
+    -------
+    list of str
+
     Raises
     ------
     ValueError
