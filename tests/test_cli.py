@@ -577,8 +577,8 @@ def test_help_documents_the_non_convergence_status(capsys):
         (["--iterations", "0"], r"--iterations must be a positive integer; got 0"),
         (["--tol", "-1"], r"--tol must be a non-negative finite number; got -1.0"),
         (["--tol", "nan"], r"--tol must be a non-negative finite number; got nan"),
-        (["--workers", "2"], r"--workers run the series of --series-column on Dask; give --series-column"),
-        (["--scheduler", "tcp://h:1", "--workers", "-3"], r"--scheduler and --workers run the series of"),
+        (["--workers", "2"], r"--workers is for --series-column \(its series run on Dask\); give --series-column"),
+        (["--scheduler", "tcp://h:1", "--workers", "-3"], r"--scheduler and --workers are for --series-column"),
     ],
 )
 def test_fit_bad_arguments(tmp_path, capsys, extra, match):
@@ -591,7 +591,7 @@ def test_fit_bad_arguments(tmp_path, capsys, extra, match):
 
 
 @pytest.mark.parametrize("extra, match", [
-    (["--workers", "2"], r"--workers run the series of --series-column on Dask"),
+    (["--workers", "2"], r"--workers is for --series-column"),
     (["--series-column", "id", "--workers", "-3"], r"--workers must be a positive integer, at most .*; got -3\."),
     (["--series-column", "id", "--workers", "100000"], r"at most this machine's \d+ cores .*; got 100000\."),
 ])
@@ -1208,7 +1208,7 @@ def test_matrices_given_per_row_that_do_not_fit_the_file_are_named_before_any_wo
     naming no file; fit ran the whole fit, then refused to write a time-varying model."""
     (tmp_path / "m.toml").write_text("[model]\nF = 1\nH = 1\nQ = 1\nR = [[[1.0]]]\n")
     (tmp_path / "d.csv").write_text("t,z\n0,1\n1,2\n2,3\n3,2\n4,1\n")
-    for command, match in (("filter", r"m\.toml: \[model\]: the matrices are given for 1 steps, but .*d\.csv has 5 "
+    for command, match in (("filter", r"m\.toml: \[model\]: the matrices are given for 1 step, but .*d\.csv has 5 "
                                       r"rows; give one per row\."),
                            ("fit", r"m\.toml: \[model\]: matrices given per row cannot be written back as a model "
                                    r"file; `fit` takes one set of matrices\.")):

@@ -268,7 +268,8 @@ def _run_filter(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ValueError(f"{args.model}: {exc}") from None
     if spec.model.steps is not None and spec.model.steps != head.zs.shape[0]:
-        raise ValueError(f"{args.model}: [model]: the matrices are given for {spec.model.steps} steps, but "
+        raise ValueError(f"{args.model}: [model]: the matrices are given for {spec.model.steps} "
+                         f"step{'s' * (spec.model.steps != 1)}, but "
                          f"{args.data} has {head.zs.shape[0]} rows; give one per row.")
     steps = _Steps(spec, head)
     pieces = steps.watch(itertools.chain([head], pieces))
@@ -553,8 +554,9 @@ def _check_many(args: argparse.Namespace) -> None:
         given = [name for name, value in (("--scheduler", args.scheduler), ("--workers", args.workers))
                  if value is not None]
         if given:
-            raise ValueError(f"{' and '.join(given)} run the series of --series-column on Dask; give --series-column "
-                             "or leave them out.")
+            raise ValueError(f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} for --series-column (its series "
+                             "run on Dask); give --series-column or leave "
+                             f"{'it' if len(given) == 1 else 'them'} out.")
     cores = os.cpu_count() or 1
     if args.workers is not None and not 1 <= args.workers <= cores:
         raise ValueError(f"--workers must be a positive integer, at most this machine's {cores} cores (a local "
@@ -858,7 +860,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: full)")
     fit.add_argument("--iterations", type=int, metavar="N",
                      help="maximum iterations (default: 500 for em, 1000 for mle)")
-    fit.add_argument("--tol", type=float, metavar="TOL", help="convergence tolerance (see gaussfuse.fit)")
+    fit.add_argument("--tol", type=float, metavar="TOL",
+                     help="when to stop: em when the log-likelihood changes by less than TOL (1 + |loglik|) "
+                          "(default 1e-10; 0 runs every --iterations), mle when the gradient per observation is "
+                          "below TOL (default 1e-8)")
     _column_options(fit)
     _many_options(fit, "fit one model to every series of a long-format table (CSV or Parquet file, or a "
                        "directory of them), pooled")
