@@ -401,7 +401,7 @@ def test_std_of_a_variance_zero_to_round_off_is_zero():
 def test_sample_names_a_bad_rng(rng):
     """NumPy's own messages ("SeedSequence expects int or sequence of ints for entropy not x") named no
     argument; True was the seed 1."""
-    with pytest.raises(TypeError, match=r"^`rng` must be None, an integer seed or a numpy.random.Generator; got "):
+    with pytest.raises(TypeError, match=r"^`rng` must be None, a non-negative integer seed or a numpy.random.Generator; got "):
         gf.Gaussian(0.0, 1.0).sample(2, rng=rng)
     assert gf.Gaussian(0.0, 1.0).sample(2, rng=3).shape == (2, 1)
 

@@ -304,6 +304,9 @@ def test_ctrl_c_returns_the_best_model_so_far(method):
         (dict(params=lambda t: None, method="mle"), ValueError, r"`x0`, the starting parameters, is required"),
         (dict(params=lambda t: 1, method="mle", x0=[0.0]), TypeError, r"`params` must return a LinearModel"),
         (dict(params=3, method="mle", x0=[0.0]), TypeError, r"`params` must be callable"),
+        # a bare ZeroDivisionError, naming nothing
+        (dict(params=lambda t: 1 / 0, method="mle", x0=[1.0]), gf.ModelFunctionError,
+         r"^`params` raised ZeroDivisionError at theta = \[1\.0\]: division by zero"),
         (dict(params=lambda t: None, method="mle", x0=[np.nan]), ValueError, r"`x0` must be finite"),
         (dict(x0=[1.0]), ValueError, r"`x0` is the starting point of `params` and is used only with it"),
         (dict(structure=["Q"]), TypeError, r"`structure` must be a dict such as \{'Q': 'diagonal'\}"),

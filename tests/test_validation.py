@@ -488,3 +488,17 @@ def test_an_integer_beyond_float64_is_named(call):
     np.isfinite of an int past 64 bits a TypeError naming nothing."""
     with pytest.raises(ValueError, match=r"must be a .*number; got an integer of 401 digits, beyond float64"):
         call()
+
+
+@pytest.mark.parametrize("F, error, message", [
+    (np.array([[1, None], [0, 1]], dtype=object), ValueError, r"got None at index \(0, 1\)"),
+    (np.array([[True, 0], [0, 1]], dtype=object), TypeError, r"got booleans"),
+])
+def test_an_object_array_says_what_its_bad_entry_is(F, error, message):
+    """None was "a non-finite (NaN or inf) value"; booleans in an object array were read as 1 and 0 (a list of
+    them was refused)."""
+    with pytest.raises(error, match=rf"^`F` must be an array of numbers; {message}"):
+        gf.LinearModel(F, np.eye(2), np.eye(2), np.eye(2))
+    missing = gf.filter(gf.LinearModel(1.0, 1.0, 1.0, 1.0), gf.Gaussian(0.0, 1.0),
+                        np.array([1.0, None, 2.0], dtype=object))  # a measurement of None is missing, as NaN
+    assert np.isnan(missing.innovations[1, 0])

@@ -52,6 +52,13 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
     if kind == "c":
         # Checked before the cast, which would warn and drop the imaginary part.
         raise TypeError(f"`{name}` must be real; got complex values.")
+    if kind == "O" and not np.ma.isMaskedArray(value):  # an object array: what each entry is, named
+        entries = np.asarray(value, dtype=object)
+        for index, entry in np.ndenumerate(entries):
+            if isinstance(entry, (bool, np.bool_)):
+                raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
+            if entry is None and not allow_nan:
+                raise ValueError(f"`{name}` must be an array of numbers; got None at index {index}.")
     if kind == "b" or (isinstance(value, (list, tuple)) and _holds_bool(value)):
         raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
     if kind in ("U", "S"):  # the cast below would read "1" as 1.0
@@ -459,4 +466,5 @@ def generator(rng) -> np.random.Generator:
             raise TypeError
         return np.random.default_rng(rng)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"`rng` must be None, an integer seed or a numpy.random.Generator; got {rng!r}.") from exc
+        raise TypeError(f"`rng` must be None, a non-negative integer seed or a numpy.random.Generator; "
+                        f"got {rng!r}.") from exc

@@ -99,7 +99,7 @@ import numpy as np
 from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize
 from ._validation import as_vector, integer, real
-from .errors import ConvergenceWarning
+from .errors import ConvergenceWarning, ModelFunctionError
 from .gaussian import Gaussian
 from .inference.diffuse import NotIdentified, augmented_runs, diffuse_moments, not_identified
 from .inference.results import first
@@ -887,7 +887,13 @@ class _UserParams:
         self.fn, self.prior, self.size = fn, prior, size
 
     def __call__(self, theta: np.ndarray):
-        out = self.fn(theta.copy())
+        try:
+            out = self.fn(theta.copy())
+        except (ValueError, TypeError, FloatingPointError):
+            raise  # a model its constructors refuse: no likelihood there (NO_LIKELIHOOD), or a named error
+        except Exception as exc:  # ZeroDivisionError, KeyError, ...: named, not bare
+            raise ModelFunctionError(f"`params` raised {type(exc).__name__} at theta = {theta.tolist()}: {exc}") \
+                from exc
         model, prior = (out if isinstance(out, tuple) else (out, self.prior))
         if not isinstance(model, LinearModel):
             raise TypeError(f"`params` must return a LinearModel (or (LinearModel, Gaussian)); "
