@@ -185,7 +185,9 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     ValueError
         When ``a.cov + b.cov`` is singular.
     FloatingPointError
-        When the fused mean or covariance overflows float64.
+        When the fused mean or covariance overflows float64, or the means
+        are more than about 1e308 standard deviations apart (the whitened
+        difference overflows, though the fused belief may be finite).
 
     Notes
     -----
@@ -230,7 +232,7 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
         raise FloatingPointError("the fused mean or covariance is not finite (inf or NaN): the computation "
                                  "overflowed; check the scale of `a` and `b`.")
-    return Gaussian._trusted(mean, cov)  # positive semi-definite by construction (L Lᵀ), and symmetric
+    return Gaussian._trusted(mean, cov)  # L Lᵀ: symmetric, and positive semi-definite to round-off
 
 
 def moment_match(weights: np.ndarray, means: np.ndarray, covs: np.ndarray,

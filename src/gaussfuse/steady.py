@@ -78,7 +78,10 @@ def steady_state(model: LinearModel) -> Stationary:
         singular): then the filter's covariance has no steady state to
         converge to. Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
-        there), which leaves the gain undefined.
+        there), which leaves the gain undefined. And where SciPy's solver
+        fails on a badly scaled problem though a solution exists: an
+        unstable F with Q about 1e-20 of R or less (F = 1.5, Q = 1e-30,
+        R = 1 has P⁻ = 1.25, and is refused).
 
     Notes
     -----

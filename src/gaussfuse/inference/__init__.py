@@ -46,7 +46,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         Koopman, KFAS and statsmodels do, so the transition into x₁ plays no
         part; beliefs are NaN until the measurements identify the state,
         and `loglik` is the exact diffuse log-likelihood, equal to theirs
-        for every F.
+        for every F whose measurements identify x₁ (else NotIdentified).
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
         Measurements; a NaN component (or a masked entry of a masked array)
         is missing. A leading axis holds N independent series, and every
@@ -97,8 +97,11 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         "kf", covariance form): once a step's filtered covariance is within
         ``kalman.STEADY_TOL`` (1e-10, relative to the variances) of the
         stationary one (:func:`gaussfuse.steady_state`), that step's gain
-        and covariances are reused and only the means are computed. Equal
-        to the full filter to about 1e-10 after that point; sooner than the
+        and covariances are reused and only the means are computed. The
+        covariances and gains equal the full filter's to about 1e-10 after
+        that point, the means to that error times the innovations (1.6e-8
+        standard deviations measured with large innovations), the
+        log-likelihood accordingly; sooner than the
         default, which holds the covariance only once it stops changing to
         round-off (see :class:`gaussfuse.kalman.SteadyState`). Steps with
         missing components are computed in full, from the stationary
@@ -171,6 +174,10 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         series s, at step k" for a batch in the compiled linear engine).
         Both engines check the same values: the mean, the diagonal of the
         covariance and the log-likelihood term.
+    gaussfuse.inference.diffuse.NotIdentified
+        (a ValueError) With ``prior="diffuse"``, when the measurements do not
+        determine every component of x₁ (one that F removes before any
+        measurement sees it, say).
 
     Warns
     -----
