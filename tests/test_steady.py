@@ -174,3 +174,20 @@ def test_a_step_with_missing_components_after_the_steady_point_stays_near_the_fu
     assert 1e-9 < rel.max() <= 5e-9  # the case: 1.8e-9
     assert np.all(rel[-5:] <= 1e-10)
 
+
+
+@pytest.mark.parametrize("F, q, r", [(1.5, 1e-30, 1.0), (1.5, 1e-100, 1.0), (2.0, 1e-200, 1.0), (1.5, 1e-150, 1e150)])
+def test_an_unstable_model_with_tiny_process_noise_has_its_steady_state(F, q, r):
+    """SciPy's solver fails when Q is 1e-30 of R or less, though the stabilising solution exists (and the
+    filter converges to it): it was refused as "no stabilising solution". The filter's own recursion is run
+    to its fixed point there. Against the scalar Riccati equation's positive root, p² + (r(1 - F²) - q) p - q r = 0."""
+    b = r * (1 - F**2) - q
+    exact = (-b + np.sqrt(b * b + 4 * q * r)) / 2
+    got = gf.steady_state(gf.LinearModel(F=F, H=1.0, Q=q, R=r))
+    assert got.predicted_cov[0, 0] == pytest.approx(exact, rel=1e-13)
+    assert got.gain[0, 0] == pytest.approx(exact / (exact + r), rel=1e-13)
+
+
+def test_an_unstable_mode_the_measurements_do_not_see_is_still_refused():
+    with pytest.raises(ValueError, match=r"no steady state: the Riccati equation has no stabilising solution"):
+        gf.steady_state(gf.LinearModel(F=[[1.5, 0.0], [0.0, 1.0]], H=[[0.0, 1.0]], Q=np.eye(2), R=1.0))

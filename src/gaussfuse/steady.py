@@ -78,10 +78,10 @@ def steady_state(model: LinearModel) -> Stationary:
         singular): then the filter's covariance has no steady state to
         converge to. Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
-        there), which leaves the gain undefined. And where SciPy's solver
-        fails on a badly scaled problem though a solution exists: an
-        unstable F with Q about 1e-20 of R or less (F = 1.5, Q = 1e-30,
-        R = 1 has P⁻ = 1.25, and is refused).
+        there), which leaves the gain undefined. (Where SciPy's solver
+        fails on a badly scaled problem, an unstable F with Q 1e-30 of R,
+        the filter's own covariance recursion is run to its fixed point
+        instead; the error comes when that does not settle in 10,000 steps.)
 
     Notes
     -----
@@ -146,16 +146,44 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
     for unit in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
         unit = np.ldexp(1.0, int(np.frexp(unit)[1]))
         try:
-            found.append(symmetrize(unit * solve_discrete_are(F.T, H.T, Q / unit, R / unit)))
+            with np.errstate(invalid="ignore"):  # SciPy's own casts, where it fails
+                found.append(symmetrize(unit * solve_discrete_are(F.T, H.T, Q / unit, R / unit)))
         except (np.linalg.LinAlgError, ValueError) as exc:
             error = exc
     if not found:
+        iterated = _iterated(model)
+        if iterated is not None:
+            return iterated
         raise ValueError(
             "the filter of `model` has no steady state: the Riccati equation has no stabilising solution "
             f"(SciPy: {error}). Check that every unstable mode of F is seen through H and reached by Q, and that "
             "R is positive definite where Q does not reach."
         ) from None
     return min(found, key=lambda P: _residual(model, P))
+
+
+def _iterated(model: LinearModel, steps: int = 10_000) -> np.ndarray | None:
+    """The filter's own predicted covariance from P⁻ = Q, run to its fixed point; None if it does not settle.
+
+    Where SciPy's solver fails on a badly scaled problem (an unstable F with Q 1e-30 of R), the recursion
+    still converges to the stabilising solution when there is one (from any P⁻ ⪰ 0, for a model whose
+    unstable modes are seen and reached); without one it grows without bound, or does not settle within
+    `steps` steps.
+    """
+    P = model.Q.copy()
+    for _ in range(steps):
+        try:
+            after = kalman.gain(P, model.H, model.R).cov
+        except np.linalg.LinAlgError:
+            return None
+        with np.errstate(over="ignore", invalid="ignore"):
+            new = kalman.predict(np.zeros(P.shape[0]), after, model.F, model.Q)[1]
+        if not np.isfinite(new).all():
+            return None
+        if kalman.settled(new, P):
+            return new
+        P = new
+    return None
 
 
 def _residual(model: LinearModel, P: np.ndarray) -> float:
