@@ -301,7 +301,9 @@ def _exact_fused_mean(a, A, b, B):
 
 @pytest.mark.parametrize("a, b, A, B", [
     ([9e307], [-9e307], [[1.0]], [[1.0]]), ([1e308], [-8e307], [[1.0]], [[3.0]]),
-    ([1.7e308], [-1.7e308], [[2.0]], [[1.0]]), ([-1e308, 1e308], [1e308, -5e307], [[1.0, 0.2], [0.2, 1.0]], np.diag([4.0, 1.0]))])
+    ([1.7e308], [-1.7e308], [[2.0]], [[1.0]]), ([-1e308, 1e308], [1e308, -5e307], [[1.0, 0.2], [0.2, 1.0]], np.diag([4.0, 1.0])),
+    # means 1e310 standard deviations apart: the whitened difference overflowed (audit H)
+    ([1e308], [1.5e308], [[1e-5]], [[1e-5]]), ([1e300], [-1e300], [[1e-20]], [[1e-20]])])
 def test_fuse_of_means_whose_difference_overflows(a, b, A, B):
     """b - a overflowed (FloatingPointError) though the fused belief is representable: the means are halved,
     fused and the mean doubled, exactly. Against the information form in exact rationals, to round-off of the

@@ -185,9 +185,7 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     ValueError
         When ``a.cov + b.cov`` is singular.
     FloatingPointError
-        When the fused mean or covariance overflows float64, or the means
-        are more than about 1e308 standard deviations apart (the whitened
-        difference overflows, though the fused belief may be finite).
+        When the fused mean or covariance overflows float64.
 
     Notes
     -----

@@ -484,12 +484,16 @@ def fuse_moments(
     """
     if (cov_b.tobytes(), mean_b.tobytes()) < (cov_a.tobytes(), mean_a.tobytes()):
         mean_a, cov_a, mean_b, cov_b = mean_b, cov_b, mean_a, cov_a
-    with np.errstate(over="ignore"):
-        halve = not np.isfinite(mean_b - mean_a).all()  # means near ±1e308: b - a overflows, the result need not
-    if halve:
-        mean_a, mean_b = 0.5 * mean_a, 0.5 * mean_b   # exact: the fused mean of the halves is half the mean
-    post = update_sqrt(mean_a, cov_factor(cov_a, "a.cov"), mean_b, eye(mean_a.shape[0]), cov_factor(cov_b, "b.cov"))
-    return (2.0 * post.mean if halve else post.mean), symmetrize(post.factor @ post.factor.T)
+    g = sqrt_gain(cov_factor(cov_a, "a.cov"), eye(mean_a.shape[0]), cov_factor(cov_b, "b.cov"))
+    # a + K (b - a), not a + K̄ L_S⁻¹ (b - a): the whitened difference overflows for means 1e308 standard
+    # deviations apart, and b - a itself for means near ±1e308 of opposite signs, where μ need not
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = mean_b - mean_a
+    if np.isfinite(d).all():
+        mean = mean_a + g.K @ d
+    else:  # halved and doubled: exact (bar subnormal means, which cannot be this far apart)
+        mean = 2.0 * (0.5 * mean_a + g.K @ (0.5 * mean_b - 0.5 * mean_a))
+    return mean, symmetrize(g.factor @ g.factor.T)
 
 
 # ---------------------------------------------------------------------------
