@@ -454,3 +454,46 @@ def test_a_divergence_warning_points_at_the_caller():
         gf.fuse_timeline(motion, sensors, gf.Gaussian([0.0, 0.0], np.eye(2)), 0.0, quadratic, check="raise")
     with pytest.raises(ValueError, match="`check` must be one of"):
         gf.fuse_timeline(motion, sensors, gf.Gaussian([0.0, 0.0], np.eye(2)), 0.0, quadratic, check="loud")
+
+
+@pytest.mark.parametrize("t0, t", [(np.datetime64("2300-05-01"), np.datetime64("2300-05-02")),
+                                   (np.datetime64("2262-01-01"), np.datetime64("2262-06-01")),
+                                   (__import__("datetime").datetime(1600, 5, 1), __import__("datetime").datetime(1600, 5, 2))])
+def test_datetimes_outside_the_nanosecond_range_are_read_in_their_own_unit(t0, t):
+    """Every datetime went through int64 nanoseconds, which wrap outside 1678-2262: 2300-05-02 came back as
+    1715, 1600 as 2184, and a span across 2262-04-11 was "earlier than t0". Against the same fusion in seconds."""
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.5), {"a": gf.Position(dim=1, r=1.0)}
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    got = gf.fuse_timeline(motion, sensors, prior, t0, [(t, "a", 1.0)])
+    span = (np.datetime64(t, "D") - np.datetime64(t0, "D")) / np.timedelta64(1, "s")
+    want = gf.fuse_timeline(motion, sensors, prior, 0.0, [(span, "a", 1.0)])
+    assert got.times[0] == (np.datetime64(t, "s") - np.datetime64("1970-01-01", "s")) / np.timedelta64(1, "s")
+    np.testing.assert_allclose(got.means, want.means, rtol=1e-12)
+
+
+def test_a_timestamps_nanoseconds_and_bad_times_are_read_or_named():
+    """A pandas Timestamp's nanoseconds were dropped (fixes 200 ns and 700 ns after t0 both landed on t0); NaT
+    gave a bare NumPy error and a timedelta64 a TypeError naming nothing."""
+    pd = pytest.importorskip("pandas")
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.5), {"a": gf.Position(dim=1, r=1.0)}
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    base = pd.Timestamp("2026-05-01 12:00:00")
+    out = gf.fuse_timeline(motion, sensors, prior, base, [(base + pd.Timedelta(200, "ns"), "a", 0.0),
+                                                          (base + pd.Timedelta(700, "ns"), "a", 0.0)])
+    assert out.times.size == 2  # as float seconds since 1970, to their resolution now (2.4e-7 s)
+    assert abs(np.diff(out.times)[0] - 5e-7) <= 2.4e-7
+    with pytest.raises(ValueError, match=r"^`measurements\[0\]\.t` must be a time; got NaT\.$"):
+        gf.fuse_timeline(motion, sensors, prior, base, [(pd.NaT, "a", 0.0)])
+    with pytest.raises(TypeError, match=r"a duration, not a time"):
+        gf.fuse_timeline(motion, sensors, prior, 0.0, [(np.timedelta64(1, "s"), "a", 0.0)])
+
+
+def test_an_online_fuser_keeps_a_bounded_number_of_models():
+    """It made and kept one model for each distinct step length: 5,000 updates kept 5,001 (5 MB)."""
+    fuser = gf.Fuser(gf.ConstantVelocity(dim=1, q=0.5), {"a": gf.Position(dim=1, r=1.0)},
+                     gf.Gaussian([0.0, 1.0], np.eye(2)), t0=0.0)
+    t = 0.0
+    for k in range(600):
+        t += 1.0 + k * 1e-3
+        fuser.update(t, "a", t)
+    assert len(fuser._timeline._models) <= gaussfuse.fusion._KEPT
