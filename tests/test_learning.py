@@ -706,3 +706,37 @@ def test_a_learned_covariance_that_ends_singular_keeps_its_parameters():
     assert res.params["Q[1,0]"] == res.model.Q[1, 0] and res.params["R"] == res.model.R[0, 0]
     assert all(np.isnan(v) for v in res.bse.values())
     assert res.aic == pytest.approx(-2 * res.loglik + 8)
+
+
+def test_em_refuses_to_learn_f_under_a_fixed_singular_q_and_mle_learns_it():
+    """An ARMA(1,1) in state-space form has Q = σ² g gᵀ, rank one with no zero variance. EM's F step, a
+    least-squares regression, is not the maximiser there: the likelihood fell from -482.24056 to -482.24061
+    at iteration 7 (a fall the round-off guard let pass), the fit said converged, and a structural zero of F
+    moved to 0.044. EM is refused, naming what to do; MLE learns F, above every EM iterate."""
+    import scipy.linalg as sl
+
+    rng = np.random.default_rng(1)
+    e = rng.normal(size=301) * 1.3
+    y, prev = np.zeros(300), 0.0
+    for t in range(300):
+        prev = 0.6 * prev + e[t + 1] + 0.4 * e[t]
+        y[t] = prev
+    F, g = np.array([[0.5, 1.0], [0.0, 0.0]]), np.array([[1.0], [0.4]])
+    Q = np.exp(0.4) * g @ g.T
+    model, prior = gf.LinearModel(F=F, H=[[1.0, 0.0]], Q=Q, R=0.0), gf.Gaussian([0, 0], sl.solve_discrete_lyapunov(F, Q))
+    with pytest.raises(ValueError, match=r"learning F or B by EM needs Q positive definite .* method='mle'"):
+        gf.fit(model, prior, y, learn=("F",), method="em")
+    mle = gf.fit(model, prior, y, learn=("F",), method="mle", engine="python")
+    assert mle.converged and mle.loglik > -482.2405594591 + 1.0
+    assert gf.filter(mle.model, prior, y).loglik == pytest.approx(mle.loglik, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["em", "mle"])
+def test_a_fit_with_nothing_to_learn_returns_the_start(method):
+    """Every learned variance starting at 0 is held there: EM returned the start, MLE crashed in SciPy
+    ("zero-size array to reduction operation maximum")."""
+    y = np.random.default_rng(0).normal(size=30)
+    res = gf.fit(gf.LinearModel(F=1, H=1, Q=0.0, R=1.0), gf.Gaussian(0.0, 1.0), y, learn=("Q",), method=method)
+    assert res.converged and res.params == {} and res.model.Q[0, 0] == 0.0
+    assert res.loglik == pytest.approx(gf.filter(gf.LinearModel(F=1, H=1, Q=0.0, R=1.0), gf.Gaussian(0.0, 1.0),
+                                                 y).loglik, rel=1e-12)

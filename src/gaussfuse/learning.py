@@ -678,6 +678,24 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
     return model, prior, np.array(history), converged, message
 
 
+def _check_regression_q(Q: np.ndarray) -> None:
+    """Refuse EM's F (or B) step under a fixed Q that is singular on its non-zero variances.
+
+    The M-step's least-squares regression of x_t on x_{t-1} is the maximiser of
+    the expected complete-data log-likelihood when Q is positive definite (and
+    a row of a state with zero variance is held); with Q = g gᵀ, an ARMA
+    model's, the residuals lie in the range of Q exactly and the regression
+    can leave it: the likelihood fell (-482.24056 to -482.24061) and
+    structural zeros of F moved. Maximum likelihood has no such step.
+    """
+    seen = np.diagonal(Q) > 0.0
+    block = Q[np.ix_(seen, seen)]
+    if block.size and not is_positive_definite(block):
+        raise ValueError("learning F or B by EM needs Q positive definite on its non-zero variances (its M-step is "
+                         "a least-squares regression, not a maximiser, when Q is singular there, and EM could lower "
+                         "the likelihood); learn Q too, or use method='mle'.")
+
+
 def _structured_start(model: LinearModel, prior, learn: tuple, structure: dict, fixed: dict):
     """The start with each learned covariance projected onto its `structure`, as every M-step leaves it.
 
@@ -1221,6 +1239,9 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     history.append(evaluate(theta0)[0])
     if callback is not None:
         callback(0, history[0])
+    if theta0.size == 0:  # every learned variance starts at 0 and is held there, as EM holds it
+        return theta0, np.array(history), True, "converged: nothing to learn (every learned variance is held at 0)", \
+            evaluate
     from scipy import optimize
 
     try:
@@ -1578,6 +1599,8 @@ def fit(
         if method == "mle":
             build = _Parametrisation(model, prior, learn, structure)
             theta0 = build.encode()
+        elif ("F" in learn or "B" in learn) and "Q" not in learn:
+            _check_regression_q(model.Q)
     # Overflows (measurements or matrices near float64's limits) are not warnings: the result is checked below.
     with np.errstate(over="ignore", invalid="ignore"):
         if method == "em":
