@@ -228,3 +228,10 @@ def test_a_matrix_singular_in_exact_arithmetic_gets_a_zero_column_not_round_off_
     assert L[1, 1] == 0.0 and keep.tolist() == [True, False]
     np.testing.assert_allclose(L @ L.T, Q, rtol=0, atol=4e-16 * q)
 
+
+
+def test_sqrt_cov_names_the_covariance_it_cannot_root():
+    """The sigma-point filters' error said only "the covariance is not positive semi-definite"; the filter
+    now says which (the filtered one that f's points are drawn from, or the predicted one, h's)."""
+    with pytest.raises(np.linalg.LinAlgError, match=r"^the filtered covariance is not positive semi-definite"):
+        _linalg.sqrt_cov(np.array([[1.0, 0.0], [0.0, -1.0]]), None, "the filtered covariance")

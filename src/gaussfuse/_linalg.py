@@ -179,7 +179,8 @@ UNRESOLVED = 8 * _EPS
 """A standard deviation at most this times the mean's size is below what sigma points resolve (:func:`sqrt_cov`)."""
 
 
-def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None,
+             name: str = "the covariance") -> tuple[np.ndarray, np.ndarray]:
     """The square root that draws sigma points: lower-triangular ``L Lᵀ = cov``, and its nonzero columns.
 
     Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`,
@@ -195,6 +196,8 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
     they would measure is round-off. A sensor with zero variance leaves
     such a variance (1e-32, round-off of 0), with round-off correlations
     that, divided by its square root, made the regression's slope 1e16.
+    `name` says what `cov` is in the error when it is not positive
+    semi-definite.
 
     Returns
     -------
@@ -210,7 +213,10 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None) -> tuple[np.ndarra
     try:
         L = cholesky(cov, resolved=True)  # a pivot of round-off: semidefinite_cholesky's zero, not √ε of noise
     except np.linalg.LinAlgError:
-        L = semidefinite_cholesky(cov)
+        try:
+            L = semidefinite_cholesky(cov)
+        except np.linalg.LinAlgError as exc:  # named: which covariance the points are drawn from, say
+            raise np.linalg.LinAlgError(str(exc).replace("the covariance", name, 1)) from None
         return L, np.diag(L) > 0.0
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
 

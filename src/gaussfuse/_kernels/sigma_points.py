@@ -833,7 +833,7 @@ def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int) -> None:
     stage = int(cursor.stage[0])
     mean, cov, g = (bel.mean, bel.cov, gf) if stage == DRAW_F else (bel.pmean, bel.pcov, gh)
     try:
-        L, keep = sqrt_cov(cov, mean)
+        L, keep = sqrt_cov(cov, mean, "the filtered covariance" if stage == DRAW_F else "the predicted covariance")
     except np.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(f"{where(int(cursor.series[0]), int(cursor.step[0]), N)}: {exc}") from exc
     g.L[...] = L

@@ -84,6 +84,7 @@ def slr(
     mean: np.ndarray,
     cov: np.ndarray,
     angles: np.ndarray | None = None,
+    name: str = "the covariance",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Statistical linear regression of `g` under ``N(mean, cov)`` (see the module notes).
 
@@ -98,6 +99,8 @@ def slr(
     angles : ndarray of bool, shape (d,), optional
         Output components that are angles: their mean is circular and their
         residuals wrapped to [-π, π).
+    name : str, default "the covariance"
+        What `cov` is, for the error when it is not positive semi-definite.
 
     Returns
     -------
@@ -123,7 +126,7 @@ def slr(
     >>> print(np.round(A @ mean + b, 5))
     [0.96631]
     """
-    L, keep = sqrt_cov(cov, mean)
+    L, keep = sqrt_cov(cov, mean, name)
     y_mean, dY = _spread(g, rule, mean, L, angles)
     weighted = dY * rule.wc[:, None]
     points = rule.points if keep.all() else rule.points[:, keep]  # (over the nonzero columns only)
@@ -252,13 +255,14 @@ class SigmaPoints:
         """``(A, b, Q + Ω)`` from the regression of f under ``N(mean, cov)``."""
         m = self.model
         u = None if self.us is None else self.us[k]
-        A, b, omega = slr(lambda X: m.transition(X, u), self.rule, mean, cov, m.state_angles)
+        A, b, omega = slr(lambda X: m.transition(X, u), self.rule, mean, cov, m.state_angles,
+                          name="the filtered covariance")
         return A, b, m.noise(k)[0] + omega
 
     def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
         """``(H, d, R + Ω)`` from the regression of h under ``N(mean, cov)``."""
         m = self.model
-        H, d, omega = slr(m.measurement, self.rule, mean, cov, m.measurement_angles)
+        H, d, omega = slr(m.measurement, self.rule, mean, cov, m.measurement_angles, name="the predicted covariance")
         return H, d, m.noise(k)[1] + omega
 
     def transition_sqrt(self, k: int, mean: np.ndarray, factor: np.ndarray, factors):
