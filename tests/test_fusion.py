@@ -497,3 +497,16 @@ def test_an_online_fuser_keeps_a_bounded_number_of_models():
         t += 1.0 + k * 1e-3
         fuser.update(t, "a", t)
     assert len(fuser._timeline._models) <= gaussfuse.fusion._KEPT
+
+
+def test_a_fusers_divergence_warning_names_datetime_times_in_full():
+    """The window was printed with {:g}: seconds since 1970 showed as 1.77764e+09 at both ends."""
+    pd = pytest.importorskip("pandas")
+    base = pd.Timestamp("2026-05-01 12:00:00")
+    fuser = gf.Fuser(gf.ConstantVelocity(dim=1, q=0.01), {"a": gf.Position(dim=1, r=0.01)},
+                     gf.Gaussian([0.0, 0.0], 0.01 * np.eye(2)), base)
+    with pytest.warns(gf.DivergenceWarning) as caught:
+        for i in range(1, 70):
+            fuser.update(base + pd.Timedelta(seconds=0.5 * i), "a", float(i * i))  # a target it cannot follow
+    start, stop = (float(t) for t in re.search(r"times ([0-9.]+)-([0-9.]+)", str(caught[0].message)).groups())
+    assert base.value / 1e9 < start < stop <= base.value / 1e9 + 35.0
