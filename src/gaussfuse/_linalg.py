@@ -120,8 +120,12 @@ def roundoff_pivot(L: np.ndarray, mat: np.ndarray) -> bool:
     """
     if L.ndim > 2:
         return any(roundoff_pivot(Lk, mk) for Lk, mk in zip(L, mat))
-    return any(p * p <= 2 * (j + 1) * _EPS * v
-               for j, (p, v) in enumerate(zip(L.diagonal().tolist(), mat.diagonal().tolist())))
+    return any(p * p <= _roundoff(j, v) for j, (p, v) in enumerate(zip(L.diagonal().tolist(), mat.diagonal().tolist())))
+
+
+def _roundoff(j: int, variance: float) -> float:
+    """The round-off of pivot j's square in a Cholesky factor, beside that component's `variance` (see roundoff_pivot)."""
+    return 2 * (j + 1) * _EPS * variance
 
 
 def is_positive_definite(mat: np.ndarray) -> bool:
@@ -167,7 +171,7 @@ def semidefinite_cholesky(cov: np.ndarray) -> np.ndarray:
     L = np.zeros_like(cov, dtype=np.float64)
     for j in range(n):
         pivot = cov[j, j] - L[j, :j] @ L[j, :j]
-        if pivot <= 2 * (j + 1) * _EPS * cov[j, j]:  # roundoff_pivot's bound
+        if pivot <= _roundoff(j, cov[j, j]):
             continue
         L[j, j] = np.sqrt(pivot)
         L[j + 1:, j] = (cov[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]

@@ -303,9 +303,13 @@ def _run_filter(args: argparse.Namespace) -> int:
         # Into a file, the CSV is written (to its temporary name) before the figure is saved, and appears
         # after it: on an error, neither does. To standard output, which cannot be taken back, the figure
         # comes first.
-        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_binary_stdout()) as out:
-            if drawn is not None and not args.out:
+        def draw() -> None:
+            if drawn is not None:
                 plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
+
+        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_binary_stdout()) as out:
+            if not args.out:
+                draw()
             out.write(_header(columns_out))
             for start, stop in (reversed(spans) if args.smooth else spans):  # the smoother wrote the last first
                 spool.seek(start)
@@ -313,9 +317,9 @@ def _run_filter(args: argparse.Namespace) -> int:
                     block = spool.read(min(stop - start, 2**24))
                     out.write(block)
                     start += len(block)
-            if drawn is not None and args.out:
+            if args.out:
                 out.flush()  # a full disk shows here, before the figure is drawn
-                plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
+                draw()
     return 0
 
 

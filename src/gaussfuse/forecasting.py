@@ -31,12 +31,10 @@ from ._validation import integer
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .models.compose import TimedModel
-from .models.linear import LinearModel
-from .models.nonlinear import NonlinearModel
 from .inference.registry import linearisation, resolve_method
 from .inference.results import FilterResult, SmoothResult
 from .inference.timing import as_seconds, resolve
-from .inference.validation import check_controls, check_prior
+from .inference.validation import check_controls, check_model, check_prior
 
 __all__ = ["forecast", "Forecast"]
 
@@ -147,9 +145,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     >>> fc.covs[:, 0, 0], fc.measurement_covs[:, 0, 0]
     (array([2., 3., 4.]), array([4., 5., 6.]))
     """
-    if not isinstance(model, (LinearModel, NonlinearModel, TimedModel)):
-        raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
-                        f"got {type(model).__name__}.")
+    check_model(model)
     if times is not None:
         if steps is not None:
             raise ValueError("give `steps` or `times`, not both: the number of steps is len(times) - 1.")

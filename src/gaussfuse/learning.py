@@ -1393,10 +1393,7 @@ def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, di
         if name not in COVARIANCES or kind not in STRUCTURES:
             raise ValueError(f"`structure` maps {list(COVARIANCES)} to one of {list(STRUCTURES)}; "
                              f"got {name!r}: {kind!r}.")
-
     return learn, {k: structure.get(k, "full") for k in COVARIANCES}
-
-
 
 
 def _check_fitted(model: LinearModel, prior, history: np.ndarray, values: np.ndarray) -> None:

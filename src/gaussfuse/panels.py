@@ -149,13 +149,14 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
                                    f"{header}.")
     rest = [h for h in header if h != series_column]  # the time and measurement columns, as in one series' file
     try:
-        time_col = rest[_time_column(path, rest, time_column)]
-        wanted = [rest[i] for i in _measurement_columns(path, rest, rest.index(time_col), columns)]
+        at = _time_column(path, rest, time_column)
+        wanted = [rest[i] for i in _measurement_columns(path, rest, at, columns)]
     except InputFileError as exc:
         if time_column is None and series_column.lower() in TIME_COLUMNS:
             raise InputFileError(path, f"the series-id column `{series_column}` is named like a time column; name "
                                        "the time column with --time-column.") from None
         raise exc from None
+    time_col = rest[at]
     if len(wanted) != m:
         raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
                                    f"`{time_col}`, but the model measures m = {m} component(s).")

@@ -44,10 +44,8 @@ from ._validation import generator, integer
 from .errors import ModelFunctionError, at_step
 from .inference import filter as run_filter
 from .inference.timing import resolve
-from .inference.validation import check_controls, check_measurements, check_prior, check_steps
-from .models.compose import TimedModel
+from .inference.validation import check_controls, check_measurements, check_model, check_prior, check_steps
 from .models.linear import LinearModel
-from .models.nonlinear import NonlinearModel
 
 __all__ = ["simulate", "Simulation", "sample_posterior"]
 
@@ -122,11 +120,8 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     ((50, 2), (50, 1))
     """
     T = integer("T", T)
-    if isinstance(model, (LinearModel, NonlinearModel, TimedModel)):
-        model, us = resolve(model, times, T, us)
-    if not isinstance(model, (LinearModel, NonlinearModel)):
-        raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
-                        f"got {type(model).__name__}.")
+    check_model(model)
+    model, us = resolve(model, times, T, us)
     prior = check_prior(prior, model.n)
     check_steps(model, T, "`T` asks for")
     count = 1 if size is None else integer("size", size)

@@ -173,11 +173,10 @@ def _iterated(model: LinearModel, steps: int = 10_000) -> np.ndarray | None:
     P = model.Q.copy()
     for _ in range(steps):
         try:
-            after = kalman.gain(P, model.H, model.R).cov
+            with np.errstate(over="ignore", invalid="ignore"):
+                new = _riccati_map(model, P)
         except np.linalg.LinAlgError:
             return None
-        with np.errstate(over="ignore", invalid="ignore"):
-            new = kalman.predict(np.zeros(P.shape[0]), after, model.F, model.Q)[1]
         if not np.isfinite(new).all():
             return None
         if kalman.settled(new, P):
@@ -186,12 +185,19 @@ def _iterated(model: LinearModel, steps: int = 10_000) -> np.ndarray | None:
     return None
 
 
+def _riccati_map(model: LinearModel, P: np.ndarray) -> np.ndarray:
+    """One step of the filter's predicted covariance, ``F P⁺ Fᵀ + Q`` with P⁺ updated from P (kalman's algebra).
+
+    Raises numpy.linalg.LinAlgError where S is singular.
+    """
+    return kalman.predict(np.zeros(P.shape[0]), kalman.gain(P, model.H, model.R).cov, model.F, model.Q)[1]
+
+
 def _residual(model: LinearModel, P: np.ndarray) -> float:
     """How far P is from solving the Riccati equation, relative to its size: max |F P⁺ Fᵀ + Q - P| / max |P|."""
     try:
-        after = kalman.gain(P, model.H, model.R).cov
+        predicted = _riccati_map(model, P)
     except np.linalg.LinAlgError:  # a singular S: left to the caller's message
         return np.inf
     size = np.abs(P).max()
-    predicted = kalman.predict(np.zeros(P.shape[0]), after, model.F, model.Q)[1]
     return float(np.abs(predicted - P).max() / size) if size > 0.0 else 0.0

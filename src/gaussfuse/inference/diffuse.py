@@ -12,9 +12,10 @@ Koopman (1997):
 Write :math:`x_1 = \delta + w`, :math:`w \sim N(0, P_*)` for any fixed
 :math:`P_* \succeq 0`: a flat :math:`\delta` makes :math:`x_1` flat whatever
 :math:`P_*`, with the same normalisation, so the diffuse results do not depend
-on it (it is taken as :math:`Q_1`, widened where that is singular). Given :math:`\delta`, the model is an ordinary
-linear-Gaussian one, and every mean the Kalman filter and RTS smoother produce
-is affine in :math:`\delta` while no covariance depends on it:
+on it (it is taken as :math:`Q_1`, widened where that is singular). Given
+:math:`\delta`, the model is an ordinary linear-Gaussian one, and every mean
+the Kalman filter and RTS smoother produce is affine in :math:`\delta` while no
+covariance depends on it:
 
 .. math::
 

@@ -10,11 +10,20 @@ import numpy as np
 
 from .._validation import as_array, flag, shape_error
 from ..gaussian import Gaussian
+from ..models.compose import TimedModel
 from ..models.linear import LinearModel
+from ..models.nonlinear import NonlinearModel
 from .registry import FORMS, METHODS, resolve_method
 
-__all__ = ["check_prior", "check_measurements", "check_controls", "check_steps", "check_form", "check_steady",
+__all__ = ["check_model", "check_prior", "check_measurements", "check_controls", "check_steps", "check_form", "check_steady",
            "prepare"]
+
+
+def check_model(model) -> None:
+    """`model` must be a LinearModel, a NonlinearModel or a TimedModel (what :func:`gaussfuse.model` makes)."""
+    if not isinstance(model, (LinearModel, NonlinearModel, TimedModel)):
+        raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
+                        f"got {type(model).__name__}.")
 
 
 def check_prior(prior, n: int, *, diffuse_ok: bool = False, name: str = "prior") -> Gaussian | str:

@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from .._validation import call_checked, finite_step, integer, real
+from .._validation import call_checked, integer, real
 from ._base import Frozen
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
@@ -94,7 +94,7 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
         return TimedModel(motion, sensor)
 
     if isinstance(motion, LinearMotion):
-        F, Q = _transition(motion, dt)
+        F, Q = motion.transition(dt)
         B = motion.control(dt)
     else:
         Q = motion.noise(real("dt", dt, positive=True))  # noise() accepts dt = 0; a model's step must be positive
@@ -214,7 +214,7 @@ class TimedModel(Frozen):
             return model(self.motion, self.sensor, float(unique[0])), us
         n = self.n
         if isinstance(self.motion, LinearMotion):
-            pairs = [_transition(self.motion, float(d)) for d in unique]
+            pairs = [self.motion.transition(float(d)) for d in unique]
             if self.linear:  # checked once per distinct dt, then indexed by step
                 H, R = self.sensor.linear(n)
                 controls = [self.motion.control(float(d)) for d in unique]
@@ -240,15 +240,6 @@ class TimedModel(Frozen):
                               measurement_angles=self.sensor.measurement_angles), controls
 
 
-def _transition(motion, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """``motion.transition(dt)``, refused with the step named when a step this long overflows float64.
-
-    The built-in motions' ``transition`` checks that itself; this also covers
-    a motion of the user's own.
-    """
-    return finite_step("F or Q")(type(motion).transition)(motion, dt)
-
-
 class _Stepped:
     """f(x, u) of a motion over the step ``u[0]`` (with controls ``u[1:]`` for a linear motion's B)."""
 
@@ -261,7 +252,7 @@ class _Stepped:
 
     def _at(self, dt: float):
         if dt != self._dt:  # the sigma points of a step share their dt: computed once
-            F, _ = _transition(self.motion, dt)
+            F, _ = self.motion.transition(dt)
             self._dt, self._matrices = dt, (F, self.motion.control(dt))
         return self._matrices
 

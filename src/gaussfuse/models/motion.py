@@ -43,11 +43,25 @@ __all__ = [
 _AXES = ("x", "y", "z")
 _PREFIX = ("", "v", "a")
 
+def _checked_steps(cls: type, results: dict[str, str]) -> None:
+    """Wrap the step methods a motion class defines in :func:`gaussfuse._validation.finite_step`.
+
+    Done for every subclass, a user's own too, as it is defined: a step long
+    enough to overflow F, Q or B is the "step too long" ValueError, however
+    the motion is called (directly, or through :func:`gaussfuse.model`).
+    """
+    for name, result in results.items():
+        if name in cls.__dict__:
+            setattr(cls, name, finite_step(result)(cls.__dict__[name]))
+
+
 class LinearMotion(Frozen):
     r"""Base class of linear motion models, :math:`x_k = F x_{k-1} + B u_k + w_k`.
 
     Subclasses give the state size `n`, the component `names` and
     :meth:`transition`; those with a control input override :meth:`control`.
+    A step so long that F, Q or B overflows float64 is a ValueError naming
+    it, for every subclass.
 
     Attributes
     ----------
@@ -63,6 +77,10 @@ class LinearMotion(Frozen):
 
     n: int
     names: tuple[str, ...]
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        _checked_steps(cls, {"transition": "F or Q", "control": "B"})
 
     @property
     def state_angles(self) -> tuple[int, ...]:
@@ -132,6 +150,10 @@ class NonlinearMotion(Frozen):
 
     n: int
     names: tuple[str, ...]
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        _checked_steps(cls, {"noise": "Q"})
 
     @property
     def state_angles(self) -> tuple[int, ...]:
@@ -219,7 +241,6 @@ class _IntegratedWhiteNoise(LinearMotion):
         """``x, y, z`` then ``vx, vy, vz`` then ``ax, ay, az`` (as far as the order and dim go)."""
         return tuple(state_names(self._order, self.dim))
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (n, n), over a time step ``dt > 0``.
 
@@ -408,7 +429,6 @@ class ForceInput(LinearMotion):
         """Positions then velocities."""
         return tuple(state_names(1, self.dim))
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (2·dim, 2·dim), over a time step ``dt > 0``.
 
@@ -430,7 +450,6 @@ class ForceInput(LinearMotion):
         return (np.kron(_kinematic_transition(1, dt), eye),
                 np.kron(piecewise_white_noise(1, dt, self.q), eye))
 
-    @finite_step("B")
     def control(self, dt: float) -> np.ndarray:
         """B of shape (2·dim, dim): ``[dt²/2, dt]`` per axis.
 
@@ -524,7 +543,6 @@ class Singer(LinearMotion):
         """Positions, velocities, accelerations."""
         return tuple(state_names(2, self.dim))
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)``, each of shape (3·dim, 3·dim), over a time step ``dt > 0``.
 
@@ -580,7 +598,6 @@ class RandomWalk(LinearMotion):
         """``x0, x1, ...``."""
         return tuple(f"x{i}" for i in range(self.n))
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(I, q·dt·I)`` of shape (n, n).
 
@@ -633,7 +650,6 @@ class LocalLevel(LinearMotion):
     n = property(lambda self: 1, doc="State dimension, 1.")
     names = property(lambda self: ("level",), doc="``('level',)``.")
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``([[1]], [[q·dt]])``.
 
@@ -690,7 +706,6 @@ class LocalLinearTrend(LinearMotion):
     n = property(lambda self: 2, doc="State dimension, 2.")
     names = property(lambda self: ("level", "slope"), doc="``('level', 'slope')``.")
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)`` of shape (2, 2).
 
@@ -754,7 +769,6 @@ class LinearSDE(LinearMotion):
         """State dimension."""
         return self.A.shape[0]
 
-    @finite_step("F or Q")
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(F, Q)`` of shape (n, n) by Van Loan's method.
 
@@ -958,7 +972,6 @@ class CoordinatedTurn(NonlinearMotion):
         J[..., 3, 2], J[..., 3, 3], J[..., 3, 4] = sin, cos, dt * (cos * vx - sin * vy)
         return J
 
-    @finite_step("Q")
     def noise(self, dt: float) -> np.ndarray:
         """Q of shape (5, 5): the CV block for x, y, vx, vy and q_turn·dt for omega (dt >= 0).
 
