@@ -408,9 +408,9 @@ def test_a_pickled_or_copied_fuser_carries_on_where_the_original_left_off(method
         assert other.loglik == fuser.loglik
 
 
-def test_datetimes_are_seconds_since_1970_in_utc():
+def test_datetimes_in_any_zone_give_the_fusion_in_seconds_from_t0():
     """fuse_timeline and Fuser take datetime, numpy.datetime64 and pandas.Timestamp (any time zone): the same
-    numbers as the seconds they stand for."""
+    numbers as the seconds from t0 they stand for; the result's times are the UTC instants, exactly."""
     import datetime
 
     import pandas as pd
@@ -418,29 +418,83 @@ def test_datetimes_are_seconds_since_1970_in_utc():
     motion, sensors = gf.ConstantVelocity(dim=1, q=0.1), {"gps": gf.Position(dim=1, r=1.0)}
     prior = gf.Gaussian([0.0, 1.0], np.eye(2))
     t0 = pd.Timestamp("2026-03-29 03:00:00", tz="Europe/Paris")  # just after the change to summer time
+    utc = np.datetime64("2026-03-29T01:00:00", "ns")
     seconds = [1.0, 2.5, 4.0]
     stamped = [(t0 + pd.Timedelta(seconds=s), "gps", s + 0.1) for s in seconds]
     plain = [(s, "gps", s + 0.1) for s in seconds]
     a = gf.fuse_timeline(motion, sensors, prior, t0, stamped)
     b = gf.fuse_timeline(motion, sensors, prior, 0.0, plain)
-    np.testing.assert_allclose(a.means, b.means, rtol=1e-12)
-    np.testing.assert_allclose(a.times - a.times[0], np.array(seconds) - seconds[0], atol=1e-6)
-    utc = datetime.datetime(2026, 3, 29, 1, 0, 0)  # t0 in UTC, naive
-    fuser = gf.Fuser(motion, sensors, prior, utc)
+    np.testing.assert_allclose(a.means, b.means, rtol=1e-15)
+    assert a.times.dtype.kind == "M"  # in the Timestamps' own resolution
+    np.testing.assert_array_equal(a.times, utc + (np.array(seconds) * 1e9).astype("timedelta64[ns]"))
+    fuser = gf.Fuser(motion, sensors, prior, datetime.datetime(2026, 3, 29, 1, 0, 0))  # t0 in UTC, naive
     fuser.update(np.datetime64("2026-03-29T01:00:01"), "gps", 1.1)
     online = gf.Fuser(motion, sensors, prior, 0.0)
     online.update(1.0, "gps", 1.1)
-    np.testing.assert_allclose(fuser.belief.mean, online.belief.mean, rtol=1e-12)
+    np.testing.assert_allclose(fuser.belief.mean, online.belief.mean, rtol=1e-15)
+    assert fuser.t == np.datetime64("2026-03-29T01:00:01") and fuser.t.dtype == np.dtype("datetime64[us]")
     with pytest.raises(TypeError, match="a real number of seconds or a datetime"):
         gf.Fuser(motion, sensors, prior, "2026-01-01")
     # output times and Fused.at take them too ("`times` must be an array of real numbers" before)
     outputs = [t0 + pd.Timedelta(seconds=3.0), np.datetime64("2026-03-29T01:00:05")]
     c = gf.fuse_timeline(motion, sensors, prior, t0, stamped, times=outputs)
     d = gf.fuse_timeline(motion, sensors, prior, 0.0, plain, times=[3.0, 5.0])
-    np.testing.assert_allclose(c.means, d.means, rtol=1e-12)
+    np.testing.assert_allclose(c.means, d.means, rtol=1e-15)
     for when, seconds_ in ((outputs[0], 3.0), (outputs[1], 5.0), (stamped[1][0].to_pydatetime(), 2.5)):
-        np.testing.assert_allclose(c.at(when)[0], d.at(seconds_)[0], rtol=1e-12)
-    np.testing.assert_allclose(c.at(pd.DatetimeIndex(outputs[:1]))[0], d.at([3.0])[0], rtol=1e-12)
+        np.testing.assert_allclose(c.at(when)[0], d.at(seconds_)[0], rtol=1e-15)
+    np.testing.assert_allclose(c.at(pd.DatetimeIndex(outputs[:1]))[0], d.at([3.0])[0], rtol=1e-15)
+    with pytest.raises(ValueError, match=r"got \['2026-03-29T01:00:03.000000001'\], which are not"):
+        c.at(utc + np.timedelta64(3_000_000_001, "ns"))
+
+
+def test_datetimes_and_seconds_are_not_mixed():
+    """A number among datetimes (or a datetime among seconds) was read as seconds since 1970: a step of 56 years."""
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.1), {"gps": gf.Position(dim=1, r=1.0)}
+    prior, day = gf.Gaussian([0.0, 1.0], np.eye(2)), np.datetime64("2026-01-01T00:00:00")
+    with pytest.raises(TypeError, match=r"^`measurements\[0\]\.t` must be a datetime, as `t0` is; got 1\.0\.$"):
+        gf.fuse_timeline(motion, sensors, prior, day, [(1.0, "gps", 1.0)])
+    with pytest.raises(TypeError, match=r"^`measurements\[0\]\.t` must be a real number of seconds, as `t0` is"):
+        gf.fuse_timeline(motion, sensors, prior, 0.0, [(day, "gps", 1.0)])
+    with pytest.raises(TypeError, match=r"^`times\[0\]` must be a datetime, as `t0` is"):
+        gf.fuse_timeline(motion, sensors, prior, day, [(day, "gps", 1.0)], times=[2.0])
+    out = gf.fuse_timeline(motion, sensors, prior, 0.0, [(1.0, "gps", 1.0)])
+    with pytest.raises(TypeError, match=r"^`times` must be a real number of seconds, as `t0` is"):
+        out.at(day)
+    fuser = gf.Fuser(motion, sensors, prior, day)
+    with pytest.raises(TypeError, match=r"^`t` must be a datetime, as `t0` is; got 5\.$"):
+        fuser.update(5, "gps", 1.0)
+    with pytest.raises(TypeError, match=r"^`t` must be a datetime, as `t0` is"):
+        fuser.predict(5.0)
+
+
+@pytest.mark.parametrize("step", [1e-3, 1e-5, 1e-7])
+def test_datetime_steps_are_exact_long_after_1970(step):
+    """Datetimes were float seconds since 1970, resolved to 2.4e-7 s in 2026: each 1 ms step was off by up to
+    2.4e-4 of itself, a 10 µs step by 2.4%, and 100 ns steps fell onto one time. Against the same fusion on
+    seconds from t0, whose steps are exact to round-off."""
+    pd = pytest.importorskip("pandas")
+    motion, sensors = gf.ConstantVelocity(dim=1, q=4.0), {"a": gf.Position(dim=1, r=1e-6)}
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    rng = np.random.default_rng(5)
+    counts = np.cumsum(rng.integers(1, 4, size=200))  # 1 to 3 steps apart
+    zs = np.cumsum(rng.normal(size=200)) * step
+    base = pd.Timestamp("2026-11-30 17:45:12.123456789")
+    nanoseconds = int(round(step * 1e9))
+    stamped = [(base + pd.Timedelta(int(c) * nanoseconds, "ns"), "a", z) for c, z in zip(counts, zs)]
+    plain = [(int(c) * nanoseconds / 1e9, "a", z) for c, z in zip(counts, zs)]
+    for smooth in (False, True):
+        got = gf.fuse_timeline(motion, sensors, prior, base, stamped, smooth=smooth)
+        want = gf.fuse_timeline(motion, sensors, prior, 0.0, plain, smooth=smooth)
+        assert got.times.size == want.times.size == 200
+        np.testing.assert_allclose(got.means, want.means, rtol=1e-9, atol=1e-12 * np.abs(want.means).max())
+        np.testing.assert_allclose(got.covs, want.covs, rtol=1e-9, atol=0)
+        assert abs(got.loglik - want.loglik) <= 1e-9 * abs(want.loglik)
+    online, seconds = gf.Fuser(motion, sensors, prior, base), gf.Fuser(motion, sensors, prior, 0.0)
+    for (t, _, z), (s, _, _) in zip(stamped, plain):
+        online.update(t, "a", z)
+        seconds.update(s, "a", z)
+    np.testing.assert_allclose(online.belief.mean, seconds.belief.mean, rtol=1e-9)
+    assert online.t == np.datetime64(stamped[-1][0].to_datetime64())
 
 
 def test_a_divergence_warning_points_at_the_caller():
@@ -467,7 +521,7 @@ def test_datetimes_outside_the_nanosecond_range_are_read_in_their_own_unit(t0, t
     got = gf.fuse_timeline(motion, sensors, prior, t0, [(t, "a", 1.0)])
     span = (np.datetime64(t, "D") - np.datetime64(t0, "D")) / np.timedelta64(1, "s")
     want = gf.fuse_timeline(motion, sensors, prior, 0.0, [(span, "a", 1.0)])
-    assert got.times[0] == (np.datetime64(t, "s") - np.datetime64("1970-01-01", "s")) / np.timedelta64(1, "s")
+    assert got.times[0] == np.datetime64(t)
     np.testing.assert_allclose(got.means, want.means, rtol=1e-12)
 
 
@@ -480,12 +534,15 @@ def test_a_timestamps_nanoseconds_and_bad_times_are_read_or_named():
     base = pd.Timestamp("2026-05-01 12:00:00")
     out = gf.fuse_timeline(motion, sensors, prior, base, [(base + pd.Timedelta(200, "ns"), "a", 0.0),
                                                           (base + pd.Timedelta(700, "ns"), "a", 0.0)])
-    assert out.times.size == 2  # as float seconds since 1970, to their resolution now (2.4e-7 s)
-    assert abs(np.diff(out.times)[0] - 5e-7) <= 2.4e-7
+    assert out.times.size == 2 and np.diff(out.times)[0] == np.timedelta64(500, "ns")
     with pytest.raises(ValueError, match=r"^`measurements\[0\]\.t` must be a time; got NaT\.$"):
         gf.fuse_timeline(motion, sensors, prior, base, [(pd.NaT, "a", 0.0)])
     with pytest.raises(TypeError, match=r"a duration, not a time"):
         gf.fuse_timeline(motion, sensors, prior, 0.0, [(np.timedelta64(1, "s"), "a", 0.0)])
+    with pytest.raises(ValueError, match=r"`measurements\[0\]\.t` holds 2300-01-01T00:00:00, which "
+                                         r"datetime64\[ns\] \(the finest resolution among the times\) cannot hold"):
+        gf.fuse_timeline(motion, sensors, prior, np.datetime64("2026-05-01T12:00:00.000000001"),
+                         [(np.datetime64("2300-01-01T00:00:00"), "a", 0.0)])
 
 
 def test_an_online_fuser_keeps_a_bounded_number_of_models():
@@ -500,7 +557,7 @@ def test_an_online_fuser_keeps_a_bounded_number_of_models():
 
 
 def test_a_fusers_divergence_warning_names_datetime_times_in_full():
-    """The window was printed with {:g}: seconds since 1970 showed as 1.77764e+09 at both ends."""
+    """The window was printed with {:g}: seconds since 1970 showed as 1.77764e+09 at both ends; now the datetimes."""
     pd = pytest.importorskip("pandas")
     base = pd.Timestamp("2026-05-01 12:00:00")
     fuser = gf.Fuser(gf.ConstantVelocity(dim=1, q=0.01), {"a": gf.Position(dim=1, r=0.01)},
@@ -508,5 +565,5 @@ def test_a_fusers_divergence_warning_names_datetime_times_in_full():
     with pytest.warns(gf.DivergenceWarning) as caught:
         for i in range(1, 70):
             fuser.update(base + pd.Timedelta(seconds=0.5 * i), "a", float(i * i))  # a target it cannot follow
-    start, stop = (float(t) for t in re.search(r"times ([0-9.]+)-([0-9.]+)", str(caught[0].message)).groups())
-    assert base.value / 1e9 < start < stop <= base.value / 1e9 + 35.0
+    start, stop = (np.datetime64(t) for t in re.search(r"times (\S+) to (\S+)", str(caught[0].message)).groups())
+    assert base.to_datetime64() < start < stop <= base.to_datetime64() + np.timedelta64(35, "s")

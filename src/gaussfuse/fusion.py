@@ -34,7 +34,7 @@ from ._validation import as_array, flag, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
-from .inference import drivers
+from .inference import drivers, timing
 from .inference.registry import resolve_method
 from .inference.results import stack
 from .inference.validation import check_prior
@@ -74,7 +74,9 @@ class Fused:
     Attributes
     ----------
     times : ndarray of shape (K,)
-        Time of each step, non-decreasing. Measurements at the same time
+        Time of each step, non-decreasing: float seconds, or, when `t0`
+        was a datetime, ``datetime64`` (UTC) in the finest resolution among
+        the times given. Measurements at the same time
         from different sensors share a step; a sensor reporting twice at the
         same time gives two steps at that time.
     means : ndarray of shape (K, n)
@@ -108,9 +110,10 @@ class Fused:
 
         Parameters
         ----------
-        times : float or array_like of shape (k,)
+        times : float or datetime, or array_like of shape (k,)
             Times that are steps of the timeline: measurement times, or
-            output times passed to :func:`fuse_timeline` as ``times``.
+            output times passed to :func:`fuse_timeline` as ``times``
+            (datetimes when its `t0` was one, else seconds).
 
         Returns
         -------
@@ -122,14 +125,20 @@ class Fused:
         ValueError
             For a time that is not a step of the timeline, naming it.
         """
-        query = _times("times", times)
+        dated = self.times.dtype.kind == "M"
+        query = _times("times", times, dated)
         if query.ndim > 1:
             raise shape_error("times", "() or (k,)", query.shape)
         flat = np.atleast_1d(query)
+        exact = np.ones(flat.shape, dtype=bool)
+        if dated:  # on the timeline's clock; a time it cannot hold is not one of its steps
+            on_clock = flat.astype(self.times.dtype)
+            exact = on_clock.astype(flat.dtype) == flat
+            flat, shown = on_clock, flat
         idx = np.searchsorted(self.times, flat, side="right") - 1
-        ok = (idx >= 0) & (self.times[np.clip(idx, 0, None)] == flat)
+        ok = exact & (idx >= 0) & (self.times[np.clip(idx, 0, None)] == flat)
         if not ok.all():
-            missing = flat[~ok].tolist()
+            missing = [str(t) for t in shown[~ok]] if dated else flat[~ok].tolist()
             raise ValueError(
                 f"`times` must be times of the timeline (measurement times, or output times "
                 f"passed to fuse_timeline(times=...)); got {missing}, which are not."
@@ -243,55 +252,74 @@ def _moved_jacobian(timeline: _Timeline, x: np.ndarray, u: np.ndarray) -> np.nda
     return np.eye(timeline.n) if dt == 0.0 else timeline.model_over(dt).f_jacobian(x)
 
 
-_EPOCH = datetime.datetime(1970, 1, 1)
+def _time(name: str, value, dated: bool | None = None):
+    """A finite real time: float seconds, or a datetime as a naive UTC numpy.datetime64 in its own resolution.
 
-
-def _time(name: str, value) -> float:
-    """A finite real time: a number of seconds, or a datetime as seconds since 1970-01-01 UTC.
-
-    Each kind of datetime is read in its own resolution: a pandas Timestamp's
-    nanoseconds, a datetime64 in its unit (any year it holds, not wrapped
-    through nanoseconds past 2262), a datetime's microseconds (years 1-9999).
-    As float seconds since 1970, a time now is resolved to about 2.4e-7 s.
+    `dated` says whether `t0` was a datetime, in which case every time must
+    be one, or not, in which case none may be (None: this is `t0`).
     """
     if isinstance(value, np.ndarray) and value.ndim == 0:
         value = value[()]
-    if (hasattr(value, "tz_localize") and value != value) or (
-            isinstance(value, np.datetime64) and np.isnat(value)):
-        raise ValueError(f"`{name}` must be a time; got {value!r}.")
-    if hasattr(value, "tz_localize"):  # a pandas Timestamp: integer nanoseconds
-        if value.tzinfo is not None:
-            value = value.tz_convert("UTC").tz_localize(None)
-        return value.value / 1e9
-    if isinstance(value, datetime.datetime):
-        if value.tzinfo is not None:  # aware: the same instant in UTC
-            value = value.astimezone(datetime.timezone.utc).replace(tzinfo=None)
-        return (value - _EPOCH) / datetime.timedelta(seconds=1)
-    if isinstance(value, np.datetime64):
-        unit = np.datetime_data(value.dtype)
-        return float(value.astype(np.int64)) * (np.timedelta64(unit[1], unit[0]) / np.timedelta64(1, "s"))
-    if isinstance(value, (bool, np.bool_, np.timedelta64, datetime.timedelta)) or not isinstance(
-            value, (int, float, np.integer, np.floating)):  # (a timedelta64 is an np.integer)
-        what = " (a duration, not a time)" if isinstance(value, (np.timedelta64, datetime.timedelta)) else ""
-        raise TypeError(f"`{name}` must be a real number of seconds or a datetime; got {value!r:.60}{what}.")
-    return real(name, value)
+    when = timing.stamp(name, value)
+    if when is None:
+        if isinstance(value, (bool, np.bool_, np.timedelta64, datetime.timedelta)) or not isinstance(
+                value, (int, float, np.integer, np.floating)):  # (a timedelta64 is an np.integer)
+            what = " (a duration, not a time)" if isinstance(value, (np.timedelta64, datetime.timedelta)) else ""
+            raise TypeError(f"`{name}` must be a real number of seconds or a datetime; got {value!r:.60}{what}.")
+        when = real(name, value)
+    if dated is not None and dated != isinstance(when, np.datetime64):
+        kind = "a datetime" if dated else "a real number of seconds"
+        raise TypeError(f"`{name}` must be {kind}, as `t0` is; got {value!r:.60}.")
+    return when
 
 
-def _times(name: str, values) -> np.ndarray:
-    """Times of shape () or (k,) as float seconds: numbers, or datetimes as seconds since 1970-01-01 UTC (as `t0`)."""
+def _times(name: str, values, dated: bool) -> np.ndarray:
+    """Times of shape () or (k,): float seconds, or (`dated`) datetime64 in the finest unit among them."""
     if np.ndim(values) == 0:
-        item = values.item() if isinstance(values, np.ndarray) and values.dtype.kind != "M" else values
-        stamp = isinstance(item, (datetime.datetime, np.datetime64)) or hasattr(item, "tz_localize")
-        return np.asarray(_time(name, item)) if stamp else as_array(name, values)
-    kind = getattr(getattr(values, "dtype", None), "kind", None) or np.asarray(values, dtype=object).dtype.kind
-    if kind == "O":  # a list: datetimes, or numbers, or a mix
-        kind = np.asarray(values).dtype.kind
-    if kind in ("M", "O"):
-        return np.array([_time(f"{name}[{i}]", v) for i, v in enumerate(values)], dtype=float)
-    return as_array(name, values)
+        return np.asarray(_time(name, values, dated))
+    if not dated:
+        kind = getattr(getattr(values, "dtype", None), "kind", None) or np.asarray(values, dtype=object).dtype.kind
+        if kind == "O":  # a list: numbers, or something else to name
+            kind = np.asarray(values).dtype.kind
+        if kind in ("M", "O"):
+            return np.array([_time(f"{name}[{i}]", v, dated) for i, v in enumerate(values)], dtype=float)
+        return as_array(name, values)
+    if hasattr(values, "tz_convert") or hasattr(values, "to_numpy"):
+        values = list(values)  # pandas: each Timestamp with its zone
+    read = [_time(f"{name}[{i}]", v, dated) for i, v in enumerate(values)]
+    return _Clock.finest(read).array(name, read)
 
 
-def _parse(measurements, timeline: _Timeline, t0: float) -> list[tuple[float, str, np.ndarray]]:
+class _Clock(NamedTuple):
+    """How a timeline counts its times: float seconds, or datetimes as int64 counts of one unit of at most a second."""
+
+    unit: str | None  # the datetime64 unit, or None for seconds
+
+    @classmethod
+    def finest(cls, times) -> _Clock:
+        """The clock of `times` (all seconds, or all datetime64): the finest unit among them."""
+        units = [np.datetime_data(t.dtype)[0] for t in times if isinstance(t, np.datetime64)]
+        return cls(max(units, key=timing._FINE.index) if units else None)
+
+    def count(self, name: str, when):
+        """`when` on this clock: its float seconds, or its exact count of the unit (a Python int)."""
+        return when if self.unit is None else int(timing.within(name, when, self.unit).astype(np.int64))
+
+    def array(self, name: str, times) -> np.ndarray:
+        """`times` as float seconds, or as datetime64 in the unit."""
+        if self.unit is None:
+            return np.array(times, dtype=float)
+        return np.array([self.count(f"{name}[{i}]", t) for i, t in enumerate(times)], dtype=np.int64).view(
+            f"datetime64[{self.unit}]")
+
+    def steps(self, counts: np.ndarray) -> np.ndarray:
+        """The seconds between consecutive `counts` (seconds or counts of the unit), each rounded once."""
+        if self.unit is None:
+            return np.diff(counts)
+        return timing.elapsed(counts.astype(np.int64), 1000 ** timing._FINE.index(self.unit))
+
+
+def _parse(measurements, timeline: _Timeline, dated: bool) -> list[tuple[object, str, np.ndarray]]:
     """Checked measurements as (t, sensor, stacked z), in the order given."""
     if isinstance(measurements, (str, bytes)) or not isinstance(measurements, Iterable):
         raise TypeError(
@@ -305,13 +333,8 @@ def _parse(measurements, timeline: _Timeline, t0: float) -> list[tuple[float, st
                 f"`measurements[{i}]` must be a Measurement(t, sensor, z) or a (t, sensor, z) "
                 f"tuple; got {item!r:.80}."
             )
-        t = _time(f"measurements[{i}].t", item[0])
+        t = _time(f"measurements[{i}].t", item[0], dated)
         name = timeline.check_name(item[1], f"measurements[{i}].sensor")
-        if t < t0:
-            raise ValueError(
-                f"`measurements[{i}].t` must not be earlier than `t0` = {t0} (the prior's time); "
-                f"got {t}."
-            )
         try:
             z = timeline.measurement_vector(name, item[2])
         except (TypeError, ValueError) as exc:
@@ -338,14 +361,14 @@ def _steps(events, outputs: np.ndarray, timeline: _Timeline):
             zs.append(z.copy())
             sources.append((name,))
     have = set(times)
-    for t in np.unique(outputs):
-        if float(t) not in have:
+    for t in np.unique(outputs).tolist():
+        if t not in have:
             at = int(np.searchsorted(times, t, side="right"))
-            times.insert(at, float(t))
+            times.insert(at, t)
             zs.insert(at, np.full(timeline.m, np.nan))
             sources.insert(at, None)
     sources = [s if s is None or len(s) > 1 else s[0] for s in sources]
-    return np.array(times, dtype=float), np.array(zs, dtype=float).reshape(len(times), timeline.m), sources
+    return np.array(times, dtype=outputs.dtype), np.array(zs, dtype=float).reshape(len(times), timeline.m), sources
 
 
 def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, times=None,
@@ -365,13 +388,14 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     prior : Gaussian
         Belief about the state at time `t0`, of the motion's dimension n.
     t0 : float or datetime
-        Time of the prior; no measurement may be earlier. Times are seconds,
-        or datetimes (``datetime``, ``numpy.datetime64``, ``pandas.Timestamp``;
-        time zones taken to UTC), which count as seconds since 1970-01-01
-        UTC: the result's times are then those seconds. As float64 seconds a
-        time now is resolved to about 2.4e-7 s, so each step's dt is off by
-        up to that much (2.4e-4 of a 1 ms step, 2% of 10 µs): for faster
-        sensors give numbers of seconds from `t0` instead.
+        Time of the prior; no measurement may be earlier. Times are numbers
+        of seconds, or datetimes (``datetime``, ``numpy.datetime64``,
+        ``pandas.Timestamp``; time zones taken to UTC), all of one kind, as
+        `t0` is. Datetimes are kept exactly, each in its own resolution
+        (a Timestamp's nanoseconds, a datetime's microseconds), and each
+        step's dt is rounded once from the exact difference, so a 1 µs step
+        in 2026 is as exact as one from 0; the result's times are then
+        ``datetime64`` values.
     measurements : iterable of Measurement or of (t, sensor, z) tuples
         In any order: they are sorted by time (stably, so measurements at
         equal times keep their order). ``z`` has the sensor's shape (m_s,)
@@ -448,25 +472,36 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     timeline = _Timeline(motion, sensors)
     prior = check_prior(prior, timeline.n)
     t0 = _time("t0", t0)
+    dated = isinstance(t0, np.datetime64)
     smooth = flag("smooth", smooth)
     if "keep" in options:
         raise TypeError("`keep` is not an option of fuse_timeline: it returns every step.")
     outputs = np.zeros(0)
     if times is not None:
-        outputs = _times("times", times)
+        outputs = _times("times", times, dated)
         if outputs.ndim == 0:
             outputs = outputs.reshape(1)
         if outputs.ndim != 1:
             raise shape_error("times", "(k,)", outputs.shape)
-        if outputs.size and outputs.min() < t0:
-            raise ValueError(
-                f"`times` must not be earlier than `t0` = {t0} (the prior's time); got {outputs.min()}."
-            )
-    events = _parse(measurements, timeline, t0)
-    step_times, zs, sources = _steps(events, outputs, timeline)
-    if step_times.size == 0:
+    events = _parse(measurements, timeline, dated)
+    clock = _Clock.finest([t0, *(t for t, _, _ in events), *outputs])
+    start = clock.count("t0", t0)
+    for i, (t, name, z) in enumerate(events):
+        events[i] = (clock.count(f"measurements[{i}].t", t), name, z)
+        if events[i][0] < start:
+            raise ValueError(f"`measurements[{i}].t` must not be earlier than `t0` = {t0} (the prior's time); "
+                             f"got {t}.")
+    given = outputs
+    outputs = np.array([clock.count(f"times[{i}]", t) for i, t in enumerate(given)],
+                       dtype=float if clock.unit is None else np.int64)
+    if outputs.size and outputs.min() < start:
+        raise ValueError(f"`times` must not be earlier than `t0` = {t0} (the prior's time); got "
+                         f"{given[int(np.argmin(outputs))]}.")
+    counts, zs, sources = _steps(events, outputs, timeline)
+    if counts.size == 0:
         raise ValueError("`measurements` and `times` are both empty: there is nothing to estimate.")
-    dts = np.diff(step_times, prepend=t0)
+    dts = clock.steps(np.concatenate([[start], counts]))
+    step_times = counts if clock.unit is None else counts.view(f"datetime64[{clock.unit}]")
     model, us = timeline.model(dts)
     method = timeline.default_method() if method is None else method
     check = drivers.checked(options.pop("check", "warn"))
@@ -506,8 +541,9 @@ class Fuser:
     ----------
     belief : Gaussian
         The current belief, at time `t`.
-    t : float
-        The time of the belief.
+    t : float or numpy.datetime64
+        The time of the belief: seconds, or (when `t0` was a datetime) a
+        UTC datetime64 in the finest resolution given so far.
     loglik : float
         Log-likelihood of the measurements taken so far.
 
@@ -545,6 +581,7 @@ class Fuser:
         self._timeline = _Timeline(motion, sensors)
         self.belief = check_prior(prior, self._timeline.n)
         self.t = _time("t0", t0)
+        self._dated = isinstance(self.t, np.datetime64)
         self.loglik = 0.0
         probe, _ = self._timeline.model(np.zeros(1))
         method = self._timeline.default_method() if method is None else method
@@ -564,14 +601,17 @@ class Fuser:
         us = None if self._timeline.linear else np.asarray(dts, dtype=float).reshape(-1, 1)
         return self._spec.strategy(model, us, **self._options)
 
-    def _advance(self, t: float, argument: str) -> None:
-        if t < self.t:
+    def _advance(self, t, argument: str) -> None:
+        clock = _Clock.finest([self.t, t])
+        now, then = clock.count("the fuser's time", self.t), clock.count(argument, t)
+        if then < now:
             raise ValueError(
                 f"`{argument}` = {t} is earlier than the fuser's current time {self.t}: an online "
                 "Fuser cannot go back in time (out-of-order measurement); fuse_timeline sorts "
                 "measurements by time instead."
             )
-        dt = t - self.t
+        dt = float(clock.steps(np.array([now, then]))[0])
+        t = t if clock.unit is None else np.int64(then).view(f"datetime64[{clock.unit}]")
         if dt > 0.0:
             model, _ = self._timeline.model(np.array([dt]))
             lin = self._strategy(model, [dt])
@@ -594,7 +634,7 @@ class Fuser:
         Gaussian
             The predicted belief, also in :attr:`belief`.
         """
-        self._advance(_time("t", t), "t")
+        self._advance(_time("t", t, self._dated), "t")
         return self.belief
 
     def update(self, t: float, sensor: str, z) -> Gaussian:
@@ -602,14 +642,15 @@ class Fuser:
 
         Parameters
         ----------
-        t : float
-            Time of the measurement, >= the current time.
+        t : float or datetime
+            Time of the measurement, >= the current time (seconds, or a
+            datetime, as `t0`).
         sensor : str
             Name of the sensor.
         z : array_like of shape (m_s,)
             The measurement (a scalar when m_s = 1); NaN components are missing.
         """
-        t = _time("t", t)
+        t = _time("t", t, self._dated)
         name = self._timeline.check_name(sensor, "sensor")
         z = self._timeline.measurement_vector(name, z)
         self._advance(t, "t")
@@ -619,5 +660,5 @@ class Fuser:
         self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         if self._monitor is not None:
-            self._monitor.observe(post, t, "times {:.15g}-{:.15g}")  # seconds since 1970 need 15 digits
+            self._monitor.observe(post, self.t, "times {} to {}")
         return self.belief

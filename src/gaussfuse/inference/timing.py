@@ -14,6 +14,8 @@ only at its own ``dt`` when it records one.
 
 from __future__ import annotations
 
+import datetime
+
 import numpy as np
 
 from ..models.compose import TimedModel
@@ -22,8 +24,86 @@ from .validation import check_measurements
 __all__ = ["as_seconds", "step_sizes", "resolve"]
 
 
-def as_seconds(name: str, times) -> np.ndarray:
-    """`times` as float seconds (relative to the first for datetimes), a 1-D array.
+_FINE = ("s", "ms", "us", "ns", "ps", "fs", "as")
+"""The datetime64 units of at most a second, each 1000 times finer than the one before."""
+
+
+def stamp(name: str, value) -> np.datetime64 | None:
+    """A datetime (``datetime``, ``numpy.datetime64``, ``pandas.Timestamp``) as a naive UTC datetime64, else None.
+
+    The value keeps its own resolution: a Timestamp's nanoseconds, a
+    datetime's microseconds, a datetime64's unit (calendar units, years to
+    minutes, as seconds), so no year is wrapped through another unit.
+
+    Raises
+    ------
+    ValueError
+        For NaT, naming `name`.
+    """
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if hasattr(value, "tz_localize"):  # a pandas Timestamp (or NaT)
+        if value != value:
+            raise ValueError(f"`{name}` must be a time; got {value!r}.")
+        if value.tzinfo is not None:
+            value = value.tz_convert("UTC").tz_localize(None)
+        return value.to_datetime64()
+    if isinstance(value, datetime.datetime):
+        if value.tzinfo is not None:  # aware: the same instant in UTC
+            value = value.astimezone(datetime.timezone.utc).replace(tzinfo=None)
+        return np.datetime64(value, "us")
+    if isinstance(value, np.datetime64):
+        if np.isnat(value):
+            raise ValueError(f"`{name}` must be a time; got {value!r}.")
+        unit = np.datetime_data(value.dtype)[0]
+        return within(name, value, unit if unit in _FINE else "s")
+    return None
+
+
+def within(name: str, values, unit: str):
+    """Datetime64 `values` in `unit` (one of :data:`_FINE`), exactly.
+
+    Raises
+    ------
+    ValueError
+        When a value is not a whole number of `unit` or lies outside the
+        years that unit's int64 holds (NumPy's cast wraps them silently).
+    """
+    values = np.asarray(values)
+    out = values.astype(f"datetime64[{unit}]")
+    back = out.astype(values.dtype)
+    bad = np.flatnonzero(np.isnat(out).ravel() | (back != values).ravel())
+    if bad.size:
+        shown = values.ravel()[bad[0]]
+        raise ValueError(f"`{name}` holds {shown}, which datetime64[{unit}] (the finest resolution among the times) "
+                         "cannot hold exactly: give the times in one resolution, within the years it holds.")
+    return out[()] if out.ndim == 0 else out
+
+
+def ticks(name: str, stamps: np.ndarray) -> tuple[np.ndarray, int]:
+    """Datetime64 or timedelta64 `stamps` as int64 counts of their unit (at most a second), and the counts per second."""
+    unit = np.datetime_data(stamps.dtype)[0]
+    if unit not in _FINE:
+        unit = "s"
+        if stamps.dtype.kind == "M":
+            stamps = within(name, stamps, unit)
+        else:
+            stamps = stamps.astype("timedelta64[s]")
+    return stamps.astype(f"{stamps.dtype.kind}8[{unit}]").astype(np.int64), 1000 ** _FINE.index(unit)
+
+
+def elapsed(counts: np.ndarray, per_second: int) -> np.ndarray:
+    """The seconds between consecutive int64 `counts` (of ``1 / per_second`` s), each rounded once from the exact difference."""
+    steps = np.diff(counts)
+    wrapped = (steps < 0) != (counts[1:] < counts[:-1])  # an int64 difference past 2**63
+    if wrapped.any() or np.abs(steps).max(initial=0) > 2**53:  # not exact in float64: in Python ints
+        whole = counts.tolist()
+        return np.array([(b - a) / per_second for a, b in zip(whole[:-1], whole[1:])], dtype=np.float64)
+    return steps.astype(np.float64) / per_second
+
+
+def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
+    """`times` as a 1-D array: float seconds (and None), or int64 counts of a datetime64/timedelta64 unit and the counts per second.
 
     Raises
     ------
@@ -39,34 +119,50 @@ def as_seconds(name: str, times) -> np.ndarray:
     if hasattr(times, "to_numpy"):
         times = times.to_numpy()
     arr = np.asarray(times)
-    if arr.dtype == object:
-        try:
-            arr = arr.astype("datetime64[ns]")
-        except (TypeError, ValueError):
-            raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
-                            f"DatetimeIndex); got {type(arr.flat[0]).__name__ if arr.size else 'nothing'}.") from None
     if arr.ndim != 1:
         raise ValueError(f"`{name}` must be one-dimensional, one time per step; got shape {arr.shape}.")
-    if arr.dtype.kind == "M":
+    if arr.dtype == object:
+        read = [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.tolist())]
+        if not arr.size or any(v is None for v in read):
+            raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
+                            f"DatetimeIndex); got {type(arr.flat[0]).__name__ if arr.size else 'nothing'}.")
+        unit = _FINE[max(_FINE.index(np.datetime_data(v.dtype)[0]) for v in read)]
+        arr = np.array([within(f"{name}[{i}]", v, unit) for i, v in enumerate(read)])
+    if arr.dtype.kind in "Mm":
         if np.isnat(arr).any():
             raise ValueError(f"`{name}` must not hold NaT (missing times).")
-        ns = (arr - arr[0]).astype("timedelta64[ns]").astype(np.int64) if arr.size else np.zeros(0, np.int64)
-        return ns / 1e9
-    if arr.dtype.kind == "m":
-        if np.isnat(arr).any():
-            raise ValueError(f"`{name}` must not hold NaT (missing times).")
-        return arr.astype("timedelta64[ns]").astype(np.int64) / 1e9
+        return ticks(name, arr)
     if arr.dtype.kind not in "iuf" or arr.dtype.kind == "b":
         raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
                         f"DatetimeIndex); got {arr.dtype} values.")
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"`{name}` must be finite.")
-    return arr
+    return arr, None
+
+
+def as_seconds(name: str, times) -> np.ndarray:
+    """`times` as float seconds (relative to the first for datetimes), a 1-D array.
+
+    Raises
+    ------
+    TypeError
+        For values that are not times or numbers.
+    ValueError
+        For a shape other than 1-D, or non-finite values.
+    """
+    values, per_second = _clock(name, times)
+    if per_second is None:
+        return values
+    whole = values.tolist()
+    return np.array([(c - whole[0]) / per_second for c in whole], dtype=np.float64)
 
 
 def step_sizes(name: str, times, T: int) -> np.ndarray:
     """The T step sizes (seconds) of a series of T measurements at `times` (T or T + 1 entries; see the module notes).
+
+    Datetimes' steps are each rounded once from their exact difference, so a
+    millisecond step a day after the first time is as exact as the first.
 
     Raises
     ------
@@ -74,18 +170,20 @@ def step_sizes(name: str, times, T: int) -> np.ndarray:
         When `times` has neither T nor T + 1 entries, or is not strictly
         increasing (naming the first step that is not).
     """
-    t = as_seconds(name, times)
-    if t.shape[0] == T + 1:
+    values, per_second = _clock(name, times)
+    if per_second is None:
         with np.errstate(over="ignore"):
-            dts = np.diff(t)
-    elif t.shape[0] == T and T >= 2:
-        with np.errstate(over="ignore"):
-            dts = np.diff(t)
-        dts = np.concatenate([dts[:1], dts])
+            steps = np.diff(values)
+    else:
+        steps = elapsed(values, per_second)
+    if values.shape[0] == T + 1:
+        dts = steps
+    elif values.shape[0] == T and T >= 2:
+        dts = np.concatenate([steps[:1], steps])
     else:
         more = " (with one measurement, give two: the prior's time, then the measurement's)" if T == 1 else ""
         raise ValueError(f"`{name}` must have {T} entries, one per measurement, or {T + 1} with the prior's time "
-                         f"first{more}; got {t.shape[0]}.")
+                         f"first{more}; got {values.shape[0]}.")
     bad = np.flatnonzero(~(dts > 0))
     if bad.size:
         k = int(bad[0])
