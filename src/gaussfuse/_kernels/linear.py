@@ -54,7 +54,7 @@ from ._dense import BLAS_FROM, congruence
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
 from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, READABLE, Outputs, at, copy1, copy2, failures,
-                    filter_result, Fixed, fixed, hold_fixed, nis, not_finite, not_finite_factor, not_finite_mean,
+                    filter_result, fixed, hold_fixed, nis, not_finite, not_finite_factor, not_finite_mean,
                     outputs, predict, predict_mean, predict_sqrt, raise_failure, record, record_not_pd, settled,
                     smoother_gain, sqrt_workspace, square, steady_update, update, update_sqrt, workspace)
 
@@ -164,12 +164,18 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             pm = out.predicted_means[s, k] if keep_means else pm0
             pc = out.predicted_covs[s, k] if keep_covs else pc0
             F = at(model.F, k)
-            held = at_fixed or sharing  # the step's covariances, gain and factor are held: in hx
-            hx = (Fixed(out.covs[lo, k], out.predicted_covs[lo, k], steps_lo.Kt[k], steps_lo.L[k],
-                        out.innovation_covs[lo, k], steps_lo.observed[k]) if sharing else fx)
+            held = at_fixed or sharing  # the step's covariances, gain and factor are held: series lo's, or fx's
+            if sharing:  # series lo's gain and factor at step k, in fx (its covariances are copied from lo's rows)
+                copy2(fx.Kt, steps_lo.Kt[k])
+                copy2(fx.L, steps_lo.L[k])
+                for a in range(m):
+                    fx.obs[a] = steps_lo.observed[k, a]
             if held:
                 predict_mean(mean, F, at(b, k), pm)
-                copy2(pc, hx.pred_cov)
+                if sharing:
+                    copy2(pc, out.predicted_covs[lo, k])
+                else:
+                    copy2(pc, fx.pred_cov)
                 if not_finite_mean(pm, 0.0):
                     record(fail, s, PREDICTED_NOT_FINITE, k)
                     break
@@ -193,15 +199,19 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             H = at(model.H, k)
             reused = False
             if held:
-                reused, ll = steady_update(hx, w, pm, zs[s, k], H, model.d, model.angles, mean, v)
+                reused, ll = steady_update(fx, w, pm, zs[s, k], H, model.d, model.angles, mean, v)
             if reused:
-                copy2(cov, hx.cov)
-                copy2(S, hx.S)
+                if sharing:
+                    copy2(cov, out.covs[lo, k])
+                    copy2(S, out.innovation_covs[lo, k])
+                else:
+                    copy2(cov, fx.cov)
+                    copy2(S, fx.S)
                 if not_finite_mean(mean, ll):
                     record(fail, s, FILTERED_NOT_FINITE, k)
                     break
                 if s == lo and rows > 0:
-                    keep_gain(steps_lo, k, hx.Kt, hx.L, zs[s, k], True)
+                    keep_gain(steps_lo, k, fx.Kt, fx.L, zs[s, k], True)
             else:
                 # As series lo would: a step that leaves the fixed point is not tested for one.
                 was_fixed = at_fixed or (sharing and steps_lo.held[k])
@@ -267,20 +277,29 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
             H = at(model.H, k)
             z = zs[s, k]
             reused = False
-            held = at_fixed or sharing  # the step's factors, K̄ᵀ and L_S are held: in hx
-            hx = (Fixed(out.factors[lo, k], out.predicted_factors[lo, k], steps_lo.Kt[k], steps_lo.L[k],
-                        out.innovation_covs[lo, k], steps_lo.observed[k]) if sharing else fx)
+            held = at_fixed or sharing  # the step's factors, K̄ᵀ and L_S are held: series lo's, or fx's
+            if sharing:  # series lo's K̄ᵀ and L_S at step k, in fx (its factors are copied from lo's rows)
+                copy2(fx.Kt, steps_lo.Kt[k])
+                copy2(fx.L, steps_lo.L[k])
+                for a in range(m):
+                    fx.obs[a] = steps_lo.observed[k, a]
             if held:  # the held prediction, and its gain when the same components are observed
                 predict_mean(mean, at(model.F, k), at(b, k), pm)
-                copy2(pL, hx.pred_cov)
-                reused, ll = steady_update(hx, w, pm, z, H, model.d, model.angles, mean, v, True)
+                if sharing:
+                    copy2(pL, out.predicted_factors[lo, k])
+                else:
+                    copy2(pL, fx.pred_cov)
+                reused, ll = steady_update(fx, w, pm, z, H, model.d, model.angles, mean, v, True)
                 if reused:
-                    copy2(L, hx.cov)
+                    if sharing:
+                        copy2(L, out.factors[lo, k])
+                    else:
+                        copy2(L, fx.cov)
                     if not_finite_mean(mean, ll):
                         record(fail, s, FILTERED_NOT_FINITE, k)
                         break
                     if s == lo and rows > 0:
-                        keep_gain(steps_lo, k, hx.Kt, hx.L, z, True)
+                        keep_gain(steps_lo, k, fx.Kt, fx.L, z, True)
             if not reused:
                 sharing = False
                 copy2(prevL, L)  # the factor this step's prediction started from: the fixed point's test
