@@ -229,3 +229,68 @@ def test_docstring_examples():
         result = doctest.testmod(noise, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted >= 3
     assert result.failed == 0, out.getvalue()
+
+
+def _mp_van_loan(A, w, dt, digits=60):
+    """F and Q of dx = A x dt + w dβ (E dβ² = dt) from mpmath's exponential of Van Loan's block matrix, `digits` digits."""
+    mp = pytest.importorskip("mpmath")
+    with mp.workdps(digits):
+        n = len(A)
+        M = mp.zeros(2 * n, 2 * n)
+        for i in range(n):
+            for j in range(n):
+                M[i, j] = -mp.mpf(A[i][j])
+                M[i, n + j] = mp.mpf(w[i]) * mp.mpf(w[j])
+                M[n + i, n + j] = mp.mpf(A[j][i])
+        E = mp.expm(M * mp.mpf(dt))
+        F = mp.matrix(n, n)
+        G = mp.matrix(n, n)
+        for i in range(n):
+            for j in range(n):
+                F[i, j] = E[n + j, n + i]
+                G[i, j] = E[i, n + j]
+        Q = F * G
+        return (np.array([[float(F[i, j]) for j in range(n)] for i in range(n)]),
+                np.array([[float(Q[i, j]) for j in range(n)] for i in range(n)]))
+
+
+@pytest.mark.parametrize("sigma", [1.0, 1e8, 1e12, 1e20])
+def test_a_large_noise_density_leaves_f_and_the_relative_accuracy_of_q(sigma):
+    """The block matrix's exponential (scipy's expm) was accurate relative to its norm, which a large W set: Singer
+    with sigma = 1e12 had F off by 1.7e-2, and at 1e20 Q[0, 0] = -8.4e47 for +3.8e38. F does not depend on W and Q
+    is linear in it: against the 60-digit exponential at sigma = 1, every entry to 1e-14 of itself."""
+    tau, dt = 2.0, 1.0
+    A = [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tau]]
+    F_ref, Q_ref = _mp_van_loan(A, [0.0, 0.0, np.sqrt(2.0 / tau)], dt)
+    F, Q = gf.Singer(tau=tau, sigma=sigma).transition(dt)
+    np.testing.assert_allclose(F, F_ref, rtol=1e-14, atol=1e-16)
+    np.testing.assert_allclose(Q / sigma**2, Q_ref, rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.01, 1e-3])
+@pytest.mark.parametrize("order", [3, 5])
+def test_a_short_step_keeps_every_entry_of_q(order, dt):
+    """expm's low-degree Padé approximant (a norm below 0.015) lost Q's small entries: a chain of 4 integrators at
+    dt = 0.01 had Q[0, 0] off by 2.5e-3 and the position's variance given the rest 1.2e-32 for 9.9e-20 (a negative
+    eigenvalue). Against the closed form (a chain) and a damped chain's 60-digit exponential, entry by entry."""
+    A, L = chain(order)
+    F, Q = van_loan(A, L, 2.0, dt)
+    np.testing.assert_allclose(Q, continuous_white_noise(order, dt, 2.0), rtol=1e-14, atol=0)
+    damped = A.copy()
+    damped[-1, -1] = -3.0
+    F_ref, Q_ref = _mp_van_loan(damped.tolist(), L.tolist(), dt)
+    F, Q = van_loan(damped, L, 1.0, dt)
+    np.testing.assert_allclose(F, F_ref, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(Q, Q_ref, rtol=1e-13, atol=0)
+    rest = slice(1, order + 1)  # the position's variance given the derivatives: a Schur complement
+    given = Q[0, 0] - Q[0, rest] @ np.linalg.solve(Q[rest, rest], Q[rest, 0])
+    want = Q_ref[0, 0] - Q_ref[0, rest] @ np.linalg.solve(Q_ref[rest, rest], Q_ref[rest, 0])
+    assert given > 0 and abs(given - want) <= 1e-6 * want
+
+
+def test_a_drift_past_2_to_the_1024_per_step_is_stepped():
+    """dt / 2.0**halvings raised OverflowError (reported as a step too long) for ||A|| dt past 2**1024: Singer's F
+    and Q at tau = 1e-300 over 1e10 s are finite (F[1, 2] = tau, Q[2, 2] = sigma²)."""
+    F, Q = gf.Singer(tau=1e-300, sigma=2.0).transition(1e10)
+    assert F[1, 2] == pytest.approx(1e-300, rel=1e-12) and F[2, 2] == 0.0
+    assert Q[2, 2] == pytest.approx(4.0, rel=1e-12)

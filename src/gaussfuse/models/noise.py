@@ -78,13 +78,26 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
         \exp\left(\begin{bmatrix} -A & W \\ 0 & A^T \end{bmatrix} h\right)
         = \begin{bmatrix} \cdot & G \\ 0 & \Phi_h^T \end{bmatrix}
         \quad\text{gives}\quad
-        F_h = \Phi_h = e^{A h}, \qquad Q_h = \Phi_h G .
+        F_h = \Phi_h = e^{A h}, \qquad Q_h = \Phi_h G ,
 
-    The block :math:`e^{-A h}` grows like :math:`e^{\|A\| h}`, which would
-    cost accuracy for stiff drifts (e.g. a short Singer time constant), so
-    the exponential is taken over :math:`h = \Delta t / 2^j` with
-    :math:`\|A\|_1 h \le 1/2` and the result doubled j times with the exact
-    rule :math:`F_{2h} = F_h^2`, :math:`Q_{2h} = F_h Q_h F_h^T + Q_h`.
+    and it is computed here by the power series of both integrals over a
+    step :math:`h = \Delta t / 2^j` with :math:`\|A\|_1 h \le 1/2`:
+
+    .. math::
+
+        F_h = \sum_{N \ge 0} \frac{(A h)^N}{N!}, \qquad
+        Q_h = \sum_{N \ge 0} \frac{h^{N+1}}{(N+1)!} T_N, \quad
+        T_0 = W, \quad T_{N+1} = A T_N + T_N A^T,
+
+    each summed until every entry has converged (a chain of integrators ends
+    exactly), then doubled j times with the exact rule
+    :math:`F_{2h} = F_h^2`, :math:`Q_{2h} = F_h Q_h F_h^T + Q_h`. A matrix
+    exponential of the block matrix (``scipy.linalg.expm``) is accurate only
+    relative to its norm: a large W (a density in small units) spoiled F, and
+    the small entries of Q over a short step (position variances growing
+    like :math:`h^7` under white jerk) lost all their digits. The series
+    keeps each entry to its own round-off; Q is linear in W and F does not
+    depend on it.
 
     References
     ----------
@@ -105,27 +118,39 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     array([[8., 6.],
            [6., 6.]])
     """
-    from scipy.linalg import expm  # imported here: scipy.linalg is slow to import
-
     A, L, Qc = sde_arrays(A, L, Qc)
     dt = real("dt", dt, positive=True)
-    n = A.shape[0]
-    W = L @ Qc @ L.T
-    norm = np.max(np.sum(np.abs(A), axis=0)) * dt
-    halvings = max(0, ceil(log2(norm)) + 1) if norm > 0 else 0
-    h = dt / 2.0**halvings
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -A
-    M[:n, n:] = W
-    M[n:, n:] = A.T
-    E = expm(M * h)
-    F = E[n:, n:].T
-    Q = F @ E[:n, n:]
-    Q = symmetrize(Q)
+    W = symmetrize(L @ Qc @ L.T)
+    norm = float(np.max(np.sum(np.abs(A), axis=0)))
+    halvings = max(0, ceil(log2(norm) + log2(dt)) + 1) if norm > 0 else 0  # (norm * dt may overflow)
+    h = float(np.ldexp(dt, -halvings))  # (dt / 2.0**halvings overflows for ||A|| dt past 2**1024)
+    F, Q = _series(A, W, h)
     for _ in range(halvings):
         Q = symmetrize(F @ Q @ F.T + Q)
         F = F @ F
     return F, Q
+
+
+def _series(A: np.ndarray, W: np.ndarray, h: float, most: int = 80) -> tuple[np.ndarray, np.ndarray]:
+    r""":math:`e^{A h}` and :math:`\int_0^h e^{As} W e^{A^T s} ds` by their power series (see van_loan), ||A h|| <= 1/2.
+
+    Sums until the next terms change no entry (to half an ulp of it), or
+    `most` terms: a term N is at most 2**-N / N! of the first in norm.
+    """
+    n = A.shape[0]
+    Ah = A * h
+    term = np.hstack([np.eye(n), W * h])  # [(A h)^N / N!, h^{N+1} T_N / (N + 1)!], N = 0
+    total = term
+    for N in range(1, most):
+        term = Ah @ term
+        term[:, :n] /= N
+        term[:, n:] += term[:, n:].T.copy()
+        term[:, n:] /= N + 1
+        grown = total + term
+        if (grown == total).all():
+            break
+        total = grown
+    return total[:, :n], total[:, n:]
 
 
 @finite_step("Q")
