@@ -444,7 +444,7 @@ def test_random_walk_and_structural_models():
     np.testing.assert_array_equal(gf.LocalLevel(q=3.0).transition(2)[1], [[6.0]])
     F, Q = gf.LocalLinearTrend(q_level=2.0, q_slope=0.5).transition(3.0)
     np.testing.assert_array_equal(F, [[1.0, 3.0], [0.0, 1.0]])
-    np.testing.assert_array_equal(Q, [[6.0, 0.0], [0.0, 1.5]])
+    np.testing.assert_array_equal(Q, [[8.5, 1.5], [1.5, 1.5]])  # three steps (see the test below)
 
 
 def test_local_level_matches_the_nile_model_by_hand():
@@ -708,3 +708,39 @@ def test_a_step_too_long_for_float64_is_named_when_called_directly(call, owner):
         warnings.simplefilter("error")  # and no RuntimeWarning of an overflow on the way
         with pytest.raises(ValueError, match=rf"^a step of dt = 1e\+\d+ s is too long for {owner}"):
             call()
+
+
+@pytest.mark.parametrize("steps", [2, 3, 7])
+def test_a_local_linear_trends_steps_are_that_many_steps(steps):
+    """Q over dt steps was diag(q_level, q_slope)·dt: two steps gave [[4, 0], [0, 1]] where two steps of the model
+    give [[4.5, 0.5], [0.5, 1]], so a gap filtered otherwise than a missing measurement. Against the steps composed
+    by hand, and a gap against the same data with NaN in it (the filter's answer must be the same)."""
+    trend = gf.LocalLinearTrend(q_level=2.0, q_slope=0.5)
+    F1, Q1 = trend.transition(1)
+    F, Q = np.eye(2), np.zeros((2, 2))
+    for _ in range(steps):
+        F, Q = F1 @ F, F1 @ Q @ F1.T + Q1
+    got_F, got_Q = trend.transition(steps)
+    np.testing.assert_array_equal(got_F, F)
+    np.testing.assert_allclose(got_Q, Q, rtol=1e-15)
+    a, b = trend.transition(0.7 + steps)[1], trend.transition(steps)[1]  # any real steps compose
+    np.testing.assert_allclose(trend.transition(0.7 + 2 * steps)[1],
+                               trend.transition(steps)[0] @ a @ trend.transition(steps)[0].T + b, rtol=1e-14)
+    times = np.array([0.0, 1.0, 2.0, 4.0, 5.0])
+    zs = np.array([1.0, 2.2, 2.9, 5.1, 6.3])
+    prior = gf.Gaussian([0.0, 1.0], np.diag([4.0, 1.0]))
+    timed = gf.model(trend, gf.LinearSensor([[1.0, 0.0]], 0.3))
+    gap = gf.filter(timed, prior, zs, times=np.concatenate([[-1.0], times]))
+    unit = gf.model(trend, gf.LinearSensor([[1.0, 0.0]], 0.3), dt=1.0)
+    filled = gf.filter(unit, prior, np.array([1.0, 2.2, 2.9, np.nan, 5.1, 6.3]))
+    np.testing.assert_allclose(gap.means[-1], filled.means[-1], rtol=1e-13)
+    np.testing.assert_allclose(gap.covs[-1], filled.covs[-1], rtol=1e-13)
+    assert gap.loglik == pytest.approx(filled.loglik, rel=1e-13)
+
+
+def test_a_fraction_of_a_step_without_a_covariance_is_refused():
+    """Under one step the composed Q is a covariance only while q_level >= q_slope (1 - dt²) / 12."""
+    with pytest.raises(ValueError, match=r"^`dt` = 0\.5 is a fraction of a step, over which LocalLinearTrend"):
+        gf.LocalLinearTrend(q_level=0.0, q_slope=1.0).transition(0.5)
+    Q = gf.LocalLinearTrend(q_level=1.0 / 16, q_slope=1.0).transition(0.5)[1]  # 1/16 >= 0.75 / 12
+    assert np.linalg.eigvalsh(Q).min() >= -1e-17

@@ -681,13 +681,35 @@ class LocalLinearTrend(LinearMotion):
 
     Notes
     -----
+    One step is
+
     .. math::
 
-        \mu_k = \mu_{k-1} + \Delta t\, \nu_{k-1} + \xi_k, \qquad
+        \mu_k = \mu_{k-1} + \nu_{k-1} + \xi_k, \qquad
         \nu_k = \nu_{k-1} + \zeta_k,
 
-    :math:`F = \begin{bmatrix} 1 & \Delta t \\ 0 & 1 \end{bmatrix}`,
-    :math:`Q = \mathrm{diag}(q_\text{level}, q_\text{slope})\, \Delta t`.
+    :math:`F = \begin{bmatrix} 1 & 1 \\ 0 & 1 \end{bmatrix}`,
+    :math:`Q = \mathrm{diag}(q_\text{level}, q_\text{slope})`, and ``dt``
+    steps are that step ``dt`` times: :math:`F = \begin{bmatrix} 1 & d \\ 0 & 1
+    \end{bmatrix}` and :math:`Q = \sum_{i=0}^{d-1} F^i\,
+    \mathrm{diag}(q_\text{level}, q_\text{slope})\, F^{iT}`, with
+    :math:`d = \Delta t`,
+
+    .. math::
+
+        Q = \begin{bmatrix}
+            d\, q_\text{level} + \frac{d (d-1)(2d-1)}{6} q_\text{slope} &
+            \frac{d (d-1)}{2} q_\text{slope} \\
+            \frac{d (d-1)}{2} q_\text{slope} & d\, q_\text{slope}
+        \end{bmatrix},
+
+    so a gap of two steps equals two steps with the measurement between
+    them missing. The same polynomial composes for any real d (Q over
+    a + b is Q over a carried by F over b, plus Q over b) and is a
+    covariance for every :math:`d \ge 1`. Under a step it is one only when
+    :math:`q_\text{level} \ge q_\text{slope} (1 - d^2) / 12` (it is then the
+    integrated random walk with level noise that matches one step); for
+    smaller ``q_level`` a fraction of a step is refused.
 
     Examples
     --------
@@ -695,6 +717,9 @@ class LocalLinearTrend(LinearMotion):
     >>> LocalLinearTrend(q_level=2.0, q_slope=0.5).transition(1)[1]
     array([[2. , 0. ],
            [0. , 0.5]])
+    >>> LocalLinearTrend(q_level=2.0, q_slope=0.5).transition(2)[1]
+    array([[4.5, 0.5],
+           [0.5, 1. ]])
     """
 
     __slots__ = ("q_level", "q_slope")
@@ -719,11 +744,24 @@ class LocalLinearTrend(LinearMotion):
         F : ndarray of shape (2, 2)
             ``[[1, dt], [0, 1]]``.
         Q : ndarray of shape (2, 2)
-            ``diag(q_level·dt, q_slope·dt)``.
+            The noise of ``dt`` steps (see the class notes).
+
+        Raises
+        ------
+        ValueError
+            For a fraction of a step (dt < 1) over which Q would not be a
+            covariance (``q_level < q_slope (1 - dt²) / 12``).
         """
-        dt = real("dt", dt, positive=True)
-        return (np.array([[1.0, dt], [0.0, 1.0]]),
-                np.diag([self.q_level * dt, self.q_slope * dt]))
+        d = real("dt", dt, positive=True)
+        ql, qs = self.q_level, self.q_slope
+        if d < 1.0 and ql < qs * (1.0 - d * d) / 12.0:
+            raise ValueError(
+                f"`dt` = {d:g} is a fraction of a step, over which LocalLinearTrend(q_level={ql:g}, "
+                f"q_slope={qs:g}) has no noise covariance (it needs q_level >= q_slope (1 - dt²) / 12 = "
+                f"{qs * (1.0 - d * d) / 12.0:g}): the model counts whole steps.")
+        cross = qs * (d * (d - 1.0) / 2.0)
+        return (np.array([[1.0, d], [0.0, 1.0]]),
+                np.array([[d * ql + qs * (d * (d - 1.0) * (2.0 * d - 1.0) / 6.0), cross], [cross, d * qs]]))
 
 
 class LinearSDE(LinearMotion):
