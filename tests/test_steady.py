@@ -191,3 +191,43 @@ def test_an_unstable_model_with_tiny_process_noise_has_its_steady_state(F, q, r)
 def test_an_unstable_mode_the_measurements_do_not_see_is_still_refused():
     with pytest.raises(ValueError, match=r"no steady state: the Riccati equation has no stabilising solution"):
         gf.steady_state(gf.LinearModel(F=[[1.5, 0.0], [0.0, 1.0]], H=[[0.0, 1.0]], Q=np.eye(2), R=1.0))
+
+
+def _scalar_root(a, q, r):
+    """The positive root of p = a² p r / (p + r) + q (the scalar Riccati equation), without cancellation."""
+    b = r - a * a * r - q
+    return 2 * q * r / (b + np.sqrt(b * b + 4 * q * r)) if b > 0 else (-b + np.sqrt(b * b + 4 * q * r)) / 2
+
+
+@pytest.mark.parametrize("a, q, r, rel", [(1.01, 1e-25, 1.0, 1e-12), (1.5, 1e-30, 2.0, 1e-12), (1.5, 1e-25, 1.0, 1e-12),
+                                          (1.0, 1e-24, 1.0, 3e-8), (1.0, 1e-28, 1.0, 3e-8), (1.0, 1.0, 1e20, 3e-8),
+                                          (-1.0, 1e-20, 1.0, 3e-8), (0.5, 1e-25, 1.0, 1e-12)])
+def test_a_tiny_q_beside_r_gives_the_stabilising_solution(a, q, r, rel):
+    """SciPy returned solutions that are not the stabilising one (F = 1.01, Q = 1e-25: P = 22304 for 0.0201, gain
+    0.99996), or a negative one, named as "S singular ([[-1048574.]]) ... give R a positive variance"; a random walk
+    with Q = 1e-24 gave 9e-9 for 1e-12, and one with Q = 1e-28 "no stabilising solution". Against the closed-form root
+    (to 3e-8 where the filter's pole is within 1e-10 of the unit circle, where the equation's terms cancel)."""
+    ss = gf.steady_state(gf.LinearModel(a, 1.0, q, r))
+    p = _scalar_root(a, q, r)
+    assert ss.predicted_cov[0, 0] == pytest.approx(p, rel=rel)
+    assert ss.gain[0, 0] == pytest.approx(p / (p + r), rel=rel)
+
+
+def test_an_unstable_pair_with_tiny_noise_gets_a_stabilising_gain():
+    """F = [[1.2, 0.1], [0, 1.1]], Q = 1e-30 I: the gain returned left |eig(F - F K H)| = 1.0999. Against the
+    covariance recursion in plain NumPy, run to its fixed point."""
+    F, H, R = np.array([[1.2, 0.1], [0.0, 1.1]]), np.array([[1.0, 0.0]]), np.array([[1.0]])
+    Q = 1e-30 * np.eye(2)
+    P = np.eye(2)
+    for _ in range(3000):
+        S = H @ P @ H.T + R
+        P = F @ (P - P @ H.T @ np.linalg.solve(S, H @ P)) @ F.T + Q
+        P = (P + P.T) / 2
+    ss = gf.steady_state(gf.LinearModel(F, H, Q, R))
+    np.testing.assert_allclose(ss.predicted_cov, P, rtol=1e-12)
+    loop = F @ (np.eye(2) - ss.gain @ H)
+    assert np.abs(np.linalg.eigvals(loop)).max() < 1.0
+    zs = np.random.default_rng(1).normal(size=(400, 1))  # filter(steady=True) raised the negative-S error
+    held = gf.filter(gf.LinearModel(1.5, 1.0, 1e-25, 1.0), gf.Gaussian([0.0], [[1.0]]), zs, steady=True)
+    full = gf.filter(gf.LinearModel(1.5, 1.0, 1e-25, 1.0), gf.Gaussian([0.0], [[1.0]]), zs)
+    np.testing.assert_allclose(held.means, full.means, rtol=1e-9, atol=1e-9)

@@ -10,8 +10,9 @@ stabilising solution of the discrete algebraic Riccati equation,
     P^- = F P^- F^\top - F P^- H^\top (H P^- H^\top + R)^{-1} H P^- F^\top + Q,
 
 whatever the prior. :func:`steady_state` solves it with SciPy
-(:func:`scipy.linalg.solve_discrete_are`) and completes the update with
-:func:`gaussfuse.kalman.gain`. ``gf.filter(..., steady=True)`` uses the
+(:func:`scipy.linalg.solve_discrete_are`) and the doubling algorithm,
+keeps what proves to be the stabilising solution, and completes the update
+with :func:`gaussfuse.kalman.gain`. ``gf.filter(..., steady=True)`` uses the
 result to stop computing covariances once the filter has reached it.
 """
 
@@ -78,20 +79,26 @@ def steady_state(model: LinearModel) -> Stationary:
         singular): then the filter's covariance has no steady state to
         converge to. Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
-        there), which leaves the gain undefined. (Where SciPy's solver
-        fails on a badly scaled problem, an unstable F with Q 1e-30 of R,
-        the filter's own covariance recursion is run to its fixed point
-        instead; the error comes when that does not settle in 10,000 steps.)
+        there), which leaves the gain undefined.
 
     Notes
     -----
     The predicted covariance solves the discrete algebraic Riccati equation
-    (module notes), as ``c solve_discrete_are(Fᵀ, Hᵀ, Q / c, R / c)``:
-    scaling Q and R together scales the solution and leaves the gain as it
-    is, so it is solved with c a power of two within a factor 2 of Q's
-    largest entry and of the largest of Q's and R's, and the solution that
-    satisfies the equation more closely is kept (R far larger than Q needs
-    the first for a stable F, the second for an unstable one). Then, as in
+    (module notes). Its candidates are ``c solve_discrete_are(Fᵀ, Hᵀ, Q / c,
+    R / c)`` with c a power of two within a factor 2 of Q's largest entry and
+    of the largest of Q's and R's (scaling Q and R together scales the
+    solution and leaves the gain; R far larger than Q needs the first for a
+    stable F, the second for an unstable one), and the filter's own
+    recursion from 0 doubled until it settles (the structure-preserving
+    doubling algorithm, with R positive definite). A candidate counts only
+    when it is the stabilising solution: symmetric positive semi-definite,
+    satisfying the equation to 1e-8 of its size, with every eigenvalue of
+    :math:`F (I - K H)` inside the unit circle (SciPy returns other
+    solutions where Q is tiny beside R); of those the one that satisfies it
+    most closely is kept, and the recursion is run step by step where none
+    does. Near the unit circle the answer is as exact as the equation's
+    terms allow: a random walk with Q 1e-20 of R (pole 1 - 1e-10) within
+    about 1e-8 of the closed form. Then, as in
     :func:`gaussfuse.kalman.update`,
 
     .. math::
@@ -128,13 +135,16 @@ def steady_state(model: LinearModel) -> Stationary:
 
 
 def _riccati_solution(model: LinearModel) -> np.ndarray:
-    """The stabilising solution of the Riccati equation (module notes), as accurate as SciPy can give it.
+    """The stabilising solution of the Riccati equation (module notes), from the candidates that prove to be one.
 
     P scales with Q and R together, but SciPy's solver is not scale-free (its residual checks and pencil are
     absolute), so it solves at unit scale, by a power of two (exact). Which unit matters where R is far larger
     than Q: in units of R a stable model's P (of Q's size) is lost in round-off (a ratio of 1e20 gave P wrong in
-    sign), in units of Q an unstable one's (of R's size) is. Both are solved, and the one that satisfies the
-    equation more closely is kept. With no process noise and a stable F, P = 0 exactly.
+    sign), in units of Q an unstable one's (of R's size) is. Beside those two, the doubling algorithm
+    (:func:`_doubled`) gives a third candidate. SciPy also returns solutions that are not the stabilising one
+    where Q is tiny beside R (F = 1.01, Q = 1e-25: P = 22304 for 0.0201): a candidate is kept only when it
+    :func:`_stabilises`, and of those the one that satisfies the equation most closely. With no process noise
+    and a stable F, P = 0 exactly.
     """
     from scipy.linalg import solve_discrete_are  # SciPy on first use: `import gaussfuse` loads NumPy only
 
@@ -150,16 +160,91 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
                 found.append(symmetrize(unit * solve_discrete_are(F.T, H.T, Q / unit, R / unit)))
         except (np.linalg.LinAlgError, ValueError) as exc:
             error = exc
-    if not found:
+    found.append(_doubled(model))
+    kept = [P for P in found if P is not None and _stabilises(model, P)]
+    known = [P for P in found if P is not None and _covariance(P) and _residual(model, P) == np.inf]
+    if not kept and known:  # a solution whose S is singular: steady_state names it
+        return known[0]
+    if not kept:
         iterated = _iterated(model)
-        if iterated is not None:
+        if iterated is not None and _stabilises(model, iterated):
             return iterated
+        why = f" (SciPy: {error})" if error is not None else ""
         raise ValueError(
-            "the filter of `model` has no steady state: the Riccati equation has no stabilising solution "
-            f"(SciPy: {error}). Check that every unstable mode of F is seen through H and reached by Q, and that "
-            "R is positive definite where Q does not reach."
+            f"the filter of `model` has no steady state: the Riccati equation has no stabilising solution{why}. "
+            "Check that every unstable mode of F is seen through H and reached by Q, and that R is positive "
+            "definite where Q does not reach."
         ) from None
-    return min(found, key=lambda P: _residual(model, P))
+    return min(kept, key=lambda P: _residual(model, P))
+
+
+def _stabilises(model: LinearModel, P: np.ndarray) -> bool:
+    """Whether P is a covariance that solves the Riccati equation and whose gain makes the filter stable.
+
+    Symmetric positive semi-definite to round-off, S = H P Hᵀ + R positive definite, the equation satisfied to
+    1e-8 of P's size, and the closed loop of the prediction error, F (I - K H), with every eigenvalue inside the
+    unit circle: what singles out the stabilising solution among the equation's solutions.
+    """
+    if not _covariance(P):
+        return False
+    try:
+        g = kalman.gain(P, model.H, model.R)
+    except np.linalg.LinAlgError:
+        return False
+    if _residual(model, P) > 1e-8:
+        return False
+    loop = model.F @ (np.eye(P.shape[0]) - g.K @ model.H)
+    return bool(np.max(np.abs(np.linalg.eigvals(loop))) < 1.0)
+
+
+def _covariance(P: np.ndarray) -> bool:
+    """Whether P is finite, symmetric positive semi-definite to round-off of its largest entry."""
+    return bool(np.isfinite(P).all() and np.linalg.eigvalsh(P).min() >= -1e-12 * np.abs(P).max())
+
+
+def _doubled(model: LinearModel, most: int = 200) -> np.ndarray | None:
+    r"""The Riccati recursion from :math:`P^- = 0` doubled until it settles (the structure-preserving doubling
+    algorithm); None without a positive definite R, or when it does not settle or overflows.
+
+    The filter's recursion is :math:`P \mapsto F P (I + G P)^{-1} F^\top + Q` with
+    :math:`G = H^\top R^{-1} H`. With :math:`A_0 = F^\top`, :math:`G_0 = G`, :math:`X_0 = Q`, each step
+
+    .. math::
+
+        W = I + G_k X_k, \quad
+        A_{k+1} = A_k W^{-1} A_k, \quad
+        G_{k+1} = G_k + A_k W^{-1} G_k A_k^\top, \quad
+        X_{k+1} = X_k + A_k^\top X_k W^{-1} A_k
+
+    gives in :math:`X_k` the recursion's covariance after :math:`2^k` steps (Chu, Fan & Lin, 2005), so a
+    filter whose covariance settles only after 1e12 steps (Q 1e-24 of R, a random walk) is solved in about
+    40. From 0 it reaches the minimal solution, which is the stabilising one when every unstable mode is
+    reached by Q; the caller checks that it is (:func:`_stabilises`).
+    """
+    F, H, Q, R = model.F, model.H, model.Q, model.R
+    try:
+        L = np.linalg.cholesky(R)
+    except np.linalg.LinAlgError:
+        return None
+    whitened = np.linalg.solve(L, H)  # L⁻¹ H: G = Hᵀ R⁻¹ H without inverting R
+    A, G, X = F.T.copy(), symmetrize(whitened.T @ whitened), Q.copy()
+    eye = np.eye(F.shape[0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(most):
+            W = eye + G @ X
+            try:
+                WA, WG = np.linalg.solve(W, A), np.linalg.solve(W, G)
+            except np.linalg.LinAlgError:
+                return None
+            X_next = symmetrize(X + A.T @ X @ WA)
+            G = symmetrize(G + A @ WG @ A.T)
+            A = A @ WA
+            if not (np.isfinite(X_next).all() and np.isfinite(A).all() and np.isfinite(G).all()):
+                return None
+            if np.array_equal(X_next, X) or (kalman.settled(X_next, X) and not np.abs(A).max() > 1e-8):
+                return X_next
+            X = X_next
+    return None
 
 
 def _iterated(model: LinearModel, steps: int = 10_000) -> np.ndarray | None:
