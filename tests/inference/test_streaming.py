@@ -96,6 +96,29 @@ def test_a_diffuse_prior(track):
         list(smooth_pieces(fixed, "diffuse", cut(zs, times, 40), check="off"))
 
 
+@pytest.mark.parametrize("rows", [40, 61, 100])
+def test_a_diffuse_prior_behind_a_gap_longer_than_a_piece(track, rows):
+    """The first piece had to identify the state: 150 missing rows before the data raised NotIdentified in
+    filter_pieces (and `gaussfuse filter`, whose first piece is 65,536 rows) where gf.filter answers. The
+    pieces are now joined until they identify it. Against gf.filter on the whole series."""
+    model, _, zs, times = track
+    fixed = model.at(np.full(len(zs), 0.25))[0]
+    zs = zs.copy()
+    zs[:150] = np.nan
+    whole = gf.filter(fixed, "diffuse", zs, check="off")
+    got = list(filter_pieces(fixed, "diffuse", cut(zs, times, rows), check="off"))
+    assert [len(p.zs) for p, _ in got] == [len(p.zs) for p in cut(zs, times, rows)]
+    for attr in ("means", "covs", "predicted_means", "innovations"):
+        close(joined(got, attr), getattr(whole, attr))
+    assert sum(r.loglik for _, r in got) == pytest.approx(whole.loglik, rel=1e-12)
+    for (piece, result) in got:  # each piece ends in the belief after its last row
+        np.testing.assert_array_equal(result.last_mean, result.means[-1])
+    with pytest.raises(gf.inference.diffuse.NotIdentified):
+        list(filter_pieces(fixed, "diffuse", cut(np.full_like(zs, np.nan), times, rows), check="off"))
+    with pytest.raises(ValueError, match="smoothing in pieces needs a Gaussian prior"):
+        list(smooth_pieces(fixed, "diffuse", cut(zs, times, rows), check="off"))
+
+
 def test_the_spool_is_removed(track, tmp_path):
     model, prior, zs, times = track
     pieces = smooth_pieces(model, prior, cut(zs, times, 50), timed=True, check="off", spool_dir=str(tmp_path))

@@ -36,7 +36,7 @@ from dataclasses import fields, replace
 import tempfile
 import warnings
 from collections.abc import Iterable, Iterator
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -60,6 +60,13 @@ class Piece(Protocol):
 def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, timed: bool = False,
                   engine: str = "auto", check: str = "warn") -> Iterator[tuple[Piece, FilterResult]]:
     """Filter a series given in pieces, each from the belief the previous piece ended in.
+
+    With a "diffuse" prior the first pieces are joined until one run over
+    them identifies the state (:func:`gaussfuse.filter` raises NotIdentified
+    until then), so a leading stretch of missing values longer than a piece
+    is filtered as one run would (those pieces are held in memory
+    meanwhile); the joined pieces' log-likelihood is that run's, given with
+    the last of them (the others' is 0).
 
     Parameters
     ----------
@@ -88,14 +95,36 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     """
     monitor = _Monitor(check)
     belief, before, start = prior, None, 0
+    pending = []  # a diffuse prior's pieces so far, none of which has identified the state
     for piece, engine_k in _engines(pieces, engine):
-        with _steps_from(start):
-            result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
-                                smooth=False))
+        if isinstance(belief, str):
+            pending.append(piece)
+            if np.isnan(piece.zs).all():
+                continue  # nothing observed: it cannot identify anything
+            group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]))
+            try:
+                with _steps_from(start):
+                    result = first(_run(model, belief, group.zs, _times(group, before, timed), engine_k,
+                                        ending=None, smooth=False))
+            except diffuse.NotIdentified:
+                continue
+            done, pending = pending, []
+        else:
+            with _steps_from(start):
+                result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
+                                    smooth=False))
+            done = [piece]
         monitor.add(result)
         belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
-        before, start = piece.times[-1], start + piece.zs.shape[0]
-        yield piece, result
+        offset = 0
+        for i, part in enumerate(done):
+            T = part.zs.shape[0]
+            yield part, _rows(result, offset, offset + T, last=i == len(done) - 1)
+            offset += T
+        before, start = done[-1].times[-1], start + offset
+    if pending:  # the whole series never identifies the state: the error of one run over it
+        group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]))
+        _run(model, belief, group.zs, _times(group, before, timed), "auto", ending=None, smooth=False)
     monitor.finish()
 
 
@@ -122,6 +151,9 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
             start += piece.zs.shape[0]
             belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
             before = piece.times[-1]
+        if isinstance(prior, str) and len(offsets) > 1:
+            raise ValueError("smoothing in pieces needs a Gaussian prior; give a 'diffuse' one the whole series "
+                             "as one piece.")
         engine = engine if engine != "auto" or len(offsets) == 1 else "numba"
         after = None  # the next piece and its smoothed result
         for offset in reversed(offsets):
@@ -132,9 +164,6 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
                 zs = np.concatenate([zs, after[0].zs[:1]])
                 times = np.concatenate([times, after[0].times[:1]])
                 ending = Gaussian._trusted(after[1].means[0], after[1].covs[0])
-                if isinstance(belief, str):
-                    raise ValueError("smoothing in pieces needs a Gaussian prior; give a 'diffuse' one the "
-                                     "whole series as one piece.")
             with _steps_from(start):
                 result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending,
                                     smooth=True))
@@ -204,6 +233,23 @@ def _head(result, T: int):
         elif isinstance(value, np.ndarray) and not f.name.startswith("last_"):
             cut[f.name] = value[:T]
     return replace(result, **cut)
+
+
+class _Joined(NamedTuple):
+    """Consecutive pieces as one (a diffuse prior's first pieces)."""
+
+    zs: np.ndarray
+    times: np.ndarray
+
+
+def _rows(result: FilterResult, a: int, b: int, last: bool) -> FilterResult:
+    """Steps a..b-1 of a filter's result: the belief after step b-1 as its last, and the run's loglik when `last`."""
+    if a == 0 and b == result.means.shape[0]:
+        return result
+    cut = {f.name: getattr(result, f.name)[a:b] for f in fields(result)
+           if isinstance(getattr(result, f.name), np.ndarray) and not f.name.startswith("last_")}
+    return replace(result, **cut, last_mean=result.means[b - 1], last_cov=result.covs[b - 1],
+                   loglik=result.loglik if last else 0.0)
 
 
 class _Monitor:
