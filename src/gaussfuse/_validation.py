@@ -8,6 +8,7 @@ backticks, the expected shape and what was given (the style of SciPy's
 
 from __future__ import annotations
 
+import datetime
 import math
 from functools import lru_cache, wraps
 from inspect import signature
@@ -255,8 +256,12 @@ def real(name: str, value, *, positive: bool = False, nonnegative: bool = False,
     """
     if optional and value is None:
         return None
-    number = not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
+    number = not isinstance(value, (bool, np.bool_, np.timedelta64)) and isinstance(
+        value, (int, float, np.integer, np.floating))  # (a timedelta64 is an np.integer: its count, in any unit)
     kind = "a positive" if positive else "a non-negative" if nonnegative else "a finite"
+    if isinstance(value, (np.timedelta64, datetime.timedelta)):
+        raise TypeError(f"`{name}` must be {kind} number{' or None' if optional else ''}; got {value!r}, a "
+                        "duration: give it in seconds (for example `d / np.timedelta64(1, 's')`).")
     try:
         as_float = float(value) if number else None
         shown = as_float if number else repr(value)
@@ -443,10 +448,14 @@ def finite_step(result: str) -> Callable:
             except (OverflowError, StepOverflowError):  # a power of a Python float; a step function it called
                 finite = False
             if not finite:
-                dt = signature(fn).bind(*args, **kwargs).arguments["dt"]
-                owner = type(args[0]).__name__ if "." in fn.__qualname__ else f"{fn.__name__}()"
-                raise StepOverflowError(f"a step of dt = {float(dt):g} s is too long for {owner}: its {result} "
-                                        "overflows float64 (inf or NaN).")
+                method = "." in fn.__qualname__
+                given = signature(fn).bind(*args, **kwargs).arguments
+                # the step: `dt`, or a user's own motion's first argument after self, whatever its name
+                dt = given["dt"] if "dt" in given else list(given.values())[1 if method else 0]
+                owner = type(args[0]).__name__ if method else f"{fn.__name__}()"
+                shown = f"{float(dt):g}" if isinstance(dt, (int, float, np.integer, np.floating)) else repr(dt)
+                raise StepOverflowError(f"a step of dt = {shown} s is too long for {owner}: its {result} "
+                                        "overflows float64 (inf or NaN; or its noise intensity is that large).")
             return out
         return checked
     return decorate

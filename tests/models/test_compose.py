@@ -384,3 +384,44 @@ def test_stacked_nonlinear_sensors_stack_h_jacobians_noise_and_angles():
 def test_stack_sensors_validation(sensors, error, match):
     with pytest.raises(error, match=match):
         gf.stack_sensors(sensors, gf.ConstantVelocity(dim=2))
+
+
+@pytest.mark.parametrize("dt", [np.timedelta64(100_000_000, "ns"), np.timedelta64(100, "ms"),
+                                __import__("datetime").timedelta(milliseconds=100)])
+def test_a_duration_is_not_a_number_of_seconds(dt):
+    """np.timedelta64 is an np.integer: 100 ms in nanoseconds became dt = 1e8 s silently, in ms a bare float()
+    TypeError that named nothing."""
+    with pytest.raises(TypeError, match=r"^`dt` must be a positive number; got .*, a duration: give it in seconds"):
+        gf.model(gf.ConstantVelocity(dim=1, q=1.0), gf.Position(dim=1, r=1.0), dt=dt)
+
+
+def test_a_control_input_with_a_nonlinear_sensor_needs_us_of_its_width():
+    """The filter called f without u (a TypeError quoting a private helper) or with u of another width (NumPy's
+    matmul message), where a linear sensor's model says `us` is required."""
+    prior = gf.Gaussian(np.zeros(4), np.eye(4))
+    zs = np.array([[10.0, 0.5], [10.2, 0.52]])
+    fixed = gf.model(gf.ForceInput(dim=2), gf.RangeBearing(), dt=1.0)
+    timed = gf.model(gf.ForceInput(dim=2), gf.RangeBearing())
+    for model, times in ((fixed, None), (timed, [0.0, 1.0, 2.0])):
+        with pytest.raises(ValueError, match=r"^`us` is required: the model has a control input with p = 2\.$"):
+            gf.filter(model, prior, zs, times=times, method="ekf")
+        with pytest.raises(ValueError, match=r"`us` must have"):
+            gf.filter(model, prior, zs, np.ones((2, 3)), times=times, method="ekf")
+        got = gf.filter(model, prior, zs, np.ones((2, 2)), times=times, method="ekf")
+        assert np.isfinite(got.means).all()
+    with pytest.raises(ValueError, match=r"^`us` was given but the motion has no control input\.$"):
+        gf.filter(gf.model(gf.ConstantVelocity(dim=2), gf.RangeBearing()), prior, zs, np.ones((2, 2)),
+                  times=[0.0, 1.0, 2.0], method="ekf")
+
+
+def test_a_timed_model_is_not_refused_for_a_step_it_is_never_given():
+    """gf.model(motion, sensor) without dt checked the pair by discretising it over 1 s: an unstable SDE that is
+    fine over the milliseconds it is used for was refused ("a step of dt = 1 s is too long")."""
+    sde = gf.LinearSDE([[800.0]], [1.0], 1.0)
+    timed = gf.model(sde, gf.LinearSensor([[1.0]], 1.0))
+    got = gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), [1.0, 2.0], times=[0.0, 1e-3, 2e-3])
+    F, Q = sde.transition(1e-3)
+    assert F[0, 0] == pytest.approx(np.exp(0.8), rel=1e-14) and Q[0, 0] == pytest.approx(np.expm1(1.6) / 1600, rel=1e-13)
+    assert np.isfinite(got.means).all()
+    with pytest.raises(ValueError, match=r"^a step of dt = 1 s is too long for LinearSDE"):
+        gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), [1.0, 2.0], times=[0.0, 1.0, 2.0])

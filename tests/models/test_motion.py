@@ -744,3 +744,18 @@ def test_a_fraction_of_a_step_without_a_covariance_is_refused():
         gf.LocalLinearTrend(q_level=0.0, q_slope=1.0).transition(0.5)
     Q = gf.LocalLinearTrend(q_level=1.0 / 16, q_slope=1.0).transition(0.5)[1]  # 1/16 >= 0.75 / 12
     assert np.linalg.eigvalsh(Q).min() >= -1e-17
+
+
+def test_a_users_motion_with_its_own_name_for_the_step_overflows_as_a_named_step():
+    """The step was looked up by the name `dt`: a transition(self, step) that overflowed raised KeyError('dt')."""
+
+    class Growth(gf.LinearMotion):
+        __slots__ = ()
+        n = 1
+        names = ("x",)
+
+        def transition(self, step):
+            return np.array([[np.exp(step)]]), np.array([[step]])
+
+    with pytest.raises(ValueError, match=r"^a step of dt = 1000 s is too long for Growth: its F or Q overflows"):
+        Growth().transition(1000.0)

@@ -68,9 +68,10 @@ def check_controls(us, model, N: int, T: int, matching: str = "`zs`") -> np.ndar
     A LinearModel needs controls exactly when it has ``B``; for a
     NonlinearModel they are optional and passed to ``f(x, u)``.
     """
-    p = model.p if isinstance(model, LinearModel) else None
+    p = getattr(model, "p", None)  # a NonlinearModel's, when it knows its f's controls
     if p == 0 and us is not None:
-        raise ValueError("`us` was given but the model has no control input; give the model `B`.")
+        raise ValueError("`us` was given but the model has no control input"
+                         + ("; give the model `B`." if isinstance(model, LinearModel) else "."))
     if us is None:
         if p:
             raise ValueError(f"`us` is required: the model has a control input with p = {p}.")

@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from .._validation import call_checked, integer, real
+from .._validation import StepOverflowError, call_checked, integer, real
 from ._base import Frozen
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
@@ -127,7 +127,8 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
 
     return NonlinearModel(f, h, Q, R, f_jacobian=f_jacobian, h_jacobian=h_jacobian, vectorized=True,
                           state_angles=motion.state_angles,
-                          measurement_angles=sensor.measurement_angles, dt=dt)
+                          measurement_angles=sensor.measurement_angles, dt=dt,
+                          p=B.shape[1] if isinstance(motion, LinearMotion) and B is not None else 0)
 
 
 class TimedModel(Frozen):
@@ -162,7 +163,10 @@ class TimedModel(Frozen):
     __slots__ = ("motion", "sensor")
 
     def __init__(self, motion, sensor) -> None:
-        model(motion, sensor, 1.0)  # checks that they fit, as model() does
+        try:
+            model(motion, sensor, 1.0)  # checks that they fit, as model() does
+        except StepOverflowError:
+            pass  # a step of 1 s too long for the motion says nothing of the steps it will be given
         self._set(motion=motion, sensor=sensor)
 
     @property
@@ -233,11 +237,24 @@ class TimedModel(Frozen):
         else:
             R, h, h_jacobian = self.sensor.R, self.sensor.h, self.sensor.jacobian
         stepped = _Stepped(self.motion)
+        B = self.motion.control(float(unique[0])) if isinstance(self.motion, LinearMotion) else None
+        p = 0 if B is None else B.shape[1]
+        if p and us is None:
+            raise ValueError(f"`us` is required: the model has a control input with p = {p}.")
+        if us is not None:
+            us = np.asarray(us, dtype=np.float64)
+            width = 1 if us.ndim == 1 else us.shape[-1] if us.ndim > 1 else None
+            if not p:
+                raise ValueError("`us` was given but the motion has no control input.")
+            if width != p:
+                raise ValueError(f"`us` must have p = {p} components per step (the motion's control input); got "
+                                 f"shape {us.shape}.")
+            us = us[:, None] if us.ndim == 1 else us
         controls = dts[:, None] if us is None else np.concatenate(
             [np.broadcast_to(dts[:, None], (*np.shape(us)[:-1], 1)), np.asarray(us, dtype=np.float64)], axis=-1)
         return NonlinearModel(stepped, h, Q, R, f_jacobian=stepped.jacobian, h_jacobian=h_jacobian,
                               vectorized=True, state_angles=self.motion.state_angles,
-                              measurement_angles=self.sensor.measurement_angles), controls
+                              measurement_angles=self.sensor.measurement_angles, p=1 + p), controls
 
 
 class _Stepped:

@@ -204,14 +204,15 @@ def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
 
 @finite_step("Q")
 def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
-    r"""Process noise of an integrator chain whose K-th derivative jumps once per step, for one axis.
+    r"""Process noise of an integrator chain whose (K+1)-th derivative jumps once per step, for one axis.
 
     Parameters
     ----------
     order : int
-        K: the K-th derivative (1 for the acceleration of a constant-velocity
-        model) is constant over each step, with independent values of
-        variance `var` from step to step.
+        K, the highest derivative in the state (1 for a constant-velocity
+        model: position and velocity). The next derivative (the
+        acceleration, for constant velocity) is constant over each step,
+        with independent values of variance `var` from step to step.
     dt : float
         Time step, > 0.
     var : float
@@ -224,7 +225,7 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
 
     Notes
     -----
-    A constant K-th derivative a over the step moves the i-th derivative
+    A constant (K+1)-th derivative a over the step moves the i-th derivative
     (i = 0 the position) by :math:`g_i a` with
 
     .. math::

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, call_checked, call_each, check_psd, flag, real, size_reason
+from .._validation import as_matrix, call_checked, call_each, check_psd, flag, integer, real, size_reason
 
 __all__ = ["NonlinearModel"]
 
@@ -84,6 +84,11 @@ class NonlinearModel:
     dt : float, optional
         The time step f and Q are for, when known (see
         :class:`LinearModel`'s `dt`).
+    p : int, optional
+        The number of control components f takes, when known: the filters
+        then require ``us`` of that width (``f(x, u)`` with u of shape
+        (p,)). None (the default): controls are optional and passed to f
+        as given.
 
     Notes
     -----
@@ -111,7 +116,7 @@ class NonlinearModel:
     """
 
     __slots__ = ("f", "h", "Q", "R", "f_jacobian", "h_jacobian", "vectorized",
-                 "state_angles", "measurement_angles", "dt")
+                 "state_angles", "measurement_angles", "dt", "p")
 
     def __init__(
         self,
@@ -126,6 +131,7 @@ class NonlinearModel:
         state_angles=(),
         measurement_angles=(),
         dt: float | None = None,
+        p: int | None = None,
     ) -> None:
         for name, fn, required in (("f", f, True), ("h", h, True),
                                    ("f_jacobian", f_jacobian, False),
@@ -156,6 +162,7 @@ class NonlinearModel:
         for name, value in values.items():
             object.__setattr__(self, name, value)
         object.__setattr__(self, "dt", None if dt is None else real("dt", dt, positive=True))
+        object.__setattr__(self, "p", None if p is None else integer("p", p, minimum=0))
 
     def __setattr__(self, name, value):
         raise AttributeError("NonlinearModel is immutable; build a new one instead.")
@@ -166,7 +173,7 @@ class NonlinearModel:
         # error; a module-level function, a partial of one or a picklable callable object works.
         angles = {name: tuple(np.flatnonzero(getattr(self, name)).tolist())
                   for name in ("state_angles", "measurement_angles")}
-        return (functools.partial(type(self), **angles, dt=self.dt),
+        return (functools.partial(type(self), **angles, dt=self.dt, p=self.p),
                 (self.f, self.h, self.Q, self.R, self.f_jacobian, self.h_jacobian, self.vectorized))
 
     @property

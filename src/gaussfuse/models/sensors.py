@@ -376,7 +376,8 @@ class RangeBearingElevation(NonlinearSensor):
     ----------
     m : int
         3: ``[range, bearing, elevation]``; the bearing (component 1) is an
-        angle; the elevation lies in (-π/2, π/2) and is not wrapped.
+        angle; the elevation lies in [-π/2, π/2] (±π/2 straight above or
+        below the sensor) and is not wrapped.
 
     Notes
     -----
