@@ -274,7 +274,7 @@ def test_the_fuser_names_the_times_of_a_divergence():
     motion = gf.ConstantVelocity(dim=1, q=0.1)
     fuser = gf.Fuser(motion, {"gps": gf.Position(dim=1, r=0.25)}, gf.Gaussian([0.0, 1.0], np.eye(2)), t0=0.0)
     rng = np.random.default_rng(1)
-    with pytest.warns(gf.DivergenceWarning, match=r"over times \d+(\.\d+)?-\d+(\.\d+)?"):
+    with pytest.warns(gf.DivergenceWarning, match=r"over times \d+(\.\d+)? to \d+(\.\d+)?"):
         for k in range(1, 200):
             t = 0.5 * k
             fuser.update(t, "gps", t + 0.5 * rng.standard_normal() + (8.0 if k > 120 else 0.0))

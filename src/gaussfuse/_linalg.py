@@ -482,6 +482,14 @@ def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     return solve(Lt, solve(L, b))
 
 
+def general_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """:math:`A^{-1} B` for a square A that is not a covariance (I + G X in the Riccati doubling): LU with pivoting.
+
+    Raises numpy.linalg.LinAlgError when A is singular.
+    """
+    return np.linalg.solve(A, B)
+
+
 def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular the
     minimum-norm least-squares solution (exact on the range of C, where B is for a conditional)."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import symmetrize
+from ._linalg import cholesky, general_solve, is_positive_definite, symmetrize, whiten
 from .models.linear import LinearModel
 
 __all__ = ["Stationary", "steady_state"]
@@ -222,18 +222,16 @@ def _doubled(model: LinearModel, most: int = 200) -> np.ndarray | None:
     reached by Q; the caller checks that it is (:func:`_stabilises`).
     """
     F, H, Q, R = model.F, model.H, model.Q, model.R
-    try:
-        L = np.linalg.cholesky(R)
-    except np.linalg.LinAlgError:
+    if not is_positive_definite(R):
         return None
-    whitened = np.linalg.solve(L, H)  # L⁻¹ H: G = Hᵀ R⁻¹ H without inverting R
+    whitened = whiten(cholesky(R, "R"), H)  # L⁻¹ H: G = Hᵀ R⁻¹ H without inverting R
     A, G, X = F.T.copy(), symmetrize(whitened.T @ whitened), Q.copy()
     eye = np.eye(F.shape[0])
     with np.errstate(over="ignore", invalid="ignore"):
         for _ in range(most):
             W = eye + G @ X
             try:
-                WA, WG = np.linalg.solve(W, A), np.linalg.solve(W, G)
+                WA, WG = general_solve(W, A), general_solve(W, G)
             except np.linalg.LinAlgError:
                 return None
             X_next = symmetrize(X + A.T @ X @ WA)
