@@ -117,6 +117,73 @@ def table(T, n, m, shared):
 
 
 @jit(**_JIT)
+def held_steps(k0, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo, mean, pm0, v0):
+    """Steps ``k0..`` of series s while each reuses held covariances and gain: :func:`forward`'s held branch.
+
+    The held step's covariances, gain and factor of S are series lo's at
+    that step (`sharing`: its rows, and its gain and factor from `steps_lo`,
+    loaded into `fx`), or the fixed point's in `fx`. Each step predicts the
+    mean and updates it with the held gain (:func:`._step.steady_update`),
+    operation for operation as the branch does, so bitwise the same; in a
+    loop of its own, out of the registers of :func:`forward`'s other
+    branches. Returns ``(k, total)``: the first step that observes other
+    components than the held ones (left to the caller; T: none) and the
+    log-likelihood with these steps added. The mean after step k - 1 is
+    ``out.means[s, k - 1]`` when means are kept, else in `mean`; the
+    covariances are kept only when `out` keeps them (the caller takes the
+    held ones). A failure is recorded in `fail`, and returns its step.
+    """
+    T = zs.shape[1]
+    m = zs.shape[2]
+    keep_means = out.means.shape[1] > 0
+    keep_covs = out.covs.shape[1] > 0
+    smoothing = out.gains.shape[1] > 0
+    recording = s == lo and steps_lo.held.shape[0] > 0  # series lo, whose steps the others reuse
+    b = model.b[s if model.b.shape[0] > 1 else 0]
+    prev = out.means[s, k0 - 1] if keep_means and k0 > 0 else mean
+    for k in range(k0, T):
+        z = zs[s, k]
+        for a in range(m):
+            if (z[a] == z[a]) != (steps_lo.observed[k, a] if sharing else fx.obs[a]):
+                return k, total
+        pm = out.predicted_means[s, k] if keep_means else pm0
+        predict_mean(prev, at(model.F, k), at(b, k), pm)
+        if keep_covs:
+            copy2(out.predicted_covs[s, k], out.predicted_covs[lo, k] if sharing else fx.pred_cov)
+        if not_finite_mean(pm, 0.0):
+            record(fail, s, PREDICTED_NOT_FINITE, k)
+            return k, total
+        if sharing:
+            if smoothing and k > 0:
+                copy2(out.gains[s, k - 1], out.gains[lo, k - 1])
+                out.failed[s, k - 1] = out.failed[lo, k - 1]
+            copy2(fx.Kt, steps_lo.Kt[k])
+            copy2(fx.L, steps_lo.L[k])
+            for a in range(m):
+                fx.obs[a] = steps_lo.observed[k, a]
+        post = out.means[s, k] if keep_means else mean
+        v = out.innovations[s, k] if keep_means else v0
+        _, ll = steady_update(fx, w, pm, z, at(model.H, k), model.d, model.angles, post, v)
+        if keep_covs:
+            if sharing:
+                copy2(out.covs[s, k], out.covs[lo, k])
+                copy2(out.innovation_covs[s, k], out.innovation_covs[lo, k])
+            else:
+                copy2(out.covs[s, k], fx.cov)
+                copy2(out.innovation_covs[s, k], fx.S)
+        if not_finite_mean(post, ll):
+            record(fail, s, FILTERED_NOT_FINITE, k)
+            return k, total
+        if recording:
+            keep_gain(steps_lo, k, fx.Kt, fx.L, z, True)
+        total += ll
+        if keep_means:
+            out.nis[s, k] = nis(w, z)
+        prev = post
+    return T, total
+
+
+@jit(**_JIT)
 def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     """Filter series ``lo..hi-1``: inference.drivers.run_filter's loop, with the workspace `w`.
 
@@ -160,7 +227,23 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
         at_fixed = False  # cov is the fixed point's posterior covariance
         sharing = rows > 0 and s > lo and fail.code[lo] == OK  # cov is series lo's at this step
         b = model.b[s if model.b.shape[0] > 1 else 0]
-        for k in range(T):
+        k = 0
+        while k < T:
+            if sharing or at_fixed:  # the held steps, in their own loop, up to one that observes otherwise
+                k1, total = held_steps(k, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo, mean0,
+                                       pm0, v0)
+                if fail.code[s] != OK:
+                    break
+                if k1 > k:
+                    mean = out.means[s, k1 - 1] if keep_means else mean0
+                    if keep_covs:
+                        cov = out.covs[s, k1 - 1]
+                    else:
+                        cov = covs0[(k1 - 1) % 2]
+                        copy2(cov, fx.cov)
+                k = k1
+                if k == T:
+                    break
             pm = out.predicted_means[s, k] if keep_means else pm0
             pc = out.predicted_covs[s, k] if keep_covs else pc0
             F = at(model.F, k)
@@ -229,6 +312,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             total += ll
             if keep_means:
                 out.nis[s, k] = nis(w, zs[s, k])
+            k += 1
         out.loglik[s] = total
         copy1(out.last_mean[s], mean)
         copy2(out.last_cov[s], cov)
