@@ -180,6 +180,7 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     """
     window, false_alarm = _test_settings(window, false_alarm)
     v = np.atleast_2d(np.asarray(nis_values, dtype=float))
+    per_step = np.ndim(dof) == 0  # the same dof at every step: a window's is dof times its observed steps
     k = np.broadcast_to(np.asarray(dof, dtype=float), v.shape)
     T = v.shape[-1]
     if T == 0:
@@ -193,7 +194,8 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     # and the zero-filled copies only where a step is missing), then over the windows from their running sums.
     edges = np.unique(np.concatenate([lo, lo + window]))
     seen = ~np.isnan(v)
-    if not seen.all():
+    complete = seen.all()
+    if not complete:
         v, k = np.where(seen, v, 0.0), np.where(seen, k, 0.0)
     at = np.searchsorted(edges, [lo, lo + window])
 
@@ -201,8 +203,13 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
         segments = np.add.reduceat(x, edges[:-1], axis=1)
         return np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(segments, axis=1)], axis=1)
 
-    total, count = running(v), running(k)
-    sums, dofs = total[:, at[1]] - total[:, at[0]], count[:, at[1]] - count[:, at[0]]
+    total = running(v)
+    sums = total[:, at[1]] - total[:, at[0]]
+    if complete and per_step:
+        dofs = np.full(sums.shape, float(dof) * window)
+    else:
+        count = running(k)
+        dofs = count[:, at[1]] - count[:, at[0]]
     flagged = (dofs > 0) & (sums >= _threshold(dofs, np.log(sums.size / false_alarm)))
     out = []
     for series in np.flatnonzero(flagged.any(axis=1)):
