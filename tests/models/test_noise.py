@@ -294,3 +294,10 @@ def test_a_drift_past_2_to_the_1024_per_step_is_stepped():
     F, Q = gf.Singer(tau=1e-300, sigma=2.0).transition(1e10)
     assert F[1, 2] == pytest.approx(1e-300, rel=1e-12) and F[2, 2] == 0.0
     assert Q[2, 2] == pytest.approx(4.0, rel=1e-12)
+
+
+def test_a_huge_density_over_a_step_whose_q_is_finite_is_not_refused():
+    """q dt^5 was formed before dividing by 20: ConstantAcceleration(q=1e308) over 1.5 s was "a step too long",
+    where Q[0, 0] = q 1.5^5 / 20 = 3.8e307."""
+    Q = gf.ConstantAcceleration(q=1e308).transition(1.5)[1]
+    assert Q[0, 0] == pytest.approx(1e308 * (1.5**5 / 20), rel=1e-14)

@@ -199,7 +199,7 @@ def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     i, j = np.meshgrid(idx, idx, indexing="ij")
     fact = np.array([float(factorial(k)) for k in range(K + 1)])
     power = 2 * K + 1 - i - j
-    return q * dt**power / (power * fact[K - i] * fact[K - j])
+    return q * (dt**power / (power * fact[K - i] * fact[K - j]))  # (q dt^p first could overflow where Q does not)
 
 
 @finite_step("Q")
