@@ -22,7 +22,6 @@ import numpy as np
 
 from .._validation import finite_step, integer, real
 from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state
-from .linear import LinearModel
 from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan
 
 __all__ = [
