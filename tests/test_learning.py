@@ -229,7 +229,7 @@ def _parametrised_case(seed, n, m, learn, missing, controls, diffuse, structure)
     model, prior, zs, us, learn = _random_case(seed, n, m, learn, missing, controls, diffuse)
     if diffuse and m < n:
         prior = gf.Gaussian(np.zeros(n), np.eye(n))
-    learn, structures = learning._check_learn(model, prior, learn, {"Q": structure, "R": structure})
+    learn, structures = learning._check_learn(model, prior, learn, {k: structure for k in ("Q", "R") if k in learn})
     param = learning._Parametrisation(model, prior, learn, structures)
     return param, zs[None], None if us is None else us[None]
 
@@ -371,7 +371,7 @@ def test_mle_with_a_singular_covariance_that_is_not_learned_reaches_the_em_maxim
         "P0 singular, learn Q and R": (gf.LinearModel(**_TREND, Q=np.diag([0.3, 0.1]), R=1.0),
                                        gf.Gaussian([0.0, 0.0], np.diag([10.0, 0.0])), ("Q", "R")),
     }[case]
-    structure = {"Q": "diagonal"}
+    structure = {"Q": "diagonal"} if "Q" in learn else {}
     mle = gf.fit(model, prior, y, learn=learn, method="mle", structure=structure)
     em = gf.fit(model, prior, y, learn=learn, structure=structure, iterations=20000, tol=1e-12)
     assert mle.converged and em.converged
@@ -740,3 +740,10 @@ def test_a_fit_with_nothing_to_learn_returns_the_start(method):
     assert res.converged and res.params == {} and res.model.Q[0, 0] == 0.0
     assert res.loglik == pytest.approx(gf.filter(gf.LinearModel(F=1, H=1, Q=0.0, R=1.0), gf.Gaussian(0.0, 1.0),
                                                  y).loglik, rel=1e-12)
+
+
+def test_a_structure_for_a_covariance_that_is_not_learned_is_refused():
+    """It was accepted and ignored (the command line refused it): `learn=("R",)` with a diagonal Q."""
+    model = gf.LinearModel(**_TREND, Q=np.diag([0.3, 0.1]), R=1.0)
+    with pytest.raises(ValueError, match=r"^`structure` constrains Q, which is not learned \(`learn` = \['R'\]\)"):
+        gf.fit(model, "diffuse", _trend_data(), learn=("R",), structure={"Q": "diagonal"})

@@ -1393,6 +1393,9 @@ def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, di
         if name not in COVARIANCES or kind not in STRUCTURES:
             raise ValueError(f"`structure` maps {list(COVARIANCES)} to one of {list(STRUCTURES)}; "
                              f"got {name!r}: {kind!r}.")
+        if name not in learn and kind != "full":
+            raise ValueError(f"`structure` constrains {name}, which is not learned (`learn` = {list(learn)}): a "
+                             f"structure applies to a learned covariance; add {name!r} to `learn` or leave it out.")
     return learn, {k: structure.get(k, "full") for k in COVARIANCES}
 
 
