@@ -653,13 +653,16 @@ class Fixed(NamedTuple):
     L: np.ndarray         # (m, m)  the Cholesky factor of S_oo
     S: np.ndarray         # (m, m)  S over all m components
     obs: np.ndarray       # (m,)    bool: the observed components
+    gain: np.ndarray      # (n, n)  when smoothing: the smoother gain G = P Fᵀ (P⁻)⁻¹ between two held steps,
+    #                                 or Cᵀ = F P for the least-squares gain when gain_failed[0]
+    gain_failed: np.ndarray  # (1,) bool: P⁻ not positive definite (see smoother_gain)
 
 
 @register_jitable
 def fixed(n, m):
     """An empty :class:`Fixed` for n states and m measurement components."""
     return Fixed(np.empty((n, n)), np.empty((n, n)), np.empty((m, n)), np.empty((m, m)), np.empty((m, m)),
-                 np.zeros(m, dtype=np.bool_))
+                 np.zeros(m, dtype=np.bool_), np.empty((n, n)), np.zeros(1, dtype=np.bool_))
 
 
 @jit(inline="always", **_JIT)

@@ -116,6 +116,28 @@ def table(T, n, m, shared):
                  np.zeros(rows, dtype=np.bool_))
 
 
+@jit(inline="always", **_JIT)
+def fixed_gain(fx, w, F):
+    """The smoother gain between two held steps, from the fixed point's covariances, in ``fx.gain``.
+
+    :math:`G = P F^\top (P^-)^{-1}` with P and :math:`P^-` the fixed point's
+    (:func:`._step.smoother_gain` on :math:`C^\top = F P`); where
+    :math:`P^-` is not positive definite, ``fx.gain`` keeps :math:`C^\top`
+    for the least-squares gain and ``fx.gain_failed[0]`` is set, as a
+    computed step's gain is.
+    """
+    n = F.shape[0]
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for l in range(n):
+                acc += F[i, l] * fx.cov[l, j]
+            w.A1[i, j] = acc
+    fx.gain_failed[0] = not smoother_gain(w, fx.pred_cov, w.A1, fx.gain)
+    if fx.gain_failed[0]:
+        copy2(fx.gain, w.A1)
+
+
 @jit(**_JIT)
 def held_steps(k0, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo, mean, pm0, v0):
     """Steps ``k0..`` of series s while each reuses held covariances and gain: :func:`forward`'s held branch.
@@ -153,10 +175,10 @@ def held_steps(k0, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo,
         if not_finite_mean(pm, 0.0):
             record(fail, s, PREDICTED_NOT_FINITE, k)
             return k, total
+        if smoothing and k > 0:  # G_{k-1}: series lo's, or the fixed point's (between two held steps)
+            copy2(out.gains[s, k - 1], out.gains[lo, k - 1] if sharing else fx.gain)
+            out.failed[s, k - 1] = out.failed[lo, k - 1] if sharing else fx.gain_failed[0]
         if sharing:
-            if smoothing and k > 0:
-                copy2(out.gains[s, k - 1], out.gains[lo, k - 1])
-                out.failed[s, k - 1] = out.failed[lo, k - 1]
             copy2(fx.Kt, steps_lo.Kt[k])
             copy2(fx.L, steps_lo.L[k])
             for a in range(m):
@@ -210,7 +232,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
     keep_covs = out.covs.shape[1] > 0
     smoothing = out.gains.shape[1] > 0
     invariant = (model.F.shape[0] == 1 and model.H.shape[0] == 1 and model.Q.shape[0] == 1
-                 and model.R.shape[0] == 1 and not smoothing)
+                 and model.R.shape[0] == 1)
     # The fixed point, and where a step's belief goes when it is not kept: two covariances, so that
     # the last one is still there to compare with the next (the fixed point's test); series lo's steps,
     # for the others. Borrowed, as the arguments are; `scratch` owns them until the end.
@@ -271,6 +293,9 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                 if sharing:
                     copy2(out.gains[s, k - 1], out.gains[lo, k - 1])
                     out.failed[s, k - 1] = out.failed[lo, k - 1]
+                elif at_fixed:  # no predict ran: the fixed point's
+                    copy2(out.gains[s, k - 1], fx.gain)
+                    out.failed[s, k - 1] = fx.gain_failed[0]
                 elif not smoother_gain(w, pc, w.A1, out.gains[s, k - 1]):
                     out.failed[s, k - 1] = True  # Cᵀ left for the least-squares gain
                     copy2(out.gains[s, k - 1], w.A1)
@@ -307,6 +332,8 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
                 if invariant and not was_fixed and settled(cov, model.target if model.target.shape[0] else previous,
                                                           model.tol):
                     hold_fixed(fx, w, cov, pc, S, zs[s, k], mo)
+                    if smoothing:  # the gain between two held steps: G = P Fᵀ (P⁻)⁻¹ of the fixed point
+                        fixed_gain(fx, w, F)
                     reused = True  # the posterior is the fixed point's: the next step reuses it
             at_fixed = reused and not sharing
             total += ll
