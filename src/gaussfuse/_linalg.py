@@ -491,12 +491,22 @@ def general_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular the
-    minimum-norm least-squares solution (exact on the range of C, where B is for a conditional)."""
+    r"""``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular a least-squares
+    solution (exact on the range of C, where B is for a conditional).
+
+    The least squares are taken on C scaled to unit diagonal, :math:`D^{-1} C D^{-1}` with
+    :math:`D = \operatorname{diag}(C)^{1/2}` (1 where a variance is 0), so that which directions count as
+    singular does not depend on the units of the components: unscaled, a variance of 1e-10 beside one of
+    1e6 fell below the cut of n ε times the largest singular value and was taken for zero.
+    """
     try:
         L = cholesky(C, resolved=True)  # a pivot of round-off: C is singular, and dividing by it is noise
     except np.linalg.LinAlgError:
-        return np.linalg.lstsq(C, B, rcond=None)[0]
+        d = np.sqrt(np.diagonal(C).clip(min=0.0))
+        d[d == 0.0] = 1.0
+        scaled = C / d[:, None] / d[None, :]
+        return np.linalg.lstsq(scaled, B / (d[:, None] if B.ndim == 2 else d), rcond=None)[0] / (
+            d[:, None] if B.ndim == 2 else d)
     return cho_solve(L, B)
 
 

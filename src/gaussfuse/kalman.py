@@ -423,9 +423,10 @@ def rts_step(
         P^s_k &= P_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^\top.
 
     The gain is a Cholesky solve with :math:`P^-_{k+1}`; when that is
-    singular (no process noise on a degenerate belief) it is the
-    minimum-norm least-squares solution, which is still the exact
-    conditional.
+    singular (no process noise on a degenerate belief) it is a
+    least-squares solution, on :math:`P^-_{k+1}` scaled to unit diagonal
+    so that states on small scales are kept (:func:`gaussfuse._linalg.psd_solve`),
+    which is still the exact conditional.
     """
     gain = psd_solve(pred_cov, cross_cov.T).T
     diff = wrap_components(next_mean - pred_mean, angles)
