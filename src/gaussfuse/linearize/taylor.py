@@ -38,8 +38,7 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
 
     Complex-step differentiation [1]_ when `fn` accepts complex input:
     ``J[:, i] = Im fn(x + i h_i e_i) / h_i`` with :math:`h_i` 1e-20 times the
-    component's scale (``max(|x_i|, spread_i)``, the state's where that is
-    0), exact to round-off for analytic functions (no subtractive
+    component's scale (see :func:`_scales`), exact to round-off for analytic functions (no subtractive
     cancellation) at any scale. Otherwise adaptive
     central differences with Richardson extrapolation
     (:func:`scipy.differentiate.jacobian`), with steps on each component's
@@ -60,7 +59,7 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
         Whether `fn` takes a stack of states.
     spread : ndarray of shape (n,), optional
         Each component's standard deviation under the belief, the scale of
-        a finite-difference step where it exceeds the component's size.
+        its steps (not finer than 1e-7 of the component's size).
     angles : array of bool, shape (size,), optional
         Outputs that are angles: their finite differences are wrapped to
         [-π, π), so that a step across the ±π cut is not a jump of 2π.
@@ -83,14 +82,17 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
 def _scales(x: np.ndarray, spread: np.ndarray | None, floor: bool = True) -> np.ndarray:
     """Each component's scale for a derivative's step (see :func:`finite_difference_jacobian`).
 
-    ``max(|x_j|, spread_j)``; the state's, ``0.1 max_i |x_i|`` (0.01 for a
+    ``spread_j`` where given and positive (at least ``1e-7 |x_j|``), else
+    ``|x_j|``; the state's, ``0.1 max_i |x_i|`` (0.01 for a
     state of zeros), where that is 0 or below 1e-280 (a complex step of
     1e-20 of it would underflow); and without `spread`, the state's as a
     floor for every component, unless ``floor=False``.
     """
     largest = np.max(np.abs(x))
     whole = 0.1 * largest if largest > 1e-279 else 1e-2  # an all-zero state has no scale: a guess
-    own = np.abs(x) if spread is None else np.maximum(np.abs(x), spread)
+    # the belief's spread where given: a range to a beacon 10 m away in Earth-centred metres (|x| = 6.4e6,
+    # spread 1) was stepped by 6.4e5 m; no finer than 1e-7 |x|, or the steps would reach round-off
+    own = np.abs(x) if spread is None else np.where(spread > 0, np.maximum(spread, 1e-7 * np.abs(x)), np.abs(x))
     if floor and spread is None:
         return np.maximum(own, whole)
     return np.where(own > 1e-280, own, whole)
@@ -137,13 +139,15 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     wrapped difference from it: a wrap or arctan2 output stepped across
     ±π would otherwise jump by 2π (a slope of 1e8 for a bearing of 1).
 
-    The steps along component j start at a tenth of its scale,
-    ``max(|x_j|, spread_j)`` (so domains like log(x) hold, and a component
-    of size 0.3 beside one of size 1e6 is not stepped by 1e4). A component
-    with neither (zero, and no spread given or a spread of zero) takes the
-    state's scale, ``0.1 max_i |x_i|`` (0.01 for a state of zeros), so
-    that it is not stepped into round-off; without `spread`, that scale is
-    every component's floor.
+    The steps along component j start at a tenth of its scale: the
+    belief's spread, ``spread_j``, where given (not finer than
+    ``1e-7 |x_j|``, so that the steps stay above round-off), else ``|x_j|``
+    (so domains like log(x) hold, and a component of size 0.3 beside one of
+    size 1e6 is not stepped by 1e4). A component with neither (zero, and no
+    spread given or a spread of zero) takes the state's scale,
+    ``0.1 max_i |x_i|`` (0.01 for a state of zeros), so that it is not
+    stepped into round-off; without `spread`, that scale is every
+    component's floor.
 
     SciPy then shrinks the steps until its error estimate is within 1e-11
     of the derivative or of :math:`|f_i(x)| / s_j` (:math:`s_j` the
@@ -155,7 +159,10 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     0 (an output that does not depend on a component): its estimates are
     round-off, which a relative test never accepts and which grows as the
     steps shrink, up to 1e-3 of the row's largest derivative after SciPy's
-    10 iterations.
+    10 iterations. Where an estimate has not converged and its error is
+    beyond 1e-3 of its row's largest derivative, f is not smooth on that
+    scale (a range to a beacon 10 m away, stepped from 6.4e6 m): that is a
+    ModelFunctionError, not a slope to linearise with.
     """
     from scipy.differentiate import jacobian as scipy_jacobian
 
@@ -187,9 +194,20 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
         return out / unit.reshape((size,) + shape[1:])
 
     res = scipy_jacobian(scaled, np.zeros(n), initial_step=0.1, tolerances=dict(rtol=1e-11, atol=1e-11))
-    J = np.asarray(res.df).reshape(size, n) * unit[:, None] / scale
+    df = np.asarray(res.df).reshape(size, n)
+    J = df * unit[:, None] / scale
     if not np.all(np.isfinite(J)):
         raise ModelFunctionError(f"the Jacobian of `{name}` could not be computed at x = {x}.")
+    # SciPy stops after its iterations whether or not its error estimate met the tolerance; an estimate
+    # beyond 1e-3 of the row's largest derivative (in these units) is not a derivative to linearise with.
+    error = np.asarray(res.error).reshape(size, n)
+    rows = np.maximum(np.abs(df).max(axis=1, keepdims=True), 1.0)
+    if np.any(~np.asarray(res.success).reshape(size, n) & ~(error <= 1e-3 * rows)):
+        raise ModelFunctionError(
+            f"the finite-difference Jacobian of `{name}` did not converge at x = {x} (its error estimate is "
+            f"{float(np.max(error / rows)):.2g} of the derivatives): `{name}` is not smooth on the scale of the "
+            f"belief there. Pass `{name}_jacobian` (analytic), or write `{name}` with functions that take "
+            "complex input (not np.linalg.norm or math.hypot: np.sqrt of a sum of squares), for exact derivatives.")
     return J
 
 
