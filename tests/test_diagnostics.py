@@ -209,3 +209,22 @@ def test_test_settings_are_checked(call, error, match):
     ZeroDivisionError, chi2_interval(0) (nan, nan)."""
     with pytest.raises(error, match=match):
         call()
+
+
+def test_one_huge_nis_does_not_spoil_the_later_windows():
+    """Window sums were differences of running sums: after one NIS of 7.7e17 every later window was rounded to a
+    multiple of 128, so consistent windows (averages near 1) were flagged and a real divergence missed. Against
+    each window summed on its own."""
+    rng = np.random.default_rng(4)
+    v = rng.chisquare(3, size=1000)
+    v[500:] *= 3.0  # diverging from step 500
+    v[10] = 7.7e17
+    flagged = dg.divergence(v, 3)
+    assert flagged[0][:3] == (0, 0, 49)
+    later = [(a, b, avg) for _, a, b, avg in flagged[1:]]
+    assert later and all(a >= 475 and avg > 2.0 for a, b, avg in later)
+    monitor = dg.DivergenceMonitor.for_check("warn")
+    reports = monitor.add_many(v, np.full(1000, 3), list(range(1000)))
+    one_by_one = dg.DivergenceMonitor.for_check("warn")
+    singles = [r for i in range(1000) if (r := one_by_one.add(v[i], 3, i)) is not None]
+    assert [r[:2] for r in reports] == [r[:2] for r in singles] and any(r[0] >= 475 for r in reports)

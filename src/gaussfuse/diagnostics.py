@@ -190,26 +190,18 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     lo = np.arange(0, T - window + 1, stride)
     if lo[-1] + window < T:
         lo = np.append(lo, T - window)
-    # Sums over the segments between window edges (one pass, no per-step temporary but the NaN mask,
-    # and the zero-filled copies only where a step is missing), then over the windows from their running sums.
-    edges = np.unique(np.concatenate([lo, lo + window]))
+    # Each window summed on its own (overlapping windows read each step twice): differences of running sums
+    # lose every later window to the rounding of one huge value (an NIS of 1e18 rounds them to 128).
     seen = ~np.isnan(v)
     complete = seen.all()
     if not complete:
         v, k = np.where(seen, v, 0.0), np.where(seen, k, 0.0)
-    at = np.searchsorted(edges, [lo, lo + window])
-
-    def running(x):
-        segments = np.add.reduceat(x, edges[:-1], axis=1)
-        return np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(segments, axis=1)], axis=1)
-
-    total = running(v)
-    sums = total[:, at[1]] - total[:, at[0]]
+    windows = np.lib.stride_tricks.sliding_window_view(v, window, axis=1)[:, lo]
+    sums = windows.sum(axis=-1)
     if complete and per_step:
         dofs = np.full(sums.shape, float(dof) * window)
     else:
-        count = running(k)
-        dofs = count[:, at[1]] - count[:, at[0]]
+        dofs = np.lib.stride_tricks.sliding_window_view(k, window, axis=1)[:, lo].sum(axis=-1)
     flagged = (dofs > 0) & (sums >= _threshold(dofs, np.log(sums.size / false_alarm)))
     out = []
     for series in np.flatnonzero(flagged.any(axis=1)):
@@ -345,11 +337,10 @@ class DivergenceMonitor:
         def label(i: int):
             return self._steps[i] if i < old else steps[kept[i - old]]
         reports = []
-        if tests.size:
-            sums = np.concatenate([[0.0], np.cumsum(values)])
-            dsums = np.concatenate([[0.0], np.cumsum(counts)])
-            total = sums[tests + 1] - sums[tests + 1 - self.window]
-            d = dsums[tests + 1] - dsums[tests + 1 - self.window]
+        if tests.size:  # each window summed on its own: running sums lose later windows to one huge value
+            starts = tests + 1 - self.window
+            total = np.lib.stride_tricks.sliding_window_view(values, self.window)[starts].sum(axis=-1)
+            d = np.lib.stride_tricks.sliding_window_view(counts, self.window)[starts].sum(axis=-1)
             j = self._tested + 1 + np.arange(tests.size)
             flagged = total >= _threshold(d, np.log(j * (j + 1.0) / self.false_alarm))
             newly = flagged & ~np.concatenate([[self._flagged], flagged[:-1]])
