@@ -1,5 +1,7 @@
 """Consistency diagnostics: NEES/NIS intervals catch a mistuned filter, whiteness, RMSE."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -228,3 +230,39 @@ def test_one_huge_nis_does_not_spoil_the_later_windows():
     one_by_one = dg.DivergenceMonitor.for_check("warn")
     singles = [r for i in range(1000) if (r := one_by_one.add(v[i], 3, i)) is not None]
     assert [r[:2] for r in reports] == [r[:2] for r in singles] and any(r[0] >= 475 for r in reports)
+
+
+def test_a_gate_that_rejects_everything_after_a_jump_is_named():
+    """Rejected steps have no innovation, so the check saw nothing when the gate rejected all 200 measurements after
+    a level jumped by 20 (the estimate 110 sd off). The gate's counts are tested now: at least half rejected, and
+    beyond the binomial tail of a consistent filter's 1%; a consistent gated run (1.3% rejected, in runs of up to
+    8) is not flagged."""
+    rng = np.random.default_rng(0)
+    model, prior = gf.LinearModel(F=1.0, H=1.0, Q=1e-4, R=1.0), gf.Gaussian([0.0], [[1.0]])
+    z = rng.normal(size=300)
+    z[100:] += 20.0
+    with pytest.warns(gf.DivergenceWarning, match=r"The gate rejected 200 of 225 over steps 75-299"):
+        gf.filter(model, prior, z, gate=0.99)
+    with pytest.warns(gf.DivergenceWarning, match=r"The gate rejected"):
+        gf.smooth(model, prior, z, gate=0.99)
+    rng = np.random.default_rng(3)
+    level = np.cumsum(rng.normal(scale=10, size=10_000))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", gf.DivergenceWarning)
+        r = gf.filter(gf.LinearModel(1.0, 1.0, 100.0, 1.0), gf.Gaussian([0.0], [[100.0]]),
+                      level + rng.normal(size=10_000), gate=0.99)
+    assert 0.01 < r.rejected.mean() < 0.02
+
+
+def test_rejections_is_the_binomial_tail_over_half():
+    """Against scipy.stats.binom: a window of 50 offered with 26 rejected is flagged at p = 0.01, 25 of 60 is not
+    (under half), and 0 rejected never is."""
+    rejected, offered = np.zeros(100, dtype=int), np.ones(100, dtype=int)
+    rejected[30:56] = 1  # 26 in the window 25-74 of 50
+    got = dg.rejections(rejected, offered, 0.99)
+    assert got and got[0][1] <= 30 and got[0][2] >= 55
+    assert stats.binom.sf(25, 50, 0.01) < 1e-3 / 3
+    assert dg.rejections(np.zeros(100), offered, 0.99) == []
+    sparse = np.zeros(100, dtype=int)
+    sparse[::4] = 1  # a quarter: far beyond 1%, but under half
+    assert dg.rejections(sparse, offered, 0.99) == []

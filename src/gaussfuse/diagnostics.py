@@ -218,6 +218,72 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     return out
 
 
+def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_WINDOW,
+               false_alarm: float = DIVERGENCE_FALSE_ALARM) -> list[tuple[int, int, int, int, int]]:
+    r"""The steps where a gate rejected at least half of what it was offered: a filter that has lost the data.
+
+    Parameters
+    ----------
+    rejected, offered : array_like of int, shape (T,) or (N, T)
+        At each step, the measurements (or components, gating by component)
+        the gate rejected, and those it was offered (rejected or kept).
+    probability : float
+        The gate's: a consistent filter's measurement passes with it.
+    window, false_alarm : as :func:`divergence`.
+
+    Returns
+    -------
+    list of (series, first, last, rejected, offered)
+        The flagged step ranges (0-based, inclusive; overlapping windows
+        merged), with the counts over them.
+
+    Notes
+    -----
+    Against a consistent prediction each offered measurement is rejected
+    with probability at most :math:`p = 1 - \text{probability}`,
+    independently, so a window's count K of N would be at most binomial:
+    a window is flagged when :math:`P(\mathrm{Bin}(N, p) \ge K)` is below
+    `false_alarm` over the number of windows and K is at least N / 2.
+    Rejected steps carry no innovation into :func:`divergence`, so this is
+    what sees a filter that has lost the data (a level that jumped, every
+    measurement since rejected). The binomial tail alone would flag most
+    long gated runs of a consistent model: each rejection leaves the next
+    predictions less certain than they claim, so rejections come in runs
+    (gate=0.99 on a local level with q/r = 100, 10,000 steps: 1.3%
+    rejected, up to 8 in a row, 7 of 50 in one window); the half is what
+    separates a filter that has lost the data from one that coasts.
+    """
+    from scipy.special import bdtrc  # P(Bin(n, p) > k)
+
+    window, false_alarm = _test_settings(window, false_alarm)
+    r = np.atleast_2d(np.asarray(rejected).astype(np.int64))
+    o = np.atleast_2d(np.asarray(offered).astype(np.int64))
+    T = r.shape[-1]
+    if T == 0 or not r.any():
+        return []
+    window = min(window, T)
+    stride = max(window // 2, 1)
+    lo = np.arange(0, T - window + 1, stride)
+    if lo[-1] + window < T:
+        lo = np.append(lo, T - window)
+    K = np.lib.stride_tricks.sliding_window_view(r, window, axis=1)[:, lo].sum(axis=-1)
+    N = np.lib.stride_tricks.sliding_window_view(o, window, axis=1)[:, lo].sum(axis=-1)
+    tail = np.where(K > 0, bdtrc(np.maximum(K - 1, 0), np.maximum(N, 1), 1.0 - probability), 1.0)  # P(≥ K)
+    flagged = (tail <= false_alarm / K.size) & (2 * K >= N)  # and at least half: lost, not merely unlucky
+    out = []
+    for series in np.flatnonzero(flagged.any(axis=1)):
+        ranges: list[list[int]] = []
+        for start in lo[flagged[series]]:
+            if ranges and start <= ranges[-1][1] + 1:
+                ranges[-1][1] = int(start) + window - 1
+            else:
+                ranges.append([int(start), int(start) + window - 1])
+        for first, last in ranges:
+            out.append((int(series), first, last, int(r[series, first:last + 1].sum()),
+                        int(o[series, first:last + 1].sum())))
+    return out
+
+
 def _test_settings(window, false_alarm) -> tuple[int, float]:
     """`window` a positive integer and `false_alarm` a probability in (0, 1), or a ValueError/TypeError naming them."""
     window = integer("window", window)

@@ -238,7 +238,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
             zs.shape[0]))
     else:
         result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains, gate)
-    drivers.check_divergence(result, check)
+    drivers.check_divergence(result, check, gate=gate)
     return result if batch else _labelled(first(result), table, names)
 
 
@@ -332,7 +332,7 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
             lambda i: diffuse.diffuse_smooth(model, zs[i], None if us is None else us[i], engine), zs.shape[0]))
     else:
         result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form, gate=gate)
-    drivers.check_divergence(result.filtered, check)
+    drivers.check_divergence(result.filtered, check, gate=gate)
     if batch:
         return result
     result = first(result)

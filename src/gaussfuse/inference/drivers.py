@@ -495,12 +495,16 @@ def checked(check) -> str:
     return check
 
 
-def check_divergence(result: FilterResult, check: str, first_series: int = 0) -> None:
+def check_divergence(result: FilterResult, check: str, first_series: int = 0, gate=None) -> None:
     """Warn (or raise) a DivergenceWarning naming the steps where `result`'s innovations fail the χ² test.
 
     `result` has the series axis, its first series numbered `first_series`
     in the message. See :func:`gaussfuse.diagnostics.divergence`; nothing
-    is tested without per-step values (``keep="last"``).
+    is tested without per-step values (``keep="last"``). With `gate` (the
+    :class:`gaussfuse.kalman.Gate` the filter ran with), the steps where it
+    rejected more than a consistent filter's share are named too
+    (:func:`gaussfuse.diagnostics.rejections`): rejected steps have no
+    innovation to test.
     """
     if check == "off" or result.nis is None:
         return
@@ -511,12 +515,29 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0) ->
         dof = seen[..., 0].astype(np.float64)
         for j in range(1, seen.shape[-1]):  # m is small: m vector additions beat a reduction over the last axis
             dof += seen[..., j]
-    flagged = diagnostics.divergence(result.nis, dof)
-    if not flagged:
-        return
     many = result.nis.shape[0] > 1
-    message = divergence_message([f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
-                                  for s, a, b, avg in flagged])
+    where = [f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
+             for s, a, b, avg in diagnostics.divergence(result.nis, dof)]
+    if gate is not None and getattr(result, "rejected", None) is not None and result.rejected.any():
+        rejected = result.rejected
+        if gate.by == "measurement":  # a measurement: rejected whole, offered when any component was there
+            lost, there = rejected.any(axis=-1), rejected.any(axis=-1) | seen.any(axis=-1)
+        else:
+            lost, there = rejected.sum(axis=-1), rejected.sum(axis=-1) + seen.sum(axis=-1)
+        gated = [f"{k} of {n} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
+                 for s, a, b, k, n in diagnostics.rejections(lost, there, gate.probability)]
+    else:
+        gated = []
+    if not where and not gated:
+        return
+    message = divergence_message(where) if where else ""
+    if gated:
+        kind = "measurements" if gate.by == "measurement" else "components"
+        message += (" " if message else "") + (
+            f"The gate rejected {'; '.join(gated[:5])}{f' (and {len(gated) - 5} more ranges)' if len(gated) > 5 else ''} "
+            f"of the {kind} it was given, at least half, where against a consistent prediction it rejects "
+            f"{1 - gate.probability:.2g} of them: the filter may have lost the data (its covariances no longer cover "
+            "its errors, and the gate keeps them from showing); gate=None keeps every measurement.")
     if check == "raise":
         raise DivergenceWarning(message)
     warnings.warn(message, DivergenceWarning, stacklevel=3)
