@@ -11,10 +11,16 @@ A filter whose model is right produces
 
 An average of :math:`K` independent :math:`\chi^2_d` values times
 :math:`K` is :math:`\chi^2_{Kd}`, which gives the two-sided confidence
-interval of the average (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4):
-over time (one run), across Monte Carlo runs (at each step), or both. An
-average above the interval means the filter is overconfident (for example Q
-too small); below, too cautious. Whiteness is tested on the innovations
+interval of the average (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4). The
+NIS of one run are independent over time, so their average over time
+has that interval. The NEES of one run are not: the estimation errors of
+consecutive steps are strongly correlated (a local level's time-averaged
+NEES spreads three times as wide as the χ² interval assumes, which called
+a consistent filter inconsistent in half of its runs); the NEES are
+averaged at each step across independent Monte Carlo runs, or, as
+:func:`consistency` does, each run's time average is tested across runs
+(a t interval). An average above the interval means the filter is
+overconfident (for example Q too small); below, too cautious. Whiteness is tested on the innovations
 whitened by :math:`S_k^{-1/2}`: their sample autocorrelations at lags
 1..L should lie within :math:`\pm z_{1-\alpha/2}/\sqrt{T}`, summarised by
 the Ljung–Box statistic.
@@ -599,9 +605,12 @@ class ConsistencyReport:
     nees : float or None
         Average NEES over every step and run (None without the truth).
     nees_interval : tuple of float or None
-        Its χ² interval (None without the truth).
+        The interval it must lie in for a consistent filter, from the spread
+        of the runs' time averages (a t interval around n); None without the
+        truth, or with one run (a run's NEES over time are correlated: no
+        interval follows from one).
     nees_ok : bool or None
-        Whether `nees` lies inside (None without the truth).
+        Whether `nees` lies inside (None without an interval).
     whiteness : Whiteness or None
         Of the first run's innovations (None with fewer than 10 steps
         without a missing component).
@@ -634,8 +643,10 @@ class ConsistencyReport:
             lines.append(f"{name:<10} {value:>10.3f} {f'[{interval[0]:.3f}, {interval[1]:.3f}]':>22}  {verdict}")
 
         row("NIS", self.nis, self.nis_interval, self.nis_ok)
-        if self.nees is not None:
+        if self.nees is not None and self.nees_interval is not None:
             row("NEES", self.nees, self.nees_interval, self.nees_ok)
+        elif self.nees is not None:
+            lines.append(f"{'NEES':<10} {self.nees:>10.3f} {'(one run: no interval)':>22}")
         if self.whiteness is not None:
             w = self.whiteness
             lines.append(f"{'whiteness':<10} {'p = ' + format(w.p_value, '.3f'):>10} "
@@ -679,8 +690,14 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
             raise shape_error("truth", f"{np.shape(result.means)}, that of the filtered means", truth.shape)
         e = nees(truth - result.means, result.covs)
         nees_avg = float(np.mean(e))
-        nees_interval = chi2_interval(truth.shape[-1], e.size, confidence)
-        nees_ok = nees_interval[0] <= nees_avg <= nees_interval[1]
+        if e.ndim == 2 and e.shape[0] >= 2:  # each run's time average: independent across runs
+            from scipy.stats import t as student
+
+            per_run = e.mean(axis=1)
+            half = student.ppf(0.5 + confidence / 2, per_run.size - 1) * per_run.std(ddof=1) / np.sqrt(per_run.size)
+            n = truth.shape[-1]
+            nees_interval = (n - half, n + half)
+            nees_ok = bool(nees_interval[0] <= nees_avg <= nees_interval[1])
         err = rmse(result.means, truth)
     batch = np.ndim(result.innovations) == 3
     first_v = result.innovations[0] if batch else result.innovations

@@ -260,8 +260,8 @@ def plot_consistency(values, interval, *, kind: str = "NEES", ax: Axes | None = 
         left out.
     interval : (float, float)
         ``(low, high)`` bounds of the average, e.g.
-        ``chi2_interval(dof, count=values.size)`` or ``report.nees_interval``
-        of :func:`gaussfuse.diagnostics.consistency`.
+        ``chi2_interval(dof, count=values.size)`` for the NIS, or
+        ``report.nees_interval`` of :func:`gaussfuse.diagnostics.consistency`.
     kind : str, default "NEES"
         Name of the statistic, for the labels.
     ax : matplotlib.axes.Axes, optional
@@ -280,12 +280,15 @@ def plot_consistency(values, interval, *, kind: str = "NEES", ax: Axes | None = 
 
     Notes
     -----
-    The verdict compares the average of *all* the values with `interval`,
-    so the strict test is ``chi2_interval(dof, count=values.size)``. For N
-    Monte Carlo runs the classic picture instead draws
-    ``chi2_interval(dof, count=N)``, the bounds of each step's average over
-    the runs, which about 95 % of the steps should respect; the verdict on
-    the overall average is then lenient.
+    The verdict compares the average of *all* the values with `interval`.
+    For the NIS, independent over time, the strict test is
+    ``chi2_interval(dof, count=values.size)``; the NEES of one run are
+    correlated over time, and no χ² interval of their time average holds
+    (``report.nees_interval`` of :func:`gaussfuse.diagnostics.consistency`
+    is a t interval across runs). For N Monte Carlo runs the classic
+    picture draws ``chi2_interval(dof, count=N)``, the bounds of each step's
+    average over the runs, which about 95 % of the steps should respect;
+    the verdict on the overall average is then lenient.
 
     Examples
     --------
