@@ -83,3 +83,20 @@ def test_a_frame_of_what_an_array_may_not_hold_is_refused_alike(column, message)
         gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), frame)
     missing = pd.DataFrame({"a": pd.array([1.0, None, 3.0], dtype="Float64"), "b": [1.0, 2.0, 3.0]})
     assert np.isnan(gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), missing).innovations[1, 0])
+
+
+def test_names_that_collide_with_a_column_are_refused():
+    """["pos", "pos_sd"] wrote the position's sd into the velocity's column; ["a", "a"] lost the position; "pv" was
+    read as ('p', 'v') and covariances="yes" as True."""
+    pytest.importorskip("pandas")
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=np.diag([1.0, 3.0]), R=10.0)
+    r = gf.filter(model, gf.Gaussian([0, 1], 500 * np.eye(2)), [1.0, 2, 3, 2, 1])
+    for names in (["pos", "pos_sd"], ["a", "a"]):
+        with pytest.raises(ValueError, match=r"^`names` .* give the column\(s\)"):
+            r.to_pandas(names=names)
+    with pytest.raises(TypeError, match=r"^`names` must be a sequence of 2 str"):
+        r.to_pandas(names="pv")
+    with pytest.raises(TypeError, match=r"^`covariances` must be True or False"):
+        r.to_pandas(covariances="yes")
+    frame = r.to_pandas(names=["pos", "vel"])
+    assert list(frame.columns) == ["pos", "vel", "pos_sd", "vel_sd"]

@@ -76,18 +76,29 @@ def to_frame(means: np.ndarray, covs: np.ndarray | None, table: Table | None, na
     if means is None or means.ndim != 2:
         raise ValueError("to_pandas() is for one series whose means were kept (keep='all' or 'means').")
     n = means.shape[1]
+    if names is not None and (isinstance(names, (str, bytes)) or not all(isinstance(x, str) for x in names)):
+        raise TypeError(f"`names` must be a sequence of {n} str, one per state component; got {names!r:.60}.")
+    if not isinstance(covariances, (bool, np.bool_)):
+        raise TypeError(f"`covariances` must be True or False; got {covariances!r:.60}.")
     names = tuple(names) if names is not None else tuple(f"x{i}" for i in range(n))
     if len(names) != n:
         raise ValueError(f"`names` must have {n} entries, one per state component; got {len(names)}.")
     data = {name: means[:, i] for i, name in enumerate(names)}
+    columns = list(names)
     if covs is not None:
         sds = marginal_std(covs)
         data.update({f"{name}_sd": sds[:, i] for i, name in enumerate(names)})
+        columns += [f"{name}_sd" for name in names]
         if covariances:
             for i in range(n):
                 for j in range(i + 1, n):
                     data[f"cov_{names[i]}_{names[j]}"] = covs[:, i, j]
+                    columns.append(f"cov_{names[i]}_{names[j]}")
     elif covariances:
         raise ValueError("covariances=True needs the covariances (keep='all').")
+    if len(set(columns)) != len(columns):  # a name twice, or one that is another's "_sd" column
+        twice = sorted({c for c in columns if columns.count(c) > 1})
+        raise ValueError(f"`names` {list(names)} give the column(s) {twice} twice (each component has a column "
+                         "and a `_sd` column); give names that are distinct and not another's with `_sd`.")
     index = table.index if table is not None and len(table.index) == means.shape[0] else None
     return pd.DataFrame(data, index=index)

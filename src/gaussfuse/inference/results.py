@@ -120,7 +120,8 @@ class FilterResult:
         Returns
         -------
         pandas.DataFrame
-            Columns ``name`` and ``name_sd`` per component; the index of a
+            Columns ``name`` and (when the covariances were kept) ``name_sd``
+            per component; the index of a
             Series or DataFrame given as `zs` (else 0..T-1).
         """
         from .frames import to_frame
@@ -186,7 +187,8 @@ class SmoothResult:
         Returns
         -------
         pandas.DataFrame
-            Columns ``name`` and ``name_sd`` per component; the index of a
+            Columns ``name`` and (when the covariances were kept) ``name_sd``
+            per component; the index of a
             Series or DataFrame given as `zs` (else 0..T-1).
         """
         from .frames import to_frame
