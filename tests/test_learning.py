@@ -747,3 +747,11 @@ def test_a_structure_for_a_covariance_that_is_not_learned_is_refused():
     model = gf.LinearModel(**_TREND, Q=np.diag([0.3, 0.1]), R=1.0)
     with pytest.raises(ValueError, match=r"^`structure` constrains Q, which is not learned \(`learn` = \['R'\]\)"):
         gf.fit(model, "diffuse", _trend_data(), learn=("R",), structure={"Q": "diagonal"})
+
+
+def test_the_summary_shows_small_estimates_in_full():
+    """Values below 1e-4 fell into the one-decimal branch: Q = 1.469e-05 and its standard error printed as 0.0."""
+    from gaussfuse.learning import _fmt
+
+    assert _fmt(1.469e-05) == "1.4690e-05" and _fmt(-2.9e-10) == "-2.9000e-10"
+    assert _fmt(1469.18) == "1469.2" and _fmt(0.5) == "0.5" and _fmt(0.0) == "0"

@@ -251,9 +251,9 @@ def _fmt(x: float) -> str:
         return "nan"
     if x == 0 or 1e-4 <= abs(x) < 1e3:
         return f"{x:.4g}"
-    if abs(x) < 1e7:
+    if 1e3 <= abs(x) < 1e7:
         return f"{x:.1f}"
-    return f"{x:.4e}"
+    return f"{x:.4e}"  # (below 1e-4 too: 1.469e-05 printed as 0.0)
 
 
 # ---------------------------------------------------------------------------
