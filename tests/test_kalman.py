@@ -392,3 +392,21 @@ def test_a_variance_near_the_largest_float_is_finite_on_both_engines(engine):
     np.testing.assert_array_equal(res.predicted_covs.ravel(), 1e308)
     np.testing.assert_allclose(res.covs.ravel(), 1.0, rtol=1e-15)
     np.testing.assert_allclose(res.means.ravel(), [1.0, 2.0, 3.0], rtol=1e-15)
+
+
+@pytest.mark.parametrize("cov", [np.diag([np.inf, 1.0]), np.array([[np.nan]]),
+                                 np.array([[1e12, 0, 0], [0, 1.0, 2.0], [0, 2.0, 1.0]]),
+                                 np.array([[1.0, 0.9], [0.0, 1.0]])],
+                         ids=["inf", "nan", "indefinite block", "not symmetric"])
+def test_cov_factor_refuses_what_has_no_factor(cov):
+    """An infinite variance became a zero one (a sensor with R = inf taken for a perfect one), NaN passed, an
+    indefinite block beside 1e12 had a variance of 1 altered to 4, and a non-symmetric matrix was read from its
+    lower triangle (audit O)."""
+    with pytest.raises(np.linalg.LinAlgError, match=r"^the noise "):
+        kalman.cov_factor(cov, "the noise")
+
+
+def test_cov_factor_keeps_valid_singular_and_graded_covariances():
+    for cov in (np.diag([1e300, 1e-300, 0.0]), np.ones((2, 2)), np.zeros((3, 3))):
+        L = kalman.cov_factor(cov)
+        np.testing.assert_allclose(L @ L.T, cov, rtol=1e-15, atol=0)

@@ -669,12 +669,25 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
     Raises
     ------
     numpy.linalg.LinAlgError
-        When `cov` is not positive semi-definite; the message names it.
+        When `cov` is not finite, not symmetric, or not positive
+        semi-definite on the scale of its own components (a variance of 1
+        in an indefinite block beside one of 1e12 was altered to 4, and an
+        infinite variance taken for a zero one); the message names it.
     """
+    cov = np.asarray(cov, dtype=np.float64)
+    if not np.isfinite(cov).all():
+        raise np.linalg.LinAlgError(f"{name} is not finite (inf or NaN): a factor needs finite variances.")
     try:
-        return sqrt_cov(cov)[0]
+        L = sqrt_cov(cov)[0]
     except np.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(f"{name} {exc.args[0].removeprefix('the covariance ')}") from None
+    # L Lᵀ must give back cov, each entry to round-off of its components' scales (the semi-definite
+    # factorisation drops pivots of round-off only): else cov was not symmetric, or not PSD there
+    d = np.sqrt(np.abs(np.diagonal(cov)))
+    if np.any(np.abs(L @ L.T - cov) > 16 * cov.shape[0] * np.finfo(float).eps * np.outer(d, d)):
+        raise np.linalg.LinAlgError(f"{name} is not symmetric positive semi-definite on the scale of its "
+                                    "components: no factor L with L Lᵀ equal to it.")
+    return L
 
 
 def predict_sqrt(mean: np.ndarray, factor: np.ndarray, A: np.ndarray, Q_factor: np.ndarray,
