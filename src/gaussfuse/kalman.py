@@ -477,13 +477,19 @@ def fuse_moments(
     :math:`A + B`: moments from it lost the digits that :math:`A + B`
     rounds away (15% of the result for a belief certain in one direction
     next to one 1e17 times wider, and :math:`A + B` overflows for
-    variances of 1e308). The two beliefs are taken in an order fixed by
-    their bytes, so ``fuse(a, b)`` and ``fuse(b, a)`` are the same numbers.
+    variances of 1e308). The narrower belief (by trace) is taken as a, so
+    that K is small and b's digits are kept (from the wider one a precise
+    -14.66 fused with a vague mean of 1.5e19 came out 0.0, exact -14.66);
+    ties are broken by their bytes, so ``fuse(a, b)`` and ``fuse(b, a)``
+    are the same numbers.
 
     In one dimension :math:`\mu = (\sigma_2^2 \mu_1 + \sigma_1^2 \mu_2) / (\sigma_1^2 + \sigma_2^2)`
     and :math:`\sigma^2 = \sigma_1^2 \sigma_2^2 / (\sigma_1^2 + \sigma_2^2)`, to round-off.
     """
-    if (cov_b.tobytes(), mean_b.tobytes()) < (cov_a.tobytes(), mean_a.tobytes()):
+    # The narrower belief first (by trace; by bytes on a tie): μ = a + K (b - a) with K = A (A + B)⁻¹ small.
+    # From the wider one, μ is a - K' a + K' b with K' near 1, and b is lost to the rounding of a (a
+    # precise 14.66 fused with a vague mean of 1.5e19 came out 0.0).
+    if (np.trace(cov_b), cov_b.tobytes(), mean_b.tobytes()) < (np.trace(cov_a), cov_a.tobytes(), mean_a.tobytes()):
         mean_a, cov_a, mean_b, cov_b = mean_b, cov_b, mean_a, cov_a
     g = sqrt_gain(cov_factor(cov_a, "a.cov"), eye(mean_a.shape[0]), cov_factor(cov_b, "b.cov"))
     # a + K (b - a), not a + K̄ L_S⁻¹ (b - a): the whitened difference overflows for means 1e308 standard
