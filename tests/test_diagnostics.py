@@ -283,3 +283,15 @@ def test_the_nees_verdict_holds_its_confidence_over_consistent_runs():
     assert 0.90 <= np.mean(passed) <= 0.99  # 95% expected; sd of the share over 200 batches 1.5%
     one = dg.consistency(gf.filter(model, prior, z[0, :, None], check="off"), truth=x[0, :, None])
     assert one.nees is not None and one.nees_interval is None and one.nees_ok is None and "one run" in str(one)
+
+
+@pytest.mark.parametrize("m", [1, 3])
+def test_the_whiteness_bound_is_crossed_at_its_share_of_lags(m):
+    """The bound was one component's while the autocorrelation is the mean over m: with m = 3 white components
+    0.05% of the lags fell outside a 95% bound."""
+    rng = np.random.default_rng(5)
+    outside = []
+    for _ in range(400):
+        w = dg.whiteness(rng.normal(size=(200, m)), np.broadcast_to(np.eye(m), (200, m, m)), 10, 0.95)
+        outside.append(np.abs(w.autocorrelation) > w.bound)
+    assert 0.035 <= np.mean(outside) <= 0.065  # 5% expected; sd of the share over 4,000 lags 0.35%

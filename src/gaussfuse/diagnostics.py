@@ -497,7 +497,11 @@ class Whiteness:
         Sample autocorrelation of the whitened innovations (pooled over
         components) at lags 1..lags.
     bound : float
-        ``z_{1-α/2} / sqrt(T)``: a white sequence stays within ±bound.
+        ``z_{1-α/2} / sqrt(m T)``: the pooled autocorrelation of a white
+        sequence stays within ±bound at each lag with the `confidence` (the
+        m components' autocorrelations, each of sd 1/√T, averaged; the bound
+        was that of one component, which m = 3 white components crossed at
+        0.05% of the lags, not 5%).
     statistic : float
         Ljung–Box ``T (T + 2) Σ ρ_j² / (T - j)``, χ² with `lags` × m
         degrees of freedom summed over components.
@@ -555,7 +559,8 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     rho = np.array([np.sum(w[j:] * w[:-j], axis=0) / denom for j in range(1, lags + 1)])  # (lags, m)
     q = T * (T + 2) * np.sum(rho**2 / (T - np.arange(1, lags + 1))[:, None])
     p = float(chdtrc(lags * m, q))  # the χ² survival function
-    bound = float(ndtri(1 - (1 - confidence) / 2) / np.sqrt(T))  # the normal quantile
+    # the mean over m components of independent autocorrelations of sd 1/√T has sd 1/√(mT)
+    bound = float(ndtri(1 - (1 - confidence) / 2) / np.sqrt(m * T))  # the normal quantile
     return Whiteness(rho.mean(axis=1), bound, float(q), p, p >= 1 - confidence)
 
 
