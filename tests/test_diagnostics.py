@@ -295,3 +295,20 @@ def test_the_whiteness_bound_is_crossed_at_its_share_of_lags(m):
         w = dg.whiteness(rng.normal(size=(200, m)), np.broadcast_to(np.eye(m), (200, m, m)), 10, 0.95)
         outside.append(np.abs(w.autocorrelation) > w.bound)
     assert 0.035 <= np.mean(outside) <= 0.065  # 5% expected; sd of the share over 4,000 lags 0.35%
+
+
+def test_consistency_takes_every_filter_result_that_has_innovations():
+    """A diffuse prior's result (NaN innovation covariances at its first steps) raised about NaN, keep='means' named
+    a non-existent argument, a SmoothResult gave a bare AttributeError (audit N). The filter's own NIS are used."""
+    rng = np.random.default_rng(2)
+    model = gf.LinearModel(1.0, 1.0, 0.5, 1.0)
+    z = np.cumsum(rng.normal(scale=np.sqrt(0.5), size=300)) + rng.normal(size=300)
+    full = dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[10.0]]), z))
+    diffuse = dg.consistency(gf.filter(model, "diffuse", z))
+    means = dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[10.0]]), z, keep="means"))
+    assert full.nis_ok and diffuse.nis_ok and means.nis == pytest.approx(full.nis, rel=1e-12)
+    assert means.whiteness is None and full.whiteness is not None
+    with pytest.raises(TypeError, match=r"^`result` must be a FilterResult .* its \.filtered"):
+        dg.consistency(gf.smooth(model, gf.Gaussian([0.0], [[10.0]]), z))
+    with pytest.raises(ValueError, match=r"keep='last'"):
+        dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[10.0]]), z, keep="last"))

@@ -679,7 +679,16 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
     -------
     ConsistencyReport
     """
-    q, dof = _quadratic("innovations", result.innovations, result.innovation_covs)
+    from .inference.results import FilterResult
+
+    if not isinstance(result, FilterResult):
+        more = " (a SmoothResult's filter is its .filtered)" if hasattr(result, "filtered") else ""
+        raise TypeError(f"`result` must be a FilterResult from gaussfuse.filter{more}; got {type(result).__name__}.")
+    if result.nis is None:
+        raise ValueError("`result` holds no per-step innovations (keep='last'): filter with keep='all' or 'means'.")
+    # the filter's own NIS: with the steps of a diffuse prior's start (no innovation covariance) left out
+    q = np.asarray(result.nis, dtype=np.float64)
+    dof = (~np.isnan(result.innovations)).sum(axis=-1)
     seen = ~np.isnan(q)
     runs = 1 if np.ndim(result.innovations) == 2 else np.shape(result.innovations)[0]
     if not seen.any():
@@ -709,7 +718,7 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
     first_S = result.innovation_covs[0] if batch else result.innovation_covs
     complete = int(np.sum(~np.isnan(first_v).any(axis=1)))
     white = None
-    if complete >= 10:
+    if first_S is not None and np.isfinite(first_S).all() and complete >= 10:
         white = whiteness(first_v, first_S, lags or min(10, complete // 5), confidence)
     return ConsistencyReport(nis_avg, nis_interval, nis_interval[0] <= nis_avg <= nis_interval[1],
                              nees_avg, nees_interval, nees_ok, white, err, runs)
