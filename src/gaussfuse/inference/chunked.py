@@ -111,8 +111,8 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     probe = max(zs.shape[2], *_trailing(meta(2))) + 3
     template = meta(probe)
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
-    tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs)
-             for first, block, control in zip(firsts, blocks, controls)]
+    tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
+             for first, block, control, size in zip(firsts, blocks, controls, sizes)]
 
     def build(template, path):
         if not is_dataclass(template):
@@ -134,11 +134,15 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     return build(template, ())
 
 
-def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwargs: dict):
-    """`run` on one chunk of series; its divergence check names the series by their numbers in the whole array."""
+def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwargs: dict, share: float = 1.0):
+    """`run` on one chunk of series; its divergence check names the series by their numbers in the whole array.
+
+    The chunk's test spends its `share` of the series of the false-alarm rate, so that the call's is the one
+    an in-memory call has (each chunk spending all of it made 1,000 one-series chunks warn in 2.6% of calls
+    on consistent data, for 4.5e-6 in memory)."""
     check = kwargs.get("check", "warn")
     result = run(zs=zs, us=us, **{**kwargs, "check": "off"})
-    drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first)
+    drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first, share=share)
     return result
 
 

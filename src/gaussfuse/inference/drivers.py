@@ -495,7 +495,7 @@ def checked(check) -> str:
     return check
 
 
-def check_divergence(result: FilterResult, check: str, first_series: int = 0, gate=None) -> None:
+def check_divergence(result: FilterResult, check: str, first_series: int = 0, gate=None, share: float = 1.0) -> None:
     """Warn (or raise) a DivergenceWarning naming the steps where `result`'s innovations fail the χ² test.
 
     `result` has the series axis, its first series numbered `first_series`
@@ -504,8 +504,10 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
     :class:`gaussfuse.kalman.Gate` the filter ran with), the steps where it
     rejected more than a consistent filter's share are named too
     (:func:`gaussfuse.diagnostics.rejections`): rejected steps have no
-    innovation to test.
+    innovation to test. `share` is this result's part of a call's
+    false-alarm rate (a chunk's series among all of a call's).
     """
+    false_alarm = diagnostics.DIVERGENCE_FALSE_ALARM * share
     if check == "off" or result.nis is None:
         return
     seen = ~np.isnan(result.innovations)
@@ -517,7 +519,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
             dof += seen[..., j]
     many = result.nis.shape[0] > 1
     where = [f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
-             for s, a, b, avg in diagnostics.divergence(result.nis, dof)]
+             for s, a, b, avg in diagnostics.divergence(result.nis, dof, false_alarm=false_alarm)]
     if gate is not None and getattr(result, "rejected", None) is not None and result.rejected.any():
         rejected = result.rejected
         if gate.by == "measurement":  # a measurement: rejected whole, offered when any component was there
@@ -525,7 +527,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
         else:
             lost, there = rejected.sum(axis=-1), rejected.sum(axis=-1) + seen.sum(axis=-1)
         gated = [f"{k} of {n} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
-                 for s, a, b, k, n in diagnostics.rejections(lost, there, gate.probability)]
+                 for s, a, b, k, n in diagnostics.rejections(lost, there, gate.probability, false_alarm=false_alarm)]
     else:
         gated = []
     if not where and not gated:
