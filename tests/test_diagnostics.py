@@ -312,3 +312,24 @@ def test_consistency_takes_every_filter_result_that_has_innovations():
         dg.consistency(gf.smooth(model, gf.Gaussian([0.0], [[10.0]]), z))
     with pytest.raises(ValueError, match=r"keep='last'"):
         dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[10.0]]), z, keep="last"))
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda: dg.divergence(np.ones(200), np.ones(7)), ValueError, r"^`dof` must have shape \(\) or one broadcastable"),
+    (lambda: dg.divergence(np.ones(200), -1), ValueError, r"^`dof` must be non-negative integers"),
+    (lambda: dg.divergence(np.ones(200), 0.5), ValueError, r"^`dof` must be non-negative integers"),
+    (lambda: dg.divergence(np.ones(200), True), TypeError, r"^`dof` must be an array of numbers"),
+    (lambda: dg.divergence("abc", 1), TypeError, r"^`nis_values` must be an array of numbers"),
+    (lambda: dg.divergence(np.ones((2, 3, 50)), 1), ValueError, r"^`nis_values` must have shape \(T,\) or \(N, T\)"),
+    (lambda: dg.divergence(-np.ones(200), 1), ValueError, r"^`nis_values` must be non-negative"),
+    (lambda: dg.DivergenceMonitor(check="rasie"), ValueError, r"^`check` must be 'warn', 'raise' or 'off'"),
+    (lambda: dg.chi2_interval(2, confidence="0.9"), TypeError, r"^`confidence` must be a probability"),
+    (lambda: dg.nis(1.0, 1.0), ValueError, r"^`innovations` must have shape \(\.\.\., m\)"),
+    (lambda: dg.nis(np.ones(2), np.ones(2)), ValueError, r"^`innovation_covs` must have shape \(2, 2\) to match"),
+    (lambda: dg.whiteness(np.ones((50, 1)), np.ones((50, 1, 1)), confidence=2), ValueError, r"^`confidence` must be"),
+])
+def test_diagnostics_name_their_bad_arguments(call, error, message):
+    """Bare NumPy errors, garbled names ("innovations covariances"), and silent acceptance (negative or fractional
+    dof, negative NIS, check='rasie', confidence=2) before (audit N)."""
+    with pytest.raises(error, match=message):
+        call()

@@ -47,15 +47,17 @@ DIVERGENCE_FALSE_ALARM = 1e-3
 """The chance that :func:`divergence` flags a consistent filter's run, at most (over all its windows)."""
 
 
-def _quadratic(name: str, errors, covs) -> tuple[np.ndarray, np.ndarray]:
-    """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number."""
+def _quadratic(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.ndarray]:
+    """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number (arguments `name` and `cov_name`)."""
     e = as_array(name, errors, allow_nan=True)
-    C = as_array(f"{name} covariances", covs, allow_nan=True)
-    if e.ndim < 1 or C.shape != e.shape + e.shape[-1:]:
-        raise shape_error(f"{name} covariances", f"{e.shape + e.shape[-1:]} to match `{name}`", C.shape)
+    C = as_array(cov_name, covs, allow_nan=True)
+    if e.ndim < 1:
+        raise shape_error(name, "(..., m), one vector per step", e.shape)
+    if C.shape != e.shape + e.shape[-1:]:
+        raise shape_error(cov_name, f"{e.shape + e.shape[-1:]} to match `{name}` {e.shape}", C.shape)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
     observed = ~np.isnan(flat_e)
-    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"the {name} covariance")
+    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`")
     dof = observed.sum(axis=1)
     out = np.where(dof > 0, gram[:, 0, 0], np.nan)
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
@@ -77,7 +79,7 @@ def nis(innovations, innovation_covs) -> np.ndarray:
         NaN where nothing was observed. Each value is χ² with as many degrees
         of freedom as observed components.
     """
-    return _quadratic("innovations", innovations, innovation_covs)[0]
+    return _quadratic("innovations", innovations, "innovation_covs", innovation_covs)[0]
 
 
 def nees(errors, covs) -> np.ndarray:
@@ -95,7 +97,16 @@ def nees(errors, covs) -> np.ndarray:
     ndarray of shape (..., T)
         Each value χ²_n for a consistent filter.
     """
-    return _quadratic("errors", errors, covs)[0]
+    return _quadratic("errors", errors, "covs", covs)[0]
+
+
+def _confidence(confidence) -> float:
+    """`confidence` as a float in (0, 1), or a ValueError/TypeError naming it."""
+    if isinstance(confidence, (bool, np.bool_)) or not isinstance(confidence, (int, float, np.integer, np.floating)):
+        raise TypeError(f"`confidence` must be a probability in (0, 1); got {confidence!r:.60}.")
+    if not 0 < confidence < 1:
+        raise ValueError(f"`confidence` must be in (0, 1); got {confidence!r}.")
+    return float(confidence)
 
 
 def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[float, float]:
@@ -126,8 +137,7 @@ def chi2_interval(dof: int, count: int = 1, confidence: float = 0.95) -> tuple[f
     from scipy.special import chdtri  # here: `import gaussfuse` loads only NumPy
 
     dof, count = integer("dof", dof), integer("count", count)
-    if not 0 < confidence < 1:
-        raise ValueError(f"`confidence` must be in (0, 1); got {confidence!r}.")
+    confidence = _confidence(confidence)
     k = count * dof
     alpha = 1.0 - confidence
     # chdtri(k, s) is the χ²_k quantile of upper tail s (scipy.stats.chi2.ppf's own, without importing scipy.stats)
@@ -185,9 +195,19 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     ([], [(0, 100, 199, 3.0)])
     """
     window, false_alarm = _test_settings(window, false_alarm)
-    v = np.atleast_2d(np.asarray(nis_values, dtype=float))
+    v = np.atleast_2d(as_array("nis_values", nis_values, allow_nan=True))
+    if v.ndim != 2:
+        raise shape_error("nis_values", "(T,) or (N, T)", np.shape(nis_values))
+    if (v < 0).any():
+        raise ValueError("`nis_values` must be non-negative (normalised innovations squared); got a negative value.")
     per_step = np.ndim(dof) == 0  # the same dof at every step: a window's is dof times its observed steps
-    k = np.broadcast_to(np.asarray(dof, dtype=float), v.shape)
+    counts = as_array("dof", dof)
+    if (counts < 0).any() or (counts != np.floor(counts)).any():
+        raise ValueError("`dof` must be non-negative integers (each step's observed components).")
+    try:
+        k = np.broadcast_to(counts, v.shape)
+    except ValueError:
+        raise shape_error("dof", f"() or one broadcastable to `nis_values` {v.shape}", counts.shape) from None
     T = v.shape[-1]
     if T == 0:
         return []
@@ -330,6 +350,8 @@ class DivergenceMonitor:
     def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
                  check: str = "warn") -> None:
         self.window, self.false_alarm = _test_settings(window, false_alarm)
+        if check not in ("warn", "raise", "off"):
+            raise ValueError(f"`check` must be 'warn', 'raise' or 'off'; got {check!r}.")
         self.check = check
         self._values: list[float] = []  # the last `window` updates with observations: NIS, dof, step
         self._dofs: list[int] = []
@@ -545,6 +567,7 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     """
     from scipy.special import chdtrc, ndtri
 
+    confidence = _confidence(confidence)
     v = as_array("innovations", innovations, allow_nan=True)
     S = as_array("innovation_covs", innovation_covs)
     if v.ndim != 2 or S.shape != v.shape + v.shape[-1:]:
