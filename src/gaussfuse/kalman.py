@@ -14,6 +14,15 @@ own error covariance to :math:`Q` and :math:`R`).
 The functions here are pure: arrays in, arrays out. Covariances are kept
 symmetric, the update uses the Joseph form, and every matrix "inverse" is a
 Cholesky solve.
+
+They are the filters' inner loop, and take their arguments as the front
+functions (:func:`gaussfuse.filter`, :class:`gaussfuse.Gaussian`,
+:class:`gaussfuse.LinearModel`) have checked them: float arrays of matching
+shapes, covariances symmetric positive semi-definite and finite. They do
+not check them again: a vector R, a scalar Q, a non-symmetric P or an
+infinite z give numbers that mean nothing, or NumPy's errors. Build the
+arrays with those classes (``Gaussian(m, P)``, ``LinearModel(F, H, Q, R)``
+and their attributes) when calling these directly.
 """
 
 from __future__ import annotations
