@@ -1149,6 +1149,10 @@ def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: s
 # ---------------------------------------------------------------------------
 
 
+_MLE_GTOL = 1e-8
+"""Maximum likelihood's default `tol`: the gradient's largest component per observation at a maximum."""
+
+
 def _evaluator(build, data, engine):
     """``theta -> (loglik, gradient)``, cached on θ.
 
@@ -1573,7 +1577,7 @@ def fit(
     iterations = integer("iterations", iterations)
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
-    tol = real("tol", (1e-10 if method == "em" else 1e-8) if tol is None else tol, nonnegative=True)
+    tol = real("tol", (1e-10 if method == "em" else _MLE_GTOL) if tol is None else tol, nonnegative=True)
     if engine == "auto":  # decided once for the whole fit, on the whole work it is expected to do
         passes = 3 * iterations if tol == 0 else min(FIT_PASSES[method], 3 * iterations)
         compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1] * passes, 1.0,
@@ -1624,6 +1628,14 @@ def fit(
             errors, bse = (None, np.full(build.natural(theta).size, np.nan)) if interrupted else \
                 _standard_errors(evaluate, build, theta, learn)
             names, values = build.names(), build.natural(theta)
+            if method == "em" and converged and errors is None and theta.size:
+                gradient = np.abs(evaluate(theta)[1]).max() / nobs
+                if gradient > _MLE_GTOL:  # a plateau or a saddle: EM's steps stalled, not at a maximum
+                    converged = False
+                    message = (f"the log-likelihood changed by less than `tol`, but its gradient is still "
+                               f"{gradient:.2g} per observation and the observed information is not positive "
+                               "definite: a plateau, not a maximum (EM stalls there, as from a variance started "
+                               "near 0); try method='mle', or another start")
         else:  # a learned full covariance ended singular: its values, without standard errors
             labels = _Parametrisation(model, prior, learn, structure, labels_only=True)
             errors, names, values = None, labels.names(), labels.values(model, prior)
