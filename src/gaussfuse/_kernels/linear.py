@@ -171,13 +171,20 @@ def held_steps(k0, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo,
         pm = out.predicted_means[s, k] if keep_means else pm0
         predict_mean(prev, at(model.F, k), at(b, k), pm)
         if keep_covs:
-            copy2(out.predicted_covs[s, k], out.predicted_covs[lo, k] if sharing else fx.pred_cov)
+            if sharing:
+                copy2(out.predicted_covs[s, k], out.predicted_covs[lo, k])
+            else:
+                copy2(out.predicted_covs[s, k], fx.pred_cov)
         if not_finite_mean(pm, 0.0):
             record(fail, s, PREDICTED_NOT_FINITE, k)
             return k, total
         if smoothing and k > 0:  # G_{k-1}: series lo's, or the fixed point's (between two held steps)
-            copy2(out.gains[s, k - 1], out.gains[lo, k - 1] if sharing else fx.gain)
-            out.failed[s, k - 1] = out.failed[lo, k - 1] if sharing else fx.gain_failed[0]
+            if sharing:
+                copy2(out.gains[s, k - 1], out.gains[lo, k - 1])
+                out.failed[s, k - 1] = out.failed[lo, k - 1]
+            else:
+                copy2(out.gains[s, k - 1], fx.gain)
+                out.failed[s, k - 1] = fx.gain_failed[0]
         if sharing:
             copy2(fx.Kt, steps_lo.Kt[k])
             copy2(fx.L, steps_lo.L[k])
