@@ -299,7 +299,7 @@ class _Clock(NamedTuple):
     def finest(cls, times) -> _Clock:
         """The clock of `times` (all seconds, or all datetime64): the finest unit among them."""
         units = [np.datetime_data(t.dtype)[0] for t in times if isinstance(t, np.datetime64)]
-        return cls(max(units, key=timing._FINE.index) if units else None)
+        return cls(timing.finest(units) if units else None)
 
     def count(self, name: str, when):
         """`when` on this clock: its float seconds, or its exact count of the unit (a Python int)."""
@@ -316,7 +316,7 @@ class _Clock(NamedTuple):
         """The seconds between consecutive `counts` (seconds or counts of the unit), each rounded once."""
         if self.unit is None:
             return np.diff(counts)
-        return timing.elapsed(counts.astype(np.int64), 1000 ** timing._FINE.index(self.unit))
+        return timing.elapsed(counts.astype(np.int64), timing.per_second(self.unit))
 
 
 def _parse(measurements, timeline: _Timeline, dated: bool) -> list[tuple[object, str, np.ndarray]]:

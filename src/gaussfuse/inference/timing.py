@@ -21,11 +21,21 @@ import numpy as np
 from ..models.compose import TimedModel
 from .validation import check_measurements
 
-__all__ = ["as_seconds", "step_sizes", "resolve"]
+__all__ = ["as_seconds", "step_sizes", "resolve", "stamp", "within", "ticks", "elapsed", "finest", "per_second"]
 
 
 _FINE = ("s", "ms", "us", "ns", "ps", "fs", "as")
 """The datetime64 units of at most a second, each 1000 times finer than the one before."""
+
+
+def finest(units) -> str:
+    """The finest of datetime64 `units` (each one of :data:`_FINE`)."""
+    return max(units, key=_FINE.index)
+
+
+def per_second(unit: str) -> int:
+    """How many of `unit` (one of :data:`_FINE`) make a second."""
+    return 1000 ** _FINE.index(unit)
 
 
 def stamp(name: str, value) -> np.datetime64 | None:
@@ -89,7 +99,7 @@ def ticks(name: str, stamps: np.ndarray) -> tuple[np.ndarray, int]:
             stamps = within(name, stamps, unit)
         else:
             stamps = stamps.astype("timedelta64[s]")
-    return stamps.astype(f"{stamps.dtype.kind}8[{unit}]").astype(np.int64), 1000 ** _FINE.index(unit)
+    return stamps.astype(f"{stamps.dtype.kind}8[{unit}]").astype(np.int64), per_second(unit)
 
 
 def elapsed(counts: np.ndarray, per_second: int) -> np.ndarray:
@@ -126,7 +136,7 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
         if not arr.size or any(v is None for v in read):
             raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
                             f"DatetimeIndex); got {type(arr.flat[0]).__name__ if arr.size else 'nothing'}.")
-        unit = _FINE[max(_FINE.index(np.datetime_data(v.dtype)[0]) for v in read)]
+        unit = finest(np.datetime_data(v.dtype)[0] for v in read)
         arr = np.array([within(f"{name}[{i}]", v, unit) for i, v in enumerate(read)])
     if arr.dtype.kind in "Mm":
         if np.isnat(arr).any():
