@@ -212,24 +212,36 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     if T == 0:
         return []
     window = min(window, T)
-    stride = max(window // 2, 1)
-    lo = np.arange(0, T - window + 1, stride)
-    if lo[-1] + window < T:
-        lo = np.append(lo, T - window)
-    # Each window summed on its own (overlapping windows read each step twice): differences of running sums
-    # lose every later window to the rounding of one huge value (an NIS of 1e18 rounds them to 128).
+    lo = _window_starts(T, window)
     seen = ~np.isnan(v)
     complete = seen.all()
     if not complete:
         v, k = np.where(seen, v, 0.0), np.where(seen, k, 0.0)
-    windows = np.lib.stride_tricks.sliding_window_view(v, window, axis=1)[:, lo]
-    sums = windows.sum(axis=-1)
-    if complete and per_step:
-        dofs = np.full(sums.shape, float(dof) * window)
-    else:
-        dofs = np.lib.stride_tricks.sliding_window_view(k, window, axis=1)[:, lo].sum(axis=-1)
+    sums = _window_sums(v, window, lo)
+    dofs = np.full(sums.shape, float(dof) * window) if complete and per_step else _window_sums(k, window, lo)
     flagged = (dofs > 0) & (sums >= _threshold(dofs, np.log(sums.size / false_alarm)))
     out = []
+    for series, first, last in _flagged_ranges(flagged, lo, window):
+        observed = seen[series, first:last + 1]
+        average = v[series, first:last + 1][observed].sum() / k[series, first:last + 1][observed].sum()
+        out.append((series, first, last, float(average)))
+    return out
+
+
+def _window_starts(T: int, window: int) -> np.ndarray:
+    """The first steps of the windows of `window` steps: every ``window // 2``, and the last ending at T."""
+    lo = np.arange(0, T - window + 1, max(window // 2, 1))
+    return lo if lo[-1] + window >= T else np.append(lo, T - window)
+
+
+def _window_sums(x: np.ndarray, window: int, lo: np.ndarray) -> np.ndarray:
+    """Each window's sum of `x` (N, T), summed on its own: differences of running sums lose every later
+    window to the rounding of one huge value (an NIS of 1e18 rounds them to 128)."""
+    return np.lib.stride_tricks.sliding_window_view(x, window, axis=1)[:, lo].sum(axis=-1)
+
+
+def _flagged_ranges(flagged: np.ndarray, lo: np.ndarray, window: int):
+    """``(series, first, last)`` of the flagged windows (N, W), overlapping windows of a series merged."""
     for series in np.flatnonzero(flagged.any(axis=1)):
         ranges: list[list[int]] = []
         for start in lo[flagged[series]]:
@@ -238,10 +250,7 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
             else:
                 ranges.append([int(start), int(start) + window - 1])
         for first, last in ranges:
-            observed = seen[series, first:last + 1]
-            average = v[series, first:last + 1][observed].sum() / k[series, first:last + 1][observed].sum()
-            out.append((int(series), first, last, float(average)))
-    return out
+            yield int(series), first, last
 
 
 def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_WINDOW,
@@ -288,26 +297,12 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
     if T == 0 or not r.any():
         return []
     window = min(window, T)
-    stride = max(window // 2, 1)
-    lo = np.arange(0, T - window + 1, stride)
-    if lo[-1] + window < T:
-        lo = np.append(lo, T - window)
-    K = np.lib.stride_tricks.sliding_window_view(r, window, axis=1)[:, lo].sum(axis=-1)
-    N = np.lib.stride_tricks.sliding_window_view(o, window, axis=1)[:, lo].sum(axis=-1)
+    lo = _window_starts(T, window)
+    K, N = _window_sums(r, window, lo), _window_sums(o, window, lo)
     tail = np.where(K > 0, bdtrc(np.maximum(K - 1, 0), np.maximum(N, 1), 1.0 - probability), 1.0)  # P(≥ K)
     flagged = (tail <= false_alarm / K.size) & (2 * K >= N)  # and at least half: lost, not merely unlucky
-    out = []
-    for series in np.flatnonzero(flagged.any(axis=1)):
-        ranges: list[list[int]] = []
-        for start in lo[flagged[series]]:
-            if ranges and start <= ranges[-1][1] + 1:
-                ranges[-1][1] = int(start) + window - 1
-            else:
-                ranges.append([int(start), int(start) + window - 1])
-        for first, last in ranges:
-            out.append((int(series), first, last, int(r[series, first:last + 1].sum()),
-                        int(o[series, first:last + 1].sum())))
-    return out
+    return [(series, first, last, int(r[series, first:last + 1].sum()), int(o[series, first:last + 1].sum()))
+            for series, first, last in _flagged_ranges(flagged, lo, window)]
 
 
 def _test_settings(window, false_alarm) -> tuple[int, float]:
@@ -433,8 +428,8 @@ class DivergenceMonitor:
         reports = []
         if tests.size:  # each window summed on its own: running sums lose later windows to one huge value
             starts = tests + 1 - self.window
-            total = np.lib.stride_tricks.sliding_window_view(values, self.window)[starts].sum(axis=-1)
-            d = np.lib.stride_tricks.sliding_window_view(counts, self.window)[starts].sum(axis=-1)
+            total = _window_sums(values[None], self.window, starts)[0]
+            d = _window_sums(counts[None], self.window, starts)[0]
             j = self._tested + 1 + np.arange(tests.size)
             flagged = total >= _threshold(d, np.log(j * (j + 1.0) / self.false_alarm))
             newly = flagged & ~np.concatenate([[self._flagged], flagged[:-1]])

@@ -50,7 +50,7 @@ from .._linalg import symmetrize
 from ..inference.results import FilterResult, SmoothResult, check_smoothed
 from ..kalman import SETTLED, STEADY_TOL, cov_factor
 from . import _rts
-from ._dense import BLAS_FROM, congruence
+from ._dense import BLAS_FROM, congruence, matmul
 from ._jit import jit, launch
 from ._nrt import borrow, readonly
 from ._step import (FILTERED_NOT_FINITE, OK, PREDICTED_NOT_FINITE, READABLE, Outputs, at, copy1, copy2, failures,
@@ -99,6 +99,15 @@ def keep_gain(steps, k, Kt, L, z, held):
     steps.held[k] = held
 
 
+@jit(inline="always", **_JIT)
+def load_row(fx, steps, k):
+    """Series lo's gain, factor of S and observed components at step k (row k of `steps`) into `fx`, to be held."""
+    copy2(fx.Kt, steps.Kt[k])
+    copy2(fx.L, steps.L[k])
+    for a in range(steps.observed.shape[1]):
+        fx.obs[a] = steps.observed[k, a]
+
+
 class Table(NamedTuple):
     """Series lo's steps, for the other series of a batch (see :func:`forward`); T rows, or none."""
 
@@ -127,12 +136,7 @@ def fixed_gain(fx, w, F):
     computed step's gain is.
     """
     n = F.shape[0]
-    for i in range(n):
-        for j in range(n):
-            acc = 0.0
-            for l in range(n):
-                acc += F[i, l] * fx.cov[l, j]
-            w.A1[i, j] = acc
+    matmul(F, fx.cov, w.A1, n, n, n)
     fx.gain_failed[0] = not smoother_gain(w, fx.pred_cov, w.A1, fx.gain)
     if fx.gain_failed[0]:
         copy2(fx.gain, w.A1)
@@ -186,10 +190,7 @@ def held_steps(k0, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo,
                 copy2(out.gains[s, k - 1], fx.gain)
                 out.failed[s, k - 1] = fx.gain_failed[0]
         if sharing:
-            copy2(fx.Kt, steps_lo.Kt[k])
-            copy2(fx.L, steps_lo.L[k])
-            for a in range(m):
-                fx.obs[a] = steps_lo.observed[k, a]
+            load_row(fx, steps_lo, k)
         post = out.means[s, k] if keep_means else mean
         v = out.innovations[s, k] if keep_means else v0
         _, ll = steady_update(fx, w, pm, z, at(model.H, k), model.d, model.angles, post, v)
@@ -278,10 +279,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
             F = at(model.F, k)
             held = at_fixed or sharing  # the step's covariances, gain and factor are held: series lo's, or fx's
             if sharing:  # series lo's gain and factor at step k, in fx (its covariances are copied from lo's rows)
-                copy2(fx.Kt, steps_lo.Kt[k])
-                copy2(fx.L, steps_lo.L[k])
-                for a in range(m):
-                    fx.obs[a] = steps_lo.observed[k, a]
+                load_row(fx, steps_lo, k)
             if held:
                 predict_mean(mean, F, at(b, k), pm)
                 if sharing:
@@ -397,10 +395,7 @@ def forward_sqrt(lo, hi, model, Qf, Rf, zs, m0, L0, out, fail, w, sw):
             reused = False
             held = at_fixed or sharing  # the step's factors, K̄ᵀ and L_S are held: series lo's, or fx's
             if sharing:  # series lo's K̄ᵀ and L_S at step k, in fx (its factors are copied from lo's rows)
-                copy2(fx.Kt, steps_lo.Kt[k])
-                copy2(fx.L, steps_lo.L[k])
-                for a in range(m):
-                    fx.obs[a] = steps_lo.observed[k, a]
+                load_row(fx, steps_lo, k)
             if held:  # the held prediction, and its gain when the same components are observed
                 predict_mean(mean, at(model.F, k), at(b, k), pm)
                 if sharing:

@@ -152,15 +152,7 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
 
 
 def as_seconds(name: str, times) -> np.ndarray:
-    """`times` as float seconds (relative to the first for datetimes), a 1-D array.
-
-    Raises
-    ------
-    TypeError
-        For values that are not times or numbers.
-    ValueError
-        For a shape other than 1-D, or non-finite values.
-    """
+    """`times` as float seconds (relative to the first for datetimes), a 1-D array; raises as :func:`_clock`."""
     values, per_second = _clock(name, times)
     if per_second is None:
         return values
