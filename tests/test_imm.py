@@ -315,3 +315,42 @@ def test_imm_zs_shape_and_method_on_linear_models():
     zs = np.sin(np.arange(20.0))
     np.testing.assert_array_equal(gf.imm_filter([A, B], prior, zs, T, method="ukf").means,
                                   gf.imm_filter([A, B], prior, zs, T).means)
+
+
+def test_a_mode_far_behind_comes_back_without_mixing():
+    """Mode probabilities were carried as plain numbers: a mode 748 nats behind became exactly 0 and, with no
+    other mode switching into it (identity transition), never came back (mean 7.76 for 27.95, loglik -1.0e9)."""
+    still = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[1e-8]], R=[[1e-6]])
+    loose = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[1.0]], R=[[1.0]])
+    prior = gf.Gaussian([0.0], [[1.0]])
+    zs = np.r_[np.zeros(120), 30.0, 31.0, 29.0]
+    res = gf.imm_filter([still, loose], prior, zs, transition=np.eye(2))
+    # With no switching the posterior is exactly the two filters weighted by prior x likelihood, step by step.
+    runs = [gf.filter(model, prior, zs) for model in (still, loose)]
+    logliks = np.array([r.loglik for r in runs])
+    assert res.loglik == pytest.approx(np.logaddexp(*logliks) + np.log(0.5), rel=1e-12)
+    cumulative = np.cumsum([_step_logliks(model, prior, zs) for model in (still, loose)], axis=1).T
+    expected = np.exp(cumulative - np.logaddexp(cumulative[:, :1], cumulative[:, 1:]))
+    np.testing.assert_allclose(res.mode_probs, expected, rtol=1e-9, atol=1e-300)
+    assert res.mode_probs[101, 1] < 1e-300 and res.mode_probs[-1, 1] == pytest.approx(1.0, abs=1e-12)
+    mean = (expected[-1, 0] * runs[0].means[-1] + expected[-1, 1] * runs[1].means[-1])[0]
+    assert res.means[-1, 0] == pytest.approx(mean, rel=1e-12)
+
+
+def _step_logliks(model, prior, zs):
+    """Each step's log p(z_k | z_1..z_{k-1}) of one model's filter."""
+    return np.diff([0.0] + [gf.filter(model, prior, zs[:k + 1]).loglik for k in range(len(zs))])
+
+
+def test_options_are_checked_when_every_model_is_linear():
+    """method="ukf" on LinearModels only (exact) took any option silently, even bogus_option=3."""
+    A = gf.constant_velocity(dt=1.0, q=0.01, r=1.0)
+    prior, zs = gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0, 2.0]
+    with pytest.raises(TypeError, match=re.escape("unknown option(s) ['bogus_option'] for method 'ukf'")):
+        gf.imm_filter([A, A], prior, zs, np.eye(2), method="ukf", alpha=0.5, bogus_option=3)
+    with pytest.raises(ValueError, match=re.escape("`alpha`")):
+        gf.imm_filter([A, A], prior, zs, np.eye(2), method="ukf", alpha=-1.0)
+    with pytest.raises(ValueError, match=re.escape("`method` must be one of")):
+        gf.imm_filter([A, A], prior, zs, np.eye(2), method="ufk")
+    np.testing.assert_array_equal(gf.imm_filter([A, A], prior, zs, np.eye(2), method="ukf", alpha=0.5).means,
+                                  gf.imm_filter([A, A], prior, zs, np.eye(2)).means)

@@ -22,13 +22,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import logsumexp
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
 from ._validation import as_array, shape_error
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
-from .inference.registry import METHODS, linearisation, resolve_method
+from .inference.registry import check_options, linearisation, resolve_method
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
 from .models.linear import LinearModel
 from .models.nonlinear import NonlinearModel
@@ -199,8 +200,11 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
            \mu_j = \frac{\Lambda_j c_j}{\sum_l \Lambda_l c_l}, \qquad
            \log p(z_k \mid z_{1:k-1}) \approx \log \sum_l \Lambda_l c_l,
 
-       computed in log space. An all-missing :math:`z_k` leaves
-       :math:`\mu_j = c_j`.
+       An all-missing :math:`z_k` leaves :math:`\mu_j = c_j`. The
+       probabilities are carried from step to step as logarithms (and
+       :math:`c_j` taken by log-sum-exp), so a mode thousands of nats
+       behind still comes back when the data turn to it, even where no
+       other mode can switch into it.
 
     4. *Combination* (the reported belief):
 
@@ -208,6 +212,11 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
 
            m = \sum_j \mu_j m_j, \qquad
            P = \sum_j \mu_j \left[P_j + (m_j - m)(m_j - m)^\top\right].
+
+    Where the state has angles (``state_angles``), the means in 1 and 4 are
+    circular means (the direction of :math:`\sum \mu (\cos, \sin)`) and the
+    spreads :math:`m_j - m` are wrapped to :math:`[-\pi, \pi)`, as
+    :func:`gaussfuse.gaussian.moment_match` does.
 
     With one model the IMM filter is that model's filter.
 
@@ -234,6 +243,8 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
     T = zs.shape[0]
     P = _probabilities("transition", transition, M, matrix=True)
     mu = np.full(M, 1.0 / M) if mode_probs is None else _probabilities("mode_probs", mode_probs, M, matrix=False)
+    with np.errstate(divide="ignore"):  # log space, so that a mode far behind can come back (no underflow to 0)
+        log_mu, log_P = np.log(mu), np.log(P)
     modes = _modes(models, us, T, method, options)
     angles = modes[0].state_angles
     out = IMMResult(np.empty((T, n)), np.empty((T, n, n)), np.empty((T, M)), np.empty((T, M, n)),
@@ -242,14 +253,14 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
     logl = np.empty(M)
     loglik = 0.0
     for k in range(T):
-        c, starts = _mix(mu, P, prev_means, prev_covs, angles)
+        log_c, starts = _mix(log_mu, log_P, prev_means, prev_covs, angles)
         for j, mode in enumerate(modes):
             post = mode.step(k, *starts[j], zs[k])
             out.mode_means[k, j], out.mode_covs[k, j], logl[j] = post.mean, post.cov, post.loglik
-        mu, step_loglik = _reweight(logl, c)
+        log_mu, step_loglik = _reweight(logl, log_c)
         loglik += step_loglik
-        out.mode_probs[k] = mu
-        out.means[k], out.covs[k] = moment_match(mu, out.mode_means[k], out.mode_covs[k], angles)
+        out.mode_probs[k] = np.exp(log_mu)
+        out.means[k], out.covs[k] = moment_match(out.mode_probs[k], out.mode_means[k], out.mode_covs[k], angles)
         prev_means, prev_covs = out.mode_means[k], out.mode_covs[k]
     fields = (out.means, out.covs, out.mode_probs, out.mode_means, out.mode_covs)
     for a in fields:
@@ -281,7 +292,9 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
     for j, model in enumerate(models):
         check_steps(model, T)
         controls = check_controls(us, model, 1, T)
-        if isinstance(model, LinearModel) and (any_nonlinear or method in METHODS and method != "kf"):  # exact
+        if isinstance(model, LinearModel) and (any_nonlinear or method not in (None, "kf")):
+            if method is not None:  # for the NonlinearModels (if any): checked, though a LinearModel is exact
+                check_options(method, options)
             spec, opts = resolve_method(model, "kf", {})
         else:
             spec, opts = resolve_method(model, method, options)
@@ -292,26 +305,23 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
     return modes
 
 
-def _mix(mu: np.ndarray, P: np.ndarray, means: np.ndarray, covs: np.ndarray, angles):
-    """Step 1, mixing: the predicted mode probabilities c and each mode's moment-matched start."""
-    c = mu @ P
-    weights = P * mu[:, None]
+def _mix(log_mu: np.ndarray, log_P: np.ndarray, means: np.ndarray, covs: np.ndarray, angles):
+    """Step 1, mixing, in log space: ``log c`` and each mode's moment-matched start."""
+    joint = log_mu[:, None] + log_P  # log p_ij μ_i
+    log_c = logsumexp(joint, axis=0)
     starts = []
-    for j in range(P.shape[0]):
-        if c[j] > 0.0:
-            w = weights[:, j] / c[j]
+    for j in range(log_P.shape[0]):
+        if log_c[j] > -np.inf:
+            w = np.exp(joint[:, j] - log_c[j])
         else:  # an unreachable mode: keep its own belief (its probability stays 0)
-            w = np.zeros(P.shape[0])
+            w = np.zeros(log_P.shape[0])
             w[j] = 1.0
         starts.append(moment_match(w, means, covs, angles))
-    return c, starts
+    return log_c, starts
 
 
-def _reweight(logl: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, float]:
-    """Step 3: the posterior mode probabilities and ``log Σ_j Λ_j c_j``, in log space."""
-    with np.errstate(divide="ignore"):
-        a = logl + np.log(c)
-    top = a.max()
-    w = np.exp(a - top)
-    total = w.sum()
-    return w / total, float(top + np.log(total))
+def _reweight(logl: np.ndarray, log_c: np.ndarray) -> tuple[np.ndarray, float]:
+    """Step 3: the posterior log mode probabilities and ``log Σ_j Λ_j c_j``."""
+    a = logl + log_c
+    total = logsumexp(a)
+    return a - total, float(total)

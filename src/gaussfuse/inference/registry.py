@@ -17,7 +17,7 @@ from ..models.linear import LinearModel
 from ..models.nonlinear import NonlinearModel
 
 __all__ = ["Method", "METHODS", "FORMS", "DEFAULT_METHOD", "DEFAULT_TOL", "DEFAULT_ITERATIONS", "resolve_method",
-           "linearisation"]
+           "check_options", "linearisation"]
 
 DEFAULT_TOL = 1e-9
 """Default `tol` of the iterated methods: the iterate moved less than 1e-9 predicted standard deviations."""
@@ -132,18 +132,23 @@ def resolve_method(model, method: str | None, options: dict) -> tuple[Method, di
         else:
             known = ", ".join(c.__name__ for c in DEFAULT_METHOD)
             raise TypeError(f"`model` must be a {known}; got {type(model).__name__}.")
-    if method not in METHODS:
-        raise ValueError(f"`method` must be one of {sorted(METHODS)}; got {method!r}.")
-    spec = METHODS[method]
+    spec, options = check_options(method, options)
     if not isinstance(model, spec.model_types):
         fits = sorted(k for k, v in METHODS.items() if isinstance(model, v.model_types))
         raise TypeError(f"method {method!r} does not apply to a {type(model).__name__}; valid methods for it are {fits}.")
+    return spec, {**spec.options, **options}
+
+
+def check_options(method: str, options: dict) -> tuple[Method, dict]:
+    """The method named `method` and its `options`, checked (an unknown name or option raises, see above)."""
+    if method not in METHODS:
+        raise ValueError(f"`method` must be one of {sorted(METHODS)}; got {method!r}.")
+    spec = METHODS[method]
     unknown = sorted(set(options) - set(spec.options))
     if unknown:
         valid = sorted(spec.options) or "none"
         raise TypeError(f"unknown option(s) {unknown} for method {method!r}; valid options are {valid}.")
-    options = {name: OPTION_CHECKS[name](name, value) for name, value in options.items()}
-    return spec, {**spec.options, **options}
+    return spec, {name: OPTION_CHECKS[name](name, value) for name, value in options.items()}
 
 
 def linearisation(spec: Method, model, us, options: dict):
