@@ -200,6 +200,62 @@ def test_a_pickled_or_copied_filter_carries_on_where_the_original_left_off():
         assert not other.belief.mean.flags.writeable and other.x.flags.writeable
 
 
+def test_a_shallow_copy_steps_on_its_own():
+    """copy.copy shared the handed-out x, the divergence monitor and the steady state with the original: changing the
+    copy's x in place changed the original's, and wild updates of the copy made the original's 20 perfect ones raise."""
+    model = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[0.01]], R=[[1.0]])
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0], [[1.0]]), check="raise")
+    kf.x  # handed out
+    other = copy.copy(kf)
+    other.x[0] = 1234.0
+    assert kf.x[0] == 0.0
+    for k in range(30):
+        other.predict()
+        other.update(1000.0 * (-1) ** k)
+    for _ in range(60):  # every innovation zero: no window of its own can fail
+        kf.predict()
+        kf.update(kf.x[0])
+    fuser = gf.Fuser(gf.ConstantVelocity(dim=1, q=0.1), {"gps": gf.Position(dim=1, r=0.25)},
+                     gf.Gaussian([0.0, 0.0], np.eye(2)), t0=0.0, check="raise")
+    twin = copy.copy(fuser)
+    for k in range(1, 31):
+        twin.update(float(k), "gps", 1000.0 * (-1) ** k)
+    for k in range(1, 61):
+        fuser.update(float(k), "gps", fuser.predict(float(k)).mean[0])
+    assert fuser.t == 60.0 and twin.t == 30.0
+
+
+def test_the_online_gate_names_a_lost_track():
+    """gf.filter named the steps where its gate rejected at least half; the online filter, with the same gate, said
+    nothing while its estimate stayed at 0 and the data moved to 100. A consistent gated run stays silent."""
+    model = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[0.01]], R=[[1.0]])
+    prior = gf.Gaussian([0.0], [[1.0]])
+    zs = np.r_[np.zeros(20), np.full(180, 100.0)]
+    with pytest.warns(gf.DivergenceWarning, match=r"The gate rejected 180 of 200 over steps 0-199"):
+        gf.filter(model, prior, zs, gate=0.99)
+    kf = gf.KalmanFilter(model, prior, check="raise")
+    with pytest.raises(gf.DivergenceWarning, match=r"The gate rejected 30 of 50 over steps 0-49 of the measurements"):
+        for z in zs:
+            kf.predict()
+            kf.update(z, gate=0.99)
+    assert kf.step == 50 and kf.x[0] == pytest.approx(0.0, abs=1.0)
+    by_component = gf.KalmanFilter(gf.LinearModel(np.eye(2), np.eye(2), 0.01 * np.eye(2), np.eye(2)),
+                                   gf.Gaussian([0.0, 0.0], np.eye(2)), check="raise")
+    with pytest.raises(gf.DivergenceWarning, match=r"The gate rejected 50 of 100 over steps 25-74 of the components"):
+        for z in zs:
+            by_component.predict()
+            by_component.update([0.0, z], gate=0.99, gate_by="component")
+    rng = np.random.default_rng(2)
+    clean = gf.KalmanFilter(model, prior, check="raise")  # about 1% rejected, in runs: never half of a window
+    x, rejected = 0.0, 0
+    for _ in range(5000):
+        x += 0.1 * rng.standard_normal()
+        clean.predict()
+        clean.update(x + rng.standard_normal(), gate=0.99)
+        rejected += int(clean.rejected.any())
+    assert 10 < rejected < 200  # the gate did reject, a consistent filter's share
+
+
 def test_online_filter_reuses_the_fixed_point_and_equals_the_batch_filter_bitwise():
     """The online filter reaches the same covariance fixed point as gf.filter, and every belief is bitwise the same."""
     model = gf.constant_velocity(0.1, 1.0, 0.25, dim=2)

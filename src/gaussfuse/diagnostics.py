@@ -29,12 +29,13 @@ the Ljung–Box statistic.
 from __future__ import annotations
 
 import warnings
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._linalg import cholesky, observed_gram, whiten
-from .errors import DivergenceWarning, diverging
+from .errors import DivergenceWarning, diverging, gate_lost
 from ._validation import as_array, integer, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
@@ -305,6 +306,55 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
             for series, first, last in _flagged_ranges(flagged, lo, window)]
 
 
+def gate_counts(rejected, seen, by: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per step, what a gate rejected and what it was offered (:func:`rejections`' counts).
+
+    `rejected` and `seen` (..., m) mark the components rejected and those
+    kept; gating by ``"measurement"`` a measurement counts once (rejected
+    whole; offered when any component was there), by ``"component"`` each
+    component counts.
+    """
+    rejected, seen = np.asarray(rejected), np.asarray(seen)
+    if by == "measurement":
+        lost = rejected.any(axis=-1)
+        return lost, lost | seen.any(axis=-1)
+    lost = rejected.sum(axis=-1)
+    return lost, lost + seen.sum(axis=-1)
+
+
+class _Rejections:
+    """:func:`rejections` for updates that come one at a time: the j-th window tested at ``false_alarm / (j (j + 1))``."""
+
+    __slots__ = ("window", "false_alarm", "_counts", "_steps", "_since", "_tested", "_flagged")
+
+    def __init__(self, window: int, false_alarm: float) -> None:
+        self.window, self.false_alarm = window, false_alarm
+        self._counts: deque = deque(maxlen=window)  # (rejected, offered, probability of a rejection) per update
+        self._steps: deque = deque(maxlen=window)
+        self._since, self._tested, self._flagged = 0, 0, False
+
+    def add(self, lost: int, offered: int, probability: float, step) -> tuple[object, object, int, int] | None:
+        """Record an update; ``(first, last, rejected, offered)`` when the window ending here newly fails."""
+        from scipy.special import bdtrc  # P(Bin(n, p) > k)
+
+        if offered == 0:
+            return None
+        self._counts.append((int(lost), int(offered), 1.0 - probability))
+        self._steps.append(step)
+        self._since += 1
+        if len(self._counts) < self.window or (self._tested and self._since < max(self.window // 2, 1)):
+            return None
+        self._since = 0
+        self._tested += 1
+        K, N = sum(c[0] for c in self._counts), sum(c[1] for c in self._counts)
+        p = max(c[2] for c in self._counts)  # the most lenient gate of the window
+        level = self.false_alarm / (self._tested * (self._tested + 1))
+        flagged = K > 0 and 2 * K >= N and bdtrc(K - 1, N, p) <= level
+        report = flagged and not self._flagged
+        self._flagged = flagged
+        return (self._steps[0], self._steps[-1], K, N) if report else None
+
+
 def _test_settings(window, false_alarm) -> tuple[int, float]:
     """`window` a positive integer and `false_alarm` a probability in (0, 1), or a ValueError/TypeError naming them."""
     window = integer("window", window)
@@ -340,7 +390,8 @@ class DivergenceMonitor:
     :func:`divergence`'s with :math:`t = \log(j (j + 1) / \alpha)`.
     """
 
-    __slots__ = ("window", "false_alarm", "check", "_values", "_dofs", "_steps", "_since", "_tested", "_flagged")
+    __slots__ = ("window", "false_alarm", "check", "_values", "_dofs", "_steps", "_since", "_tested", "_flagged",
+                 "_rejections")
 
     def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
                  check: str = "warn") -> None:
@@ -354,6 +405,7 @@ class DivergenceMonitor:
         self._since = 0                  # updates since the last test
         self._tested = 0                 # windows tested so far
         self._flagged = False            # whether the last window tested failed
+        self._rejections = _Rejections(self.window, self.false_alarm)  # the gate's, when updates are gated
 
     def add(self, nis_value: float, dof: int, step) -> tuple[object, object, float] | None:
         """Record an update; return ``(first, last, average)`` when the window ending here newly fails the test.
@@ -468,10 +520,15 @@ class DivergenceMonitor:
             raise ValueError(f"`check` must be one of ['warn', 'raise', 'off']; got {check!r}.")
         return None if check == "off" else cls(check=check)
 
-    def observe(self, update, step, where: str) -> None:
+    def observe(self, update, step, where: str, gate=None) -> None:
         """:meth:`add` an update (a kalman.Update); warn or raise a DivergenceWarning when a window newly fails.
 
         `where` formats the failing window's first and last `step` labels.
+        With `gate`, the update's rejections are tested too, as
+        :func:`rejections` does over a whole series (windows of gated
+        updates; the j-th tested at ``false_alarm / (j (j + 1))``): a
+        filter whose gate rejects everything has no innovations left to
+        fail the χ² test.
 
         Parameters
         ----------
@@ -483,6 +540,9 @@ class DivergenceMonitor:
         where : str
             A format string with two fields, for the failing window's first
             and last labels (e.g. ``"times {:g}-{:g}"``).
+        gate : kalman.Gate, optional
+            The gate the update ran with (its ``rejected`` says what it
+            rejected).
 
         Raises
         ------
@@ -494,11 +554,21 @@ class DivergenceMonitor:
         DivergenceWarning
             With ``check="warn"``, when a window newly fails.
         """
-        flagged = self.add(update.nis, int(np.sum(~np.isnan(update.innovation))), step)
-        if flagged is None:
+        seen = ~np.isnan(update.innovation)
+        flagged = self.add(update.nis, int(np.sum(seen)), step)
+        messages = []
+        if flagged is not None:
+            first, last, average = flagged
+            messages.append(diverging([f"{average:.2f} over {where.format(first, last)}"], self.false_alarm))
+        if gate is not None and update.rejected is not None:
+            lost, offered = gate_counts(update.rejected, seen, gate.by)
+            found = self._rejections.add(lost, offered, gate.probability, step)
+            if found is not None:
+                first, last, K, N = found
+                messages.append(gate_lost([f"{K} of {N} over {where.format(first, last)}"], gate.by, gate.probability))
+        if not messages:
             return
-        first, last, average = flagged
-        message = diverging([f"{average:.2f} over {where.format(first, last)}"], self.false_alarm)
+        message = " ".join(messages)
         if self.check == "raise":
             raise DivergenceWarning(message)
         warnings.warn(message, DivergenceWarning, stacklevel=3)

@@ -66,6 +66,16 @@ def diverging(where: list[str], false_alarm: float, more: int = 0) -> str:
             "another method; check='off' turns this test off.")
 
 
+def gate_lost(where: list[str], by: str, probability: float, more: int = 0) -> str:
+    """The DivergenceWarning's sentence on a gate that rejected at least half: `where` says, per range, "K of N over ..."."""
+    extra = f" (and {more} more ranges)" if more else ""
+    kind = "measurements" if by == "measurement" else "components"
+    return (f"The gate rejected {'; '.join(where)}{extra} of the {kind} it was given, at least half, where against a "
+            f"consistent prediction it rejects {1 - probability:.2g} of them: the filter may have lost the data (its "
+            "covariances no longer cover its errors, and the gate keeps them from showing); gate=None keeps every "
+            "measurement.")
+
+
 STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
 """What a step of a filter or smoother can raise on valid input: named with its step by :func:`at_step`."""
 

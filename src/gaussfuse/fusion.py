@@ -18,6 +18,7 @@ timeline of events becomes ONE state-space model over the event steps:
 
 from __future__ import annotations
 
+import copy
 import datetime
 
 from collections.abc import Iterable
@@ -596,6 +597,10 @@ class Fuser:
         self._state_angles, self._measurement_angles = (
             mask if mask is not None and mask.any() else None
             for mask in (getattr(probe, "state_angles", None), getattr(probe, "measurement_angles", None)))
+
+    def __copy__(self) -> Fuser:
+        # a copy fuses on its own: a shallow one would share the divergence monitor with the original
+        return copy.deepcopy(self)
 
     def _strategy(self, model, dts):
         us = None if self._timeline.linear else np.asarray(dts, dtype=float).reshape(-1, 1)

@@ -22,7 +22,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
@@ -308,7 +307,7 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
 def _mix(log_mu: np.ndarray, log_P: np.ndarray, means: np.ndarray, covs: np.ndarray, angles):
     """Step 1, mixing, in log space: ``log c`` and each mode's moment-matched start."""
     joint = log_mu[:, None] + log_P  # log p_ij μ_i
-    log_c = logsumexp(joint, axis=0)
+    log_c = np.logaddexp.reduce(joint, axis=0)
     starts = []
     for j in range(log_P.shape[0]):
         if log_c[j] > -np.inf:
@@ -323,5 +322,5 @@ def _mix(log_mu: np.ndarray, log_P: np.ndarray, means: np.ndarray, covs: np.ndar
 def _reweight(logl: np.ndarray, log_c: np.ndarray) -> tuple[np.ndarray, float]:
     """Step 3: the posterior log mode probabilities and ``log Σ_j Λ_j c_j``."""
     a = logl + log_c
-    total = logsumexp(a)
+    total = np.logaddexp.reduce(a)
     return a - total, float(total)

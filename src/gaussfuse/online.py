@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from . import kalman
@@ -166,6 +168,11 @@ class KalmanFilter:
         state = dict(self.__dict__)
         state["_readonly"] = [name for name, v in state.items() if isinstance(v, np.ndarray) and not v.flags.writeable]
         return state
+
+    def __copy__(self) -> KalmanFilter:
+        # a copy steps on its own: a shallow one would share the handed-out x and P, the divergence monitor,
+        # the steady state and the controls with the original
+        return copy.deepcopy(self)
 
     def __setstate__(self, state: dict) -> None:
         readonly = state.pop("_readonly", ())
@@ -363,7 +370,7 @@ class KalmanFilter:
         self.log_likelihood, self.mahalanobis = float(post.loglik), float(np.sqrt(post.nis))
         self.rejected = post.rejected
         if self._monitor is not None:
-            self._monitor.observe(post, k, "steps {}-{}")
+            self._monitor.observe(post, k, "steps {}-{}", checked_gate)
         return self._belief
 
     def _discretise(self, dt, u):

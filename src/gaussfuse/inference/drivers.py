@@ -23,7 +23,7 @@ from .. import _kernels
 from .._kernels import jitted_loop_state, kernel_states, kernels
 from .._linalg import symmetrize, wrap_components
 from .. import diagnostics
-from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, diverging
+from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, diverging, gate_lost
 from ..gaussian import Gaussian
 from ..linearize import Nominal
 from ..steady import steady_state
@@ -521,11 +521,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
     where = [f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
              for s, a, b, avg in diagnostics.divergence(result.nis, dof, false_alarm=false_alarm)]
     if gate is not None and getattr(result, "rejected", None) is not None and result.rejected.any():
-        rejected = result.rejected
-        if gate.by == "measurement":  # a measurement: rejected whole, offered when any component was there
-            lost, there = rejected.any(axis=-1), rejected.any(axis=-1) | seen.any(axis=-1)
-        else:
-            lost, there = rejected.sum(axis=-1), rejected.sum(axis=-1) + seen.sum(axis=-1)
+        lost, there = diagnostics.gate_counts(result.rejected, seen, gate.by)
         gated = [f"{k} of {n} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
                  for s, a, b, k, n in diagnostics.rejections(lost, there, gate.probability, false_alarm=false_alarm)]
     else:
@@ -534,12 +530,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
         return
     message = divergence_message(where) if where else ""
     if gated:
-        kind = "measurements" if gate.by == "measurement" else "components"
-        message += (" " if message else "") + (
-            f"The gate rejected {'; '.join(gated[:5])}{f' (and {len(gated) - 5} more ranges)' if len(gated) > 5 else ''} "
-            f"of the {kind} it was given, at least half, where against a consistent prediction it rejects "
-            f"{1 - gate.probability:.2g} of them: the filter may have lost the data (its covariances no longer cover "
-            "its errors, and the gate keeps them from showing); gate=None keeps every measurement.")
+        message += (" " if message else "") + gate_lost(gated[:5], gate.by, gate.probability, max(len(gated) - 5, 0))
     if check == "raise":
         raise DivergenceWarning(message)
     warnings.warn(message, DivergenceWarning, stacklevel=3)
