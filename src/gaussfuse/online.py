@@ -57,8 +57,9 @@ class KalmanFilter:
         The divergence test of :func:`gaussfuse.filter`, run over the
         updates as they come (:class:`gaussfuse.diagnostics.DivergenceMonitor`:
         a consistent filter is flagged with probability at most 1e-3 over its
-        whole run): a :class:`gaussfuse.DivergenceWarning` naming the steps,
-        raised with ``"raise"``.
+        whole run), and, for gated updates, its test of a gate that rejects
+        at least half (a lost track): a :class:`gaussfuse.DivergenceWarning`
+        naming the steps, raised with ``"raise"``.
     method : str, optional
         How the model is made affine (:data:`gaussfuse.METHODS`): "kf" for
         a LinearModel, "ukf" by default for a NonlinearModel.
