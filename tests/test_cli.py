@@ -1050,6 +1050,51 @@ def test_times_that_mix_seconds_and_iso_are_refused(tmp_path, capsys):
     assert_one_line_error(err, r"line 3: column `t`: the times mix numbers \(seconds\) and ISO-8601 times")
 
 
+def test_a_regular_grid_of_iso_times_is_fitted_at_its_step(tmp_path, capsys):
+    """ISO times 100 ms apart became float seconds since 1970, whose steps scatter by 2.4e-7 s: fit called them
+    irregular and fitted at the file's dt = 1 s (R 21% off); seconds written as 0.1 * k crashed ("time-varying over
+    399 steps but the data has 400"); filter warned the grid was irregular. The oracle is gf.fit at datetimes."""
+    rng = np.random.default_rng(5)
+    x = np.cumsum(np.cumsum(rng.normal(size=400)) * 0.05) + 0.5 * rng.normal(size=400)
+    stamps = np.datetime64("2026-05-01T12:00:00.000", "ms") + np.arange(400) * np.timedelta64(100, "ms")
+    toml = '[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.7\nr = 0.3\n[prior]\nvar = 10.0\n'
+    spec_times = {"iso": [f"{s}Z" for s in stamps.astype(str)], "seconds": [repr(0.1 * k) for k in range(400)]}
+    for kind, cells in spec_times.items():
+        data, model = _files(tmp_path, "t,x\n" + "".join(f"{c},{float(v)!r}\n" for c, v in zip(cells, x)), toml)
+        code, stdout, err = run(capsys, "fit", data, "-m", model, "--learn", "R", "--method", "mle")
+        assert code == 0, err
+        assert err.startswith("gaussfuse: warning: the model file's dt = 1 s, but the times step by 0.1 s;"), err
+        spec = gfio.read_model(model)
+        want = gf.fit(spec.timed, spec.prior, x, times=stamps, learn=("R",), method="mle")
+        np.testing.assert_allclose(gfio.tomllib.loads(stdout)["model"]["R"], want.model.R, rtol=1e-6)
+        code, _, err = run(capsys, "filter", data, "-m", tmp_path / "m.toml", "-o", tmp_path / f"{kind}.csv")
+        assert code == 0 and "irregular" not in err and "times step by 0.1 s" in err, err
+    explicit = EXPLICIT_TOML.replace("[[1.0, 1.0], [0.0, 1.0]]", "[[1.0, 0.1], [0.0, 1.0]]")
+    data, model = _files(tmp_path, "t,x\n" + "".join(f"{c},{float(v)!r}\n" for c, v in zip(spec_times["iso"], x)),
+                         explicit)
+    code, _, err = run(capsys, "filter", data, "-m", model, "-o", tmp_path / "explicit.csv")
+    assert code == 0 and err == "", err
+
+
+def test_iso_times_are_read_to_the_nanosecond(tmp_path, capsys):
+    """Python 3.11's fromisoformat drops a 7th to 9th digit silently: steps were off by up to 1.07e-6 s, and rows
+    100 ns apart were "1777636800.0 follows 1777636800.0". The times are now exact differences from the first."""
+    cells = ["2026-05-01T12:00:00.000000000Z", "2026-05-01T14:00:00.001000999+02:00", "2026-05-01T12:00:00.0020011Z",
+             "2026-05-01T12:00:00.002001200Z", '"2026-05-01T12:00:00,5Z"']
+    data, _ = _files(tmp_path, "t,x\n" + "".join(f"{c},1.0\n" for c in cells))
+    got = gfio.read_measurements(data).times
+    np.testing.assert_array_equal(got, [0.0, 1000999e-9, 2001100e-9, 2001200e-9, 0.5])
+    assert np.diff(got)[2] == pytest.approx(1e-7, rel=1e-9)
+    data, model = _files(tmp_path, "t,x\n2026-05-01T12:00:00.0000000001Z,1.0\n2026-05-01T12:00:01Z,2.0\n")
+    code, _, err = run(capsys, "filter", data, "-m", model)
+    assert code == 2
+    assert_one_line_error(err, r"line 2: column `t`: '2026-05-01T12:00:00.0000000001Z' has 10 digits after the "
+                          r"second; times are read to the nanosecond \(9 digits\)\.")
+    data, model = _files(tmp_path, "t,x\n2026-05-01T12:00:01Z,1.0\n2026-05-01T12:00:00.5Z,2.0\n")
+    code, _, err = run(capsys, "filter", data, "-m", model)
+    assert_one_line_error(err, r"strictly increasing; 2026-05-01T12:00:00\.5Z follows 2026-05-01T12:00:01Z\.")
+
+
 # ---------------------------------------------------------------------------
 # Files in pieces (issue 13, item 8)
 # ---------------------------------------------------------------------------

@@ -66,7 +66,7 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
         ("t,x,y\n1,2,3\n2,3\n", r"data\.csv: line 3: expected 3 cells \(t, x, y\); found 2\.", 3),
         ("t,x,y\n1,2,3\n2,3,4,5\n", r"data\.csv: line 3: expected 3 cells", 3),
         ("t,x\n1,2\n2,3\n2,4\n", r"data\.csv: line 4: column `t`: times must be strictly increasing; "
-                                 r"2\.0 follows 2\.0\.", 4),
+                                 r"2 follows 2\.", 4),
         ("t,x\n1,2\n0.5,4\n", r"line 3: column `t`: times must be strictly increasing", 3),
         ("t,x\n,2\n", r"data\.csv: line 2: column `t`: the time is missing", 2),
         ("t,x\nnan,2\n", r"line 2: column `t`: the time is missing", 2),
@@ -789,7 +789,7 @@ def test_pieces_join_to_the_whole_file(tmp_path, rows):
 
 
 @pytest.mark.parametrize("text, line, match", [
-    ("t,x\n1,1\n2,2\n3,3\n2.5,4\n", 5, r"strictly increasing; 2\.5 follows 3\.0"),  # across the boundary
+    ("t,x\n1,1\n2,2\n3,3\n2.5,4\n", 5, r"strictly increasing; 2\.5 follows 3\."),  # across the boundary
     ("t,x\n1,1\n2,2\n3,3\n4,oops\n", 5, r"column `x`: 'oops' is not a number"),
     ("t,x\n1,1\n2,2\n3,3\n4,inf\n", 5, r"column `x`: 'inf' is not finite"),
     ("t,x\n1,1\n2,2\n3,3\n2026-01-01T00:00:00,4\n", 5, r"mix numbers \(seconds\) and ISO-8601"),

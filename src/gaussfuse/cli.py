@@ -467,7 +467,7 @@ class _Steps:
         self.spec = spec
         self.timed = spec.timed is not None and head.times.shape[0] >= 2  # one row: the file's dt
         self.stamps = not _is_number(head.time_text[0])  # ISO-8601 times
-        self.low, self.high, self.last = np.inf, -np.inf, None
+        self.low, self.high, self.last, self.largest = np.inf, -np.inf, None, 0.0
 
     def watch(self, pieces):
         for piece in pieces:
@@ -476,18 +476,19 @@ class _Steps:
                 with np.errstate(over="ignore"):  # times ±1e308 apart: the filter names that step
                     steps = np.diff(times)
                 self.low, self.high = min(self.low, float(steps.min())), max(self.high, float(steps.max()))
+                self.largest = max(self.largest, float(np.abs(times).max()))
             self.last = piece.times[-1]
             yield piece
 
     def warn(self) -> None:
         if self.high < 0:
             return
-        regular = self.high - self.low <= 1e-9 * self.high
+        grid = timing.Steps(np.array([self.low, self.high]), timing.round_off(self.largest))
         dt = self.spec.model.dt
-        if self.timed and regular and abs(self.low - dt) > 1e-9 * dt:
+        if self.timed and grid.regular and not grid.near(dt):
             print(f"gaussfuse: warning: the model file's dt = {dt:g} s, but the times step by {self.low:g} s; "
                   "each step uses the times' own step.", file=sys.stderr)
-        elif not self.timed and not regular:
+        elif not self.timed and not grid.regular:
             print(f"gaussfuse: warning: the times are irregular (steps from {self.low:g} s to {self.high:g} s), but "
                   "the model file's explicit matrices are for one fixed step: every row is filtered as one step. A "
                   "named model (kind = ...) is discretised for each step's own dt.", file=sys.stderr)
@@ -671,18 +672,18 @@ def _run_fit(args: argparse.Namespace) -> int:
     learn = _names(args.learn, "--learn", [name for name in learning.LEARNABLE if name != "B"])  # no B in a file
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
-        steps = timing.step_sizes("times", data.times, data.times.shape[0])[1:] if data.times.shape[0] > 1 else \
-            np.empty(0)  # checked: finite and increasing
-        if steps.size and steps.max() - steps.min() > 1e-9 * steps.max():
+        T = data.times.shape[0]
+        grid = timing.steps("times", data.times, T - 1) if T > 1 else None  # the T - 1 steps between the rows
+        if grid is not None and not grid.regular:
             of = f"the file's dt = {spec.model.dt:g} s" if spec.timed is not None else "it"
-            print(f"gaussfuse: warning: the times are irregular (steps from {steps.min():g} s to {steps.max():g} s),"
-                  f" but a fitted model has one set of matrices: every row is fitted as one step of {of}.",
-                  file=sys.stderr)
-        elif steps.size and spec.timed is not None:  # a named model on a regular grid: discretised for its dt
-            stepped = spec.timed.at(steps)[0]
-            if abs(steps[0] - spec.model.dt) > 1e-9 * spec.model.dt:
+            print(f"gaussfuse: warning: the times are irregular (steps from {grid.dts.min():g} s to "
+                  f"{grid.dts.max():g} s), but a fitted model has one set of matrices: every row is fitted as one "
+                  f"step of {of}.", file=sys.stderr)
+        elif grid is not None and spec.timed is not None:  # a named model on a regular grid: discretised for its dt
+            stepped = spec.timed.at(np.full(1, grid.step))[0]
+            if not grid.near(spec.model.dt):
                 print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by "
-                      f"{steps[0]:g} s; the model is fitted for the times' step.", file=sys.stderr)
+                      f"{grid.step:g} s; the model is fitted for the times' step.", file=sys.stderr)
             spec = spec._replace(model=stepped)
         return _fit_and_write(args, spec, learn, data.zs)
     with _cluster(args) as client:

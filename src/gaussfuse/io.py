@@ -214,7 +214,8 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         The time column's name (default: the one named ``t`` or ``time``,
         in any case). Its cells are seconds, or ISO-8601 times
         (``2026-05-01T12:00:00.5+02:00``; one without a zone is UTC), all
-        of one kind; ISO times become seconds since 1970-01-01 UTC.
+        of one kind; ISO times (to the nanosecond) become seconds since the
+        file's first time, each rounded once from the exact difference.
     columns : sequence of str, optional
         The measurement columns, in this order (default: every other one);
         the others are not read.
@@ -325,8 +326,9 @@ class _Rows:
 
     def __init__(self, path, header: list[str], time_col: int, wanted: list[int], names: list[str]) -> None:
         self.path, self.header, self.time_col, self.wanted, self.names = path, header, time_col, wanted, names
-        self.last: tuple[float, int] | None = None  # the last time read, and its line
+        self.last: tuple[float, int, str] | None = None  # the last time read, its line and its cell
         self.stamps: bool | None = None  # whether the times are ISO-8601 times (set by the first row)
+        self.origin: int | None = None  # the first ISO time, in nanoseconds since 1970: the times' zero
 
     def parse(self, rows: list[list[str]], lines: list[int]) -> Measurements:
         texts = [row[self.time_col].strip() for row in rows]
@@ -343,12 +345,15 @@ class _Rows:
             parsed = [_parse_row(self.path, line, self.header, self.time_col, self.wanted, row)
                       for row, line in zip(rows, lines)]
             stamps = np.array([isinstance(p[0], _Stamp) for p in parsed])
-            times = np.array([p[0] for p in parsed], dtype=np.float64)
+            if self.origin is None and stamps.any():
+                self.origin = parsed[int(np.argmax(stamps))][0]
+            times = np.array([(p[0] - self.origin) / 10**9 if s else p[0] for p, s in zip(parsed, stamps)],
+                             dtype=np.float64)  # an int difference, then one rounding
             values = np.array([p[1:] for p in parsed], dtype=np.float64)
-        self._check_times(times, stamps, lines)
+        self._check_times(times, stamps, lines, texts)
         return Measurements(times, values.reshape(len(rows), len(self.wanted)), self.names, texts)
 
-    def _check_times(self, times: np.ndarray, stamps: np.ndarray, lines: list[int]) -> None:
+    def _check_times(self, times: np.ndarray, stamps: np.ndarray, lines: list[int], texts: list[str]) -> None:
         where = {"field": f"column `{self.names[0]}`"}
         if self.stamps is None:
             self.stamps = bool(stamps[0])
@@ -358,17 +363,14 @@ class _Rows:
                                  line=lines[mixed[0]], **where)
         if self.last is not None:
             times = np.concatenate([[self.last[0]], times])
-            lines = [self.last[1], *lines]
+            lines, texts = [self.last[1], *lines], [self.last[2], *texts]
         with np.errstate(over="ignore"):  # an infinite step is increasing; the filter says it is too long
             back = np.flatnonzero(np.diff(times) <= 0)
         if back.size:
             k = back[0] + 1
-            raise InputFileError(
-                self.path,
-                f"times must be strictly increasing; {float(times[k])!r} follows {float(times[k - 1])!r}.",
-                line=lines[k], **where,
-            )
-        self.last = (float(times[-1]), lines[-1])
+            raise InputFileError(self.path, f"times must be strictly increasing; {texts[k]} follows {texts[k - 1]}.",
+                                 line=lines[k], **where)
+        self.last = (float(times[-1]), lines[-1], texts[-1])
 
 
 def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
@@ -446,13 +448,24 @@ def _float(text: str) -> float:
     return float(text)
 
 
+_FRACTION = re.compile(r"(:\d\d)[.,](\d+)")  # the seconds' fraction (before any zone's)
+_EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+
+
 def _parse_time(path, text: str, where: dict):
-    """A time cell: seconds (a float), or an ISO-8601 time as a `_Stamp` of seconds since 1970 UTC."""
+    """A time cell: seconds (a float), or an ISO-8601 time as a `_Stamp` of nanoseconds since 1970 UTC."""
     if not text:
         raise InputFileError(path, "the time is missing; every row needs a time.", **where)
     try:
         value = _float(text)
     except ValueError:
+        found = _FRACTION.search(text)  # datetime reads at most 6 digits (Python 3.11 drops the rest silently)
+        digits = found.group(2) if found else ""
+        if len(digits) > 9:
+            raise InputFileError(path, f"{text!r} has {len(digits)} digits after the second; times are read to "
+                                 "the nanosecond (9 digits).", **where) from None
+        if found:
+            text = f"{text[:found.start()]}{found.group(1)}.{digits[:6]:0<6}{text[found.end():]}"
         try:
             when = datetime.datetime.fromisoformat(text)
         except ValueError:
@@ -460,7 +473,8 @@ def _parse_time(path, text: str, where: dict):
                                  **where) from None
         if when.tzinfo is None:
             when = when.replace(tzinfo=datetime.timezone.utc)
-        return _Stamp(when.timestamp())
+        micro = (when - _EPOCH) // datetime.timedelta(microseconds=1)  # exact, in integers
+        return _Stamp(1000 * micro + int(f"{digits[6:]:0<3}"))
     if math.isnan(value):
         raise InputFileError(path, "the time is missing; every row needs a time.", **where)
     if not math.isfinite(value):
@@ -468,8 +482,8 @@ def _parse_time(path, text: str, where: dict):
     return value
 
 
-class _Stamp(float):
-    """Seconds since 1970 read from an ISO-8601 time (a float that remembers it was one)."""
+class _Stamp(int):
+    """Nanoseconds since 1970 UTC read from an ISO-8601 time (an int that remembers it was one)."""
 
 
 def _wrong_cells(path, header: list[str], row: list[str], line: int) -> InputFileError:

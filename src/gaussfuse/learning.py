@@ -1536,7 +1536,13 @@ def fit(
     pooled = chunked.is_dask(zs)
     if pooled and zs.ndim != 3:
         raise ValueError(f"`zs` as a dask array must have a leading series axis, shape (N, T, m); got {zs.shape}.")
-    model, us = timing.resolve(model, times, zs.shape[1] if pooled else zs, us)
+    T = zs.shape[1] if pooled else zs
+    if timed and times is not None and params is None:
+        grid = timing.steps("times", times, T if pooled else check_measurements(zs, model.m).shape[1])
+        if grid.regular:  # one model for the grid's step, whose F, Q (and B) can be learned
+            model, us = model.at(np.full(1, grid.step), us)
+            times = None
+    model, us = timing.resolve(model, times, T, us)
     if timed and model.steps is not None and params is None:
         varying = sorted({"F", "Q", "B"} & set([learn] if isinstance(learn, str) else learn))
         if varying:

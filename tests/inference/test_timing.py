@@ -200,3 +200,42 @@ def test_datetime_steps_are_rounded_once_from_their_exact_difference():
     want = gf.filter(timed.at(dts)[0], gf.Gaussian([0.0, 1.0], np.eye(2)), zs)
     np.testing.assert_array_equal(got.means, want.means)
     assert got.loglik == want.loglik
+
+
+# 400 times 100 ms apart, from 2026-05-01T12:00 UTC: as float seconds since 1970 their differences scatter from
+# 0.09999990 to 0.10000014 s (the round-off of 1.78e9); as datetime64 they are exact
+GRID_MS = np.datetime64("2026-05-01T12:00:00.000", "ms") + np.arange(401) * np.timedelta64(100, "ms")
+GRID_EPOCH = (GRID_MS - np.datetime64("1970-01-01T00:00:00", "ms")).astype(np.int64) / 1000.0
+
+
+def test_a_regular_grid_of_float_seconds_is_regular_to_its_round_off():
+    """A model for dt = 0.1 refused 100 ms times as seconds since 1970 ("irregular, 0.0999999 to 0.1 s"), and fit
+    refused to learn Q on 0.1 * k ("discretised for each step's dt"), which datetimes of the same instants passed."""
+    assert np.ptp(np.diff(GRID_EPOCH)) > 1e-7  # the scatter, far beyond 1e-9 of a step
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    fixed = gf.constant_velocity(dt=0.1, q=0.7, r=0.3)
+    zs = gf.simulate(fixed, prior, 400, rng=3).measurements
+    np.testing.assert_array_equal(gf.filter(fixed, prior, zs, times=GRID_EPOCH, check="off").means,
+                                  gf.filter(fixed, prior, zs, check="off").means)
+    with pytest.raises(ValueError, match=r"`times` step by 0\.1 s but the model is for dt = 0\.2 s"):
+        gf.filter(gf.constant_velocity(dt=0.2, q=0.7, r=0.3), prior, zs, times=GRID_EPOCH)
+    jittered = GRID_EPOCH + np.r_[0.0, 1e-4, np.zeros(399)]
+    with pytest.raises(ValueError, match=r"`times` are irregular"):
+        gf.filter(fixed, prior, zs, times=jittered)
+    timed = gf.model(gf.ConstantVelocity(q=0.7), gf.Position(r=0.3))
+    for times in (0.1 * np.arange(401), GRID_EPOCH):
+        fit = gf.fit(timed, prior, zs, times=times, learn=("Q", "R"), method="mle")
+        want = gf.fit(timed, prior, zs, times=GRID_MS, learn=("Q", "R"), method="mle")
+        np.testing.assert_allclose(fit.model.Q, want.model.Q, rtol=1e-6)
+        assert fit.loglik == pytest.approx(want.loglik, rel=1e-9)
+
+
+def test_a_pandas_series_of_zoned_times():
+    """A Series of aware datetimes raised pandas' "index is not a valid DatetimeIndex" (tz_convert converts a Series'
+    index): it is the same instants as its DatetimeIndex, and as naive UTC times."""
+    timed = gf.model(gf.ConstantVelocity(q=0.7), gf.Position(r=0.3))
+    prior, zs = gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.5, 2.0]
+    index = pd.date_range("2026-05-01 14:00", periods=3, freq="1500ms", tz="Europe/Berlin")
+    want = gf.filter(timed, prior, zs, times=index.tz_convert("UTC").tz_localize(None)).means
+    for times in (pd.Series(index), index, pd.Series(index.tz_convert("UTC").tz_localize(None))):
+        np.testing.assert_array_equal(gf.filter(timed, prior, zs, times=times).means, want)

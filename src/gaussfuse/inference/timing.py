@@ -15,13 +15,15 @@ only at its own ``dt`` when it records one.
 from __future__ import annotations
 
 import datetime
+from typing import NamedTuple
 
 import numpy as np
 
 from ..models.compose import TimedModel
 from .validation import check_measurements
 
-__all__ = ["as_seconds", "step_sizes", "resolve", "stamp", "within", "ticks", "elapsed", "finest", "per_second"]
+__all__ = ["as_seconds", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within", "ticks", "elapsed",
+           "finest", "per_second"]
 
 
 _FINE = ("s", "ms", "us", "ns", "ps", "fs", "as")
@@ -122,10 +124,11 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     ValueError
         For a shape other than 1-D, or non-finite values.
     """
-    tz = getattr(times, "tz", None) or getattr(getattr(times, "dt", None), "tz", None)
-    if tz is not None:  # pandas, aware of a time zone: the same instants in UTC, without the zone
-        times = (times.tz_convert("UTC") if hasattr(times, "tz_convert") else times.dt.tz_convert("UTC"))
-        times = times.tz_localize(None) if hasattr(times, "tz_localize") else times.dt.tz_localize(None)
+    values = getattr(times, "dt", None)  # a pandas Series of datetimes: its values (tz_convert would convert its index)
+    if values is not None and getattr(values, "tz", None) is not None:
+        times = values.tz_convert("UTC").dt.tz_localize(None)
+    elif values is None and getattr(times, "tz", None) is not None:  # a DatetimeIndex aware of a time zone
+        times = times.tz_convert("UTC").tz_localize(None)
     if hasattr(times, "to_numpy"):
         times = times.to_numpy()
     arr = np.asarray(times)
@@ -172,16 +175,50 @@ def step_sizes(name: str, times, T: int) -> np.ndarray:
         When `times` has neither T nor T + 1 entries, or is not strictly
         increasing (naming the first step that is not).
     """
+    return steps(name, times, T).dts
+
+
+class Steps(NamedTuple):
+    """A series' step sizes, and how far each may be off through the round-off of the times it came from."""
+
+    dts: np.ndarray  # (T,) seconds
+    slack: float     # seconds: 8 eps max|t| for float seconds (a 0.1 s grid as seconds since 1970 steps by
+    #                  0.09999990 to 0.10000014 s), 0 for datetimes (exact differences)
+
+    @property
+    def regular(self) -> bool:
+        """Whether the steps are one step, to 1e-9 of it or to the times' round-off."""
+        return bool(self.dts.max() - self.dts.min() <= 1e-9 * self.dts.max() + self.slack)
+
+    @property
+    def step(self) -> float:
+        """The mean step: a regular grid's step."""
+        return float(self.dts.mean())
+
+    def near(self, dt: float) -> bool:
+        """Whether a regular grid steps by `dt`, to 1e-9 of it or to the times' round-off."""
+        return abs(self.step - dt) <= 1e-9 * dt + self.slack
+
+
+def round_off(largest: float) -> float:
+    """How far a difference of float times up to `largest` in size may be off: two times' round-off, with margin."""
+    return 8.0 * float(np.finfo(np.float64).eps) * largest
+
+
+def steps(name: str, times, T: int) -> Steps:
+    """:func:`step_sizes` as :class:`Steps`; raises as it does."""
     values, per_second = _clock(name, times)
+    slack = 0.0
     if per_second is None:
         with np.errstate(over="ignore"):
-            steps = np.diff(values)
+            diffs = np.diff(values)
+        slack = round_off(float(np.abs(values).max(initial=0.0)))
     else:
-        steps = elapsed(values, per_second)
+        diffs = elapsed(values, per_second)
     if values.shape[0] == T + 1:
-        dts = steps
+        dts = diffs
     elif values.shape[0] == T and T >= 2:
-        dts = np.concatenate([steps[:1], steps])
+        dts = np.concatenate([diffs[:1], diffs])
     else:
         more = " (with one measurement, give two: the prior's time, then the measurement's)" if T == 1 else ""
         raise ValueError(f"`{name}` must have {T} entries, one per measurement, or {T + 1} with the prior's time "
@@ -194,7 +231,7 @@ def step_sizes(name: str, times, T: int) -> np.ndarray:
         k = int(np.flatnonzero(np.isinf(dts))[0])
         raise ValueError(f"`{name}` step {k} is longer than the largest float64 (dt = inf s): times so far apart "
                          "cannot be stepped.")
-    return dts
+    return Steps(dts, slack)
 
 
 def resolve(model, times, zs, us=None, name: str = "times"):
@@ -217,16 +254,16 @@ def resolve(model, times, zs, us=None, name: str = "times"):
                              "so it is discretised for each step's own time step.")
         return model, us
     T = zs if isinstance(zs, int) else check_measurements(zs, model.m).shape[1]
-    dts = step_sizes(name, times, T)
+    grid = steps(name, times, T)
     if timed:
-        return model.at(dts, us)
-    low, high = float(dts.min()), float(dts.max())
-    if high - low > 1e-9 * high:
+        return model.at(grid.dts, us)
+    low, high = float(grid.dts.min()), float(grid.dts.max())
+    if not grid.regular:
         raise ValueError(
             f"`{name}` are irregular (steps from {low:g} s to {high:g} s) but the model's matrices are fixed; build "
             "it with gf.model(motion, sensor) without dt, which discretises each step for its own dt.")
     dt = getattr(model, "dt", None)
-    if dt is not None and abs(low - dt) > 1e-9 * dt:
-        raise ValueError(f"`{name}` step by {low:g} s but the model is for dt = {dt:g} s; build it for the times' "
+    if dt is not None and not grid.near(dt):
+        raise ValueError(f"`{name}` step by {grid.step:g} s but the model is for dt = {dt:g} s; build it for the times' "
                          "step, or with gf.model(motion, sensor) without dt.")
     return model, us
