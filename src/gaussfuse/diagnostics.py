@@ -309,10 +309,18 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
 def gate_counts(rejected, seen, by: str) -> tuple[np.ndarray, np.ndarray]:
     """Per step, what a gate rejected and what it was offered (:func:`rejections`' counts).
 
-    `rejected` and `seen` (..., m) mark the components rejected and those
-    kept; gating by ``"measurement"`` a measurement counts once (rejected
-    whole; offered when any component was there), by ``"component"`` each
-    component counts.
+    Parameters
+    ----------
+    rejected, seen : array_like of bool, shape (..., m)
+        The components the gate rejected, and those it kept.
+    by : {"measurement", "component"}
+        The gate's unit: a measurement counts once (rejected whole; offered
+        when any component was there), or each component counts.
+
+    Returns
+    -------
+    rejected, offered : ndarray of shape (...)
+        The counts per step.
     """
     rejected, seen = np.asarray(rejected), np.asarray(seen)
     if by == "measurement":
