@@ -319,8 +319,10 @@ def gate_counts(rejected, seen, by: str) -> tuple[np.ndarray, np.ndarray]:
 
     Returns
     -------
-    rejected, offered : ndarray of shape (...)
-        The counts per step.
+    rejected : ndarray of shape (...)
+        What the gate rejected at each step.
+    offered : ndarray of shape (...)
+        What it was offered (rejected or kept).
     """
     rejected, seen = np.asarray(rejected), np.asarray(seen)
     if by == "measurement":
