@@ -310,6 +310,29 @@ def test_a_malformed_table_is_one_line_and_leaves_no_output(tmp_path, capsys, sc
     assert not (tmp_path / "made").exists()  # nothing written, and the directories it made are gone again
 
 
+def test_an_output_inside_the_data_is_refused_and_replaces_nothing(tmp_path, capsys):
+    """-o d/sub wrote d/p.csv's estimates over the input partition d/sub/p.csv (exit 0): the data directory's
+    files are all inputs, and an output under it would be read as data on the next run."""
+    (tmp_path / "m.toml").write_text(EXPLICIT)
+    data = tmp_path / "d"
+    (data / "sub").mkdir(parents=True)
+    (data / "p.csv").write_text("id,t,z\na,0,1\na,1,2\n")
+    (data / "sub" / "p.csv").write_text("id,t,z\nb,0,5\nb,1,6\n")
+    for out in (data / "sub", data / "out", data):
+        code, _, err = run(capsys, "filter", data, "-m", tmp_path / "m.toml", "--series-column", "id", "--workers", "1",
+                           "-o", out)
+        assert code == 2 and err.count("\n") == 1, err
+        assert "is inside the data directory" in err or "is the same file as the data" in err, err
+    assert (data / "sub" / "p.csv").read_text() == "id,t,z\nb,0,5\nb,1,6\n"
+    assert sorted(p.name for p in data.rglob("*")) == ["p.csv", "p.csv", "sub"]
+    single = tmp_path / "one.csv"
+    single.write_text("id,t,z\na,0,1\na,1,2\n")
+    code, _, err = run(capsys, "filter", single, "-m", tmp_path / "m.toml", "--series-column", "id", "--workers", "1",
+                       "-o", tmp_path)
+    assert code == 2 and "would write" in err and "over an input" in err, err
+    assert single.read_text() == "id,t,z\na,0,1\na,1,2\n"
+
+
 def test_partitions_of_a_path(tmp_path):
     dataset(tmp_path / "d")
     assert [os.path.relpath(p, tmp_path) for p in panels.partitions(str(tmp_path / "d"))] == \

@@ -334,12 +334,19 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
                          "series, the rows of one file; with --series-column give one set of matrices for every "
                          "series.")
     parts = panels.partitions(args.data)
-    source = args.data if os.path.isdir(args.data) else os.path.dirname(os.path.abspath(args.data))
-    if os.path.realpath(args.out) == os.path.realpath(source):
-        raise ValueError(f"`--out` {args.out} is the data's own directory; choose another, so no input is replaced.")
+    out = os.path.realpath(args.out)
+    if os.path.isdir(args.data):  # every file under the data directory is a partition, now or on the next run
+        source = os.path.realpath(args.data)
+        if out == source or out.startswith(source.rstrip(os.sep) + os.sep):
+            raise ValueError(f"`--out` {args.out} is inside the data directory {args.data}; choose one outside it, "
+                             "so that no input is replaced and no output is read as data.")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"`--out` {args.out} is a file; with --series-column it is a directory (created if missing).")
     finals = [panels.output_path(args.data, part, args.out) for part in parts]
+    inputs = {os.path.realpath(part) for part in parts}
+    for final in finals:
+        if os.path.realpath(final) in inputs:
+            raise ValueError(f"`--out` {args.out} would write {final} over an input; choose another directory.")
     with _written_together(finals) as temps, _cluster(args) as client:
         import distributed
 
