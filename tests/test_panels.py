@@ -146,6 +146,33 @@ def test_series_ids_are_the_text_in_the_file(tmp_path, capsys):
         np.testing.assert_allclose(got[got.id == name]["x0"].to_numpy(), want.means[:, 0], rtol=1e-12)
 
 
+def test_a_partition_is_read_as_one_series_file_is(tmp_path):
+    """The panel reader took a byte-order mark into the first column's name ("no column named `id`"), "NA", "null"
+    and "None" as missing values, " t" (unstripped) for no time column, rewrote time cells (0.10 as 0.1), and said
+    only "UnicodeDecodeError" for a file that is not UTF-8; ISO times became float seconds since 1970."""
+    text = ("\ufeffid, t , z\n a ,2026-05-01T12:00:00.000000000Z,1.0\na,2026-05-01T12:00:00.000000100Z,\n"
+            "b,2026-05-01T12:00:01Z,NaN\nb,2026-05-01T11:00:00Z,2\n")
+    (tmp_path / "d.csv").write_text(text, encoding="utf-8")
+    part = panels.read_partition(str(tmp_path / "d.csv"), "id", 1)
+    assert part.ids == ["a", "b"] and part.columns == ["id", "t", "z"]
+    np.testing.assert_array_equal(part.times[0], [3600.0, 3600.0000001])  # exact to the nanosecond
+    np.testing.assert_array_equal(part.times[1], [0.0, 3601.0])  # rows in any order: by time within a series
+    np.testing.assert_array_equal(np.concatenate(part.zs)[:, 0], [1.0, np.nan, 2.0, np.nan])
+    assert part.frame["t"].tolist()[0] == "2026-05-01T12:00:00.000000000Z"
+    (tmp_path / "v.csv").write_text("id,t,z\na,0.10,1\na,1e1,2\na,0020,3\n")
+    assert panels.read_partition(str(tmp_path / "v.csv"), "id", 1).frame["t"].tolist() == ["0.10", "1e1", "0020"]
+    for cell in ("NA", "null", "None", "1_000"):
+        (tmp_path / "n.csv").write_text(f"id,t,z\na,0,1\na,1,{cell}\n")
+        with pytest.raises(gfio.InputFileError, match=rf"n\.csv: line 3: column `z`: '{cell}' is not a number\."):
+            panels.read_partition(str(tmp_path / "n.csv"), "id", 1)
+    (tmp_path / "m.csv").write_text("id,t,z\na,0,1\na,2026-05-01T12:00:01Z,2\n")
+    with pytest.raises(gfio.InputFileError, match=r"the times mix numbers \(seconds\) and ISO-8601 times"):
+        panels.read_partition(str(tmp_path / "m.csv"), "id", 1)
+    (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")
+    with pytest.raises(gfio.InputFileError, match=r"l\.csv: not UTF-8 text"):
+        panels.read_partition(str(tmp_path / "l.csv"), "id", 1)
+
+
 def test_matrices_per_row_are_refused_with_series_naming_the_file(tmp_path, capsys):
     """They failed with the library's "time-varying over 3 steps but `zs` has 2 steps", naming no file."""
     (tmp_path / "d.csv").write_text("id,t,z\na,0,1\na,1,2\nb,0,3\n")
@@ -285,8 +312,8 @@ BAD_TABLES = [
     ("unit,t,x\n", "no data rows: the table has a header only"),
     ("unit,t,x\nu1,1.0,0.5,9\nu1,2.0,0.7\n", "line 2: expected 3 cells (unit, t, x); found 4"),
     ("unit,t,x\nu1,1.0\nu1,2.0,0.7\n", "line 2: expected 3 cells (unit, t, x); found 2"),
-    ("unit,t,x\nu1,True,0.5\nu1,False,0.7\n", "column `t`: a time is True or False"),
-    ("unit,t,x\nu1,1.0,True\nu1,2.0,False\n", "column `x`: a measurement is True or False"),
+    ("unit,t,x\nu1,True,0.5\nu1,False,0.7\n", "column `t`: a time is neither a number of seconds nor an ISO-8601"),
+    ("unit,t,x\nu1,1.0,True\nu1,2.0,False\n", "line 2: column `x`: 'True' is not a number"),
     ("", "the file is empty"),
 ]
 

@@ -15,7 +15,8 @@ that only a summary travels. :func:`partition_arrays` turns a partition into
 an (N, T, m) array (series padded at the end with missing steps to the
 longest), the input of a pooled fit over a dask array.
 
-Within a series the times must increase strictly. A named model file (a
+Rows may come in any order (as a partitioned dataset is read); each
+series is ordered by its times, which must differ. A named model file (a
 TimedModel) steps each series by its own times; explicit matrices step by
 rows. pandas reads and writes the tables (and pyarrow Parquet); both come
 with the ``dask`` extra.
@@ -33,7 +34,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning
-from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _measurement_columns,
+from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
                  _time_column, _wrong_cells)
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
@@ -50,7 +51,8 @@ class Partition(NamedTuple):
     ids : list
         The series ids.
     times : list of ndarray
-        Each series' times, in seconds (datetimes as seconds since 1970 UTC).
+        Each series' times, in seconds (datetimes as seconds since the
+        partition's first, each from the exact difference).
     zs : list of ndarray
         Each series' measurements (T_i, m); NaN where missing.
     frame : pandas.DataFrame
@@ -108,8 +110,8 @@ def _header(path: str) -> list[str]:
     """The column names of a CSV file as written (pandas renames a repeated one)."""
     import csv
 
-    with open(path, newline="", encoding="utf-8") as f:
-        return next(csv.reader(f), [])
+    with open(path, newline="", encoding="utf-8-sig") as f:  # a byte-order mark (Excel's "CSV UTF-8") is not a name
+        return [name.strip() for name in next(csv.reader(f), [])]
 
 
 def read_partition(path: str, series_column: str, m: int, time_column: str | None = None,
@@ -120,27 +122,29 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     ------
     InputFileError
         For a missing column, a wrong number of measurement columns, a value
-        that is not a number or a time, or times that do not increase within
-        a series; the message names the file, the column and the series.
+        that is not a number or a time, or two rows of a series at one time
+        (rows may come in any order); the message names the file, the column and the series.
     """
     import pandas as pd
 
-    if _format(path) == "parquet":
+    csv_file = _format(path) == "csv"
+    if not csv_file:
         frame = pd.read_parquet(path)
-    else:
-        _check_cells(path)
-        frame = pd.read_csv(path, index_col=False)
-        if series_column in frame.columns:  # the ids as written: "007" is not 7, "1.0" not 1, "NA" is an id
-            ids = pd.read_csv(path, index_col=False, usecols=[series_column], dtype=str,
-                              keep_default_na=False)[series_column]
-            frame[series_column] = ids.mask(ids == "")  # an empty cell is a missing id
+    else:  # every cell as written, read as the single-file reader reads it: "007" is an id, "NA" not a number
+        try:
+            _check_cells(path)
+            frame = pd.read_csv(path, index_col=False, dtype=str, keep_default_na=False, encoding="utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise InputFileError(path, f"not UTF-8 text: {exc}") from None
+        frame = frame.apply(lambda column: column.str.strip())
+        frame = frame.mask(frame == "")  # an empty cell: a missing id, time or value
     if len(frame) == 0:
         raise InputFileError(path, "no data rows: the table has a header only.")
-    header = _header(path) if _format(path) == "csv" else [str(c) for c in frame.columns]
+    header = _header(path) if csv_file else [str(c) for c in frame.columns]
     twice = sorted({h for h in header if header.count(h) > 1})
     if twice:  # pandas would rename the second x to x.1: which column is which would be a guess
         raise InputFileError(path, f"the header names column(s) {twice} more than once; found columns {header}.",
-                             line=1 if _format(path) == "csv" else None)
+                             line=1 if csv_file else None)
     frame.columns = header
     if series_column not in header:
         raise InputFileError(path, f"no column named `{series_column}` (the series ids); found columns {header}.")
@@ -160,13 +164,16 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     if len(wanted) != m:
         raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
                                    f"`{time_col}`, but the model measures m = {m} component(s).")
-    for name in wanted:
-        if pd.api.types.is_bool_dtype(frame[name]):
-            raise InputFileError(path, "a measurement is True or False, not a number.", field=f"column `{name}`")
-    try:
-        values = frame[wanted].apply(pd.to_numeric).to_numpy(dtype=np.float64, na_value=np.nan)
-    except (TypeError, ValueError) as exc:
-        raise InputFileError(path, f"a measurement is not a number: {exc}") from None
+    if csv_file:
+        values = np.column_stack([_numbers(path, frame[name], name) for name in wanted])
+    else:
+        for name in wanted:
+            if pd.api.types.is_bool_dtype(frame[name]):
+                raise InputFileError(path, "a measurement is True or False, not a number.", field=f"column `{name}`")
+        try:
+            values = frame[wanted].apply(pd.to_numeric).to_numpy(dtype=np.float64, na_value=np.nan)
+        except (TypeError, ValueError) as exc:
+            raise InputFileError(path, f"a measurement is not a number: {exc}") from None
     if np.isinf(values).any():
         raise InputFileError(path, "a measurement is infinite.")
     seconds = _seconds(path, frame[time_col], time_col)
@@ -174,7 +181,7 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     if (codes < 0).any():
         row = int(np.flatnonzero(codes < 0)[0])
         raise InputFileError(path, "a row has no series id.", field=f"column `{series_column}`",
-                             line=row + 2 if _format(path) == "csv" else None)
+                             line=row + 2 if csv_file else None)
     order = np.lexsort((seconds, codes))  # by series (first appearance), then time
     codes, seconds, values = codes[order], seconds[order], values[order]
     bounds = np.flatnonzero(np.diff(codes)) + 1
@@ -213,8 +220,27 @@ def _check_cells(path: str) -> None:
                 raise _wrong_cells(path, header, row, rows.line_num)
 
 
+def _numbers(path: str, column, name: str) -> np.ndarray:
+    """A CSV column of text as float64, as the single-file reader reads cells (NaN where empty); else the first bad cell."""
+    cells = column.to_numpy(dtype=object)
+    try:
+        values = np.array([np.nan if c is None or c != c else _float(c) for c in cells], dtype=np.float64)
+    except ValueError:
+        row = next(i for i, c in enumerate(cells) if not _is_number(c))
+        raise InputFileError(path, f"{cells[row]!r} is not a number.", line=row + 2, field=f"column `{name}`") from None
+    return values
+
+
+def _is_number(cell) -> bool:
+    try:
+        _float(cell)
+    except (TypeError, ValueError):
+        return cell is None or cell != cell
+    return True
+
+
 def _seconds(path: str, column, name: str) -> np.ndarray:
-    """A time column as float seconds: numbers as they are, datetimes (or ISO-8601 text) since 1970 UTC."""
+    """A time column as float seconds: numbers as they are, datetimes (or ISO-8601 text) since the first, exactly."""
     import pandas as pd
 
     if pd.api.types.is_bool_dtype(column):
@@ -223,12 +249,19 @@ def _seconds(path: str, column, name: str) -> np.ndarray:
     if pd.api.types.is_numeric_dtype(column):
         seconds = column.to_numpy(dtype=np.float64)
     else:
+        numbers = column.map(_is_number) & column.notna()
+        if numbers.all():
+            return _numbers(path, column, name)
+        if numbers.any():
+            raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
+                                 field=f"column `{name}`")
         try:
             stamps = pd.to_datetime(column, utc=True, format="ISO8601")
         except (TypeError, ValueError) as exc:
             raise InputFileError(path, f"a time is neither a number of seconds nor an ISO-8601 time: {exc}",
                                  field=f"column `{name}`") from None
-        seconds = (stamps - pd.Timestamp(0, tz="UTC")).dt.total_seconds().to_numpy(dtype=np.float64)
+        offsets = (stamps - stamps.min()).to_numpy(dtype="timedelta64[ns]")  # exact: int64 nanoseconds
+        seconds = np.where(np.isnat(offsets), np.nan, offsets.astype(np.int64) / 1e9)
     if not np.all(np.isfinite(seconds)):
         raise InputFileError(path, "a time is missing; every row needs a time.", field=f"column `{name}`")
     return seconds
