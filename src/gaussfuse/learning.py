@@ -29,7 +29,11 @@ so the sums over transitions start at :math:`t = 2`.
   :math:`H = \sum E[z x^\top] (\sum E[x x^\top])^{-1}`, then
   :math:`Q = \frac1{T_w} \sum E[w w^\top]` over the :math:`T_w` transitions,
   :math:`R = \frac1T \sum E[v v^\top]`,
-  :math:`m_0 = E[x_0]`, :math:`P_0 = \operatorname{Cov}[x_0]`. A diagonal
+  :math:`m_0 = E[x_0]`, :math:`P_0 = \operatorname{Cov}[x_0]`; the steps
+  after a series' last observation (a short series padded to a long one's
+  length) are left out of these sums, as is a series with none: their
+  expected statistics are the current model's own, which would only slow
+  EM (their likelihood is 1 either way). A diagonal
   or scalar covariance keeps the diagonal or its mean. Each step is an
   exact maximisation, so the likelihood never decreases. A learned
   covariance is projected onto the positive semi-definite matrices (its
@@ -286,6 +290,12 @@ class Statistics:
         The first transition that is part of the model (1 for a diffuse x_1).
     x0_mean, x0_cov : ndarray of shape (N, n), (N, n, n)
         Smoothed moments of x_0.
+    kept_w, kept_v, seen : ndarray of bool, shape (N·T_w,), (N·T,), (N,)
+        The transitions and steps up to each series' last observation, and
+        the series with one: EM's sums (:func:`_first_sums`,
+        :func:`_second_sums`) leave out the steps after it (a series padded
+        to a longer one's length), whose expected statistics are the
+        current model's own and would only slow EM, and series with none.
     """
 
     def __init__(self, model: LinearModel, means: np.ndarray, covs: np.ndarray, cross: np.ndarray, zs: np.ndarray,
@@ -338,6 +348,13 @@ class Statistics:
             tau[t, m:m + n, :m] = np.swapaxes(AP, -1, -2)
         self.nu, self.tau = nu, tau
         self.x0_mean, self.x0_cov = means[:, 0], covs[:, 0]
+        observed = ~np.isnan(zs).all(axis=2)  # (N, T)
+        self.seen = observed.any(axis=1)
+        if not self.seen.any():  # nothing observed anywhere: every step, as the model has them
+            observed[:] = True
+            self.seen[:] = True
+        upto = np.cumsum(observed[:, ::-1], axis=1)[:, ::-1] > 0  # at or before the series' last observation
+        self.kept_w, self.kept_v = upto[:, a:].ravel(), upto.ravel()
 
     def per_step(self, M: np.ndarray | None, start: int = 0) -> np.ndarray | None:
         """A model matrix (time-invariant, or one per step) at each step of the stack from step `start` on."""
@@ -470,8 +487,8 @@ def _m_step(model: LinearModel, prior, stats: list[Statistics], learn: tuple, st
 def _first_sums(model: LinearModel, stats: list[Statistics], learn: tuple) -> dict:
     """The M-step's first-stage sums over `stats`: counts, and the regressions of F, B and H and the mean of x₀."""
     n, p, m = model.n, model.p, model.m
-    out = {"T_w": sum(s.mu.shape[0] for s in stats), "T_v": sum(s.nu.shape[0] for s in stats),
-           "series": sum(s.N for s in stats)}
+    out = {"T_w": sum(int(s.kept_w.sum()) for s in stats), "T_v": sum(int(s.kept_v.sum()) for s in stats),
+           "series": sum(int(s.seen.sum()) for s in stats)}
     if "F" in learn or "B" in learn:
         # Regress x_t on the learned regressors, the known parts moved to the target.
         rows = ([np.arange(n, 2 * n)] if "F" in learn else []) + \
@@ -479,15 +496,15 @@ def _first_sums(model: LinearModel, stats: list[Statistics], learn: tuple) -> di
         sel = np.concatenate(rows)
         Fk = np.zeros_like(model.F) if "F" in learn else model.F
         Bk = (np.zeros_like(model.B) if "B" in learn else model.B) if p else None
-        Phi = [s.Phi for s in stats]
-        out["lhs"] = sum(np.sum((s.w_map(Fk, Bk) @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
+        Phi = [s.Phi[s.kept_w] for s in stats]
+        out["lhs"] = sum(np.sum((s.w_map(Fk, Bk)[s.kept_w] @ ph)[:, :, sel], axis=0) for s, ph in zip(stats, Phi))
         out["gram"] = sum(np.sum(ph[:, sel][:, :, sel], axis=0) for ph in Phi)
     if "H" in learn:
-        Psi = [s.Psi for s in stats]
+        Psi = [s.Psi[s.kept_v] for s in stats]
         out["zx"] = sum(np.sum(ps[:, :m, m:m + n], axis=0) for ps in Psi)
         out["xx"] = sum(np.sum(ps[:, m:m + n, m:m + n], axis=0) for ps in Psi)
     if "m0" in learn:
-        out["x0"] = sum(s.x0_mean.sum(axis=0) for s in stats)
+        out["x0"] = sum(s.x0_mean[s.seen].sum(axis=0) for s in stats)
     return out
 
 
@@ -511,11 +528,12 @@ def _second_sums(stats: list[Statistics], new: dict, learn: tuple) -> dict:
     """The M-step's second-stage sums: the residuals' second moments under the new F, B, H and m0."""
     out = {}
     if "Q" in learn:
-        out["Q"] = sum(np.sum(s.residual_second_moment("w", s.w_map(new["F"], new["B"])), axis=0) for s in stats)
+        out["Q"] = sum(np.sum(s.residual_second_moment("w", s.w_map(new["F"], new["B"]))[s.kept_w], axis=0)
+                       for s in stats)
     if "R" in learn:
-        out["R"] = sum(np.sum(s.residual_second_moment("v", s.v_map(new["H"])), axis=0) for s in stats)
+        out["R"] = sum(np.sum(s.residual_second_moment("v", s.v_map(new["H"]))[s.kept_v], axis=0) for s in stats)
     if "P0" in learn:
-        out["P0"] = sum(np.sum(s.x0_cov + _outer(s.x0_mean - new["m0"]), axis=0) for s in stats)
+        out["P0"] = sum(np.sum((s.x0_cov + _outer(s.x0_mean - new["m0"]))[s.seen], axis=0) for s in stats)
     return out
 
 
