@@ -681,24 +681,34 @@ def _run_fit(args: argparse.Namespace) -> int:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
         T = data.times.shape[0]
         grid = timing.steps("times", data.times, T - 1) if T > 1 else None  # the T - 1 steps between the rows
-        if grid is not None and not grid.regular:
-            of = f"the file's dt = {spec.model.dt:g} s" if spec.timed is not None else "it"
-            print(f"gaussfuse: warning: the times are irregular (steps from {grid.dts.min():g} s to "
-                  f"{grid.dts.max():g} s), but a fitted model has one set of matrices: every row is fitted as one "
-                  f"step of {of}.", file=sys.stderr)
-        elif grid is not None and spec.timed is not None:  # a named model on a regular grid: discretised for its dt
-            stepped = spec.timed.at(np.full(1, grid.step))[0]
-            if not grid.near(spec.model.dt):
-                print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by "
-                      f"{grid.step:g} s; the model is fitted for the times' step.", file=sys.stderr)
-            spec = spec._replace(model=stepped)
-        return _fit_and_write(args, spec, learn, data.zs)
+        return _fit_and_write(args, _stepped(spec, grid), learn, data.zs)
     with _cluster(args) as client:
-        return _fit_and_write(args, spec, learn, _pooled(args, spec, columns, client))
+        zs, grid = _pooled(args, spec, columns, client)
+        return _fit_and_write(args, _stepped(spec, grid), learn, zs)
+
+
+def _stepped(spec: gfio.ModelFile, grid: timing.Steps | None) -> gfio.ModelFile:
+    """The model to fit on data whose steps are `grid`: a named model discretised for a regular grid's step.
+
+    Irregular steps (or explicit matrices) keep one set of matrices, each
+    row one step, with a warning; so does a named model on one row.
+    """
+    if grid is not None and not grid.regular:
+        of = f"the file's dt = {spec.model.dt:g} s" if spec.timed is not None else "it"
+        print(f"gaussfuse: warning: the times are irregular (steps from {grid.dts.min():g} s to {grid.dts.max():g} s), "
+              f"but a fitted model has one set of matrices: every row is fitted as one step of {of}.", file=sys.stderr)
+    elif grid is not None and spec.timed is not None:  # a named model on a regular grid: discretised for its dt
+        stepped = spec.timed.at(np.full(1, grid.step))[0]
+        if not grid.near(spec.model.dt):
+            print(f"gaussfuse: warning: the model file's dt = {spec.model.dt:g} s, but the times step by "
+                  f"{grid.step:g} s; the model is fitted for the times' step.", file=sys.stderr)
+        spec = spec._replace(model=stepped)
+    return spec
 
 
 def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, client):
-    """Every series of a long-format table as one dask array (N, T, m), each partition read on a worker.
+    """Every series of a long-format table as one dask array (N, T, m), each partition read on a worker; and the
+    range of the series' steps (:func:`gaussfuse.panels.step_range`).
 
     Series shorter than the longest are padded at the end with missing steps
     (which leave the likelihood as it is). A series in two partitions is an
@@ -711,18 +721,18 @@ def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, client):
     read = dict(series_column=args.series_column, m=spec.model.m, time_column=args.time_column, columns=columns)
     shapes = client.gather([client.submit(panels.partition_shape, part, **read, pure=False) for part in parts])
     seen: dict = {}
-    for part, (ids, _) in zip(parts, shapes):
+    for part, (ids, _, _) in zip(parts, shapes):
         for i in ids:
             if i in seen:
                 raise ValueError(f"series {i!r} is in two partitions ({seen[i]} and {part}); each series must lie "
                                  "in one partition.")
             seen[i] = part
-    T = max(steps for _, steps in shapes)
+    T = max(steps for _, steps, _ in shapes)
     blocks = [da.from_delayed(dask.delayed(panels.partition_arrays)(part, **read, steps=T),
                               shape=(len(ids), T, spec.model.m), dtype=np.float64)
-              for part, (ids, _) in zip(parts, shapes)]
+              for part, (ids, _, _) in zip(parts, shapes)]
     print(f"fit: {len(seen):,} series in {len(parts)} partition(s), at most {T} steps each", file=sys.stderr)
-    return client.persist(da.concatenate(blocks))
+    return client.persist(da.concatenate(blocks)), panels.joined_range([grid for _, _, grid in shapes])
 
 
 def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[str], zs) -> int:

@@ -1579,6 +1579,12 @@ def fit(
             raise ValueError(f"`us` must be a dask array (N, T, p) chunked as `zs` exactly when the model has B; got "
                              f"{None if us is None else us.shape}.")
         nobs = int(chunked.observed(zs))
+        if prior == "diffuse" and 0 < nobs:  # as in memory: a series with nothing observed adds nothing
+            seen = chunked.observed_series(zs)
+            if not seen.all():
+                zs, us = zs[seen], None if us is None else us[seen]
+                zs, us = zs.rechunk({0: tuple(c for c in zs.chunks[0] if c)}), \
+                    None if us is None else us.rechunk({0: tuple(c for c in zs.chunks[0] if c)})
         data = _Chunks(zs, us)
     else:
         zs = check_measurements(zs, model.m)

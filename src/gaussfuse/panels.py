@@ -34,6 +34,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning
+from .inference.timing import Steps, round_off
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
                  _time_column, _wrong_cells)
 
@@ -273,20 +274,46 @@ def partition_arrays(path: str, series_column: str, m: int, time_column: str | N
     return _padded(read_partition(path, series_column, m, time_column, columns), m, steps)
 
 
-def _padded(part: Partition, m: int, steps: int | None = None) -> np.ndarray:
-    """`part`'s series as one array (N, steps, m), padded at the end with NaN (default: to the longest)."""
-    T = max(len(t) for t in part.times) if steps is None else steps
-    out = np.full((len(part.ids), T, m), np.nan)
-    for i, z in enumerate(part.zs):
+def _padded(part: Partition, m: int, steps: int | None = None, rows=None) -> np.ndarray:
+    """`part`'s series (those at `rows`, default all) as one array (N, steps, m), padded at the end with NaN
+    (default: to the longest)."""
+    zs = part.zs if rows is None else [part.zs[i] for i in rows]
+    T = max(z.shape[0] for z in zs) if steps is None else steps
+    out = np.full((len(zs), T, m), np.nan)
+    for i, z in enumerate(zs):
         out[i, :z.shape[0]] = z
     return out
 
 
 def partition_shape(path: str, series_column: str, m: int, time_column: str | None = None,
-                    columns: list[str] | None = None) -> tuple[list, int]:
-    """A partition's series ids and its longest series' length."""
+                    columns: list[str] | None = None) -> tuple[list, int, Steps | None]:
+    """A partition's series ids, its longest series' length, and the range of its series' steps (:func:`step_range`)."""
     part = read_partition(path, series_column, m, time_column, columns)
-    return part.ids, max(len(t) for t in part.times)
+    return part.ids, max(len(t) for t in part.times), step_range(part.times)
+
+
+def step_range(times: list) -> Steps | None:
+    """The smallest and largest step of series at `times` (a list of arrays), as :class:`~.inference.timing.Steps`
+    with the round-off of those times; None without a series of two rows."""
+    steps = [np.diff(t) for t in times if len(t) > 1]
+    if not steps:
+        return None
+    low, high = min(float(d.min()) for d in steps), max(float(d.max()) for d in steps)
+    largest = max(float(np.abs(t).max()) for t in times)
+    return Steps(np.array([low, high]), round_off(largest))
+
+
+def joined_range(ranges: list) -> Steps | None:
+    """The :func:`step_range` of several partitions' series together."""
+    ranges = [r for r in ranges if r is not None]
+    if not ranges:
+        return None
+    return Steps(np.array([min(r.dts[0] for r in ranges), max(r.dts[1] for r in ranges)]), max(r.slack for r in ranges))
+
+
+IRREGULAR = ("the times are irregular (steps from {low:g} s to {high:g} s), but the model file's explicit matrices "
+             "are for one fixed step: every row is filtered as one step. A named model (kind = ...) is discretised "
+             "for each step's own dt.")
 
 
 def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *, smooth: bool = False,
@@ -329,18 +356,32 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         means, covs = np.concatenate([r.means for r in results]), np.concatenate([r.covs for r in results])
         nis = [f.nis for f in filtered]
         seen = [np.count_nonzero(~np.isnan(f.innovations), axis=-1) for f in filtered]
-    else:  # all at once, padded at the end with missing steps
-        try:
-            result = run(spec.model, spec.prior, _padded(part, spec.model.m), engine=engine, check="off")
-        except (ValueError, FloatingPointError) as exc:
-            raise InputFileError(path, str(exc)) from None
-        lengths = [len(t) for t in part.times]
-        means = np.concatenate([result.means[i, :k] for i, k in enumerate(lengths)])
-        covs = np.concatenate([result.covs[i, :k] for i, k in enumerate(lengths)])
-        filt = getattr(result, "filtered", result)
-        nis = [filt.nis[i, :k] for i, k in enumerate(lengths)]
-        seen = [np.count_nonzero(~np.isnan(filt.innovations[i, :k]), axis=-1) for i, k in enumerate(lengths)]
+    else:  # in batches of series of similar lengths, each padded at the end with missing steps to its longest
+        lengths = np.array([len(t) for t in part.times])
+        batches = [np.flatnonzero(np.floor(np.log2(lengths)) == b) for b in np.unique(np.floor(np.log2(lengths)))]
+        found: dict = {}
+        for batch in batches:  # at most twice the rows of its series: memory stays that of the partition's rows
+            try:
+                result = run(spec.model, spec.prior, _padded(part, spec.model.m, rows=batch), engine=engine,
+                             check="off")
+            except (ValueError, FloatingPointError) as exc:  # named by the series' id, not its place in the batch
+                for i in batch:
+                    try:
+                        run(spec.model, spec.prior, part.zs[i], engine="python", check="off")
+                    except (ValueError, FloatingPointError) as alone:
+                        raise InputFileError(path, str(alone), field=f"series {_shown(part.ids[i])}") from None
+                raise InputFileError(path, str(exc)) from None
+            filt = getattr(result, "filtered", result)
+            for i, k in zip(batch, lengths[batch]):
+                j = int(np.flatnonzero(batch == i)[0])
+                found[i] = (result.means[j, :k], result.covs[j, :k], filt.nis[j, :k],
+                            np.count_nonzero(~np.isnan(filt.innovations[j, :k]), axis=-1))
+        means, covs, nis, seen = (list(a) for a in zip(*(found[i] for i in range(len(lengths)))))
+        means, covs = np.concatenate(means), np.concatenate(covs)
     messages = _divergence(path, part.ids, nis, seen, check)
+    grid = step_range(part.times)
+    if spec.timed is None and grid is not None and not grid.regular:
+        messages.insert(0, f"{os.path.basename(path)}: " + IRREGULAR.format(low=grid.dts[0], high=grid.dts[1]))
     names = spec.state_names
     table = part.frame.copy()
     for j, name in enumerate(names):

@@ -45,6 +45,13 @@ def observed(zs) -> int:
     return int((~da.isnan(zs)).sum().compute())
 
 
+def observed_series(zs) -> np.ndarray:
+    """Which series (N,) of a dask array (N, T, m) have an observed (not NaN) entry, computed."""
+    import dask.array as da
+
+    return np.asarray((~da.isnan(zs)).any(axis=(1, 2)).compute())
+
+
 def series_blocks(name: str, a, ndim: int = 3):
     """A dask array (N, T, k), whole along every axis but the series axis: its blocks, one per chunk of series.
 
