@@ -63,6 +63,7 @@ class Regression(NamedTuple):
     A: np.ndarray      # (d, n)
     b: np.ndarray      # (d,)
     noise: np.ndarray  # (d, d) Ω, then the noise covariance plus Ω
+    reach: np.ndarray  # (k, n) |m| + |L ξ_i|, the size of each point's coordinates
 
 
 @register_jitable
@@ -70,7 +71,7 @@ def regression(k, n, d):
     """A :class:`Regression` for k points, n states and d outputs."""
     return Regression(np.zeros((n, n)), np.ones(n, dtype=np.bool_), np.empty((n, n)), np.empty(d),
                       np.empty((k, d)), np.empty((k, d)), np.empty((n, d)), np.empty((d, n)), np.empty(d),
-                      np.empty((d, d)))
+                      np.empty((d, d)), np.empty((k, n)))
 
 
 @register_jitable(**_JIT)
@@ -137,7 +138,7 @@ def regress(Y, d, rule, mean, angles, g):
     that drew the points.
     """
     _regress(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.keep, g.Lr, g.ybar, g.dY, g.E, g.Xi, g.A,
-             g.b, g.noise)
+             g.b, g.noise, g.reach)
 
 
 @register_jitable(**_JIT)
@@ -165,7 +166,8 @@ def _spread(Y, d, wm, angles, ybar, dY):
 
 
 @register_jitable(**_JIT)
-def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, offset, noise):
+def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, offset, noise, reach):
+    # Terms with a zero ξ (most: a rule's points lie on the axes) add exactly zero; Ξ and e skip them.
     k = Y.shape[0]
     n = mean.shape[0]
     _spread(Y, d, wm, angles, ybar, dY)
@@ -173,10 +175,12 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
     for j in range(n):  # Ξ = (ξ_r wc)ᵀ δY, and L_rr
         if keep[j]:
             for a in range(d):
-                t = 0.0
-                for i in range(k):
-                    t += xi[i, j] * wc[i] * dY[i, a]
-                Xi[r, a] = t
+                Xi[r, a] = 0.0
+            for i in range(k):
+                c = xi[i, j] * wc[i]
+                if c != 0.0:
+                    for a in range(d):
+                        Xi[r, a] += c * dY[i, a]
             rr = 0
             for jj in range(n):
                 if keep[jj]:
@@ -189,7 +193,8 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
             rr = 0
             for j in range(n):
                 if keep[j]:
-                    t += xi[i, j] * Xi[rr, a]
+                    if xi[i, j] != 0.0:
+                        t += xi[i, j] * Xi[rr, a]
                     rr += 1
             E[i, a] = dY[i, a] - t
     # Aᵀ_r = L_rr⁻ᵀ Ξ (back substitution), in place in Ξ
@@ -213,15 +218,18 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
         for j in range(n):
             t += A[a, j] * mean[j]
         offset[a] = ybar[a] - t
+    for i in range(k):  # |m| + |L ξ_i|, once per point
+        for j in range(n):
+            t = 0.0
+            for jj in range(j + 1):
+                t += L[j, jj] * xi[i, jj]
+            reach[i, j] = abs(mean[j]) + abs(t)
     cut = 4.0 * k * _EPS
     for i in range(k):  # residuals at the round-off of (|m| + |L ξ_i|) |A|ᵀ + |δY_i| + |ȳ| are zero (slr's _resolved)
         for a in range(d):
             size = abs(dY[i, a]) + abs(ybar[a])
             for j in range(n):
-                t = 0.0
-                for jj in range(j + 1):
-                    t += L[j, jj] * xi[i, jj]
-                size += (abs(mean[j]) + abs(t)) * abs(A[a, j])
+                size += reach[i, j] * abs(A[a, j])
             if abs(E[i, a]) <= cut * size:
                 E[i, a] = 0.0
     for a in range(d):  # Ω = sym(Σ_i w_i e_i e_iᵀ), each pair once
