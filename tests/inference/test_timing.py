@@ -4,6 +4,7 @@ own joint Gaussian), and the errors that say how to fix a model that cannot take
 from __future__ import annotations
 
 import datetime
+import re
 
 import numpy as np
 import pandas as pd
@@ -239,3 +240,15 @@ def test_a_pandas_series_of_zoned_times():
     want = gf.filter(timed, prior, zs, times=index.tz_convert("UTC").tz_localize(None)).means
     for times in (pd.Series(index), index, pd.Series(index.tz_convert("UTC").tz_localize(None))):
         np.testing.assert_array_equal(gf.filter(timed, prior, zs, times=times).means, want)
+
+
+@pytest.mark.parametrize("times, got", [
+    ([datetime.datetime(2026, 5, 1), 1.0, 2.0], "float at `times[1]`"),
+    ([0.0, None, 2.0], "NoneType at `times[1]`"),
+    ([0.0, 1.0, datetime.datetime(2026, 5, 1)], "datetime at `times[2]`"),
+])
+def test_a_time_of_another_kind_is_named(times, got):
+    """The message named the first entry's type ("got datetime" for a float at times[1], "got float" for None)."""
+    timed = gf.model(gf.ConstantVelocity(q=0.7), gf.Position(r=0.3))
+    with pytest.raises(TypeError, match=re.escape(f"all of one kind; got {got}.")):
+        gf.filter(timed, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], times=times)

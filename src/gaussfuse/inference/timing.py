@@ -137,8 +137,14 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     if arr.dtype == object:
         read = [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.tolist())]
         if not arr.size or any(v is None for v in read):
+            number = [not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
+                      for v in arr.tolist()]
+            bad = next((i for i, (v, x) in enumerate(zip(read, number)) if v is None and not x), None)
+            if bad is None and arr.size:  # numbers and times mixed: the first that differs from the first
+                bad = next(i for i, v in enumerate(read) if (v is None) != (read[0] is None))
+            got = "nothing" if bad is None else f"{type(arr[bad]).__name__} at `{name}[{bad}]`"
             raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
-                            f"DatetimeIndex); got {type(arr.flat[0]).__name__ if arr.size else 'nothing'}.")
+                            f"DatetimeIndex), all of one kind; got {got}.")
         unit = finest(np.datetime_data(v.dtype)[0] for v in read)
         arr = np.array([within(f"{name}[{i}]", v, unit) for i, v in enumerate(read)])
     if arr.dtype.kind in "Mm":
