@@ -271,9 +271,14 @@ def test_measurements_must_be_numbers_without_inf(run):
 
 @front
 def test_ragged_measurements_are_caught_by_the_validator(run):
+    """Series of different lengths were "`zs` must be an array of real numbers; got [array([[1.],\n ..." (the
+    array's repr over several lines): the lengths are named, and how to pad them."""
     model = _model(H=np.eye(2), R=np.eye(2))
-    with pytest.raises(TypeError, match=r"^`zs` must be an array of real numbers; got \[\[1\.0, 2\.0\], \[3\.0\]\]\.$"):
+    with pytest.raises(TypeError, match=r"^`zs` must be a rectangular array of real numbers; got rows of different "
+                                        r"lengths \(2, 1\); pad the shorter series at the end with NaN"):
         run(model, PRIOR, [[1.0, 2.0], [3.0]])
+    with pytest.raises(TypeError, match=r"got rows of different lengths \(5, 3\); pad"):
+        run(model, PRIOR, [np.ones((5, 2)), np.ones((3, 2))])
 
 
 @front
