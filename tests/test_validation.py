@@ -44,7 +44,7 @@ def test_as_array_returns_a_float64_copy():
         (b"abc", {}, TypeError, r"^`x` must be an array of numbers; got bytes\.$"),
         (None, {}, TypeError, r"^`x` must be an array of numbers; got NoneType\.$"),
         ([1.0, "a"], {}, TypeError, r"^`x` must be an array of numbers; got strings\.$"),
-        ([[1.0], [1.0, 2.0]], {}, TypeError, r"^`x` must be an array of real numbers"),
+        ([[1.0], [1.0, 2.0]], {}, TypeError, r"^`x` must be a rectangular array of real numbers; got rows of different lengths \(1, 2\)\.$"),
         ([1.0, 1j], {}, TypeError, r"^`x` must be real; got complex values\.$"),
         (np.array([1.0, 1j]), {}, TypeError, r"^`x` must be real; got complex values\.$"),
         (np.complex128(1j), {}, TypeError, r"^`x` must be real; got complex values\.$"),
