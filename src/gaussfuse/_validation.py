@@ -88,8 +88,9 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
         if kind is None and isinstance(value, (list, tuple)):  # ragged: sequences of different lengths
             lengths = [len(v) if hasattr(v, "__len__") else 1 for v in value]
             hint = "; pad the shorter series at the end with NaN (missing steps)" if name == "zs" else ""
+            shown = ", ".join(map(str, lengths[:6])) + (", ..." if len(lengths) > 6 else "")
             raise TypeError(f"`{name}` must be a rectangular array of real numbers; got rows of different lengths "
-                            f"({', '.join(map(str, lengths[:6]))}{', ...' if len(lengths) > 6 else ''}){hint}.") from exc
+                            f"({shown}){hint}.") from exc
         raise TypeError(f"`{name}` must be an array of real numbers; got {value!r:.80}.") from exc
     # The extremes are ±inf if any entry is, and NaN if any is (fmin/fmax skip NaN):
     # a check without a temporary the size of arr; the entry is looked for only then.

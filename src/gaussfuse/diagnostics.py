@@ -333,7 +333,7 @@ def gate_counts(rejected, seen, by: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Rejections:
-    """:func:`rejections` for updates that come one at a time: the j-th window tested at ``false_alarm / (j (j + 1))``."""
+    """:func:`rejections` for updates that come one at a time; the j-th window is tested at ``α / (j (j + 1))``."""
 
     __slots__ = ("window", "false_alarm", "_counts", "_steps", "_since", "_tested", "_flagged")
 
