@@ -201,7 +201,7 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
          r"m\.toml: \[model\] Q: `Q` must be positive semi-definite; its smallest eigenvalue is -1"),
         (EXPLICIT.replace("Q = [[1, 0], [0, 1]]", "Q = [[1, 2], [0, 1]]"), r"\[model\] Q: `Q` must be symmetric"),
         (EXPLICIT.replace("R = 1", 'R = "one"'), r"m\.toml: \[model\] R: `R` must be an array of numbers"),
-        (EXPLICIT.replace("R = 1", "R = [[1], [2, 3]]"), r"\[model\] R: `R` must be an array of real numbers"),
+        (EXPLICIT.replace("R = 1", "R = [[1], [2, 3]]"), r"\[model\] R: `R` must be a rectangular array of real numbers; got rows of different lengths \(1, 2\)"),
         (EXPLICIT + 'states = ["a"]\n', r"m\.toml: \[model\] states: `states` must be a list of 2 distinct names"),
         (EXPLICIT + 'states = ["a", "a"]\n', r"\[model\] states: `states` must be a list of 2 distinct names"),
         (EXPLICIT + "states = [1, 2]\n", r"\[model\] states: `states` must be a list of 2 distinct names"),
