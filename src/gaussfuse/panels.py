@@ -223,13 +223,15 @@ def _check_cells(path: str) -> None:
 
 def _numbers(path: str, column, name: str) -> np.ndarray:
     """A CSV column of text as float64, as the single-file reader reads cells (NaN where empty); else the first bad cell."""
-    cells = column.to_numpy(dtype=object)
+    text = column.fillna("nan")
     try:
-        values = np.array([np.nan if c is None or c != c else _float(c) for c in cells], dtype=np.float64)
+        if text.str.contains("_", regex=False).any():  # float() reads "1_000" as Python source would
+            raise ValueError
+        return text.to_numpy(dtype=object).astype(np.float64)
     except ValueError:
+        cells = column.to_numpy(dtype=object)
         row = next(i for i, c in enumerate(cells) if not _is_number(c))
         raise InputFileError(path, f"{cells[row]!r} is not a number.", line=row + 2, field=f"column `{name}`") from None
-    return values
 
 
 def _is_number(cell) -> bool:
