@@ -31,8 +31,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, near, psd_solve,
-                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten, with_slopes,
+from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, near, pivot_order,
+                      psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten, with_slopes,
                       wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
@@ -890,14 +890,21 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
     pre[:mo, :LR_o.shape[1]] = LR_o
     pre[:mo, mo:] = HL_o
     pre[mo:, mo:] = factor
+    order = pivot_order(pre[:mo])  # the measurements in a stable order (see pivot_order)
+    moved = bool(np.any(order != np.arange(mo)))
+    if moved:
+        pre[:mo] = pre[order]
+        D_o = None if D_o is None else D_o[order]
     post = tria(pre)
     if D_o is not None:
         post = downdate(post, np.concatenate([D_o, np.zeros((n, D_o.shape[1]))]), "the innovation covariance")
-    L_S = post[:mo, :mo]
+    L_S, Kbar = post[:mo, :mo], post[mo:, :mo]
     if not np.all(np.diagonal(L_S) > 0.0) or zero_pivots(L_S).any() and (
             D_o is not None or _dependent(R_factor if observed is None else R_factor[observed], HL_o, factor)):
         raise np.linalg.LinAlgError(f"{_S_NAME} is not positive definite. {_S_WHY}")
-    Kbar = post[mo:, :mo]
+    if moved:  # back to the measurements' order: [L_S; K̄] turned by one orthogonal Θ, so L_S L_Sᵀ and K̄ L_Sᵀ stay
+        back = tria(np.concatenate([L_S[np.argsort(order)], Kbar]))
+        L_S, Kbar = back[:mo, :mo], back[mo:, :mo]
     return SqrtGain(Kbar, L_S, np.ascontiguousarray(post[mo:, mo:]), innovation_cov, observed,
                     whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹
 

@@ -292,6 +292,53 @@ def test_two_sensors_of_one_state_under_a_huge_prior_are_both_kept_by_the_square
 
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("variance", [1e30, 1e100, 1e300])
+@pytest.mark.parametrize("rows", [[0, 0, 1], [0, 0, 1, 1], [0, 1, 0, 0, 1], [1, 0, 0]])
+def test_sensors_of_several_states_under_a_huge_prior_are_kept_in_any_order(engine, variance, rows):
+    """Two sensors of state a before one of state b, triangularised in that order, left a's second remainder
+    (of R's size) to turn b's row (of the prior's): b's variance came out 1.2e68 for 1 at a prior of 1e100, and
+    with (a, a, b, b) one of b's sensors was lost from the mean; (b, a, a) was exact. The information form is
+    the oracle: with Q = 0, R = I and the prior's 1/V below round-off, P = (HᵀH)⁻¹ and m = P Hᵀ z, per state."""
+    H = np.eye(2)[rows]
+    model = gf.LinearModel(F=np.eye(2), H=H, Q=np.zeros((2, 2)), R=np.eye(len(rows)))
+    zs = np.array([[1.3, 0.7, 2.0, 2.2, 1.9][:len(rows)], [1.1, 0.9, 2.1, 1.8, 2.4][:len(rows)]])
+    prior = gf.Gaussian([0.0, 0.0], variance * np.eye(2))
+    counts = H.sum(axis=0)
+    for k in range(2):
+        want_var = 1.0 / (counts * (k + 1))
+        want_mean = (H.T @ zs[:k + 1].sum(axis=0)) * want_var
+        got = gf.filter(model, prior, zs[:k + 1], form="sqrt", engine=engine, check="off")
+        np.testing.assert_allclose(np.diag(got.covs[-1]), want_var, rtol=1e-13)
+        np.testing.assert_allclose(got.covs[-1, 0, 1], 0.0, atol=1e-13)
+        np.testing.assert_allclose(got.means[-1], want_mean, rtol=1e-13)
+    smoothed = gf.smooth(model, prior, zs, form="sqrt", engine=engine, check="off")
+    np.testing.assert_allclose(np.diag(smoothed.covs[0]), 1.0 / (2 * counts), rtol=1e-13)
+    np.testing.assert_allclose(smoothed.means[0], (H.T @ zs.sum(axis=0)) / (2 * counts), rtol=1e-13)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("method", ["ukf", "ckf", "ghkf"])
+def test_a_sigma_point_update_keeps_a_sensor_under_a_huge_prior(engine, method):
+    """The regression's residuals at round-off are zero, but the bound left out the round-off of ȳ, a sum of
+    outputs ±1e15 that cancel: the centre point kept a residual of about 0.2, added to R = 1 (the square-root
+    GHKF's variances 0.667 and 1.04 for 0.5 and 1 at a prior of 1e30; UKF 1.7e-4 off)."""
+    import numba
+
+    @numba.njit
+    def f(x):
+        return x.copy()
+
+    @numba.njit
+    def h(x):
+        return np.array([x[0], x[0], x[1]])
+
+    model = gf.NonlinearModel(f, h, np.zeros((2, 2)), np.eye(3))
+    got = gf.filter(model, gf.Gaussian([0.0, 0.0], 1e30 * np.eye(2)), [[1.3, 0.7, 2.0]], method=method,
+                    form="sqrt", engine=engine, check="off")
+    np.testing.assert_allclose(np.diag(got.covs[0]), [0.5, 1.0], rtol=1e-13)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
 def test_a_prediction_singular_to_round_off_smooths_by_least_squares_on_both_engines(engine):
     """A rank-1 prior and no process noise make P⁻ exactly singular; the compiled loop's Cholesky of it
     succeeded with pivots² of 1.7e-16 and 4.5e-32 of their rows, and its gain of 4.5e15 gave a smoothed

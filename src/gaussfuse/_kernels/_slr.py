@@ -225,9 +225,13 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
                 t += L[j, jj] * xi[i, jj]
             reach[i, j] = abs(mean[j]) + abs(t)
     cut = 4.0 * k * _EPS
-    for i in range(k):  # residuals at the round-off of (|m| + |L ξ_i|) |A|ᵀ + |δY_i| + |ȳ| are zero (slr's _resolved)
-        for a in range(d):
-            size = abs(dY[i, a]) + abs(ybar[a])
+    for a in range(d):  # the round-off of ȳ: Σ_l |w_l| |δY_l|
+        t = 0.0
+        for i in range(k):
+            t += abs(wm[i]) * abs(dY[i, a])
+        offset_err = t
+        for i in range(k):  # residuals at the round-off of (|m| + |L ξ_i|) |A|ᵀ + |δY_i| + |ȳ| + Σ_l |w_l| |δY_l| are
+            size = abs(dY[i, a]) + abs(ybar[a]) + offset_err  # zero (slr's _resolved)
             for j in range(n):
                 size += reach[i, j] * abs(A[a, j])
             if abs(E[i, a]) <= cut * size:
@@ -290,9 +294,13 @@ def _regress_sqrt(Y, d, xi, wm, wc, mean, angles, L, ybar, dY, Xi, At, A, offset
                 t += xi[i, jj] * L[j, jj]
             dev[i, j] = abs(t)
     cut = 4.0 * k * _EPS
-    for i in range(k):  # residuals at the round-off of (|m| + |ξ_i Lᵀ|) |A|ᵀ + |δY_i| + |ȳ| are zero
-        for a in range(d):
-            size = abs(dY[i, a]) + abs(ybar[a])
+    for a in range(d):  # the round-off of ȳ: Σ_l |w_l| |δY_l|
+        t = 0.0
+        for i in range(k):
+            t += abs(wm[i]) * abs(dY[i, a])
+        offset_err = t
+        for i in range(k):  # residuals at the round-off of (|m| + |ξ_i Lᵀ|) |A|ᵀ + |δY_i| + |ȳ| + Σ_l |w_l| |δY_l|
+            size = abs(dY[i, a]) + abs(ybar[a]) + offset_err  # are zero
             for j in range(n):
                 size += (abs(mean[j]) + dev[i, j]) * abs(A[a, j])
             if abs(E[i, a]) <= cut * size:

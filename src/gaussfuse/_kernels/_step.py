@@ -235,6 +235,7 @@ class SqrtWork(NamedTuple):
     LRo: np.ndarray  # (m, m)     the factor of R_oo
     V: np.ndarray    # (n + m, k) the columns to downdate by
     v: np.ndarray    # (n + m,)   one of them, turned by the rotations
+    order: np.ndarray  # (m,) int  the measurements' pivot order (pivot_order)
 
 
 @register_jitable
@@ -242,7 +243,56 @@ def sqrt_workspace(n, m, k=0):
     """A :class:`SqrtWork` for n states, m measurement components and k extra noise columns."""
     c = 2 * n + m + k
     return SqrtWork(np.zeros((n + m, c)), np.zeros((n + m, n + m)), np.empty(c), np.empty((m, n)),
-                    np.zeros((m, m)), np.zeros((n + m, k)), np.empty(n + m))
+                    np.zeros((m, m)), np.zeros((n + m, k)), np.empty(n + m), np.empty(m, dtype=np.int64))
+
+
+@register_jitable(**_JIT)
+def _scaled_norm(W, r, cols):
+    """_linalg._scaled_norm of ``W[r, :cols]``."""
+    top = 0.0
+    for j in range(cols):
+        top = max(top, abs(W[r, j]))
+    if top == 0.0:
+        return 0.0
+    ss = 0.0
+    for j in range(cols):
+        t = W[r, j] / top
+        ss += t * t
+    return top * math.sqrt(ss)
+
+
+@register_jitable(**_JIT)
+def pivot_order(M, rows, cols, W, order):
+    """_linalg.pivot_order of ``M[:rows, :cols]`` into ``order[:rows]`` (W, at least rows × cols, is scratch);
+    returns whether the order moves a row."""
+    for r in range(rows):
+        order[r] = r
+        for j in range(cols):
+            W[r, j] = M[r, j]
+    for i in range(rows):  # order[i:] are left, in their order
+        best, pick, size = -(2**31), i, 0.0
+        for a in range(i, rows):
+            x = _scaled_norm(W, order[a], cols)
+            b = math.frexp(x)[1] if x > 0.0 else -(2**31)
+            if b > best:
+                best, pick, size = b, a, x
+        chosen = order[pick]
+        for a in range(pick, i, -1):  # the chosen one to place i, the others keeping their order
+            order[a] = order[a - 1]
+        order[i] = chosen
+        if size == 0.0:
+            break
+        for a in range(i + 1, rows):
+            r = order[a]
+            dot = 0.0
+            for j in range(cols):
+                dot += W[r, j] * (W[chosen, j] / size)
+            for j in range(cols):
+                W[r, j] -= dot * (W[chosen, j] / size)
+    for r in range(rows):
+        if order[r] != r:
+            return True
+    return False
 
 
 @register_jitable(**_JIT)
@@ -404,12 +454,20 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, po
     for i in range(n):
         for j in range(n):
             sw.M[mo + i, mo + j] = factor[i, j]
+    moved = pivot_order(sw.M, mo, q, sw.T, sw.order)  # the measurements in a stable order (see kalman.sqrt_gain)
+    if moved:
+        for a in range(mo):
+            for c in range(q):
+                sw.T[a, c] = sw.M[sw.order[a], c]
+        for a in range(mo):
+            for c in range(q):
+                sw.M[a, c] = sw.T[a, c]
     tria(sw.M, q, q, sw.u, sw.T)
     p = D.shape[1]
     if p > 0:
         for i in range(q):
             for c in range(p):
-                sw.V[i, c] = D[w.obs[i], c] if i < mo else 0.0
+                sw.V[i, c] = D[w.obs[sw.order[i]], c] if i < mo else 0.0
         if not downdate(sw.T, sw.V, q, p, sw.v):
             return False, 0.0, mo
     for a in range(mo):
@@ -418,14 +476,23 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, po
             row += sw.T[a, b] * sw.T[a, b]
         if not sw.T[a, a] > 8 * mo * _EPS * math.sqrt(row):  # _linalg.zero_pivots: the readable path decides
             return False, 0.0, mo
+    for i in range(n):
+        for j in range(n):
+            post_factor[i, j] = sw.T[mo + i, mo + j]
+    if moved:  # back to the measurements' order: [L_S; K̄] turned by one orthogonal Θ (as kalman.sqrt_gain)
+        for a in range(mo):
+            for b in range(mo):
+                sw.M[sw.order[a], b] = sw.T[a, b]
+        for i in range(n):
+            for b in range(mo):
+                sw.M[mo + i, b] = sw.T[mo + i, b]
+        tria(sw.M, q, mo, sw.u, sw.T)
+    for a in range(mo):
         w.v[a] = innovation[w.obs[a]]
         for b in range(mo):
             w.L[a, b] = sw.T[a, b]        # L_S
         for i in range(n):
             w.Kt[a, i] = sw.T[mo + i, a]  # K̄ᵀ
-    for i in range(n):
-        for j in range(n):
-            post_factor[i, j] = sw.T[mo + i, mo + j]
     loglik = log_density(w.L, w.v, w.white, mo)  # w.white = L_S⁻¹ v
     gain_mean(w.Kt, w.white, mean, post_mean, mo)  # m = m⁻ + K̄ L_S⁻¹ v
     return True, loglik, mo
