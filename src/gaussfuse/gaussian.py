@@ -202,8 +202,10 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     ``z = b.mean`` with ``H = I`` and ``R = b.cov`` (see
     :func:`gaussfuse.kalman.fuse_moments`), in the square-root form: no
     inverse, and :math:`\Sigma_a + \Sigma_b` is never formed, so variances
-    far apart (1e300 times, or near the largest float) and singular
-    beliefs lose nothing. ``fuse(a, b)`` and ``fuse(b, a)`` are the same
+    far apart (1e300 times, or near the largest float) lose nothing. A
+    component that one belief knows exactly (a zero variance) comes out
+    with a variance of round-off, about :math:`\epsilon^2` of the other's,
+    rather than exactly 0. ``fuse(a, b)`` and ``fuse(b, a)`` are the same
     numbers.
 
     Examples
