@@ -235,3 +235,26 @@ def test_sqrt_cov_names_the_covariance_it_cannot_root():
     now says which (the filtered one that f's points are drawn from, or the predicted one, h's)."""
     with pytest.raises(np.linalg.LinAlgError, match=r"^the filtered covariance is not positive semi-definite"):
         _linalg.sqrt_cov(np.array([[1.0, 0.0], [0.0, -1.0]]), None, "the filtered covariance")
+
+
+def test_pivot_order_is_column_pivoting_and_in_pivot_order_says_when_rows_already_are():
+    """pivot_order takes each next the row with the largest part orthogonal to those before (by binade, ties in
+    order); in_pivot_order reads that off a triangular factor, with plain floats below 9 rows and NumPy above."""
+    from gaussfuse._linalg import in_pivot_order, pivot_order, tria
+
+    B = np.array([[1e50, 0.0, 1.0, 0.0, 0.0], [1e50, 0.0, 0.0, 1.0, 0.0], [0.0, 1e50, 0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(pivot_order(B), [0, 2, 1])  # after the first, the second is 1e50 times smaller
+    assert not in_pivot_order(tria(B)) and in_pivot_order(tria(B[[0, 2, 1]]))
+    rng = np.random.default_rng(3)
+    for k in (2, 5, 8, 9, 16):
+        for _ in range(20):
+            M = rng.standard_normal((k, k + 3)) * 10.0 ** rng.integers(-30, 30, size=(k, 1))
+            order = pivot_order(M)
+            assert sorted(order) == list(range(k))
+            L = tria(M[order])
+            assert in_pivot_order(L)
+            big = max(16, k)  # the same rule through the other path: a factor padded past 8 rows with zero rows
+            padded = np.zeros((big + 1, big + 1))
+            padded[:k, :k] = L
+            assert in_pivot_order(padded) == in_pivot_order(L)
+            assert in_pivot_order(tria(M)) == (list(order) == list(range(k)))

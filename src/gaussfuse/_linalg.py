@@ -10,11 +10,13 @@ norm of a whitened vector :math:`L^{-1} x`; a log-determinant is
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
-    "psd_solve", "sqrt_cov", "tria", "pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
+    "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
     "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "unseen_slopes", "with_slopes",
 ]
 
@@ -342,27 +344,50 @@ def pivot_order(B: np.ndarray) -> np.ndarray:
        factorization for weighted least squares problems", in Numerical
        Analysis 1997, Longman, 1998, pp. 57-73.
     """
+    k = B.shape[0]
+    order = np.arange(k)
     W = np.array(B, dtype=np.float64)
-    left, order = list(range(W.shape[0])), []
-    while left:
-        norms = [_scaled_norm(W[r]) for r in left]
-        binade = [np.frexp(x)[1] if x > 0.0 else -(2**31) for x in norms]
-        i = int(np.argmax(binade))
-        pick, size = left.pop(i), norms[i]
-        order.append(pick)
-        if size == 0.0:  # the rest are zero too
-            order.extend(left)
+    for i in range(k - 1):  # the last one is last
+        rest = W[order[i:]]
+        top = np.max(np.abs(rest), axis=1)
+        unit = rest / np.where(top > 0.0, top, 1.0)[:, None]
+        norms = top * np.sqrt(np.einsum("ij,ij->i", unit, unit))  # without overflow or underflow
+        j = int(np.argmax(np.where(norms > 0.0, np.frexp(norms)[1], -(2**31))))  # the first of the largest binade
+        if j:
+            order[i:] = np.concatenate([order[i + j:i + j + 1], order[i:i + j], order[i + j + 1:]])
+        if norms[j] == 0.0:  # the rest are zero too
             break
-        q = W[pick] / size
-        for r in left:
-            W[r] -= np.dot(W[r], q) * q
-    return np.array(order, dtype=np.int64)
+        q = W[order[i]] / norms[j]
+        later = order[i + 1:]
+        W[later] -= np.outer(W[later] @ q, q)
+    return order
 
 
-def _scaled_norm(x: np.ndarray) -> float:
-    """The 2-norm of x, without overflow or underflow: its largest magnitude times the norm of x scaled by it."""
-    top = float(np.max(np.abs(x), initial=0.0))
-    return top * float(np.sqrt(np.dot(x / top, x / top))) if top > 0.0 else 0.0
+def in_pivot_order(L: np.ndarray) -> bool:
+    r"""Whether the rows of a lower-triangular factor came in the order :func:`pivot_order` would choose.
+
+    Row r's part orthogonal to the rows before row i is :math:`L_{r, i:}`, so the order is that of column
+    pivoting when each pivot :math:`L_{ii}` is in a binade at least as high as the rest of every later row.
+    """
+    k = L.shape[0]
+    if k < 2:
+        return True
+    if k <= 8:  # a few measurements: plain floats, where NumPy's cost per call would exceed the arithmetic
+        rows = L.tolist()
+        for i in range(k - 1):
+            for r in range(i + 1, k):
+                tail = rows[r][i:]
+                top = max(abs(x) for x in tail)
+                if top > 0.0 and (rows[i][i] <= 0.0 or math.frexp(top * math.sqrt(sum((x / top) ** 2 for x in tail)))[1]
+                                  > math.frexp(rows[i][i])[1]):
+                    return False
+        return True
+    top = np.max(np.abs(L), axis=1)
+    top = np.where(top > 0.0, top, 1.0)[:, None]
+    tails = top * np.sqrt(np.cumsum(((L / top) ** 2)[:, ::-1], axis=1)[:, ::-1])  # ‖L[r, i:]‖, without overflow
+    largest = np.max(np.tril(tails, -1), axis=0)[:-1]  # over the rows after each i
+    pivots = np.diagonal(L)[:-1]
+    return bool(np.all((largest == 0.0) | ((pivots > 0.0) & (np.frexp(largest)[1] <= np.frexp(pivots)[1]))))
 
 
 def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.ndarray:

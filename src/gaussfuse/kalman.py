@@ -31,9 +31,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, log_det, log_density, near, pivot_order,
-                      psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten, with_slopes,
-                      wrap_components, zero_pivots)
+from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
+                      pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten,
+                      with_slopes, wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -890,12 +890,13 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
     pre[:mo, :LR_o.shape[1]] = LR_o
     pre[:mo, mo:] = HL_o
     pre[mo:, mo:] = factor
-    order = pivot_order(pre[:mo])  # the measurements in a stable order (see pivot_order)
-    moved = bool(np.any(order != np.arange(mo)))
-    if moved:
+    post = tria(pre)
+    moved = not in_pivot_order(post[:mo, :mo])
+    if moved:  # the measurements in the order of column pivoting (see pivot_order), and again
+        order = pivot_order(pre[:mo])
         pre[:mo] = pre[order]
         D_o = None if D_o is None else D_o[order]
-    post = tria(pre)
+        post = tria(pre)
     if D_o is not None:
         post = downdate(post, np.concatenate([D_o, np.zeros((n, D_o.shape[1]))]), "the innovation covariance")
     L_S, Kbar = post[:mo, :mo], post[mo:, :mo]

@@ -236,6 +236,7 @@ class SqrtWork(NamedTuple):
     V: np.ndarray    # (n + m, k) the columns to downdate by
     v: np.ndarray    # (n + m,)   one of them, turned by the rotations
     order: np.ndarray  # (m,) int  the measurements' pivot order (pivot_order)
+    B: np.ndarray    # (m, n + m)  the measurements' rows of the pre-array, to start again from in that order
 
 
 @register_jitable
@@ -243,7 +244,8 @@ def sqrt_workspace(n, m, k=0):
     """A :class:`SqrtWork` for n states, m measurement components and k extra noise columns."""
     c = 2 * n + m + k
     return SqrtWork(np.zeros((n + m, c)), np.zeros((n + m, n + m)), np.empty(c), np.empty((m, n)),
-                    np.zeros((m, m)), np.zeros((n + m, k)), np.empty(n + m), np.empty(m, dtype=np.int64))
+                    np.zeros((m, m)), np.zeros((n + m, k)), np.empty(n + m), np.empty(m, dtype=np.int64),
+                    np.empty((m, n + m)))
 
 
 @register_jitable(**_JIT)
@@ -259,6 +261,25 @@ def _scaled_norm(W, r, cols):
         t = W[r, j] / top
         ss += t * t
     return top * math.sqrt(ss)
+
+
+@register_jitable(**_JIT)
+def in_pivot_order(L, k):
+    """_linalg.in_pivot_order of ``L[:k, :k]``."""
+    for i in range(k - 1):
+        for r in range(i + 1, k):
+            top = 0.0
+            for j in range(i, k):
+                top = max(top, abs(L[r, j]))
+            if top == 0.0:
+                continue
+            ss = 0.0
+            for j in range(i, k):
+                t = L[r, j] / top
+                ss += t * t
+            if L[i, i] <= 0.0 or math.frexp(top * math.sqrt(ss))[1] > math.frexp(L[i, i])[1]:
+                return False
+    return True
 
 
 @register_jitable(**_JIT)
@@ -454,15 +475,23 @@ def update_sqrt(w, sw, mean, factor, z, H, R_factor, D, d, angles, post_mean, po
     for i in range(n):
         for j in range(n):
             sw.M[mo + i, mo + j] = factor[i, j]
-    moved = pivot_order(sw.M, mo, q, sw.T, sw.order)  # the measurements in a stable order (see kalman.sqrt_gain)
-    if moved:
-        for a in range(mo):
-            for c in range(q):
-                sw.T[a, c] = sw.M[sw.order[a], c]
-        for a in range(mo):
-            for c in range(q):
-                sw.M[a, c] = sw.T[a, c]
+    for a in range(mo):  # a copy of the measurements' rows, to start again from in another order
+        for c in range(q):
+            sw.B[a, c] = sw.M[a, c]
     tria(sw.M, q, q, sw.u, sw.T)
+    moved = not in_pivot_order(sw.T, mo)
+    if moved:  # the measurements in the order of column pivoting (see kalman.sqrt_gain), and again
+        pivot_order(sw.B, mo, q, sw.T, sw.order)
+        for a in range(mo):
+            for c in range(q):
+                sw.M[a, c] = sw.B[sw.order[a], c]
+        for i in range(n):
+            for c in range(q):
+                sw.M[mo + i, c] = factor[i, c - mo] if c >= mo else 0.0
+        tria(sw.M, q, q, sw.u, sw.T)
+    else:
+        for a in range(mo):
+            sw.order[a] = a
     p = D.shape[1]
     if p > 0:
         for i in range(q):
