@@ -350,9 +350,6 @@ class Statistics:
         self.x0_mean, self.x0_cov = means[:, 0], covs[:, 0]
         observed = ~np.isnan(zs).all(axis=2)  # (N, T)
         self.seen = observed.any(axis=1)
-        if not self.seen.any():  # nothing observed anywhere: every step, as the model has them
-            observed[:] = True
-            self.seen[:] = True
         upto = np.cumsum(observed[:, ::-1], axis=1)[:, ::-1] > 0  # at or before the series' last observation
         self.kept_w, self.kept_v = upto[:, a:].ravel(), upto.ravel()
 

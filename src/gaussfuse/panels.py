@@ -249,15 +249,17 @@ def _seconds(path: str, column, name: str) -> np.ndarray:
     if pd.api.types.is_bool_dtype(column):
         raise InputFileError(path, "a time is True or False, not a number of seconds or a time.",
                              field=f"column `{name}`")
-    if pd.api.types.is_numeric_dtype(column):
+    if column.isna().any():  # an empty cell
+        raise InputFileError(path, "a time is missing; every row needs a time.", field=f"column `{name}`")
+    numbers = None if pd.api.types.is_numeric_dtype(column) else column.map(_is_number)
+    if numbers is None:
         seconds = column.to_numpy(dtype=np.float64)
+    elif numbers.all():  # text of numbers (NaN and inf among them: refused below)
+        seconds = _numbers(path, column, name)
+    elif numbers.any():
+        raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
+                             field=f"column `{name}`")
     else:
-        numbers = column.map(_is_number) & column.notna()
-        if numbers.all():
-            return _numbers(path, column, name)
-        if numbers.any():
-            raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
-                                 field=f"column `{name}`")
         try:
             stamps = pd.to_datetime(column, utc=True, format="ISO8601")
         except (TypeError, ValueError) as exc:
@@ -265,7 +267,9 @@ def _seconds(path: str, column, name: str) -> np.ndarray:
                                  field=f"column `{name}`") from None
         offsets = (stamps - stamps.min()).to_numpy(dtype="timedelta64[ns]")  # exact: int64 nanoseconds
         seconds = np.where(np.isnat(offsets), np.nan, offsets.astype(np.int64) / 1e9)
-    if not np.all(np.isfinite(seconds)):
+    if np.isinf(seconds).any():
+        raise InputFileError(path, "a time is not finite.", field=f"column `{name}`")
+    if np.isnan(seconds).any():
         raise InputFileError(path, "a time is missing; every row needs a time.", field=f"column `{name}`")
     return seconds
 

@@ -220,6 +220,12 @@ def test_a_regular_grid_of_float_seconds_is_regular_to_its_round_off():
                                   gf.filter(fixed, prior, zs, check="off").means)
     with pytest.raises(ValueError, match=r"`times` step by 0\.1 s but the model is for dt = 0\.2 s"):
         gf.filter(gf.constant_velocity(dt=0.2, q=0.7, r=0.3), prior, zs, times=GRID_EPOCH)
+    ms = gf.constant_velocity(dt=0.001, q=0.7, r=0.3)
+    start = GRID_EPOCH[0]
+    gf.filter(ms, prior, zs, times=start + 0.001 * np.arange(401), check="off")
+    for factor in (1.0001, 1.001, 1.003):  # the mean step is known far better than one time's round-off (3e-6 s)
+        with pytest.raises(ValueError, match=r"but the model is for dt = 0\.001 s"):
+            gf.filter(ms, prior, zs, times=start + 0.001 * factor * np.arange(401))
     jittered = GRID_EPOCH + np.r_[0.0, 1e-4, np.zeros(399)]
     with pytest.raises(ValueError, match=r"`times` are irregular"):
         gf.filter(fixed, prior, zs, times=jittered)

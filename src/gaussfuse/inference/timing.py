@@ -202,8 +202,9 @@ class Steps(NamedTuple):
         return float(self.dts.mean())
 
     def near(self, dt: float) -> bool:
-        """Whether a regular grid steps by `dt`, to 1e-9 of it or to the times' round-off."""
-        return abs(self.step - dt) <= 1e-9 * dt + self.slack
+        """Whether a regular grid steps by `dt`, to 1e-9 of it or to the round-off of its mean step (the times'
+        round-off over the number of steps: a grid of 1.0001 ms is not one of 1 ms)."""
+        return abs(self.step - dt) <= 1e-9 * dt + self.slack / self.dts.shape[0]
 
 
 def round_off(largest: float) -> float:
