@@ -333,3 +333,13 @@ def test_diagnostics_name_their_bad_arguments(call, error, message):
     dof, negative NIS, check='rasie', confidence=2) before (audit N)."""
     with pytest.raises(error, match=message):
         call()
+
+
+def test_a_huge_average_is_shown_with_an_exponent():
+    """A divergence message printed a window's average with two decimals: a series scaled by 1e150 made a
+    150-digit number."""
+    model = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[1e-30]], R=[[1.0]])
+    zs = 1e100 * np.random.default_rng(0).standard_normal(200)  # data 1e100 times the model's scale
+    with pytest.warns(gf.DivergenceWarning, match=r"average, per observed component, \d\.\d\de\+\d+ over steps") as w:
+        gf.filter(model, gf.Gaussian([0.0], [[1.0]]), zs)
+    assert len(str(w[0].message)) < 600

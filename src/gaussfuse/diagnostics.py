@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._linalg import cholesky, observed_gram, whiten
-from .errors import DivergenceWarning, diverging, gate_lost
+from .errors import DivergenceWarning, average_text, diverging, gate_lost
 from ._validation import as_array, integer, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
@@ -569,7 +569,8 @@ class DivergenceMonitor:
         messages = []
         if flagged is not None:
             first, last, average = flagged
-            messages.append(diverging([f"{average:.2f} over {where.format(first, last)}"], self.false_alarm))
+            messages.append(diverging([f"{average_text(average)} over {where.format(first, last)}"],
+                                       self.false_alarm))
         if gate is not None and update.rejected is not None:
             lost, offered = gate_counts(update.rejected, seen, gate.by)
             found = self._rejections.add(lost, offered, gate.probability, step)

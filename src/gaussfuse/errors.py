@@ -57,6 +57,12 @@ def not_finite(stage: str) -> str:
             "check the scale of the model, the prior and the measurements.")
 
 
+def average_text(value: float) -> str:
+    """A window's average NIS as the messages show it: two decimals, or three digits and an exponent past 1e6
+    (a series scaled by 1e150 made a 150-digit number)."""
+    return f"{value:.2f}" if abs(value) < 1e6 else f"{value:.3g}"
+
+
 def diverging(where: list[str], false_alarm: float, more: int = 0) -> str:
     """The DivergenceWarning's message: `where` says, for each flagged range, its average NIS and its steps."""
     extra = f" (and {more} more ranges)" if more else ""
@@ -67,7 +73,7 @@ def diverging(where: list[str], false_alarm: float, more: int = 0) -> str:
 
 
 def gate_lost(where: list[str], by: str, probability: float, more: int = 0) -> str:
-    """The DivergenceWarning's sentence on a gate that rejected at least half: `where` says, per range, "K of N over ..."."""
+    """The DivergenceWarning's sentence on a gate that rejected at least half (`where`: "K of N over ...", per range)."""
     extra = f" (and {more} more ranges)" if more else ""
     kind = "measurements" if by == "measurement" else "components"
     return (f"The gate rejected {'; '.join(where)}{extra} of the {kind} it was given, at least half, where against a "

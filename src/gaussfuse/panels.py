@@ -33,7 +33,7 @@ import numpy as np
 
 from . import diagnostics, inference
 from ._linalg import marginal_std
-from .errors import DivergenceWarning
+from .errors import DivergenceWarning, average_text
 from .inference.timing import Steps, round_off
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
                  _time_column, _wrong_cells)
@@ -222,7 +222,8 @@ def _check_cells(path: str) -> None:
 
 
 def _numbers(path: str, column, name: str) -> np.ndarray:
-    """A CSV column of text as float64, as the single-file reader reads cells (NaN where empty); else the first bad cell."""
+    """A CSV column of text as float64, read as the single-file reader reads cells (NaN where empty), or an error
+    naming the first cell that is not a number."""
     text = column.fillna("nan")
     try:
         if text.str.contains("_", regex=False).any():  # float() reads "1_000" as Python source would
@@ -416,7 +417,7 @@ def _divergence(path: str, ids: list, nis: list, seen: list, check: str) -> list
     for name, values, dof in zip(ids, nis, seen):
         flagged = diagnostics.divergence(values, dof)
         if flagged:
-            where = "; ".join(f"{avg:.2f} over steps {a}-{b}" for _, a, b, avg in flagged[:3])
+            where = "; ".join(f"{average_text(avg)} over steps {a}-{b}" for _, a, b, avg in flagged[:3])
             out.append(f"{os.path.basename(path)}: series {_shown(name)} may be diverging: its normalised innovations "
                        f"average, per observed component, {where} (1 expected).")
             if check == "raise":

@@ -23,7 +23,8 @@ from .. import _kernels
 from .._kernels import jitted_loop_state, kernel_states, kernels
 from .._linalg import symmetrize, wrap_components
 from .. import diagnostics
-from ..errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, diverging, gate_lost
+from ..errors import (STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, average_text, diverging,
+                      gate_lost)
 from ..gaussian import Gaussian
 from ..linearize import Nominal
 from ..steady import steady_state
@@ -518,7 +519,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
         for j in range(1, seen.shape[-1]):  # m is small: m vector additions beat a reduction over the last axis
             dof += seen[..., j]
     many = result.nis.shape[0] > 1
-    where = [f"{avg:.2f} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
+    where = [f"{average_text(avg)} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
              for s, a, b, avg in diagnostics.divergence(result.nis, dof, false_alarm=false_alarm)]
     if gate is not None and getattr(result, "rejected", None) is not None and result.rejected.any():
         lost, there = diagnostics.gate_counts(result.rejected, seen, gate.by)

@@ -41,7 +41,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from .. import diagnostics
-from ..errors import DivergenceWarning, ModelFunctionError
+from ..errors import DivergenceWarning, ModelFunctionError, average_text
 from ..gaussian import Gaussian
 from . import diffuse, drivers, timing
 from .results import FilterResult, SmoothResult, first, stack
@@ -287,7 +287,7 @@ class _Monitor:
             raise DivergenceWarning(self.message())
 
     def message(self) -> str:
-        return drivers.divergence_message([f"{avg:.2f} over steps {a}-{b}" for a, b, avg in self.flagged])
+        return drivers.divergence_message([f"{average_text(avg)} over steps {a}-{b}" for a, b, avg in self.flagged])
 
     def finish(self) -> None:
         if self.first is not None:
