@@ -100,3 +100,14 @@ def test_names_that_collide_with_a_column_are_refused():
         r.to_pandas(covariances="yes")
     frame = r.to_pandas(names=["pos", "vel"])
     assert list(frame.columns) == ["pos", "vel", "pos_sd", "vel_sd"]
+
+
+def test_a_table_of_several_series_is_refused():
+    """A DataFrame indexed by (series, time) was filtered as one series, the series joined end to end, silently."""
+    index = pd.MultiIndex.from_tuples([("a", 0.0), ("a", 1.0), ("b", 0.0), ("b", 1.0)], names=["id", "t"])
+    frame = pd.DataFrame({"z": [1.0, 2.0, 10.0, 11.0]}, index=index)
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    with pytest.raises(ValueError, match=r"`zs` has a MultiIndex \(id, t\): a table of several series would be"):
+        gf.filter(model, gf.Gaussian(0.0, 1.0), frame)
+    np.testing.assert_array_equal(gf.filter(model, gf.Gaussian(0.0, 1.0), frame.xs("a")).means,
+                                  gf.filter(model, gf.Gaussian(0.0, 1.0), [1.0, 2.0]).means)

@@ -58,6 +58,10 @@ def unpack(zs, times):
     """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array)."""
     if not _is_pandas(zs) or not hasattr(zs, "index"):
         return zs, times, None
+    if getattr(zs.index, "nlevels", 1) > 1:  # a long table of several series would be filtered as one
+        raise ValueError(f"`zs` has a MultiIndex ({', '.join(map(str, zs.index.names))}): a table of several series "
+                         "would be filtered as one. Give one series (`zs.xs(key)`), or an array (N, T, m) of series "
+                         "padded at the end with NaN.")
     _check_columns(zs)
     try:
         values = zs.to_numpy(dtype=np.float64, na_value=np.nan)
