@@ -492,3 +492,51 @@ def test_a_refused_demo_leaves_no_pyplot_figure_open(track):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "0"
+
+
+def test_datetimes_are_drawn_as_dates(filtered):
+    """A zoned DatetimeIndex was drawn as microseconds since 1970 (1 s steps as 1e6 on the axis), and naive
+    datetime64, a naive DatetimeIndex, durations and a list of datetimes were refused: each is drawn at its
+    instants (UTC for a zone), the same x as the naive UTC datetime64."""
+    import datetime
+
+    import matplotlib.dates as mdates
+    import pandas as pd
+
+    _, zs, res, model = filtered
+    start = np.datetime64("2024-01-01T00:00:00", "ns")
+    utc = start + np.arange(12) * np.timedelta64(1, "s")
+    want = mdates.date2num(utc)
+    kinds = [utc, pd.DatetimeIndex(utc), pd.DatetimeIndex(utc).tz_localize("UTC").tz_convert("Asia/Tokyo"),
+             [datetime.datetime(2024, 1, 1) + datetime.timedelta(seconds=i) for i in range(12)]]
+    for times in kinds:
+        for fig in (plot_series(times, res.means, res.covs, zs=zs), plot_measurements(times, zs, res.means, res.covs,
+                                                                                        model.H)):
+            line = fig.axes[0].get_lines()[-1]
+            np.testing.assert_allclose(mdates.date2num(line.get_xdata()), want, rtol=0, atol=1e-9)
+    fig = plot_series(pd.to_timedelta(np.arange(12), unit="s"), res.means, res.covs)
+    assert fig.axes[0].get_lines()[0].get_xdata().dtype.kind == "m"
+    with pytest.raises(ValueError, match="`times` must not hold NaT"):
+        plot_series(np.r_[utc[:11], np.datetime64("NaT")], res.means, res.covs)
+
+
+def test_a_refused_series_or_trajectory_leaves_no_pyplot_figure_open():
+    """plot_series and plot_trajectory made their figure before checking zs and truth: each refused call left one
+    open."""
+    code = (
+        "import numpy as np, matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot as plt\n"
+        "from gaussfuse.plotting import plot_series, plot_trajectory\n"
+        "m, P = np.zeros((5, 4)), np.tile(np.eye(4), (5, 1, 1))\n"
+        "calls = [lambda: plot_series(np.arange(5.0), m, P, zs=np.zeros(3)),\n"
+        "         lambda: plot_series(np.arange(5.0), m, P, truth='x'),\n"
+        "         lambda: plot_trajectory(m, P, zs=np.zeros(3)), lambda: plot_trajectory(m, P, truth=np.zeros((4, 1)))]\n"
+        "for call in calls:\n"
+        "    try:\n"
+        "        call()\n"
+        "    except (ValueError, TypeError):\n"
+        "        pass\n"
+        "print(len(plt.get_fignums()))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "0"

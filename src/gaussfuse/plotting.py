@@ -26,6 +26,7 @@ import numpy as np
 
 from ._linalg import marginal_std
 from ._validation import as_array, flag, real, shape_error
+from .inference.timing import as_instants
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -76,7 +77,9 @@ def plot_series(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times.
+        Times: numbers, or dates and durations (datetime64, timedelta64,
+        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
+        as such.
     means : array_like of shape (T, n) or (T,)
         Means (filtered or smoothed), e.g. ``res.means``.
     covs : array_like of shape (T, n, n), or (T,) variances when `means` is 1-D, optional
@@ -144,11 +147,13 @@ def plot_series(
             raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
         std = marginal_std(covs)[:, component]
     k = real("k", k, positive=True)
+    zs = None if zs is None else _column("zs", zs, T, component)  # checked before a figure is made
+    truth = None if truth is None else _column("truth", truth, T, component)
     fig, ax = _axes(ax, (7.0, 3.2))
     if zs is not None:
-        ax.plot(times, _column("zs", zs, T, component), label="measurement", **_MEASUREMENT_STYLE)
+        ax.plot(times, zs, label="measurement", **_MEASUREMENT_STYLE)
     if truth is not None:
-        ax.plot(times, _column("truth", truth, T, component), label="truth", **_TRUTH_STYLE)
+        ax.plot(times, truth, label="truth", **_TRUTH_STYLE)
     _band(ax, times, means[:, component], std, label, k)
     ax.set_xlabel(_with_unit(xlabel, time_unit))
     ax.set_ylabel(_with_unit(f"component {component}" if ylabel is None else ylabel, unit))
@@ -227,12 +232,12 @@ def plot_trajectory(
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise ValueError(f"`every` must be a positive integer; got {every!r}.")
     k = real("k", k, positive=True)
+    zs = None if zs is None else _points("zs", zs)  # checked before a figure is made
+    truth = None if truth is None else _points("truth", truth)
     fig, ax = _axes(ax, (6.0, 5.5))
     if zs is not None:
-        zs = _points("zs", zs)
         ax.plot(zs[:, 0], zs[:, 1], label="measurement", **_MEASUREMENT_STYLE)
     if truth is not None:
-        truth = _points("truth", truth)
         ax.plot(truth[:, 0], truth[:, 1], label="truth", **_TRUTH_STYLE)
     (line,) = ax.plot(means[:, 0], means[:, 1], label=label)
     if covs is not None:
@@ -346,7 +351,9 @@ def plot_mode_probabilities(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times.
+        Times: numbers, or dates and durations (datetime64, timedelta64,
+        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
+        as such.
     probs : array_like of shape (T, M)
         Probability of each of the M modes at each step, e.g.
         ``res.mode_probs`` of :func:`gaussfuse.imm_filter`.
@@ -426,7 +433,9 @@ def plot_measurements(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times.
+        Times: numbers, or dates and durations (datetime64, timedelta64,
+        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
+        as such.
     zs : array_like of shape (T, m) or (T,)
         Measurements; NaN (missing) components are not drawn.
     means : array_like of shape (T, n)
@@ -528,7 +537,9 @@ def plot_demo(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times.
+        Times: numbers, or dates and durations (datetime64, timedelta64,
+        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
+        as such.
     zs : array_like of shape (T, 2)
         Position measurements (x, y).
     truth : array_like of shape (T, n)
@@ -672,7 +683,11 @@ def _axes(ax: Axes | None, figsize: tuple[float, float]) -> tuple[Figure, Axes]:
 
 
 def _times(name: str, value) -> np.ndarray:
-    arr = as_array(name, value)
+    """Times to draw against: numbers, or datetimes (datetime64, datetime, pandas; a zone as UTC) kept as
+    datetime64 or timedelta64, which matplotlib draws as dates and durations."""
+    arr = as_instants(name, value)
+    if arr is None:
+        arr = as_array(name, value)
     if arr.ndim != 1 or arr.shape[0] == 0:
         raise shape_error(name, "(T,) with T >= 1", arr.shape)
     return arr

@@ -22,8 +22,8 @@ import numpy as np
 from ..models.compose import TimedModel
 from .validation import check_measurements
 
-__all__ = ["as_seconds", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within", "ticks", "elapsed",
-           "finest", "per_second"]
+__all__ = ["as_seconds", "as_instants", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within",
+           "ticks", "elapsed", "finest", "per_second"]
 
 
 _FINE = ("s", "ms", "us", "ns", "ps", "fs", "as")
@@ -114,6 +114,42 @@ def elapsed(counts: np.ndarray, per_second: int) -> np.ndarray:
     return steps.astype(np.float64) / per_second
 
 
+def _naive_utc(times):
+    """A pandas Series or DatetimeIndex aware of a time zone as the same instants in UTC, without the zone."""
+    values = getattr(times, "dt", None)  # a pandas Series of datetimes: its values (tz_convert would convert its index)
+    if values is not None and getattr(values, "tz", None) is not None:
+        return values.tz_convert("UTC").dt.tz_localize(None)
+    if values is None and getattr(times, "tz", None) is not None:  # a DatetimeIndex aware of a time zone
+        return times.tz_convert("UTC").tz_localize(None)
+    return times
+
+
+def as_instants(name: str, times) -> np.ndarray | None:
+    """`times` as a datetime64 or timedelta64 array when they are dates or durations (a zone as UTC), else None.
+
+    Raises
+    ------
+    ValueError
+        For NaT, naming `name`.
+    """
+    times = _naive_utc(times)
+    if hasattr(times, "to_numpy"):
+        times = times.to_numpy()
+    if isinstance(times, (str, bytes)):
+        return None
+    arr = np.asarray(times)
+    if arr.dtype == object and arr.size:
+        read = [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.ravel().tolist())]
+        if any(v is None for v in read):
+            return None
+        arr = np.array(read).reshape(arr.shape)
+    if arr.dtype.kind not in "Mm":
+        return None
+    if np.isnat(arr).any():
+        raise ValueError(f"`{name}` must not hold NaT (missing times).")
+    return arr
+
+
 def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     """`times` as a 1-D array: float seconds (and None), or int64 counts of a datetime64/timedelta64 unit and the counts per second.
 
@@ -124,11 +160,7 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     ValueError
         For a shape other than 1-D, or non-finite values.
     """
-    values = getattr(times, "dt", None)  # a pandas Series of datetimes: its values (tz_convert would convert its index)
-    if values is not None and getattr(values, "tz", None) is not None:
-        times = values.tz_convert("UTC").dt.tz_localize(None)
-    elif values is None and getattr(times, "tz", None) is not None:  # a DatetimeIndex aware of a time zone
-        times = times.tz_convert("UTC").tz_localize(None)
+    times = _naive_utc(times)
     if hasattr(times, "to_numpy"):
         times = times.to_numpy()
     arr = np.asarray(times)
