@@ -529,7 +529,8 @@ def test_a_refused_series_or_trajectory_leaves_no_pyplot_figure_open():
         "m, P = np.zeros((5, 4)), np.tile(np.eye(4), (5, 1, 1))\n"
         "calls = [lambda: plot_series(np.arange(5.0), m, P, zs=np.zeros(3)),\n"
         "         lambda: plot_series(np.arange(5.0), m, P, truth='x'),\n"
-        "         lambda: plot_trajectory(m, P, zs=np.zeros(3)), lambda: plot_trajectory(m, P, truth=np.zeros((4, 1)))]\n"
+        "         lambda: plot_trajectory(m, P, zs=np.zeros(3)),\n"
+        "         lambda: plot_trajectory(m, P, truth=np.zeros((4, 1)))]\n"
         "for call in calls:\n"
         "    try:\n"
         "        call()\n"
@@ -540,3 +541,16 @@ def test_a_refused_series_or_trajectory_leaves_no_pyplot_figure_open():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "0"
+
+
+def test_messages_name_the_argument_at_fault(filtered):
+    """units=5 was a bare "'int' object is not iterable"; plot_trajectory's covs were said not to match `times`,
+    which it has no argument for; plot_demo's pair that is not a pair was named as "got dict"."""
+    times, zs, res, model = filtered
+    with pytest.raises(TypeError, match=r"`units` must be a str or a sequence of 2 str \(None for none\); got 5\."):
+        plot_measurements(times, zs, res.means, res.covs, model.H, units=5)
+    with pytest.raises(ValueError, match=r"^`covs` must have shape \(12, 4, 4\) to match `means`; got shape "
+                                         r"\(3, 4, 4\)\.$"):
+        plot_trajectory(res.means, res.covs[:3])
+    with pytest.raises(TypeError, match=r"got ndarray for 'f'\.$"):
+        plot_demo(times, zs, res.means[:, :4], {"f": res.means})

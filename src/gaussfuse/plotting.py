@@ -226,7 +226,7 @@ def plot_trajectory(
     if n < 2:
         raise shape_error("means", "(T, n) with n >= 2", means.shape)
     if covs is not None:
-        covs = _data("covs", covs, (3,), T, f"({T}, {n}, {n}) to match `means`")
+        covs = _data("covs", covs, (3,), None, f"({T}, {n}, {n}) to match `means`")  # its T checked below
         if covs.shape != (T, n, n):
             raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
@@ -493,6 +493,9 @@ def plot_measurements(
     if len(names) != m:
         raise ValueError(f"`names` must have one name per measurement component ({m}); got {len(names)}.")
     track = flag("track", track)
+    if units is not None and not isinstance(units, str) and not (
+            isinstance(units, Sequence) and all(u is None or isinstance(u, str) for u in units)):
+        raise TypeError(f"`units` must be a str or a sequence of {m} str (None for none); got {units!r:.60}.")
     units = [units] * m if units is None or isinstance(units, str) else list(units)
     if len(units) != m:
         raise ValueError(f"`units` must be one unit, or one per measurement component ({m}); got {len(units)}.")
@@ -566,7 +569,7 @@ def plot_demo(
     if not isinstance(estimates, Mapping) or not all(
             isinstance(pair, Sequence) and not isinstance(pair, str) and len(pair) == 2 for pair in estimates.values()):
         raise TypeError("`estimates` must be a mapping of labels to (means, covs) pairs, e.g. "
-                        f"{{'filter': (res.means, res.covs)}}; got {type(estimates).__name__}.")
+                        f"{{'filter': (res.means, res.covs)}}; got {_described(estimates)}.")
     if not estimates:
         raise ValueError("`estimates` must have at least one (means, covs) pair to draw.")
     given = _given_figure(fig)
@@ -680,6 +683,15 @@ def _axes(ax: Axes | None, figsize: tuple[float, float]) -> tuple[Figure, Axes]:
         raise TypeError(f"`ax` must be a matplotlib Axes or None; got {type(ax).__name__}.")
     fig = ax.figure
     return getattr(fig, "figure", fig), ax  # a SubFigure's `figure` is the root Figure
+
+
+def _described(estimates) -> str:
+    """What `estimates` is, for its error: the first value that is not a pair, or the whole's type."""
+    if isinstance(estimates, Mapping):
+        for key, pair in estimates.items():
+            if not (isinstance(pair, Sequence) and not isinstance(pair, str) and len(pair) == 2):
+                return f"{type(pair).__name__} for {key!r}"
+    return type(estimates).__name__
 
 
 def _times(name: str, value) -> np.ndarray:
