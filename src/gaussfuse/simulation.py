@@ -96,7 +96,9 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
         Draw this many independent series at once (a leading axis);
         default one series, without the axis.
     rng : None, int or numpy.random.Generator
-        The source of randomness; an integer seeds a new Generator.
+        The source of randomness; an integer seeds a new Generator (anything
+        else :func:`numpy.random.default_rng` takes is taken, a
+        ``RandomState`` too).
 
     Returns
     -------
@@ -107,7 +109,10 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     TypeError, ValueError
         For bad arguments, named.
     numpy.linalg.LinAlgError
-        When Q, R or the prior covariance is not positive semi-definite.
+        When a covariance made per step (a model given per step, or
+        discretised for each dt) is not positive semi-definite; a fixed Q, R
+        or prior covariance is refused (ValueError) when the model or the
+        Gaussian is made.
     ModelFunctionError
         When a NonlinearModel's f or h fails (see :class:`gaussfuse.NonlinearModel`).
 
