@@ -806,7 +806,12 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     Only orthogonal transformations and one triangular solve touch the
     factors, so the result is as accurate as the factors' own condition
     (the square root of the covariances'), and :math:`L L^\top` is positive
-    semi-definite and symmetric by construction.
+    semi-definite and symmetric by construction. Where :math:`L_S` shows
+    the measurements out of the order of column pivoting
+    (:func:`gaussfuse._linalg.in_pivot_order`), the array is triangularised
+    again with them in that order, and :math:`[L_S; \bar K]` turned back to
+    theirs by one more orthogonal transformation: Householder QR is row-wise
+    stable with its columns sorted and pivoted, not sorted alone.
 
     With :math:`D_R`, the triangularised post-array, a factor of the joint
     covariance of the measurement and the state, is downdated by the
