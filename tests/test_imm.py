@@ -354,3 +354,22 @@ def test_options_are_checked_when_every_model_is_linear():
         gf.imm_filter([A, A], prior, zs, np.eye(2), method="ufk")
     np.testing.assert_array_equal(gf.imm_filter([A, A], prior, zs, np.eye(2), method="ukf", alpha=0.5).means,
                                   gf.imm_filter([A, A], prior, zs, np.eye(2)).means)
+
+
+def test_a_mode_the_measurement_contradicts_drops_out():
+    """A mode with Q = R = 0 knows the state exactly after one update; a second measurement that differs made the
+    whole filter raise (S singular). Its likelihood is 0: with no switching the answer is the other mode's filter,
+    weighted by the prior's 1/2. Where every mode is contradicted, or z lies on a singular S's range, it raises."""
+    exact = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[0.0]], R=[[0.0]])
+    loose = gf.LinearModel(F=[[1.0]], H=[[1.0]], Q=[[1.0]], R=[[1.0]])
+    prior, zs = gf.Gaussian([0.0], [[1.0]]), [0.5, 0.7, 0.9]
+    res = gf.imm_filter([exact, loose], prior, zs, transition=np.eye(2))
+    alone = gf.filter(loose, prior, zs)
+    np.testing.assert_allclose(res.mode_probs[1:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-300)
+    np.testing.assert_allclose(res.means[1:], alone.means[1:], rtol=1e-14)
+    np.testing.assert_allclose(res.covs[1:], alone.covs[1:], rtol=1e-14)
+    assert res.loglik == pytest.approx(alone.loglik + np.log(0.5), rel=1e-14)
+    with pytest.raises(np.linalg.LinAlgError, match=r"at step 1: the measurement is impossible under every model"):
+        gf.imm_filter([exact, exact], prior, zs, transition=np.eye(2))
+    with pytest.raises(np.linalg.LinAlgError, match=r"at step 1, in `models\[0\]`: the innovation covariance"):
+        gf.imm_filter([exact, loose], prior, [0.5, 0.5], transition=np.eye(2))

@@ -25,6 +25,7 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
+from ._linalg import wrap_components
 from ._validation import as_array, shape_error
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
@@ -199,7 +200,12 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
            \mu_j = \frac{\Lambda_j c_j}{\sum_l \Lambda_l c_l}, \qquad
            \log p(z_k \mid z_{1:k-1}) \approx \log \sum_l \Lambda_l c_l,
 
-       An all-missing :math:`z_k` leaves :math:`\mu_j = c_j`. The
+       An all-missing :math:`z_k` leaves :math:`\mu_j = c_j`. A mode whose
+       :math:`S_j` is singular (a noise-free sensor, a state known exactly)
+       and whose prediction :math:`z_k` contradicts, off the range of
+       :math:`S_j`, has :math:`\Lambda_j = 0`: it drops out at that step,
+       keeping its prediction (a measurement on that range has no density
+       to weigh, and is an error, as in every filter). The
        probabilities are carried from step to step as logarithms (and
        :math:`c_j` taken by log-sum-exp), so a mode thousands of nats
        behind still comes back when the data turn to it, even where no
@@ -256,6 +262,9 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
         for j, mode in enumerate(modes):
             post = mode.step(k, *starts[j], zs[k])
             out.mode_means[k, j], out.mode_covs[k, j], logl[j] = post.mean, post.cov, post.loglik
+        if not np.any(logl + log_c > -np.inf):
+            raise np.linalg.LinAlgError(f"at step {k}: the measurement is impossible under every model that can be "
+                                        "in force (each has a singular innovation covariance S that z lies outside).")
         log_mu, step_loglik = _reweight(logl, log_c)
         loglik += step_loglik
         out.mode_probs[k] = np.exp(log_mu)
@@ -279,8 +288,30 @@ class _Mode:
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step, as in run_filter
                 return kalman.step(self.lin, k, mean, cov, z, self.iterations, self.tol, self.state_angles,
                                    self.measurement_angles).update
-        except (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError) as exc:
+        except np.linalg.LinAlgError as exc:
+            impossible = self._impossible(k, mean, cov, z)
+            if impossible is None:
+                raise type(exc)(f"at step {k}, in `models[{self.j}]`: {exc}") from exc
+            return impossible
+        except (ModelFunctionError, FloatingPointError) as exc:
             raise type(exc)(f"at step {k}, in `models[{self.j}]`: {exc}") from exc
+
+    def _impossible(self, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> kalman.Update | None:
+        """The mode's prediction with likelihood 0 when z lies outside the range of its singular S (a noise-free
+        measurement that z contradicts), else None (z has a degenerate density there, not one of 0)."""
+        pm, pc = kalman.forecast(self.lin, k, mean, cov, self.state_angles, check=False)
+        H, d, R = self.lin.measurement(k, pm, pc)
+        innovation = z - kalman.predict_mean(pm, H, d)
+        if self.measurement_angles is not None:
+            innovation = wrap_components(innovation, self.measurement_angles)
+        S_full = H @ pc @ H.T + R
+        o = kalman.observed_components(z)
+        v, S = (innovation, S_full) if o is None else (innovation[o], S_full[np.ix_(o, o)])
+        vals, vecs = np.linalg.eigh(0.5 * (S + S.T))
+        null = vecs[:, vals <= 8 * vals.shape[0] * np.finfo(np.float64).eps * max(vals.max(initial=0.0), 0.0)]
+        if not np.all(np.isfinite(v)) or np.linalg.norm(null.T @ v) <= 1e-8 * max(np.linalg.norm(v), 1e-300):
+            return None
+        return kalman.Update(pm, pc, innovation, S_full, -np.inf, None, np.inf)
 
 
 def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[_Mode]:
