@@ -477,21 +477,29 @@ def test_arguments_of_the_wrong_kind_are_named(track):
 
 def test_a_refused_demo_leaves_no_pyplot_figure_open(track):
     """Through pyplot (the caller imported it) a call makes a figure; one that fails must not leave it open."""
-    times, zs, truth, res = track
-    code = (
-        "import numpy as np, matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot as plt\n"
+    assert figures_left_open(
         "from gaussfuse.plotting import plot_demo\n"
         "times, zs = np.arange(5.0), np.zeros((5, 2))\n"
-        "for bad in ({'f': (np.zeros((5, 4)), np.zeros((4, 4, 4)))}, {'f': (np.zeros((3, 4)), None)}):\n"
+        "calls = [lambda bad=bad: plot_demo(times, zs, np.zeros((5, 4)), bad)\n"
+        "         for bad in ({'f': (np.zeros((5, 4)), np.zeros((4, 4, 4)))}, {'f': (np.zeros((3, 4)), None)})]\n"
+    ) == "0"
+
+
+def figures_left_open(setup: str) -> str:
+    """In a new process whose caller uses pyplot, run `setup` (it defines `calls`), make each call (refused with
+    ValueError or TypeError), and return how many pyplot figures are left open."""
+    code = (
+        "import numpy as np, matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot as plt\n" + setup +
+        "for call in calls:\n"
         "    try:\n"
-        "        plot_demo(times, zs, np.zeros((5, 4)), bad)\n"
-        "    except ValueError:\n"
+        "        call()\n"
+        "    except (ValueError, TypeError):\n"
         "        pass\n"
         "print(len(plt.get_fignums()))\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "0"
+    return done.stdout.strip()
 
 
 def test_datetimes_are_drawn_as_dates(filtered):
@@ -523,24 +531,14 @@ def test_datetimes_are_drawn_as_dates(filtered):
 def test_a_refused_series_or_trajectory_leaves_no_pyplot_figure_open():
     """plot_series and plot_trajectory made their figure before checking zs and truth: each refused call left one
     open."""
-    code = (
-        "import numpy as np, matplotlib; matplotlib.use('Agg'); import matplotlib.pyplot as plt\n"
+    assert figures_left_open(
         "from gaussfuse.plotting import plot_series, plot_trajectory\n"
         "m, P = np.zeros((5, 4)), np.tile(np.eye(4), (5, 1, 1))\n"
         "calls = [lambda: plot_series(np.arange(5.0), m, P, zs=np.zeros(3)),\n"
         "         lambda: plot_series(np.arange(5.0), m, P, truth='x'),\n"
         "         lambda: plot_trajectory(m, P, zs=np.zeros(3)),\n"
         "         lambda: plot_trajectory(m, P, truth=np.zeros((4, 1)))]\n"
-        "for call in calls:\n"
-        "    try:\n"
-        "        call()\n"
-        "    except (ValueError, TypeError):\n"
-        "        pass\n"
-        "print(len(plt.get_fignums()))\n"
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "0"
+    ) == "0"
 
 
 def test_messages_name_the_argument_at_fault(filtered):

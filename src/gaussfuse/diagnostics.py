@@ -289,8 +289,6 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
     rejected, up to 8 in a row, 7 of 50 in one window); the half is what
     separates a filter that has lost the data from one that coasts.
     """
-    from scipy.special import bdtrc  # P(Bin(n, p) > k)
-
     window, false_alarm = _test_settings(window, false_alarm)
     r = np.atleast_2d(np.asarray(rejected).astype(np.int64))
     o = np.atleast_2d(np.asarray(offered).astype(np.int64))
@@ -300,10 +298,19 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
     window = min(window, T)
     lo = _window_starts(T, window)
     K, N = _window_sums(r, window, lo), _window_sums(o, window, lo)
-    tail = np.where(K > 0, bdtrc(np.maximum(K - 1, 0), np.maximum(N, 1), 1.0 - probability), 1.0)  # P(≥ K)
-    flagged = (tail <= false_alarm / K.size) & (2 * K >= N)  # and at least half: lost, not merely unlucky
+    flagged = _lost(K, N, 1.0 - probability, false_alarm / K.size)
     return [(series, first, last, int(r[series, first:last + 1].sum()), int(o[series, first:last + 1].sum()))
             for series, first, last in _flagged_ranges(flagged, lo, window)]
+
+
+def _lost(K, N, p, level):
+    """Where K rejections of N offered are at least half and beyond the binomial tail at `level` for a rejection
+    probability p: lost, not merely unlucky (:func:`rejections`' rule, for arrays or one window)."""
+    from scipy.special import bdtrc  # P(Bin(n, p) > k)
+
+    K, N = np.asarray(K), np.asarray(N)
+    tail = np.where(K > 0, bdtrc(np.maximum(K - 1, 0), np.maximum(N, 1), p), 1.0)  # P(≥ K)
+    return (tail <= level) & (2 * K >= N)
 
 
 def gate_counts(rejected, seen, by: str) -> tuple[np.ndarray, np.ndarray]:
@@ -345,8 +352,6 @@ class _Rejections:
 
     def add(self, lost: int, offered: int, probability: float, step) -> tuple[object, object, int, int] | None:
         """Record an update; ``(first, last, rejected, offered)`` when the window ending here newly fails."""
-        from scipy.special import bdtrc  # P(Bin(n, p) > k)
-
         if offered == 0:
             return None
         self._counts.append((int(lost), int(offered), 1.0 - probability))
@@ -358,8 +363,7 @@ class _Rejections:
         self._tested += 1
         K, N = sum(c[0] for c in self._counts), sum(c[1] for c in self._counts)
         p = max(c[2] for c in self._counts)  # the most lenient gate of the window
-        level = self.false_alarm / (self._tested * (self._tested + 1))
-        flagged = K > 0 and 2 * K >= N and bdtrc(K - 1, N, p) <= level
+        flagged = bool(_lost(K, N, p, self.false_alarm / (self._tested * (self._tested + 1))))
         report = flagged and not self._flagged
         self._flagged = flagged
         return (self._steps[0], self._steps[-1], K, N) if report else None

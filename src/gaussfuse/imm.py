@@ -25,7 +25,6 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import wrap_components
 from ._validation import as_array, shape_error
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
@@ -301,12 +300,10 @@ class _Mode:
         measurement that z contradicts), else None (z has a degenerate density there, not one of 0)."""
         pm, pc = kalman.forecast(self.lin, k, mean, cov, self.state_angles, check=False)
         H, d, R = self.lin.measurement(k, pm, pc)
-        innovation = z - kalman.predict_mean(pm, H, d)
-        if self.measurement_angles is not None:
-            innovation = wrap_components(innovation, self.measurement_angles)
-        S_full = H @ pc @ H.T + R
+        S_full = kalman.predict(pm, pc, H, R, d)[1]  # H P⁻ Hᵀ + R
         o = kalman.observed_components(z)
-        v, S = (innovation, S_full) if o is None else (innovation[o], S_full[np.ix_(o, o)])
+        innovation, v = kalman._innovation(pm, z, H, d, self.measurement_angles, o)
+        S = S_full if o is None else S_full[np.ix_(o, o)]
         vals, vecs = np.linalg.eigh(0.5 * (S + S.T))
         null = vecs[:, vals <= 8 * vals.shape[0] * np.finfo(np.float64).eps * max(vals.max(initial=0.0), 0.0)]
         if not np.all(np.isfinite(v)) or np.linalg.norm(null.T @ v) <= 1e-8 * max(np.linalg.norm(v), 1e-300):

@@ -132,19 +132,37 @@ def as_instants(name: str, times) -> np.ndarray | None:
     ValueError
         For NaT, naming `name`.
     """
-    times = _naive_utc(times)
-    if hasattr(times, "to_numpy"):
-        times = times.to_numpy()
     if isinstance(times, (str, bytes)):
         return None
-    arr = np.asarray(times)
-    if arr.dtype == object and arr.size:
-        read = [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.ravel().tolist())]
-        if any(v is None for v in read):
+    arr = _array(times)
+    if arr.dtype == object:
+        read = _stamps(name, arr.ravel())
+        if not read or any(v is None for v in read):
             return None
-        arr = np.array(read).reshape(arr.shape)
+        arr = _in_one_unit(name, read).reshape(arr.shape)
     if arr.dtype.kind not in "Mm":
         return None
+    return _without_nat(name, arr)
+
+
+def _array(times) -> np.ndarray:
+    """`times` as a NumPy array (pandas' values; a time zone as UTC)."""
+    times = _naive_utc(times)
+    return np.asarray(times.to_numpy() if hasattr(times, "to_numpy") else times)
+
+
+def _stamps(name: str, arr: np.ndarray) -> list:
+    """Each entry of a 1-D object array as a naive UTC datetime64 (:func:`stamp`), or None where it is not a time."""
+    return [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.tolist())]
+
+
+def _in_one_unit(name: str, read: list) -> np.ndarray:
+    """Datetime64 values in the finest of their units, exactly (:func:`within`)."""
+    unit = finest(np.datetime_data(v.dtype)[0] for v in read)
+    return np.array([within(f"{name}[{i}]", v, unit) for i, v in enumerate(read)])
+
+
+def _without_nat(name: str, arr: np.ndarray) -> np.ndarray:
     if np.isnat(arr).any():
         raise ValueError(f"`{name}` must not hold NaT (missing times).")
     return arr
@@ -160,14 +178,11 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     ValueError
         For a shape other than 1-D, or non-finite values.
     """
-    times = _naive_utc(times)
-    if hasattr(times, "to_numpy"):
-        times = times.to_numpy()
-    arr = np.asarray(times)
+    arr = _array(times)
     if arr.ndim != 1:
         raise ValueError(f"`{name}` must be one-dimensional, one time per step; got shape {arr.shape}.")
     if arr.dtype == object:
-        read = [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.tolist())]
+        read = _stamps(name, arr)
         if not arr.size or any(v is None for v in read):
             number = [not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
                       for v in arr.tolist()]
@@ -177,12 +192,9 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
             got = "nothing" if bad is None else f"{type(arr[bad]).__name__} at `{name}[{bad}]`"
             raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
                             f"DatetimeIndex), all of one kind; got {got}.")
-        unit = finest(np.datetime_data(v.dtype)[0] for v in read)
-        arr = np.array([within(f"{name}[{i}]", v, unit) for i, v in enumerate(read)])
+        arr = _in_one_unit(name, read)
     if arr.dtype.kind in "Mm":
-        if np.isnat(arr).any():
-            raise ValueError(f"`{name}` must not hold NaT (missing times).")
-        return ticks(name, arr)
+        return ticks(name, _without_nat(name, arr))
     if arr.dtype.kind not in "iuf" or arr.dtype.kind == "b":
         raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
                         f"DatetimeIndex); got {arr.dtype} values.")
