@@ -284,9 +284,12 @@ def test_errors_are_one_line(tmp_path, capsys, scheduler):
 
 
 @pytest.mark.parametrize("name", ["nosuch.parquet", "nosuch.csv", "nosuchdir"])
-def test_missing_data_is_named_with_its_reason(tmp_path, capsys, name):
+def test_missing_data_is_named_with_its_reason(tmp_path, capsys, monkeypatch, name):
     """A missing Parquet file said only "gaussfuse: error: nosuch.parquet", a missing directory "not a .csv or
-    .parquet file"."""
+    .parquet file"; `fit` started a local cluster (a second) before it looked."""
+    from gaussfuse import cli
+
+    monkeypatch.setattr(cli, "_cluster", lambda args: pytest.fail("a cluster was started for a missing path"))
     (tmp_path / "cv.toml").write_text(NAMED)
     for command in (["filter", "-o", tmp_path / "o"], ["fit"]):
         code, _, err = run(capsys, command[0], tmp_path / name, "-m", tmp_path / "cv.toml", "--series-column", "unit",

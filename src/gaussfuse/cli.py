@@ -683,8 +683,9 @@ def _run_fit(args: argparse.Namespace) -> int:
         T = data.times.shape[0]
         grid = timing.steps("times", data.times, T - 1) if T > 1 else None  # the T - 1 steps between the rows
         return _fit_and_write(args, _stepped(spec, grid), learn, data.zs)
+    parts = panels.partitions(args.data)  # a missing or empty path is named before a cluster starts
     with _cluster(args) as client:
-        zs, grid = _pooled(args, spec, columns, client)
+        zs, grid = _pooled(args, spec, columns, parts, client)
         return _fit_and_write(args, _stepped(spec, grid), learn, zs)
 
 
@@ -707,8 +708,8 @@ def _stepped(spec: gfio.ModelFile, grid: timing.Steps | None) -> gfio.ModelFile:
     return spec
 
 
-def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, client):
-    """Every series of a long-format table as one dask array (N, T, m), each partition read on a worker; and the
+def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, parts: list[str], client):
+    """Every series of the partitions `parts` as one dask array (N, T, m), each read on a worker; and the
     range of the series' steps (:func:`gaussfuse.panels.step_range`).
 
     Series shorter than the longest are padded at the end with missing steps
@@ -718,7 +719,6 @@ def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, client):
     import dask
     import dask.array as da
 
-    parts = panels.partitions(args.data)
     read = dict(series_column=args.series_column, m=spec.model.m, time_column=args.time_column, columns=columns)
     shapes = client.gather([client.submit(panels.partition_shape, part, **read, pure=False) for part in parts])
     seen: dict = {}
