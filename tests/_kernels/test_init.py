@@ -36,6 +36,7 @@ PROBE = textwrap.dedent("""
         from gaussfuse._kernels import linear
         stats = linear.forward.stats  # compiled and written to the cache, or loaded from it
         out["forward"] = {"hits": sum(stats.cache_hits.values()), "misses": sum(stats.cache_misses.values())}
+        out["held_steps signatures"] = len(linear.held_steps.signatures)  # compiled with forward, when it is
         out["after, smoothing"] = {**states("linear", smoothing=True), **states("sigma_points", smoothing=True)}
     print(json.dumps(out))
 """)
@@ -55,6 +56,7 @@ def test_cold_then_loaded_then_cached(tmp_path):
     cold = {"linear.forward": "cold", "sigma_points.advance": "cold", "sigma_points.hold": "cold"}
     assert first["before"] == cold
     assert first["forward"] == {"hits": 0, "misses": 1}  # compiled, and written to the cache
+    assert first["held_steps signatures"] == 1  # not a second one for a literal first step (2 s more)
     assert any(tmp_path.rglob("*.nbi"))
     assert not first["numba imported"]  # deciding does not import numba
     # The linear engine's kernels are loaded; the sigma-point engine shares the backward pass only.

@@ -495,6 +495,22 @@ def test_jitted_functions_that_do_not_fit_run_in_python_mode():
     assert_same(res, ref)
 
 
+def test_both_engines_share_one_compiled_square_root_backward_pass():
+    """The sigma-point smoother handed the backward pass writable arrays where the linear one hands read-only
+    ones: numba compiled it twice (2 s more on a first call). Both results against the readable path."""
+    from gaussfuse._kernels import _rts
+
+    model, prior, zs, us = toy_problem(0, "plain")
+    assert_same(gf.smooth(model, prior, zs, us, method="ukf", engine="numba", form="sqrt"),
+                gf.smooth(model, prior, zs, us, method="ukf", engine="python", form="sqrt"))
+    linear = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.1, 0.01]), R=1.0)
+    start = gf.Gaussian([0.0, 0.0], np.eye(2))
+    want = gf.smooth(linear, start, np.sin(np.arange(20.0)), engine="python", form="sqrt")
+    got = gf.smooth(linear, start, np.sin(np.arange(20.0)), engine="numba", form="sqrt")
+    np.testing.assert_allclose(got.means, want.means, rtol=1e-10, atol=1e-12)
+    assert len(_rts.backward_sqrt.signatures) == 1, _rts.backward_sqrt.signatures
+
+
 def test_auto_engine_compiles_long_series(pendulum, monkeypatch):
     """With the kernels loaded in this process, "auto" runs them from 1000 steps on, in both modes."""
     _, zs = pendulum

@@ -257,7 +257,7 @@ def forward(lo, hi, model, zs, m0, P0, out, fail, w):
         at_fixed = False  # cov is the fixed point's posterior covariance
         sharing = rows > 0 and s > lo and fail.code[lo] == OK  # cov is series lo's at this step
         b = model.b[s if model.b.shape[0] > 1 else 0]
-        k = 0
+        k = np.int64(0)  # not the literal 0, for which numba would compile held_steps a second time (2 s)
         while k < T:
             if sharing or at_fixed:  # the held steps, in their own loop, up to one that observes otherwise
                 k1, total = held_steps(k, total, lo, s, sharing, model, zs, out, fail, w, fx, steps_lo, mean0,

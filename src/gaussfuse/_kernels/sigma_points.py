@@ -982,8 +982,8 @@ def smooth_sqrt(lin, model, prior, zs, us) -> tuple[SmoothResult, np.ndarray]:
     sm_means, sm_factors = np.empty_like(out.means), np.empty_like(out.factors)
     gains, failed = np.empty((N, max(T - 1, 0), n, n)), np.zeros(N, dtype=np.bool_)
     if T:
-        none = np.empty((1, n, n))
-        _rts.backward_sqrt(0, N, out.means, out.factors, none, none, np.empty((1, 1, n)), bel.joint, bel.jpm,
+        none = readonly(np.empty((1, n, n)))  # read-only, as the linear engine's: one compiled signature for both
+        _rts.backward_sqrt(0, N, out.means, out.factors, none, none, readonly(np.empty((1, 1, n))), bel.joint, bel.jpm,
                            np.array(model.state_angles, dtype=np.bool_), sm_means, sm_factors, gains, failed)
     sm_means[failed], sm_factors[failed] = 0.0, 0.0  # left unwritten where they stopped: the driver fills them in
     return SmoothResult(sm_means, symmetrize(sm_factors @ sm_factors.swapaxes(-1, -2)), gains, filter_result(out),
