@@ -52,6 +52,9 @@ RUNS = NO_CACHE + textwrap.dedent("""
         zs = np.sin(np.arange(1500) / 40.0)
         got, want = gf.filter(model, prior, zs, engine="numba"), gf.filter(model, prior, zs, engine="python")
         out["filter"] = float(np.max(np.abs(got.means - want.means)))  # the kernel the command line compiled
+        from gaussfuse._kernels import linear
+
+        out["held_steps signatures"] = len(linear.held_steps.signatures)  # compiled with the filter
 
         # A kernel made after the warning, with an explicit signature, as the sigma-point loop for jitted f and h
         # is made on first use (compiling that loop itself would take 15 s here, for the same path).
@@ -98,6 +101,7 @@ def test_without_a_cache_location_the_cli_and_the_library_compile_in_memory(tmp_
                                                    "cached") and "NUMBA_CACHE_DIR" in lines[0], lines
     assert len(result.read_text().splitlines()) == 1201  # the header and one row a step
     assert out["filter"] < 1e-10
+    assert out["held_steps signatures"] == 1  # not a second one for a literal first step (2 s more)
     assert out["late kernel"] == 3.0
     assert out["warnings"] == []  # once a process
 
