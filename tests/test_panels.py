@@ -105,7 +105,7 @@ def test_filter_csv_partitions_with_explicit_matrices_on_a_cluster_of_its_own(tm
 
 
 @pytest.mark.parametrize("smooth", [False, True])
-def test_filter_series_with_a_diffuse_prior(tmp_path, capsys, smooth):
+def test_filter_series_with_a_diffuse_prior(tmp_path, capsys, scheduler, smooth):
     """A diffuse prior failed with "'NoneType' object is not subscriptable" (no NIS for the divergence check)."""
     rng = np.random.default_rng(4)
     series = {f"s{i}": np.cumsum(rng.normal(size=12 + i)) + rng.normal(size=12 + i) for i in range(3)}
@@ -115,7 +115,7 @@ def test_filter_series_with_a_diffuse_prior(tmp_path, capsys, smooth):
                                      "[prior]\ndiffuse = true\n")
     out = tmp_path / "out"
     code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
-                       "-o", out, *(["--smooth"] if smooth else []))
+                       "-o", out, "--scheduler", scheduler, *(["--smooth"] if smooth else []))
     assert code == 0, err
     got = pd.concat([pd.read_csv(p) for p in sorted(out.rglob("*.csv"))])
     spec = gfio.read_model(tmp_path / "m.toml")
@@ -124,7 +124,7 @@ def test_filter_series_with_a_diffuse_prior(tmp_path, capsys, smooth):
         np.testing.assert_allclose(got[got.id == name]["x0"].to_numpy(), want.means[:, 0], rtol=1e-12)
 
 
-def test_series_ids_are_the_text_in_the_file(tmp_path, capsys):
+def test_series_ids_are_the_text_in_the_file(tmp_path, capsys, scheduler):
     """pandas read the ids as numbers: "007" and "7" (and "1" and "1.0") were one series, written back as 7,
     and the id "NA" was refused as missing. Oracle: gf.filter on each series alone."""
     rows = [("007", 0.0, 1.0), ("7", 1.0, 2.0), ("1", 0.0, 3.0), ("1.0", 0.0, 4.0), ("1e3", 0.0, 5.0),
@@ -134,7 +134,7 @@ def test_series_ids_are_the_text_in_the_file(tmp_path, capsys):
                                      "[prior]\nvar = 10.0\n")
     out = tmp_path / "out"
     code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
-                       "-o", out, "--check", "off")
+                       "-o", out, "--check", "off", "--scheduler", scheduler)
     assert code == 0, err
     assert "7 series, 8 rows" in err
     got = pd.read_csv(next(out.rglob("*.csv")), dtype={"id": str}, keep_default_na=False)
@@ -188,7 +188,8 @@ def test_matrices_per_row_are_refused_with_series_naming_the_file(tmp_path, caps
 @pytest.mark.parametrize("states, twice, many", [('["t", "id"]', "'id', 't'", True), ('["t", "id"]', "'t'", False),
                                                  ('["x", "std_x"]', "'std_x'", True),
                                                  ('["x", "std_x"]', "'std_x'", False)])
-def test_states_named_like_an_output_column_are_refused_before_the_work(tmp_path, capsys, states, twice, many):
+def test_states_named_like_an_output_column_are_refused_before_the_work(tmp_path, capsys, scheduler, states, twice,
+                                                                         many):
     """States named t and id replaced the series ids and times of the output with their means; a state std_x
     beside x lost a column to x's standard deviation; one file's header had t or std_x twice. Exit 0, no word."""
     (tmp_path / "d.csv").write_text("id,t,x\na,1,1\na,2,2\n" if many else "t,x\n1,1\n2,2\n")
@@ -196,7 +197,7 @@ def test_states_named_like_an_output_column_are_refused_before_the_work(tmp_path
                                      f"Q = [[1.0, 0.0], [0.0, 1.0]]\nR = [[1.0]]\nstates = {states}\n")
     out = tmp_path / ("out" if many else "out.csv")
     code, stdout, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "-o", out,
-                            *(["--series-column", "id", "--workers", "1"] if many else []))
+                            *(["--series-column", "id", "--scheduler", scheduler] if many else []))
     assert code == 2 and stdout == "" and not out.exists()
     assert err.count("\n") == 1 and f"the output would have two columns named {twice} " in err
     assert ("d.csv: " if many else "m.toml: ") in err
@@ -209,7 +210,7 @@ def test_states_named_like_an_output_column_are_refused_before_the_work(tmp_path
     ("id,t,x,x\na,1,1,1\na,2,2,2\n", [], r"line 1: the header names column\(s\) \['x'\] more than once"),
     ("t,x,y\na,1,1\na,2,2\n", [], r"the series-id column `t` is named like a time column"),
 ])
-def test_series_columns_are_checked_as_one_files_are(tmp_path, capsys, text, extra, message):
+def test_series_columns_are_checked_as_one_files_are(tmp_path, capsys, scheduler, text, extra, message):
     """With --series-column the time column was taken as a measurement, x twice, the id column as one, and
     a repeated header name read as x and x.1 (pandas' renaming), all with exit status 0. The partition's
     reader refuses them (one through the command, the rest on the reader itself: a cluster costs seconds)."""
@@ -223,7 +224,7 @@ def test_series_columns_are_checked_as_one_files_are(tmp_path, capsys, text, ext
                                          .replace("R = [[2.0]]", "R = [[2.0, 0.0], [0.0, 2.0]]"))
         out = tmp_path / "out"
         code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column",
-                           series, "--workers", "1", "-o", out, *extra)
+                           series, "--scheduler", scheduler, "-o", out, *extra)
         assert code == 2 and not out.exists()
         assert err.count("\n") == 1 and re.search(message, err), err
 
@@ -298,13 +299,13 @@ def test_missing_data_is_named_with_its_reason(tmp_path, capsys, monkeypatch, na
 
 
 @pytest.mark.parametrize("smooth", [False, True])
-def test_a_series_the_diffuse_prior_cannot_start_is_named(tmp_path, capsys, smooth):
+def test_a_series_the_diffuse_prior_cannot_start_is_named(tmp_path, capsys, scheduler, smooth):
     """The error named neither the file nor the series (one observation cannot identify position and velocity)."""
     (tmp_path / "d.csv").write_text("id,t,z\na,0,1\na,1,2\na,2,3\nb,0,1\n")
     (tmp_path / "m.toml").write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.5\nr = 1.0\n'
                                      "[prior]\ndiffuse = true\n")
     code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
-                       "-o", tmp_path / "o", *(["--smooth"] if smooth else []))
+                       "-o", tmp_path / "o", "--scheduler", scheduler, *(["--smooth"] if smooth else []))
     assert code == 2 and not (tmp_path / "o").exists()
     assert err.startswith(f"gaussfuse: error: {tmp_path / 'd.csv'}: series 'b': the diffuse initial state is not "
                           "identified") and err.count("\n") == 1, err
