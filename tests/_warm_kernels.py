@@ -41,22 +41,22 @@ def _scalar_h() -> None:
               engine="numba")
 
 
-# Each job with its form and its cold cost in seconds on a 2-core Zen 4, two processes side by side (2026-12-05).
-# Jobs of one form share, within a process, the compiled steps that the sigma-point loops inline (the forecast
-# and the correction of that form, about 10 s of each form's first job), so a process takes the jobs of one form:
-# 108 s of processor time and 56-59 s for the step, against 129 s and 66 s with the forms mixed.
+# Each job with its form and its cold cost in seconds on a 2-core Zen 4, in one process (2026-12-06). The
+# sigma-point jobs of one form run that form's step kernel (advance or advance_sqrt, compiled with the form's
+# first job; the loops around jitted f and h call it, compiling in under a second each), so a process takes
+# the jobs of one form.
 JOBS = [
-    ("sqrt", 24, lambda: _toy("jitted", False, "sqrt")),
-    ("sqrt", 11, lambda: _linear("sqrt", True)),
-    ("sqrt", 9, lambda: _toy("plain", False, "sqrt")),
-    ("sqrt", 6, lambda: _toy("jitted", True, "sqrt")),
-    ("cov", 22, lambda: _toy("jitted-vectorized", True, "cov")),
-    ("cov", 9, lambda: _linear("cov", True)),
-    ("cov", 6, lambda: _toy("plain", False, "cov")),
-    ("cov", 5, lambda: _toy("jitted-vectorized", False, "cov")),
-    ("cov", 5, lambda: _toy("jitted", False, "cov")),
-    ("cov", 5, lambda: _toy("jitted", True, "cov")),
-    ("cov", 5, _scalar_h),
+    ("sqrt", 27, lambda: _toy("jitted", False, "sqrt")),
+    ("sqrt", 13, lambda: _linear("sqrt", True)),
+    ("sqrt", 1, lambda: _toy("plain", False, "sqrt")),
+    ("sqrt", 1, lambda: _toy("jitted", True, "sqrt")),
+    ("cov", 24, lambda: _toy("jitted-vectorized", True, "cov")),
+    ("cov", 14, lambda: _linear("cov", True)),
+    ("cov", 1, lambda: _toy("plain", False, "cov")),
+    ("cov", 1, lambda: _toy("jitted-vectorized", False, "cov")),
+    ("cov", 1, lambda: _toy("jitted", False, "cov")),
+    ("cov", 1, lambda: _toy("jitted", True, "cov")),
+    ("cov", 1, _scalar_h),
 ]
 FORMS = ("sqrt", "cov")
 

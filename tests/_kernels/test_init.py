@@ -98,15 +98,17 @@ def test_the_kernels_a_call_runs():
     assert kernels("linear", smoothing=True) == (("linear", "forward"), ("_rts", "backward"))
     assert kernels("sigma_points", smoothing=True) == (("sigma_points", "advance"), ("sigma_points", "hold"),
                                                        ("_rts", "backward"))
-    # jitted f and h: the loop compiled around them, instead of the Python mode's kernels
-    assert kernels("sigma_points", jitted=True) == (JITTED_LOOP,)
+    # jitted f and h: the loop compiled around them, which calls the Python mode's step kernel
+    assert kernels("sigma_points", jitted=True) == (("sigma_points", "advance"), ("sigma_points", "hold"),
+                                                    JITTED_LOOP)
     assert kernels("linear", jitted=True) == kernels("linear")
 
 
 def test_the_jitted_loop_state_is_the_one_given():
     for loop in ("loaded", "cached", "cold"):
         states = kernel_states("sigma_points", smoothing=True, loop=loop)
-        assert list(states) == [JITTED_LOOP, ("_rts", "backward")]
+        assert list(states) == [("sigma_points", "advance"), ("sigma_points", "hold"), JITTED_LOOP,
+                                ("_rts", "backward")]
         assert states[JITTED_LOOP] == loop
     assert JITTED_LOOP not in kernel_states("sigma_points")
 

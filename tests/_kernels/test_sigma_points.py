@@ -570,6 +570,24 @@ def test_the_loop_around_jitted_functions_is_loaded_cached_or_cold(tmp_path):
     assert probe_loop("sqrt", tmp_path) == "cold False"
 
 
+def test_the_loop_around_jitted_functions_holds_none_of_the_step():
+    """The loop compiled for each signature of f and h inlined the whole step (25 s of compiling for every
+    new signature on a 2-core machine): it calls the step's kernel, compiled once, through its address, so
+    its code defines no function of the step's modules (``_slr``, ``_step``). Compiled here anew, uncached,
+    so that numba shows its code."""
+    import re
+
+    f, h = numba.njit(lambda x: x * 1.0), numba.njit(lambda x: np.sin(x[:1]))
+    model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
+    gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.ones(5), method="ukf", engine="numba")
+    key = sp._loop_key(*sp._jitted_signatures(model, gf.Gaussian([0.0, 0.0], np.eye(2)), None), False, False)
+    sig = sp._LOOPS[key].signatures[0]
+    fresh = numba.njit(sig, cache=False, nogil=True, error_model="numpy")(sp.run)
+    defined = re.findall(r'^define [^@]*@"?([^"(\s]+)', fresh.inspect_llvm(sig), re.M)
+    assert any("12sigma_points3run" in name for name in defined), defined
+    assert not [name for name in defined if re.search(r"8_kernels(4_slr|5_step)", name)], defined
+
+
 # ---------------------------------------------------------------------------
 # Errors: the readable path's messages, with the step
 # ---------------------------------------------------------------------------

@@ -54,8 +54,8 @@ after the other."""
 JITTED_LOOP = ("sigma_points", "run")
 """The sigma-point loop compiled around numba-jitted f and h, once per
 signature of f and h (:func:`gaussfuse._kernels.sigma_points.loop_state`
-tells its state): what a filter with such a model runs instead of
-``ENTRY_POINTS["sigma_points"]``."""
+tells its state): what a filter with such a model runs besides
+``ENTRY_POINTS["sigma_points"]``, whose step it calls."""
 
 
 @lru_cache(maxsize=None)
@@ -167,7 +167,7 @@ def kernels(module: str, smoothing: bool = False, jitted: bool = False) -> tuple
         raise ValueError(f"`module` must be one of {sorted(ENTRY_POINTS)}; got {module!r}.")
     entries = ENTRY_POINTS[module]
     if jitted and module == "sigma_points":
-        entries = (JITTED_LOOP,)
+        entries += (JITTED_LOOP,)
     if smoothing:
         entries += (("_rts", "backward"),)
     return entries

@@ -33,15 +33,18 @@ Two execution modes, chosen per call (:func:`execution_mode`), drive it:
   *signature* of f and h (f(x) or f(x, u); array or scalar results; one
   state or a stack of states for ``vectorized=True``) and cached on disk,
   receives them as first-class function values and evaluates them itself,
-  so the whole forward pass is compiled. f and h must accept C-contiguous
-  float64 arrays and return float64 arrays (or a float when the output has
-  one component). A jitted function that does not fit (another return
-  type, a locked signature) runs in the Python mode, with the same results.
+  calling :func:`advance` (the Python mode's kernel) between them the same
+  way, through its address: the whole forward pass is compiled, and a new
+  signature of f and h compiles only the small loop (about a second), not
+  the step again (25 s). f and h must accept C-contiguous float64 arrays and
+  return float64 arrays (or a float when the output has one component). A
+  jitted function that does not fit (another return type, a locked
+  signature) runs in the Python mode, with the same results.
 * **python** -- plain Python f and h: the loop is Python, calling f and h
   once per sigma point (or once per step on the (k, n) stack when the model
   is vectorized) and :func:`advance` twice a step for everything between
-  (its arguments held in one structure, :func:`hold`, that numba unboxes
-  once for the whole run, not at every call).
+  (its arguments held, borrowed, in one structure, :func:`hold`, that numba
+  unboxes once for the whole run, not at every call).
 
 The square-root form (``form="sqrt"``: :func:`gaussfuse.kalman.step_sqrt`
 through SigmaPoints' ``transition_sqrt`` and ``measurement_sqrt``) runs the
@@ -583,28 +586,32 @@ structref.define_proxy(_Held, _HeldType, ["args"])
 
 @jit(**_JIT)
 def hold(cursor, prob, bel, out, w, gf, gh, fail):
-    """A :class:`_Held` of :func:`advance`'s arguments, made by compiled (and cached) code.
+    """A :class:`_Held` of :func:`advance`'s arguments, borrowed, made by compiled (and cached) code.
 
     ``_Held(...)`` called from Python would compile numba's constructor in
-    every process, uncached: seconds on a first call.
+    every process, uncached: seconds on a first call. The arguments are held
+    borrowed (:func:`._nrt.borrow`), so that taking them out costs no
+    reference counting (two atomic operations for each of about seventy
+    arrays, at every call): the caller keeps them alive while the
+    :class:`_Held` is in use.
     """
-    return _Held((cursor, prob, bel, out, w, gf, gh, fail))
+    return _Held(borrow((cursor, prob, bel, out, w, gf, gh, fail)))
 
 
 @jit(inline="always", **_JIT)
 def _advance_held(held, Y):
-    cursor, prob, bel, out, w, gf, gh, fail = held.args
-    cursor, Y, prob, bel, out, w, gf, gh, fail = borrow((cursor, Y, prob, bel, out, w, gf, gh, fail))
-    return _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
+    cursor, prob, bel, out, w, gf, gh, fail = held.args  # borrowed already (see hold)
+    return _advance(cursor, borrow(Y), prob, bel, out, w, gf, gh, fail)
 
 
 @jit(**_JIT)
 def advance(held, Y):
-    """The Python mode's kernel: :func:`_advance` with f's or h's values `Y` (k, n or m) from the caller.
+    """The step's kernel: :func:`_advance` with f's or h's values `Y` (k, n or m) from the caller.
 
-    `held` (made by :func:`hold`) keeps the cursor, problem, belief,
-    outputs, workspace, regressions and failures. The caller holds every
-    array for the call (see :mod:`._nrt`).
+    Called from Python in the Python mode, and from :func:`run`, through its
+    address, in the compiled mode. `held` (made by :func:`hold`) keeps the
+    cursor, problem, belief, outputs, workspace, regressions and failures.
+    The caller holds every array for the call (see :mod:`._nrt`).
     """
     return _advance_held(held, Y)
 
@@ -690,17 +697,21 @@ def _apply_overload(fn, X, us, s, k, Y, cursor):
     return impl
 
 
-def run(f, h, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail):
-    """The compiled mode's kernel: :func:`_advance`, evaluating f and h itself (see the module notes).
+def run(f, h, step, us, held, Yf, Yh):
+    """The compiled mode's kernel: :func:`advance` (`step`), evaluating f and h itself (see the module notes).
 
-    Returns DONE, NEED_ROOT or FAILED. While f or h runs, ``cursor.stage``
-    is FORECAST or CORRECT and ``cursor.step`` the step: what the caller
-    needs to name an exception raised in them.
+    f, h and `step` are first-class functions: called through their
+    addresses, so that this loop, compiled once per signature of f and h,
+    holds none of the step's code (compiling it is seconds, not the step's
+    half a minute). `held` is :func:`hold`'s. Returns DONE, NEED_ROOT or
+    FAILED. While f or h runs, ``cursor.stage`` is FORECAST or CORRECT and
+    ``cursor.step`` the step: what the caller needs to name an exception
+    raised in them.
     """
-    cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail = borrow((cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail))
+    cursor, prob, bel, out, w, gf, gh, fail = held.args
     Y = Yf
     while True:
-        status = _advance(cursor, Y, prob, bel, out, w, gf, gh, fail)
+        status = step(held, Y)
         s, t = cursor.series[0], cursor.step[0]
         if status == NEED_F:
             Y = Yf
@@ -726,13 +737,19 @@ def _loop_key(f_sig, h_sig, controls: bool, sqrt: bool) -> tuple:
     return f_sig, h_sig, controls, sqrt
 
 
-def _run_for(f_sig, h_sig, args) -> object:
-    """:func:`run` compiled for these function signatures and the types of `args` (compiled once, cached on disk)."""
-    key = _loop_key(f_sig, h_sig, args[0] is not None, isinstance(args[5], SqrtBelief))  # args[5]: the belief
+def _run_for(f_sig, h_sig, args, sqrt: bool) -> object:
+    """:func:`run` compiled for these function signatures and the types of `args` (compiled once, cached on disk).
+
+    `args` are :func:`run`'s after f, h and the step: ``(us, held, Yf, Yh)``; `sqrt`, the form.
+    """
+    us, held, Yf, _ = args
+    key = _loop_key(f_sig, h_sig, us is not None, sqrt)
     if key not in _LOOPS:
         from numba import typeof
 
-        sig = types.int64(types.FunctionType(f_sig), types.FunctionType(h_sig), *(typeof(a) for a in args))
+        held_t, Y_t = typeof(held), typeof(Yf)
+        sig = types.int64(types.FunctionType(f_sig), types.FunctionType(h_sig),
+                          types.FunctionType(types.int64(held_t, Y_t)), typeof(us), held_t, Y_t, Y_t)
         with warnings.catch_warnings():  # first-class function types are "experimental" in numba
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
             _LOOPS[key] = jit(sig, **_JIT)(run)
@@ -784,13 +801,19 @@ def loop_state(model, prior, us=None, form: str = "cov") -> str | None:
     key = _loop_key(sigs[0], sigs[1], us is not None, form == "sqrt")
     if key in _LOOPS:
         return "loaded"
-    for sig in cached_signatures(run):  # run(f, h, us, cursor, Yf, Yh, prob, bel, ...)
+    for sig in cached_signatures(run):  # run(f, h, step, us, held, Yf, Yh)
         args = sig.args
-        if (len(args) > 7 and args[0] == types.FunctionType(sigs[0]) and args[1] == types.FunctionType(sigs[1])
-                and (args[2] != types.none) == key[2]
-                and getattr(args[7], "instance_class", None) is (SqrtBelief if key[3] else Belief)):
+        if (len(args) == 7 and args[0] == types.FunctionType(sigs[0]) and args[1] == types.FunctionType(sigs[1])
+                and (args[3] != types.none) == key[2] and _held_form(args[4]) == key[3]):
             return "cached"
     return "cold"
+
+
+def _held_form(held_type) -> bool | None:
+    """Whether a :class:`_Held` type holds a :class:`SqrtBelief` (None: not a _Held's type)."""
+    fields = getattr(held_type, "field_dict", {}).get("args")
+    belief = fields[2] if isinstance(fields, types.BaseTuple) and len(fields) > 2 else None
+    return {SqrtBelief: True, Belief: False}.get(getattr(belief, "instance_class", None))
 
 
 def execution_mode(model, prior, us=None) -> str:
@@ -894,17 +917,19 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool =
     Yf, Yh = np.empty((k, n)), np.empty((k, m))
     sigs = _jitted_signatures(model, prior, us)
     if sigs is not None:
-        args = (us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail)
+        held = hold(cursor, prob, bel, out, w, gf, gh, fail)
+        args = (us, held, Yf, Yh)
         try:
-            kernel = _run_for(sigs[0], sigs[1], args)
+            kernel = _run_for(sigs[0], sigs[1], args, sqrt)
         except (TypeError, NumbaError):  # f or h do not convert to the signature: the Python mode runs them
             sigs = None
     if sigs is None:
         _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k, N)
         return out, bel
+    step = advance_sqrt if sqrt else advance
     while True:
         try:
-            status = kernel(model.f, model.h, *args)
+            status = kernel(model.f, model.h, step, *args)
         except Exception as exc:
             stage = int(cursor.stage[0])
             if stage not in (FORECAST, CORRECT):

@@ -47,12 +47,13 @@ START = {"loaded": 0.0, "cached": 1.0}
 """Starting the compiled kernels: already in this process, or loaded from numba's disk cache by a new
 process (numba's import and the load; ``benchmarks/first_call.py``, warm: 0.6-1.1 s)."""
 COMPILE = {"linear.forward": 14.0, "_rts.backward": 5.0, "sigma_points.advance": 28.0, "sigma_points.hold": 4.0,
-           "sigma_points.run": 27.0}
+           "sigma_points.run": 1.0}
 """Compiling each kernel with an empty cache, at the upper end of what this 2-core machine measured
 (numba's compile events, one fresh process and cache per call, 2026-12-01): the linear filter's loop
 11-12.5 s, the backward pass 3-5.4 s (a batch of series runs them too, on a pool of threads); the
-sigma-point engine's loop 24-27.5 s and the structure holding its arguments 3-3.6 s; the loop compiled
-around numba-jitted f and h 22-25 s for each of their signatures."""
+sigma-point engine's step 24-27.5 s and the structure holding its arguments 3-3.6 s; the loop compiled
+around numba-jitted f and h, which calls that step, 0.44-0.45 s for each of their signatures
+(2026-12-06: a first call with the step cached and the loop not, less the call with both cached)."""
 READABLE_STEP = {"linear": 2e-5, "sigma_points": 6e-5}
 """What the readable path spends on a filter step beyond the compiled one, at the low end of what was
 measured for small states (a smoother counts as two passes): the linear filter 18.5-42 µs a step
