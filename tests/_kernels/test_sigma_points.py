@@ -570,6 +570,19 @@ def test_the_loop_around_jitted_functions_is_loaded_cached_or_cold(tmp_path):
     assert probe_loop("sqrt", tmp_path) == "cold False"
 
 
+def test_both_modes_share_the_step_kernels_cache_entry():
+    """The compiled mode asked numba for the step kernel's address, a compile that numba's disk cache keys
+    apart from the Python mode's (with its return type): a new process running the other mode compiled the
+    step again (13 s)."""
+    from gaussfuse._kernels._jit import cached_signatures
+
+    for mode in ("plain", "jitted"):  # the session's warm-up ran the compiled mode first
+        model, prior, zs, us = toy_problem(0, mode)
+        assert_same(gf.filter(model, prior, zs, us, method="ukf", engine="numba"),
+                    gf.filter(model, prior, zs, us, method="ukf", engine="python"))
+    assert len(cached_signatures(sp.advance.py_func)) == 1
+
+
 def test_the_loop_around_jitted_functions_holds_none_of_the_step():
     """The loop compiled for each signature of f and h inlined the whole step (25 s of compiling for every
     new signature on a 2-core machine): it calls the step's kernel, compiled once, through its address, so

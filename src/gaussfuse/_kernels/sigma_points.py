@@ -927,6 +927,9 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool =
         _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k, N)
         return out, bel
     step = advance_sqrt if sqrt else advance
+    # Compiled (or loaded) as the Python mode calls it, before the loop asks for its address: numba's disk
+    # cache keys a compile for an address (with its return type) apart, and would compile the step twice.
+    entry_point(step, held, Yf)
     while True:
         try:
             status = kernel(model.f, model.h, step, *args)
