@@ -107,7 +107,7 @@ from .errors import ConvergenceWarning, ModelFunctionError
 from .gaussian import Gaussian
 from .inference.diffuse import NotIdentified, augmented_runs, diffuse_moments, not_identified
 from .inference.results import first
-from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch
+from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch, switch_step
 from .inference.registry import METHODS as _METHODS
 from .inference import chunked, frames, timing
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
@@ -651,7 +651,9 @@ def _add(a, b=None):
     return a + b
 
 
-def _em(model, prior, data, learn, structure, iterations, tol, callback, engine):
+def _em(model, prior, data, learn, structure, iterations, tol, callback, engine, switch=None):
+    """EM's iterations: the model and prior kept, the history, whether it converged, why it stopped, and the
+    engine of its last iteration (`engine` before iteration `switch`, when given, compiled from it on)."""
     history: list[float] = []
     fixed = {name: (_fixed_zeros(_current(model, prior, name), structure[name]) if name in learn else None)
              for name in COVARIANCES}
@@ -660,6 +662,8 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
     message, converged = f"stopped at the limit of {iterations} iterations", False
     try:
         for it in range(iterations + 1):
+            if switch is not None and it >= switch:
+                engine = "numba"
             try:
                 loglik, m_step = data.e_step(model, prior, learn, structure, fixed, engine)
             except NotIdentified as exc:
@@ -690,7 +694,7 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine)
             raise
         message = "interrupted: the best model so far"
     model, prior = best
-    return model, prior, np.array(history), converged, message
+    return model, prior, np.array(history), converged, message, engine
 
 
 def _check_regression_q(Q: np.ndarray) -> None:
@@ -1500,10 +1504,15 @@ def fit(
     callback : callable, optional
         ``callback(iteration, loglik)`` after each iteration (progress).
     engine : {"auto", "python", "numba"}, default "auto"
-        Engine of the filter and smoother runs; "auto" decides once for the
-        whole fit, compiling when the series have at least 1000 steps and
-        compiling (or loading from numba's disk cache) is expected to cost
-        less than the fit's passes on the readable path (:data:`FIT_PASSES`).
+        Engine of the filter and smoother runs; "auto" decides for the whole
+        fit, compiling when compiling (or loading from numba's disk cache)
+        is expected to cost less than the fit's passes on the readable path
+        (:data:`FIT_PASSES`, each over the steps of all series, times 1 + n
+        runs under a diffuse prior). An EM fit kept readable starts the
+        compiled kernels at the iteration where its readable iterations
+        would have paid for them (counted, not timed:
+        :func:`gaussfuse.inference.drivers.switch_step`), so that one that
+        takes many more iterations than expected is not held to the slower path.
     times : array_like, optional
         The measurements' times, as in :func:`gaussfuse.filter`: a
         TimedModel (:func:`gaussfuse.model` without dt) is discretised for
@@ -1605,11 +1614,15 @@ def fit(
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {list(ENGINES)}; got {engine!r}.")
     tol = real("tol", (1e-10 if method == "em" else _MLE_GTOL) if tol is None else tol, nonnegative=True)
-    if engine == "auto":  # decided once for the whole fit, on the whole work it is expected to do
+    switch = None  # the EM iteration from which "auto" runs compiled after all
+    if engine == "auto":  # decided for the whole fit, on the whole work it is expected to do
+        runs = 1 + model.n if isinstance(prior, str) else 1  # a diffuse prior: a base run and n sensitivity runs
+        steps = zs.shape[0] * zs.shape[1] * runs
         passes = 3 * iterations if tol == 0 else min(FIT_PASSES[method], 3 * iterations)
-        compiled = compiled_engine(_METHODS["kf"], "auto", zs.shape[0] * zs.shape[1] * passes, 1.0,
-                                   smoothing=True)
+        compiled = compiled_engine(_METHODS["kf"], "auto", steps * passes, 1.0, smoothing=True)
         engine = "python" if compiled is None else "numba"
+        if engine == "python" and method == "em":  # EM may take many more iterations than expected
+            switch = switch_step("linear", True, 3 * steps)
     if callback is not None and not callable(callback):
         raise TypeError(f"`callback` must be callable as callback(iteration, loglik); got {type(callback).__name__}.")
     if params is not None:
@@ -1635,8 +1648,8 @@ def fit(
     # Overflows (measurements or matrices near float64's limits) are not warnings: the result is checked below.
     with np.errstate(over="ignore", invalid="ignore"):
         if method == "em":
-            model, prior, history, converged, message = _em(model, prior, data, learn, structure, iterations,
-                                                            tol, callback, engine)
+            model, prior, history, converged, message, engine = _em(model, prior, data, learn, structure,
+                                                                    iterations, tol, callback, engine, switch)
             try:
                 build = _Parametrisation(model, prior, learn, structure)
             except ValueError:  # a learned full covariance became singular: no information matrix

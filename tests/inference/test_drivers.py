@@ -492,6 +492,21 @@ def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatc
     assert len(seen) <= 1
 
 
+@pytest.mark.parametrize("state, steps, first", [
+    ("loaded", 600, 1),     # nothing to pay, but rounds under 1000 steps stay readable: the second round
+    ("loaded", 5_000, 0),
+    ("cached", 600, 83),    # loading (1 s) against 600 * 2e-5 s a round: paid by the 84th round
+    ("cold", 600, 1583),    # compiling (14 + 5 s)
+])
+def test_a_loop_of_readable_rounds_starts_the_kernels_once_they_would_have_paid(monkeypatch, state, steps, first):
+    from gaussfuse.inference import drivers
+
+    pytest.importorskip("numba")
+    monkeypatch.setattr(drivers, "kernel_states", lambda module, smoothing=False: dict.fromkeys(
+        [("linear", "forward"), ("_rts", "backward")], state))
+    assert drivers.switch_step("linear", True, steps) == first
+
+
 def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     """A filter asks about the forward kernel, a smoother and a fit about the backward pass too."""
     from gaussfuse._kernels import linear  # noqa: F401  (imported: otherwise short calls skip asking)
@@ -507,8 +522,8 @@ def test_auto_weighs_the_kernels_a_call_runs(monkeypatch):
     gf.smooth(model, prior, y)
     gf.smooth(model, prior, y[0])  # 500 steps: readable without asking
     with pytest.warns(ConvergenceWarning):
-        gf.fit(model, prior, np.zeros(1200), iterations=2)
-    assert seen == [("linear", False, None), ("linear", True, None), ("linear", True, None)]
+        gf.fit(model, prior, np.zeros(1200), iterations=2)  # and again for EM's iteration to start them
+    assert seen == [("linear", False, None), ("linear", True, None), ("linear", True, None), ("linear", True)]
 
 
 SHORT_DECISION = """

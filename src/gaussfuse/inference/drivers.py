@@ -349,6 +349,20 @@ def start_seconds(states: dict) -> float:
     return cold + (START["cached"] if "cached" in states.values() else START["loaded"])
 
 
+def switch_step(module: str, smoothing: bool, steps: int) -> int | None:
+    """For a loop whose every round runs `steps` steps (all series and passes together), the first round
+    (0-based) that "auto" runs compiled: once the readable rounds before it and it would have paid for starting
+    `module`'s kernels (:func:`start_seconds` against :data:`READABLE_STEP`), as :data:`_SPENT` does across
+    calls, and not before those rounds reach :data:`AUTO_NUMBA_STEPS` steps. None without numba.
+
+    Counted, not timed: the same data and cache give the same rounds on each engine, on any machine.
+    """
+    if importlib.util.find_spec("numba") is None or steps <= 0:
+        return None
+    start = start_seconds(kernel_states(module, smoothing))
+    return max(int(np.ceil(AUTO_NUMBA_STEPS / steps)), int(np.ceil(start / (steps * READABLE_STEP[module])))) - 1
+
+
 def _worth_compiling(module: str, steps: int, passes: float, smoothing: bool,
                      loop: Callable[[], str | None] | None) -> bool:
     """Whether starting `module`'s kernels costs less than the readable path would spend on its passes
