@@ -477,7 +477,7 @@ def test_em_diagonal_variances_are_never_negative():
     start = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2))
     history = []
     res = gf.fit(start, PRIOR, zs, learn=("Q", "R"), structure={"Q": "diagonal", "R": "diagonal"},
-                 iterations=3000, tol=0.0, callback=lambda it, ll: history.append(ll))
+                 iterations=1000, tol=0.0, callback=lambda it, ll: history.append(ll))
     assert np.all(np.diag(res.model.Q) >= 0.0) and np.all(np.diag(res.model.R) >= 0.0)
     assert res.model.Q[1, 1] < 1e-4
     assert np.all(np.diff(history) >= -1e-8 * abs(history[-1]))
