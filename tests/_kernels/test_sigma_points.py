@@ -538,20 +538,22 @@ import numba, numpy as np, gaussfuse as gf
 from gaussfuse._kernels import jitted_loop_state
 f, h = numba.njit(lambda x: x * 1.0), numba.njit(lambda x: np.sin(x[:1]))
 model = gf.NonlinearModel(f, h, np.eye(2), 1.0)
-state = jitted_loop_state(model, gf.Gaussian([0.0, 0.0], np.eye(2)), form=sys.argv[1])
-print(state, "gaussfuse._kernels.sigma_points" in sys.modules)
+for form in sys.argv[1:]:
+    state = jitted_loop_state(model, gf.Gaussian([0.0, 0.0], np.eye(2)), form=form)
+    print(state, "gaussfuse._kernels.sigma_points" in sys.modules)
 """
 
 
-def probe_loop(form: str, cache_dir=None) -> str:
-    """The loop's state in a new process, and whether telling it imported the sigma-point engine."""
+def probe_loop(forms: list[str], cache_dir=None) -> list[str]:
+    """The loop's state for each form in turn, in a new process, and whether telling it had imported the
+    sigma-point engine by then."""
     env = dict(os.environ)
     if cache_dir is not None:
         env["NUMBA_CACHE_DIR"] = str(cache_dir)
-    child = subprocess.run([sys.executable, "-c", LOOP_PROBE, form], env=env, capture_output=True, text=True,
+    child = subprocess.run([sys.executable, "-c", LOOP_PROBE, *forms], env=env, capture_output=True, text=True,
                            timeout=600)
     assert child.returncode == 0, child.stderr
-    return child.stdout.strip().splitlines()[-1]
+    return child.stdout.strip().splitlines()[-len(forms):]
 
 
 def test_the_loop_around_jitted_functions_is_loaded_cached_or_cold(tmp_path):
@@ -563,11 +565,11 @@ def test_the_loop_around_jitted_functions_is_loaded_cached_or_cold(tmp_path):
     assert sp.loop_state(model, prior) == "loaded"
     assert sp.loop_state(model, prior, us=np.zeros((1, 5, 1))) != "loaded"  # f(x, u): another signature
     assert sp.loop_state(pendulum_model("plain"), prior) is None  # the Python mode's kernels instead
-    assert probe_loop("cov") == "cached True"  # a new process, with this one's cache
-    assert probe_loop("sqrt") in ("cached True", "cold True")  # as other tests left the cache
+    cov, sqrt = probe_loop(["cov", "sqrt"])  # a new process, with this one's cache
+    assert cov == "cached True"
+    assert sqrt in ("cached True", "cold True")  # as other tests left the cache
     # nothing compiled anywhere: "cold", without importing the engine (so that a readable call pays nothing)
-    assert probe_loop("cov", tmp_path) == "cold False"
-    assert probe_loop("sqrt", tmp_path) == "cold False"
+    assert probe_loop(["cov", "sqrt"], tmp_path) == ["cold False", "cold False"]
 
 
 def test_both_modes_share_the_step_kernels_cache_entry():
