@@ -35,7 +35,7 @@ Two execution modes, chosen per call (:func:`execution_mode`), drive it:
   receives them as first-class function values and evaluates them itself,
   calling :func:`advance` (the Python mode's kernel) between them the same
   way, through its address: the whole forward pass is compiled, and a new
-  signature of f and h compiles only the small loop (about a second), not
+  signature of f and h compiles only the small loop (0.45 s here), not
   the step again (25 s). f and h must accept C-contiguous float64 arrays and
   return float64 arrays (or a float when the output has one component). A
   jitted function that does not fit (another return type, a locked
@@ -702,7 +702,7 @@ def run(f, h, step, us, held, Yf, Yh):
 
     f, h and `step` are first-class functions: called through their
     addresses, so that this loop, compiled once per signature of f and h,
-    holds none of the step's code (compiling it is seconds, not the step's
+    holds none of the step's code (compiling it takes under a second, not the step's
     half a minute). `held` is :func:`hold`'s. Returns DONE, NEED_ROOT or
     FAILED. While f or h runs, ``cursor.stage`` is FORECAST or CORRECT and
     ``cursor.step`` the step: what the caller needs to name an exception
