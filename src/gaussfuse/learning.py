@@ -107,7 +107,7 @@ from .errors import ConvergenceWarning, ModelFunctionError
 from .gaussian import Gaussian
 from .inference.diffuse import NotIdentified, augmented_runs, diffuse_moments, not_identified
 from .inference.results import first
-from .inference.drivers import ENGINES, compiled_engine, filter_batch, smooth_batch, switch_step
+from .inference.drivers import AUTO_NUMBA_STEPS, ENGINES, compiled_engine, filter_batch, smooth_batch, switch_step
 from .inference.registry import METHODS as _METHODS
 from .inference import chunked, frames, timing
 from .inference.validation import check_controls, check_measurements, check_prior, check_steps
@@ -1621,7 +1621,8 @@ def fit(
         passes = 3 * iterations if tol == 0 else min(FIT_PASSES[method], 3 * iterations)
         compiled = compiled_engine(_METHODS["kf"], "auto", steps * passes, 1.0, smoothing=True)
         engine = "python" if compiled is None else "numba"
-        if engine == "python" and method == "em":  # EM may take many more iterations than expected
+        # EM may take many more iterations than expected; a fit expected to be short stays readable (its bits)
+        if engine == "python" and method == "em" and steps * passes >= AUTO_NUMBA_STEPS:
             switch = switch_step("linear", True, 3 * steps)
     if callback is not None and not callable(callback):
         raise TypeError(f"`callback` must be callable as callback(iteration, loglik); got {type(callback).__name__}.")

@@ -493,8 +493,8 @@ def test_auto_compiles_only_when_it_costs_less_than_the_readable_path(monkeypatc
 
 
 @pytest.mark.parametrize("state, steps, first", [
-    ("loaded", 600, 1),     # nothing to pay, but rounds under 1000 steps stay readable: the second round
-    ("loaded", 5_000, 0),
+    ("loaded", 600, 2),     # nothing to pay, but not before 1000 readable steps: the third round
+    ("loaded", 5_000, 1),
     ("cached", 600, 83),    # loading (1 s) against 600 * 2e-5 s a round: paid by the 84th round
     ("cold", 600, 1583),    # compiling (14 + 5 s)
 ])

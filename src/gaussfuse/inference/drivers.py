@@ -353,14 +353,15 @@ def switch_step(module: str, smoothing: bool, steps: int) -> int | None:
     """For a loop whose every round runs `steps` steps (all series and passes together), the first round
     (0-based) that "auto" runs compiled: once the readable rounds before it and it would have paid for starting
     `module`'s kernels (:func:`start_seconds` against :data:`READABLE_STEP`), as :data:`_SPENT` does across
-    calls, and not before those rounds reach :data:`AUTO_NUMBA_STEPS` steps. None without numba.
+    calls, and not before the readable rounds have run :data:`AUTO_NUMBA_STEPS` steps. None without numba.
 
-    Counted, not timed: the same data and cache give the same rounds on each engine, on any machine.
+    Counted, not timed: the same data and cache give the same rounds on each engine, on any machine. (A
+    caller whose whole loop is expected to run fewer than :data:`AUTO_NUMBA_STEPS` steps does not ask.)
     """
     if importlib.util.find_spec("numba") is None or steps <= 0:
         return None
     start = start_seconds(kernel_states(module, smoothing))
-    return max(int(np.ceil(AUTO_NUMBA_STEPS / steps)), int(np.ceil(start / (steps * READABLE_STEP[module])))) - 1
+    return max(int(np.ceil(AUTO_NUMBA_STEPS / steps)), int(np.ceil(start / (steps * READABLE_STEP[module]))) - 1)
 
 
 def _worth_compiling(module: str, steps: int, passes: float, smoothing: bool,
