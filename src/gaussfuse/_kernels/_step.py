@@ -249,15 +249,15 @@ def sqrt_workspace(n, m, k=0):
 
 
 @register_jitable(**_JIT)
-def _scaled_norm(W, r, cols):
-    """_linalg._scaled_norm of ``W[r, :cols]``."""
+def _scaled_norm(W, r, lo, hi):
+    """The norm of ``W[r, lo:hi]``, scaled by its largest entry so that it neither overflows nor underflows."""
     top = 0.0
-    for j in range(cols):
+    for j in range(lo, hi):
         top = max(top, abs(W[r, j]))
     if top == 0.0:
         return 0.0
     ss = 0.0
-    for j in range(cols):
+    for j in range(lo, hi):
         t = W[r, j] / top
         ss += t * t
     return top * math.sqrt(ss)
@@ -268,16 +268,8 @@ def in_pivot_order(L, k):
     """_linalg.in_pivot_order of ``L[:k, :k]``."""
     for i in range(k - 1):
         for r in range(i + 1, k):
-            top = 0.0
-            for j in range(i, k):
-                top = max(top, abs(L[r, j]))
-            if top == 0.0:
-                continue
-            ss = 0.0
-            for j in range(i, k):
-                t = L[r, j] / top
-                ss += t * t
-            if L[i, i] <= 0.0 or math.frexp(top * math.sqrt(ss))[1] > math.frexp(L[i, i])[1]:
+            tail = _scaled_norm(L, r, i, k)
+            if tail > 0.0 and (L[i, i] <= 0.0 or math.frexp(tail)[1] > math.frexp(L[i, i])[1]):
                 return False
     return True
 
@@ -293,7 +285,7 @@ def pivot_order(M, rows, cols, W, order):
     for i in range(rows):  # order[i:] are left, in their order
         best, pick, size = -(2**31), i, 0.0
         for a in range(i, rows):
-            x = _scaled_norm(W, order[a], cols)
+            x = _scaled_norm(W, order[a], 0, cols)
             b = math.frexp(x)[1] if x > 0.0 else -(2**31)
             if b > best:
                 best, pick, size = b, a, x
