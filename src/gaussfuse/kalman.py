@@ -435,7 +435,10 @@ def rts_step(
     singular (no process noise on a degenerate belief) it is a
     least-squares solution, on :math:`P^-_{k+1}` scaled to unit diagonal
     so that states on small scales are kept (:func:`gaussfuse._linalg.psd_solve`),
-    which is still the exact conditional.
+    which is still the exact conditional. A singular :math:`P^-_{k+1}` fixes
+    the gain only on its range (:math:`G_k P^-_{k+1} = C_{k+1}`), which is all
+    the mean and covariance use; off it, the gain depends on whether a pivot
+    of round-off is taken for zero.
     """
     gain = psd_solve(pred_cov, cross_cov.T).T
     diff = wrap_components(next_mean - pred_mean, angles)

@@ -147,7 +147,13 @@ class SmoothResult:
     covs : ndarray of shape (T, n, n)
         Smoothed covariances.
     gains : ndarray of shape (T - 1, n, n)
-        Smoother gains ``G_k``, k = 0..T-2.
+        Smoother gains ``G_k``, k = 0..T-2. Where the prediction ``P⁻_{k+1}``
+        is singular (no process noise on a degenerate belief), ``G_k`` is
+        fixed only on its range: ``G_k P⁻_{k+1}`` is the cross-covariance, and
+        the smoothed moments and the lag-one covariance ``G_k P^s_{k+1}`` use
+        no more than that. Off the range, whether a direction of round-off
+        counts as singular turns on the last bits of ``P⁻_{k+1}``, so the two
+        engines can differ there (by O(1)) while agreeing on all of these.
     filtered : FilterResult
         The forward pass.
     iterations : int or None
