@@ -1008,16 +1008,45 @@ def rts_step_sqrt(filt_mean: np.ndarray, filt_factor: np.ndarray, next_mean: np.
     zero pivots join X: they are spread of :math:`x_k` that
     :math:`x_{k+1}` does not see, :math:`P_k - G_k P^- G_k^\top = X X^\top
     + Y_0 Y_0^\top` (a state that copies another, for example).
+
+    With negative terms in the noise (a sigma-point regression's negative
+    centre weight), the joint covariance is positive semi-definite only
+    where :math:`L_Q L_Q^\top - D_Q D_Q^\top` is, which the prediction does
+    not need. Where the downdate of the joint factor finds it indefinite,
+    the prediction's factor is downdated alone, :math:`Y = P_k A^\top
+    (L^-)^{-\top}`, and :math:`L^s_k` is :math:`\operatorname{tria}[L_k,\;
+    G_k L^s_{k+1}]` downdated by the columns of Y at non-zero pivots:
+    :math:`P^s_k = P_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^\top`, the
+    covariance form's step, which raises only where that is not positive
+    semi-definite.
     """
     n = filt_mean.shape[0]
-    pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus)
+    try:
+        pred_mean, pred_factor, Y, X = joint_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus)
+    except np.linalg.LinAlgError:
+        if Q_minus is None:
+            raise
+        pred_mean, pred_factor, Y, X = _prediction_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus)
     zero = singular_pivots(pred_factor, filt_factor, A, Q_minus)
     rhs = np.concatenate([wrap_components(next_mean - pred_mean, angles)[:, None], next_factor, eye(n)], axis=1)
     steps = Y @ factor_solve(pred_factor, rhs, zero)  # Y (L⁻)⁻¹ [m^s - m⁻, L^s, I]
     mean = filt_mean + steps[:, 0]
+    if X is None:  # P_k - G P⁻ Gᵀ = L_k L_kᵀ - Y_1 Y_1ᵀ, Y_1 the columns of Y at the non-zero pivots of L⁻
+        factor = downdate(tria(np.concatenate([filt_factor, steps[:, 1:n + 1]], axis=1)), Y[:, ~zero],
+                          "the smoothed covariance")
+        return mean, factor, steps[:, n + 1:]
     # Y's columns at zero pivots of L⁻ are spread of x_k that x_{k+1} does not see: P_k - G P⁻ Gᵀ = X Xᵀ + Y_0 Y_0ᵀ
     factor = tria(np.concatenate([X, Y[:, zero], steps[:, 1:n + 1]], axis=1))
     return mean, factor, steps[:, n + 1:]
+
+
+def _prediction_factor(filt_mean, filt_factor, A, Q_factor, b, Q_minus):
+    """:func:`joint_factor`'s prediction and Y, with X None, where the joint covariance is indefinite (see rts_step_sqrt)."""
+    pred_factor = downdate(tria(np.concatenate([A @ filt_factor, Q_factor], axis=1)), Q_minus,
+                           "the predicted covariance")
+    zero = singular_pivots(pred_factor, filt_factor, A, Q_minus)
+    Y = factor_solve(pred_factor, (A @ filt_factor) @ filt_factor.T, zero).T  # Y (L⁻)ᵀ = P_k Aᵀ
+    return predict_mean(filt_mean, A, b), pred_factor, Y, None
 
 
 def singular_pivots(pred_factor: np.ndarray, filt_factor: np.ndarray, A: np.ndarray,

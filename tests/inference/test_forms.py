@@ -743,6 +743,37 @@ def test_sigma_point_square_root_forms_equal_their_covariance_forms(method, opti
         assert np.array_equal(L, np.tril(L)) and (np.diagonal(L, axis1=1, axis2=2) >= 0).all()
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_the_square_root_smoother_takes_a_joint_covariance_made_indefinite_by_a_negative_weight(engine):
+    """kappa = -3 on four states puts a weight of -3 on the centre point. At step 8 the regression's residual
+    spread less that point's term is indefinite, and so is the joint covariance of two successive states, though
+    the prediction and the smoothed covariance are not: the square-root smoother's downdate of the joint factor
+    raised ("component 6 a variance of -3.69e-06") where the covariance form smooths. It now takes the covariance
+    form's step there, on factors; where the smoothed covariance itself is indefinite (kappa = -3.5: an
+    eigenvalue of -3e-3) it raises, naming it."""
+    def f(x):
+        return np.array([x[0] + 0.1 * x[2], x[1] + 0.1 * x[3], x[2] * np.cos(0.2 * x[3]), x[3] + 0.05 * np.sin(x[0])])
+
+    def h(x):
+        return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+    r, track = 0.059, 10.0 + 0.1 * np.arange(30)
+    zs = np.column_stack([np.hypot(track, 5.0), np.arctan2(5.0, track)])
+    zs += np.random.default_rng(0).standard_normal((30, 2)) * [np.sqrt(r), 0.1 * np.sqrt(r)]
+    model = gf.NonlinearModel(f, h, 4.4e-6 * np.eye(4), np.diag([r, 0.01 * r]), measurement_angles=[1])
+    prior = gf.Gaussian([10.0, 5.0, 1.0, 0.5], 3.5 * np.eye(4))
+    options = dict(method="ukf", alpha=1.0, check="off")
+    a = gf.smooth(model, prior, zs, form="sqrt", engine=engine, kappa=-3.0, **options)
+    b = gf.smooth(model, prior, zs, form="cov", engine="python", kappa=-3.0, **options)
+    np.testing.assert_allclose(a.means, b.means, rtol=0, atol=1e-9 * np.abs(b.means).max())
+    np.testing.assert_allclose(a.covs, b.covs, rtol=0, atol=1e-9 * np.abs(b.covs).max())
+    np.testing.assert_allclose(a.gains @ a.filtered.predicted_covs[1:], b.gains @ b.filtered.predicted_covs[1:],
+                               rtol=0, atol=1e-9 * np.abs(b.covs).max())
+    assert np.array_equal(a.cov_factors, np.tril(a.cov_factors))
+    with pytest.raises(np.linalg.LinAlgError, match="at step 2: the smoothed covariance is not positive semi-def"):
+        gf.smooth(model, prior, zs, form="sqrt", engine=engine, kappa=-3.5, **options)
+
+
 def known_gravity():
     """A pendulum whose third state, g, is known exactly and has no process noise: (model, prior, zs)."""
     dt = 0.1
