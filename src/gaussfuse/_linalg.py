@@ -185,8 +185,8 @@ UNRESOLVED = 8 * _EPS
 """A standard deviation at most this times the mean's size is below what sigma points resolve (:func:`sqrt_cov`)."""
 
 
-def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None,
-             name: str = "the covariance") -> tuple[np.ndarray, np.ndarray]:
+def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None, name: str = "the covariance",
+             weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The square root that draws sigma points: lower-triangular ``L Lᵀ = cov``, and its nonzero columns.
 
     Cholesky when `cov` is positive definite, else :func:`semidefinite_cholesky`,
@@ -203,7 +203,9 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None,
     such a variance (1e-32, round-off of 0), with round-off correlations
     that, divided by its square root, made the regression's slope 1e16.
     `name` says what `cov` is in the error when it is not positive
-    semi-definite.
+    semi-definite; with the sigma-point rule's covariance `weights`, the
+    error says when one is negative, which can make a regression's
+    residual spread, and the covariances it adds to, indefinite.
 
     Returns
     -------
@@ -222,7 +224,12 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None,
         try:
             L = semidefinite_cholesky(cov)
         except np.linalg.LinAlgError as exc:  # named: which covariance the points are drawn from, say
-            raise np.linalg.LinAlgError(str(exc).replace("the covariance", name, 1)) from None
+            why = "" if weights is None or weights.min() >= 0.0 else (
+                f". The rule weighs a point negatively ({weights.min():.3g}), so a regression's residual spread, "
+                "and a covariance it adds to, can be indefinite: the unscented rule's weights are all positive "
+                "with alpha = 1 and kappa >= 0 (its default, 3 - n, is negative past three states), and the "
+                "cubature rule's always are (method='ckf')")
+            raise np.linalg.LinAlgError(str(exc).replace("the covariance", name, 1) + why) from None
         return L, np.diag(L) > 0.0
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
 

@@ -760,6 +760,26 @@ def test_innovation_covariance_not_positive_definite(mode):
                method="ckf", match=r"at step 0: .* factorised: \[\[0\.\]\]")
 
 
+def turning_f(x):
+    return np.array([x[0] + 0.1 * x[2], x[1] + 0.1 * x[3], x[2] * np.cos(0.2 * x[3]), x[3] + 0.05 * np.sin(x[0])])
+
+
+def range_bearing(x):
+    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+
+def test_a_prediction_made_indefinite_by_a_negative_weight_says_how_to_keep_the_weights_positive():
+    """kappa = -3.5 on four states weighs the centre point -7: the regression's residual spread is indefinite,
+    and so is the prediction (an eigenvalue of -1.1e-4). The error named the prediction, not the cause."""
+    model = gf.NonlinearModel(turning_f, range_bearing, 4.4e-6 * np.eye(4), np.diag([0.059, 0.00059]),
+                              measurement_angles=[1])
+    zs = range_bearing(np.array([10.0, 5.0]))[None] + np.zeros((3, 2))
+    same_error(np.linalg.LinAlgError, model, gf.Gaussian([10.0, 5.0, 1.0, 0.5], 30.0 * np.eye(4)), zs,
+               method="ukf", kappa=-3.5, check="off",
+               match=r"at step 1: the predicted covariance is not positive semi-definite .* weighs a point "
+                     r"negatively \(-7\).* kappa >= 0 .*\(method='ckf'\)")
+
+
 def test_singular_prior_without_noise_fails_like_the_readable_path():
     """Singular covariances take the Python mode's square root; then S = 0 cannot be factorised."""
     model = gf.NonlinearModel(identity_jit, first_jit, np.zeros((2, 2)), 0.0)

@@ -851,12 +851,13 @@ def _evaluate(name, fn, X, Y, u, vectorized):
     return call_each(name, fn, X, args, Y.shape[1], finite=False)
 
 
-def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int) -> None:
+def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int, weights: np.ndarray) -> None:
     """The semi-definite square root of the covariance the stopped draw needs (kalman's sqrt_cov), into gf or gh."""
     stage = int(cursor.stage[0])
     mean, cov, g = (bel.mean, bel.cov, gf) if stage == DRAW_F else (bel.pmean, bel.pcov, gh)
     try:
-        L, keep = sqrt_cov(cov, mean, "the filtered covariance" if stage == DRAW_F else "the predicted covariance")
+        L, keep = sqrt_cov(cov, mean, "the filtered covariance" if stage == DRAW_F else "the predicted covariance",
+                           weights)
     except np.linalg.LinAlgError as exc:
         raise np.linalg.LinAlgError(f"{where(int(cursor.series[0]), int(cursor.step[0]), N)}: {exc}") from exc
     g.L[...] = L
@@ -944,7 +945,7 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool =
                 where_ = where(int(cursor.series[0]), int(cursor.step[0]), N)
                 raise ModelFunctionError(f"{where_}: {err}") from err
         if status == NEED_ROOT:
-            _give_root(cursor, bel, gf, gh, N)
+            _give_root(cursor, bel, gf, gh, N, prob.rule.wc)
         elif status == FAILED:
             _raise_failed(cursor, fail, model, k, N)
         else:
@@ -970,7 +971,7 @@ def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: 
             except ModelFunctionError as exc:
                 raise ModelFunctionError(f"{where(s, t, N)}: {exc}") from exc
         elif status == NEED_ROOT:
-            _give_root(cursor, bel, gf, gh, N)
+            _give_root(cursor, bel, gf, gh, N, prob.rule.wc)
         elif status == FAILED:
             _raise_failed(cursor, fail, model, k, N)
         else:

@@ -126,7 +126,7 @@ def slr(
     >>> print(np.round(A @ mean + b, 5))
     [0.96631]
     """
-    L, keep = sqrt_cov(cov, mean, name)
+    L, keep = sqrt_cov(cov, mean, name, rule.wc)
     y_mean, dY = _spread(g, rule, mean, L, angles)
     weighted = dY * rule.wc[:, None]
     points = rule.points if keep.all() else rule.points[:, keep]  # (over the nonzero columns only)
