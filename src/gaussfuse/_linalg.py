@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "unseen_slopes", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -245,31 +245,60 @@ def unresolved(variances: list[float], mean: np.ndarray) -> list[int]:
     return [j for j, (v, t) in enumerate(zip(variances, spreads)) if v <= t * t]
 
 
-def unseen_slopes(H: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> list[int]:
-    r"""The components along which a belief has no spread (:data:`UNRESOLVED`) and the slope `H` there is 0.
+def unseen_directions(mean: np.ndarray, cov: np.ndarray, scale: np.ndarray) -> np.ndarray | None:
+    r"""The projector onto the directions in which a belief has no spread, as a regression at it sees them.
 
-    A regression at such a belief (:func:`sqrt_cov`'s zero column) cannot
-    see a function's slope along them and gives 0: for a sensor with zero
-    variance, :math:`S = H P H^\top + R` is then singular. A caller that
-    linearised with spread there before passes that slope to
-    :func:`with_slopes`. A slope of 0 where there is spread is the
-    function's own.
+    A regression at a belief (the points of :func:`sqrt_cov`'s factor L)
+    sees a function's slope only along the range of L: not along a
+    component known exactly, nor along a combination of components (after
+    a sensor of :math:`x_0 + x_2` with zero variance the posterior has no
+    spread along that sum, though every component has some). For a sensor
+    with zero variance, that slope applied to a belief with spread leaves
+    :math:`S = H P H^\top + R` singular, or wrong. A caller that linearised
+    with spread there before passes that slope to :func:`with_slopes`.
+
+    Parameters
+    ----------
+    mean : array of shape (n,)
+    cov : array of shape (n, n)
+        The belief the regression is made at.
+    scale : array of shape (n,)
+        Standard deviations of a belief with spread (the prediction's): the
+        directions are orthogonal to the range of L in these units, so that
+        they do not depend on the components' own.
+
+    Returns
+    -------
+    array of shape (n, n), or None where the belief has spread in every direction
+        :math:`M = D N N^\top D^{-1}`, with N an orthonormal basis of the
+        complement of the range of :math:`D^{-1} L` and
+        :math:`D = \operatorname{diag}(scale)` (1 where a scale is 0):
+        :math:`M L = 0`, and M is the identity on :math:`D N`.
     """
-    return [j for j in unresolved(cov.diagonal().tolist(), mean) if not H[:, j].any()]
+    L, keep = sqrt_cov(cov, mean)
+    if keep.all():
+        return None
+    unit = np.where(scale > 0.0, scale, 1.0)
+    basis = np.linalg.qr(L[:, keep] / unit[:, None], mode="complete")[0][:, int(keep.sum()):]
+    return (basis * unit[:, None]) @ (basis.T / unit[None, :])
 
 
 def with_slopes(H: np.ndarray, d: np.ndarray, slopes: np.ndarray, mean: np.ndarray,
-                columns: list[int]) -> tuple[np.ndarray, np.ndarray]:
-    r"""``(H, d)`` with the `columns` of `slopes` in place of H's, the line still through ``H m + d`` at `mean`.
+                unseen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""``(H, d)`` with the slopes `slopes` along the unseen directions, H's elsewhere, still through ``H m + d`` at `mean`.
 
-    :math:`H'_j = S_j`, :math:`d' = d - \sum_j S_j m_j` over the replaced
-    columns j, where :math:`H_j = 0` (:func:`unseen_slopes`).
+    With `unseen` the projector M of :func:`unseen_directions`,
+
+    .. math::
+
+        H' = H + (S - H) M, \qquad d' = d - (S - H) M m,
+
+    so that :math:`H' L = H L` (the regression's slope where its belief
+    has spread) and :math:`H' = S` on the unseen directions. For a linear
+    function, H and S agree along L's range and H' is its matrix.
     """
-    if not columns:
-        return H, d
-    H = H.copy()
-    H[:, columns] = slopes[:, columns]
-    return H, d - slopes[:, columns] @ mean[columns]
+    change = (slopes - H) @ unseen
+    return H + change, d - change @ mean
 
 
 def tria(M: np.ndarray) -> np.ndarray:

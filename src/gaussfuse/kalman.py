@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
-                      pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_slopes, whiten,
+                      pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions, whiten,
                       with_slopes, wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
@@ -1699,13 +1699,15 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     changed = iterate_changed(cov, mean) if tol is not None else None
     passes, converged = iterations, changed is None
     slope = None
+    regresses, scale = getattr(lin, "needs_spread", False), np.sqrt(np.diagonal(cov).clip(min=0.0))
     for i in range(iterations):
         # linearised at the previous posterior on the prediction's side of ±π: the affine map is applied to the
         # prediction, and one made at the wrapped point would be 2π off there
         point = near(post_mean, mean, state_angles)
         H, d, R = lin.measurement(k, point, post_cov)
-        if slope is not None:  # a slope the posterior cannot see: the previous pass's (see unseen_slopes)
-            H, d = with_slopes(H, d, slope, point, unseen_slopes(H, point, post_cov))
+        unseen = unseen_directions(point, post_cov, scale) if slope is not None and regresses else None
+        if unseen is not None:  # a slope the posterior cannot see (a regression's): the previous pass's
+            H, d = with_slopes(H, d, slope, point, unseen)
         slope = H
         post = update(mean, cov, z, H, R, d, measurement_angles)
         previous, post_mean, post_cov = post_mean, post.mean, post.cov

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._linalg import near, unseen_slopes, with_slopes
+from .._linalg import near, unseen_directions, with_slopes
 
 __all__ = ["Exact", "Nominal"]
 
@@ -75,10 +75,11 @@ class Nominal:
 
     def measurement(self, k: int, mean: np.ndarray, cov: np.ndarray):
         """At the nominal state of time k + 1; a slope it has no spread to see is taken at the belief given (the
-        prediction), which has (:func:`gaussfuse._linalg.unseen_slopes`)."""
+        prediction), which has (:func:`gaussfuse._linalg.unseen_directions`)."""
         at = near(self.means[k + 1], mean, self.angles)
         H, d, R = self.strategy.measurement(k, at, self.covs[k + 1])
-        unseen = unseen_slopes(H, at, self.covs[k + 1])
-        if unseen:
-            H, d = with_slopes(H, d, self.strategy.measurement(k, mean, cov)[0], at, unseen)
+        if getattr(self.strategy, "needs_spread", False):
+            unseen = unseen_directions(at, self.covs[k + 1], np.sqrt(np.diagonal(cov).clip(min=0.0)))
+            if unseen is not None:
+                H, d = with_slopes(H, d, self.strategy.measurement(k, mean, cov)[0], at, unseen)
         return H, d, R

@@ -251,6 +251,9 @@ class SigmaPoints:
     the model is vectorized, otherwise once per point.
     """
 
+    needs_spread = True
+    """A regression sees a slope only where its belief has spread (:func:`gaussfuse._linalg.unseen_directions`)."""
+
     def __init__(self, model, rule: SigmaRule, us: np.ndarray | None = None) -> None:
         self.model, self.rule, self.us = model, rule, us
 
