@@ -188,6 +188,34 @@ def test_the_iplf_keeps_the_slope_along_a_combination_its_posterior_cannot_see(H
     np.testing.assert_allclose(smoothed.covs, want["smoothed_covs"], rtol=0, atol=1e-12)
 
 
+def test_the_iplf_takes_a_bearing_measured_without_noise():
+    """A bearing with R = 0 leaves the posterior without spread along the circle of positions it allows (a
+    combination of x and y): the IPLF raised at step 0 (S = [[0, 0], [0, 1.33]]). Its filtered means now keep
+    the measured bearing to round-off, and its log-likelihood is the IEKF's to 3.4e-5."""
+    def f(x):
+        return np.array([x[0] + 0.1 * x[2], x[1] + 0.1 * x[3], x[2], x[3]])
+
+    def h(x):
+        return np.array([np.arctan2(x[1], x[0]), np.hypot(x[0], x[1])])
+
+    rng = np.random.default_rng(1)
+    truth, zs = np.array([10.0, 5.0, 1.0, -0.5]), []
+    for _ in range(20):
+        truth = f(truth) + rng.normal(size=4) * [0.01, 0.01, 0.05, 0.05]
+        zs.append(h(truth) + [0.0, 0.3 * rng.normal()])
+    zs = np.array(zs)
+    model = gf.NonlinearModel(f, h, np.diag([1e-4, 1e-4, 2.5e-3, 2.5e-3]), np.diag([0.0, 0.09]),
+                              measurement_angles=[0])
+    prior = gf.Gaussian([10.0, 5.0, 1.0, -0.5], np.diag([1.0, 1.0, 0.1, 0.1]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = gf.filter(model, prior, zs, method="iplf", check="off")
+        smoothed = gf.smooth(model, prior, zs, method="iplf", check="off")
+    np.testing.assert_allclose(np.arctan2(got.means[:, 1], got.means[:, 0]), zs[:, 0], rtol=0, atol=1e-11)
+    assert np.linalg.eigvalsh(smoothed.covs).min() > -1e-15
+    assert got.loglik == pytest.approx(gf.filter(model, prior, zs, method="iekf", check="off").loglik, rel=1e-4)
+
+
 def test_backward_sampling_keeps_the_spread_the_next_state_does_not_see():
     """kalman.backward_conditional's factor: X Xᵀ + Y₀ Y₀ᵀ = P_k - G P⁻ Gᵀ, with G = P_k Fᵀ (P⁻)⁺, for the copy."""
     from gaussfuse import kalman
