@@ -1198,7 +1198,10 @@ def step(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, iteratio
     lin : linearisation strategy
         ``lin.transition(k, m, P) -> (A, b, Q)`` and
         ``lin.measurement(k, m, P) -> (H, d, R)``: step k's model made affine
-        around a belief (see :mod:`gaussfuse.linearize`).
+        around a belief (see :mod:`gaussfuse.linearize`). A strategy whose
+        slopes exist only where the belief has spread (a regression) says so
+        with ``lin.needs_spread``: an iterated update keeps its previous
+        pass's slope where the posterior has none (:func:`correct`).
     k : int
         The step: the transition into the k-th state, and its measurement.
     mean, cov : ndarray of shape (n,), (n, n)
