@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "unseen_directions", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -224,14 +224,39 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None, name: str = "the c
         try:
             L = semidefinite_cholesky(cov)
         except np.linalg.LinAlgError as exc:  # named: which covariance the points are drawn from, say
-            why = "" if weights is None or weights.min() >= 0.0 else (
-                f". The rule weighs a point negatively ({weights.min():.3g}), so a regression's residual spread, "
-                "and a covariance it adds to, can be indefinite: the unscented rule's weights are all positive "
-                "with alpha = 1 and kappa >= 0 (its default, 3 - n, is negative past three states), and the "
-                "cubature rule's always are (method='ckf')")
-            raise np.linalg.LinAlgError(str(exc).replace("the covariance", name, 1) + why) from None
+            raise np.linalg.LinAlgError(str(exc).replace("the covariance", name, 1) + negative_weight(weights)) from None
         return L, np.diag(L) > 0.0
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
+
+
+def negative_weight(weights: np.ndarray | None) -> str:
+    """What to add to the error of a covariance that is not positive semi-definite, when a sigma-point rule's
+    covariance `weights` has a negative one (or nothing)."""
+    if weights is None or weights.min() >= 0.0:
+        return ""
+    return (f". The rule weighs a point negatively ({weights.min():.3g}), so a regression's residual spread, and a "
+            "covariance it adds to, can be indefinite: the unscented rule's weights are all positive with "
+            "alpha = 1 and kappa >= 0 (its default, 3 - n, is negative past three states), and the cubature "
+            "rule's always are (method='ckf')")
+
+
+def indefinite(covs: np.ndarray) -> np.ndarray:
+    """Which matrices of a stack (..., n, n) are not positive semi-definite: an eigenvalue below ``-1e-9 λ_max``
+    (:func:`semidefinite_cholesky`'s test), as a bool array (...).
+
+    Only those without a Cholesky factor are decomposed: the test costs a
+    Cholesky factorisation of each where all are positive definite.
+    """
+    flat = covs.reshape(-1, *covs.shape[-2:])
+    bad = np.zeros(flat.shape[0], dtype=bool)
+    doubt = np.ones(flat.shape[0], dtype=bool)
+    if _potrf is not None and flat.shape[-1]:
+        with np.errstate(invalid="ignore"):
+            doubt = np.isnan(_potrf(flat)[:, -1, -1])  # (NaN marks a failed factorisation)
+    if doubt.any():
+        vals = np.linalg.eigvalsh(flat[doubt])
+        bad[doubt] = vals[:, 0] < -1e-9 * np.maximum(vals[:, -1], 1e-300)
+    return bad.reshape(covs.shape[:-2])
 
 
 def unresolved(variances: list[float], mean: np.ndarray) -> list[int]:

@@ -806,7 +806,7 @@ def test_the_square_root_smoother_takes_a_joint_covariance_made_indefinite_by_a_
     the prediction and the smoothed covariance are not: the square-root smoother's downdate of the joint factor
     raised ("component 6 a variance of -3.69e-06") where the covariance form smooths. It now takes the covariance
     form's step there, on factors; where the smoothed covariance itself is indefinite (kappa = -3.5: an
-    eigenvalue of -3e-3) it raises, naming it."""
+    eigenvalue of -3e-3) both forms raise, naming it."""
     def f(x):
         return np.array([x[0] + 0.1 * x[2], x[1] + 0.1 * x[3], x[2] * np.cos(0.2 * x[3]), x[3] + 0.05 * np.sin(x[0])])
 
@@ -826,8 +826,11 @@ def test_the_square_root_smoother_takes_a_joint_covariance_made_indefinite_by_a_
     np.testing.assert_allclose(a.gains @ a.filtered.predicted_covs[1:], b.gains @ b.filtered.predicted_covs[1:],
                                rtol=0, atol=1e-9 * np.abs(b.covs).max())
     assert np.array_equal(a.cov_factors, np.tril(a.cov_factors))
-    with pytest.raises(np.linalg.LinAlgError, match="at step 2: the smoothed covariance is not positive semi-def"):
-        gf.smooth(model, prior, zs, form="sqrt", engine=engine, kappa=-3.5, **options)
+    for form in ("sqrt", "cov"):  # the covariance form returned the indefinite covariances, without a word
+        with pytest.raises(np.linalg.LinAlgError, match="at step 2: the smoothed covariance is not positive semi-def"):
+            gf.smooth(model, prior, zs, form=form, engine=engine, kappa=-3.5, **options)
+    with pytest.raises(np.linalg.LinAlgError, match=r"eigenvalue -0.00167, .* weighs a point negatively \(-7\)"):
+        gf.smooth(model, prior, np.stack([zs, zs]), engine=engine, kappa=-3.5, **options)
 
 
 def known_gravity():

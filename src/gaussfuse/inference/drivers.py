@@ -21,7 +21,7 @@ import numpy as np
 from .. import kalman
 from .. import _kernels
 from .._kernels import jitted_loop_state, kernel_states, kernels
-from .._linalg import symmetrize, wrap_components
+from .._linalg import indefinite, negative_weight, symmetrize, wrap_components
 from .. import diagnostics
 from ..errors import (STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, average_text, diverging,
                       gate_lost)
@@ -472,13 +472,39 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
             return result
         result = compiled.smooth(lin, model, prior, zs, us) if ending is None else \
             compiled.smooth(lin, model, prior, zs, us, ending)
-        return _back_to_prior(model, prior, result) if to_prior else result
+        return _spread_checked(lin, _back_to_prior(model, prior, result) if to_prior else result, to_prior)
     runs = each_series(lambda i: _method_smooth(spec, model, prior, zs[i], None if us is None else us[i], options,
                                                 to_prior, form, gate, ending), zs.shape[0])
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],
                           passes=sum(r[2] for r in runs), series=zs.shape[0])
-    return stack([r[0] for r in runs])
+    result = stack([r[0] for r in runs])
+    if form == "cov" and not spec.iterated:
+        _spread_checked(linearisation(spec, model, None, options)[0], result, to_prior)
+    return result
+
+
+def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:
+    """`result`, after raising LinAlgError where a sigma-point rule that weighs a point negatively left a smoothed
+    covariance that is not positive semi-definite (the square-root form raises there too).
+
+    The covariance form's RTS step, :math:`P + G (P^s - P^-) G^\top`, keeps what the filter hands it; a
+    negative weight can make the regression's residual spread indefinite, and a smoothed covariance with it.
+    """
+    rule = getattr(lin, "rule", None)
+    if rule is None or rule.wc.min() >= 0.0:
+        return result
+    covs = result.covs if result.covs.ndim == 4 else result.covs[None]
+    bad = indefinite(covs)
+    if bad.any():
+        s = int(np.flatnonzero(bad.any(axis=1))[0])
+        k = int(np.flatnonzero(bad[s])[-1])  # the first the backward pass meets
+        vals = np.linalg.eigvalsh(covs[s, k])
+        where = f"in series {s}, " if covs.shape[0] > 1 else ""
+        raise np.linalg.LinAlgError(  # named by the backward step's transition, as run_smoother's errors
+            f"{where}at step {k if to_prior else k + 1}: the smoothed covariance is not positive semi-definite "
+            f"(smallest eigenvalue {vals[0]:.3g}, largest {vals[-1]:.3g}){negative_weight(rule.wc)}.")
+    return result
 
 
 def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:
