@@ -335,6 +335,48 @@ def test_diagnostics_name_their_bad_arguments(call, error, message):
         call()
 
 
+def test_consistency_leaves_out_a_diffuse_prior_s_first_steps():
+    """A diffuse prior's first means and covariances are NaN (not identified yet): with the truth, consistency
+    raised a ValueError naming `estimates` (an argument of rmse, not its own); without it, it left out the
+    whiteness test of a series with 98 complete innovations. Both now use the identified steps only."""
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=np.diag([0.1, 0.05]), R=1.0)
+    sim = gf.simulate(model, gf.Gaussian([0.0, 1.0], np.eye(2)), 100, size=5, rng=0)
+    res = gf.filter(model, "diffuse", sim.measurements)
+    known = np.isfinite(res.means).all(axis=-1)
+    assert not known.all() and known[:, 2:].all()
+    report = dg.consistency(res, sim.states)
+    want = dg.nees(sim.states - res.means, res.covs)[known].mean()
+    assert report.nees == pytest.approx(want, rel=1e-12) and np.isfinite(report.nees)
+    assert report.rmse == pytest.approx(dg.rmse(res.means[known], sim.states[known]), rel=1e-12)
+    one = gf.filter(model, "diffuse", sim.measurements[0])
+    steps = np.isfinite(one.innovation_covs).all(axis=(1, 2))
+    want = dg.whiteness(one.innovations[steps], one.innovation_covs[steps], 10)
+    assert dg.consistency(one).whiteness.p_value == pytest.approx(want.p_value, rel=1e-12)
+
+
+def test_nees_takes_a_covariance_that_knows_a_state_exactly():
+    """A constant offset known exactly (its prior variance and Q zero): the filtered covariances are singular,
+    and nees and consistency raised "`covs` is not positive definite". The NEES is eᵀ P⁺ e over P's range,
+    χ² with rank(P) degrees of freedom, here e₀² / P₀₀ (audit Z)."""
+    model = gf.LinearModel(F=[[1.0, 0.5], [0.0, 1.0]], H=[[1.0, 0.0]], Q=np.diag([0.1, 0.0]), R=1.0)
+    prior = gf.Gaussian([0.0, 1.0], np.diag([1.0, 0.0]))
+    sim = gf.simulate(model, prior, 100, size=20, rng=0)
+    res = gf.filter(model, prior, sim.measurements)
+    e = sim.states - res.means
+    assert (e[..., 1] == 0.0).all()
+    np.testing.assert_allclose(dg.nees(e, res.covs), e[..., 0] ** 2 / res.covs[..., 0, 0], rtol=1e-12)
+    # a correlated singular covariance: P = g gᵀ + h hᵀ in 3 states, the error in its range
+    g, h = np.array([1.0, 2.0, -1.0]), np.array([0.5, 0.0, 3.0])
+    P = np.outer(g, g) + np.outer(h, h)
+    err = 0.3 * g - 1.2 * h
+    want = err @ np.linalg.pinv(P) @ err
+    assert dg.nees(err[None], P[None])[0] == pytest.approx(want, rel=1e-10)
+    report = dg.consistency(res, sim.states)
+    assert report.nees == pytest.approx(np.mean(e[..., 0] ** 2 / res.covs[..., 0, 0]), rel=1e-12)
+    assert report.nees_interval[0] < 1.0 < report.nees_interval[1]  # centred on rank 1, not n = 2
+    assert sum(report.nees_interval) / 2 == pytest.approx(1.0, rel=1e-12)
+
+
 def test_a_huge_average_is_shown_with_an_exponent():
     """A divergence message printed a window's average with two decimals: a series scaled by 1e150 made a
     150-digit number."""

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import gaussfuse as gf
+from gaussfuse import diagnostics
 from gaussfuse._validation import (as_array, as_matrix, as_vector, call_checked, call_each, check_psd, shape_error,
                                    size_reason)
 from gaussfuse.errors import ModelFunctionError
@@ -508,3 +509,23 @@ def test_an_object_array_says_what_its_bad_entry_is(F, error, message):
     missing = gf.filter(gf.LinearModel(1.0, 1.0, 1.0, 1.0), gf.Gaussian(0.0, 1.0),
                         np.array([1.0, None, 2.0], dtype=object))  # a measurement of None is missing, as NaN
     assert np.isnan(missing.innovations[1, 0])
+
+
+_CV = gf.constant_velocity(dt=0.5, q=0.2, r=1.0, dim=2)
+_CV_PRIOR = gf.Gaussian([0.0, 0.0, 1.0, 0.5], np.eye(4))
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda res: gf.imm_filter([_CV], _CV_PRIOR, [[1.0, 2.0]], [[1.0]], method=["ukf"]), r"^`method` must be one of"),
+    (lambda res: gf.forecast(_CV, _CV_PRIOR, 2).interval(0.9, of=np.eye(2)), r"^`of` must be 'measurements' or"),
+    (lambda res: gf.KalmanFilter(_CV, _CV_PRIOR).update([1.0, 2.0], gate=0.9, gate_by=np.eye(2)),
+     r"^`gate_by` must be 'measurement' or 'component'"),
+    (lambda res: diagnostics.DivergenceMonitor(check=np.array(["warn"])), r"^`check` must be 'warn', 'raise' or 'off'"),
+    (lambda res: diagnostics.consistency(res, lags=0), r"^`lags` must be an integer in \[1, 59\]"),
+])
+def test_a_choice_given_as_an_array_or_a_list_is_named(call, message):
+    """A list for `method` gave "unhashable type: 'list'", an array for `of` or `gate_by` NumPy's "truth value of
+    an array is ambiguous", and lags=0 silently became the default 10 lags (audit Z)."""
+    res = gf.filter(_CV, _CV_PRIOR, np.random.default_rng(0).standard_normal((60, 2)))
+    with pytest.raises(ValueError, match=message):
+        call(res)

@@ -89,16 +89,48 @@ def nees(errors, covs) -> np.ndarray:
     Parameters
     ----------
     errors : array_like of shape (..., T, n)
-        ``truth - estimate``.
+        ``truth - estimate``; a step whose errors are all NaN (an estimate
+        not yet identified, as a diffuse prior's first steps) gives NaN.
     covs : array_like of shape (..., T, n, n)
-        The estimate's covariances.
+        The estimate's covariances. A singular one (a component known
+        exactly, or a combination of them) is valid: the value is then
+        ``eᵀ P⁺ e`` over its range, on P scaled to unit diagonal so that
+        which directions count as singular does not depend on units; the
+        error along the rest, which a consistent filter makes 0, is not
+        counted.
 
     Returns
     -------
     ndarray of shape (..., T)
-        Each value χ²_n for a consistent filter.
+        Each value χ² with rank(P) degrees of freedom (n for a positive
+        definite P) for a consistent filter.
     """
-    return _quadratic("errors", errors, "covs", covs)[0]
+    return _nees(errors, covs)[0]
+
+
+def _nees(errors, covs) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nees` and each value's degrees of freedom (the rank of the observed block of P)."""
+    try:
+        return _quadratic("errors", errors, "covs", covs)
+    except np.linalg.LinAlgError:  # a singular covariance: each step on its own
+        pass
+    e = as_array("errors", errors, allow_nan=True)
+    C = as_array("covs", covs, allow_nan=True)
+    flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
+    out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=np.int64)
+    eps = np.finfo(np.float64).eps
+    for t, (et, Ct) in enumerate(zip(flat_e, flat_C)):
+        o = ~np.isnan(et)
+        P = Ct[np.ix_(o, o)]
+        if not o.any() or not np.isfinite(P).all():
+            continue
+        d = np.sqrt(np.diagonal(P).clip(min=0.0))
+        seen = d > 0.0  # a component of variance 0 is known exactly: its error is not counted
+        vals, vecs = np.linalg.eigh(P[np.ix_(seen, seen)] / np.outer(d[seen], d[seen]))
+        rank = vals > max(seen.sum(), 1) * eps * vals.max(initial=0.0)
+        w = vecs[:, rank].T @ (et[o][seen] / d[seen])
+        out[t], dof[t] = np.sum(w * w / vals[rank]), int(rank.sum())
+    return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
 
 
 def _confidence(confidence) -> float:
@@ -410,7 +442,7 @@ class DivergenceMonitor:
     def __init__(self, window: int = DIVERGENCE_WINDOW, false_alarm: float = DIVERGENCE_FALSE_ALARM,
                  check: str = "warn") -> None:
         self.window, self.false_alarm = _test_settings(window, false_alarm)
-        if check not in ("warn", "raise", "off"):
+        if not isinstance(check, str) or check not in ("warn", "raise", "off"):
             raise ValueError(f"`check` must be 'warn', 'raise' or 'off'; got {check!r}.")
         self.check = check
         self._values: list[float] = []  # the last `window` updates with observations: NIS, dof, step
@@ -805,23 +837,29 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
         truth = as_array("truth", truth)
         if truth.shape != np.shape(result.means):
             raise shape_error("truth", f"{np.shape(result.means)}, that of the filtered means", truth.shape)
-        e = nees(truth - result.means, result.covs)
-        nees_avg = float(np.mean(e))
+        # the steps whose estimate is identified (not a diffuse prior's first steps, NaN)
+        known = np.isfinite(result.means).all(axis=-1)
+        e, dof_e = _nees(truth - result.means, result.covs)
+        nees_avg = float(np.mean(e[known]))
         if e.ndim == 2 and e.shape[0] >= 2:  # each run's time average: independent across runs
             from scipy.stats import t as student
 
-            per_run = e.mean(axis=1)
+            per_run = np.sum(np.where(known, e, 0.0), axis=1) / known.sum(axis=1)
             half = student.ppf(0.5 + confidence / 2, per_run.size - 1) * per_run.std(ddof=1) / np.sqrt(per_run.size)
-            n = truth.shape[-1]
+            n = float(np.mean(dof_e[known]))  # the state dimension, less directions known exactly
             nees_interval = (n - half, n + half)
             nees_ok = bool(nees_interval[0] <= nees_avg <= nees_interval[1])
-        err = rmse(result.means, truth)
+        err = rmse(result.means[known], truth[known])
     batch = np.ndim(result.innovations) == 3
     first_v = result.innovations[0] if batch else result.innovations
     first_S = result.innovation_covs[0] if batch else result.innovation_covs
-    complete = int(np.sum(~np.isnan(first_v).any(axis=1)))
     white = None
-    if first_S is not None and np.isfinite(first_S).all() and complete >= 10:
-        white = whiteness(first_v, first_S, lags or min(10, complete // 5), confidence)
+    if first_S is not None:
+        # from the first step with an innovation covariance on (a diffuse prior's first steps have none)
+        start = int(np.argmax(np.isfinite(first_S).all(axis=(1, 2)))) if len(first_S) else 0
+        first_v, first_S = first_v[start:], first_S[start:]
+        complete = int(np.sum(~np.isnan(first_v).any(axis=1)))
+        if np.isfinite(first_S).all() and complete >= 10:
+            white = whiteness(first_v, first_S, min(10, complete // 5) if lags is None else lags, confidence)
     return ConsistencyReport(nis_avg, nis_interval, nis_interval[0] <= nis_avg <= nis_interval[1],
                              nees_avg, nees_interval, nees_ok, white, err, runs)

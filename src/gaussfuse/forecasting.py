@@ -82,7 +82,7 @@ class Forecast:
         """
         if isinstance(level, bool) or not isinstance(level, (int, float, np.floating)) or not 0.0 < level < 1.0:
             raise ValueError(f"`level` must be a number in (0, 1); got {level!r}.")
-        if of not in ("measurements", "states"):
+        if not isinstance(of, str) or of not in ("measurements", "states"):
             raise ValueError(f"`of` must be 'measurements' or 'states'; got {of!r}.")
         means, covs = ((self.measurement_means, self.measurement_covs) if of == "measurements"
                        else (self.means, self.covs))

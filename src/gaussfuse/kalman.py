@@ -557,7 +557,7 @@ class Gate:
         if isinstance(probability, bool) or not isinstance(probability, (int, float, np.floating)) \
                 or not 0.0 < probability < 1.0:
             raise ValueError(f"`gate` must be a probability in (0, 1), such as 0.99; got {probability!r}.")
-        if by not in ("measurement", "component"):
+        if not isinstance(by, str) or by not in ("measurement", "component"):
             raise ValueError(f"`gate_by` must be 'measurement' or 'component'; got {by!r}.")
         self.probability, self.by = float(probability), by
         self._quantiles: dict[int, float] = {}

@@ -141,7 +141,7 @@ def resolve_method(model, method: str | None, options: dict) -> tuple[Method, di
 
 def check_options(method: str, options: dict) -> tuple[Method, dict]:
     """The method named `method` and its `options`, checked (an unknown name or option raises, see above)."""
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"`method` must be one of {sorted(METHODS)}; got {method!r}.")
     spec = METHODS[method]
     unknown = sorted(set(options) - set(spec.options))
