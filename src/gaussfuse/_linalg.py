@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite", "unseen_directions", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "factorable", "indefinite", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -240,6 +240,16 @@ def negative_weight(weights: np.ndarray | None) -> str:
             "rule's always are (method='ckf')")
 
 
+def factorable(mats: np.ndarray) -> np.ndarray:
+    """Which matrices of a stack (k, n, n) have a Cholesky factor, as a bool array (k,)."""
+    if not mats.shape[-1]:
+        return np.ones(mats.shape[0], dtype=bool)
+    if _potrf is None:
+        return np.array([is_positive_definite(M) for M in mats], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return ~np.isnan(_potrf(mats)[:, -1, -1])  # (NaN marks a failed factorisation)
+
+
 def indefinite(covs: np.ndarray) -> np.ndarray:
     """Which matrices of a stack (..., n, n) are not positive semi-definite: an eigenvalue below ``-1e-9 λ_max``
     (:func:`semidefinite_cholesky`'s test), as a bool array (...).
@@ -249,10 +259,7 @@ def indefinite(covs: np.ndarray) -> np.ndarray:
     """
     flat = covs.reshape(-1, *covs.shape[-2:])
     bad = np.zeros(flat.shape[0], dtype=bool)
-    doubt = np.ones(flat.shape[0], dtype=bool)
-    if _potrf is not None and flat.shape[-1]:
-        with np.errstate(invalid="ignore"):
-            doubt = np.isnan(_potrf(flat)[:, -1, -1])  # (NaN marks a failed factorisation)
+    doubt = ~factorable(flat)
     if doubt.any():
         vals = np.linalg.eigvalsh(flat[doubt])
         bad[doubt] = vals[:, 0] < -1e-9 * np.maximum(vals[:, -1], 1e-300)

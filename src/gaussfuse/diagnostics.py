@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._linalg import cholesky, observed_gram, whiten
+from ._linalg import cholesky, factorable, observed_gram, whiten
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
 from ._validation import as_array, integer, shape_error
 
@@ -112,25 +112,38 @@ def _nees(errors, covs) -> tuple[np.ndarray, np.ndarray]:
     """:func:`nees` and each value's degrees of freedom (the rank of the observed block of P)."""
     try:
         return _quadratic("errors", errors, "covs", covs)
-    except np.linalg.LinAlgError:  # a singular covariance: each step on its own
+    except np.linalg.LinAlgError:  # a singular covariance: the steps without a Cholesky factor apart
         pass
     e = as_array("errors", errors, allow_nan=True)
     C = as_array("covs", covs, allow_nan=True)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
     out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=np.int64)
-    eps = np.finfo(np.float64).eps
-    for t, (et, Ct) in enumerate(zip(flat_e, flat_C)):
-        o = ~np.isnan(et)
-        P = Ct[np.ix_(o, o)]
-        if not o.any() or not np.isfinite(P).all():
-            continue
-        d = np.sqrt(np.diagonal(P).clip(min=0.0))
-        seen = d > 0.0  # a component of variance 0 is known exactly: its error is not counted
-        vals, vecs = np.linalg.eigh(P[np.ix_(seen, seen)] / np.outer(d[seen], d[seen]))
-        rank = vals > max(seen.sum(), 1) * eps * vals.max(initial=0.0)
-        w = vecs[:, rank].T @ (et[o][seen] / d[seen])
-        out[t], dof[t] = np.sum(w * w / vals[rank]), int(rank.sum())
+    whole = ~np.isnan(flat_e).any(axis=1) & np.isfinite(flat_C).all(axis=(1, 2))
+    fast = whole.copy()
+    fast[whole] = factorable(flat_C[whole])
+    out[fast], dof[fast] = _quadratic("errors", flat_e[fast], "covs", flat_C[fast])
+    for t in np.flatnonzero(~whole & ~np.isnan(flat_e).all(axis=1)):  # some components missing: their block
+        o = ~np.isnan(flat_e[t])
+        if np.isfinite(flat_C[t][np.ix_(o, o)]).all():
+            value, rank = _pseudo_nees(flat_e[t][o][None], flat_C[t][np.ix_(o, o)][None])
+            out[t], dof[t] = value[0], rank[0]
+    singular = whole & ~fast
+    out[singular], dof[singular] = _pseudo_nees(flat_e[singular], flat_C[singular])
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
+
+
+def _pseudo_nees(e: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``eᵀ P⁺ e`` and rank(P) for stacks e (k, n) and P (k, n, n), on P scaled to unit diagonal (see :func:`nees`).
+
+    A component of variance 0 (scaled by 1) is a zero row of the scaled P: its eigenvalue 0 falls below the cut
+    of n ε times the largest, and its error is not counted.
+    """
+    d = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1).clip(min=0.0))
+    unit = np.where(d > 0.0, d, 1.0)
+    vals, vecs = np.linalg.eigh(P / unit[:, :, None] / unit[:, None, :])
+    rank = vals > P.shape[-1] * np.finfo(np.float64).eps * vals.max(axis=-1, initial=0.0)[:, None]
+    w = np.einsum("kij,ki->kj", vecs, e / unit)
+    return np.sum(np.where(rank, w * w / np.where(rank, vals, 1.0), 0.0), axis=-1), rank.sum(axis=-1)
 
 
 def _confidence(confidence) -> float:
