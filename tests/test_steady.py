@@ -193,6 +193,22 @@ def test_an_unstable_mode_the_measurements_do_not_see_is_still_refused():
         gf.steady_state(gf.LinearModel(F=[[1.5, 0.0], [0.0, 1.0]], H=[[0.0, 1.0]], Q=np.eye(2), R=1.0))
 
 
+@pytest.mark.parametrize("F, Q, H", [
+    (1.0, 0.0, 1.0),                                                    # a constant
+    ([[1.0, 1.0], [0.0, 1.0]], [[0.1, 0.0], [0.0, 0.0]], [[1.0, 0.0]]),  # a constant velocity
+])
+def test_a_constant_without_process_noise_is_named_as_such(F, Q, H):
+    """F = 1, Q = 0: the filter's variance falls to 0 as 1/k, with no steady gain; the error blamed unstable
+    modes unseen or R singular, neither of which the model has (audit M)."""
+    model = gf.LinearModel(F=F, H=H, Q=Q, R=1.0)
+    with pytest.raises(ValueError, match=r"no steady state: F has a mode on the unit circle \(eigenvalue 1\+0j\) "
+                                         r"that Q does not drive"):
+        gf.steady_state(model)
+    n = np.atleast_2d(F).shape[0]
+    with pytest.raises(ValueError, match="mode on the unit circle"):
+        gf.filter(model, gf.Gaussian(np.zeros(n), np.eye(n)), np.zeros(50), steady=True)
+
+
 def _scalar_root(a, q, r):
     """The positive root of p = a² p r / (p + r) + q (the scalar Riccati equation), without cancellation."""
     b = r - a * a * r - q

@@ -77,7 +77,9 @@ def steady_state(model: LinearModel) -> Stationary:
         stabilising solution (an unstable mode that the measurements do not
         see, or one that the process noise does not reach while R is
         singular): then the filter's covariance has no steady state to
-        converge to. Also when the steady state has a singular innovation
+        converge to; or a mode on the unit circle that Q does not drive (a
+        constant estimated without process noise: its variance falls to 0
+        as 1/k, and the gain with it). Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
         there), which leaves the gain undefined.
 
@@ -170,6 +172,16 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
         if iterated is not None and _stabilises(model, iterated):
             return iterated
         why = f" (SciPy: {error})" if error is not None else ""
+        vals, left = np.linalg.eig(F.T)  # wᵀ F = λ wᵀ: a mode, and whether Q drives it (w* Q w > 0)
+        still = [complex(v) for v, w in zip(vals, left.T)
+                 if abs(abs(v) - 1.0) <= 1e-9 and abs(np.conj(w) @ Q @ w) <= 1e-12 * max(q, 1e-300)]
+        if still:
+            raise ValueError(
+                f"the filter of `model` has no steady state: F has a mode on the unit circle (eigenvalue "
+                f"{still[0]:.3g}) that Q does not drive, as a constant estimated without process noise: its "
+                "variance falls to 0 as 1/k, and the gain with it, with no steady gain to hold. Give Q a "
+                "variance there, or filter without steady=True."
+            ) from None
         raise ValueError(
             f"the filter of `model` has no steady state: the Riccati equation has no stabilising solution{why}. "
             "Check that every unstable mode of F is seen through H and reached by Q, and that R is positive "

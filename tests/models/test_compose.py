@@ -425,3 +425,22 @@ def test_a_timed_model_is_not_refused_for_a_step_it_is_never_given():
     assert np.isfinite(got.means).all()
     with pytest.raises(ValueError, match=r"^a step of dt = 1 s is too long for LinearSDE"):
         gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), [1.0, 2.0], times=[0.0, 1.0, 2.0])
+
+
+@pytest.mark.parametrize("dts, error, message", [
+    ([[0.5, 1.0]], ValueError, r"^`dts` must have shape \(T,\) with T >= 1, one step size per step; got shape \(1, 2\)"),
+    ([], ValueError, r"^`dts` must have shape \(T,\) with T >= 1.*got shape \(0,\)"),
+    (0.5, ValueError, r"^`dts` must have shape \(T,\).*got shape \(\)"),
+    ([True, True], TypeError, r"^`dts` must be an array of numbers; got booleans"),
+    (["a"], TypeError, r"^`dts` must be an array of numbers"),
+    ([0.5, -1.0], ValueError, r"^`dts` must be positive step sizes; got -1.0 at index 1"),
+])
+@pytest.mark.parametrize("timed", ["linear", "nonlinear"])
+def test_timed_model_at_checks_its_step_sizes(timed, dts, error, message):
+    """2-D step sizes made a LinearModel with a 4-D F (sample_posterior then failed in matmul), booleans were
+    steps of 1, and an empty list or a scalar gave NumPy's "need at least one array to stack" or an IndexError
+    (audit M)."""
+    timed = gf.model(gf.ConstantVelocity(), gf.Position()) if timed == "linear" else \
+        gf.model(gf.CoordinatedTurn(), gf.RangeBearing())
+    with pytest.raises(error, match=message):
+        timed.at(dts)
