@@ -861,3 +861,44 @@ def test_em_is_not_slowed_by_series_padded_at_their_end():
         assert fit.converged
         np.testing.assert_allclose([fit.model.Q[0, 0], fit.model.R[0, 0]], np.exp(best.x), rtol=1e-4)
         assert fit.loglik == pytest.approx(-best.fun, abs=1e-7)
+
+
+def _never_observed_second_sensor():
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=200))
+    return np.c_[x + 0.5 * rng.normal(size=200), np.full(200, np.nan)], gf.Gaussian([0.0], [[1.0]])
+
+
+@pytest.mark.parametrize("method", ["em", "mle"])
+@pytest.mark.parametrize("structure, r11", [("diagonal", 1.0), ("full", 1.0), ("diagonal", 7.0)])
+def test_a_variance_the_likelihood_does_not_see_has_no_standard_error(method, structure, r11):
+    """A second sensor never observed: R[1, 1] (and R[1, 0]) do not enter the likelihood, whose information along
+    them is round-off, which passed for positive definite: standard errors of 4.5e4 and 6.0e5 for R[1, 1]. They
+    are NaN now, and the others are those of the model without that sensor."""
+    zs, prior = _never_observed_second_sensor()
+    start = gf.LinearModel(F=1.0, H=[[1.0], [1.0]], Q=1.0, R=np.diag([1.0, r11]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        got = gf.fit(start, prior, zs, structure={"R": structure}, method=method)
+        alone = gf.fit(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), prior, zs[:, :1], method=method)
+    assert np.isnan(got.bse["R[1,1]"]) and got.params["R[1,1]"] == pytest.approx(r11, rel=1e-12)  # left where it was
+    if structure == "full":
+        assert np.isnan(got.bse["R[1,0]"])
+    assert got.bse["Q"] == pytest.approx(alone.bse["Q"], rel=1e-4)
+    assert got.bse["R[0,0]"] == pytest.approx(alone.bse["R"], rel=1e-4)
+
+
+@pytest.mark.parametrize("structure", ["full", "diagonal"])
+def test_em_stops_where_its_learned_model_cannot_be_filtered(structure):
+    """Two copies of one sensor: the likelihood grows without bound as R becomes singular, and EM's M-step learned
+    a singular R whose next E-step raised "at step 0: the innovation covariance ... give R a variance", losing 49
+    iterations (diagonal R). It stops there now, as maximum likelihood does, with the model before it and a
+    ConvergenceWarning (audit L)."""
+    rng = np.random.default_rng(0)
+    z = np.cumsum(rng.normal(size=200)) + 0.5 * rng.normal(size=200)
+    start = gf.LinearModel(F=1.0, H=[[1.0], [1.0]], Q=1.0, R=np.eye(2))
+    with pytest.warns(gf.ConvergenceWarning, match=r"stopped at iteration \d+: the learned model cannot be filtered"):
+        got = gf.fit(start, gf.Gaussian([0.0], [[1.0]]), np.c_[z, z], structure={"R": structure}, method="em")
+    assert not got.converged and np.all(np.diff(got.history) >= -1e-9 * np.abs(got.history[1:]))
+    again = gf.filter(got.model, gf.Gaussian([0.0], [[1.0]]), np.c_[z, z])
+    assert again.loglik == pytest.approx(got.history[-1], rel=1e-12)

@@ -164,7 +164,10 @@ class FitResult:
         held at zero are not parameters.
     bse : dict of str to float
         The standard error of each of `params` (NaN when the observed
-        information is not positive definite at the estimate).
+        information is not positive definite at the estimate, and for a
+        parameter the log-likelihood does not depend on, such as the
+        variance of a sensor never observed: the others are then those of
+        the model without it).
     nobs : int
         The number of observed measurement components (NaN ones excluded),
         over all series.
@@ -673,6 +676,15 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine,
                     f"EM iteration {it}: the learned model no longer identifies the diffuse initial state "
                     f"(the log-likelihood rose to {history[-1]:.6g} on the way): {exc} Or learn fewer of F "
                     "and H, whose smallest singular values EM can shrink toward zero.") from None
+            except (np.linalg.LinAlgError, FloatingPointError) as exc:
+                if it == 0:
+                    raise
+                # the M-step left a model the filter cannot run: a singular S where the likelihood grows without
+                # bound (one sensor a copy of another, learned with no noise between them), or an overflow
+                message = (f"stopped at iteration {it}: the learned model cannot be filtered ({exc}); the "
+                           "likelihood may have no maximum (a measurement that others determine exactly, say); "
+                           "the model before it is returned")
+                break
             history.append(loglik)
             if it > 0 and np.isfinite(loglik) and loglik < history[-2] - 1e-6 * (1.0 + abs(history[-2])):
                 message = (f"stopped at iteration {it}: the log-likelihood fell from {history[-2]:.6g} to {loglik:.6g}, "
@@ -1321,6 +1333,28 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
     return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
 
 
+def _flat(evaluate, theta: np.ndarray, information: np.ndarray) -> np.ndarray:
+    """The parameters the log-likelihood does not depend on (a never-observed sensor's variance), as a bool mask.
+
+    Their row of the information is round-off, which can pass for positive definite (a standard error of 6e5
+    for a variance the likelihood does not see). A parameter whose information is below 1e-6 of the largest
+    is moved by a tenth of its size (at least 0.1) both ways; it is flat when the log-likelihood stays within
+    1e-12 of its size.
+    """
+    diag = np.abs(np.diagonal(information))
+    flat = np.zeros(theta.size, dtype=bool)
+    suspects = np.flatnonzero(diag <= 1e-6 * diag.max(initial=0.0))
+    if not suspects.size:
+        return flat
+    moved = {j: [theta + sign * 0.1 * max(1.0, abs(theta[j])) * np.eye(theta.size)[j] for sign in (1.0, -1.0)]
+             for j in suspects}
+    evaluate.prefetch([t for pair in moved.values() for t in pair])  # one pass over the data for all of them
+    ll = evaluate(theta)[0]
+    for j, pair in moved.items():
+        flat[j] = all(abs(evaluate(t)[0] - ll) <= 1e-12 * (1.0 + abs(ll)) for t in pair)
+    return flat
+
+
 def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | None, np.ndarray]:
     """Standard errors from the observed information, by central differences of the exact gradient.
 
@@ -1334,12 +1368,14 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         return None, nan
     try:
         information = -_hessian(evaluate, theta)
+        flat = _flat(evaluate, theta, information)
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan
-    if not is_positive_definite(information):  # it is at a maximum
+    kept = ~flat
+    if not is_positive_definite(information[np.ix_(kept, kept)]):  # it is at a maximum
         return None, nan
-    L = cholesky(information)
-    cov_theta = cho_solve(L, np.eye(k))
+    cov_theta = np.zeros((k, k))
+    cov_theta[np.ix_(kept, kept)] = cho_solve(cholesky(information[np.ix_(kept, kept)]), np.eye(int(kept.sum())))
 
     def jacobian(fn) -> np.ndarray:
         J = np.zeros((fn(theta).size, k))
@@ -1355,7 +1391,8 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         s = np.max(np.abs(J), axis=1)
         s = np.where(s > 0, s, 1.0)
         unit = J / s[:, None]
-        return s * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", unit, cov_theta, unit), 0, None))
+        se = s * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", unit, cov_theta, unit), 0, None))
+        return np.where((J[:, flat] != 0.0).any(axis=1), np.nan, se)  # what moves with a flat parameter: none
 
     bse = delta(jacobian(natural))
     if learn is None:
