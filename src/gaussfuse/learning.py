@@ -1372,7 +1372,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan
     kept = ~flat
-    if not is_positive_definite(information[np.ix_(kept, kept)]):  # it is at a maximum
+    if not kept.any() or not is_positive_definite(information[np.ix_(kept, kept)]):  # it is at a maximum
         return None, nan
     cov_theta = np.zeros((k, k))
     cov_theta[np.ix_(kept, kept)] = cho_solve(cholesky(information[np.ix_(kept, kept)]), np.eye(int(kept.sum())))
