@@ -301,3 +301,16 @@ def test_a_huge_density_over_a_step_whose_q_is_finite_is_not_refused():
     where Q[0, 0] = q 1.5^5 / 20 = 3.8e307."""
     Q = gf.ConstantAcceleration(q=1e308).transition(1.5)[1]
     assert Q[0, 0] == pytest.approx(1e308 * (1.5**5 / 20), rel=1e-14)
+
+
+def test_a_tiny_intensity_over_a_huge_step_is_not_an_overflow():
+    """q = 1e-300 over dt = 1e110: Q = q dt³/3 = 3.3e29 is finite, but dt³ was computed first and overflowed, and
+    the error blamed the step (audit M); it is taken in logarithms there. 171! overflowing was blamed on dt = 1."""
+    _, Q = gf.ConstantVelocity(q=1e-300).transition(1e110)[:2]
+    np.testing.assert_allclose(Q, [[1e-300 * 1e110**2 * 1e110 / 3, 5e-81], [5e-81, 1e-190]], rtol=1e-13)
+    assert np.array_equal(continuous_white_noise(1, 2.0, 3.0), [[8.0, 6.0], [6.0, 6.0]])  # exact where no overflow
+    for fn in (continuous_white_noise, piecewise_white_noise):
+        with pytest.raises(ValueError, match=r"^`order` must be at most 170"):
+            fn(171, 1.0, 1.0)
+    with pytest.raises(ValueError, match=r"a step of dt = 1e\+200 s is too long for ConstantVelocity"):
+        gf.ConstantVelocity(q=1.0).transition(1e200)

@@ -153,6 +153,14 @@ def _series(A: np.ndarray, W: np.ndarray, h: float, most: int = 80) -> tuple[np.
     return total[:, :n], total[:, n:]
 
 
+def _order(order) -> int:
+    """An integrator chain's `order`, checked: an integer in [0, 170] (171! overflows float64)."""
+    K = integer("order", order, minimum=0)
+    if K > 170:
+        raise ValueError(f"`order` must be at most 170 (the factorial of 171 overflows float64); got {K}.")
+    return K
+
+
 @finite_step("Q")
 def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     r"""Process noise of an integrator chain driven by continuous white noise, for one axis.
@@ -192,14 +200,18 @@ def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     array([[8., 6.],
            [6., 6.]])
     """
-    K = integer("order", order, minimum=0)
+    K = _order(order)
     dt = real("dt", dt, positive=True)
     q = real("q", q, nonnegative=True)
     idx = np.arange(K + 1)
     i, j = np.meshgrid(idx, idx, indexing="ij")
     fact = np.array([float(factorial(k)) for k in range(K + 1)])
     power = 2 * K + 1 - i - j
-    return q * (dt**power / (power * fact[K - i] * fact[K - j]))  # (q dt^p first could overflow where Q does not)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Q = q * (dt**power / (power * fact[K - i] * fact[K - j]))  # (q dt^p first could overflow where Q does not)
+    if q > 0.0 and not np.isfinite(Q).all():  # dt^p overflowed where q dt^p need not (q = 1e-300, dt = 1e110)
+        Q = np.exp(np.log(q) + power * np.log(dt) - np.log(power * fact[K - i] * fact[K - j]))
+    return Q
 
 
 @finite_step("Q")
@@ -242,7 +254,7 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
     array([[2., 2.],
            [2., 2.]])
     """
-    K = integer("order", order, minimum=0)
+    K = _order(order)
     dt = real("dt", dt, positive=True)
     var = real("var", var, nonnegative=True)
     g = np.array([dt ** (K + 1 - i) / factorial(K + 1 - i) for i in range(K + 1)])
