@@ -58,6 +58,25 @@ def test_pieces_equal_the_whole_series_with_times(track, engine, rows):
     assert [p.times[0] for p, _ in smoothed] == [p.times[0] for p in cut(zs, times, rows)]
 
 
+@pytest.mark.parametrize("engine", ["python", "auto"])  # ("numba" cannot smooth a nonlinear piece to an ending)
+@pytest.mark.parametrize("rows", [3, 100])
+def test_pieces_of_a_timed_model_with_a_nonlinear_sensor_equal_the_whole_series(engine, rows):
+    """A constant-velocity target seen by a range-bearing sensor at irregular times: each piece's model takes
+    its steps' dt as controls, which the pieces dropped ("`us` is required", audit N)."""
+    rng = np.random.default_rng(4)
+    timed = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.RangeBearing(r_range=0.5, r_bearing=0.01))
+    times = np.cumsum(rng.uniform(0.2, 1.0, 30))
+    track = np.array([2.6, 1.4])[None] + np.array([0.3, 0.5])[None] * times[:, None]
+    zs = np.c_[np.hypot(*track.T), np.arctan2(track[:, 1], track[:, 0])] + rng.normal(size=(30, 2)) * [0.7, 0.1]
+    prior = gf.Gaussian([2.6, 1.4, 0.0, 0.5], np.eye(4))
+    whole = gf.smooth(timed, prior, zs, times=times, engine=engine, check="off")
+    filtered = list(filter_pieces(timed, prior, cut(zs, times, rows), timed=True, engine=engine, check="off"))
+    smoothed = list(smooth_pieces(timed, prior, cut(zs, times, rows), timed=True, engine=engine, check="off"))[::-1]
+    for got, want in ((filtered, whole.filtered), (smoothed, whole)):
+        close(joined(got, "means"), want.means)
+        close(joined(got, "covs"), want.covs)
+
+
 @pytest.mark.parametrize("engine", ["python", "numba"])
 @pytest.mark.parametrize("rows", [1, 3, 17])
 def test_pieces_of_a_fixed_model_one_row_each_too(rows, engine):

@@ -43,6 +43,7 @@ import numpy as np
 from .. import diagnostics
 from ..errors import DivergenceWarning, ModelFunctionError, average_text
 from ..gaussian import Gaussian
+from ..models import LinearModel
 from . import diffuse, drivers, timing
 from .results import FilterResult, SmoothResult, first, stack
 from .validation import prepare
@@ -83,7 +84,10 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         first piece needs two rows).
     engine : {"auto", "numba", "python"}
         With "auto" and more than one piece, the compiled engine for all of
-        them (so that every piece runs the same arithmetic).
+        them (so that every piece runs the same arithmetic); but
+        :func:`smooth_pieces` smooths a nonlinear model's pieces on the
+        readable path, the only one that starts a backward pass from the
+        next piece's smoothed belief.
     check : {"warn", "raise", "off"}
         The divergence check, over the whole series: "raise" stops at the
         first window that fails; "warn" warns once at the end.
@@ -154,7 +158,8 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         if isinstance(prior, str) and len(offsets) > 1:
             raise ValueError("smoothing in pieces needs a Gaussian prior; give a 'diffuse' one the whole series "
                              "as one piece.")
-        engine = engine if engine != "auto" or len(offsets) == 1 else "numba"
+        if engine == "auto" and len(offsets) > 1:  # the compiled smoother's ending is the linear kernel's
+            engine = "numba" if isinstance(model, LinearModel) or getattr(model, "linear", False) is True else "python"
         after = None  # the next piece and its smoothed result
         for offset in reversed(offsets):
             spool.seek(offset)
@@ -212,7 +217,7 @@ def _times(piece: Piece, before, timed: bool, times: np.ndarray | None = None) -
 def _run(model, prior, zs: np.ndarray, times, engine: str, ending: Gaussian | None, smooth: bool):
     """The filter (or smoother) of one piece, with its series axis; no divergence check."""
     model, us = timing.resolve(model, times, zs)
-    spec, options, prior, zs, us, _ = prepare(model, prior, zs, None, None, {})
+    spec, options, prior, zs, us, _ = prepare(model, prior, zs, us, None, {})  # (a nonlinear TimedModel's dt controls)
     if isinstance(prior, str):  # the first piece, with a diffuse prior
         run = diffuse.diffuse_smooth if smooth else diffuse.diffuse_filter
         return stack([run(model, zs[0], None, engine)])
