@@ -258,3 +258,12 @@ def test_a_time_of_another_kind_is_named(times, got):
     timed = gf.model(gf.ConstantVelocity(q=0.7), gf.Position(r=0.3))
     with pytest.raises(TypeError, match=re.escape(f"all of one kind; got {got}.")):
         gf.filter(timed, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0, 3.0], times=times)
+
+
+def test_one_measurement_with_one_time_asks_for_the_prior_s_time():
+    """The error read "`times` must have 1 entries, one per measurement, or 2 ...; got 1" (audit N)."""
+    timed = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.Position(dim=1, r=1.0))
+    with pytest.raises(ValueError, match=r"^`times` must have 2 entries with one measurement, the prior's time and "
+                                         r"then the measurement's \(one time alone gives no time step\); got 1\.$"):
+        gf.smooth(timed, gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0], times=[0.8])
+    assert gf.smooth(timed, gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0], times=[0.0, 0.8]).means.shape == (1, 2)

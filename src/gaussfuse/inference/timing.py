@@ -271,9 +271,11 @@ def steps(name: str, times, T: int) -> Steps:
     elif values.shape[0] == T and T >= 2:
         dts = np.concatenate([diffs[:1], diffs])
     else:
-        more = " (with one measurement, give two: the prior's time, then the measurement's)" if T == 1 else ""
+        if T == 1:  # one time alone gives no step: its dt is not known
+            raise ValueError(f"`{name}` must have 2 entries with one measurement, the prior's time and then the "
+                             f"measurement's (one time alone gives no time step); got {values.shape[0]}.")
         raise ValueError(f"`{name}` must have {T} entries, one per measurement, or {T + 1} with the prior's time "
-                         f"first{more}; got {values.shape[0]}.")
+                         f"first; got {values.shape[0]}.")
     bad = np.flatnonzero(~(dts > 0))
     if bad.size:
         k = int(bad[0])
