@@ -650,6 +650,12 @@ def test_diffuse_prior_in_a_model_file(tmp_path, capsys):
     code, _, err = run(capsys, "filter", EXAMPLES / "data" / "nile.csv", "--model", bad)
     assert code == 2
     assert_one_line_error(err, r"bad.toml: \[prior\]: `diffuse = true` stands alone")
+    for value in ("false", '"yes"'):  # read as "stands alone" though it stood alone (audit C)
+        bad.write_text(f"[model]\nF = 1\nH = 1\nQ = 1\nR = 1\n[prior]\ndiffuse = {value}\n")
+        code, _, err = run(capsys, "filter", EXAMPLES / "data" / "nile.csv", "--model", bad)
+        assert code == 2
+        assert_one_line_error(err, r"bad.toml: \[prior\]: `diffuse` can only be true \(a diffuse prior; for a "
+                                   r"Gaussian one give `mean` and `cov` or `var` instead\); got (False|'yes')\.")
     code, out, err = run(capsys, "filter", EXAMPLES / "data" / "nile.csv", "--model",
                          EXAMPLES / "models" / "local_level.toml")
     header, values = read_csv(out)

@@ -696,7 +696,10 @@ def _state_names(path, given, default: list[str]) -> list[str]:
 def _prior(path, table: dict, n: int) -> Gaussian | str:
     _check_keys(path, "prior", table, _PRIOR_KEYS, " (give `cov` or `var`, not both)")
     if "diffuse" in table:
-        if table["diffuse"] is not True or len(table) > 1:
+        if table["diffuse"] is not True:
+            raise InputFileError(path, f"`diffuse` can only be true (a diffuse prior; for a Gaussian one give `mean` "
+                                       f"and `cov` or `var` instead); got {table['diffuse']!r:.40}.", field="[prior]")
+        if len(table) > 1:
             raise InputFileError(path, "`diffuse = true` stands alone: no `mean`, `cov` or `var` with it.",
                                  field="[prior]")
         return "diffuse"
