@@ -759,3 +759,21 @@ def test_a_users_motion_with_its_own_name_for_the_step_overflows_as_a_named_step
 
     with pytest.raises(ValueError, match=r"^a step of dt = 1000 s is too long for Growth: its F or Q overflows"):
         Growth().transition(1000.0)
+
+
+@pytest.mark.parametrize("motion", [gf.ConstantPosition(dim=3, q=0.37), gf.ConstantVelocity(dim=2, q=0.37),
+                                    gf.ConstantAcceleration(dim=1, q=0.37),
+                                    gf.ConstantVelocity(dim=2, q=0.37, noise="piecewise")],
+                         ids=["position", "velocity", "acceleration", "piecewise"])
+def test_transitions_of_many_steps_are_each_step_s_to_the_bit(motion):
+    """TimedModel.at discretised each distinct step in Python (90 us each: 18.5 s for 200,000 rows of a file with
+    every step different, against 3.3 s with three step sizes); the closed forms now take the steps together.
+    They must give each step's own F and Q, bit for bit, from 1e-8 s to 1e4 s."""
+    dts = np.concatenate([np.random.default_rng(0).uniform(1e-6, 50.0, 300),
+                          10.0 ** np.random.default_rng(1).uniform(-8.0, 4.0, 300)])
+    F, Q = motion.transitions(dts)
+    assert np.array_equal(F, np.stack([motion.transition(float(dt))[0] for dt in dts]))
+    assert np.array_equal(Q, np.stack([motion.transition(float(dt))[1] for dt in dts]))
+    if motion.n > motion.dim:  # (a random walk's Q = q dt does not overflow)
+        with pytest.raises(ValueError, match=r"a step of dt = 1e\+200 s is too long"):  # named, as one step's
+            motion.transitions(np.array([1.0, 1e200]))

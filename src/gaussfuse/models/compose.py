@@ -223,14 +223,14 @@ class TimedModel(Frozen):
             return model(self.motion, self.sensor, float(unique[0])), us
         n = self.n
         if isinstance(self.motion, LinearMotion):
-            pairs = [self.motion.transition(float(d)) for d in unique]
+            Fs, Qs = self.motion.transitions(unique)
             if self.linear:  # checked once per distinct dt, then indexed by step
                 H, R = self.sensor.linear(n)
-                controls = [self.motion.control(float(d)) for d in unique]
-                distinct = LinearModel(np.stack([pair[0] for pair in pairs]), H, np.stack([pair[1] for pair in pairs]),
-                                       R, None if controls[0] is None else np.stack(controls))
+                first = self.motion.control(float(unique[0]))
+                controls = None if first is None else np.stack([self.motion.control(float(d)) for d in unique])
+                distinct = LinearModel(Fs, H, Qs, R, controls)
                 return LinearModel._indexed(distinct, index), us
-            Q = np.stack([pair[1] for pair in pairs])[index]
+            Q = Qs[index]
         else:
             Q = np.stack([self.motion.noise(float(d)) for d in unique])[index]
         if unique.shape[0] == 1:

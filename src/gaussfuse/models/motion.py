@@ -109,6 +109,15 @@ class LinearMotion(Frozen):
         """
         raise NotImplementedError
 
+    def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`transition` of each of the positive step sizes `dts` (k,): F and Q stacked, (k, n, n) each.
+
+        One call of :meth:`transition` a step here; a motion with closed forms
+        computes them together, to the same bits.
+        """
+        pairs = [self.transition(float(dt)) for dt in dts]
+        return np.stack([F for F, _ in pairs]), np.stack([Q for _, Q in pairs])
+
     def control(self, dt: float) -> np.ndarray | None:
         """The control matrix B of shape (n, p) over a time step ``dt > 0``; None without control.
 
@@ -214,13 +223,14 @@ class NonlinearMotion(Frozen):
 # ---------------------------------------------------------------------------
 
 
-def _kinematic_transition(order: int, dt: float) -> np.ndarray:
-    r"""Per axis :math:`F_{ij} = \Delta t^{j-i}/(j-i)!` for j >= i (Taylor series of the position)."""
-    F = np.zeros((order + 1, order + 1))
-    for i in range(order + 1):
-        for j in range(i, order + 1):
-            F[i, j] = dt ** (j - i) / factorial(j - i)
-    return F
+def _kinematic_transitions(order: int, dts: np.ndarray) -> np.ndarray:
+    r"""Per axis :math:`F_{ij} = \Delta t^{j-i}/(j-i)!` for j >= i (Taylor series of the position), for each
+    step size of `dts` (k,): (k, order + 1, order + 1)."""
+    ahead = np.subtract.outer(np.arange(order + 1), np.arange(order + 1))
+    ahead = np.where(ahead <= 0, -ahead, 0)  # j - i on and above the diagonal
+    fact = np.array([float(factorial(j)) for j in range(order + 1)])
+    F = dts[:, None, None] ** ahead / fact[ahead]
+    return np.where(np.tri(order + 1, dtype=bool).T, F, 0.0)
 
 
 class _IntegratedWhiteNoise(LinearMotion):
@@ -260,7 +270,25 @@ class _IntegratedWhiteNoise(LinearMotion):
         K = self._order
         noise = continuous_white_noise if self.noise == "continuous" else piecewise_white_noise
         eye = np.eye(self.dim)
-        return np.kron(_kinematic_transition(K, dt), eye), np.kron(noise(K, dt, self.q), eye)
+        return np.kron(_kinematic_transitions(K, np.array([dt]))[0], eye), np.kron(noise(K, dt, self.q), eye)
+
+    def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`transition` of each step size in `dts` (k,), by the same formulas on arrays: the same bits."""
+        dts = np.asarray(dts, dtype=np.float64)
+        if self.noise != "continuous" or not dts.size:
+            return super().transitions(dts)
+        K, d, k = self._order, self.dim, dts.shape[0]
+        fact = np.array([float(factorial(j)) for j in range(K + 1)])
+        with np.errstate(over="ignore", invalid="ignore"):
+            F = _kinematic_transitions(K, dts)
+            i, j = np.meshgrid(np.arange(K + 1), np.arange(K + 1), indexing="ij")
+            power = 2 * K + 1 - i - j  # continuous_white_noise's formula, on the stack
+            Q = self.q * (dts[:, None, None] ** power / (power * fact[K - i] * fact[K - j]))
+        if not (np.isfinite(F).all() and np.isfinite(Q).all()):  # the step that overflows, named, one at a time
+            return super().transitions(dts)
+        eye = np.eye(d)
+        return (np.einsum("kij,ab->kiajb", F, eye).reshape(k, (K + 1) * d, (K + 1) * d),
+                np.einsum("kij,ab->kiajb", Q, eye).reshape(k, (K + 1) * d, (K + 1) * d))
 
 
 class ConstantPosition(_IntegratedWhiteNoise):
@@ -446,7 +474,7 @@ class ForceInput(LinearMotion):
         """
         dt = real("dt", dt, positive=True)
         eye = np.eye(self.dim)
-        return (np.kron(_kinematic_transition(1, dt), eye),
+        return (np.kron(_kinematic_transitions(1, np.array([dt]))[0], eye),
                 np.kron(piecewise_white_noise(1, dt, self.q), eye))
 
     def control(self, dt: float) -> np.ndarray:
