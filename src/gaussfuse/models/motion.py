@@ -110,10 +110,20 @@ class LinearMotion(Frozen):
         raise NotImplementedError
 
     def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`transition` of each of the positive step sizes `dts` (k,): F and Q stacked, (k, n, n) each.
+        """:meth:`transition` of each of several step sizes, stacked.
 
         One call of :meth:`transition` a step here; a motion with closed forms
         computes them together, to the same bits.
+
+        Parameters
+        ----------
+        dts : ndarray of shape (k,)
+            Time steps, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (k, n, n)
+        Q : ndarray of shape (k, n, n)
         """
         pairs = [self.transition(float(dt)) for dt in dts]
         return np.stack([F for F, _ in pairs]), np.stack([Q for _, Q in pairs])
@@ -273,7 +283,18 @@ class _IntegratedWhiteNoise(LinearMotion):
         return np.kron(_kinematic_transitions(K, np.array([dt]))[0], eye), np.kron(noise(K, dt, self.q), eye)
 
     def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`transition` of each step size in `dts` (k,), by the same formulas on arrays: the same bits."""
+        """:meth:`transition` of each of several step sizes, stacked: the same formulas on arrays, the same bits.
+
+        Parameters
+        ----------
+        dts : ndarray of shape (k,)
+            Time steps, > 0.
+
+        Returns
+        -------
+        F : ndarray of shape (k, n, n)
+        Q : ndarray of shape (k, n, n)
+        """
         dts = np.asarray(dts, dtype=np.float64)
         if self.noise != "continuous" or not dts.size:
             return super().transitions(dts)
