@@ -22,7 +22,7 @@ import numpy as np
 
 from .._validation import finite_step, integer, real
 from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state
-from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan
+from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan, white_noise_chains
 
 __all__ = [
     "LinearMotion",
@@ -283,33 +283,21 @@ class _IntegratedWhiteNoise(LinearMotion):
         return np.kron(_kinematic_transitions(K, np.array([dt]))[0], eye), np.kron(noise(K, dt, self.q), eye)
 
     def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`transition` of each of several step sizes, stacked: the same formulas on arrays, the same bits.
-
-        Parameters
-        ----------
-        dts : ndarray of shape (k,)
-            Time steps, > 0.
-
-        Returns
-        -------
-        F : ndarray of shape (k, n, n)
-        Q : ndarray of shape (k, n, n)
-        """
+        # transition's formulas on the stack of steps, the same bits; the base's loop names a step that overflows
         dts = np.asarray(dts, dtype=np.float64)
         if self.noise != "continuous" or not dts.size:
             return super().transitions(dts)
         K, d, k = self._order, self.dim, dts.shape[0]
-        fact = np.array([float(factorial(j)) for j in range(K + 1)])
         with np.errstate(over="ignore", invalid="ignore"):
             F = _kinematic_transitions(K, dts)
-            i, j = np.meshgrid(np.arange(K + 1), np.arange(K + 1), indexing="ij")
-            power = 2 * K + 1 - i - j  # continuous_white_noise's formula, on the stack
-            Q = self.q * (dts[:, None, None] ** power / (power * fact[K - i] * fact[K - j]))
-        if not (np.isfinite(F).all() and np.isfinite(Q).all()):  # the step that overflows, named, one at a time
+        Q = white_noise_chains(K, dts, self.q)
+        if not (np.isfinite(F).all() and np.isfinite(Q).all()):
             return super().transitions(dts)
         eye = np.eye(d)
         return (np.einsum("kij,ab->kiajb", F, eye).reshape(k, (K + 1) * d, (K + 1) * d),
                 np.einsum("kij,ab->kiajb", Q, eye).reshape(k, (K + 1) * d, (K + 1) * d))
+
+    transitions.__doc__ = LinearMotion.transitions.__doc__
 
 
 class ConstantPosition(_IntegratedWhiteNoise):

@@ -203,14 +203,21 @@ def continuous_white_noise(order: int, dt: float, q: float) -> np.ndarray:
     K = _order(order)
     dt = real("dt", dt, positive=True)
     q = real("q", q, nonnegative=True)
+    return white_noise_chains(K, np.array([dt]), q)[0]
+
+
+def white_noise_chains(K: int, dts: np.ndarray, q: float) -> np.ndarray:
+    """:func:`continuous_white_noise` of checked arguments for each step of `dts` (k,): (k, K + 1, K + 1), inf
+    where it overflows."""
     idx = np.arange(K + 1)
     i, j = np.meshgrid(idx, idx, indexing="ij")
     fact = np.array([float(factorial(k)) for k in range(K + 1)])
     power = 2 * K + 1 - i - j
+    dts = dts[:, None, None]
     with np.errstate(over="ignore", invalid="ignore"):
-        Q = q * (dt**power / (power * fact[K - i] * fact[K - j]))  # (q dt^p first could overflow where Q does not)
-    if q > 0.0 and not np.isfinite(Q).all():  # dt^p overflowed where q dt^p need not (q = 1e-300, dt = 1e110)
-        Q = np.exp(np.log(q) + power * np.log(dt) - np.log(power * fact[K - i] * fact[K - j]))
+        Q = q * (dts**power / (power * fact[K - i] * fact[K - j]))  # (q dt^p first could overflow where Q does not)
+        if q > 0.0 and not np.isfinite(Q).all():  # dt^p overflowed where q dt^p need not (q = 1e-300, dt = 1e110)
+            Q = np.exp(np.log(q) + power * np.log(dts) - np.log(power * fact[K - i] * fact[K - j]))
     return Q
 
 
