@@ -213,7 +213,7 @@ def test_sigma_point_filters_run_on_built_models(turn_track):
     ("args", "error", "match"),
     [
         (("cv", gf.Position(), 1.0), TypeError,
-         r"^`motion` must be a LinearMotion or NonlinearMotion \(e\.g\. gaussfuse\.ConstantVelocity\); got str\.$"),
+         r"^`motion` must be a LinearMotion or NonlinearMotion \(e\.g\. gaussfuse\.ConstantVelocity\(\)\); got str\.$"),
         ((gf.ConstantVelocity(), gf.LinearModel(1, 1, 1, 1), 1.0), TypeError,
          r"^`sensor` must be a LinearSensor or NonlinearSensor \(e\.g\. gaussfuse\.Position\); got LinearModel\.$"),
         ((gf.ConstantVelocity(dim=1), gf.RangeBearing(), 1.0), ValueError,
@@ -384,6 +384,38 @@ def test_stacked_nonlinear_sensors_stack_h_jacobians_noise_and_angles():
 def test_stack_sensors_validation(sensors, error, match):
     with pytest.raises(error, match=match):
         gf.stack_sensors(sensors, gf.ConstantVelocity(dim=2))
+
+
+@pytest.mark.parametrize("motion, given", [("CT", "str"), (None, "NoneType"),
+                                           (gf.CoordinatedTurn, r"the class CoordinatedTurn itself \(make one: "
+                                                                r"CoordinatedTurn\(\)\)")])
+def test_stack_sensors_names_a_motion_that_is_not_one(motion, given):
+    """A str or None gave AttributeError ("has no attribute 'n'"), the class itself a comparison TypeError."""
+    with pytest.raises(TypeError, match=rf"^`motion` must be a LinearMotion or NonlinearMotion .*; got {given}\.$"):
+        gf.stack_sensors({"gps": gf.Position(dim=2)}, motion)
+    with pytest.raises(TypeError, match=rf"^`motion` must be a LinearMotion or NonlinearMotion .*; got {given}\.$"):
+        gf.model(motion, gf.Position(dim=2), dt=1.0)
+
+
+def test_sensors_stacked_for_another_motion_are_refused_as_the_sensors_alone_would_be():
+    """A Stacked sensor skipped the fit check: the turn model's UKF read its vx as a height (stacked for a 3-D
+    Singer motion), another motion's filter failed in NumPy's matmul (stacked for n = 5, used with n = 4)."""
+    radar = gf.stack_sensors({"radar": gf.RangeBearingElevation(), "rb": gf.RangeBearing()}, gf.Singer(dim=3))
+    with pytest.raises(ValueError, match=r"^`sensor` stacks sensors of a state of n = 9 .* \(n = 5\)"):
+        gf.model(gf.CoordinatedTurn(), radar, dt=1.0)
+    turn = gf.stack_sensors({"rb": gf.RangeBearing(), "gps": gf.Position(dim=2)}, gf.CoordinatedTurn())
+    with pytest.raises(ValueError, match=r"^`sensors\['s'\]` stacks sensors of a state of n = 5"):
+        gf.fuse_timeline(gf.ConstantVelocity(dim=2), {"s": turn}, gf.Gaussian(np.zeros(4), np.eye(4)), 0.0,
+                         [(1.0, "s", [1.0, 0.1, 1.0, 0.0])])
+    # the same size of state, fewer axes: each stacked sensor is checked as it would be alone
+    three_d = gf.stack_sensors({"radar": gf.RangeBearingElevation()}, gf.ConstantVelocity(dim=3))
+    with pytest.raises(ValueError, match=r"^`sensor`\['radar'\] reads 3 position components but `motion` has 2"):
+        gf.model(gf.ConstantAcceleration(dim=2), three_d, dt=1.0)
+    assert gf.model(gf.Singer(dim=3), radar, dt=1.0).n == 9  # its own motion still fits
+    with pytest.raises(ValueError, match=r"^`x` must have shape \(n,\) or \(k, n\) with n = 5 .* got shape \(4,\)"):
+        turn.h(np.ones(4))
+    with pytest.raises(ValueError, match=r"^`x` must have shape \(n,\) with n = 5 .* got shape \(3, 5\)"):
+        turn.jacobian(np.ones((3, 5)))
 
 
 @pytest.mark.parametrize("dt", [np.timedelta64(100_000_000, "ns"), np.timedelta64(100, "ms"),

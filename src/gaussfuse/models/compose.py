@@ -52,8 +52,9 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
         If `motion` or `sensor` is not a motion or a sensor model.
     ValueError
         If the sensor does not fit the motion's state (a geometric sensor
-        reading more spatial axes than the motion has, or a matrix H of the
-        wrong width), or dt is not positive.
+        reading more spatial axes than the motion has, a matrix H of the
+        wrong width, or sensors stacked for a state of another size), or dt
+        is not positive.
 
     Notes
     -----
@@ -78,11 +79,7 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
     >>> gf.model(gf.CoordinatedTurn(), gf.RangeBearing(), dt=1.0)
     NonlinearModel(n=5, m=2, vectorized=True)
     """
-    if not isinstance(motion, (LinearMotion, NonlinearMotion)):
-        raise TypeError(
-            f"`motion` must be a LinearMotion or NonlinearMotion (e.g. gaussfuse.ConstantVelocity); "
-            f"got {type(motion).__name__}."
-        )
+    _check_motion(motion)
     if not isinstance(sensor, (LinearSensor, NonlinearSensor)):
         raise TypeError(
             f"`sensor` must be a LinearSensor or NonlinearSensor (e.g. gaussfuse.Position); "
@@ -310,8 +307,30 @@ def _over_dt(fn, dt: float, x: np.ndarray) -> np.ndarray:
     return fn(x, dt)
 
 
+def _check_motion(motion) -> None:
+    if not isinstance(motion, (LinearMotion, NonlinearMotion)):
+        given = f"the class {motion.__name__} itself (make one: {motion.__name__}())" if isinstance(motion, type) \
+            else type(motion).__name__
+        raise TypeError(
+            f"`motion` must be a LinearMotion or NonlinearMotion (e.g. gaussfuse.ConstantVelocity()); got {given}."
+        )
+
+
 def _check_fit(motion, sensor, n: int, label: str = "`sensor`") -> None:
-    """Raise ValueError if the sensor (called `label` in messages) cannot observe the motion's state."""
+    """Raise ValueError if the sensor (called `label` in messages) cannot observe the motion's state.
+
+    A :class:`Stacked` sensor was built for a state of its own size, and
+    each of its sensors must fit this motion as it would alone.
+    """
+    if isinstance(sensor, Stacked):
+        if sensor.n != n:
+            raise ValueError(
+                f"{label} stacks sensors of a state of n = {sensor.n} (the `motion` given to stack_sensors), "
+                f"which does not fit the state of `motion` (n = {n}); stack them for this motion."
+            )
+        for name, inner in sensor.sensors:
+            _check_fit(motion, inner, n, f"{label}[{name!r}]")
+        return
     if isinstance(sensor, LinearSensor) and sensor.H is not None and sensor.H.shape[1] != n:
         raise ValueError(
             f"{label} has `H` of shape {sensor.H.shape}, which does not fit the state of `motion` "
@@ -358,8 +377,9 @@ def stack_sensors(sensors, motion) -> LinearSensor | NonlinearSensor:
     Raises
     ------
     TypeError, ValueError
-        For a mapping that is empty or not a dict of sensors by str name, or
-        a sensor that does not fit the motion's state, naming it.
+        For a mapping that is empty or not a dict of sensors by str name, a
+        `motion` that is not one, or a sensor that does not fit the motion's
+        state, naming it.
     """
     checked = _check_sensors(sensors, motion)
     if all(isinstance(sensor, LinearSensor) for sensor in checked.values()):
@@ -371,6 +391,7 @@ def stack_sensors(sensors, motion) -> LinearSensor | NonlinearSensor:
 
 
 def _check_sensors(sensors, motion) -> dict:
+    _check_motion(motion)
     if not isinstance(sensors, Mapping) or not sensors:
         raise TypeError(f"`sensors` must be a non-empty dict mapping names to sensors; got {sensors!r:.80}.")
     for name, sensor in sensors.items():
@@ -453,6 +474,13 @@ class Stacked(NonlinearSensor):
         return tuple(slot.start + int(i) for slot, (_, sensor) in zip(self.slots.values(), self.sensors)
                      for i in sensor.measurement_angles)
 
+    def _state(self, x, shapes: str, stack: bool = True) -> np.ndarray:
+        x = np.asarray(x)
+        if x.ndim not in ((1, 2) if stack else (1,)) or x.shape[-1] != self.n:
+            raise ValueError(f"`x` must have shape {shapes} with n = {self.n} (the state the sensors were stacked "
+                             f"for); got shape {x.shape}.")
+        return x
+
     def h(self, x) -> np.ndarray:
         """Every sensor's noise-free measurement of x (n,) or of each state of a stack (k, n), stacked.
 
@@ -466,7 +494,7 @@ class Stacked(NonlinearSensor):
         ndarray of shape (m,) or (k, m)
             The sensors' measurements, in the order of :attr:`slots`.
         """
-        x = np.asarray(x)
+        x = self._state(x, "(n,) or (k, n)")
         out = np.empty((*x.shape[:-1], self.m), dtype=np.result_type(x, np.float64))
         for slot, (name, sensor) in zip(self.slots.values(), self.sensors):
             if isinstance(sensor, LinearSensor):
@@ -489,6 +517,7 @@ class Stacked(NonlinearSensor):
         ndarray of shape (m, n)
             The sensors' Jacobians (H for a linear one), stacked by rows.
         """
+        x = self._state(x, "(n,)", stack=False)
         out = np.empty((self.m, self.n))
         for slot, (name, sensor) in zip(self.slots.values(), self.sensors):
             if isinstance(sensor, LinearSensor):
