@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import _oracle
 import gaussfuse as gf
 from gaussfuse import learning
 from gaussfuse.datasets import nile
@@ -902,3 +903,40 @@ def test_em_stops_where_its_learned_model_cannot_be_filtered(structure):
     assert not got.converged and np.all(np.diff(got.history) >= -1e-9 * np.abs(got.history[1:]))
     again = gf.filter(got.model, gf.Gaussian([0.0], [[1.0]]), np.c_[z, z])
     assert again.loglik == pytest.approx(got.history[-1], rel=1e-12)
+
+
+def test_em_stops_on_a_change_per_observation_that_does_not_depend_on_the_units():
+    """EM stopped at |Δloglik| <= tol (1 + |loglik|), and |loglik| moves by nobs·log(scale) with the units: the
+    same data stopped after 74, 67 and 66 iterations in units of 1, 1e-6 and 1e6, at three answers."""
+    rng = np.random.default_rng(3)
+    zs = np.cumsum(rng.normal(0.0, 1.0, 200)) + rng.normal(0.0, 2.0, 200)
+    fits = [gf.fit(gf.LinearModel(F=1, H=1, Q=2 * s**2, R=2 * s**2), gf.Gaussian([0.0], [[100 * s**2]]), zs * s,
+                   learn=("Q", "R"), method="em") for s in (1.0, 1e-6, 1e6)]
+    assert all(f.converged for f in fits)
+    assert len({len(f.history) for f in fits}) == 1
+    for f, s in zip(fits[1:], (1e-6, 1e6)):
+        np.testing.assert_allclose(f.model.Q / s**2, fits[0].model.Q, rtol=1e-10)
+        np.testing.assert_allclose(f.model.R / s**2, fits[0].model.R, rtol=1e-10)
+        assert abs(np.diff(f.history)[-1]) <= 1e-10 * f.nobs
+
+
+def test_em_stalled_on_a_parameter_it_cannot_move_is_not_called_converged():
+    """EM's M-step sets m0 to the smoothed x_0, whose component of zero prior variance is the prior's own mean:
+    it never moved, and EM reported converged=True (with a standard error) 27.5 below the maximum."""
+    rng = np.random.default_rng(0)
+    F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    x, zs = np.array([0.0, 0.8]), []
+    for _ in range(60):
+        x = F @ x + np.array([rng.normal(0, 0.5), 0.0])
+        zs.append(H @ x + rng.normal(0, 1.0, 1))
+    model = gf.LinearModel(F=F, H=H, Q=np.diag([0.25, 0.0]), R=1.0)
+    prior = gf.Gaussian([0.0, 0.3], np.diag([1.0, 0.0]))  # the slope known exactly
+    with pytest.warns(gf.ConvergenceWarning, match=r"a Newton step from here would raise it by 27\.\d more: EM has "
+                                                   r"stalled"):
+        em = gf.fit(model, prior, np.array(zs), learn=("m0",), method="em")
+    assert not em.converged and em.prior.mean[1] == 0.3
+    mle = gf.fit(model, prior, np.array(zs), learn=("m0",), method="mle")
+    assert mle.converged and mle.loglik > em.loglik + 27
+    for fit in (em, mle):  # the log-likelihoods are the dense oracle's
+        want = _oracle.reference(F, H, model.Q, model.R, fit.prior.mean, prior.cov, np.array(zs))["loglik"]
+        assert fit.loglik == pytest.approx(want, abs=1e-9)

@@ -884,7 +884,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--iterations", type=int, metavar="N",
                      help="maximum iterations (default: 500 for em, 1000 for mle)")
     fit.add_argument("--tol", type=float, metavar="TOL",
-                     help="when to stop: em when the log-likelihood changes by less than TOL (1 + |loglik|) "
+                     help="when to stop: em when the log-likelihood changes by at most TOL per observed value "
                           "(default 1e-10; 0 runs every --iterations), mle when the gradient per observation is "
                           "below TOL (default 1e-8)")
     _column_options(fit)

@@ -654,9 +654,13 @@ def _add(a, b=None):
     return a + b
 
 
-def _em(model, prior, data, learn, structure, iterations, tol, callback, engine, switch=None):
+def _em(model, prior, data, learn, structure, iterations, tol, nobs, callback, engine, switch=None):
     """EM's iterations: the model and prior kept, the history, whether it converged, why it stopped, and the
-    engine of its last iteration (`engine` before iteration `switch`, when given, compiled from it on)."""
+    engine of its last iteration (`engine` before iteration `switch`, when given, compiled from it on).
+
+    It converges when the log-likelihood changes by at most `tol` per observed value (of `nobs`): a change of
+    log-likelihood does not depend on the data's units, as the log-likelihood itself does.
+    """
     history: list[float] = []
     fixed = {name: (_fixed_zeros(_current(model, prior, name), structure[name]) if name in learn else None)
              for name in COVARIANCES}
@@ -695,7 +699,7 @@ def _em(model, prior, data, learn, structure, iterations, tol, callback, engine,
             best = (model, prior)
             if callback is not None:
                 callback(it, loglik)
-            if tol > 0 and it > 0 and abs(history[-1] - history[-2]) <= tol * (1.0 + abs(history[-1])):
+            if tol > 0 and it > 0 and abs(history[-1] - history[-2]) <= tol * nobs:
                 message, converged = "converged: the log-likelihood changed by less than `tol`", True
                 break
             if it == iterations:
@@ -1180,6 +1184,10 @@ def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: s
 # ---------------------------------------------------------------------------
 
 
+_EM_STALLED = 1e3
+"""EM has stalled, not converged, where a Newton step would gain this many times its last change or more
+(`tol` per observation): a thousand iterations' worth, had it kept that pace."""
+
 _MLE_GTOL = 1e-8
 """Maximum likelihood's default `tol`: the gradient's largest component per observation at a maximum."""
 
@@ -1355,25 +1363,27 @@ def _flat(evaluate, theta: np.ndarray, information: np.ndarray) -> np.ndarray:
     return flat
 
 
-def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | None, np.ndarray]:
+def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | None, np.ndarray, np.ndarray | None]:
     """Standard errors from the observed information, by central differences of the exact gradient.
 
     Returns the per-matrix standard errors (None if the information is not
-    positive definite) and those of ``build.natural`` (NaN then).
+    positive definite), those of ``build.natural`` (NaN then), and the
+    inverse information on θ (None then; zero rows and columns for the
+    parameters the log-likelihood does not depend on).
     """
     k = theta.size
     natural = build.natural
     nan = np.full(natural(theta).size, np.nan)
     if k == 0:
-        return None, nan
+        return None, nan, None
     try:
         information = -_hessian(evaluate, theta)
         flat = _flat(evaluate, theta, information)
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
-        return None, nan
+        return None, nan, None
     kept = ~flat
     if not kept.any() or not is_positive_definite(information[np.ix_(kept, kept)]):  # it is at a maximum
-        return None, nan
+        return None, nan, None
     cov_theta = np.zeros((k, k))
     cov_theta[np.ix_(kept, kept)] = cho_solve(cholesky(information[np.ix_(kept, kept)]), np.eye(int(kept.sum())))
 
@@ -1396,7 +1406,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
 
     bse = delta(jacobian(natural))
     if learn is None:
-        return {"params": bse}, bse
+        return {"params": bse}, bse, cov_theta
 
     def entries(t):  # every entry of the learned matrices
         mdl, pri = build(t)
@@ -1410,7 +1420,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         size = int(np.prod(shape))
         out[name] = se[start:start + size].reshape(shape)
         start += size
-    return out, bse
+    return out, bse, cov_theta
 
 
 # ---------------------------------------------------------------------------
@@ -1505,7 +1515,8 @@ def fit(
         Measurements; NaN = missing. N series share one set of parameters
         and are pooled.
     us : array_like of shape (T, p) or (N, T, p), optional
-        Controls, when the model has ``B``.
+        Controls, when the model has ``B``; with a dask `zs`, a dask array
+        chunked over series as `zs` is, or an array in memory (chunked so).
     learn : sequence of str, default ("Q", "R")
         Which of ``"F", "H", "Q", "R", "B", "m0", "P0"`` to learn (m0 and
         P0 are the prior's mean and covariance).
@@ -1528,8 +1539,9 @@ def fit(
     iterations : int, optional
         Maximum iterations (EM: 500; MLE: 1000).
     tol : float, optional
-        EM stops when the log-likelihood changes by less than
-        ``tol * (1 + |loglik|)`` (default 1e-10); ``tol=0`` runs exactly
+        EM stops when the log-likelihood changes by at most `tol` per
+        observed value (default 1e-10), whatever the data's units;
+        ``tol=0`` runs exactly
         `iterations` EM iterations, without the convergence test and
         without a warning. MLE stops when the gradient's largest component,
         per observation, is below `tol` (default 1e-8).
@@ -1618,9 +1630,10 @@ def fit(
     if pooled:  # chunks of series, each summed where it is (_Chunks)
         if zs.shape[2] != model.m:
             raise ValueError(f"`zs` must have m = {model.m} components per step (the model's); got shape {zs.shape}.")
+        us = chunked.chunked_like(us, zs)
         if (us is None) != (model.B is None) or (us is not None and us.shape[:2] != zs.shape[:2]):
-            raise ValueError(f"`us` must be a dask array (N, T, p) chunked as `zs` exactly when the model has B; got "
-                             f"{None if us is None else us.shape}.")
+            raise ValueError(f"`us` must be given, of shape (N, T, p) with the N and T of `zs`, exactly when the model "
+                             f"has B; got {None if us is None else us.shape}.")
         nobs = int(chunked.observed(zs))
         if prior == "diffuse" and 0 < nobs:  # as in memory: a series with nothing observed adds nothing
             seen = chunked.observed_series(zs)
@@ -1687,7 +1700,7 @@ def fit(
     with np.errstate(over="ignore", invalid="ignore"):
         if method == "em":
             model, prior, history, converged, message, engine = _em(model, prior, data, learn, structure,
-                                                                    iterations, tol, callback, engine, switch)
+                                                                    iterations, tol, nobs, callback, engine, switch)
             try:
                 build = _Parametrisation(model, prior, learn, structure)
             except ValueError:  # a learned full covariance became singular: no information matrix
@@ -1703,9 +1716,18 @@ def fit(
             # Ctrl-C asked to stop: the Hessian's 2k gradient passes (a minute on a long series) would not
             # be at a maximum anyway
             interrupted = message.startswith("interrupted")
-            errors, bse = (None, np.full(build.natural(theta).size, np.nan)) if interrupted else \
+            errors, bse, cov_theta = (None, np.full(build.natural(theta).size, np.nan), None) if interrupted else \
                 _standard_errors(evaluate, build, theta, learn)
             names, values = build.names(), build.natural(theta)
+            if method == "em" and converged and cov_theta is not None:
+                gradient = evaluate(theta)[1]
+                gain = 0.5 * gradient @ cov_theta @ gradient  # what a Newton step would add to the log-likelihood
+                if gain > _EM_STALLED * tol * nobs:
+                    converged = False
+                    message = (f"the log-likelihood changed by less than `tol`, but a Newton step from here would "
+                               f"raise it by {gain:.3g} more: EM has stalled short of the maximum, as it does on a "
+                               "parameter its M-step cannot move (the mean of a state component known exactly, the "
+                               "row of H of a sensor without noise); try method='mle'")
             if method == "em" and converged and errors is None and theta.size:
                 gradient = np.abs(evaluate(theta)[1]).max() / nobs
                 if gradient > _MLE_GTOL:  # a plateau or a saddle: EM's steps stalled, not at a maximum

@@ -171,6 +171,30 @@ def test_dask_input_errors():
         gf.fit(model, prior, da.from_array(zs[..., :1]))
 
 
+def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
+    """A NumPy `us` with a dask `zs` raised AttributeError ('numpy.ndarray' object has no attribute 'chunks', or
+    'rechunk' under a diffuse prior with a series unobserved); it is chunked over series as `zs` is."""
+    rng = np.random.default_rng(0)
+    zs, us = rng.normal(size=(4, 20, 1)), rng.normal(size=(4, 20, 1))
+    zs[1] = np.nan  # nothing observed: a diffuse fit drops the series
+    model = gf.LinearModel(F=0.9, H=1.0, Q=1.0, R=1.0, B=1.0)
+    lazy = da.from_array(zs, chunks=(2, 20, 1))
+    prior = gf.Gaussian([0.0], [[1.0]])
+    with dask.config.set(scheduler="synchronous"):
+        for run in (gf.filter, gf.smooth):
+            got, want = run(model, prior, lazy, us), run(model, prior, zs, us)
+            np.testing.assert_array_equal(np.asarray(got.means), want.means)
+        for start in (prior, "diffuse"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", gf.ConvergenceWarning)
+                got, want = (gf.fit(model, start, data, us, learn=("R",), iterations=3, tol=0) for data in (lazy, zs))
+            np.testing.assert_allclose(got.history, want.history, rtol=1e-12)
+        with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, p\) = \(4, 20, p\), .* got \(4, 19, 1\)"):
+            gf.filter(model, prior, lazy, us[:, :19])
+        with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, p\) = \(4, 20, p\), .* got \(20, 1\)"):
+            gf.fit(model, prior, lazy, us[0])
+
+
 def test_a_chunk_spends_its_share_of_the_false_alarm_rate():
     """Each dask chunk's divergence test spent the whole 1e-3: 1,000 one-series chunks warned in 2.6% of calls on
     consistent data (audit N). A window summing to 110 (50 steps, 1 dof each) is past one test's threshold (101)

@@ -53,7 +53,8 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         result then gains that axis. A dask array (N, T, m), chunked over
         series, is filtered chunk by chunk as a Dask graph: the result's
         arrays are dask arrays with its chunks, computed when asked
-        (:mod:`gaussfuse.inference.chunked`; `us` then a dask array too).
+        (:mod:`gaussfuse.inference.chunked`; `us` then a dask array
+        chunked over series as `zs` is, or an array in memory, chunked so).
     us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
         Control inputs: required exactly when a LinearModel has ``B``;
         passed to a NonlinearModel's ``f(x, u_k)`` when given.

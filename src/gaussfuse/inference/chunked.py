@@ -30,7 +30,7 @@ import numpy as np
 
 from . import drivers
 
-__all__ = ["is_dask", "series_blocks", "paired_blocks", "map_series", "observed"]
+__all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed"]
 
 
 def is_dask(a) -> bool:
@@ -69,6 +69,25 @@ def series_blocks(name: str, a, ndim: int = 3):
     return a.astype(np.float64).to_delayed().reshape(-1).tolist(), a.chunks[0]
 
 
+def chunked_like(us, zs):
+    """`us` as a dask array: as it is if it is one, else (an array in memory) chunked over series as `zs` is.
+
+    Raises
+    ------
+    ValueError
+        When `us` in memory is not (N, T, p) with the N and T of `zs`.
+    """
+    if us is None or is_dask(us):
+        return us
+    import dask.array as da
+
+    us = np.asarray(us)
+    if us.ndim != 3 or us.shape[:2] != zs.shape[:2]:
+        raise ValueError(f"`us` must have shape (N, T, p) = ({zs.shape[0]}, {zs.shape[1]}, p), the series and steps of "
+                         f"`zs`; got {us.shape}.")
+    return da.from_array(us, chunks=(zs.chunks[0], -1, -1))
+
+
 def paired_blocks(zs, us) -> tuple[list, list, tuple]:
     """The blocks of `zs` and of `us` (None for each when `us` is None), chunk for chunk, and the chunks' sizes.
 
@@ -80,7 +99,7 @@ def paired_blocks(zs, us) -> tuple[list, list, tuple]:
     blocks, sizes = series_blocks("zs", zs)
     if us is None:
         return blocks, [None] * len(blocks), sizes
-    controls, control_sizes = series_blocks("us", us)
+    controls, control_sizes = series_blocks("us", chunked_like(us, zs))
     if control_sizes != sizes:
         raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and {sizes}.")
     return blocks, controls, sizes
