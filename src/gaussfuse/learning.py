@@ -1579,7 +1579,9 @@ def fit(
     -----
     ConvergenceWarning
         When the fit stops at its iteration limit (EM) or the optimiser
-        reports a failure (MLE) before meeting `tol`; the result is the best
+        reports a failure (MLE) before meeting `tol`, or EM meets `tol`
+        where a Newton step would still gain over 1000 times `tol` per
+        observation (stalled, not at a maximum); the result is the best
         model found, with ``converged=False``.
 
     Raises
