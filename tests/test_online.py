@@ -504,3 +504,21 @@ def test_assigning_a_model_matrix_says_where_it_goes(name, hint):
     assert getattr(kf, name) is before
     if name in "FHQR":
         np.testing.assert_array_equal(getattr(kf, name), getattr(model, name))  # read as filterpy's are
+
+
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_a_prediction_that_overflows_raises_naming_its_step_and_keeps_the_belief(form):
+    """The square-root form's predict returned a mean of inf and P = inf·I (F = 1e200 I), or P = L Lᵀ of inf from
+    a finite factor (Q = 5e307 I, two steps), with only NumPy's RuntimeWarning; the next update named step 1."""
+    H = np.array([[1.0, 0.0]])
+    kf = gf.KalmanFilter(gf.LinearModel(1e200 * np.eye(2), H, np.eye(2), 1.0),
+                         gf.Gaussian([1e200, 0.0], 1e200 * np.eye(2)), check="off", form=form)
+    with pytest.raises(FloatingPointError, match=r"^at step 0: the predicted mean or covariance is not finite"):
+        kf.predict()
+    assert kf.step == 0 and kf.x[0] == 1e200
+    kf = gf.KalmanFilter(gf.LinearModel(np.eye(2), H, 5e307 * np.eye(2), 1.0), gf.Gaussian([0.0, 0.0], np.eye(2)),
+                         check="off", form=form)
+    kf.predict()
+    with pytest.raises(FloatingPointError, match=r"^at step 1: the predicted mean or covariance is not finite"):
+        kf.predict()
+    assert kf.step == 1 and np.isfinite(kf.P).all()
