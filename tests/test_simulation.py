@@ -176,3 +176,29 @@ def test_simulate_names_its_own_arguments():
     controlled = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2), B=np.ones((2, 1)))
     with pytest.raises(ValueError, match=r"matching `T`; got shape \(2, 3, 1\)"):
         gf.simulate(controlled, prior, 3, us=np.zeros((2, 3, 1)), size=2)
+
+
+def _heading(state_angles=(0,), measurement_angles=()):
+    """A heading turning at a nearly constant rate, read as its (cos, sin) or as itself."""
+    def f(x):
+        return np.stack([x[..., 0] + x[..., 1], x[..., 1]], axis=-1)
+
+    def h(x):
+        return np.stack([np.cos(x[..., 0]), np.sin(x[..., 0]), x[..., 0]], axis=-1)
+
+    return gf.NonlinearModel(f, h, Q=np.diag([1e-4, 1e-6]), R=np.diag([0.01, 0.01, 0.04]), vectorized=True,
+                             state_angles=state_angles, measurement_angles=measurement_angles)
+
+
+def test_simulated_angles_are_wrapped_as_the_filter_wraps_its_means():
+    """A heading turning at 0.1 rad a step reached 7.3 rad, and 49% of bearings near π lay outside [-π, π):
+    the filter's means and a sensor's readings are wrapped, so NEES and plots saw jumps of 2π."""
+    prior = gf.Gaussian([3.0, 0.1], np.diag([1e-4, 1e-6]))
+    plain = gf.simulate(_heading((), ()), prior, 60, size=5, rng=4)
+    wrapped = gf.simulate(_heading((0,), (2,)), prior, 60, size=5, rng=4)
+    assert plain.states[..., 0].max() > 7.0  # the draws cross π many times
+    for got, want in ((wrapped.states, plain.states), (wrapped.measurements, plain.measurements)):
+        angle = got.shape[-1] - 1 if got.shape[-1] == 3 else 0
+        assert (-np.pi <= got[..., angle]).all() and (got[..., angle] < np.pi).all()
+        np.testing.assert_allclose(np.delete(got, angle, -1), np.delete(want, angle, -1), atol=1e-12)
+        np.testing.assert_allclose(got[..., angle], gf.wrap_angle(want[..., angle]), atol=1e-12)

@@ -24,7 +24,7 @@ _F64 = np.dtype(np.float64)
 _DTYPE = attrgetter("dtype")
 
 __all__ = ["as_array", "as_numbers", "flag", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
-           "call_each", "raise_call", "size_reason", "finite_step", "generator"]
+           "call_each", "raise_call", "size_reason", "finite_step", "generator", "component_mask"]
 
 
 def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
@@ -483,3 +483,38 @@ def generator(rng) -> np.random.Generator:
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`rng` must be None, a non-negative integer seed or a numpy.random.Generator; "
                         f"got {rng!r}.") from exc
+
+
+def component_mask(name: str, value, size: int) -> np.ndarray:
+    """A read-only boolean mask of length `size` from a boolean mask or a sequence of component indices.
+
+    A sequence of booleans is a mask and must have length `size`; a sequence of
+    integers lists components (negative ones count from the end). A mix of the
+    two is ambiguous (True is also the index 1) and is refused.
+    """
+    items = list(np.asarray(value if value is not None else (), dtype=object).reshape(-1))
+    flags = [isinstance(i, (bool, np.bool_)) for i in items]
+    if items and all(flags):
+        if len(items) != size:
+            raise ValueError(
+                f"`{name}` as a boolean mask must have length {size}, one entry per component; "
+                f"got length {len(items)}."
+            )
+        mask = np.array(items, dtype=bool)
+    elif any(flags):
+        raise ValueError(
+            f"`{name}` must be a boolean mask of length {size} or a sequence of component indices, "
+            f"not a mix of booleans and numbers; got {items}."
+        )
+    else:
+        mask = np.zeros(size, dtype=bool)
+        for i in items:
+            if not isinstance(i, (int, np.integer)) or not -size <= i < size:
+                raise ValueError(
+                    f"`{name}` must hold component indices in [-{size}, {size}) (negative ones count from the end) "
+                    f"or be a boolean mask of "
+                    f"length {size}; got {items}."
+                )
+            mask[i] = True
+    mask.setflags(write=False)
+    return mask

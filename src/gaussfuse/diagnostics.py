@@ -34,9 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._linalg import cholesky, factorable, observed_gram, whiten
+from ._linalg import cholesky, factorable, observed_gram, whiten, wrap_components
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
-from ._validation import as_array, integer, shape_error
+from ._validation import as_array, component_mask, integer, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
            "DIVERGENCE_FALSE_ALARM", "whiteness", "rmse", "consistency", "ConsistencyReport", "Whiteness"]
@@ -89,7 +89,8 @@ def nees(errors, covs) -> np.ndarray:
     Parameters
     ----------
     errors : array_like of shape (..., T, n)
-        ``truth - estimate``; a step whose errors are all NaN (an estimate
+        ``truth - estimate``, angle components wrapped to [-π, π)
+        (:func:`gaussfuse.wrap_angle`); a step whose errors are all NaN (an estimate
         not yet identified, as a diffuse prior's first steps) gives NaN.
     covs : array_like of shape (..., T, n, n)
         The estimate's covariances. A singular one (a component known
@@ -712,7 +713,7 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     return Whiteness(rho.mean(axis=1), bound, float(q), p, p >= 1 - confidence)
 
 
-def rmse(estimates, truth, axis=None) -> np.ndarray | float:
+def rmse(estimates, truth, axis=None, angles=None) -> np.ndarray | float:
     """Root mean squared error ``sqrt(mean(sum((estimate - truth)², -1)))``.
 
     Parameters
@@ -722,6 +723,10 @@ def rmse(estimates, truth, axis=None) -> np.ndarray | float:
     axis : int or tuple, optional
         Axes of the mean (over the leading axes, after summing over the
         last); all by default.
+    angles : sequence of int or of bool, optional
+        The components that are angles (a model's ``state_angles``): their
+        differences are wrapped to [-π, π), so that estimates of 3.1 and
+        -3.1 rad are 0.08 apart, not 6.2.
 
     Returns
     -------
@@ -739,7 +744,8 @@ def rmse(estimates, truth, axis=None) -> np.ndarray | float:
         raise shape_error("truth", f"{a.shape}, that of `estimates`", b.shape)
     if a.ndim == 1:  # a series of scalars
         a, b = a[:, None], b[:, None]
-    out = np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1), axis=axis))
+    diff = wrap_components(a - b, None if angles is None else component_mask("angles", angles, a.shape[-1]))
+    out = np.sqrt(np.mean(np.sum(diff ** 2, axis=-1), axis=axis))
     return float(out) if np.ndim(out) == 0 else out
 
 
@@ -809,7 +815,8 @@ class ConsistencyReport:
         return "\n".join(lines)
 
 
-def consistency(result, truth=None, confidence: float = 0.95, lags: int | None = None) -> ConsistencyReport:
+def consistency(result, truth=None, confidence: float = 0.95, lags: int | None = None,
+                angles=None) -> ConsistencyReport:
     """One-call consistency report of a filter result (one series or N runs).
 
     Parameters
@@ -822,6 +829,10 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
     confidence : float, default 0.95
     lags : int, optional
         Whiteness lags (default min(10, T // 5)); the test needs T >= 10.
+    angles : sequence of int or of bool, optional
+        The state components that are angles (the model's
+        ``state_angles``): their errors ``truth - mean`` are wrapped to
+        [-π, π) for the NEES and the RMSE, as the filter wraps its means.
 
     Returns
     -------
@@ -852,7 +863,8 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
             raise shape_error("truth", f"{np.shape(result.means)}, that of the filtered means", truth.shape)
         # the steps whose estimate is identified (not a diffuse prior's first steps, NaN)
         known = np.isfinite(result.means).all(axis=-1)
-        e, dof_e = _nees(truth - result.means, result.covs)
+        mask = None if angles is None else component_mask("angles", angles, truth.shape[-1])
+        e, dof_e = _nees(wrap_components(truth - result.means, mask), result.covs)
         nees_avg = float(np.mean(e[known]))
         if e.ndim == 2 and e.shape[0] >= 2:  # each run's time average: independent across runs
             from scipy.stats import t as student
@@ -862,7 +874,7 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
             n = float(np.mean(dof_e[known]))  # the state dimension, less directions known exactly
             nees_interval = (n - half, n + half)
             nees_ok = bool(nees_interval[0] <= nees_avg <= nees_interval[1])
-        err = rmse(result.means[known], truth[known])
+        err = rmse(result.means[known], truth[known], angles=mask)
     batch = np.ndim(result.innovations) == 3
     first_v = result.innovations[0] if batch else result.innovations
     first_S = result.innovation_covs[0] if batch else result.innovation_covs

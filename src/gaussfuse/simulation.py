@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
+from ._linalg import wrap_components
 from ._frozen import reduce_frozen, shapes_repr
 from ._validation import generator, integer
 from .errors import ModelFunctionError, at_step
@@ -103,6 +104,9 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     Returns
     -------
     Simulation
+        The components the model declares as angles (``state_angles``,
+        ``measurement_angles``) in [-π, π), as a filter reports its means
+        and a sensor its readings.
 
     Raises
     ------
@@ -140,6 +144,7 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     x = x0
     roots = kalman.Factors()
     linear = isinstance(model, LinearModel)
+    state_angles, measurement_angles = (getattr(model, name, None) for name in ("state_angles", "measurement_angles"))
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
         for k in range(T):
             try:  # (f and h are checked at each row; their errors name the step, as a filter's do)
@@ -149,11 +154,12 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
                 else:
                     Q, R = model.noise(k)
                     x = model.transition(x, None if u is None else u[k])
-                x = x + _draw(rng, roots("Q", Q), count)
+                x = wrap_components(x + _draw(rng, roots("Q", Q), count), state_angles)
                 z = x @ H.T if linear else model.measurement(x)
             except ModelFunctionError as exc:
                 raise at_step(exc, k) from None
-            states[:, k], measurements[:, k] = x, z + _draw(rng, roots("R", R), count)
+            states[:, k] = x
+            measurements[:, k] = wrap_components(z + _draw(rng, roots("R", R), count), measurement_angles)
     if not (np.all(np.isfinite(states)) and np.all(np.isfinite(measurements))):
         raise FloatingPointError("the simulation overflowed: its states or measurements are not finite.")
     out = (states, measurements, x0) if size is not None else (states[0], measurements[0], x0[0])

@@ -7,44 +7,10 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, call_checked, call_each, check_psd, flag, integer, real, size_reason
+from .._validation import (as_matrix, call_checked, call_each, check_psd, component_mask, flag, integer, real,
+                           size_reason)
 
 __all__ = ["NonlinearModel"]
-
-
-def _indices(name: str, value, size: int) -> np.ndarray:
-    """A read-only boolean mask of length `size` from a boolean mask or a sequence of component indices.
-
-    A sequence of booleans is a mask and must have length `size`; a sequence of
-    integers lists components (negative ones count from the end). A mix of the
-    two is ambiguous (True is also the index 1) and is refused.
-    """
-    items = list(np.asarray(value if value is not None else (), dtype=object).reshape(-1))
-    flags = [isinstance(i, (bool, np.bool_)) for i in items]
-    if items and all(flags):
-        if len(items) != size:
-            raise ValueError(
-                f"`{name}` as a boolean mask must have length {size}, one entry per component; "
-                f"got length {len(items)}."
-            )
-        mask = np.array(items, dtype=bool)
-    elif any(flags):
-        raise ValueError(
-            f"`{name}` must be a boolean mask of length {size} or a sequence of component indices, "
-            f"not a mix of booleans and numbers; got {items}."
-        )
-    else:
-        mask = np.zeros(size, dtype=bool)
-        for i in items:
-            if not isinstance(i, (int, np.integer)) or not -size <= i < size:
-                raise ValueError(
-                    f"`{name}` must hold component indices in [-{size}, {size}) (negative ones count from the end) "
-                    f"or be a boolean mask of "
-                    f"length {size}; got {items}."
-                )
-            mask[i] = True
-    mask.setflags(write=False)
-    return mask
 
 
 class NonlinearModel:
@@ -156,8 +122,8 @@ class NonlinearModel:
         values = dict(
             f=f, h=h, Q=Q, R=R, f_jacobian=f_jacobian, h_jacobian=h_jacobian,
             vectorized=bool(vectorized),
-            state_angles=_indices("state_angles", state_angles, Q.shape[-1]),
-            measurement_angles=_indices("measurement_angles", measurement_angles, R.shape[-1]),
+            state_angles=component_mask("state_angles", state_angles, Q.shape[-1]),
+            measurement_angles=component_mask("measurement_angles", measurement_angles, R.shape[-1]),
         )
         for name, value in values.items():
             object.__setattr__(self, name, value)
