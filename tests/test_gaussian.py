@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from fractions import Fraction
 
 import numpy as np
@@ -425,3 +426,12 @@ def test_fuse_keeps_a_precise_measurement_beside_a_vague_belief_far_away():
         for first, second in ((gf.Gaussian(a, A), gf.Gaussian(b, B)), (gf.Gaussian(b, B), gf.Gaussian(a, A))):
             got = gf.fuse(first, second).mean[0]
             assert abs(got - exact) <= 1e-12 * np.sqrt(B)
+
+
+def test_logpdf_far_in_the_tail_is_minus_infinity_without_a_warning():
+    """The exact value, -5e399, is below float64's range: -inf is right, but NumPy's overflow warning leaked."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert gf.Gaussian([0.0], [[1.0]]).logpdf([1e200]) == -np.inf
+        assert gf.Gaussian([0.0], [[1e-300]]).logpdf([1e10]) == -np.inf
+        assert gf.Gaussian([0.0], [[1.0]]).logpdf([1e100]) == pytest.approx(-5e199)  # below that: a number

@@ -114,7 +114,8 @@ class Gaussian:
         Returns
         -------
         float or ndarray of shape (k,)
-            The log-density at the point, or at each of the k points.
+            The log-density at the point, or at each of the k points; -inf
+            at a point so far out that its squared distance overflows.
         """
         x = as_array("x", x)
         if x.ndim > 2 or (x.shape[-1:] != (self.dim,) and not (self.dim == 1 and x.ndim <= 1)):
@@ -122,7 +123,8 @@ class Gaussian:
         if self.dim == 1 and x.shape[-1:] != (1,):
             x = x[..., None]
         L = cholesky(self.cov, "`cov`")
-        out = log_density(whiten(L, (x - self.mean).T).T, L)
+        with np.errstate(over="ignore"):  # a squared distance beyond 1.8e308: the log-density is -inf in float64
+            out = log_density(whiten(L, (x - self.mean).T).T, L)
         return float(out) if np.ndim(out) == 0 else out
 
     def sample(self, size: int | None = None, rng=None) -> np.ndarray:
