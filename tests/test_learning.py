@@ -940,3 +940,28 @@ def test_em_stalled_on_a_parameter_it_cannot_move_is_not_called_converged():
     for fit in (em, mle):  # the log-likelihoods are the dense oracle's
         want = _oracle.reference(F, H, model.Q, model.R, fit.prior.mean, prior.cov, np.array(zs))["loglik"]
         assert fit.loglik == pytest.approx(want, abs=1e-9)
+
+
+def test_an_em_step_for_r_sums_over_the_steps_with_an_observation():
+    """A step with nothing observed added the current R to R's sum (its expected residual given no data),
+    which slowed EM; it is left out, as pykalman does: one step is the dense oracle's smoothed residuals over
+    the observed steps, divided by their count (pykalman's EM, when installed, gives the same iterates)."""
+    rng = np.random.default_rng(8)
+    F, H, Q, R = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]]), np.diag([0.05, 0.01]), np.array([[2.0]])
+    model, prior = gf.LinearModel(F, H, Q, R), gf.Gaussian([0.0, 1.0], np.eye(2))
+    zs = np.array(gf.simulate(model, prior, 80, rng=rng).measurements)
+    zs[rng.random(80) < 0.4] = np.nan
+    fit = gf.fit(model, prior, zs, learn=("R",), method="em", iterations=1, tol=0)
+    ref = _oracle.reference(F, H, Q, R, prior.mean, prior.cov, zs)
+    seen = ~np.isnan(zs[:, 0])
+    m, P = ref["smoothed_means"][seen], ref["smoothed_covs"][seen]
+    v = zs[seen] - m @ H.T
+    want = np.mean(v[:, :, None] * v[:, None, :] + H @ P @ H.T, axis=0)
+    np.testing.assert_allclose(fit.model.R, want, rtol=1e-10)
+    pykalman = pytest.importorskip("pykalman")
+    # pykalman's prior is the first state's belief: one step of the model before it, and its own filter's likelihood
+    kf = pykalman.KalmanFilter(F, H, Q, R, initial_state_mean=F @ prior.mean,
+                               initial_state_covariance=F @ prior.cov @ F.T + Q, em_vars=["observation_covariance"])
+    ours = gf.fit(model, prior, zs, learn=("R",), method="em", iterations=5, tol=0)
+    kf = kf.em(np.ma.masked_invalid(zs), n_iter=5)
+    np.testing.assert_allclose(ours.model.R, kf.observation_covariance, rtol=1e-12)

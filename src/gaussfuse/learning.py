@@ -31,9 +31,12 @@ so the sums over transitions start at :math:`t = 2`.
   :math:`R = \frac1T \sum E[v v^\top]`,
   :math:`m_0 = E[x_0]`, :math:`P_0 = \operatorname{Cov}[x_0]`; the steps
   after a series' last observation (a short series padded to a long one's
-  length) are left out of these sums, as is a series with none: their
-  expected statistics are the current model's own, which would only slow
-  EM (their likelihood is 1 either way). A diagonal
+  length) are left out of these sums, as is a series with none, and the
+  steps with nothing observed are left out of the measurement's sums (H
+  and R, over the :math:`T` steps with an observation), as pykalman does:
+  their expected statistics are the current model's own, which would only
+  slow EM (their likelihood is 1 either way; the complete data are then
+  the states and the measurements of those steps). A diagonal
   or scalar covariance keeps the diagonal or its mean. Each step is an
   exact maximisation, so the likelihood never decreases. A learned
   covariance is projected onto the positive semi-definite matrices (its
@@ -294,10 +297,10 @@ class Statistics:
     x0_mean, x0_cov : ndarray of shape (N, n), (N, n, n)
         Smoothed moments of x_0.
     kept_w, kept_v, seen : ndarray of bool, shape (N·T_w,), (N·T,), (N,)
-        The transitions and steps up to each series' last observation, and
-        the series with one: EM's sums (:func:`_first_sums`,
-        :func:`_second_sums`) leave out the steps after it (a series padded
-        to a longer one's length), whose expected statistics are the
+        The transitions up to each series' last observation, the steps with
+        an observation, and the series with one: EM's sums
+        (:func:`_first_sums`, :func:`_second_sums`) leave out the others (a
+        series padded to a longer one's length, a gap), whose expected statistics are the
         current model's own and would only slow EM, and series with none.
     """
 
@@ -354,7 +357,7 @@ class Statistics:
         observed = ~np.isnan(zs).all(axis=2)  # (N, T)
         self.seen = observed.any(axis=1)
         upto = np.cumsum(observed[:, ::-1], axis=1)[:, ::-1] > 0  # at or before the series' last observation
-        self.kept_w, self.kept_v = upto[:, a:].ravel(), upto.ravel()
+        self.kept_w, self.kept_v = upto[:, a:].ravel(), observed.ravel()
 
     def per_step(self, M: np.ndarray | None, start: int = 0) -> np.ndarray | None:
         """A model matrix (time-invariant, or one per step) at each step of the stack from step `start` on."""
