@@ -553,6 +553,8 @@ def test_batches_and_keep():
 @pytest.mark.parametrize("kwargs, message", [
     ({"form": "chol"}, "`form` must be one of"),
     ({"form": "sqrt", "engine": "numba", "gains": True}, "cannot run gains=True"),
+    # the gains were dropped without a word (gains=None)
+    ({"gains": True, "keep": "last"}, r"^`gains=True` keeps each step's gain, which keep='last' does not keep"),
 ])
 def test_bad_form_arguments_are_named(kwargs, message):
     model = gf.constant_velocity(0.1, 1.0, 0.25)

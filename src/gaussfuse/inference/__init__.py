@@ -111,7 +111,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         decays again over the next steps.
     gains : bool, default False
         Also return the Kalman gain of each step, ``FilterResult.gains``
-        (T, n, m), on the readable path.
+        (T, n, m), on the readable path (not with ``keep="last"``).
     check : {"warn", "raise", "off"}, default "warn"
         The divergence test: when the normalised innovations
         (``FilterResult.nis``) of a window of 50 steps are too large for the
@@ -231,6 +231,9 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     gains = flag("gains", gains)
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")
+    if gains and keep == "last":
+        raise ValueError("`gains=True` keeps each step's gain, which keep='last' does not keep: pass keep='all' or "
+                         "'means'.")
     gate = _gate(gate, gate_by, prior)
     drivers.checked(check)
     if prior == "diffuse":
