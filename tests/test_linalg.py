@@ -124,6 +124,14 @@ def test_observed_gram_over_the_observed_components():
 
 def test_wrap_angle_and_circular_mean():
     np.testing.assert_allclose(_linalg.wrap_angle(np.array([np.pi, -np.pi, 3 * np.pi / 2])), [-np.pi, -np.pi, -np.pi / 2])
+    # just below -π, (a + π) mod 2π rounded to 2π, which gave +π: outside [-π, π) (4.5% of such angles)
+    below = -np.pi - np.random.default_rng(0).uniform(0.0, 1e-12, 10_000)
+    below[0] = np.nextafter(-np.pi, -np.inf)
+    for a in (below, below + 2 * np.pi, below - 4 * np.pi):
+        w = _linalg.wrap_angle(a)
+        assert (w >= -np.pi).all() and (w < np.pi).all()
+        np.testing.assert_allclose(np.exp(1j * w), np.exp(1j * a), atol=1e-11)  # the same angle
+    assert _linalg.wrap_angle(float(below[0])) == -np.pi
     mean = _linalg.circular_mean(np.array([[np.pi - 0.1], [-np.pi + 0.1]]), np.array([0.5, 0.5]))
     assert abs(abs(mean[0]) - np.pi) < 1e-12  # the mean of 179° and -179° is 180°, not 0°
 

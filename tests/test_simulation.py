@@ -197,6 +197,9 @@ def test_simulated_angles_are_wrapped_as_the_filter_wraps_its_means():
     plain = gf.simulate(_heading((), ()), prior, 60, size=5, rng=4)
     wrapped = gf.simulate(_heading((0,), (2,)), prior, 60, size=5, rng=4)
     assert plain.states[..., 0].max() > 7.0  # the draws cross π many times
+    start = gf.simulate(_heading(), gf.Gaussian([3.1, 0.0], np.diag([0.01, 1e-6])), 1, size=200, rng=1).initial
+    assert (np.abs(start[:, 0]) <= np.pi).all() and (np.abs(start[:, 0]) > 2.5).all()  # x_0 too (it was not)
+    assert (start[:, 0] < 0).sum() > 50  # (past π: wrapped)
     for got, want in ((wrapped.states, plain.states), (wrapped.measurements, plain.measurements)):
         angle = got.shape[-1] - 1 if got.shape[-1] == 3 else 0
         assert (-np.pi <= got[..., angle]).all() and (got[..., angle] < np.pi).all()

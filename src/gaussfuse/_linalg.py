@@ -729,7 +729,8 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray
-        ``(a + π) mod 2π − π``, elementwise.
+        ``(a + π) mod 2π − π``, elementwise; where that rounds to π (an
+        angle within round-off below -π), -π.
 
     Examples
     --------
@@ -737,7 +738,8 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     >>> float(gf.wrap_angle(3.5))
     -2.7831853071795862
     """
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
+    w = (a + np.pi) % (2.0 * np.pi) - np.pi
+    return w - 2.0 * np.pi * (w >= np.pi)
 
 
 def near(x: np.ndarray, ref: np.ndarray, angles: np.ndarray | None) -> np.ndarray:

@@ -139,12 +139,13 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     rng = generator(rng)
     n, m = model.n, model.m
     states, measurements = np.empty((count, T, n)), np.empty((count, T, m))
+    state_angles, measurement_angles = (getattr(model, name, None) for name in ("state_angles", "measurement_angles"))
     with np.errstate(over="ignore", invalid="ignore"):
-        x0 = prior.mean + _draw(rng, kalman.cov_factor(prior.cov, "the prior covariance"), count)
+        x0 = wrap_components(prior.mean + _draw(rng, kalman.cov_factor(prior.cov, "the prior covariance"), count),
+                             state_angles)
     x = x0
     roots = kalman.Factors()
     linear = isinstance(model, LinearModel)
-    state_angles, measurement_angles = (getattr(model, name, None) for name in ("state_angles", "measurement_angles"))
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below
         for k in range(T):
             try:  # (f and h are checked at each row; their errors name the step, as a filter's do)

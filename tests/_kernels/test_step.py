@@ -139,6 +139,24 @@ def test_an_innovation_covariance_not_positive_definite_is_returned_not_raised(m
         kalman.update(np.zeros(n), np.eye(n), z, H, R)
 
 
+def test_wrap_is_wrap_angle_at_the_edges():
+    """The compiled wrap mirrors _linalg.wrap_angle, the angles within round-off below -π too (which gave +π)."""
+    from numba import njit
+
+    wrap = njit(_step.wrap.py_func)  # (inlined where it is used: compiled here on its own)
+    edge = np.concatenate([[np.nextafter(-np.pi, -np.inf), -np.pi, np.pi, 3 * np.pi, -3 * np.pi, 0.0, 1e300, -7.5],
+                           -np.pi - np.random.default_rng(1).uniform(0.0, 1e-12, 200)])
+    got = np.array([wrap(a) for a in edge])
+    np.testing.assert_array_equal(got, _linalg_wrap(edge))
+    assert (got >= -np.pi).all() and (got < np.pi).all()
+
+
+def _linalg_wrap(a):
+    from gaussfuse._linalg import wrap_angle
+
+    return wrap_angle(a)
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.sampled_from([1, 2, 4, 7, BLAS_FROM + 3]),
        kind=st.sampled_from(KINDS))

@@ -105,7 +105,8 @@ def at(a, k):
 @jit(inline="always", **_JIT)
 def wrap(a):
     """_linalg.wrap_angle: ``(a + π) % 2π - π``, with NumPy's (Python's) floating modulo."""
-    return (a + math.pi) % _TWO_PI - math.pi
+    w = (a + math.pi) % _TWO_PI - math.pi
+    return w - _TWO_PI if w >= math.pi else w
 
 
 # ---------------------------------------------------------------------------
