@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._linalg import cholesky, observed_gram, whiten, wrap_components
+from ._linalg import UNRESOLVED, cholesky, observed_gram, whiten, wrap_components
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
 from ._validation import as_array, component_mask, integer, shape_error
 
@@ -89,7 +89,7 @@ def nis(innovations, innovation_covs) -> np.ndarray:
     return _quadratic("innovations", innovations, "innovation_covs", innovation_covs)[0]
 
 
-def nees(errors, covs, predicted_covs=None) -> np.ndarray:
+def nees(errors, covs, scale=None) -> np.ndarray:
     """Normalised estimation error squared ``eᵀ P⁻¹ e`` at each step.
 
     Parameters
@@ -105,15 +105,16 @@ def nees(errors, covs, predicted_covs=None) -> np.ndarray:
         which directions count as singular does not depend on units; the
         error along the rest, which a consistent filter makes 0, is not
         counted. A direction whose variance there is at most
-        :data:`SINGULAR` n ε of the largest counts as singular: what the
-        filter's round-off leaves where it is 0 in exact arithmetic.
-    predicted_covs : array_like of shape (..., T, n, n), optional
-        The covariances before the updates that gave `covs` (a
-        FilterResult's ``predicted_covs``): a component whose variance an
-        update took to at most :data:`SINGULAR` n ε of its predicted one
-        counts as known exactly, as it is in exact arithmetic (a
-        noise-free sensor of it leaves a variance of round-off, 1e-40 say,
-        and an error that is the round-off of its value).
+        :data:`SINGULAR` n ε of the largest counts as singular: the
+        filter's round-off, where it is 0 in exact arithmetic.
+    scale : array_like of shape (..., T, n), optional
+        The size of the values each error was computed from
+        (:func:`consistency` takes the largest of the truth, the estimate
+        and the prediction): a component whose standard deviation is at
+        most 8 ε of it counts as known exactly. A filter leaves a variance
+        of round-off (1e-40, say) where a noise-free sensor fixed a
+        component, and an error that is round-off of the value too (4e-16
+        for a value of 2): their ratio means nothing.
 
     Returns
     -------
@@ -121,27 +122,26 @@ def nees(errors, covs, predicted_covs=None) -> np.ndarray:
         Each value χ² with rank(P) degrees of freedom (n for a positive
         definite P) for a consistent filter.
     """
-    return _nees(errors, covs, predicted_covs)[0]
+    return _nees(errors, covs, scale)[0]
 
 
-SINGULAR = 64
+SINGULAR = 4
 """:func:`nees` takes a direction of P, scaled to unit diagonal, as singular where its variance is at most
-``SINGULAR n ε`` of the largest: the Joseph form leaves up to 2.3 n ε there where it is 0 in exact arithmetic (a
-noise-free sensor of x0 + x1 of three states, both forms and engines), which a cut of n ε counted at 22-50% of the
-steps."""
+``SINGULAR n ε`` of the largest: the Joseph form leaves up to 2.25 ε there where it is 0 in exact arithmetic (a
+noise-free sensor of x0 + x1 of three states, both forms and engines), while a sensor 1e14 times more precise than
+the prediction leaves 1e-14, computed to about 1%."""
 
 
-def _nees(errors, covs, predicted_covs=None) -> tuple[np.ndarray, np.ndarray]:
+def _nees(errors, covs, scale=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`nees` and each value's degrees of freedom (the rank of the observed block of P)."""
     e, C = _vectors("errors", errors, "covs", covs)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
-    floor = None  # each component's variance at or below which it is known exactly
-    if predicted_covs is not None:
-        before = as_array("predicted_covs", predicted_covs, allow_nan=True)
-        if before.shape != C.shape:
-            raise shape_error("predicted_covs", f"{C.shape}, that of `covs`", before.shape)
-        floor = SINGULAR * e.shape[-1] * np.finfo(np.float64).eps * np.diagonal(
-            before.reshape(flat_C.shape), axis1=-2, axis2=-1)
+    floor = None  # each component's standard deviation at or below which it is known exactly
+    if scale is not None:
+        size = as_array("scale", scale, allow_nan=True)
+        if size.shape != e.shape:
+            raise shape_error("scale", f"{e.shape}, that of `errors`", size.shape)
+        floor = UNRESOLVED * np.abs(size.reshape(flat_e.shape))
     out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=np.int64)
     whole = ~np.isnan(flat_e).any(axis=1) & np.isfinite(flat_C).all(axis=(1, 2))
     out[whole], dof[whole] = _pseudo_nees(flat_e[whole], flat_C[whole], None if floor is None else floor[whole])
@@ -157,13 +157,12 @@ def _nees(errors, covs, predicted_covs=None) -> tuple[np.ndarray, np.ndarray]:
 def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """``eᵀ P⁺ e`` and rank(P) for stacks e (k, n) and P (k, n, n), on P scaled to unit diagonal (see :func:`nees`).
 
-    A component of variance 0, or at most its `floor` (k, n), is a zero row of the scaled P: its eigenvalue 0 falls
-    below the cut, and its error is not counted.
+    A component of variance 0, or of standard deviation at most its `floor` (k, n), is a zero row of the scaled P:
+    its eigenvalue 0 falls below the cut, and its error is not counted.
     """
     n = P.shape[-1]
-    variances = np.diagonal(P, axis1=-2, axis2=-1).clip(min=0.0)
-    known = variances <= (0.0 if floor is None else floor)
-    d = np.sqrt(variances)
+    d = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1).clip(min=0.0))
+    known = d <= (0.0 if floor is None else floor)
     unit = np.where(known, 1.0, d)
     scaled = np.where(known[:, :, None] | known[:, None, :], 0.0, P / unit[:, :, None] / unit[:, None, :])
     vals, vecs = np.linalg.eigh(scaled)
@@ -889,7 +888,13 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
         # the steps whose estimate is identified (not a diffuse prior's first steps, NaN)
         known = np.isfinite(result.means).all(axis=-1)
         mask = None if angles is None else component_mask("angles", angles, truth.shape[-1])
-        e, dof_e = _nees(wrap_components(truth - result.means, mask), result.covs, result.predicted_covs)
+        if result.covs is None:
+            raise ValueError("`result` holds no covariances (keep='means'), which the NEES needs: filter with "
+                             "keep='all', or leave out `truth`.")
+        sizes = np.fmax(np.abs(result.means), np.abs(truth))  # what an error's round-off is relative to
+        if result.predicted_means is not None:
+            sizes = np.fmax(sizes, np.abs(result.predicted_means))
+        e, dof_e = _nees(wrap_components(truth - result.means, mask), result.covs, sizes)
         nees_avg = float(np.mean(e[known]))
         if e.ndim == 2 and e.shape[0] >= 2:  # each run's time average: independent across runs
             from scipy.stats import t as student
