@@ -474,3 +474,13 @@ def test_nees_counts_what_is_precise_but_not_exact(case):
     assert report.nees == pytest.approx(want.mean(), rel=1e-3)  # (the oracle's inverse loses digits at cond 1e14)
     assert report.nees > 10  # the sensor's true noise is 100 times its R: inconsistent, and seen to be
     assert (dg._nees(e, res.covs)[1] == 2).all()
+
+
+def test_consistency_with_the_truth_names_a_result_without_covariances():
+    """keep='means' keeps the innovations but no covariances: NEES raised "covs must be an array of numbers"."""
+    model = gf.constant_velocity(1.0, 0.1, 1.0)
+    sim = gf.simulate(model, gf.Gaussian([0.0, 0.0], np.eye(2)), 30, rng=0)
+    res = gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), sim.measurements, keep="means")
+    assert dg.consistency(res).nees is None  # the NIS alone is fine
+    with pytest.raises(ValueError, match=r"^`result` holds no covariances \(keep='means'\), which the NEES needs"):
+        dg.consistency(res, sim.states)
