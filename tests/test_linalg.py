@@ -132,6 +132,8 @@ def test_wrap_angle_and_circular_mean():
         assert (w >= -np.pi).all() and (w < np.pi).all()
         np.testing.assert_allclose(np.exp(1j * w), np.exp(1j * a), atol=1e-11)  # the same angle
     assert _linalg.wrap_angle(float(below[0])) == -np.pi
+    assert _linalg.wrap_angle(np.float32([4.0, -np.pi])).dtype == np.float32  # (a float64 array, for a while)
+    assert np.ndim(_linalg.wrap_angle(3.5)) == 0
     mean = _linalg.circular_mean(np.array([[np.pi - 0.1], [-np.pi + 0.1]]), np.array([0.5, 0.5]))
     assert abs(abs(mean[0]) - np.pi) < 1e-12  # the mean of 179° and -179° is 180°, not 0°
 

@@ -739,7 +739,7 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     -2.7831853071795862
     """
     w = (a + np.pi) % (2.0 * np.pi) - np.pi
-    return w - 2.0 * np.pi * (w >= np.pi)
+    return np.where(w >= np.pi, w - 2.0 * np.pi, w)[()]  # (of a's float type; a scalar for a scalar)
 
 
 def near(x: np.ndarray, ref: np.ndarray, angles: np.ndarray | None) -> np.ndarray:
