@@ -965,3 +965,21 @@ def test_an_em_step_for_r_sums_over_the_steps_with_an_observation():
     ours = gf.fit(model, prior, zs, learn=("R",), method="em", iterations=5, tol=0)
     kf = kf.em(np.ma.masked_invalid(zs), n_iter=5)
     np.testing.assert_allclose(ours.model.R, kf.observation_covariance, rtol=1e-12)
+
+
+def test_standard_errors_and_the_verdict_of_a_full_covariance_do_not_depend_on_the_units():
+    """The Hessian's steps were 1e-5 of max(1, |θ|): a Cholesky factor's off-diagonal entry, in the data's units,
+    of 3e-7 in micro-units was stepped by 3 times itself, so the information came out indefinite: NaN standard
+    errors and "a plateau, not a maximum" (converged=False) in micro-units, the same fit converged in units."""
+    F, H = np.array([[0.9, 0.2], [-0.1, 0.8]]), np.array([[1.0, 0.3], [0.2, 1.1]])
+    Q, R = np.array([[0.5, 0.1], [0.1, 0.3]]), np.array([[0.4, 0.15], [0.15, 0.6]])
+    m0, P0 = np.array([0.3, -0.2]), np.array([[1.0, 0.2], [0.2, 0.7]])
+    zs = np.array(gf.simulate(gf.LinearModel(F, H, Q, R), gf.Gaussian(m0, P0), 200, rng=2).measurements)
+    zs[::4] = np.nan
+    fits = {s: gf.fit(gf.LinearModel(F, np.diag([0.8, 0.9]), 0.4 * s * s * np.eye(2), 0.8 * s * s * np.eye(2)),
+                      gf.Gaussian(m0 * s, P0 * s * s), zs * s, learn=("Q", "R"), tol=1e-8) for s in (1.0, 1e-6)}
+    one, micro = fits[1.0], fits[1e-6]
+    assert one.converged and micro.converged and len(one.history) == len(micro.history)
+    for name in ("Q", "R"):
+        np.testing.assert_allclose(getattr(micro.model, name) / 1e-12, getattr(one.model, name), rtol=1e-9)
+        np.testing.assert_allclose(micro.standard_errors[name] / 1e-12, one.standard_errors[name], rtol=1e-5)

@@ -844,6 +844,25 @@ class _Parametrisation:
     def encode(self) -> np.ndarray:
         return np.concatenate([self._encode(n, _current(self.model, self.prior, n)) for n in self.learn])
 
+    def units(self, theta: np.ndarray) -> np.ndarray:
+        """The size of a change of each entry of θ that moves the model as much in any units of the data: 1 for
+        a log variance and an entry of F or H, a component's standard deviation for an entry of a Cholesky
+        factor's row or of m0 (which scale with the data)."""
+        out = []
+        prior = self(theta)[1]
+        for name, t in self.split(theta).items():
+            if name == "m0":
+                sd = np.sqrt(np.diag(prior.cov))
+                out.append(np.where(sd > 0, sd, 1.0))
+            elif name in COVARIANCES and self.structure[name] == "full" and t.size:
+                L = self._factor(name, t)
+                rows, cols = np.tril_indices(L.shape[0])
+                norms = np.sqrt(np.sum(L * L, axis=1))
+                out.append(np.where(rows == cols, 1.0, norms[rows]))
+            else:
+                out.append(np.ones(t.size))
+        return np.concatenate(out) if out else np.zeros(0)
+
     def split(self, theta: np.ndarray) -> dict:
         out, start = {}, 0
         for name, size in zip(self.learn, self.sizes):
@@ -1308,10 +1327,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     return theta, np.array(history), converged, message, evaluate
 
 
-def _hessian(evaluate, theta: np.ndarray) -> np.ndarray:
-    """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised)."""
+def _hessian(evaluate, theta: np.ndarray, units: np.ndarray | None = None) -> np.ndarray:
+    """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised).
+
+    Each step is 1e-5 of the entry's size, or of its `units` (default 1) where larger.
+    """
     k = theta.size
-    steps = [1e-5 * max(1.0, abs(value)) for value in theta]
+    steps = [1e-5 * max(1.0 if units is None else units[j], abs(value)) for j, value in enumerate(theta)]
     up = [theta + h * e for h, e in zip(steps, np.eye(k))]
     down = [theta - h * e for h, e in zip(steps, np.eye(k))]
     evaluate.prefetch(up + down)
@@ -1344,20 +1366,20 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
     return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
 
 
-def _flat(evaluate, theta: np.ndarray, information: np.ndarray) -> np.ndarray:
+def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarray) -> np.ndarray:
     """The parameters the log-likelihood does not depend on (a never-observed sensor's variance), as a bool mask.
 
     Their row of the information is round-off, which can pass for positive definite (a standard error of 6e5
-    for a variance the likelihood does not see). A parameter whose information is below 1e-6 of the largest
-    is moved by a tenth of its size (at least 0.1) both ways; it is flat when the log-likelihood stays within
-    1e-12 of its size.
+    for a variance the likelihood does not see). A parameter whose information, in its `units`, is below 1e-6 of
+    the largest is moved by a tenth of its size (at least a tenth of its unit) both ways; it is flat when the
+    log-likelihood stays within 1e-12 of its size.
     """
-    diag = np.abs(np.diagonal(information))
+    diag = np.abs(np.diagonal(information)) * units * units
     flat = np.zeros(theta.size, dtype=bool)
     suspects = np.flatnonzero(diag <= 1e-6 * diag.max(initial=0.0))
     if not suspects.size:
         return flat
-    moved = {j: [theta + sign * 0.1 * max(1.0, abs(theta[j])) * np.eye(theta.size)[j] for sign in (1.0, -1.0)]
+    moved = {j: [theta + sign * 0.1 * max(units[j], abs(theta[j])) * np.eye(theta.size)[j] for sign in (1.0, -1.0)]
              for j in suspects}
     evaluate.prefetch([t for pair in moved.values() for t in pair])  # one pass over the data for all of them
     ll = evaluate(theta)[0]
@@ -1379,9 +1401,10 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     nan = np.full(natural(theta).size, np.nan)
     if k == 0:
         return None, nan, None
+    units = build.units(theta) if hasattr(build, "units") else np.ones(k)
     try:
-        information = -_hessian(evaluate, theta)
-        flat = _flat(evaluate, theta, information)
+        information = -_hessian(evaluate, theta, units)
+        flat = _flat(evaluate, theta, information, units)
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan, None
     kept = ~flat
@@ -1393,7 +1416,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     def jacobian(fn) -> np.ndarray:
         J = np.zeros((fn(theta).size, k))
         for j in range(k):
-            h = 1e-6 * max(1.0, abs(theta[j]))
+            h = 1e-6 * max(units[j], abs(theta[j]))
             up, down = theta.copy(), theta.copy()
             up[j] += h
             down[j] -= h
@@ -1734,7 +1757,7 @@ def fit(
                                "parameter its M-step cannot move (the mean of a state component known exactly, the "
                                "row of H of a sensor without noise); try method='mle'")
             if method == "em" and converged and errors is None and theta.size:
-                gradient = np.abs(evaluate(theta)[1]).max() / nobs
+                gradient = np.abs(evaluate(theta)[1] * build.units(theta)).max() / nobs  # per unit: in any units
                 if gradient > _MLE_GTOL:  # a plateau or a saddle: EM's steps stalled, not at a maximum
                     converged = False
                     message = (f"the log-likelihood changed by less than `tol`, but its gradient is still "
