@@ -136,7 +136,7 @@ def _nees(errors, covs, scale=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`nees` and each value's degrees of freedom (the rank of the observed block of P)."""
     e, C = _vectors("errors", errors, "covs", covs)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
-    floor = None  # each component's standard deviation at or below which it is known exactly
+    floor = np.zeros(flat_e.shape)  # each component's standard deviation at or below which it is known exactly
     if scale is not None:
         size = as_array("scale", scale, allow_nan=True)
         if size.shape != e.shape:
@@ -144,17 +144,16 @@ def _nees(errors, covs, scale=None) -> tuple[np.ndarray, np.ndarray]:
         floor = UNRESOLVED * np.abs(size.reshape(flat_e.shape))
     out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=np.int64)
     whole = ~np.isnan(flat_e).any(axis=1) & np.isfinite(flat_C).all(axis=(1, 2))
-    out[whole], dof[whole] = _pseudo_nees(flat_e[whole], flat_C[whole], None if floor is None else floor[whole])
+    out[whole], dof[whole] = _pseudo_nees(flat_e[whole], flat_C[whole], floor[whole])
     for t in np.flatnonzero(~whole & ~np.isnan(flat_e).all(axis=1)):  # some components missing: their block
         o = ~np.isnan(flat_e[t])
         if np.isfinite(flat_C[t][np.ix_(o, o)]).all():
-            value, rank = _pseudo_nees(flat_e[t][o][None], flat_C[t][np.ix_(o, o)][None],
-                                       None if floor is None else floor[t][o][None])
+            value, rank = _pseudo_nees(flat_e[t][o][None], flat_C[t][np.ix_(o, o)][None], floor[t][o][None])
             out[t], dof[t] = value[0], rank[0]
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
 
 
-def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``eᵀ P⁺ e`` and rank(P) for stacks e (k, n) and P (k, n, n), on P scaled to unit diagonal (see :func:`nees`).
 
     A component of variance 0, or of standard deviation at most its `floor` (k, n), is a zero row of the scaled P:
@@ -162,7 +161,7 @@ def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray | None) -> tupl
     """
     n = P.shape[-1]
     d = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1).clip(min=0.0))
-    known = d <= (0.0 if floor is None else floor)
+    known = d <= floor
     unit = np.where(known, 1.0, d)
     scaled = np.where(known[:, :, None] | known[:, None, :], 0.0, P / unit[:, :, None] / unit[:, None, :])
     vals, vecs = np.linalg.eigh(scaled)

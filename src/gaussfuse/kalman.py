@@ -1314,15 +1314,15 @@ def measurement_factors(lin, k: int, mean: np.ndarray, factor: np.ndarray, facto
 
 
 def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Factors,
-                  angles=None, steady: SteadyState | None = None, check: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                  angles=None, steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The prediction of step k on factors: :func:`predict_sqrt` through ``lin.transition`` (see :func:`step_sqrt`).
 
     With `steady` (:class:`SteadyState`, holding factors), a factor at its
-    fixed point predicts to the fixed point's prediction. With `check`, a
-    prediction that is not finite, or whose covariance ``L Lᵀ`` is not,
-    raises FloatingPointError (a prediction too large to square can still
-    give a finite posterior factor, all its precision lost, which the
-    posterior's own check would not catch).
+    fixed point predicts to the fixed point's prediction. A prediction that
+    is not finite, or whose covariance ``L Lᵀ`` is not, raises
+    FloatingPointError (a prediction too large to square can still give a
+    finite posterior factor, all its precision lost, which the posterior's
+    own check would not catch).
 
     Parameters
     ----------
@@ -1341,8 +1341,6 @@ def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Fa
         to [-π, π).
     steady : SteadyState, optional
         What may be reused at a fixed point.
-    check : bool, default True
-        Whether to check that the prediction is finite.
 
     Returns
     -------
@@ -1358,8 +1356,7 @@ def forecast_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, factors: Fa
         pm, pL = predict_sqrt(mean, factor, A, LQ, b, DQ)
         if steady is not None:
             steady.previous, steady.predicted = factor, pL
-    if check:
-        check_finite("predicted", pm, pL, factor=True)
+    check_finite("predicted", pm, pL, factor=True)
     return (pm if angles is None else wrap_components(pm, angles)), pL
 
 

@@ -1327,13 +1327,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     return theta, np.array(history), converged, message, evaluate
 
 
-def _hessian(evaluate, theta: np.ndarray, units: np.ndarray | None = None) -> np.ndarray:
+def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray | None = None) -> np.ndarray:
     """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised).
 
-    Each step is 1e-5 of the entry's size, or of its `units` (default 1) where larger.
+    Each step is 1e-5 of the entry's `sizes` (default: its size, at least 1).
     """
     k = theta.size
-    steps = [1e-5 * max(1.0 if units is None else units[j], abs(value)) for j, value in enumerate(theta)]
+    steps = 1e-5 * (np.maximum(1.0, np.abs(theta)) if sizes is None else sizes)
     up = [theta + h * e for h, e in zip(steps, np.eye(k))]
     down = [theta - h * e for h, e in zip(steps, np.eye(k))]
     evaluate.prefetch(up + down)
@@ -1388,6 +1388,28 @@ def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarra
     return flat
 
 
+def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None, tol: float,
+                nobs: int) -> str | None:
+    """Why EM, which met `tol` at θ, is short of a maximum, or None: a Newton step (on the inverse information
+    `cov_theta`) would gain over :data:`_EM_STALLED` times `tol` per observation; or, where the information is
+    not positive definite (None), the gradient per unit of θ is above :data:`_MLE_GTOL` per observation."""
+    gradient = evaluate(theta)[1]
+    if cov_theta is not None:
+        gain = 0.5 * gradient @ cov_theta @ gradient  # what a Newton step would add to the log-likelihood
+        if gain > _EM_STALLED * tol * nobs:
+            return (f"the log-likelihood changed by less than `tol`, but a Newton step from here would raise it by "
+                    f"{gain:.3g} more: EM has stalled short of the maximum, as it does on a parameter its M-step "
+                    "cannot move (the mean of a state component known exactly, the row of H of a sensor without "
+                    "noise); try method='mle'")
+        return None
+    steepest = np.abs(gradient * build.units(theta)).max() / nobs  # per unit: in any units
+    if steepest > _MLE_GTOL:  # a plateau or a saddle: EM's steps stalled, not at a maximum
+        return (f"the log-likelihood changed by less than `tol`, but its gradient is still {steepest:.2g} per "
+                "observation and the observed information is not positive definite: a plateau, not a maximum (EM "
+                "stalls there, as from a variance started near 0); try method='mle', or another start")
+    return None
+
+
 def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | None, np.ndarray, np.ndarray | None]:
     """Standard errors from the observed information, by central differences of the exact gradient.
 
@@ -1402,8 +1424,9 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     if k == 0:
         return None, nan, None
     units = build.units(theta) if hasattr(build, "units") else np.ones(k)
+    sizes = np.maximum(units, np.abs(theta))  # each entry's size, at least its unit: the steps' scale
     try:
-        information = -_hessian(evaluate, theta, units)
+        information = -_hessian(evaluate, theta, sizes)
         flat = _flat(evaluate, theta, information, units)
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan, None
@@ -1416,7 +1439,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     def jacobian(fn) -> np.ndarray:
         J = np.zeros((fn(theta).size, k))
         for j in range(k):
-            h = 1e-6 * max(units[j], abs(theta[j]))
+            h = 1e-6 * sizes[j]
             up, down = theta.copy(), theta.copy()
             up[j] += h
             down[j] -= h
@@ -1747,23 +1770,10 @@ def fit(
             errors, bse, cov_theta = (None, np.full(build.natural(theta).size, np.nan), None) if interrupted else \
                 _standard_errors(evaluate, build, theta, learn)
             names, values = build.names(), build.natural(theta)
-            if method == "em" and converged and cov_theta is not None:
-                gradient = evaluate(theta)[1]
-                gain = 0.5 * gradient @ cov_theta @ gradient  # what a Newton step would add to the log-likelihood
-                if gain > _EM_STALLED * tol * nobs:
-                    converged = False
-                    message = (f"the log-likelihood changed by less than `tol`, but a Newton step from here would "
-                               f"raise it by {gain:.3g} more: EM has stalled short of the maximum, as it does on a "
-                               "parameter its M-step cannot move (the mean of a state component known exactly, the "
-                               "row of H of a sensor without noise); try method='mle'")
-            if method == "em" and converged and errors is None and theta.size:
-                gradient = np.abs(evaluate(theta)[1] * build.units(theta)).max() / nobs  # per unit: in any units
-                if gradient > _MLE_GTOL:  # a plateau or a saddle: EM's steps stalled, not at a maximum
-                    converged = False
-                    message = (f"the log-likelihood changed by less than `tol`, but its gradient is still "
-                               f"{gradient:.2g} per observation and the observed information is not positive "
-                               "definite: a plateau, not a maximum (EM stalls there, as from a variance started "
-                               "near 0); try method='mle', or another start")
+            stalled = _em_stalled(evaluate, build, theta, cov_theta, tol, nobs) \
+                if method == "em" and converged and theta.size else None
+            if stalled is not None:
+                converged, message = False, stalled
         else:  # a learned full covariance ended singular: its values, without standard errors
             labels = _Parametrisation(model, prior, learn, structure, labels_only=True)
             errors, names, values = None, labels.names(), labels.values(model, prior)
