@@ -983,3 +983,28 @@ def test_standard_errors_and_the_verdict_of_a_full_covariance_do_not_depend_on_t
     for name in ("Q", "R"):
         np.testing.assert_allclose(getattr(micro.model, name) / 1e-12, getattr(one.model, name), rtol=1e-9)
         np.testing.assert_allclose(micro.standard_errors[name] / 1e-12, one.standard_errors[name], rtol=1e-5)
+
+
+def test_maximum_likelihood_searches_in_units_that_do_not_depend_on_the_data():
+    """BFGS moved θ in the data's units for m0 and a Cholesky factor's off-diagonal entries, so its gradient test
+    read them in those units: in units of 1e6 it stopped at once on m0 and Q's correlation ("converged", 0.41
+    below the maximum), in units of 1e-6 it never met `tol` (converged=False at the maximum)."""
+    rng = np.random.default_rng(3)
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    x, xs = np.zeros(2), []
+    for _ in range(300):
+        x = F @ x + rng.multivariate_normal([0.0, 0.0], [[0.3, 0.1], [0.1, 0.2]])
+        xs.append(x)
+    zs = np.array(xs) + rng.normal(size=(300, 2)) * [1.0, 2.0]
+    fits = {}
+    for s in (1e-6, 1.0, 1e6):
+        model = gf.LinearModel(F=F, H=np.eye(2), Q=s * s * np.eye(2), R=s * s * np.eye(2))
+        fits[s] = gf.fit(model, gf.Gaussian([0.0, 0.0], 100 * s * s * np.eye(2)), zs * s, learn=("Q", "R", "m0"),
+                         method="mle", engine="python")
+    one = fits[1.0]
+    assert one.converged and one.model.Q[0, 1] > 0.05  # a correlated Q, learned
+    for s, fit in fits.items():
+        assert fit.converged, s
+        assert fit.loglik + zs.size * np.log(s) == pytest.approx(one.loglik, rel=1e-10, abs=1e-9)
+        np.testing.assert_allclose(fit.model.Q / (s * s), one.model.Q, rtol=1e-4)
+        np.testing.assert_allclose(fit.prior.mean / s, one.prior.mean, atol=1e-3)  # its standard error is 1

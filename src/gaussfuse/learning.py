@@ -998,6 +998,10 @@ class _UserParams:
     def names(self) -> list[str]:
         return [f"theta[{i}]" for i in range(self.size)]
 
+    def units(self, theta: np.ndarray) -> np.ndarray:
+        """1 for each entry: a user's θ is in the units the user chose."""
+        return np.ones(theta.size)
+
     def natural(self, theta: np.ndarray) -> np.ndarray:
         return theta
 
@@ -1282,22 +1286,26 @@ evaluated first, outside these handlers."""
 
 
 def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
+    """BFGS on the log-likelihood per observation, in θ's units at the start (``build.units``): the search, its
+    gradient test (`tol`) and the Newton steps that finish it are the same in any units of the data."""
     n_obs = max(n_obs, 1)
     evaluate = _evaluator(build, data, engine)
+    units = build.units(theta0)  # the search moves φ = θ / units
     history: list[float] = []
     best = [theta0, -np.inf]
 
-    def objective(theta):
+    def objective(phi):
+        theta = phi * units
         try:
             ll, grad = evaluate(theta)
         except NO_LIKELIHOOD:  # a trial step with no likelihood: the line search steps back
             return np.inf, np.zeros_like(theta)
         if ll > best[1]:
             best[0], best[1] = theta.copy(), ll
-        return -ll / n_obs, -grad / n_obs
+        return -ll / n_obs, -grad * units / n_obs
 
-    def on_iteration(theta):
-        history.append(evaluate(theta)[0])
+    def on_iteration(phi):
+        history.append(evaluate(phi * units)[0])
         if callback is not None:
             callback(len(history) - 1, history[-1])
 
@@ -1310,13 +1318,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     from scipy import optimize
 
     try:
-        res = optimize.minimize(objective, theta0, jac=True, method="BFGS", callback=on_iteration,
+        res = optimize.minimize(objective, theta0 / units, jac=True, method="BFGS", callback=on_iteration,
                                 options={"maxiter": iterations, "gtol": tol})
-        theta, converged, message = res.x, bool(res.success), str(res.message)
+        theta, converged, message = res.x * units, bool(res.success), str(res.message)
         if evaluate(theta)[0] < best[1]:
             theta = best[0]
         if res.status == 2:  # BFGS's line search stalled near the optimum: finish with Newton steps
-            theta, converged = _newton(evaluate, theta, tol * n_obs)
+            theta, converged = _newton(evaluate, theta, tol * n_obs, units)
             if converged:
                 message = "converged: the gradient is below `tol` after Newton steps with the observed information"
     except KeyboardInterrupt:
@@ -1343,18 +1351,21 @@ def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray | None = None) -> np
     return symmetrize(hess)
 
 
-def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[np.ndarray, bool]:
-    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; whether ``max|∇ℓ| <= gtol``.
+def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: int = 5) -> tuple[np.ndarray, bool]:
+    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; whether ``max|∇ℓ · units| <= gtol``.
 
     Near the optimum the log-likelihood is flat to round-off, so a step that
     lowers it by no more than round-off still counts as a rise.
     """
+    def met(grad):
+        return np.max(np.abs(grad * units), initial=0.0) <= gtol
+
     for _ in range(steps):
         ll, grad = evaluate(theta)
-        if np.max(np.abs(grad), initial=0.0) <= gtol:
+        if met(grad):
             return theta, True
         try:
-            information = -_hessian(evaluate, theta)
+            information = -_hessian(evaluate, theta, np.maximum(units, np.abs(theta)))
             if not is_positive_definite(information):
                 break
             step = theta + cho_solve(cholesky(information), grad)
@@ -1363,7 +1374,7 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, steps: int = 5) -> tuple[n
         except NO_LIKELIHOOD:  # a neighbour with no likelihood: no step
             break
         theta = step
-    return theta, bool(np.max(np.abs(evaluate(theta)[1]), initial=0.0) <= gtol)
+    return theta, met(evaluate(theta)[1])
 
 
 def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarray) -> np.ndarray:
@@ -1423,7 +1434,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     nan = np.full(natural(theta).size, np.nan)
     if k == 0:
         return None, nan, None
-    units = build.units(theta) if hasattr(build, "units") else np.ones(k)
+    units = build.units(theta)
     sizes = np.maximum(units, np.abs(theta))  # each entry's size, at least its unit: the steps' scale
     try:
         information = -_hessian(evaluate, theta, sizes)
@@ -1593,7 +1604,10 @@ def fit(
         ``tol=0`` runs exactly
         `iterations` EM iterations, without the convergence test and
         without a warning. MLE stops when the gradient's largest component,
-        per observation, is below `tol` (default 1e-8).
+        per observation and per unit of its parameter (a log variance, an
+        entry of F or H, a Cholesky entry over its row's size, m0 over the
+        prior's standard deviation), is below `tol` (default 1e-8): the same
+        fit in any units of the data.
     params : callable, optional
         For structured models (MLE only): ``params(theta) -> LinearModel`` or
         ``(LinearModel, Gaussian)``; `learn` and `structure` are then ignored.
