@@ -567,3 +567,15 @@ def test_a_fusers_divergence_warning_names_datetime_times_in_full():
             fuser.update(base + pd.Timedelta(seconds=0.5 * i), "a", float(i * i))  # a target it cannot follow
     start, stop = (np.datetime64(t) for t in re.search(r"times (\S+) to (\S+)", str(caught[0].message)).groups())
     assert base.to_datetime64() < start < stop <= base.to_datetime64() + np.timedelta64(35, "s")
+
+
+def test_times_further_apart_than_the_largest_float_are_named():
+    """-1e308 s then 1e308 s gave "`dt` must be a positive number; got inf", naming an argument nobody passed
+    (audit F); `filter(times=...)` named the step."""
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.5), {"a": gf.Position(dim=1, r=1.0)}
+    message = r"^the times -1e\+308 s and 1e\+308 s are further apart than the largest float64 \(dt = inf s\)"
+    with pytest.raises(ValueError, match=message):
+        gf.fuse_timeline(motion, sensors, prior, -1e308, [(1e308, "a", 1.0)])
+    with pytest.raises(ValueError, match=message):
+        gf.Fuser(motion, sensors, prior, -1e308).update(1e308, "a", 1.0)

@@ -314,9 +314,21 @@ class _Clock(NamedTuple):
             f"datetime64[{self.unit}]")
 
     def steps(self, counts: np.ndarray) -> np.ndarray:
-        """The seconds between consecutive `counts` (seconds or counts of the unit), each rounded once."""
+        """The seconds between consecutive `counts` (seconds or counts of the unit), each rounded once.
+
+        Raises
+        ------
+        ValueError
+            Where two float times are further apart than the largest float64.
+        """
         if self.unit is None:
-            return np.diff(counts)
+            with np.errstate(over="ignore"):
+                dts = np.diff(counts)
+            if np.isinf(dts).any():
+                k = int(np.flatnonzero(np.isinf(dts))[0])
+                raise ValueError(f"the times {counts[k]:g} s and {counts[k + 1]:g} s are further apart than the largest "
+                                 "float64 (dt = inf s): times so far apart cannot be stepped.")
+            return dts
         return timing.elapsed(counts.astype(np.int64), timing.per_second(self.unit))
 
 

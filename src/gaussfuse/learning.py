@@ -1670,7 +1670,7 @@ def fit(
     """
     timed = isinstance(model, TimedModel)
     start = model
-    zs, times, _ = frames.unpack(zs, times)
+    zs, times, _ = frames.unpack(zs, times, frames.by_rows(model))
     pooled = chunked.is_dask(zs)
     if pooled and zs.ndim != 3:
         raise ValueError(f"`zs` as a dask array must have a leading series axis, shape (N, T, m); got {zs.shape}.")

@@ -195,6 +195,32 @@ def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
             gf.fit(model, prior, lazy, us[0])
 
 
+def test_times_with_chunked_measurements():
+    """With `times`, a dask `zs` raised "`times` must have 2 entries ..." (the probe that reads the result's shape
+    ran 2 steps at the real times): a TimedModel could not be used with dask at all (audit F)."""
+    rng = np.random.default_rng(1)
+    zs = rng.normal(size=(4, 5, 1))
+    lazy = da.from_array(zs, chunks=(2, 5, 1))
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    timed = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.Position(dim=1, r=1.0))
+    fixed = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=0.1 * np.eye(2), R=1.0, dt=1.0)
+    turning = gf.model(gf.CoordinatedTurn(q_acc=0.1), gf.RangeBearing(r_range=0.5, r_bearing=0.01))
+    bearings = np.column_stack([14 + 0.3 * np.arange(6.0), 0.78 + 0.01 * np.arange(6.0)])
+    bearings = bearings + 0.01 * rng.normal(size=(3, 6, 2))
+    cases = [(timed, prior, zs, lazy, [0.0, 1.0, 1.5, 4.0, 4.1, 7.0], {}),
+             (fixed, prior, zs, lazy, np.arange(5.0), {}),
+             (turning, gf.Gaussian([10.0, 10.0, 1.0, 0.5, 0.01], np.eye(5)), bearings,
+              da.from_array(bearings, chunks=(1, 6, 2)), np.cumsum([0.0, 0.5, 1.0, 0.2, 2.0, 0.5]), {"method": "ukf"})]
+    with dask.config.set(scheduler="synchronous"):
+        for model, start, data, chunks, times, options in cases:
+            for run in (gf.filter, gf.smooth):
+                got, want = (run(model, start, d, times=times, **options) for d in (chunks, data))
+                np.testing.assert_array_equal(np.asarray(got.means), want.means)
+                np.testing.assert_array_equal(np.asarray(got.covs), want.covs)
+        with pytest.raises(ValueError, match=r"^`times` must have 5 entries, one per measurement, or 6"):
+            gf.filter(timed, prior, lazy, times=[0.0, 1.0, 2.0])
+
+
 def test_a_chunk_spends_its_share_of_the_false_alarm_rate():
     """Each dask chunk's divergence test spent the whole 1e-3: 1,000 one-series chunks warned in 2.6% of calls on
     consistent data (audit N). A window summing to 110 (50 steps, 1 dof each) is past one test's threshold (101)

@@ -111,3 +111,32 @@ def test_a_table_of_several_series_is_refused():
         gf.filter(model, gf.Gaussian(0.0, 1.0), frame)
     np.testing.assert_array_equal(gf.filter(model, gf.Gaussian(0.0, 1.0), frame.xs("a")).means,
                                   gf.filter(model, gf.Gaussian(0.0, 1.0), [1.0, 2.0]).means)
+
+
+def test_a_calendar_index_is_one_step_a_row_for_a_model_with_fixed_matrices():
+    """Yearly, monthly and business-day indexes were refused by a model with fixed matrices ("`times` are
+    irregular", years being 365 or 366 days), with advice (a TimedModel) that counted its dt in seconds: Q 3e7
+    times too large (audit F). Calendar periods are one step a row for such a model, as statsmodels takes them;
+    a TimedModel still steps by their seconds, and a model with a dt in seconds still checks them."""
+    from gaussfuse.datasets import nile
+
+    years, flow = nile()
+    model, prior = gf.LinearModel(F=1.0, H=1.0, Q=1469.1, R=15099.0), gf.Gaussian(0.0, 1e7)
+    want = gf.filter(model, prior, flow)
+    for index in (pd.to_datetime([f"{int(y)}-01-01" for y in years]), pd.date_range("1871-01", periods=100, freq="MS"),
+                  pd.bdate_range("2020-01-01", periods=100)):
+        got = gf.filter(model, prior, pd.Series(flow, index=index))
+        np.testing.assert_array_equal(got.means, want.means)
+        assert got.to_pandas().index.equals(index)
+        assert gf.fit(model, prior, pd.Series(flow, index=index), method="em", iterations=2, tol=0).loglik == \
+            gf.fit(model, prior, flow, method="em", iterations=2, tol=0).loglik
+    gap = pd.to_datetime(["2020-01-01", "2020-01-02", "2020-01-03", "2020-01-05", "2020-01-06"])  # a day missed
+    with pytest.raises(ValueError, match=r"`times` are irregular .* leave `times` out"):
+        gf.filter(model, prior, pd.Series(flow[:5], index=gap))
+    monthly = pd.Series(flow[:5], index=pd.date_range("2020-01", periods=5, freq="MS"))
+    with pytest.raises(ValueError, match=r"`times` are irregular"):  # a model with a dt in seconds
+        gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, dt=0.1), prior, monthly)
+    timed = gf.model(gf.LocalLevel(q=1e-4), gf.LinearSensor(H=[[1.0]], R=[[15099.0]]))
+    seconds = (monthly.index - monthly.index[0]).total_seconds().to_numpy()
+    np.testing.assert_array_equal(gf.filter(timed, prior, monthly).means,
+                                  gf.filter(timed, prior, flow[:5], times=seconds).means)

@@ -28,7 +28,7 @@ from dataclasses import fields, is_dataclass
 
 import numpy as np
 
-from . import drivers
+from . import drivers, timing
 
 __all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed"]
 
@@ -130,9 +130,14 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     blocks, controls, sizes = paired_blocks(zs, us)
     T = zs.shape[1]
 
+    # The probe steps as the real times do (their step, or their steps cycled): its model is resolved as theirs.
+    grid = None if kwargs.get("times") is None else timing.steps("times", kwargs["times"], T)
+
     def meta(steps: int):
+        times = None if grid is None else np.concatenate([[0.0], np.cumsum(
+            np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
         return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
-                   **{**kwargs, "engine": "python", "check": "off"})
+                   **{**kwargs, "engine": "python", "check": "off", "times": times})
 
     probe = max(zs.shape[2], *_trailing(meta(2))) + 3
     template = meta(probe)

@@ -3,7 +3,8 @@
 pandas is optional: nothing here imports it unless a pandas object is given
 or a DataFrame is asked for. A Series or DataFrame as `zs` gives its values
 (``pd.NA`` and NaN are missing), its index (a DatetimeIndex or
-TimedeltaIndex supplies `times` when none are given) and its column names;
+TimedeltaIndex supplies `times` when none are given, except calendar periods
+for a model with fixed matrices: one step a row) and its column names;
 :meth:`~gaussfuse.FilterResult.to_pandas` gives the means, standard
 deviations and, on request, covariances, indexed like the input.
 """
@@ -13,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._linalg import marginal_std
+from ..models import TimedModel
 
-__all__ = ["Table", "unpack", "to_frame"]
+__all__ = ["Table", "by_rows", "unpack", "to_frame"]
 
 
 class Table:
@@ -54,8 +56,39 @@ def _check_columns(zs) -> None:
                                 f"(such as {odd[0]!r}).")
 
 
-def unpack(zs, times):
-    """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array)."""
+def _calendar(index) -> bool:
+    """Whether `index` steps by a calendar period whose length in seconds varies (months, years, business days):
+    pandas' frequency of it (set, or inferred from three or more entries) is not a fixed span of time, and its
+    steps in seconds are not all equal (weeks are)."""
+    import pandas as pd
+
+    if not isinstance(index, pd.DatetimeIndex) or np.unique(np.diff(index.asi8)).size <= 1:
+        return False
+    freq = index.freq
+    if freq is None and len(index) >= 3:
+        try:  # pandas 3 warns that infer_freq will return an offset, not a string, unless asked for the offset
+            with pd.option_context("future.infer_freq_returns_offset", True):
+                inferred = pd.infer_freq(index)
+        except KeyError:  # an earlier pandas, without that option: a string
+            inferred = pd.infer_freq(index)
+        freq = None if inferred is None else pd.tseries.frequencies.to_offset(inferred)
+    return freq is not None and not isinstance(freq, pd.tseries.offsets.Tick)
+
+
+def by_rows(model) -> bool:
+    """Whether `model` takes a calendar index one step a row (:func:`unpack`): its matrices are fixed, without a
+    ``dt`` in seconds to check the times against."""
+    return not isinstance(model, TimedModel) and getattr(model, "dt", None) is None
+
+
+def unpack(zs, times, rows: bool = False):
+    """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array).
+
+    The index of a pandas `zs` supplies `times` when none are given, except one of calendar periods (monthly,
+    yearly, business days) when `rows` (a model with fixed matrices and no ``dt``): its rows are then one step
+    each, as they are in a statistical model of monthly data; in seconds they are irregular, which such a model
+    refuses.
+    """
     if not _is_pandas(zs) or not hasattr(zs, "index"):
         return zs, times, None
     if getattr(zs.index, "nlevels", 1) > 1:  # a long table of several series would be filtered as one
@@ -68,7 +101,8 @@ def unpack(zs, times):
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
     columns = tuple(str(c) for c in zs.columns) if hasattr(zs, "columns") else (str(zs.name),)
-    if times is None and type(zs.index).__name__ in ("DatetimeIndex", "TimedeltaIndex"):
+    if times is None and type(zs.index).__name__ in ("DatetimeIndex", "TimedeltaIndex") and (
+            not rows or not _calendar(zs.index)):
         times = zs.index
     return values, times, Table(zs.index, columns)
 
