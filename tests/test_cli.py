@@ -1366,3 +1366,12 @@ def test_a_malformed_structure_is_refused(capsys, structure, message):
     assert code == 2
     assert_one_line_error(err, message)
 
+
+
+def test_one_step_longer_than_any_float_is_one_step(tmp_path, capsys):
+    """Times -1e308 and 1e308 with explicit matrices printed NumPy's "invalid value encountered in scalar
+    subtract" and called the one (infinite) step irregular, "from inf s to inf s" (audit I)."""
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
+    (tmp_path / "d.csv").write_text("t,z\n-1e308,1\n1e308,2\n")
+    code, out, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml")
+    assert code == 0 and err == "" and len(out.splitlines()) == 3

@@ -842,3 +842,16 @@ def test_write_estimates_gives_a_variance_of_zero_to_round_off_a_zero_std(tmp_pa
     path = tmp_path / "est.csv"
     write_estimates(path, np.zeros(1), np.zeros((1, 2)), covs, ["a", "b"])
     assert path.read_text().splitlines()[1] == "0.0,0.0,0.0,2.0,0.0"
+
+
+def test_iso_times_finer_than_their_seconds_resolve_are_named_as_such(tmp_path):
+    """Two ISO times 1 ns apart a year after the file's first became one float time: the error said the second
+    'follows' the first, as if out of order (audit I). Seconds since the first time resolve about 4 ns there."""
+    path = tmp_path / "ns.csv"
+    path.write_text("t,z\n2025-01-01T00:00:00Z,1\n2026-01-01T00:00:00.000000003Z,2\n2026-01-01T00:00:00.000000004Z,3\n")
+    with pytest.raises(InputFileError, match=r"line 4: column `t`: 2026-01-01T00:00:00\.000000004Z is 1 ns after "
+                                                  r"2026-01-01T00:00:00\.000000003Z, finer than seconds since the "
+                                                  r"file's first time resolve 3\.1536e\+07 s in"):
+        read_measurements(path)
+    path.write_text("t,z\n2026-01-01T00:00:00Z,1\n2026-01-01T00:00:00.000000003Z,2\n2026-01-01T00:00:00.000000004Z,3\n")
+    np.testing.assert_array_equal(read_measurements(path).times, [0.0, 3e-9, 4e-9])

@@ -162,12 +162,10 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
     (tmp_path / "v.csv").write_text("id,t,z\na,0.10,1\na,1e1,2\na,0020,3\n")
     assert panels.read_partition(str(tmp_path / "v.csv"), "id", 1).frame["t"].tolist() == ["0.10", "1e1", "0020"]
     for cell in ("NA", "null", "None", "1_000"):
-        (tmp_path / "n.csv").write_text(f"id,t,z\na,0,1\na,1,{cell}\n")
-        with pytest.raises(gfio.InputFileError, match=rf"n\.csv: line 3: column `z`: '{cell}' is not a number\."):
-            panels.read_partition(str(tmp_path / "n.csv"), "id", 1)
-    (tmp_path / "m.csv").write_text("id,t,z\na,0,1\na,2026-05-01T12:00:01Z,2\n")
-    with pytest.raises(gfio.InputFileError, match=r"the times mix numbers \(seconds\) and ISO-8601 times"):
-        panels.read_partition(str(tmp_path / "m.csv"), "id", 1)
+        _refused(tmp_path / "n.csv", f"id,t,z\na,0,1\na,1,{cell}\n",
+                 rf"n\.csv: line 3: column `z`: '{cell}' is not a number\.")
+    _refused(tmp_path / "m.csv", "id,t,z\na,0,1\na,2026-05-01T12:00:01Z,2\n",
+             r"the times mix numbers \(seconds\) and ISO-8601 times")
     (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")
     with pytest.raises(gfio.InputFileError, match=r"l\.csv: not UTF-8 text"):
         panels.read_partition(str(tmp_path / "l.csv"), "id", 1)
@@ -390,7 +388,8 @@ BAD_TABLES = [
     ("unit,t,x\n", "no data rows: the table has a header only"),
     ("unit,t,x\nu1,1.0,0.5,9\nu1,2.0,0.7\n", "line 2: expected 3 cells (unit, t, x); found 4"),
     ("unit,t,x\nu1,1.0\nu1,2.0,0.7\n", "line 2: expected 3 cells (unit, t, x); found 2"),
-    ("unit,t,x\nu1,True,0.5\nu1,False,0.7\n", "column `t`: a time is neither a number of seconds nor an ISO-8601"),
+    ("unit,t,x\nu1,True,0.5\nu1,False,0.7\n",
+     "line 2: column `t`: 'True' is neither a number of seconds nor an ISO-8601"),
     ("unit,t,x\nu1,1.0,True\nu1,2.0,False\n", "line 2: column `x`: 'True' is not a number"),
     ("", "the file is empty"),
 ]
@@ -477,3 +476,48 @@ def test_a_time_that_is_not_a_finite_number_is_refused(tmp_path, cell, message):
     (tmp_path / "d.csv").write_text(f"id,t,z\na,0,1\na,{cell},2\na,2,3\n")
     with pytest.raises(gfio.InputFileError, match=re.escape(f"column `t`: {message}")):
         panels.read_partition(str(tmp_path / "d.csv"), "id", 1)
+
+
+def test_times_of_any_span_are_read_exactly_and_in_order(tmp_path):
+    """Times were differences in int64 nanoseconds, which wrap past 292 years: a series of yearly rows from 1700
+    to 2020 was filtered from 1993 first, with exit status 0 (audit I); a Parquet timestamp column too."""
+    pd = pytest.importorskip("pandas")
+    years = range(1700, 2021)
+    text = "id,t,z\n" + "".join(f"a,{y}-01-01,{y}\n" for y in years)
+    (tmp_path / "y.csv").write_text(text)
+    days = np.diff([np.datetime64(f"{y}-01-01", "D").astype(np.int64) for y in years])
+    for path in (tmp_path / "y.csv", tmp_path / "y.parquet"):
+        if path.suffix == ".parquet":
+            pytest.importorskip("pyarrow")
+            pd.DataFrame({"id": "a", "t": pd.to_datetime([f"{y}-01-01" for y in years]).astype("datetime64[s]"),
+                          "z": np.array(years, dtype=float)}).to_parquet(path)
+        part = panels.read_partition(str(path), "id", 1)
+        np.testing.assert_array_equal(part.zs[0][:, 0], np.array(years, dtype=float))  # in the order of the years
+        np.testing.assert_array_equal(np.diff(part.times[0]), 86400.0 * days)  # each step 365 or 366 days, exactly
+
+
+def test_a_partition_reads_times_and_names_lines_as_one_series_file_does(tmp_path):
+    """The panel reader read ISO times with pandas' rules, not the single-file reader's: it refused week dates and
+    decimal commas, cut 12 digits of a second to 9 and took "2026-05" as a time, refused a line of spaces, named
+    a cell's line by its row's position (wrong after blank lines and quoted line breaks), and quoted a time cell
+    rewritten (audit I)."""
+    cases = {"2026-W18-5T12:00:00Z": 0.0, "2026-05-01T12:00:00,5Z": 0.5}
+    (tmp_path / "iso.csv").write_text("id,t,z\n   \n" + "".join(f'a,"{c}",1\n' for c in cases) + "\n")
+    (tmp_path / "one.csv").write_text("t,z\n" + "".join(f'"{c}",1\n' for c in cases))
+    part, one = panels.read_partition(str(tmp_path / "iso.csv"), "id", 1), gfio.read_measurements(tmp_path / "one.csv")
+    np.testing.assert_array_equal(part.times[0], list(cases.values()))
+    np.testing.assert_array_equal(part.times[0], one.times)
+    for cell, message in (("2026-05-01T12:00:00.123456789123Z", "has 12 digits after the second"),
+                          ("2026-05", "is neither a number of seconds nor an ISO-8601 time"),
+                          ("2026-05-01T12:00:00.000000001z", "'2026-05-01T12:00:00.000000001z' is neither")):
+        _refused(tmp_path / "bad.csv", f'id,t,z\n\n"a\nb",2026-05-01T12:00:00Z,1\n\na,{cell},2\n',
+                 rf"bad\.csv: line 6: column `t`: .*{re.escape(message)}")
+    _refused(tmp_path / "n.csv", 'id,t,x\n\n\na,1,1\n"b\nc",2,2\na,2,oops\n',
+             r"n\.csv: line 7: column `x`: 'oops' is not a number\.")
+
+
+def _refused(path, text: str, match: str) -> None:
+    """A partition of `text` at `path` is refused, with an error matching `match`."""
+    path.write_text(text)
+    with pytest.raises(gfio.InputFileError, match=match):
+        panels.read_partition(str(path), "id", 1)

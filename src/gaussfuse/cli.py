@@ -49,7 +49,8 @@ _FORMATS = """\
 DATA.csv: a header row; one time column, named `t` or `time` (any case) or
 by --time-column, strictly increasing: seconds, or ISO-8601 times such as
 2026-05-01T12:00:00.5+02:00 (UTC without a zone; read to the nanosecond,
-each step exact before one rounding); every other column (or
+each becomes seconds since the file's first time, rounded once: a step is
+exact to about 1e-16 of that time, 4 ns a year in); every other column (or
 those named by --columns), in order, is one measurement component (as many
 as the model's m). An empty cell or NaN is a missing component.
 

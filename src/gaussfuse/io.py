@@ -350,8 +350,20 @@ class _Rows:
             times = np.array([(p[0] - self.origin) / 10**9 if s else p[0] for p, s in zip(parsed, stamps)],
                              dtype=np.float64)  # an int difference, then one rounding
             values = np.array([p[1:] for p in parsed], dtype=np.float64)
+            if stamps.all():
+                self._check_resolution([p[0] for p in parsed], times, lines, texts)
         self._check_times(times, stamps, lines, texts)
         return Measurements(times, values.reshape(len(rows), len(self.wanted)), self.names, texts)
+
+    def _check_resolution(self, exact: list[int], times: np.ndarray, lines: list[int], texts: list[str]) -> None:
+        """ISO times that increase (`exact`, nanoseconds) but not as seconds since the first (`times`): named as
+        such, not as times out of order."""
+        for k in range(1, len(exact)):
+            if exact[k] > exact[k - 1] and not times[k] > times[k - 1]:
+                raise InputFileError(
+                    self.path, f"{texts[k]} is {exact[k] - exact[k - 1]} ns after {texts[k - 1]}, finer than seconds "
+                    f"since the file's first time resolve {times[k]:g} s in (float64); start the file later or give "
+                    "the times as seconds from a nearer origin.", line=lines[k], field=f"column `{self.names[0]}`")
 
     def _check_times(self, times: np.ndarray, stamps: np.ndarray, lines: list[int], texts: list[str]) -> None:
         where = {"field": f"column `{self.names[0]}`"}
@@ -464,10 +476,10 @@ def _parse_time(path, text: str, where: dict):
         if len(digits) > 9:
             raise InputFileError(path, f"{text!r} has {len(digits)} digits after the second; times are read to "
                                  "the nanosecond (9 digits).", **where) from None
-        if found:
-            text = f"{text[:found.start()]}{found.group(1)}.{digits[:6]:0<6}{text[found.end():]}"
+        # (read with the fraction to 6 digits; the cell as written is what a message quotes)
+        read = f"{text[:found.start()]}{found.group(1)}.{digits[:6]:0<6}{text[found.end():]}" if found else text
         try:
-            when = datetime.datetime.fromisoformat(text)
+            when = datetime.datetime.fromisoformat(read)
         except ValueError:
             raise InputFileError(path, f"{text!r} is neither a number of seconds nor an ISO-8601 time.",
                                  **where) from None

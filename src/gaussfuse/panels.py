@@ -34,9 +34,9 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
-from .inference.timing import Steps, round_off
+from .inference.timing import Steps, per_second, round_off
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
-                 _time_column, _wrong_cells)
+                 _parse_time, _time_column, _wrong_cells)
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
            "filter_partition"]
@@ -128,12 +128,12 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     """
     import pandas as pd
 
-    csv_file = _format(path) == "csv"
+    csv_file, lines = _format(path) == "csv", None  # the data rows' lines in a CSV file
     if not csv_file:
         frame = pd.read_parquet(path)
     else:  # every cell as written, read as the single-file reader reads it: "007" is an id, "NA" not a number
         try:
-            _check_cells(path)
+            lines = _check_cells(path)
             frame = pd.read_csv(path, index_col=False, dtype=str, keep_default_na=False, encoding="utf-8-sig")
         except UnicodeDecodeError as exc:
             raise InputFileError(path, f"not UTF-8 text: {exc}") from None
@@ -166,7 +166,7 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
         raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
                                    f"`{time_col}`, but the model measures m = {m} component(s).")
     if csv_file:
-        values = np.column_stack([_numbers(path, frame[name], name) for name in wanted])
+        values = np.column_stack([_numbers(path, frame[name], name, lines) for name in wanted])
     else:
         for name in wanted:
             if pd.api.types.is_bool_dtype(frame[name]):
@@ -177,12 +177,12 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
             raise InputFileError(path, f"a measurement is not a number: {exc}") from None
     if np.isinf(values).any():
         raise InputFileError(path, "a measurement is infinite.")
-    seconds = _seconds(path, frame[time_col], time_col)
+    seconds = _seconds(path, frame[time_col], time_col, lines)
     codes, ids = pd.factorize(frame[series_column], sort=False)
     if (codes < 0).any():
         row = int(np.flatnonzero(codes < 0)[0])
         raise InputFileError(path, "a row has no series id.", field=f"column `{series_column}`",
-                             line=row + 2 if csv_file else None)
+                             line=None if lines is None else lines[row])
     order = np.lexsort((seconds, codes))  # by series (first appearance), then time
     codes, seconds, values = codes[order], seconds[order], values[order]
     bounds = np.flatnonzero(np.diff(codes)) + 1
@@ -202,12 +202,15 @@ def _shown(series_id) -> str:
     return repr(series_id) if isinstance(series_id, str) else str(series_id)
 
 
-def _check_cells(path: str) -> None:
-    """Every row of a CSV partition has as many cells as its header.
+def _check_cells(path: str) -> list[int]:
+    """Every row of a CSV partition has as many cells as its header; the line each data row starts on.
 
     pandas would read a longer row as a row name and shift its cells into
     the wrong columns, and pad a shorter one with missing values, where the
     single-file reader refuses both (:func:`gaussfuse.io.read_measurements`).
+    Blank and whitespace-only lines are skipped, as pandas and the
+    single-file reader skip them; a quoted cell may span lines, so a row's
+    line is counted here rather than from its position.
     """
     import csv
 
@@ -216,14 +219,20 @@ def _check_cells(path: str) -> None:
         header = next(rows, None)
         if header is None:
             raise InputFileError(path, "the file is empty: expected a header row, then one row per measurement.")
+        lines, end = [], rows.line_num
         for row in rows:
-            if row and len(row) != len(header):
-                raise _wrong_cells(path, header, row, rows.line_num)
+            start, end = end + 1, rows.line_num
+            if not row or (len(row) == 1 and not row[0].strip()):
+                continue
+            if len(row) != len(header):
+                raise _wrong_cells(path, header, row, start)
+            lines.append(start)
+    return lines
 
 
-def _numbers(path: str, column, name: str) -> np.ndarray:
+def _numbers(path: str, column, name: str, lines: list[int] | None) -> np.ndarray:
     """A CSV column of text as float64, read as the single-file reader reads cells (NaN where empty), or an error
-    naming the first cell that is not a number."""
+    naming the first cell that is not a number (and its line, from `lines`)."""
     text = column.fillna("nan")
     try:
         if text.str.contains("_", regex=False).any():  # float() reads "1_000" as Python source would
@@ -232,7 +241,8 @@ def _numbers(path: str, column, name: str) -> np.ndarray:
     except ValueError:
         cells = column.to_numpy(dtype=object)
         row = next(i for i, c in enumerate(cells) if not _is_number(c))
-        raise InputFileError(path, f"{cells[row]!r} is not a number.", line=row + 2, field=f"column `{name}`") from None
+        raise InputFileError(path, f"{cells[row]!r} is not a number.", line=None if lines is None else lines[row],
+                             field=f"column `{name}`") from None
 
 
 def _is_number(cell) -> bool:
@@ -243,36 +253,50 @@ def _is_number(cell) -> bool:
     return True
 
 
-def _seconds(path: str, column, name: str) -> np.ndarray:
-    """A time column as float seconds: numbers as they are, datetimes (or ISO-8601 text) since the first, exactly."""
+def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarray:
+    """A time column as float seconds: numbers as they are; times (ISO-8601 text, read as the single-file reader
+    reads it, or a Parquet timestamp column) as seconds since the first, each an exact integer difference rounded
+    once, whatever their span."""
     import pandas as pd
 
+    field = f"column `{name}`"
     if pd.api.types.is_bool_dtype(column):
-        raise InputFileError(path, "a time is True or False, not a number of seconds or a time.",
-                             field=f"column `{name}`")
+        raise InputFileError(path, "a time is True or False, not a number of seconds or a time.", field=field)
     if column.isna().any():  # an empty cell
-        raise InputFileError(path, "a time is missing; every row needs a time.", field=f"column `{name}`")
+        row = int(np.flatnonzero(column.isna().to_numpy())[0])
+        raise InputFileError(path, "a time is missing; every row needs a time.", field=field,
+                             line=None if lines is None else lines[row])
+    if pd.api.types.is_datetime64_any_dtype(column):  # a Parquet timestamp: an int64 count of its unit
+        if isinstance(column.dtype, pd.DatetimeTZDtype):
+            column = column.dt.tz_convert("UTC").dt.tz_localize(None)
+        counts = column.to_numpy()
+        unit = np.datetime_data(counts.dtype)[0]
+        return _since_first(counts.astype(np.int64).tolist(), per_second(unit))
     numbers = None if pd.api.types.is_numeric_dtype(column) else column.map(_is_number)
     if numbers is None:
         seconds = column.to_numpy(dtype=np.float64)
     elif numbers.all():  # text of numbers (NaN and inf among them: refused below)
-        seconds = _numbers(path, column, name)
+        seconds = _numbers(path, column, name, lines)
     elif numbers.any():
-        raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.",
-                             field=f"column `{name}`")
-    else:
-        try:
-            stamps = pd.to_datetime(column, utc=True, format="ISO8601")
-        except (TypeError, ValueError) as exc:
-            raise InputFileError(path, f"a time is neither a number of seconds nor an ISO-8601 time: {exc}",
-                                 field=f"column `{name}`") from None
-        offsets = (stamps - stamps.min()).to_numpy(dtype="timedelta64[ns]")  # exact: int64 nanoseconds
-        seconds = np.where(np.isnat(offsets), np.nan, offsets.astype(np.int64) / 1e9)
+        raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.", field=field)
+    else:  # ISO-8601 text: each distinct cell read once, by the single-file reader's rules
+        codes, texts = pd.factorize(column.astype(str))
+        firsts = np.unique(codes, return_index=True)[1]  # the row each distinct cell is first on
+        read = [_parse_time(path, text, {"line": None if lines is None else lines[row], "field": field})
+                for text, row in zip(texts, firsts.tolist())]
+        return np.asarray(_since_first(read, 10**9))[codes]
     if np.isinf(seconds).any():
-        raise InputFileError(path, "a time is not finite.", field=f"column `{name}`")
+        raise InputFileError(path, "a time is not finite.", field=field)
     if np.isnan(seconds).any():
-        raise InputFileError(path, "a time is missing; every row needs a time.", field=f"column `{name}`")
+        raise InputFileError(path, "a time is missing; every row needs a time.", field=field)
     return seconds
+
+
+def _since_first(counts: list[int], per_second: int) -> np.ndarray:
+    """Integer `counts` of 1/`per_second` s as float seconds since the smallest: exact differences (Python
+    integers, of any span), each rounded once."""
+    first = min(counts)
+    return np.array([(c - first) / per_second for c in counts], dtype=np.float64)
 
 
 def partition_arrays(path: str, series_column: str, m: int, time_column: str | None = None,

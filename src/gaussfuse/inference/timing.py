@@ -237,8 +237,10 @@ class Steps(NamedTuple):
 
     @property
     def regular(self) -> bool:
-        """Whether the steps are one step, to 1e-9 of it or to the times' round-off."""
-        return bool(self.dts.max() - self.dts.min() <= 1e-9 * self.dts.max() + self.slack)
+        """Whether the steps are one step, to 1e-9 of it or to the times' round-off (one infinite step too)."""
+        low, high = self.dts.min(), self.dts.max()
+        with np.errstate(invalid="ignore"):  # inf - inf
+            return bool(high == low or high - low <= 1e-9 * high + self.slack)
 
     @property
     def step(self) -> float:
