@@ -333,7 +333,7 @@ def _call(**changes):
      "`measurements[0].z` must be finite; got an infinite value at index (1,)."),
     (dict(measurements=[(None, "pos", [0, 0])]), TypeError,
      "`measurements[0].t` must be a real number of seconds or a datetime; got None."),
-    (dict(times=[[1.0]]), ValueError, "`times` must have shape (k,); got shape (1, 1)."),
+    (dict(times=[[1.0]]), ValueError, "`times` must have shape () or (k,); got shape (1, 1)."),
     (dict(times=[2.0, -1.0]), ValueError,
      "`times` must not be earlier than `t0` = 0.0 (the prior's time); got -1.0."),
     (dict(measurements=[]), ValueError,
@@ -579,3 +579,18 @@ def test_times_further_apart_than_the_largest_float_are_named():
         gf.fuse_timeline(motion, sensors, prior, -1e308, [(1e308, "a", 1.0)])
     with pytest.raises(ValueError, match=message):
         gf.Fuser(motion, sensors, prior, -1e308).update(1e308, "a", 1.0)
+
+
+def test_datetimes_of_two_dimensions_are_a_shape_error():
+    """A 2-D array of datetimes as `times` (fuse_timeline, Fused.at) raised "`times[0]` must be a real number of
+    seconds or a datetime; got array([...])"; numbers gave the shape error (audit F)."""
+    t0 = np.datetime64("2026-01-01T00:00:00")
+    query = np.array([[t0]])
+    motion, sensors = gf.ConstantVelocity(dim=1, q=0.5), {"a": gf.Position(dim=1, r=1.0)}
+    prior = gf.Gaussian([0.0, 1.0], np.eye(2))
+    message = re.escape("`times` must have shape () or (k,); got shape (1, 1).")
+    with pytest.raises(ValueError, match=message):
+        gf.fuse_timeline(motion, sensors, prior, t0, [(t0 + np.timedelta64(1, "s"), "a", 1.0)], times=query)
+    fused = gf.fuse_timeline(motion, sensors, prior, t0, [(t0 + np.timedelta64(1, "s"), "a", 1.0)])
+    with pytest.raises(ValueError, match=message):
+        fused.at(query)

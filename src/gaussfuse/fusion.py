@@ -128,8 +128,6 @@ class Fused:
         """
         dated = self.times.dtype.kind == "M"
         query = _times("times", times, dated)
-        if query.ndim > 1:
-            raise shape_error("times", "() or (k,)", query.shape)
         flat = np.atleast_1d(query)
         exact = np.ones(flat.shape, dtype=bool)
         if dated:  # on the timeline's clock; a time it cannot hold is not one of its steps
@@ -278,6 +276,8 @@ def _times(name: str, values, dated: bool) -> np.ndarray:
     """Times of shape () or (k,): float seconds, or (`dated`) datetime64 in the finest unit among them."""
     if np.ndim(values) == 0:
         return np.asarray(_time(name, values, dated))
+    if np.ndim(values) > 1:
+        raise shape_error(name, "() or (k,)", np.shape(values))
     if not dated:
         kind = getattr(getattr(values, "dtype", None), "kind", None) or np.asarray(values, dtype=object).dtype.kind
         if kind == "O":  # a list: numbers, or something else to name
@@ -491,11 +491,7 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
         raise TypeError("`keep` is not an option of fuse_timeline: it returns every step.")
     outputs = np.zeros(0)
     if times is not None:
-        outputs = _times("times", times, dated)
-        if outputs.ndim == 0:
-            outputs = outputs.reshape(1)
-        if outputs.ndim != 1:
-            raise shape_error("times", "(k,)", outputs.shape)
+        outputs = np.atleast_1d(_times("times", times, dated))
     events = _parse(measurements, timeline, dated)
     clock = _Clock.finest([t0, *(t for t, _, _ in events), *outputs])
     start = clock.count("t0", t0)
