@@ -1008,3 +1008,25 @@ def test_maximum_likelihood_searches_in_units_that_do_not_depend_on_the_data():
         assert fit.loglik + zs.size * np.log(s) == pytest.approx(one.loglik, rel=1e-10, abs=1e-9)
         np.testing.assert_allclose(fit.model.Q / (s * s), one.model.Q, rtol=1e-4)
         np.testing.assert_allclose(fit.prior.mean / s, one.prior.mean, atol=1e-3)  # its standard error is 1
+
+
+def test_a_learned_b_has_the_units_of_the_state_over_those_of_the_controls():
+    """With the data in units of 1e3 and the controls as they were, B's entries (unit 1) moved BFGS's first steps
+    far from the others' (review of the search in units): the fit was called converged 4.9 below the maximum,
+    with R singular. B[i, j]'s unit is now the process noise's standard deviation of component i over the size of
+    control j; the returned flag is a bool where Newton steps finished the search (it was a numpy.bool)."""
+    rng = np.random.default_rng(4)
+    us = rng.normal(size=(150, 1))
+    truth = gf.LinearModel(F=[[0.9, 0.2], [0.0, 0.7]], H=[[1.0, 0.5], [-0.3, 1.0]], Q=0.5 * np.eye(2), R=np.eye(2),
+                           B=[[1.0], [-2.0]])
+    zs = gf.simulate(truth, gf.Gaussian(np.zeros(2), np.eye(2)), 150, us=us, rng=rng).measurements
+    fits = {}
+    for s in (1.0, 1e3, 1e6):
+        start = gf.LinearModel(F=truth.F, H=truth.H, Q=s * s * np.eye(2), R=s * s * np.eye(2), B=[[0.5 * s], [-s]])
+        fits[s] = gf.fit(start, gf.Gaussian(np.zeros(2), s * s * np.eye(2)), zs * s, us, learn=("B", "Q", "R"),
+                         method="mle", engine="python")
+    one = fits[1.0]
+    for s, fit in fits.items():
+        assert type(fit.converged) is bool and fit.converged, s
+        assert fit.loglik + fit.nobs * np.log(s) == pytest.approx(one.loglik, rel=1e-10, abs=1e-9)
+        np.testing.assert_allclose(fit.model.B / s, one.model.B, rtol=1e-5)

@@ -773,9 +773,12 @@ class _Parametrisation:
     a positive variance at the start; the others stay at zero.
     """
 
-    def __init__(self, model: LinearModel, prior, learn: tuple, structure: dict, *, labels_only: bool = False):
-        """With `labels_only`, only :meth:`names` and :meth:`values` (no θ: a full covariance may be singular)."""
+    def __init__(self, model: LinearModel, prior, learn: tuple, structure: dict, *, labels_only: bool = False,
+                 controls: np.ndarray | None = None):
+        """With `labels_only`, only :meth:`names` and :meth:`values` (no θ: a full covariance may be singular).
+        `controls` (p,) is the size of each control in the data (for the units of B)."""
         self.model, self.prior, self.learn, self.structure = model, prior, learn, structure
+        self.controls = controls
         self.free = {name: ~_fixed_zeros(_current(model, prior, name), structure[name])
                      for name in learn if name in COVARIANCES}
         if labels_only:
@@ -847,13 +850,21 @@ class _Parametrisation:
     def units(self, theta: np.ndarray) -> np.ndarray:
         """The size of a change of each entry of θ that moves the model as much in any units of the data: 1 for
         a log variance and an entry of F or H, a component's standard deviation for an entry of a Cholesky
-        factor's row or of m0 (which scale with the data)."""
+        factor's row or of m0 (which scale with the data), and for B[i, j] the process noise's standard
+        deviation of component i over the size of control j (B u moves the state; the controls may be in other
+        units than the data)."""
         out = []
-        prior = self(theta)[1]
+        model, prior = self(theta)
+        sd = np.ones(model.n) if isinstance(prior, str) else np.sqrt(np.diag(prior.cov))  # (a diffuse prior: 1)
         for name, t in self.split(theta).items():
             if name == "m0":
-                sd = np.sqrt(np.diag(prior.cov))
                 out.append(np.where(sd > 0, sd, 1.0))
+            elif name == "B":
+                n, p = model.n, t.size // model.n
+                noise = np.sqrt(np.diagonal(model.Q, axis1=-2, axis2=-1).reshape(-1, n).mean(axis=0))
+                rows = np.where(noise > 0, noise, np.where(sd > 0, sd, 1.0))
+                cols = np.ones(p) if self.controls is None else np.where(self.controls > 0, self.controls, 1.0)
+                out.append((rows[:, None] / cols[None, :]).ravel())
             elif name in COVARIANCES and self.structure[name] == "full" and t.size:
                 L = self._factor(name, t)
                 rows, cols = np.tril_indices(L.shape[0])
@@ -947,6 +958,16 @@ class _Parametrisation:
                 rows, cols = np.tril_indices(free.size)
                 out.append(value[free[rows], free[cols]])
         return np.concatenate(out) if out else np.zeros(0)
+
+
+def _control_sizes(us) -> np.ndarray | None:
+    """The root mean square of each control (p,) over every series and step (computed, for a dask array), or
+    None without controls."""
+    if us is None:
+        return None
+    if chunked.is_dask(us):
+        return np.sqrt(np.asarray((us * us).mean(axis=(0, 1)).compute(), dtype=np.float64))
+    return np.sqrt(np.mean(us * us, axis=(0, 1)))
 
 
 def _entry_names(name: str, shape: tuple) -> list[str]:
@@ -1357,8 +1378,8 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: 
     Near the optimum the log-likelihood is flat to round-off, so a step that
     lowers it by no more than round-off still counts as a rise.
     """
-    def met(grad):
-        return np.max(np.abs(grad * units), initial=0.0) <= gtol
+    def met(grad) -> bool:
+        return bool(np.max(np.abs(grad * units), initial=0.0) <= gtol)
 
     for _ in range(steps):
         ll, grad = evaluate(theta)
@@ -1756,8 +1777,9 @@ def fit(
             raise ValueError("`x0` is the starting point of `params` and is used only with it; "
                              "the starting point of a fit without `params` is `model` (and `prior`).")
         learn, structure = _check_learn(model, prior, learn, structure)
+        controls = _control_sizes(us) if "B" in learn else None  # the units of B's entries
         if method == "mle":
-            build = _Parametrisation(model, prior, learn, structure)
+            build = _Parametrisation(model, prior, learn, structure, controls=controls)
             theta0 = build.encode()
         elif ("F" in learn or "B" in learn) and "Q" not in learn:
             _check_regression_q(model.Q)
@@ -1767,7 +1789,7 @@ def fit(
             model, prior, history, converged, message, engine = _em(model, prior, data, learn, structure,
                                                                     iterations, tol, nobs, callback, engine, switch)
             try:
-                build = _Parametrisation(model, prior, learn, structure)
+                build = _Parametrisation(model, prior, learn, structure, controls=controls)
             except ValueError:  # a learned full covariance became singular: no information matrix
                 build = None
             if build is not None:
@@ -1799,6 +1821,6 @@ def fit(
             f"{how} did not converge: {message.rstrip('.')}. The result is the best model found (loglik "
             f"{history[-1]:.6g}); raise `iterations`, loosen `tol`, or check the model.{_boundary(model, prior, learn, start)}"),
             stacklevel=2)
-    return FitResult(model, prior, float(history[-1]), history, method, converged, message, errors,
+    return FitResult(model, prior, float(history[-1]), history, method, bool(converged), message, errors,
                      params=dict(zip(names, map(float, values))), bse=dict(zip(names, map(float, bse))),
                      nobs=nobs, series=int(zs.shape[0]))

@@ -207,8 +207,10 @@ def test_times_with_chunked_measurements():
     turning = gf.model(gf.CoordinatedTurn(q_acc=0.1), gf.RangeBearing(r_range=0.5, r_bearing=0.01))
     bearings = np.column_stack([14 + 0.3 * np.arange(6.0), 0.78 + 0.01 * np.arange(6.0)])
     bearings = bearings + 0.01 * rng.normal(size=(3, 6, 2))
+    tens = gf.LinearModel(F=[[1.0, 0.01], [0.0, 1.0]], H=[[1.0, 0.0]], Q=0.1 * np.eye(2), R=1.0, dt=0.01)
     cases = [(timed, prior, zs, lazy, [0.0, 1.0, 1.5, 4.0, 4.1, 7.0], {}),
              (fixed, prior, zs, lazy, np.arange(5.0), {}),
+             (tens, prior, zs, lazy, 1.7e9 + 0.01 * np.arange(5.0), {}),  # a 10 ms grid of seconds since 1970
              (turning, gf.Gaussian([10.0, 10.0, 1.0, 0.5, 0.01], np.eye(5)), bearings,
               da.from_array(bearings, chunks=(1, 6, 2)), np.cumsum([0.0, 0.5, 1.0, 0.2, 2.0, 0.5]), {"method": "ukf"})]
     with dask.config.set(scheduler="synchronous"):

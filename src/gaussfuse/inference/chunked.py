@@ -130,11 +130,14 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     blocks, controls, sizes = paired_blocks(zs, us)
     T = zs.shape[1]
 
-    # The probe steps as the real times do (their step, or their steps cycled): its model is resolved as theirs.
-    grid = None if kwargs.get("times") is None else timing.steps("times", kwargs["times"], T)
+    # The probe steps as the real times do (their step, or their steps cycled), from their first time (in float
+    # seconds, their round-off is theirs): its model is resolved as theirs.
+    times = kwargs.get("times")
+    grid = None if times is None else timing.steps("times", times, T)
+    start = None if times is None else float(timing.as_seconds("times", times)[0])
 
     def meta(steps: int):
-        times = None if grid is None else np.concatenate([[0.0], np.cumsum(
+        times = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
             np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
         return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
                    **{**kwargs, "engine": "python", "check": "off", "times": times})
