@@ -1627,8 +1627,9 @@ def fit(
         without a warning. MLE stops when the gradient's largest component,
         per observation and per unit of its parameter (a log variance, an
         entry of F or H, a Cholesky entry over its row's size, m0 over the
-        prior's standard deviation), is below `tol` (default 1e-8): the same
-        fit in any units of the data.
+        prior's standard deviation, B[i, j] over Q's standard deviation i
+        per size of control j), is below `tol` (default 1e-8): the same fit
+        in any units of the data and of the controls.
     params : callable, optional
         For structured models (MLE only): ``params(theta) -> LinearModel`` or
         ``(LinearModel, Gaussian)``; `learn` and `structure` are then ignored.
