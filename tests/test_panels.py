@@ -507,6 +507,12 @@ def test_a_partition_reads_times_and_names_lines_as_one_series_file_does(tmp_pat
     part, one = panels.read_partition(str(tmp_path / "iso.csv"), "id", 1), gfio.read_measurements(tmp_path / "one.csv")
     np.testing.assert_array_equal(part.times[0], list(cases.values()))
     np.testing.assert_array_equal(part.times[0], one.times)
+    plain = ["1700-03-01T00:00:00Z", "2026-05-01 12:00:00.123456789+02:00", "2026-05-01T12:00:00.5",
+             "2262-01-01T00:00:00Z"]
+    (tmp_path / "plain.csv").write_text("id,t,z\n" + "".join(f"a,{c},1\n" for c in plain))  # read by pandas, at once
+    (tmp_path / "one.csv").write_text("t,z\n" + "".join(f"{c},1\n" for c in plain))
+    np.testing.assert_array_equal(panels.read_partition(str(tmp_path / "plain.csv"), "id", 1).times[0],
+                                  gfio.read_measurements(tmp_path / "one.csv").times)
     for cell, message in (("2026-05-01T12:00:00.123456789123Z", "has 12 digits after the second"),
                           ("2026-05", "is neither a number of seconds nor an ISO-8601 time"),
                           ("2026-05-01T12:00:00.000000001z", "'2026-05-01T12:00:00.000000001z' is neither")):

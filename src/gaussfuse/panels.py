@@ -281,15 +281,35 @@ def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarra
         raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.", field=field)
     else:  # ISO-8601 text: each distinct cell read once, by the single-file reader's rules
         codes, texts = pd.factorize(column.astype(str))
-        firsts = np.unique(codes, return_index=True)[1]  # the row each distinct cell is first on
-        read = [_parse_time(path, text, {"line": None if lines is None else lines[row], "field": field})
-                for text, row in zip(texts, firsts.tolist())]
+        read = _plain_stamps(texts)
+        if read is None:
+            firsts = np.unique(codes, return_index=True)[1]  # the row each distinct cell is first on
+            read = [_parse_time(path, text, {"line": None if lines is None else lines[row], "field": field})
+                    for text, row in zip(texts, firsts.tolist())]
         return np.asarray(_since_first(read, 10**9))[codes]
     if np.isinf(seconds).any():
         raise InputFileError(path, "a time is not finite.", field=field)
     if np.isnan(seconds).any():
         raise InputFileError(path, "a time is missing; every row needs a time.", field=field)
     return seconds
+
+
+_PLAIN = r"^\d{4}-\d\d-\d\d[T ]\d\d:\d\d:\d\d(?:\.\d{1,9})?(?:Z|[+-]\d\d:\d\d)?$"
+"""An ISO-8601 time in its plainest form (RFC 3339, to the nanosecond), which pandas reads as the single-file reader
+does, and faster."""
+
+
+def _plain_stamps(texts) -> list[int] | None:
+    """Nanoseconds since 1970 of `texts` (an Index of str), read at once by pandas when every one is in the plainest
+    form and within its nanosecond range (1677-2262); else None (read them one by one)."""
+    import pandas as pd
+
+    if not texts.str.fullmatch(_PLAIN).all():
+        return None
+    try:
+        return pd.to_datetime(texts, utc=True, format="ISO8601").as_unit("ns").asi8.tolist()
+    except (ValueError, OverflowError):  # out of range, or a date that is not one (the reader names it)
+        return None
 
 
 def _since_first(counts: list[int], per_second: int) -> np.ndarray:
