@@ -520,6 +520,11 @@ def test_a_partition_reads_times_and_names_lines_as_one_series_file_does(tmp_pat
                  rf"bad\.csv: line 6: column `t`: .*{re.escape(message)}")
     _refused(tmp_path / "n.csv", 'id,t,x\n\n\na,1,1\n"b\nc",2,2\na,2,oops\n',
              r"n\.csv: line 7: column `x`: 'oops' is not a number\.")
+    _refused(tmp_path / "d.csv", "id,t,z\na,1,1\nb,1,1\na,2,2\na,1,3\n",
+             r"d\.csv: line 5: column `t`: series 'a' has two rows at one time \(lines 2 and 5\)")
+    _refused(tmp_path / "f.csv", "id,t,z\na,1700-01-01T00:00:00Z,1\na,2020-01-01T00:00:00.000000001Z,2\n"
+             "a,2020-01-01T00:00:00.000000002Z,3\n", r"f\.csv: line 4: column `t`: series 'a': "
+             r"2020-01-01T00:00:00\.000000002Z is 1 ns from 2020-01-01T00:00:00\.000000001Z, finer than seconds")
 
 
 def _refused(path, text: str, match: str) -> None:

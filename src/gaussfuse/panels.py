@@ -188,13 +188,30 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     bounds = np.flatnonzero(np.diff(codes)) + 1
     times = np.split(seconds, bounds)
     for k, t in enumerate(times):
-        if np.any(np.diff(t) <= 0):
-            raise InputFileError(path, f"series {_shown(ids[k])} has two rows at one time; times must increase "
-                                       "strictly.",
-                                 field=f"column `{time_col}`")
+        back = np.flatnonzero(np.diff(t) <= 0)
+        if back.size:
+            first = 0 if k == 0 else int(bounds[k - 1])
+            _same_time(path, frame[time_col], time_col, ids[k], order[first + back[0]], order[first + back[0] + 1],
+                       lines)
     return Partition(list(ids), times, np.split(values, bounds),
                      frame[[series_column, time_col]].iloc[order].reset_index(drop=True),
                      [series_column, time_col, *wanted])
+
+
+def _same_time(path: str, column, name: str, series_id, a: int, b: int, lines: list[int] | None):
+    """The error for rows `a` and `b` of a series at one time in seconds: two rows at one time, or two ISO times
+    finer apart than seconds since the partition's first time resolve (as the single-file reader names them)."""
+    texts = [str(column.iloc[a]), str(column.iloc[b])]
+    where = {"field": f"column `{name}`", "line": None if lines is None else lines[b]}
+    if texts[0] != texts[1] and not any(map(_is_number, texts)):
+        apart = abs(_parse_time(path, texts[1], where) - _parse_time(path, texts[0], where))
+        if apart:
+            raise InputFileError(path, f"series {_shown(series_id)}: {texts[1]} is {apart} ns from {texts[0]}, finer "
+                                       "than seconds since the partition's first time resolve there (float64).",
+                                 **where)
+    raise InputFileError(path, f"series {_shown(series_id)} has two rows at one time"
+                               f"{'' if lines is None else f' (lines {lines[a]} and {lines[b]})'}; times must "
+                               "increase strictly.", **where)
 
 
 def _shown(series_id) -> str:
