@@ -33,7 +33,7 @@ from gaussfuse.diagnostics import rmse
 from gaussfuse import wrap_angle
 
 DT = 0.1  # s
-STEPS = 800  # 80 s, about one and a half loops
+STEPS = 800  # 80 s, about two loops
 LANDMARKS = np.array([[9.0, 4.0], [2.0, 11.0], [-9.0, 6.0], [-8.0, -7.0], [3.0, -12.0]])
 K = len(LANDMARKS)
 N = 3 + 2 * K

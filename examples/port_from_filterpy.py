@@ -9,7 +9,7 @@ the belief into a `Gaussian`. Everything else (`x`, `P *= 1000`, `predict()`,
 `S`, `K`, `log_likelihood`, `mahalanobis` after an update) reads the same.
 
 With filterpy installed, the same loop runs in both and the largest
-difference of every quantity is printed (round-off, about 1e-13).
+difference of every quantity is printed (round-off, a few 1e-15).
 
     python examples/port_from_filterpy.py
 """

@@ -13,8 +13,11 @@ missing (:class:`gaussfuse.kalman.Gate` does the test). ``result.rejected``
 (:math:`v_i^2 / S_{ii}` against :math:`\chi^2_1`), so a glitch in x does not
 throw away a good y.
 
-A gate at 0.99 also rejects about 1% of good measurements: that is the price
-of the test. It relies on the filter's own covariances, so it needs a model
+A gate at 0.99 rejects 1% of good measurements tested against a consistent
+prediction: that is the price of the test. In a filter, each rejection makes
+the next predictions more confident than they should be, so on long series
+it rejects more (about 2% for this page's model), sometimes several in a
+row. It relies on the filter's own covariances, so it needs a model
 whose Q and R are about right (see
 :ref:`Tuning Q and R <sphx_glr_auto_howto_h02_tuning_q_and_r.py>`).
 """

@@ -160,8 +160,8 @@ for delta in (1e-6, 1e-12, 0.0):
 # What gaussfuse does
 # -------------------
 #
-# :func:`gaussfuse.kalman.update`, used by every filter in the library,
-# computes the gain by Cholesky solves with :math:`S` (never an explicit
+# :func:`gaussfuse.kalman.update`, used (as written, or compiled) by every
+# covariance-form filter in the library, computes the gain by Cholesky solves with :math:`S` (never an explicit
 # inverse) and the posterior in the Joseph form, symmetrised. It is not proof
 # against every round-off: see the README's section "When covariances are not
 # accurate enough", whose example (:math:`P_0 = 10^{12} I`,

@@ -79,7 +79,8 @@ assert np.allclose(readable.loglik, compiled.loglik, rtol=1e-12)
 # -------------------------------
 #
 # By default the result holds every step's filtered and predicted means and
-# covariances, innovations and their covariances. For :math:`N` series
+# covariances, innovations and their covariances, and the normalised
+# innovation squared (``nis``). For :math:`N` series
 # that is about :math:`N T (2n + 2n^2 + m + m^2 + 1)` numbers. With
 # ``keep="last"`` it holds only the final belief of each series and the
 # log-likelihood: enough to continue filtering, to forecast, or to compare
