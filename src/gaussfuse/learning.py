@@ -861,7 +861,8 @@ class _Parametrisation:
                 out.append(np.where(sd > 0, sd, 1.0))
             elif name == "B":
                 n, p = model.n, t.size // model.n
-                noise = np.sqrt(np.diagonal(model.Q, axis1=-2, axis2=-1).reshape(-1, n).mean(axis=0))
+                variances = np.diagonal(model.Q, axis1=-2, axis2=-1).reshape(-1, n).mean(axis=0)
+                noise = np.sqrt(np.clip(variances, 0.0, None))
                 rows = np.where(noise > 0, noise, np.where(sd > 0, sd, 1.0))
                 cols = np.ones(p) if self.controls is None else np.where(self.controls > 0, self.controls, 1.0)
                 out.append((rows[:, None] / cols[None, :]).ravel())
@@ -1356,13 +1357,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     return theta, np.array(history), converged, message, evaluate
 
 
-def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray | None = None) -> np.ndarray:
+def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised).
 
-    Each step is 1e-5 of the entry's `sizes` (default: its size, at least 1).
+    Each step is 1e-5 of the entry's `sizes` (its size, at least its unit).
     """
     k = theta.size
-    steps = 1e-5 * (np.maximum(1.0, np.abs(theta)) if sizes is None else sizes)
+    steps = 1e-5 * sizes
     up = [theta + h * e for h, e in zip(steps, np.eye(k))]
     down = [theta - h * e for h, e in zip(steps, np.eye(k))]
     evaluate.prefetch(up + down)
@@ -1373,7 +1374,7 @@ def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray | None = None) -> np
 
 
 def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: int = 5) -> tuple[np.ndarray, bool]:
-    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; whether ``max|∇ℓ · units| <= gtol``.
+    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; whether ``max|∇ℓ units| <= gtol``.
 
     Near the optimum the log-likelihood is flat to round-off, so a step that
     lowers it by no more than round-off still counts as a rise.
