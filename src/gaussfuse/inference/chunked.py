@@ -137,10 +137,10 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     start = None if times is None else float(timing.as_seconds("times", times)[0])
 
     def meta(steps: int):
-        times = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
+        stepped = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
             np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
         return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
-                   **{**kwargs, "engine": "python", "check": "off", "times": times})
+                   **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
     probe = max(zs.shape[2], *_trailing(meta(2))) + 3
     template = meta(probe)

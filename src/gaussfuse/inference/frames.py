@@ -81,7 +81,7 @@ def by_rows(model) -> bool:
     return not isinstance(model, TimedModel) and getattr(model, "dt", None) is None
 
 
-def unpack(zs, times, rows: bool = False):
+def unpack(zs, times, rows: bool):
     """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array).
 
     The index of a pandas `zs` supplies `times` when none are given, except one of calendar periods (monthly,
