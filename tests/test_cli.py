@@ -403,7 +403,7 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
                                                   r"valid keys are kind, dim, dt, q, r, states"),
         (GOOD_CSV, GOOD_TOML + "[priors]\n", [], r"model\.toml: unknown table\(s\) \['priors'\]"),
         (GOOD_CSV, "[model]\nF = [[1]]\nH = [[1], [1]]\nQ = [[1]]\nR = [[1, 0], [0, 1]]\nB = [[1]]\n", [],
-         r"model\.toml: \[model\] B: a control input is not supported by `gaussfuse filter`"),
+         r"model\.toml: \[model\] B: a control input is not supported by the command line yet"),
         (GOOD_CSV, GOOD_TOML + "[prior]\nmean = [0, 0]\n", [], r"model\.toml: \[prior\] mean: `mean` must have"),
         # the filter itself fails after reading: a zero innovation covariance
         ("t,x\n1,0.5\n", EXPLICIT_1D + "[prior]\nvar = 0\n", [], r"step 0: .*not positive definite"),
@@ -806,7 +806,7 @@ def gaussfuse_process(*argv, **kwargs):
 
 def test_sigterm_exits_143_in_one_line_leaving_no_temporary_file(tmp_path, inputs):
     data, model = inputs
-    figure = tmp_path / "fig.fifo"
+    figure = tmp_path / "fig.png"
     os.mkfifo(figure)  # no reader: the process waits to open it, with the CSV in its temporary file
     proc = gaussfuse_process("filter", data, "-m", model, "--out", tmp_path / "out.csv", "--plot", figure)
     try:
@@ -818,7 +818,7 @@ def test_sigterm_exits_143_in_one_line_leaving_no_temporary_file(tmp_path, input
     finally:
         proc.kill()
     assert (proc.returncode, stdout, stderr) == (143, "", "gaussfuse: terminated\n")
-    assert sorted(os.listdir(tmp_path)) == ["data.csv", "fig.fifo", "link.csv", "model.toml"]
+    assert sorted(os.listdir(tmp_path)) == ["data.csv", "fig.png", "link.csv", "model.toml"]
 
 
 def test_sigterm_while_reading_a_fifo(tmp_path):
@@ -1375,3 +1375,78 @@ def test_one_step_longer_than_any_float_is_one_step(tmp_path, capsys):
     (tmp_path / "d.csv").write_text("t,z\n-1e308,1\n1e308,2\n")
     code, out, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml")
     assert code == 0 and err == "" and len(out.splitlines()) == 3
+
+
+def test_a_closed_stderr_loses_the_messages_not_the_data(tmp_path, capsys, monkeypatch):
+    """With stderr closed (2>&-), `fit` crashed in its progress bar (AttributeError, exit 1) and `filter` wrote its
+    warnings into the CSV on standard output, where print puts them when sys.stderr is None (audit C2)."""
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
+    (tmp_path / "d.csv").write_text("t,z\n0,1\n1,2\n3,4\n")  # irregular: a warning
+    monkeypatch.setattr(sys, "stderr", None)
+    code, out, _ = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml")
+    assert code == 0 and out.splitlines()[0] == "t,x0,std_x0" and len(out.splitlines()) == 4
+    code, out, _ = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "-m", EXAMPLES / "models" / "local_level.toml",
+                       "-o", tmp_path / "fitted.toml")
+    assert code in (0, 3) and out == "" and (tmp_path / "fitted.toml").exists()
+    assert sys.stderr is None
+
+
+def test_outputs_that_would_lose_the_work_are_refused_before_it(tmp_path, capsys):
+    """A directory as `--out`, a link into a missing folder, and a `--plot` format matplotlib cannot write were
+    refused only after the work (12 s on a million rows) (audit C2)."""
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
+    (tmp_path / "d.csv").write_text("t,z\n0,1\n1,2\n2,4\n")
+    (tmp_path / "folder").mkdir()
+    os.symlink(tmp_path / "nowhere" / "x.csv", tmp_path / "link.csv")
+    base = ["filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml"]
+    for extra, message in ((["-o", tmp_path / "folder"], "folder: Is a directory (`--out` names a file)"),
+                           (["-o", tmp_path / "link.csv"], "link.csv: No such file or directory (the folder of `--out`)"),
+                           (["-o", tmp_path / "x.csv", "--plot", tmp_path / "x.xyz"], "unknown image format 'xyz'")):
+        code, _, err = run(capsys, *base, *extra)
+        assert code == 2 and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x.csv").exists()
+    code, _, err = run(capsys, "fit", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "-o", tmp_path / "folder")
+    assert code == 2 and "Is a directory" in err
+
+
+def test_matplotlibs_logged_warnings_are_one_line_warnings(tmp_path, capsys):
+    """--plot x.eps printed matplotlib's logged "The PostScript backend does not support transparency ..." as a
+    bare line (audit C2)."""
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
+    (tmp_path / "d.csv").write_text("t,z\n0,1\n1,2\n2,4\n")
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "-o", tmp_path / "o.csv",
+                       "--plot", tmp_path / "p.eps")
+    assert code == 0 and (tmp_path / "p.eps").exists()
+    assert "gaussfuse: warning: The PostScript backend does not support transparency" in err, err
+    assert all(line.startswith("gaussfuse: warning: ") for line in err.splitlines()), err
+
+
+def test_basic_format_iso_times_and_other_scripts_digits(tmp_path, capsys):
+    """ISO times without colons (20260501T120000.000000001) lost their digits after the microsecond (1 ns steps
+    'not increasing'), and a digit of another script ('٣') was read as 3 where '1_000' is refused (audit C2)."""
+    (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
+    (tmp_path / "b.csv").write_text("t,z\n20260501T120000.000000001,1\n20260501T120000.000000003,2\n")
+    (tmp_path / "e.csv").write_text("t,z\n2026-05-01T12:00:00.000000001,1\n2026-05-01T12:00:00.000000003,2\n")
+    np.testing.assert_array_equal(gfio.read_measurements(tmp_path / "b.csv").times, [0.0, 2e-9])
+    np.testing.assert_array_equal(gfio.read_measurements(tmp_path / "b.csv").times,
+                                  gfio.read_measurements(tmp_path / "e.csv").times)
+    (tmp_path / "u.csv").write_text("t,z\n1,\u0663\n2,3\n", encoding="utf-8")
+    code, _, err = run(capsys, "filter", tmp_path / "u.csv", "-m", tmp_path / "m.toml")
+    assert code == 2 and "line 2: column `z`: '\u0663' is not a number." in err
+
+
+def test_the_fit_summary_names_the_commands_options(tmp_path, capsys, monkeypatch):
+    """The summary line (and the model file's comment) quoted the library's words, "`tol`" and "method='mle'",
+    where the warning line said --tol and --method mle (audit C2)."""
+    import dataclasses
+
+    fit = gaussfuse.learning.fit
+
+    def worded(*args, **kwargs):
+        return dataclasses.replace(fit(*args, **kwargs), message="changed by less than `tol`; try method='mle'")
+
+    monkeypatch.setattr(cli.learning, "fit", worded)
+    code, _, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "-m", EXAMPLES / "models" / "local_level.toml",
+                       "-o", tmp_path / "fitted.toml")
+    assert "changed by less than --tol; try --method mle; log-likelihood" in err, err
+    assert "--tol; try --method mle" in (tmp_path / "fitted.toml").read_text()

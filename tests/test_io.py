@@ -182,7 +182,7 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
                                r"\(explicit matrices\), or kind, dim, dt, q, r, states \(a named model\)\."),
         (NAMED + "F = [[1]]\n", r"\[model\]: unknown key\(s\) \['F'\]; valid keys are kind, dim, dt, q, r, states"),
         (EXPLICIT + "B = [[1], [0]]\n",
-         r"m\.toml: \[model\] B: a control input is not supported by `gaussfuse filter` yet"),
+         r"m\.toml: \[model\] B: a control input is not supported by the command line yet"),
         ("[model]\nF = [[1]]\nH = [[1]]\nQ = [[1]]\n", r"m\.toml: \[model\]: missing key\(s\) \['R'\]; "
                                                         r"explicit models need F, H, Q and R\."),
         ('[model]\nkind = "constant_velocity"\ndt = 1\n', r"\[model\]: missing key\(s\) \['q', 'r'\]"),

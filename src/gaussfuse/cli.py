@@ -580,10 +580,11 @@ def _check_many(args: argparse.Namespace) -> None:
 def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> None:
     """Refuse, before any work, outputs that would destroy an input or each other.
 
-    Also refuses to write to a closed standard output, or into a directory
-    that does not exist (an output directory of --series-column is made) or
-    cannot take a new file (read-only, say), which would lose the results of
-    the work.
+    Also refuses to write to a closed standard output, to a directory (but
+    the output directory of --series-column), into a directory that does not
+    exist (a link's target's; an output directory of --series-column is made)
+    or cannot take a new file (read-only, say), or a figure in a format
+    matplotlib does not write: each would lose the results of the work.
     """
     if not outputs["--out"] and sys.stdout is None:
         raise ValueError("standard output is closed; name an output file with `--out`.")
@@ -591,7 +592,9 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
     for option, path in outputs.items():
         if path is None:
             continue
-        folder = os.path.dirname(os.path.abspath(path))
+        if os.path.isdir(path) and not (option == "--out" and args.series_column is not None):
+            raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (`{option}` names a file)", path)
+        folder = os.path.dirname(os.path.realpath(path))  # a link's target's folder: where the file is written
         if not (option == "--out" and args.series_column is not None) and not os.path.isdir(folder):
             raise FileNotFoundError(errno.ENOENT, f"{os.strerror(errno.ENOENT)} (the folder of `{option}`)", path)
         special = os.path.exists(path) and not os.path.isfile(path)  # /dev/null, a FIFO: written in place
@@ -604,6 +607,8 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
             if _same_file(path, other):
                 raise ValueError(f"`{option}` {path} is the same file as {what} {other}; choose another path.")
         earlier.append((f"`{option}`", path))
+        if option == "--plot":
+            plotting.image_format(path)  # a format matplotlib cannot write: said now, not after the work
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -768,12 +773,12 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     comments = [f"fitted by gaussfuse {__version__}: gaussfuse fit {os.path.basename(args.data)} "
                 f"--learn {','.join(learn)} --method {args.method}",
-                f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {res.message}",
+                f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {_options(res.message)}",
                 *res.summary().splitlines()]
     sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(sys.stdout)
     with sink as out:
         gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
-    print(f"{args.method}: {res.message}; log-likelihood {res.loglik:.6f} after {len(res.history) - 1} "
+    print(f"{args.method}: {_options(res.message)}; log-likelihood {res.loglik:.6f} after {len(res.history) - 1} "
           f"iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
     if res.message.startswith("interrupted"):
         return 130
@@ -959,6 +964,13 @@ def main(argv: list[str] | None = None) -> int:
     :class:`KeyboardInterrupt`, so that it stops the work as Ctrl-C does:
     temporary files are removed and ``fit`` writes the best model so far.
     """
+    if sys.stderr is None:  # closed (2>&-): messages go nowhere, not into standard output, where print puts them
+        with open(os.devnull, "w", encoding="utf-8") as sink:
+            sys.stderr = sink
+            try:
+                return main(argv)
+            finally:
+                sys.stderr = None
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version and usage errors
@@ -972,7 +984,7 @@ def main(argv: list[str] | None = None) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, on_sigterm) if in_main_thread else None
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), _logged_as_warnings("matplotlib"):
             warnings.showwarning = _show_warning  # one line each, like the errors
             code = args.run(args)
         if sys.stdout is not None:
@@ -1021,6 +1033,26 @@ _OPTION_WORDS = [(re.compile(pattern), replacement) for pattern, replacement in 
     (r"\b(method|check|engine)='(\w+)'", r"--\1 \2"),
     (r"`?structure=\{'(\w+)': '(\w+)'\}`?", r"--structure \1=\2"),
 )]
+
+
+@contextmanager
+def _logged_as_warnings(name: str):
+    """The warnings logger `name` logs (matplotlib's: "The PostScript backend does not support transparency"), as
+    one-line warnings while the command runs."""
+    import logging
+
+    class OneLine(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            print(f"gaussfuse: warning: {' '.join(record.getMessage().split())}", file=sys.stderr)
+
+    logger, handler = logging.getLogger(name), OneLine(logging.WARNING)
+    propagate, logger.propagate = logger.propagate, False
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
 
 
 def _options(text: str) -> str:

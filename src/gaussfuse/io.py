@@ -337,8 +337,9 @@ class _Rows:
             times = np.array(texts, dtype=np.float64)
             stamps = np.zeros(len(rows), dtype=bool)
             values = np.array([c if c.strip() else "nan" for c in cells], dtype=np.float64)
-            # float() reads "1_000" as 1000, as Python source would; a CSV cell with "_" is not a number
-            good = np.isfinite(times).all() and not np.isinf(values).any() and "_" not in "".join(texts) + "".join(cells)
+            # float() reads "1_000" as 1000, as Python source would, and "٣" as 3: neither is a CSV number
+            joined = "".join(texts) + "".join(cells)
+            good = np.isfinite(times).all() and not np.isinf(values).any() and "_" not in joined and joined.isascii()
         except ValueError:  # ISO-8601 times, or a cell that is not a number
             good = False
         if not good:
@@ -454,13 +455,14 @@ def _measurement_columns(path, header: list[str], time_col: int, columns) -> lis
 
 
 def _float(text: str) -> float:
-    """A number cell as ``float`` reads it, except "1_000": Python source's digit separator is not a CSV number."""
-    if "_" in text:
+    """A number cell as ``float`` reads it, except "1_000" (Python source's digit separator) and digits of other
+    scripts ("٣", which ``float`` reads as 3): neither is a CSV number."""
+    if "_" in text or not text.isascii():
         raise ValueError(text)
     return float(text)
 
 
-_FRACTION = re.compile(r"(:\d\d)[.,](\d+)")  # the seconds' fraction (before any zone's)
+_FRACTION = re.compile(r"((?::|[T ]\d\d\d\d)\d\d)[.,](\d+)")  # the seconds' fraction (12:00:00.5 or 120000.5)
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 
@@ -658,7 +660,7 @@ def _field(path, table_name: str, fields: dict[str, str]) -> Iterator[None]:
 def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
     if "B" in table:
         raise InputFileError(
-            path, "a control input is not supported by `gaussfuse filter` yet; remove `B`.",
+            path, "a control input is not supported by the command line yet (no controls are read); remove `B`.",
             field="[model] B",
         )
     _check_keys(path, "model", table, _EXPLICIT_KEYS,

@@ -252,8 +252,8 @@ def _numbers(path: str, column, name: str, lines: list[int] | None) -> np.ndarra
     naming the first cell that is not a number (and its line, from `lines`)."""
     text = column.fillna("nan")
     try:
-        if text.str.contains("_", regex=False).any():  # float() reads "1_000" as Python source would
-            raise ValueError
+        if text.str.contains("_", regex=False).any() or not text.str.isascii().all():  # "1_000" and "٣": float()
+            raise ValueError                                                          # reads them, a CSV does not
         return text.to_numpy(dtype=object).astype(np.float64)
     except ValueError:
         cells = column.to_numpy(dtype=object)

@@ -40,6 +40,7 @@ __all__ = [
     "plot_measurements",
     "plot_demo",
     "save_figure",
+    "image_format",
 ]
 
 _MEASUREMENT_STYLE = dict(linestyle="none", marker=".", color="0.35", markersize=4)
@@ -611,14 +612,38 @@ def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
     if _given_figure(fig, "Figure") is None:
         raise TypeError("`fig` must be a matplotlib Figure; got None.")
 
+    fmt = image_format(path)
+    with open_atomic(path, "wb") as f:
+        fig.savefig(f, format=fmt)
+
+
+def image_format(path: str | os.PathLike[str]) -> str:
+    """The format of the image file `path`: its extension (PNG if none), one that matplotlib writes.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The image file.
+
+    Returns
+    -------
+    str
+        The format, such as ``"png"`` or ``"svg"``.
+
+    Raises
+    ------
+    ValueError
+        If matplotlib cannot write the extension's format.
+    """
+    from matplotlib.backend_bases import FigureCanvasBase
+
     fmt = os.path.splitext(os.fspath(path))[1][1:].lower() or "png"
-    supported = fig.canvas.get_supported_filetypes()
+    supported = FigureCanvasBase.get_supported_filetypes()
     if fmt not in supported:
         raise ValueError(
             f"{os.fspath(path)}: unknown image format {fmt!r}; use one of {', '.join(sorted(supported))}."
         )
-    with open_atomic(path, "wb") as f:
-        fig.savefig(f, format=fmt)
+    return fmt
 
 
 # ---------------------------------------------------------------------------
