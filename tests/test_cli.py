@@ -1450,3 +1450,13 @@ def test_the_fit_summary_names_the_commands_options(tmp_path, capsys, monkeypatc
                        "-o", tmp_path / "fitted.toml")
     assert "changed by less than --tol; try --method mle; log-likelihood" in err, err
     assert "--tol; try --method mle" in (tmp_path / "fitted.toml").read_text()
+
+
+def test_an_extra_argument_is_named_with_its_commands_help(tmp_path, capsys):
+    """`gaussfuse filter a.csv b.csv -m m.toml` pointed to `gaussfuse --help`, which does not list filter's options
+    (audit C2)."""
+    code, _, err = run(capsys, "filter", "a.csv", "b.csv", "-m", "m.toml")
+    assert code == 2 and err == ("gaussfuse: error: unrecognized arguments: b.csv (`gaussfuse filter --help` lists "
+                                 "the options)\n")
+    code, _, err = run(capsys, "fit", "a.csv", "-m", "m.toml", "--bogus")
+    assert code == 2 and err.endswith("unrecognized arguments: --bogus (`gaussfuse fit --help` lists the options)\n")

@@ -833,7 +833,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="directory for the figure, created if missing (default: current directory)")
     demo.add_argument("--seed", metavar="N", type=int, default=0,
                       help="seed of the simulation (default: 0)")
-    demo.set_defaults(run=_run_demo)
+    demo.set_defaults(run=_run_demo, parser=demo)
 
     filt = commands.add_parser(
         "filter", help="filter (or smooth) a CSV file of measurements with a TOML model",
@@ -863,7 +863,7 @@ def build_parser() -> argparse.ArgumentParser:
                            "innovations are too large for the filter's covariances; raise: an error, exit "
                            "status 2; off)")
     _engine_option(filt)
-    filt.set_defaults(run=_run_filter)
+    filt.set_defaults(run=_run_filter, parser=filt)
 
     fit = commands.add_parser(
         "fit", help="learn a model's matrices from a CSV file of measurements",
@@ -900,7 +900,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="write the fitted model to this file (default: standard output); "
                           "not DATA.csv or MODEL.toml")
     _engine_option(fit)
-    fit.set_defaults(run=_run_fit)
+    fit.set_defaults(run=_run_fit, parser=fit)
     return parser
 
 
@@ -972,7 +972,9 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 sys.stderr = None
     try:
-        args = build_parser().parse_args(argv)
+        args, extra = build_parser().parse_known_args(argv)
+        if extra:  # named by the command's parser, whose --help lists its options
+            args.parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version and usage errors
         return exc.code if isinstance(exc.code, int) else 2
     terminated = []
