@@ -74,7 +74,8 @@ and optionally the belief one step before the first measurement
     mean = [0.0, 0.0, 1.0, 0.0]    # default: zeros
     var = 100.0                    # var * I, or cov = [[...]]
 Without [prior] the prior is N(0, 1e6 I); `diffuse = true` alone in [prior]
-is a flat prior, handled exactly. A control input (B) is not supported
+is a flat prior, handled exactly (the rows before the data determine the
+whole state are written as nan). A control input (B) is not supported
 yet."""
 
 _FILTER_STEPS = """\
