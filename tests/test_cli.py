@@ -1460,3 +1460,18 @@ def test_an_extra_argument_is_named_with_its_commands_help(tmp_path, capsys):
                                  "the options)\n")
     code, _, err = run(capsys, "fit", "a.csv", "-m", "m.toml", "--bogus")
     assert code == 2 and err.endswith("unrecognized arguments: --bogus (`gaussfuse fit --help` lists the options)\n")
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("buffered", [True, False])
+def test_help_that_cannot_be_written_is_an_error(buffered):
+    """`gaussfuse --help > /dev/full` exited 0 with the help lost: argparse ignores a failed write (audit C2)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    if not buffered:
+        env["PYTHONUNBUFFERED"] = "1"
+    for argv in (["--help"], ["--version"], ["filter", "--help"]):
+        with open("/dev/full", "w") as full:
+            done = subprocess.run([sys.executable, "-m", "gaussfuse", *argv], stdout=full, stderr=subprocess.PIPE,
+                                  text=True, env=env, timeout=120)
+        assert (done.returncode, done.stderr) == (
+            2, "gaussfuse: error: writing the help or version to standard output: No space left on device\n")

@@ -807,6 +807,12 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"gaussfuse: error: {message} (`{self.prog} --help` lists the options)\n")
 
+    def _print_message(self, message: str, file=None) -> None:
+        """As argparse prints, but a failed write raises (argparse ignores it: `--help > /dev/full` exited 0)."""
+        file = file if file is not None else sys.stderr
+        if message and file is not None:
+            file.write(message)
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``gaussfuse`` command."""
@@ -977,7 +983,10 @@ def main(argv: list[str] | None = None) -> int:
         if extra:  # named by the command's parser, whose --help lists its options
             args.parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version and usage errors
-        return exc.code if isinstance(exc.code, int) else 2
+        code = exc.code if isinstance(exc.code, int) else 2
+        return _flushed(code, "the help or version") if code == 0 else code
+    except OSError:  # the help or version could not be written: named as a flush would name it
+        return _flushed(0, "the help or version", failed=True)
     terminated = []
 
     def on_sigterm(signum, frame):
@@ -1010,6 +1019,26 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _flushed(code: int, what: str, failed: bool = False) -> int:
+    """`code`, once standard output (holding `what`) is flushed: 141 for a closed pipe, 2 for a failed write
+    (``--help > /dev/full`` exited 0 with the help lost), which is named. `failed`: a write already failed (the
+    exception being handled)."""
+    try:
+        if failed:
+            raise
+        if sys.stdout is not None:
+            sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+        return 141
+    except OSError as exc:
+        _silence_stdout()
+        with suppress(OSError):  # standard error may be the stream that failed
+            print(f"gaussfuse: error: writing {what} to standard output: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    return code
 
 
 def _silence_stdout() -> None:
