@@ -1394,6 +1394,10 @@ def test_a_closed_stderr_loses_the_messages_not_the_data(tmp_path, capsys, monke
 def test_outputs_that_would_lose_the_work_are_refused_before_it(tmp_path, capsys):
     """A directory as `--out`, a link into a missing folder, and a `--plot` format matplotlib cannot write were
     refused only after the work (12 s on a million rows) (audit C2)."""
+    import shutil
+
+    import matplotlib
+
     (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
     (tmp_path / "d.csv").write_text("t,z\n0,1\n1,2\n2,4\n")
     (tmp_path / "folder").mkdir()
@@ -1407,6 +1411,13 @@ def test_outputs_that_would_lose_the_work_are_refused_before_it(tmp_path, capsys
     assert not (tmp_path / "x.csv").exists()
     code, _, err = run(capsys, "fit", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "-o", tmp_path / "folder")
     assert code == 2 and "Is a directory" in err
+    (tmp_path / "long.csv").write_text("id,t,z\na,1,1\na,2,2\na,3,3\n")  # fit writes one file for all series
+    code, _, err = run(capsys, "fit", tmp_path / "long.csv", "-m", tmp_path / "m.toml", "--series-column", "id",
+                       "--workers", "1", "-o", tmp_path / "folder")
+    assert code == 2 and "folder: Is a directory (`--out` names a file)" in err, err
+    if shutil.which(matplotlib.rcParams["pgf.texsystem"]) is None:  # pgf is written by a TeX program
+        code, _, err = run(capsys, *base, "-o", tmp_path / "x.csv", "--plot", tmp_path / "x.pgf")
+        assert code == 2 and "the pgf format needs" in err and not (tmp_path / "x.csv").exists()
 
 
 def test_matplotlibs_logged_warnings_are_one_line_warnings(tmp_path, capsys):
@@ -1425,7 +1436,7 @@ def test_basic_format_iso_times_and_other_scripts_digits(tmp_path, capsys):
     """ISO times without colons (20260501T120000.000000001) lost their digits after the microsecond (1 ns steps
     'not increasing'), and a digit of another script ('٣') was read as 3 where '1_000' is refused (audit C2)."""
     (tmp_path / "m.toml").write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n")
-    (tmp_path / "b.csv").write_text("t,z\n20260501T120000.000000001,1\n20260501T120000.000000003,2\n")
+    (tmp_path / "b.csv").write_text("t,z\n20260501T120000.000000001,1\n20260501t120000.000000003,2\n")
     (tmp_path / "e.csv").write_text("t,z\n2026-05-01T12:00:00.000000001,1\n2026-05-01T12:00:00.000000003,2\n")
     np.testing.assert_array_equal(gfio.read_measurements(tmp_path / "b.csv").times, [0.0, 2e-9])
     np.testing.assert_array_equal(gfio.read_measurements(tmp_path / "b.csv").times,
@@ -1475,3 +1486,7 @@ def test_help_that_cannot_be_written_is_an_error(buffered):
                                   text=True, env=env, timeout=120)
         assert (done.returncode, done.stderr) == (
             2, "gaussfuse: error: writing the help or version to standard output: No space left on device\n")
+    with open("/dev/full", "w") as full:  # a usage error whose message cannot be written is still a usage error
+        done = subprocess.run([sys.executable, "-m", "gaussfuse", "filter"], stdout=subprocess.DEVNULL, stderr=full,
+                              env=env, timeout=120)
+    assert done.returncode == 2

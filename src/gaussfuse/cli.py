@@ -593,10 +593,11 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
     for option, path in outputs.items():
         if path is None:
             continue
-        if os.path.isdir(path) and not (option == "--out" and args.series_column is not None):
+        made = option == "--out" and args.command == "filter" and args.series_column is not None  # a directory
+        if os.path.isdir(path) and not made:
             raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (`{option}` names a file)", path)
         folder = os.path.dirname(os.path.realpath(path))  # a link's target's folder: where the file is written
-        if not (option == "--out" and args.series_column is not None) and not os.path.isdir(folder):
+        if not made and not os.path.isdir(folder):
             raise FileNotFoundError(errno.ENOENT, f"{os.strerror(errno.ENOENT)} (the folder of `{option}`)", path)
         special = os.path.exists(path) and not os.path.isfile(path)  # /dev/null, a FIFO: written in place
         if os.path.isdir(folder) and not special:
@@ -808,10 +809,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"gaussfuse: error: {message} (`{self.prog} --help` lists the options)\n")
 
     def _print_message(self, message: str, file=None) -> None:
-        """As argparse prints, but a failed write raises (argparse ignores it: `--help > /dev/full` exited 0)."""
+        """As argparse prints, but a failed write of the help or version to standard output raises (argparse
+        ignores it: `--help > /dev/full` exited 0); one to standard error (a usage error) is still ignored."""
         file = file if file is not None else sys.stderr
-        if message and file is not None:
+        if not message or file is None:
+            return
+        if file is sys.stdout:
             file.write(message)
+            return
+        try:
+            file.write(message)
+        except OSError:  # (and at exit, Python's flush of it would fail again: exit status 120)
+            _silence(file)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -1006,7 +1015,7 @@ def main(argv: list[str] | None = None) -> int:
         if exc.filename is not None:  # a FIFO given as an output, not standard output
             print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
             return 2
-        _silence_stdout()
+        _silence()
         return 141
     except (ValueError, TypeError, OSError, FloatingPointError, DivergenceWarning) as exc:
         # ValueError includes InputFileError and LinAlgError; FloatingPointError is an overflow at a step;
@@ -1031,20 +1040,20 @@ def _flushed(code: int, what: str, failed: bool = False) -> int:
         if sys.stdout is not None:
             sys.stdout.flush()
     except BrokenPipeError:
-        _silence_stdout()
+        _silence()
         return 141
     except OSError as exc:
-        _silence_stdout()
+        _silence()
         with suppress(OSError):  # standard error may be the stream that failed
             print(f"gaussfuse: error: writing {what} to standard output: {exc.strerror or exc}", file=sys.stderr)
         return 2
     return code
 
 
-def _silence_stdout() -> None:
-    """Point standard output at the null device, so that Python's final flush cannot fail again."""
+def _silence(stream=None) -> None:
+    """Point standard output (or `stream`) at the null device, so that Python's final flush cannot fail again."""
     with suppress(AttributeError, ValueError, OSError):  # e.g. a test's capture, which has no descriptor
-        fd = sys.stdout.fileno()
+        fd = (sys.stdout if stream is None else stream).fileno()
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, fd)
         os.close(devnull)

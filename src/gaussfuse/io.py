@@ -462,7 +462,7 @@ def _float(text: str) -> float:
     return float(text)
 
 
-_FRACTION = re.compile(r"((?::|[T ]\d\d\d\d)\d\d)[.,](\d+)")  # the seconds' fraction (12:00:00.5 or 120000.5)
+_FRACTION = re.compile(r"((?::|[Tt ]\d\d\d\d)\d\d)[.,](\d+)")  # the seconds' fraction (12:00:00.5 or 120000.5)
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 

@@ -643,6 +643,14 @@ def image_format(path: str | os.PathLike[str]) -> str:
         raise ValueError(
             f"{os.fspath(path)}: unknown image format {fmt!r}; use one of {', '.join(sorted(supported))}."
         )
+    if fmt == "pgf":  # written by a TeX program, which may be missing
+        import shutil
+
+        import matplotlib
+
+        tex = matplotlib.rcParams["pgf.texsystem"]
+        if shutil.which(tex) is None:
+            raise ValueError(f"{os.fspath(path)}: the pgf format needs {tex}, which is not installed; use pdf or svg.")
     return fmt
 
 
