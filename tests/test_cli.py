@@ -1448,7 +1448,7 @@ def test_basic_format_iso_times_and_other_scripts_digits(tmp_path, capsys):
 
 def test_the_fit_summary_names_the_commands_options(tmp_path, capsys, monkeypatch):
     """The summary line (and the model file's comment) quoted the library's words, "`tol`" and "method='mle'",
-    where the warning line said --tol and --method mle (audit C2)."""
+    where the warning line said --tol and --method mle (audit C2), and ended SciPy's sentence in '.;' (audit R3)."""
     import dataclasses
 
     fit = gaussfuse.learning.fit
@@ -1461,6 +1461,10 @@ def test_the_fit_summary_names_the_commands_options(tmp_path, capsys, monkeypatc
                        "-o", tmp_path / "fitted.toml")
     assert "changed by less than --tol; try --method mle; log-likelihood" in err, err
     assert "--tol; try --method mle" in (tmp_path / "fitted.toml").read_text()
+    monkeypatch.undo()  # SciPy's own message, a sentence ending in '.'
+    code, _, err = run(capsys, "fit", EXAMPLES / "data" / "nile.csv", "-m", EXAMPLES / "models" / "local_level.toml",
+                       "--method", "mle", "-o", tmp_path / "mle.toml")
+    assert "mle: Optimization terminated successfully; log-likelihood" in err, err
 
 
 def test_an_extra_argument_is_named_with_its_commands_help(tmp_path, capsys):

@@ -780,8 +780,8 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
     sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(sys.stdout)
     with sink as out:
         gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
-    print(f"{args.method}: {_options(res.message)}; log-likelihood {res.loglik:.6f} after {len(res.history) - 1} "
-          f"iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
+    print(f"{args.method}: {_options(res.message).rstrip('.')}; log-likelihood {res.loglik:.6f} after "
+          f"{len(res.history) - 1} iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
     if res.message.startswith("interrupted"):
         return 130
     if unconverged:
