@@ -994,8 +994,8 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version and usage errors
         code = exc.code if isinstance(exc.code, int) else 2
         return _flushed(code, "the help or version") if code == 0 else code
-    except OSError:  # the help or version could not be written: named as a flush would name it
-        return _flushed(0, "the help or version", failed=True)
+    except OSError as exc:  # the help or version could not be written
+        return _write_failed(exc, "the help or version")
     terminated = []
 
     def on_sigterm(signum, frame):
@@ -1030,24 +1030,25 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
-def _flushed(code: int, what: str, failed: bool = False) -> int:
-    """`code`, once standard output (holding `what`) is flushed: 141 for a closed pipe, 2 for a failed write
-    (``--help > /dev/full`` exited 0 with the help lost), which is named. `failed`: a write already failed (the
-    exception being handled)."""
+def _flushed(code: int, what: str) -> int:
+    """`code`, once standard output (holding `what`) is flushed; else as :func:`_write_failed`."""
     try:
-        if failed:
-            raise
         if sys.stdout is not None:
             sys.stdout.flush()
-    except BrokenPipeError:
-        _silence()
-        return 141
     except OSError as exc:
-        _silence()
-        with suppress(OSError):  # standard error may be the stream that failed
-            print(f"gaussfuse: error: writing {what} to standard output: {exc.strerror or exc}", file=sys.stderr)
-        return 2
+        return _write_failed(exc, what)
     return code
+
+
+def _write_failed(exc: OSError, what: str) -> int:
+    """The exit status of a failed write of `what` to standard output: 141 for a closed pipe, else 2, named
+    (``--help > /dev/full`` exited 0 with the help lost)."""
+    _silence()
+    if isinstance(exc, BrokenPipeError):
+        return 141
+    with suppress(OSError):  # standard error may be the stream that failed
+        print(f"gaussfuse: error: writing {what} to standard output: {exc.strerror or exc}", file=sys.stderr)
+    return 2
 
 
 def _silence(stream=None) -> None:

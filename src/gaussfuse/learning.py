@@ -1357,10 +1357,15 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     return theta, np.array(history), converged, message, evaluate
 
 
+def _sizes(theta: np.ndarray, units: np.ndarray) -> np.ndarray:
+    """Each entry's size, at least its unit: the scale of the finite-difference steps in θ."""
+    return np.maximum(units, np.abs(theta))
+
+
 def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised).
 
-    Each step is 1e-5 of the entry's `sizes` (its size, at least its unit).
+    Each step is 1e-5 of the entry's `sizes` (:func:`_sizes`).
     """
     k = theta.size
     steps = 1e-5 * sizes
@@ -1387,7 +1392,7 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: 
         if met(grad):
             return theta, True
         try:
-            information = -_hessian(evaluate, theta, np.maximum(units, np.abs(theta)))
+            information = -_hessian(evaluate, theta, _sizes(theta, units))
             if not is_positive_definite(information):
                 break
             step = theta + cho_solve(cholesky(information), grad)
@@ -1457,7 +1462,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     if k == 0:
         return None, nan, None
     units = build.units(theta)
-    sizes = np.maximum(units, np.abs(theta))  # each entry's size, at least its unit: the steps' scale
+    sizes = _sizes(theta, units)
     try:
         information = -_hessian(evaluate, theta, sizes)
         flat = _flat(evaluate, theta, information, units)

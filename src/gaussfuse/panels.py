@@ -34,7 +34,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
-from .inference.timing import Steps, per_second, round_off
+from .inference.timing import Steps, per_second, round_off, since
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
                  _parse_time, _time_column, _wrong_cells)
 
@@ -288,7 +288,8 @@ def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarra
             column = column.dt.tz_convert("UTC").dt.tz_localize(None)
         counts = column.to_numpy()
         unit = np.datetime_data(counts.dtype)[0]
-        return _since_first(counts.astype(np.int64).tolist(), per_second(unit))
+        counts = counts.astype(np.int64).tolist()
+        return since(counts, min(counts), per_second(unit))
     numbers = None if pd.api.types.is_numeric_dtype(column) else column.map(_is_number)
     if numbers is None:
         seconds = column.to_numpy(dtype=np.float64)
@@ -303,7 +304,7 @@ def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarra
             firsts = np.unique(codes, return_index=True)[1]  # the row each distinct cell is first on
             read = [_parse_time(path, text, {"line": None if lines is None else lines[row], "field": field})
                     for text, row in zip(texts, firsts.tolist())]
-        return np.asarray(_since_first(read, 10**9))[codes]
+        return since(read, min(read), 10**9)[codes]
     if np.isinf(seconds).any():
         raise InputFileError(path, "a time is not finite.", field=field)
     if np.isnan(seconds).any():
@@ -327,13 +328,6 @@ def _plain_stamps(texts) -> list[int] | None:
         return pd.to_datetime(texts, utc=True, format="ISO8601").as_unit("ns").asi8.tolist()
     except (ValueError, OverflowError):  # out of range, or a date that is not one (the reader names it)
         return None
-
-
-def _since_first(counts: list[int], per_second: int) -> np.ndarray:
-    """Integer `counts` of 1/`per_second` s as float seconds since the smallest: exact differences (Python
-    integers, of any span), each rounded once."""
-    first = min(counts)
-    return np.array([(c - first) / per_second for c in counts], dtype=np.float64)
 
 
 def partition_arrays(path: str, series_column: str, m: int, time_column: str | None = None,

@@ -23,7 +23,7 @@ from ..models.compose import TimedModel
 from .validation import check_measurements
 
 __all__ = ["as_seconds", "as_instants", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within",
-           "ticks", "elapsed", "finest", "per_second"]
+           "ticks", "elapsed", "finest", "per_second", "since"]
 
 
 _FINE = ("s", "ms", "us", "ns", "ps", "fs", "as")
@@ -210,7 +210,13 @@ def as_seconds(name: str, times) -> np.ndarray:
     if per_second is None:
         return values
     whole = values.tolist()
-    return np.array([(c - whole[0]) / per_second for c in whole], dtype=np.float64)
+    return since(whole, whole[0], per_second)
+
+
+def since(counts: list[int], origin: int, per_second: int) -> np.ndarray:
+    """Integer `counts` of 1/`per_second` s as float seconds after `origin`: each an exact difference (Python
+    integers, of any span) rounded once."""
+    return np.array([(c - origin) / per_second for c in counts], dtype=np.float64)
 
 
 def step_sizes(name: str, times, T: int) -> np.ndarray:
