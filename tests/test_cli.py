@@ -821,6 +821,25 @@ def test_sigterm_exits_143_in_one_line_leaving_no_temporary_file(tmp_path, input
     assert sorted(os.listdir(tmp_path)) == ["data.csv", "fig.png", "link.csv", "model.toml"]
 
 
+@pytest.mark.parametrize("wrapper", [ImportError, ValueError])
+def test_an_interrupt_inside_an_import_is_still_an_interrupt(tmp_path, inputs, capsys, monkeypatch, wrapper):
+    """A C extension whose import is interrupted (SIGTERM while matplotlib loads) raises ``ImportError:
+    initialization failed`` from the interrupt: it was a traceback and exit 1, and left the CSV's temporary file."""
+    data, model = inputs
+
+    def interrupted_import(*args, **kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise wrapper("initialization failed") from exc
+
+    monkeypatch.setattr(gf.plotting, "save_figure", interrupted_import)
+    code, out, err = run(capsys, "filter", data, "-m", model, "--out", tmp_path / "out.csv", "--plot",
+                         tmp_path / "fig.png")
+    assert (code, out, err) == (130, "", "gaussfuse: interrupted\n")
+    assert sorted(os.listdir(tmp_path)) == ["data.csv", "link.csv", "model.toml"]
+
+
 def test_sigterm_while_reading_a_fifo(tmp_path):
     data = tmp_path / "data.fifo"
     os.mkfifo(data)

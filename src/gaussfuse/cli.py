@@ -1020,14 +1020,37 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError, OSError, FloatingPointError, DivergenceWarning) as exc:
         # ValueError includes InputFileError and LinAlgError; FloatingPointError is an overflow at a step;
         # a DivergenceWarning is raised with --check raise
+        if _interrupted(exc):
+            return _stopped(terminated)
         print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"gaussfuse: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
-        return 143 if terminated else 130
+        return _stopped(terminated)
+    except Exception as exc:
+        if not _interrupted(exc):
+            raise
+        return _stopped(terminated)
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether `exc` was caused by Ctrl-C or SIGTERM: a C extension whose import is interrupted reports the
+    interrupt as the cause of an ``ImportError: initialization failed``."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _stopped(terminated: list) -> int:
+    """Exit status 143 after SIGTERM, 130 after Ctrl-C, said in one line."""
+    print(f"gaussfuse: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+    return 143 if terminated else 130
 
 
 def _flushed(code: int, what: str) -> int:
