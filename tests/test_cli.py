@@ -1497,6 +1497,20 @@ def test_an_extra_argument_is_named_with_its_commands_help(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("argv", [["filter", EXAMPLES / "data" / "track.csv", "-m", EXAMPLES / "models" / "cv2d.toml"],
+                                  ["fit", EXAMPLES / "data" / "nile.csv", "-m",
+                                   EXAMPLES / "models" / "local_level.toml"]])
+def test_results_that_cannot_be_written_name_standard_output(argv):
+    """`gaussfuse filter ... > /dev/full` said "[Errno 28] No space left on device", naming nothing."""
+    with open("/dev/full", "w") as full:
+        done = subprocess.run([sys.executable, "-m", "gaussfuse", *map(str, argv)], stdout=full,
+                              stderr=subprocess.PIPE, text=True, timeout=300)
+    assert done.returncode == 2
+    assert done.stderr.splitlines()[-1] == ("gaussfuse: error: writing the results to standard output: No space "
+                                            "left on device"), done.stderr
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
 @pytest.mark.parametrize("buffered", [True, False])
 def test_help_that_cannot_be_written_is_an_error(buffered):
     """`gaussfuse --help > /dev/full` exited 0 with the help lost: argparse ignores a failed write (audit C2)."""

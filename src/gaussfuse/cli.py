@@ -310,7 +310,7 @@ def _run_filter(args: argparse.Namespace) -> int:
             if drawn is not None:
                 plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
 
-        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_binary_stdout()) as out:
+        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_StandardOutput(binary=True)) as out:
             if not args.out:
                 draw()
             out.write(_header(columns_out))
@@ -439,21 +439,27 @@ def _piece_rows(n: int, m: int) -> int:
     return int(np.clip(2**25 // (8 * (6 * n * n + 3 * n + m * m + m)), 1024, gfio.CHUNK_ROWS))
 
 
-def _binary_stdout():
-    """Standard output for bytes: its buffer (after what was written as text), or a stand-in that decodes."""
-    sys.stdout.flush()
-    buffer = getattr(sys.stdout, "buffer", None)
-    return buffer if buffer is not None else _Decoding(sys.stdout)
+class _StandardOutput:
+    """Standard output for the results, taking bytes (after what was written as text) or text; a failed write
+    names standard output (``> /dev/full`` said "[Errno 28] No space left on device", naming nothing)."""
+
+    def __init__(self, binary: bool) -> None:
+        sys.stdout.flush()
+        buffer = getattr(sys.stdout, "buffer", None) if binary else None
+        self._write = sys.stdout.write if buffer is None else buffer.write
+        self._decode = binary and buffer is None  # a text stream taking bytes, such as a test's StringIO
+
+    def write(self, data) -> None:
+        try:
+            self._write(data.decode("utf-8") if self._decode else data)
+        except BrokenPipeError:
+            raise  # a closed pipe is not an error: exit status 141
+        except OSError as exc:
+            raise _OutputFailed from exc
 
 
-class _Decoding:
-    """A text stream (such as a test's StringIO) taking bytes."""
-
-    def __init__(self, stream) -> None:
-        self.stream = stream
-
-    def write(self, data: bytes) -> None:
-        self.stream.write(data.decode("utf-8"))
+class _OutputFailed(Exception):
+    """A write of the results to standard output failed, with the OSError as its cause."""
 
 
 def _header(names: list[str]) -> bytes:
@@ -777,7 +783,7 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
                 f"--learn {','.join(learn)} --method {args.method}",
                 f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {_options(res.message)}",
                 *res.summary().splitlines()]
-    sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(sys.stdout)
+    sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(_StandardOutput(binary=False))
     with sink as out:
         gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
     print(f"{args.method}: {_options(res.message).rstrip('.')}; log-likelihood {res.loglik:.6f} after "
@@ -1008,9 +1014,10 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings(), _logged_as_warnings("matplotlib"):
             warnings.showwarning = _show_warning  # one line each, like the errors
             code = args.run(args)
-        if sys.stdout is not None:
-            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        code = _flushed(code, "the results")  # a closed pipe or a full disk shows here, not at interpreter exit
         return 143 if code == 130 and terminated else code
+    except _OutputFailed as exc:
+        return _write_failed(exc.__cause__, "the results")
     except BrokenPipeError as exc:
         if exc.filename is not None:  # a FIFO given as an output, not standard output
             print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
