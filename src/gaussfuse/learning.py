@@ -1126,7 +1126,7 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
         runs = augmented_runs(model, zs, us, engine)
         mdl, results, first_step = runs.model, [runs.base, *runs.sens], 1
         us = None if us is None else np.vstack([np.zeros_like(us[:1]), us[1:]])
-        M_prev, P_prev = np.hstack([np.zeros((n, 1)), np.eye(n)]), np.zeros((n, n))
+        M_prev, P_prev = np.hstack([runs.centre[:, None], np.eye(n)]), np.zeros((n, n))
     else:
         filt = first(filter_batch(_METHODS["kf"], model, prior, zs[None], None if us is None else us[None], {},
                                   engine, "all"))

@@ -1,5 +1,7 @@
 """Exact diffuse initialisation against Koopman's analytic case, statsmodels' exact diffuse filter and the large-prior limit."""
 
+import warnings
+
 import numpy as np
 import pytest
 import statsmodels.api as sm
@@ -232,3 +234,38 @@ def test_a_component_in_other_units_is_identified_as_in_its_own(engine):
                        "diffuse", zs, engine=engine)
     assert scaled.loglik == pytest.approx(plain.loglik + 0.5 * np.log(1e12), rel=1e-12)
     np.testing.assert_allclose(scaled.means, plain.means * [1.0, 1e6], rtol=1e-9)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("level", [1e6, 1e8, 1e10])
+def test_data_far_from_zero_keep_the_diffuse_likelihood(level, engine):
+    """Under a flat x_1, adding a level to a local level's data (or a level and a slope to a local linear
+    trend's) changes nothing: data ``z + level`` have the likelihood of ``(z + level) - level`` (exact, by
+    Sterbenz), up to the round-off of innovations of the size of the level (about T eps level / noise, as in
+    statsmodels). From x_0 = 0, the likelihood was a difference of two terms of size (level / noise)²: with
+    unit noise it was off by 4.6e-4 at 1e6, 2.1 at 1e8 and +20480.24 for -189.16 at 1e10 (audit W), and
+    ``fit`` learned Q = 0.55 for 0.82 at 1e8."""
+    rng = np.random.default_rng(0)
+    T = 100
+    walk = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
+    z = np.cumsum(rng.normal(size=T)) + rng.normal(size=T)
+    trend = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.5, 0.01]), R=1.0)
+    y = np.cumsum(np.cumsum(0.1 * rng.normal(size=T))) + rng.normal(size=T) + 1e-3 * level * np.arange(T) / T
+    y[[3, 10, 50]] = np.nan
+    for model, data in ((walk, z + level), (trend, y + level)):
+        near = data - level
+        far_filter = gf.filter(model, "diffuse", data, engine=engine, check="off")
+        near_filter = gf.filter(model, "diffuse", near, engine=engine, check="off")
+        assert far_filter.loglik == pytest.approx(near_filter.loglik, abs=T * 1e-15 * level)
+        far_smooth, near_smooth = gf.smooth(model, "diffuse", data, engine=engine), gf.smooth(model, "diffuse", near,
+                                                                                                engine=engine)
+        assert far_smooth.loglik == pytest.approx(near_smooth.loglik, abs=T * 1e-15 * level)
+        np.testing.assert_allclose(far_smooth.means[:, 0] - level, near_smooth.means[:, 0], rtol=0, atol=1e-14 * level)
+        np.testing.assert_allclose(far_smooth.covs, near_smooth.covs, rtol=1e-9)
+    if level == 1e8:  # the likelihood is known to about 4e-8 there: the search may stop on precision loss
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", gf.ConvergenceWarning)
+            learned = [gf.fit(walk, "diffuse", data, learn=("Q", "R"), method="mle", engine=engine).model
+                       for data in (z + level, z)]
+        np.testing.assert_allclose([learned[0].Q[0, 0], learned[0].R[0, 0]], [learned[1].Q[0, 0], learned[1].R[0, 0]],
+                                   rtol=1e-3)

@@ -56,7 +56,10 @@ with :math:`m_t` the number of observed components at step t: every
 observation, including those that identify the initial state, carries the
 :math:`\log 2\pi` constant, as in Durbin & Koopman (2012, eq. 7.4), and the
 flat prior contributes no constant. It equals statsmodels' and KFAS's exact
-diffuse log-likelihood for every transition matrix, singular ones included.
+diffuse log-likelihood for every transition matrix whose measurements
+identify :math:`x_1`, singular ones included; where a component of
+:math:`x_1` is never seen (a singular F forgets it before any measurement),
+it is refused as not identified, where statsmodels gives a value.
 Filtered and predicted beliefs before the state is identified are NaN; the
 prediction for step 1 always is.
 
@@ -91,9 +94,10 @@ class AugmentedRuns(NamedTuple):
     """The filter runs of the augmentation (see the module notes)."""
 
     model: LinearModel            # the model with x_1 = x_0 + w (see _first_state_diffuse)
-    base: FilterResult            # from x_0 = 0, on the data
+    base: FilterResult            # from x_0 = centre, on the data
     sens: list[FilterResult]      # from x_0 = e_i, on zero data, no controls
     smoothed: list | None         # (means, covs, gains) from time 0 of base and sens, when asked
+    centre: np.ndarray            # (n,): where the base run starts; δ is measured from it
 
 
 def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | None):
@@ -125,25 +129,51 @@ def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | No
 
 def augmented_runs(model, zs: np.ndarray, us: np.ndarray | None, engine: str,
                    smooth: bool = False) -> AugmentedRuns:
-    """The base run and the n sensitivity runs of one series, filtered (and smoothed when asked)."""
+    """The base run and the n sensitivity runs of one series, filtered (and smoothed when asked).
+
+    The base run starts from ``x_0 = 0``, or, where the data lie far from 0
+    in units of their noise, again from the estimate of ``x_0`` that run
+    gives: every result is affine in ``x_0`` (module notes), so any start
+    gives the same results in exact arithmetic, but from 0 the diffuse
+    log-likelihood is a difference of two terms of the size of
+    ``(level / noise)²`` (a level of 1e10 with unit noise gave +20480 for
+    -189.16), and from the estimate it is not.
+    """
     n = model.n
     model, us = _first_state_diffuse(model, zs, us)
-    zero_data = np.where(np.isnan(zs), np.nan, 0.0)
-    zero_controls = None if us is None else np.zeros_like(us)
-    jobs = [(np.zeros(n), zs, us)] + [(np.eye(n)[i], zero_data, zero_controls) for i in range(n)]
-    filtered, smoothed = [], []
     kf = METHODS["kf"]
-    for x0, data, controls in jobs:
+
+    def run(x0, data, controls):
         known = Gaussian(x0, np.zeros((n, n)))
         controls = None if controls is None else controls[None]
         if smooth:
             sm = first(smooth_batch(kf, model, known, data[None], controls, {}, engine, to_prior=True))
-            smoothed.append((sm.means, sm.covs, sm.gains))
-            filt = sm.filtered
-        else:
-            filt = first(filter_batch(kf, model, known, data[None], controls, {}, engine, "all"))
-        filtered.append(filt)
-    return AugmentedRuns(model, filtered[0], filtered[1:], smoothed if smooth else None)
+            return sm.filtered, (sm.means, sm.covs, sm.gains)
+        return first(filter_batch(kf, model, known, data[None], controls, {}, engine, "all")), None
+
+    zero_data = np.where(np.isnan(zs), np.nan, 0.0)
+    zero_controls = None if us is None else np.zeros_like(us)
+    sens = [run(np.eye(n)[i], zero_data, zero_controls) for i in range(n)]
+    centre = np.zeros(n)
+    base = run(centre, zs, us)
+    runs = AugmentedRuns(model, base[0], [f for f, _ in sens], [base[1]] + [s for _, s in sens] if smooth else None,
+                         centre)
+    estimate = _far_estimate(model, runs)
+    if estimate is None:
+        return runs
+    base = run(estimate, zs, us)
+    return runs._replace(base=base[0], smoothed=[base[1]] + runs.smoothed[1:] if smooth else None, centre=estimate)
+
+
+def _far_estimate(model, runs: AugmentedRuns, far: float = 1e4) -> np.ndarray | None:
+    """The estimate of ``x_0`` from all the data, when the base run's start is more than √far standard
+    deviations from it (the log-likelihood then loses about ``far`` units of round-off); else None."""
+    inf = _information(model, runs)
+    if not _identified(inf.info[-1:])[0]:
+        return None  # refused later, with its message
+    L = cholesky(inf.info[-1], "the information about the diffuse state")
+    white = whiten(L, inf.score[-1])
+    return runs.centre + cho_solve(L, inf.score[-1]) if white @ white > far else None
 
 
 class _Information(NamedTuple):
@@ -206,7 +236,7 @@ class NotIdentified(ValueError):
 def not_identified() -> NotIdentified:
     return NotIdentified(
         "the diffuse initial state is not identified by the measurements: "
-        "no combination of them determines every component of x_0; "
+        "no combination of them determines every component of the first state x_1; "
         "give a proper Gaussian prior instead."
     )
 
