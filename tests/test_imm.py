@@ -247,8 +247,8 @@ _NL = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0, state_angl
      "`models` must agree on which state components are angles (they are mixed); "
      "got state_angles = [[], [1]]."),
     (dict(prior=gf.Gaussian(0.0, 1.0)), ValueError, "`prior` must have dimension 2 (the model's state); got 1."),
-    (dict(zs=[[1.0, 2.0]]), ValueError, "`zs` must have shape (T, 1) or (T,) (one series); got shape (1, 2)."),
-    (dict(zs=np.ones((2, 3, 1))), ValueError, "`zs` must have shape (T, 1) or (T,) (one series); got shape (2, 3, 1)."),
+    (dict(zs=[[1.0, 2.0]]), ValueError, "`zs` must have shape (T, 1) or (T,) (one series), with T >= 1; got shape (1, 2)."),
+    (dict(zs=np.ones((2, 3, 1))), ValueError, "`zs` must have shape (T, 1) or (T,) (one series), with T >= 1; got shape (2, 3, 1)."),
     (dict(transition=[0.5, 0.5]), ValueError,
      "`transition` must be a probability Markov matrix (one row and column per model) of shape (2, 2); "
      "got shape (2,)."),
@@ -261,7 +261,14 @@ _NL = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0, state_angl
     (dict(mode_probs=[1.0, 0.0, 0.0]), ValueError,
      "`mode_probs` must be a probability vector (one per model) of shape (2,); got shape (3,)."),
     (dict(mode_probs=[0.5, 0.6]), ValueError, "`mode_probs` must sum to 1; it sums to 1.1."),
-    (dict(us=[0.0, 1.0]), ValueError, "`us` was given but the model has no control input; give the model `B`."),
+    (dict(us=[0.0, 1.0]), ValueError,
+     "in `models[0]`: `us` was given but the model has no control input; give the model `B`."),
+    (dict(models=[gf.LinearModel(_CV.F, _CV.H, _CV.Q, _CV.R, B=[[0.5], [1.0]]), _CV], us=[[0.0], [1.0]]), ValueError,
+     "in `models[1]`: `us` was given but the model has no control input; give the model `B`."),
+    (dict(zs=[[1.0], [2.0, 3.0]]), TypeError, "`zs` must be a rectangular array of real numbers; got rows of "
+                                              "different lengths"),
+    (dict(zs=np.ones((0, 1))), ValueError, "`zs` must have shape (T, 1) or (T,) (one series), with T >= 1; "
+                                           "got shape (0, 1)."),
     (dict(method="foo"), ValueError, "`method` must be one of"),
     (dict(alpha=0.5), TypeError, "unknown option(s) ['alpha'] for method 'kf'; valid options are none."),
     (dict(models=[_CV, gf.LinearModel(np.stack([np.eye(2)] * 3), [1.0, 0.0], np.eye(2), 1.0)]), ValueError,
@@ -310,7 +317,7 @@ def test_imm_zs_shape_and_method_on_linear_models():
     B = gf.constant_velocity(dt=1.0, q=10.0, r=1.0)
     T, prior = [[0.95, 0.05], [0.05, 0.95]], gf.Gaussian([0.0, 1.0], np.eye(2))
     for zs in ([[1.0, 2.0]], np.ones((1, 3, 1))):
-        with pytest.raises(ValueError, match=r"^`zs` must have shape \(T, 1\) or \(T,\) \(one series\); got shape"):
+        with pytest.raises(ValueError, match=r"^`zs` must have shape \(T, 1\) or \(T,\) \(one series\), with T >= 1; got shape"):
             gf.imm_filter([A, B], prior, zs, T)
     zs = np.sin(np.arange(20.0))
     np.testing.assert_array_equal(gf.imm_filter([A, B], prior, zs, T, method="ukf").means,

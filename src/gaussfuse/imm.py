@@ -239,11 +239,7 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
     models = _check_models(models)
     M, n, m = len(models), models[0].n, models[0].m
     prior = check_prior(prior, n)
-    shape = np.shape(zs) if not isinstance(zs, (str, bytes)) else None
-    if shape is not None and not (len(shape) == 2 and shape[1] == m or len(shape) == 1 and m == 1):
-        raise shape_error("zs", f"(T, {m}){' or (T,)' if m == 1 else ''} (one series)", shape)
-    arr = check_measurements(zs, m)
-    zs = arr[0]
+    zs = check_measurements(zs, m, one=True)[0]
     T = zs.shape[0]
     P = _probabilities("transition", transition, M, matrix=True)
     mu = np.full(M, 1.0 / M) if mode_probs is None else _probabilities("mode_probs", mode_probs, M, matrix=False)
@@ -318,7 +314,10 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
     modes = []
     for j, model in enumerate(models):
         check_steps(model, T)
-        controls = check_controls(us, model, 1, T)
+        try:
+            controls = check_controls(us, model, 1, T)
+        except ValueError as exc:  # whether a model takes controls is its own
+            raise ValueError(f"in `models[{j}]`: {exc}") from exc
         if isinstance(model, LinearModel) and (any_nonlinear or method not in (None, "kf")):
             if method is not None:  # for the NonlinearModels (if any): checked, though a LinearModel is exact
                 check_options(method, options)

@@ -231,10 +231,7 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None
                         f"models only; got {type(model).__name__}.")
     prior = check_prior(prior, model.n)
     count = integer("n", n)
-    arr = check_measurements(zs, model.m)
-    if arr.shape[0] != 1:
-        raise ValueError(f"`zs` must be one series, of shape (T, {model.m}); got {arr.shape[0]} series "
-                         "(sample each series on its own).")
+    arr = check_measurements(zs, model.m, one=True)
     T = arr.shape[1]
     check_steps(model, T)
     us = check_controls(us, model, 1, T)

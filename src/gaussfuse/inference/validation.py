@@ -41,8 +41,11 @@ def check_prior(prior, n: int, *, diffuse_ok: bool = False, name: str = "prior")
     return prior
 
 
-def check_measurements(zs, m: int) -> np.ndarray:
-    """Return `zs` as an array (N, T, m); NaN (or a masked entry of a masked array) marks a missing component."""
+def check_measurements(zs, m: int, one: bool = False) -> np.ndarray:
+    """Return `zs` as an array (N, T, m); NaN (or a masked entry of a masked array) marks a missing component.
+
+    With `one`, `zs` must be one series, (T, m) or (T,).
+    """
     try:
         kind = np.asarray(zs).dtype.kind
     except ValueError:  # ragged: as_array says so
@@ -56,8 +59,9 @@ def check_measurements(zs, m: int) -> np.ndarray:
         arr = arr[:, None]
     if arr.ndim == 2 and arr.shape[1] == m:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0 or arr.shape[0] == 0:
-        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}, or (N, T, {m}) for N series, with T >= 1 and N >= 1"
+    if arr.ndim != 3 or arr.shape[-1] != m or arr.shape[1] == 0 or arr.shape[0] == 0 or one and len(given) == 3:
+        expected = f"(T, {m}){' or (T,)' if m == 1 else ''}" + (
+            " (one series), with T >= 1" if one else f", or (N, T, {m}) for N series, with T >= 1 and N >= 1")
         raise shape_error("zs", expected, given)
     return arr
 
