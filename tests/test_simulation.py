@@ -99,6 +99,40 @@ def test_posterior_draws_converge_to_the_rts_smoother():
     np.testing.assert_array_equal(draws[:, :, 2], 2.0)
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_a_state_measured_exactly_is_a_valid_belief_to_go_on_from(engine):
+    """One state measured twice with one shared noise (a singular R = r rᵀ) is known exactly: the covariance
+    form's filtered and smoothed variances were -1.97e-17, so forecast from the result, the result's last
+    belief as a Gaussian and sample_posterior refused them as not positive semi-definite (audit V). Now 0, and
+    the draws are the state."""
+    model = gf.LinearModel(F=0.7, H=[[1.0], [2.0]], Q=1.0, R=np.outer([1.0, 0.7], [1.0, 0.7]))
+    prior = gf.Gaussian([0.0], [[1.0]])
+    zs = np.array([[0.5 + 0.1, 2 * 0.5 + 0.07]])
+    filt, sm = gf.filter(model, prior, zs, engine=engine), gf.smooth(model, prior, zs, engine=engine)
+    for res in (filt, sm):
+        assert res.covs[0, 0, 0] >= 0.0 and res.covs[0, 0, 0] <= 1e-16
+        np.testing.assert_allclose(gf.forecast(model, res, steps=2).covs[:, 0, 0], [1.0, 1.49], rtol=1e-15)
+    assert gf.Gaussian(filt.last_mean, filt.last_cov).cov[0, 0] == filt.last_cov[0, 0]
+    for form in ("cov", "sqrt"):
+        np.testing.assert_allclose(gf.sample_posterior(model, prior, zs, 3, rng=0, form=form), 0.5, rtol=1e-15)
+
+
+def test_posterior_draws_with_a_noise_free_sensor_and_a_rank_two_q():
+    """R = 0, Q of rank 2 and a known start (audit V's case): the covariance form's filtered covariances have
+    eigenvalues of -4e-17 and a variance of 2.5e-5 made by cancelling ones of 0.65, which its factorisation
+    refused ("not symmetric positive semi-definite on the scale of its components"; 34 random such models in
+    400). Its draws now match the RTS smoother's moments within sampling error."""
+    F = np.array([[0.2, -0.8, -0.3], [-0.9, 0.7, 0.3], [-0.6, -1.1, 0.3]])
+    G = np.array([[-0.4, 0.1], [-0.3, 0.3], [-1.5, 0.6]])
+    model = gf.LinearModel(F=F, H=[1.0, -0.1, 0.4], Q=G @ G.T, R=0.0)
+    prior = gf.Gaussian(np.zeros(3), np.zeros((3, 3)))
+    zs = np.array([-0.2, 0.4, -0.3])
+    draws = gf.sample_posterior(model, prior, zs, 20_000, rng=1, check="off")
+    sm = gf.smooth(model, prior, zs, check="off")
+    for k in range(3):
+        _within_sampling_error(draws[:, k], sm.means[k], sm.covs[k], f"step {k}")
+
+
 def test_posterior_draws_of_a_huge_prior_stay_finite_and_consistent():
     """P0 = 1e12 I, R = 1e-6, Q = 0 (the robustness suite's first problem), with the square-root filter: the
     conditional covariance comes from the joint factor, never as a difference, so every draw is finite and the

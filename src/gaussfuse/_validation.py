@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from ._linalg import marginal_std
+from ._linalg import PSD_RTOL, marginal_std
 from .errors import ModelFunctionError
 
 _F64 = np.dtype(np.float64)
@@ -191,7 +191,7 @@ def as_matrix(
     return arr
 
 
-def check_psd(name: str, cov: np.ndarray, *, rtol: float = 1e-9) -> np.ndarray:
+def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarray:
     r"""Check that `cov` (..., n, n) is symmetric positive semi-definite; return it symmetrised.
 
     Each entry is judged on its own components' scale: symmetry and the

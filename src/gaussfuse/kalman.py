@@ -12,8 +12,10 @@ extended and sigma-point filters the linearisation supplies them (and adds its
 own error covariance to :math:`Q` and :math:`R`).
 
 The functions here are pure: arrays in, arrays out. Covariances are kept
-symmetric, the update uses the Joseph form, and every matrix "inverse" is a
-Cholesky solve.
+symmetric, with no negative variance of round-off (one computed below 0 by
+round-off is a zero variance: its row and column are set to 0,
+:func:`gaussfuse._linalg.clip_variances`), the update uses the Joseph form,
+and every matrix "inverse" is a Cholesky solve.
 
 They are the filters' inner loop, and take their arguments as the front
 functions (:func:`gaussfuse.filter`, :class:`gaussfuse.Gaussian`,
@@ -31,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (cho_solve, cholesky, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
+from ._linalg import (PSD_RTOL, cho_solve, cholesky, clip_variances, correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
                       pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions, whiten,
                       with_slopes, wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
@@ -118,7 +120,7 @@ def predict(
 
         m^- = A m + b, \qquad P^- = A P A^\top + Q.
     """
-    return predict_mean(mean, A, b), symmetrize(A @ cov @ A.T + Q)
+    return predict_mean(mean, A, b), clip_variances(symmetrize(A @ cov @ A.T + Q), cov)
 
 
 def predict_mean(mean: np.ndarray, A: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
@@ -325,7 +327,7 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     elif observed is not None:
         K = K[:, observed]
     I_KH = eye(cov.shape[0]) - K @ H_o
-    post_cov = symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T)
+    post_cov = clip_variances(symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T), cov)
     return Gain(K, post_cov, S_full, L, log_det(L), observed)
 
 
@@ -443,7 +445,7 @@ def rts_step(
     gain = psd_solve(pred_cov, cross_cov.T).T
     diff = wrap_components(next_mean - pred_mean, angles)
     mean = filt_mean + (gain @ diff if diff.ndim == 1 else diff @ gain.T)
-    cov = symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T)
+    cov = clip_variances(symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T), filt_cov)
     return mean, cov, gain
 
 
@@ -670,7 +672,7 @@ class SqrtUpdate(NamedTuple):
 
 
 def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
-    """A lower-triangular square root of a positive semi-definite covariance (Cholesky, or its semi-definite form).
+    r"""A lower-triangular square root of a positive semi-definite covariance (Cholesky, or its semi-definite form).
 
     Parameters
     ----------
@@ -682,7 +684,13 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
     Returns
     -------
     ndarray of shape (n, n)
-        Lower triangular L with ``L Lᵀ = cov``.
+        Lower triangular L with ``L Lᵀ = cov``: each entry to round-off of
+        its components' scales :math:`\sqrt{c_{ii} c_{jj}}` where the
+        (semi-definite) Cholesky factor gives that; else the closer of it and
+        :func:`gaussfuse._linalg.correlation_root`, to
+        :data:`gaussfuse._linalg.PSD_RTOL` on those scales, as a Gaussian or
+        a model accepts a covariance (a rank-2 Q accepted by ``LinearModel``
+        was refused here, in one case in 80).
 
     Raises
     ------
@@ -697,15 +705,28 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
         raise np.linalg.LinAlgError(f"{name} is not finite (inf or NaN): a factor needs finite variances.")
     try:
         L = sqrt_cov(cov)[0]
+        failure = f"{name} is not symmetric positive semi-definite on the scale of its components: no factor L " \
+                  "with L Lᵀ equal to it."
     except np.linalg.LinAlgError as exc:
-        raise np.linalg.LinAlgError(f"{name} {exc.args[0].removeprefix('the covariance ')}") from None
-    # L Lᵀ must give back cov, each entry to round-off of its components' scales (the semi-definite
-    # factorisation drops pivots of round-off only): else cov was not symmetric, or not PSD there
+        L, failure = None, f"{name} {exc.args[0].removeprefix('the covariance ')}"
+    # L Lᵀ must give back cov, each entry to round-off of its components' scales: else cov was not
+    # symmetric, or not PSD there
+    if L is not None and _residual(L, cov) <= 16 * cov.shape[0] * np.finfo(float).eps:
+        return L
+    roots = [root for root in (L, correlation_root(cov)) if root is not None]
+    L = min(roots, key=lambda root: _residual(root, cov))
+    if _residual(L, cov) <= PSD_RTOL:  # PSD to what a Gaussian or a model accepts
+        return L
+    raise np.linalg.LinAlgError(failure)
+
+
+def _residual(L: np.ndarray, cov: np.ndarray) -> float:
+    """The largest ``|L Lᵀ - cov|`` on each entry's components' scale, ``√(c_ii c_jj)`` (inf off a zero one)."""
     d = np.sqrt(np.abs(np.diagonal(cov)))
-    if np.any(np.abs(L @ L.T - cov) > 16 * cov.shape[0] * np.finfo(float).eps * np.outer(d, d)):
-        raise np.linalg.LinAlgError(f"{name} is not symmetric positive semi-definite on the scale of its "
-                                    "components: no factor L with L Lᵀ equal to it.")
-    return L
+    scale = np.outer(d, d)
+    error = np.abs(L @ L.T - cov)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.max(np.where(error > 0.0, error / scale, 0.0), initial=0.0))
 
 
 def predict_sqrt(mean: np.ndarray, factor: np.ndarray, A: np.ndarray, Q_factor: np.ndarray,

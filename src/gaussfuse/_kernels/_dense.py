@@ -12,6 +12,7 @@ components needs no view):
 ``cholesky(S, L, p) -> bool``               ``L[:p, :p]``: the lower Cholesky factor of ``S[:p, :p]``
 ``roundoff_pivot(L, S, p) -> bool``         whether that factor has a pivot of round-off
 ``cho_solve(L, X, p, r)``                   ``X[:p, :r] = (L Lᵀ)⁻¹ X``, two triangular solves
+``clip_variances(P, X, n)``                 the row and column of a variance of round-off below 0 set to 0
 ==========================================  ==========================================
 
 Every covariance the filters form is a :func:`congruence`: the prediction
@@ -111,6 +112,29 @@ def congruence(B, P, Y, out, BP, k, n):
             y = out[j, i] + (0.0 if Y is None else Y[j, i])
             out[i, j] = 0.5 * x + 0.5 * y  # as _linalg.symmetrize: no overflow of x + y
             out[j, i] = out[i, j]
+
+
+@register_jitable(**_JIT)
+def clip_variances(P, X, n):
+    """_linalg.clip_variances: in ``P[:n, :n]``, computed from the covariance ``X[:n, :n]``, the row and column
+    of each variance of round-off below 0 set to 0 (unless P holds inf or NaN, an overflow to report)."""
+    negative = False
+    scale = 0.0
+    for j in range(n):
+        negative = negative or P[j, j] < 0.0
+        scale = max(scale, P[j, j], X[j, j])
+    if not negative:
+        return
+    for j in range(n):
+        for c in range(n):
+            if not math.isfinite(P[j, c]):
+                return
+    floor = -16.0 * n * _EPS * scale
+    for j in range(n):
+        if floor <= P[j, j] < 0.0:
+            for c in range(n):
+                P[j, c] = 0.0
+                P[c, j] = 0.0
 
 
 @register_jitable(**_JIT)
