@@ -72,6 +72,21 @@ def test_missing_update_changes_nothing():
     assert kf.loglik == 0.0
 
 
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_the_factor_handed_out_is_read_only(form):
+    """``L = kf.L; L *= 10`` changed the square-root form's next step (P's diagonal [0.995, 20.5] for
+    [0.6875, 0.4993]) while ``kf.P`` showed the old belief (audit U); in the covariance form L Lᵀ no longer
+    equalled P. Also after a pickle, which does not keep the flag."""
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[[1, 0]], Q=0.1 * np.eye(2), R=1.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0, 0], np.eye(2)), form=form, check="off")
+    kf.predict()
+    kf.update(0.3)
+    for f in (kf, pickle.loads(pickle.dumps(kf))):
+        with pytest.raises(ValueError, match="read-only"):
+            f.L[1, 1] = 10.0
+        np.testing.assert_allclose(f.L @ f.L.T, f.P, rtol=1e-15)
+
+
 def test_the_belief_is_immutable_and_x_and_P_are_the_users_to_change():
     """filterpy's idioms: ``kf.P *= 1000``, ``kf.x[0] = 3``, ``kf.x = ...``; the next step starts from them."""
     model = gf.constant_velocity(dt=1.0, q=0.5, r=1.0)

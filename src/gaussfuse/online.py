@@ -238,11 +238,15 @@ class KalmanFilter:
 
     @property
     def L(self) -> np.ndarray:
-        """A lower-triangular factor of the belief's covariance, ``P = L Lᵀ``, shape (n, n)."""
+        """A lower-triangular factor of the belief's covariance, ``P = L Lᵀ``, shape (n, n); read-only, as the
+        belief's arrays are (the square-root form steps on from it: a write into it changed the next step's
+        covariance, while `P` still showed the old one)."""
         belief = self.belief
         if self._factor is None or self._factor[0] is not belief:  # a belief set by hand, or the prior
             self._factor = (belief, kalman.cov_factor(belief.cov, "the belief's covariance"))
-        return self._factor[1]
+        view = self._factor[1].view()
+        view.setflags(write=False)
+        return view
 
     def _set(self, mean: np.ndarray, factor: np.ndarray) -> Gaussian:
         """Make ``N(mean, L Lᵀ)`` the belief, remembering its factor L."""
