@@ -400,11 +400,11 @@ def test_std_of_a_variance_zero_to_round_off_is_zero():
     np.testing.assert_array_equal(g.std, [1.0, 0.0])
 
 
-@pytest.mark.parametrize("rng", ["x", 1.5, -1, True])
-def test_sample_names_a_bad_rng(rng):
+@pytest.mark.parametrize("rng, error", [("x", TypeError), (1.5, TypeError), (-1, ValueError), (True, TypeError)])
+def test_sample_names_a_bad_rng(rng, error):
     """NumPy's own messages ("SeedSequence expects int or sequence of ints for entropy not x") named no
-    argument; True was the seed 1."""
-    with pytest.raises(TypeError, match=r"^`rng` must be None, a non-negative integer seed or a numpy.random.Generator; got "):
+    argument; True was the seed 1. A negative seed is an integer of the wrong value: a ValueError (audit V)."""
+    with pytest.raises(error, match=r"^`rng` must be None, a non-negative integer seed or a numpy.random.Generator; got "):
         gf.Gaussian(0.0, 1.0).sample(2, rng=rng)
     assert gf.Gaussian(0.0, 1.0).sample(2, rng=3).shape == (2, 1)
 

@@ -472,17 +472,19 @@ def generator(rng) -> np.random.Generator:
 
     Raises
     ------
-    TypeError
+    TypeError, ValueError
         For anything else, naming `rng` (NumPy's own messages do not; and
-        ``default_rng(True)`` is the seed 1).
+        ``default_rng(True)`` is the seed 1): a ValueError for a negative
+        integer, a TypeError for what is not a seed at all.
     """
     try:
         if isinstance(rng, (bool, np.bool_)):
             raise TypeError
         return np.random.default_rng(rng)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"`rng` must be None, a non-negative integer seed or a numpy.random.Generator; "
-                        f"got {rng!r}.") from exc
+        kind = ValueError if isinstance(rng, (int, np.integer)) and not isinstance(rng, (bool, np.bool_)) else TypeError
+        raise kind(f"`rng` must be None, a non-negative integer seed or a numpy.random.Generator; "
+                   f"got {rng!r}.") from exc
 
 
 def component_mask(name: str, value, size: int) -> np.ndarray:

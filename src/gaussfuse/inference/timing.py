@@ -178,6 +178,9 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     ValueError
         For a shape other than 1-D, or non-finite values.
     """
+    if isinstance(times, (str, bytes)):  # not a 0-d array of characters
+        raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
+                        f"DatetimeIndex), one per step; got {type(times).__name__} {times!r}.")
     arr = _array(times)
     if arr.ndim != 1:
         raise ValueError(f"`{name}` must be one-dimensional, one time per step; got shape {arr.shape}.")
