@@ -247,3 +247,22 @@ def test_an_unstable_pair_with_tiny_noise_gets_a_stabilising_gain():
     held = gf.filter(gf.LinearModel(1.5, 1.0, 1e-25, 1.0), gf.Gaussian([0.0], [[1.0]]), zs, steady=True)
     full = gf.filter(gf.LinearModel(1.5, 1.0, 1e-25, 1.0), gf.Gaussian([0.0], [[1.0]]), zs)
     np.testing.assert_allclose(held.means, full.means, rtol=1e-9, atol=1e-9)
+
+
+def test_a_zero_on_the_unit_circle_with_a_noise_free_sensor_is_named():
+    """A constant velocity with piecewise noise (Q = g gᵀ), its position measured with R = 0: the filter's P⁻
+    converges to Q, but only as 1/k, and the gain there leaves F (I - K H) an eigenvalue of -1 (the noise reaches
+    the measurement through a zero at -1). The refusal listed conditions that all hold here (audit U); it names
+    this case."""
+    F, g = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[0.5], [1.0]])
+    model = gf.LinearModel(F=F, H=[[1.0, 0.0]], Q=g @ g.T, R=0.0)
+    with pytest.raises(ValueError, match=r"with R singular, the process noise may reach a measurement through a "
+                                         r"zero on the unit circle .* give R a positive variance\.$"):
+        gf.steady_state(model)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), check="off")
+    for k in range(1, 1001):
+        kf.predict()
+        kf.update(0.0)
+    assert 0.1 / k < np.abs(kf.P_prior - model.Q).max() < 1.0 / k
+    closed = F @ (np.eye(2) - np.array([[1.0], [2.0]]) @ model.H)  # the gain at P⁻ = Q
+    np.testing.assert_allclose(sorted(np.linalg.eigvals(closed).real), [-1.0, 0.0], atol=1e-15)

@@ -76,8 +76,12 @@ def steady_state(model: LinearModel) -> Stationary:
         When it is time-varying, or when the Riccati equation has no
         stabilising solution (an unstable mode that the measurements do not
         see, or one that the process noise does not reach while R is
-        singular): then the filter's covariance has no steady state to
-        converge to; or a mode on the unit circle that Q does not drive (a
+        singular, or, with R singular, a zero on the unit circle of the
+        system from the process noise to the measurements: a constant
+        velocity with piecewise noise measured with R = 0 has one at -1):
+        then the filter's covariance has no steady state to converge to, or
+        converges to one only as 1/k, at which the filter is not stable;
+        or a mode on the unit circle that Q does not drive (a
         constant estimated without process noise: its variance falls to 0
         as 1/k, and the gain with it). Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
@@ -100,7 +104,11 @@ def steady_state(model: LinearModel) -> Stationary:
     most closely is kept, and the recursion is run step by step where none
     does. Near the unit circle the answer is as exact as the equation's
     terms allow: a random walk with Q 1e-20 of R (pole 1 - 1e-10) within
-    about 1e-8 of the closed form. Then, as in
+    about 1e-8 of the closed form. That is on the scale of the largest
+    entries: a mode whose variance is far below them is exact only to their
+    round-off (with Q of condition 2e17, mixing 1e-9 and 1e8, a random-walk
+    mode got 5.0e-10 where the exact inputs give 2.1e-5; either fits Q to
+    its round-off). Then, as in
     :func:`gaussfuse.kalman.update`,
 
     .. math::
@@ -185,7 +193,9 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
         raise ValueError(
             f"the filter of `model` has no steady state: the Riccati equation has no stabilising solution{why}. "
             "Check that every unstable mode of F is seen through H and reached by Q, and that R is positive "
-            "definite where Q does not reach."
+            "definite where Q does not reach; with R singular, the process noise may reach a measurement through "
+            "a zero on the unit circle (as a constant velocity with piecewise noise and R = 0, at -1), where the "
+            "covariance converges only as 1/k, to no stable gain: give R a positive variance."
         ) from None
     return min(kept, key=lambda P: _residual(model, P))
 
