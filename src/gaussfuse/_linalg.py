@@ -49,8 +49,8 @@ def symmetrize(cov: np.ndarray) -> np.ndarray:
 
 
 def clip_variances(cov: np.ndarray, given: np.ndarray) -> np.ndarray:
-    """`cov` (n, n), computed from the covariance `given`, with the row and column of each variance of
-    round-off below 0 set to 0.
+    """`cov` (..., n, n), computed from the covariance `given` (..., n, n), with the row and column of each
+    variance of round-off below 0 set to 0.
 
     A covariance computed from others (``A P Aᵀ + Q``, the Joseph form, the
     RTS step) has variances of at least 0 in exact arithmetic; one below 0
@@ -61,14 +61,14 @@ def clip_variances(cov: np.ndarray, given: np.ndarray) -> np.ndarray:
     ``forecast`` and by ``sample_posterior``. A variance further below 0 is
     not round-off, and is kept for the checks that name it.
     """
-    d = np.diagonal(cov)
+    d = np.diagonal(cov, axis1=-2, axis2=-1)
     if (d >= 0.0).all() or not np.isfinite(cov).all():  # an overflow is not hidden
         return cov
-    scale = max(np.max(np.diagonal(given)), np.max(d))
-    keep = ~((d < 0.0) & (d >= -16 * d.shape[0] * _EPS * scale))
+    scale = np.maximum(np.diagonal(given, axis1=-2, axis2=-1).max(axis=-1), d.max(axis=-1))[..., None]
+    keep = ~((d < 0.0) & (d >= -16 * d.shape[-1] * _EPS * scale))
     if keep.all():
         return cov
-    return np.where(keep[:, None] & keep[None, :], cov, 0.0)
+    return np.where(keep[..., :, None] & keep[..., None, :], cov, 0.0)
 
 
 PSD_RTOL = 1e-9
