@@ -23,7 +23,7 @@ the highest derivative is held constant over each step.
 
 from __future__ import annotations
 
-from math import ceil, factorial, log2
+from math import ceil, factorial, lgamma, log2
 
 import numpy as np
 
@@ -97,7 +97,15 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     the small entries of Q over a short step (position variances growing
     like :math:`h^7` under white jerk) lost all their digits. The series
     keeps each entry to its own round-off; Q is linear in W and F does not
-    depend on it.
+    depend on it. That holds for drifts that are not stiff: the halvings are
+    set by the fastest rate, and a mode's :math:`1 + a h` carries the
+    round-off of 1, so :math:`\log F` is off by about
+    :math:`\epsilon \|A\|_1 \Delta t`. Rates 1e9 and 1e-3 over 1e4 s leave
+    the slow mode's F 4.5e-8 off, and rates 1e12 and 1e-4 over 1e5 s lose it
+    (F = 1 for 4.5e-5, Q = 1e5 for 5000); a triangular drift in mixed units
+    (``[[-1e-3, 1e6], [0, -2e-3]]``) is 1.5e-8 off over 1e3 s. SciPy's
+    ``expm`` of :math:`A \Delta t` alone, exact on a triangular A's diagonal,
+    is the better F there.
 
     References
     ----------
@@ -214,11 +222,17 @@ def white_noise_chains(K: int, dts: np.ndarray, q: float) -> np.ndarray:
     fact = np.array([float(factorial(k)) for k in range(K + 1)])
     power = 2 * K + 1 - i - j
     dts = dts[:, None, None]
-    with np.errstate(over="ignore", invalid="ignore"):
-        Q = q * (dts**power / (power * fact[K - i] * fact[K - j]))  # (q dt^p first could overflow where Q does not)
-        if q > 0.0 and not np.isfinite(Q).all():  # dt^p overflowed where q dt^p need not (q = 1e-300, dt = 1e110)
-            Q = np.exp(np.log(q) + power * np.log(dts) - np.log(power * fact[K - i] * fact[K - j]))
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        Q = q * (dts**power / power / fact[K - i] / fact[K - j])  # (q dt^p first could overflow where Q does not)
+        lost = ~np.isfinite(Q) | (Q == 0.0)
+        if q > 0.0 and lost.any():  # dt^p overflowed or underflowed where q dt^p need not (q = 1e-300, dt = 1e110;
+            # q = 1e60, dt = 1e-66), or the two factorials' product did (order 100)
+            logs = np.log(q) + power * np.log(dts) - np.log(power) - _log_factorial[K - i] - _log_factorial[K - j]
+            Q = np.where(lost, np.exp(logs), Q)
     return Q
+
+
+_log_factorial = np.array([lgamma(k + 1.0) for k in range(171)])
 
 
 @finite_step("Q")
@@ -252,7 +266,11 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
         g_i = \frac{\Delta t^{K+1-i}}{(K+1-i)!}, \qquad Q = \mathrm{var}\; g g^T,
 
     so :math:`g = [\Delta t^2/2, \Delta t]` for constant velocity. Q has
-    rank one.
+    rank one. For K >= 2 this differs from the discrete Wiener process
+    acceleration model of Bar-Shalom et al. (filterpy's
+    ``Q_discrete_white_noise(3)``), whose acceleration takes a random step
+    each step, :math:`g = [\Delta t^2/2, \Delta t, 1]`; the two agree for
+    constant velocity.
 
     Examples
     --------
@@ -265,4 +283,9 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
     dt = real("dt", dt, positive=True)
     var = real("var", var, nonnegative=True)
     g = np.array([dt ** (K + 1 - i) / factorial(K + 1 - i) for i in range(K + 1)])
-    return var * np.outer(g, g)
+    with np.errstate(under="ignore"):
+        Q = var * np.outer(g, g)
+    if var > 0.0 and (Q == 0.0).any():  # g gᵀ underflowed where var g gᵀ need not (dt = 1e-60, var = 1e100)
+        g = np.sqrt(var) * g
+        Q = np.where(Q == 0.0, np.outer(g, g), Q)
+    return Q
