@@ -476,3 +476,30 @@ def test_timed_model_at_checks_its_step_sizes(timed, dts, error, message):
         gf.model(gf.CoordinatedTurn(), gf.RangeBearing())
     with pytest.raises(error, match=message):
         timed.at(dts)
+
+
+@pytest.mark.parametrize("angles", [(-1,), (False, True), (1,)])
+def test_stacked_sensors_place_each_sensors_angles_as_a_model_reads_them(angles):
+    """A sensor's measurement_angles may be indices counted from its end, or a boolean mask, as a model takes
+    them: stacked after a GPS, -1 flagged the GPS's y and a mask both the range and the bearing (audit S)."""
+    class Heading(gf.NonlinearSensor):
+        __slots__ = ("angles",)
+
+        def __init__(self, angles):
+            self._set(angles=angles)
+
+        m = property(lambda self: 2)
+        names = property(lambda self: ("range", "bearing"))
+        R = property(lambda self: np.diag([1.0, 1e-4]))
+        measurement_angles = property(lambda self: self.angles)
+
+        def h(self, x):
+            return gf.RangeBearing().h(x)
+
+        def jacobian(self, x):
+            return gf.RangeBearing().jacobian(x)
+
+    cv = gf.ConstantVelocity(dim=2)
+    assert gf.model(cv, Heading(angles), dt=1.0).measurement_angles.tolist() == [False, True]
+    stacked = gf.model(cv, gf.stack_sensors({"gps": gf.Position(dim=2), "h": Heading(angles)}, cv), dt=1.0)
+    assert stacked.measurement_angles.tolist() == [False, False, False, True]

@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from .._validation import StepOverflowError, as_array, call_checked, integer, real, shape_error
+from .._validation import StepOverflowError, as_array, call_checked, component_mask, integer, real, shape_error
 from ._base import Frozen
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
@@ -470,9 +470,14 @@ class Stacked(NonlinearSensor):
 
     @property
     def measurement_angles(self) -> tuple[int, ...]:
-        """The sensors' angle components, as indices into the stacked measurement vector."""
-        return tuple(slot.start + int(i) for slot, (_, sensor) in zip(self.slots.values(), self.sensors)
-                     for i in sensor.measurement_angles)
+        """The sensors' angle components, as indices into the stacked measurement vector.
+
+        Each sensor's own may be indices (negative ones count from its end) or a boolean mask, as a model's:
+        they were taken as indices from its start (-1 flagged the sensor before it, a mask every component).
+        """
+        return tuple(slot.start + int(i) for (name, sensor), slot in zip(self.sensors, self.slots.values())
+                     for i in np.flatnonzero(component_mask(f"the measurement_angles of sensor {name!r}",
+                                                            sensor.measurement_angles, sensor.m)))
 
     def _state(self, x, shapes: str, stack: bool = True) -> np.ndarray:
         x = np.asarray(x)
