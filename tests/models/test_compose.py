@@ -503,3 +503,23 @@ def test_stacked_sensors_place_each_sensors_angles_as_a_model_reads_them(angles)
     assert gf.model(cv, Heading(angles), dt=1.0).measurement_angles.tolist() == [False, True]
     stacked = gf.model(cv, gf.stack_sensors({"gps": gf.Position(dim=2), "h": Heading(angles)}, cv), dt=1.0)
     assert stacked.measurement_angles.tolist() == [False, False, False, True]
+
+
+@pytest.mark.parametrize("us, error, message", [
+    (np.ones((3, 2)), ValueError, r"^`us` must have shape \(T, p\) = \(2, 2\) or \(N, 2, 2\), one row of the motion's "
+                                  r"control input per step; got shape \(3, 2\)\.$"),
+    ([["a", "b"], ["c", "d"]], TypeError, r"^`us` must be an array of numbers; got strings\.$"),
+    ([[1.0, 2.0], [3.0]], TypeError, r"^`us` must be a rectangular array of real numbers"),
+    ([[True, False], [True, True]], TypeError, r"^`us` must be an array of numbers; got booleans\.$"),
+    (np.full((2, 2), 1 + 5j), TypeError, r"^`us` must be real; got complex values\.$"),
+    ([[np.nan, 1.0], [1.0, 1.0]], ValueError, r"^`us` must be finite; got a non-finite .* at index \(0, 0\)\.$"),
+])
+def test_a_stepped_model_checks_its_controls(us, error, message):
+    """A linear motion with a control input and a nonlinear sensor, over steps of two sizes: `us` went to NumPy
+    unchecked (a broadcasting error for the wrong length, booleans read as 0 and 1, the imaginary part dropped,
+    a NaN named at its index in [dt, u]; audit S)."""
+    timed = gf.model(gf.ForceInput(dim=2), gf.RangeBearing())
+    with pytest.raises(error, match=message):
+        timed.at([1.0, 2.0], us)
+    model, controls = timed.at([1.0, 2.0], [[0.5, -0.5], [1.0, 0.0]])
+    np.testing.assert_array_equal(controls, [[1.0, 0.5, -0.5], [2.0, 1.0, 0.0]])

@@ -244,14 +244,14 @@ class TimedModel(Frozen):
         if p and us is None:
             raise ValueError(f"`us` is required: the model has a control input with p = {p}.")
         if us is not None:
-            us = np.asarray(us, dtype=np.float64)
-            width = 1 if us.ndim == 1 else us.shape[-1] if us.ndim > 1 else None
             if not p:
                 raise ValueError("`us` was given but the motion has no control input.")
-            if width != p:
-                raise ValueError(f"`us` must have p = {p} components per step (the motion's control input); got "
-                                 f"shape {us.shape}.")
-            us = us[:, None] if us.ndim == 1 else us
+            us = as_array("us", us)  # real and finite, named (strings, booleans, complex and ragged rows too)
+            given = us.shape
+            us = us[:, None] if us.ndim == 1 and p == 1 else us
+            if us.ndim not in (2, 3) or us.shape[-2:] != (dts.shape[0], p):
+                raise shape_error("us", f"(T, p) = ({dts.shape[0]}, {p}) or (N, {dts.shape[0]}, {p}), one row of the "
+                                  "motion's control input per step", given)
         controls = dts[:, None] if us is None else np.concatenate(
             [np.broadcast_to(dts[:, None], (*np.shape(us)[:-1], 1)), np.asarray(us, dtype=np.float64)], axis=-1)
         return NonlinearModel(stepped, h, Q, R, f_jacobian=stepped.jacobian, h_jacobian=h_jacobian,
