@@ -523,3 +523,21 @@ def test_a_stepped_model_checks_its_controls(us, error, message):
         timed.at([1.0, 2.0], us)
     model, controls = timed.at([1.0, 2.0], [[0.5, -0.5], [1.0, 0.0]])
     np.testing.assert_array_equal(controls, [[1.0, 0.5, -0.5], [2.0, 1.0, 0.0]])
+
+
+@pytest.mark.parametrize("make, error, message", [
+    (lambda: gf.Stacked({"a": "not a sensor"}, 4), TypeError, r"^`sensors\['a'\]` must be a sensor"),
+    (lambda: gf.Stacked([1, 2, 3], 4), TypeError, r"^`sensors` must be a non-empty dict mapping names to sensors"),
+    (lambda: gf.Stacked({1: gf.RangeBearing()}, 4), TypeError, r"^`sensors` must have str keys"),
+    (lambda: gf.Stacked({"a": gf.RangeBearing()}, 0), ValueError, r"^`n` must be"),
+    (lambda: gf.Stacked({"a": gf.LinearSensor(np.eye(3), np.eye(3))}, 4), ValueError, r"has `H` of shape \(3, 3\)"),
+    (lambda: gf.stack_sensors({"gps": gf.Position(2), "radar": gf.RangeBearing()}, gf.ConstantVelocity(dim=2)).h(
+        np.array(["1", "2", "3", "4"])), TypeError, r"^`x` must be an array of numbers"),
+    (lambda: gf.stack_sensors({"gps": gf.Position(2), "radar": gf.RangeBearing()}, gf.ConstantVelocity(dim=2)).h(
+        [True, False, True, True]), TypeError, r"^`x` must be an array of numbers; got booleans\.$"),
+])
+def test_stacked_checks_what_it_is_given(make, error, message):
+    """Stacked, a public class, took anything (a str as a sensor failed later in `.m`), and its h passed strings
+    and booleans to NumPy (audit S)."""
+    with pytest.raises(error, match=message):
+        make()

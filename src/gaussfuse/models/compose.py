@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from .._validation import StepOverflowError, as_array, call_checked, component_mask, integer, real, shape_error
+from .._validation import StepOverflowError, as_array, as_numbers, call_checked, component_mask, integer, real, shape_error
 from ._base import Frozen
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
@@ -392,6 +392,14 @@ def stack_sensors(sensors, motion) -> LinearSensor | NonlinearSensor:
 
 def _check_sensors(sensors, motion) -> dict:
     _check_motion(motion)
+    checked = _sensor_mapping(sensors)
+    for name, sensor in checked.items():
+        _check_fit(motion, sensor, motion.n, f"`sensors[{name!r}]`")
+    return checked
+
+
+def _sensor_mapping(sensors) -> dict:
+    """`sensors` as a dict of sensors by str name, checked."""
     if not isinstance(sensors, Mapping) or not sensors:
         raise TypeError(f"`sensors` must be a non-empty dict mapping names to sensors; got {sensors!r:.80}.")
     for name, sensor in sensors.items():
@@ -402,7 +410,6 @@ def _check_sensors(sensors, motion) -> dict:
                 f"`sensors[{name!r}]` must be a sensor (a LinearSensor, Position or NonlinearSensor, "
                 f"e.g. gaussfuse.RangeBearing); got {type(sensor).__name__}."
             )
-        _check_fit(motion, sensor, motion.n, f"`sensors[{name!r}]`")
     return dict(sensors)
 
 
@@ -439,7 +446,10 @@ class Stacked(NonlinearSensor):
     __slots__ = ("sensors", "n")
 
     def __init__(self, sensors, n: int) -> None:
-        self._set(sensors=tuple(dict(sensors).items()), n=integer("n", n))  # (name, sensor) pairs
+        sensors, n = _sensor_mapping(sensors), integer("n", n)
+        for name, sensor in sensors.items():  # (the motion's axes are stack_sensors' to check)
+            _check_fit(None, sensor, n, f"`sensors[{name!r}]`")
+        self._set(sensors=tuple(sensors.items()), n=n)  # (name, sensor) pairs
 
     def __reduce__(self):
         return Stacked, (dict(self.sensors), self.n)
@@ -480,7 +490,7 @@ class Stacked(NonlinearSensor):
                                                             sensor.measurement_angles, sensor.m)))
 
     def _state(self, x, shapes: str, stack: bool = True) -> np.ndarray:
-        x = np.asarray(x)
+        x = as_numbers("x", x)  # real or complex (a complex step), named: not strings, booleans or objects
         if x.ndim not in ((1, 2) if stack else (1,)) or x.shape[-1] != self.n:
             raise ValueError(f"`x` must have shape {shapes} with n = {self.n} (the state the sensors were stacked "
                              f"for); got shape {x.shape}.")
