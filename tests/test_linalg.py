@@ -271,18 +271,22 @@ def test_pivot_order_is_column_pivoting_and_in_pivot_order_says_when_rows_alread
 
 
 def test_clip_variances_zeroes_round_off_below_zero_only_matrix_by_matrix():
-    """A variance below 0 by round-off of the largest it came from is 0 with its row and column; one further
-    below is kept (an indefinite result the checks must see); a stack is clipped matrix by matrix (the smoother's
-    step back to the prior's time takes all series at once: the diagonal was read along the wrong axes)."""
+    """A variance below 0 whose row is all round-off on its components' own scales is 0 with its row and column;
+    one further below, or with a covariance that is not round-off, is kept (an indefinite result the checks must
+    see: judged on the largest variance, -2e-3 beside 1e12 and [[1, .5], [.5, -1e-17]] were made to look PSD,
+    audit R4); a stack is clipped matrix by matrix (the smoother's step back to the prior's time takes all
+    series at once: the diagonal was read along the wrong axes)."""
     from gaussfuse._linalg import clip_variances
 
     given = np.eye(2)
-    covs = np.array([[[1.0, 1e-9], [1e-9, -1e-17]], [[-1e-17, 1e-18], [1e-18, 2.0]], [[1.0, 0.0], [0.0, -0.5]]])
-    want = np.array([[[1.0, 0.0], [0.0, 0.0]], [[0.0, 0.0], [0.0, 2.0]], [[1.0, 0.0], [0.0, -0.5]]])
+    covs = np.array([[[1.0, 1e-17], [1e-17, -1e-17]], [[-1e-17, 1e-18], [1e-18, 2.0]], [[1.0, 0.0], [0.0, -0.5]],
+                     [[1.0, 0.5], [0.5, -1e-17]]])
+    want = np.array([[[1.0, 0.0], [0.0, 0.0]], [[0.0, 0.0], [0.0, 2.0]], [[1.0, 0.0], [0.0, -0.5]],
+                     [[1.0, 0.5], [0.5, -1e-17]]])
     np.testing.assert_array_equal(clip_variances(covs, given), want)
     for cov, expected in zip(covs, want):
         np.testing.assert_array_equal(clip_variances(cov, given), expected)
-    indefinite = covs[2].copy()
-    assert clip_variances(indefinite, given) is indefinite  # nothing of round-off: the same array
+    indefinite = np.diag([1e12, 1.0, -1e-3])
+    assert clip_variances(indefinite, np.diag([1e12, 1.0, 1.0])) is indefinite  # nothing of round-off: the same array
     with_nan = np.array([[np.nan, 0.0], [0.0, -1e-17]])
     assert clip_variances(with_nan, given) is with_nan  # an overflow upstream is not hidden

@@ -49,23 +49,26 @@ def symmetrize(cov: np.ndarray) -> np.ndarray:
 
 
 def clip_variances(cov: np.ndarray, given: np.ndarray) -> np.ndarray:
-    """`cov` (..., n, n), computed from the covariance `given` (..., n, n), with the row and column of each
-    variance of round-off below 0 set to 0.
+    """`cov` (..., n, n), computed from the covariance `given` (..., n, n) by the Joseph form or the RTS step,
+    with the row and column of each variance that is zero to round-off, but below 0, set to 0.
 
-    A covariance computed from others (``A P Aᵀ + Q``, the Joseph form, the
-    RTS step) has variances of at least 0 in exact arithmetic; one below 0
-    by at most ``16 n ε`` of the largest variance of `given` and `cov` is the
-    round-off of a zero variance (a state measured exactly through a
-    singular R came out at -2e-17), and the covariances of a component with
-    no variance are 0. Left negative, the result was refused as a prior, by
-    ``forecast`` and by ``sample_posterior``. A variance further below 0 is
-    not round-off, and is kept for the checks that name it.
+    Those give variances of at least 0 in exact arithmetic, and a component
+    of zero variance has zero covariances. A row j whose entries are all
+    within ``16 n ε √(s_i s_j)`` of 0 (:math:`s_i` the larger of
+    ``given[i, i]`` and ``|cov[i, i]|``: each component judged on its own
+    scale), with ``cov[j, j] < 0``, is that round-off (a state measured
+    exactly through a singular R came out at -2e-17): left negative, the
+    result was refused as a prior, by ``forecast`` and by
+    ``sample_posterior``. Anything larger (a variance of -2e-3 of a
+    unit-scale component beside one of 1e12, an indefinite result of a
+    sigma-point rule's negative weight) is kept, for the checks that name it.
     """
     d = np.diagonal(cov, axis1=-2, axis2=-1)
     if (d >= 0.0).all() or not np.isfinite(cov).all():  # an overflow is not hidden
         return cov
-    scale = np.maximum(np.diagonal(given, axis1=-2, axis2=-1).max(axis=-1), d.max(axis=-1))[..., None]
-    keep = ~((d < 0.0) & (d >= -16 * d.shape[-1] * _EPS * scale))
+    root = np.sqrt(np.maximum(np.diagonal(given, axis1=-2, axis2=-1), np.abs(d)))
+    quiet = (np.abs(cov) <= 16 * d.shape[-1] * _EPS * root[..., :, None] * root[..., None, :]).all(axis=-1)
+    keep = ~((d < 0.0) & quiet)
     if keep.all():
         return cov
     return np.where(keep[..., :, None] & keep[..., None, :], cov, 0.0)

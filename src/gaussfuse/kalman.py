@@ -12,9 +12,9 @@ extended and sigma-point filters the linearisation supplies them (and adds its
 own error covariance to :math:`Q` and :math:`R`).
 
 The functions here are pure: arrays in, arrays out. Covariances are kept
-symmetric, with no negative variance of round-off (one computed below 0 by
-round-off is a zero variance: its row and column are set to 0,
-:func:`gaussfuse._linalg.clip_variances`), the update uses the Joseph form,
+symmetric (a posterior or smoothed variance that is zero to round-off but
+below 0 is 0, with its row and column: :func:`gaussfuse._linalg.clip_variances`),
+the update uses the Joseph form,
 and every matrix "inverse" is a Cholesky solve.
 
 They are the filters' inner loop, and take their arguments as the front
@@ -120,7 +120,7 @@ def predict(
 
         m^- = A m + b, \qquad P^- = A P A^\top + Q.
     """
-    return predict_mean(mean, A, b), clip_variances(symmetrize(A @ cov @ A.T + Q), cov)
+    return predict_mean(mean, A, b), symmetrize(A @ cov @ A.T + Q)
 
 
 def predict_mean(mean: np.ndarray, A: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
@@ -721,8 +721,14 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
 
 
 def _residual(L: np.ndarray, cov: np.ndarray) -> float:
-    """The largest ``|L Lᵀ - cov|`` on each entry's components' scale, ``√(c_ii c_jj)`` (inf off a zero one)."""
-    d = np.sqrt(np.abs(np.diagonal(cov)))
+    """The largest ``|L Lᵀ - cov|`` on each entry's components' scale, ``√(c_ii c_jj)`` (inf off a zero one).
+
+    A variance within ``8 n ε`` of the largest entry is on that entry's scale, as :func:`gaussfuse._validation.check_psd`
+    judges it (-1e-3 beside 1e12 is a zero variance computed with round-off).
+    """
+    top = np.max(np.abs(cov), initial=0.0)
+    variances = np.abs(np.diagonal(cov))
+    d = np.sqrt(np.where(variances > 8 * cov.shape[0] * np.finfo(float).eps * top, variances, top))
     scale = np.outer(d, d)
     error = np.abs(L @ L.T - cov)
     with np.errstate(divide="ignore", invalid="ignore"):

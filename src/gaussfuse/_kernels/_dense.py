@@ -12,7 +12,7 @@ components needs no view):
 ``cholesky(S, L, p) -> bool``               ``L[:p, :p]``: the lower Cholesky factor of ``S[:p, :p]``
 ``roundoff_pivot(L, S, p) -> bool``         whether that factor has a pivot of round-off
 ``cho_solve(L, X, p, r)``                   ``X[:p, :r] = (L Lᵀ)⁻¹ X``, two triangular solves
-``clip_variances(P, X, n)``                 the row and column of a variance of round-off below 0 set to 0
+``clip_variances(P, X, n)``                 the row and column of a zero variance computed below 0 set to 0
 ==========================================  ==========================================
 
 Every covariance the filters form is a :func:`congruence`: the prediction
@@ -117,24 +117,29 @@ def congruence(B, P, Y, out, BP, k, n):
 @register_jitable(**_JIT)
 def clip_variances(P, X, n):
     """_linalg.clip_variances: in ``P[:n, :n]``, computed from the covariance ``X[:n, :n]``, the row and column
-    of each variance of round-off below 0 set to 0 (unless P holds inf or NaN, an overflow to report)."""
+    of each variance that is zero to round-off, but below 0, set to 0 (unless P holds inf or NaN, an overflow to
+    report). Rows are judged one by one; a row set to 0 was within the bound of the rows after it."""
     negative = False
-    scale = 0.0
     for j in range(n):
         negative = negative or P[j, j] < 0.0
-        scale = max(scale, P[j, j], X[j, j])
     if not negative:
         return
     for j in range(n):
         for c in range(n):
             if not math.isfinite(P[j, c]):
                 return
-    floor = -16.0 * n * _EPS * scale
+    tol = 16.0 * n * _EPS
     for j in range(n):
-        if floor <= P[j, j] < 0.0:
+        if P[j, j] < 0.0:
+            sj = max(X[j, j], -P[j, j])
+            quiet = True
             for c in range(n):
-                P[j, c] = 0.0
-                P[c, j] = 0.0
+                if abs(P[j, c]) > tol * math.sqrt(sj * max(X[c, c], abs(P[c, c]))):
+                    quiet = False
+            if quiet:
+                for c in range(n):
+                    P[j, c] = 0.0
+                    P[c, j] = 0.0
 
 
 @register_jitable(**_JIT)

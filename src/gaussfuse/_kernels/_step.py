@@ -140,7 +140,6 @@ def predict(w, mean, cov, A, Q, b, pred_mean, pred_cov):
     n = mean.shape[0]
     predict_mean(mean, A, b, pred_mean)
     congruence(A, cov, Q, pred_cov, w.A1, n, n)      # A P in w.A1 (the smoother gain's Cᵀ)
-    clip_variances(pred_cov, cov, n)
 
 
 @jit(inline="always", **_JIT)
