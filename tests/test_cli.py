@@ -1496,6 +1496,20 @@ def test_an_extra_argument_is_named_with_its_commands_help(tmp_path, capsys):
     assert code == 2 and err.endswith("unrecognized arguments: --bogus (`gaussfuse fit --help` lists the options)\n")
 
 
+def test_a_standard_output_whose_flush_fails_is_named(inputs, capsys, monkeypatch):
+    """Results to a standard output whose first flush fails (before any write) gave "[Errno 5] ..." (audit R4)."""
+    data, model = inputs
+
+    class Failing(io.StringIO):
+        def flush(self):
+            raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(sys, "stdout", Failing())
+    code = main(["filter", str(data), "-m", str(model)])
+    assert code == 2
+    assert capsys.readouterr().err == "gaussfuse: error: writing the results to standard output: Input/output error\n"
+
+
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
 @pytest.mark.parametrize("argv", [["filter", EXAMPLES / "data" / "track.csv", "-m", EXAMPLES / "models" / "cv2d.toml"],
                                   ["fit", EXAMPLES / "data" / "nile.csv", "-m",

@@ -444,7 +444,12 @@ class _StandardOutput:
     names standard output (``> /dev/full`` said "[Errno 28] No space left on device", naming nothing)."""
 
     def __init__(self, binary: bool) -> None:
-        sys.stdout.flush()
+        try:
+            sys.stdout.flush()  # what was written as text goes first
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise _OutputFailed from exc
         buffer = getattr(sys.stdout, "buffer", None) if binary else None
         self._write = sys.stdout.write if buffer is None else buffer.write
         self._decode = binary and buffer is None  # a text stream taking bytes, such as a test's StringIO

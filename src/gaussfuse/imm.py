@@ -316,7 +316,10 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
         check_steps(model, T)
         try:
             controls = check_controls(us, model, 1, T)
-        except ValueError as exc:  # whether a model takes controls is its own
+        except ValueError as exc:
+            p = getattr(model, "p", None)
+            if (p == 0) == (us is None):  # not whether this model takes controls: the controls themselves
+                raise
             raise ValueError(f"in `models[{j}]`: {exc}") from exc
         if isinstance(model, LinearModel) and (any_nonlinear or method not in (None, "kf")):
             if method is not None:  # for the NonlinearModels (if any): checked, though a LinearModel is exact
