@@ -242,3 +242,20 @@ def test_a_chunk_spends_its_share_of_the_false_alarm_rate():
         many = SimpleNamespace(nis=np.concatenate([nis, np.ones((999, 50))]), innovations=np.zeros((1000, 50, 1)),
                                rejected=None)
         drivers.check_divergence(many, "warn")
+
+
+@pytest.mark.parametrize("run", [gf.filter, gf.smooth])
+def test_a_gate_that_loses_the_track_is_named_for_chunked_series_as_in_memory(run):
+    """Every series' level jumps by 100 sd and the gate rejects every later measurement: in memory the call warns
+    ("The gate rejected ..."); a dask array of the same series did not, as its chunks ran the divergence check
+    without the gate (audit Q)."""
+    import dask
+    import dask.array as da
+
+    model, prior = gf.LinearModel(F=1.0, H=1.0, Q=0.01, R=1.0), gf.Gaussian(0.0, 1.0)
+    zs = np.array(gf.simulate(model, prior, 300, size=4, rng=0).measurements)
+    zs[:, 150:] += 100.0
+    with pytest.warns(gf.DivergenceWarning, match="The gate rejected"):
+        run(model, prior, zs, gate=0.99)
+    with dask.config.set(scheduler="synchronous"), pytest.warns(gf.DivergenceWarning, match="The gate rejected"):
+        np.asarray(run(model, prior, da.from_array(zs, chunks=(2, 300, 1)), gate=0.99).means)

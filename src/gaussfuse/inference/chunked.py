@@ -28,6 +28,7 @@ from dataclasses import fields, is_dataclass
 
 import numpy as np
 
+from .. import kalman
 from . import drivers, timing
 
 __all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed"]
@@ -176,7 +177,8 @@ def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwa
     on consistent data, for 4.5e-6 in memory)."""
     check = kwargs.get("check", "warn")
     result = run(zs=zs, us=us, **{**kwargs, "check": "off"})
-    drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first, share=share)
+    gate = kalman.Gate.of(kwargs.get("gate"), kwargs.get("gate_by", "measurement"))  # the gate's lost-track test too
+    drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first, gate=gate, share=share)
     return result
 
 
