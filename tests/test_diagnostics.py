@@ -484,3 +484,36 @@ def test_consistency_with_the_truth_names_a_result_without_covariances():
     assert dg.consistency(res).nees is None  # the NIS alone is fine
     with pytest.raises(ValueError, match=r"^`result` holds no covariances \(keep='means'\), which the NEES needs"):
         dg.consistency(res, sim.states)
+
+
+@pytest.mark.parametrize("P, message", [
+    (np.diag([-1.0, 1.0]), r"a variance of -1 at component 0"),
+    (np.array([[1.0, 0.0], [0.0, -1e6]]), r"a variance of -1e\+06 at component 1"),
+    (np.array([[1.0, 2.0], [2.0, 1.0]]), r"an eigenvalue of -1 relative to its variances"),
+])
+def test_nees_refuses_an_indefinite_covariance(P, message):
+    """diag(-1, 1) gave 1.0 with rank 1: the negative direction was dropped as if singular (audit Q). A variance of
+    round-off below 0 beside a large one is still a zero variance."""
+    with pytest.raises(np.linalg.LinAlgError, match=r"^`covs` must be positive semi-definite; .*" + message):
+        dg.nees(np.ones((1, 2)), P[None])
+    assert dg.nees(np.ones((1, 3)), np.diag([1e12, 1.0, -1e-3])[None])[0] == pytest.approx(1.0 + 1e-12)
+
+
+@pytest.mark.parametrize("name", ["nis", "nees"])
+def test_a_covariance_that_is_not_symmetric_is_refused(name):
+    """S = [[2, 1], [0, 2]] gave 1.0 from its lower triangle, silently (audit Q)."""
+    with pytest.raises(ValueError, match=r"must be symmetric; it is not at index \(0, 0, 1\)\.$"):
+        getattr(dg, name)(np.ones((1, 2)), np.array([[[2.0, 1.0], [0.0, 2.0]]]))
+
+
+@pytest.mark.parametrize("args, message", [
+    (([0, 1], [1, 1], 1.5), r"`probability` must be the gate's, in \(0, 1\); got 1\.5\."),
+    (([0, 1], [1, 1], "0.99"), r"`probability` must be the gate's"),
+    (([0, 1, 1], [1, 1], 0.99), r"must be counts of one shape"),
+    (([0, 2], [1, 1], 0.99), r"with rejected <= offered"),
+    (([0, 0.5], [1, 1], 0.99), r"must be counts"),
+])
+def test_rejections_checks_its_arguments(args, message):
+    """A probability of 1.5 returned [] silently; mismatched lengths raised NumPy's window-shape error (audit Q)."""
+    with pytest.raises(ValueError, match=message):
+        dg.rejections(*args)

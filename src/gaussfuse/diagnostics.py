@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._linalg import UNRESOLVED, cholesky, observed_gram, whiten, wrap_components
+from ._linalg import PSD_RTOL, UNRESOLVED, cholesky, observed_gram, whiten, wrap_components
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
 from ._validation import as_array, component_mask, integer, shape_error
 
@@ -56,6 +56,12 @@ def _vectors(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.nda
         raise shape_error(name, "(..., m), one vector per step", e.shape)
     if C.shape != e.shape + e.shape[-1:]:
         raise shape_error(cov_name, f"{e.shape + e.shape[-1:]} to match `{name}` {e.shape}", C.shape)
+    d = np.sqrt(np.abs(np.diagonal(C, axis1=-2, axis2=-1)))
+    with np.errstate(invalid="ignore"):  # (NaN entries: a step not computed)
+        asym = np.abs(C - np.swapaxes(C, -1, -2)) > PSD_RTOL * d[..., :, None] * d[..., None, :]
+    if asym.any():  # its lower triangle was used, silently
+        where = tuple(int(i) for i in np.argwhere(asym)[0])
+        raise ValueError(f"`{cov_name}` must be symmetric; it is not at index {where}.")
     return e, C
 
 
@@ -85,6 +91,16 @@ def nis(innovations, innovation_covs) -> np.ndarray:
     ndarray of shape (..., T)
         NaN where nothing was observed. Each value is χ² with as many degrees
         of freedom as observed components.
+
+    Raises
+    ------
+    ValueError
+        For a covariance that is not symmetric, or shapes that do not match.
+    numpy.linalg.LinAlgError
+        Where S of the observed components is singular (a noise-free
+        measurement of a state known exactly): v has no density to weigh
+        there (:func:`nees` takes a singular P, whose error is 0 off its
+        range).
     """
     return _quadratic("innovations", innovations, "innovation_covs", innovation_covs)[0]
 
@@ -160,11 +176,20 @@ def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray) -> tuple[np.nd
     its eigenvalue 0 falls below the cut, and its error is not counted.
     """
     n = P.shape[-1]
-    d = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1).clip(min=0.0))
+    variances = np.diagonal(P, axis1=-2, axis2=-1)
+    top = np.max(np.abs(P), axis=(-2, -1), initial=0.0)[:, None]
+    if (variances < -8 * n * np.finfo(np.float64).eps * top).any():  # not a zero variance computed with round-off
+        k, i = (int(j) for j in np.argwhere(variances < -8 * n * np.finfo(np.float64).eps * top)[0])
+        raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; a covariance has a variance of "
+                                    f"{variances[k, i]:.3g} at component {i}.")
+    d = np.sqrt(variances.clip(min=0.0))
     known = d <= floor
     unit = np.where(known, 1.0, d)
     scaled = np.where(known[:, :, None] | known[:, None, :], 0.0, P / unit[:, :, None] / unit[:, None, :])
     vals, vecs = np.linalg.eigh(scaled)
+    if (vals[:, 0] < -PSD_RTOL * vals[:, -1]).any():  # indefinite on its components' scales: not dropped as singular
+        raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; a covariance has an eigenvalue of "
+                                    f"{vals[:, 0].min():.3g} relative to its variances.")
     rank = vals > SINGULAR * n * np.finfo(np.float64).eps * vals.max(axis=-1, initial=0.0)[:, None]
     w = np.einsum("kij,ki->kj", vecs, np.where(known, 0.0, e / unit))
     return np.sum(np.where(rank, w * w / np.where(rank, vals, 1.0), 0.0), axis=-1), rank.sum(axis=-1)
@@ -340,7 +365,8 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
     -------
     list of (series, first, last, rejected, offered)
         The flagged step ranges (0-based, inclusive; overlapping windows
-        merged), with the counts over them.
+        merged), with the counts over them: each flagged window holds at
+        least half, a merged range may hold less (26 of 75).
 
     Notes
     -----
@@ -359,8 +385,14 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
     separates a filter that has lost the data from one that coasts.
     """
     window, false_alarm = _test_settings(window, false_alarm)
-    r = np.atleast_2d(np.asarray(rejected).astype(np.int64))
-    o = np.atleast_2d(np.asarray(offered).astype(np.int64))
+    if isinstance(probability, (bool, np.bool_)) or not isinstance(probability, (int, float, np.integer, np.floating)) \
+            or not 0.0 < probability < 1.0:
+        raise ValueError(f"`probability` must be the gate's, in (0, 1); got {probability!r}.")
+    r, o = np.asarray(rejected), np.asarray(offered)
+    if r.dtype.kind not in "biuf" or o.dtype.kind not in "biuf" or r.shape != o.shape or r.ndim not in (1, 2) or (r != np.round(r)).any() or (r < 0).any() or (r > o).any():
+        raise ValueError(f"`rejected` and `offered` must be counts of one shape, (T,) or (N, T), with rejected <= "
+                         f"offered; got shapes {r.shape} and {o.shape}.")
+    r, o = np.atleast_2d(r.astype(np.int64)), np.atleast_2d(o.astype(np.int64))
     T = r.shape[-1]
     if T == 0 or not r.any():
         return []
@@ -649,7 +681,8 @@ class DivergenceMonitor:
             found = self._rejections.add(lost, offered, gate.probability, step)
             if found is not None:
                 first, last, K, N = found
-                messages.append(gate_lost([f"{K} of {N} over {where.format(first, last)}"], gate.by, gate.probability))
+                messages.append(gate_lost([f"{K} of {N} over {where.format(first, last)}"], gate.by, gate.probability,
+                                          window=self.window))
         if not messages:
             return
         message = " ".join(messages)

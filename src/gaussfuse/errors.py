@@ -72,11 +72,13 @@ def diverging(where: list[str], false_alarm: float, more: int = 0) -> str:
             "another method; check='off' turns this test off.")
 
 
-def gate_lost(where: list[str], by: str, probability: float, more: int = 0) -> str:
-    """The DivergenceWarning's sentence on a gate that rejected at least half (`where`: "K of N over ...", per range)."""
+def gate_lost(where: list[str], by: str, probability: float, more: int = 0, window: int = 50) -> str:
+    """The DivergenceWarning's sentence on a gate that rejected at least half of each flagged `window` of steps
+    (`where`: "K of N over ...", per range of merged windows, which may hold less than half)."""
     extra = f" (and {more} more ranges)" if more else ""
     kind = "measurements" if by == "measurement" else "components"
-    return (f"The gate rejected {'; '.join(where)}{extra} of the {kind} it was given, at least half, where against a "
+    return (f"The gate rejected {'; '.join(where)}{extra} of the {kind} it was given, at least half in each "
+            f"flagged window of {window} steps, where against a "
             f"consistent prediction it rejects {1 - probability:.2g} of them: the filter may have lost the data (its "
             "covariances no longer cover its errors, and the gate keeps them from showing); gate=None keeps every "
             "measurement.")

@@ -117,7 +117,9 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         (``FilterResult.nis``) of a window of 50 steps are too large for the
         filter's own covariances (a χ² test that a consistent filter fails
         with probability at most 1e-3 per call:
-        :func:`gaussfuse.diagnostics.divergence`), issue a
+        :func:`gaussfuse.diagnostics.divergence`; with a `gate`, also where
+        it rejected at least half of a window, which a gated filter of its
+        own model can do by itself: :class:`gaussfuse.kalman.Gate`), issue a
         :class:`gaussfuse.DivergenceWarning` naming the steps, raise it, or
         do nothing. Not made with ``keep="last"`` (no per-step values); with
         a ``"diffuse"`` prior, made from the step after the state is
