@@ -517,3 +517,17 @@ def test_rejections_checks_its_arguments(args, message):
     """A probability of 1.5 returned [] silently; mismatched lengths raised NumPy's window-shape error (audit Q)."""
     with pytest.raises(ValueError, match=message):
         dg.rejections(*args)
+
+
+def test_diagnostics_name_empty_vectors_and_the_argument_at_fault():
+    """nis and nees with m = 0 raised NumPy's reshape error; whiteness blamed `innovations` for a wrong
+    `innovation_covs`; lags = 3.0 was a ValueError for a wrong type (audit Q)."""
+    with pytest.raises(ValueError, match=r"^`innovations` must have shape \(\.\.\., m\), one vector of m >= 1"):
+        dg.nis(np.zeros((3, 0)), np.zeros((3, 0, 0)))
+    with pytest.raises(ValueError, match=r"^`errors` must have shape \(\.\.\., m\), one vector of m >= 1"):
+        dg.nees(np.zeros((3, 0)), np.zeros((3, 0, 0)))
+    v = np.zeros((20, 2))
+    with pytest.raises(ValueError, match=r"^`innovation_covs` must have shape \(20, 2, 2\) to match `innovations`"):
+        dg.whiteness(v, np.tile(np.eye(3), (20, 1, 1)))
+    with pytest.raises(TypeError, match=r"^`lags` must be an integer"):
+        dg.whiteness(np.random.default_rng(0).normal(size=(20, 2)), np.tile(np.eye(2), (20, 1, 1)), lags=3.0)

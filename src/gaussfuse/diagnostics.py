@@ -52,8 +52,8 @@ def _vectors(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.nda
     """`errors` (..., m) and `covs` (..., m, m) as arrays, their shapes checked (arguments `name` and `cov_name`)."""
     e = as_array(name, errors, allow_nan=True)
     C = as_array(cov_name, covs, allow_nan=True)
-    if e.ndim < 1:
-        raise shape_error(name, "(..., m), one vector per step", e.shape)
+    if e.ndim < 1 or not e.shape[-1]:
+        raise shape_error(name, "(..., m), one vector of m >= 1 components per step", e.shape)
     if C.shape != e.shape + e.shape[-1:]:
         raise shape_error(cov_name, f"{e.shape + e.shape[-1:]} to match `{name}` {e.shape}", C.shape)
     d = np.sqrt(np.abs(np.diagonal(C, axis1=-2, axis2=-1)))
@@ -752,12 +752,16 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     confidence = _confidence(confidence)
     v = as_array("innovations", innovations, allow_nan=True)
     S = as_array("innovation_covs", innovation_covs)
-    if v.ndim != 2 or S.shape != v.shape + v.shape[-1:]:
-        raise shape_error("innovations", "(T, m) with `innovation_covs` (T, m, m)", v.shape)
+    if v.ndim != 2 or not v.shape[1]:
+        raise shape_error("innovations", "(T, m), m >= 1", v.shape)
+    if S.shape != v.shape + v.shape[-1:]:
+        raise shape_error("innovation_covs", f"{v.shape + v.shape[-1:]} to match `innovations` {v.shape}", S.shape)
     keep = ~np.isnan(v).any(axis=1)
     w = whiten(cholesky(S[keep], "the innovation covariance"), v[keep][..., None])[..., 0]  # (T', m) whitened
     T, m = w.shape
-    if not isinstance(lags, (int, np.integer)) or not 1 <= lags < T:
+    if isinstance(lags, (bool, np.bool_)) or not isinstance(lags, (int, np.integer)):
+        raise TypeError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")
+    if not 1 <= lags < T:
         raise ValueError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")
     w = w - w.mean(axis=0)
     denom = np.sum(w * w, axis=0)
