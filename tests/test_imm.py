@@ -267,6 +267,9 @@ _NL = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0, state_angl
      "in `models[1]`: `us` was given but the model has no control input; give the model `B`."),
     (dict(models=[gf.LinearModel(_CV.F, _CV.H, _CV.Q, _CV.R, B=[[0.5], [1.0]])] * 2, us=[[0.0], [np.nan]]),
      ValueError, "`us` must be finite; got a non-finite (NaN or inf) value at index (1, 0)."),
+    (dict(models=[gf.LinearModel(_CV.F, _CV.H, _CV.Q, _CV.R, B=[[0.5, 0.0], [1.0, 0.0]]),
+                  gf.LinearModel(_CV.F, _CV.H, _CV.Q, _CV.R, B=[[0.5], [1.0]])], us=np.zeros((2, 2))), ValueError,
+     "in `models[1]`: `us` must have shape (T, p) = (2, 1)"),
     (dict(zs=[[1.0], [2.0, 3.0]]), TypeError, "`zs` must be a rectangular array of real numbers; got rows of "
                                               "different lengths"),
     (dict(zs=np.ones((0, 1))), ValueError, "`zs` must have shape (T, 1) or (T,) (one series), with T >= 1; "

@@ -426,18 +426,12 @@ def test_cov_factor_takes_every_rank_deficient_covariance_a_model_accepts():
         assert np.array_equal(L, np.tril(L)) and np.all(np.abs(L @ L.T - Q) <= 1e-13 * np.outer(d, d)), (n, rank)
 
 
-def test_cov_factor_takes_a_variance_of_round_off_beside_a_large_one_as_check_psd_does():
-    """diag(1e12, 1, -1e-3): the -1e-3 is within 8 n eps of the largest entry, a zero variance computed with
-    round-off, and a Gaussian accepts it; the square-root form refused that prior while the covariance form ran
-    (audit R4). Its factor has a zero row; a negative variance on its own scale is still refused."""
-    prior = gf.Gaussian(np.zeros(3), np.diag([1e12, 1.0, -1e-3]))
-    L = kalman.cov_factor(prior.cov)
-    np.testing.assert_array_equal(L, np.diag([1e6, 1.0, 0.0]))
-    model = gf.LinearModel(np.eye(3), [1.0, 0.0, 0.0], np.eye(3), 1.0)
-    np.testing.assert_allclose(gf.filter(model, prior, [1.0, 2.0], form="sqrt").means,
-                               gf.filter(model, prior, [1.0, 2.0]).means, rtol=1e-12, atol=1e-12)
-    with pytest.raises(np.linalg.LinAlgError, match="not positive semi-definite"):
-        kalman.cov_factor(np.diag([1.0, -1e-3]))
+def test_cov_factor_refuses_a_block_that_is_indefinite_beside_a_large_variance():
+    """[[1e12, 0, 0], [0, 1, c], [0, c, -1e-3]] (smallest eigenvalue -0.62 for c = 1): judging the -1e-3 on the
+    1e12 scale accepted a factor whose L Lᵀ gives that component a variance of c² (audit R5)."""
+    for c in (1.0, 10.0, 30.0):
+        with pytest.raises(np.linalg.LinAlgError):
+            kalman.cov_factor(np.array([[1e12, 0.0, 0.0], [0.0, 1.0, c], [0.0, c, -1e-3]]))
 
 
 def test_cov_factor_keeps_valid_singular_and_graded_covariances():

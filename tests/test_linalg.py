@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 import _oracle
+import gaussfuse as gf
 from gaussfuse import _linalg
 
 
@@ -271,22 +272,40 @@ def test_pivot_order_is_column_pivoting_and_in_pivot_order_says_when_rows_alread
 
 
 def test_clip_variances_zeroes_round_off_below_zero_only_matrix_by_matrix():
-    """A variance below 0 whose row is all round-off on its components' own scales is 0 with its row and column;
-    one further below, or with a covariance that is not round-off, is kept (an indefinite result the checks must
-    see: judged on the largest variance, -2e-3 beside 1e12 and [[1, .5], [.5, -1e-17]] were made to look PSD,
-    audit R4); a stack is clipped matrix by matrix (the smoother's step back to the prior's time takes all
-    series at once: the diagonal was read along the wrong axes)."""
+    """A variance below 0 whose row is all within the round-off of the terms it was computed from (their sizes t)
+    is 0 with its row and column; one further below, or with a covariance that is not round-off, is kept (an
+    indefinite result the checks must see: judged on the largest variance, -2e-3 beside 1e12 and
+    [[1, .5], [.5, -1e-17]] were made to look PSD, audit R4); a stack is clipped matrix by matrix (the smoother's
+    step back to the prior's time takes all series at once: the diagonal was read along the wrong axes)."""
     from gaussfuse._linalg import clip_variances
 
-    given = np.eye(2)
+    sizes = lambda: np.ones(2)  # noqa: E731
     covs = np.array([[[1.0, 1e-17], [1e-17, -1e-17]], [[-1e-17, 1e-18], [1e-18, 2.0]], [[1.0, 0.0], [0.0, -0.5]],
                      [[1.0, 0.5], [0.5, -1e-17]]])
     want = np.array([[[1.0, 0.0], [0.0, 0.0]], [[0.0, 0.0], [0.0, 2.0]], [[1.0, 0.0], [0.0, -0.5]],
                      [[1.0, 0.5], [0.5, -1e-17]]])
-    np.testing.assert_array_equal(clip_variances(covs, given), want)
+    np.testing.assert_array_equal(clip_variances(covs, sizes), want)
     for cov, expected in zip(covs, want):
-        np.testing.assert_array_equal(clip_variances(cov, given), expected)
+        np.testing.assert_array_equal(clip_variances(cov, sizes), expected)
     indefinite = np.diag([1e12, 1.0, -1e-3])
-    assert clip_variances(indefinite, np.diag([1e12, 1.0, 1.0])) is indefinite  # nothing of round-off: the same array
+    assert clip_variances(indefinite, lambda: np.array([1e12, 1.0, 1.0])) is indefinite  # the same array
+    assert clip_variances(indefinite, lambda: np.array([1e12, 1.0, 1e12]))[2, 2] == 0.0  # its terms were 1e12
     with_nan = np.array([[np.nan, 0.0], [0.0, -1e-17]])
-    assert clip_variances(with_nan, given) is with_nan  # an overflow upstream is not hidden
+    assert clip_variances(with_nan, sizes) is with_nan  # an overflow upstream is not hidden
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("dt, scale, T", [(0.1, 1.0, 30), (0.37, 1e12, 25)])
+def test_smoothed_variances_of_round_off_stay_zero_through_large_gains(engine, dt, scale, T):
+    """Constant acceleration, position measured exactly (R = diag(0, 0.5)) (audit R5): judged on the filtered
+    covariance, a smoothed variance of -1e-18 was kept and the smoother's gains (about 14) magnified it step by
+    step, to -3.5e-5 at step 0 on the compiled engine with a unit prior (exactly 1.44e-6 and 1.72e-3 there), and
+    to -4.4e-4 on the readable one with a prior of 1e12. Judged on the size of the terms each entry is computed
+    from, no smoothed variance is negative and the first beliefs are valid Gaussians."""
+    F = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    model = gf.LinearModel(F, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], gf.piecewise_white_noise(2, dt, 0.3),
+                           np.diag([0.0, 0.5]))
+    sm = gf.smooth(model, gf.Gaussian(np.zeros(3), scale * np.eye(3)), np.zeros((T, 2)), engine=engine, check="off")
+    assert (np.diagonal(sm.covs, axis1=1, axis2=2) >= 0.0).all()
+    for P in sm.covs[:2]:
+        gf.Gaussian(np.zeros(3), P)  # refused where indefinite

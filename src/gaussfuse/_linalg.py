@@ -48,30 +48,39 @@ def symmetrize(cov: np.ndarray) -> np.ndarray:
     return half + half.swapaxes(-1, -2)
 
 
-def clip_variances(cov: np.ndarray, given: np.ndarray) -> np.ndarray:
-    """`cov` (..., n, n), computed from the covariance `given` (..., n, n) by the Joseph form or the RTS step,
-    with the row and column of each variance that is zero to round-off, but below 0, set to 0.
+def clip_variances(cov: np.ndarray, magnitude) -> np.ndarray:
+    """`cov` (..., n, n) with the row and column of each variance that is zero to round-off, but below 0, set to 0.
 
-    Those give variances of at least 0 in exact arithmetic, and a component
-    of zero variance has zero covariances. A row j whose entries are all
-    within ``16 n ε √(s_i s_j)`` of 0 (:math:`s_i` the larger of
-    ``given[i, i]`` and ``|cov[i, i]|``: each component judged on its own
-    scale), with ``cov[j, j] < 0``, is that round-off (a state measured
-    exactly through a singular R came out at -2e-17): left negative, the
+    `cov` is a sum of congruences, ``A X Aᵀ + Y`` (the prediction, both
+    terms of the Joseph form, the RTS step), which gives variances of at
+    least 0 in exact arithmetic; ``magnitude()`` gives the diagonal t
+    (..., n) of the same sum of the terms' absolute values,
+    ``|A| |X| |A|ᵀ + |Y|``, on which each entry's round-off is at most about
+    ``n ε √(t_i t_j)``. A row j whose entries are all within
+    ``16 n ε √(t_i t_j)`` of 0, with ``cov[j, j] < 0``, is a zero variance
+    (a state measured exactly through a singular R came out at -2e-17, and
+    a smoother's gains of 14 magnified such a -1e-18 step by step), and a
+    component of zero variance has zero covariances; left negative, the
     result was refused as a prior, by ``forecast`` and by
-    ``sample_posterior``. Anything larger (a variance of -2e-3 of a
-    unit-scale component beside one of 1e12, an indefinite result of a
-    sigma-point rule's negative weight) is kept, for the checks that name it.
+    ``sample_posterior``. A variance further below 0 than its own terms'
+    round-off (a sigma-point rule's negative weight) is kept, for the checks
+    that name it. `magnitude` is called only where a variance is negative.
     """
     d = np.diagonal(cov, axis1=-2, axis2=-1)
     if (d >= 0.0).all() or not np.isfinite(cov).all():  # an overflow is not hidden
         return cov
-    root = np.sqrt(np.maximum(np.diagonal(given, axis1=-2, axis2=-1), np.abs(d)))
+    root = np.sqrt(magnitude())
     quiet = (np.abs(cov) <= 16 * d.shape[-1] * _EPS * root[..., :, None] * root[..., None, :]).all(axis=-1)
     keep = ~((d < 0.0) & quiet)
     if keep.all():
         return cov
     return np.where(keep[..., :, None] & keep[..., None, :], cov, 0.0)
+
+
+def abs_congruence_diagonal(A: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """The diagonal of ``|A| |X| |A|ᵀ`` (stacks broadcast): the size of the terms of ``A X Aᵀ`` (:func:`clip_variances`)."""
+    A = np.abs(A)
+    return np.einsum("...ij,...jk,...ik->...i", A, np.abs(X), A)
 
 
 PSD_RTOL = 1e-9

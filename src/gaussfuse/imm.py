@@ -317,8 +317,7 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
         try:
             controls = check_controls(us, model, 1, T)
         except ValueError as exc:
-            p = getattr(model, "p", None)
-            if (p == 0) == (us is None):  # not whether this model takes controls: the controls themselves
+            if "must be finite" in str(exc):  # the controls' values, not how this model takes them
                 raise
             raise ValueError(f"in `models[{j}]`: {exc}") from exc
         if isinstance(model, LinearModel) and (any_nonlinear or method not in (None, "kf")):

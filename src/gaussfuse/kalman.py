@@ -12,9 +12,9 @@ extended and sigma-point filters the linearisation supplies them (and adds its
 own error covariance to :math:`Q` and :math:`R`).
 
 The functions here are pure: arrays in, arrays out. Covariances are kept
-symmetric (a posterior or smoothed variance that is zero to round-off but
-below 0 is 0, with its row and column: :func:`gaussfuse._linalg.clip_variances`),
-the update uses the Joseph form,
+symmetric (a variance that is zero to the round-off of the terms it was
+computed from, but below 0, is 0 with its row and column:
+:func:`gaussfuse._linalg.clip_variances`), the update uses the Joseph form,
 and every matrix "inverse" is a Cholesky solve.
 
 They are the filters' inner loop, and take their arguments as the front
@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (PSD_RTOL, cho_solve, cholesky, clip_variances, correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
+from ._linalg import (PSD_RTOL, abs_congruence_diagonal, cho_solve, cholesky, clip_variances, correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
                       pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions, whiten,
                       with_slopes, wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
@@ -120,7 +120,8 @@ def predict(
 
         m^- = A m + b, \qquad P^- = A P A^\top + Q.
     """
-    return predict_mean(mean, A, b), symmetrize(A @ cov @ A.T + Q)
+    return predict_mean(mean, A, b), clip_variances(
+        symmetrize(A @ cov @ A.T + Q), lambda: abs_congruence_diagonal(A, cov) + np.abs(np.diagonal(Q)))
 
 
 def predict_mean(mean: np.ndarray, A: np.ndarray, b: np.ndarray | None = None) -> np.ndarray:
@@ -327,7 +328,8 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     elif observed is not None:
         K = K[:, observed]
     I_KH = eye(cov.shape[0]) - K @ H_o
-    post_cov = clip_variances(symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T), cov)
+    post_cov = clip_variances(symmetrize(I_KH @ cov @ I_KH.T + K @ R_o @ K.T),
+                              lambda: abs_congruence_diagonal(I_KH, cov) + abs_congruence_diagonal(K, R_o))
     return Gain(K, post_cov, S_full, L, log_det(L), observed)
 
 
@@ -445,7 +447,8 @@ def rts_step(
     gain = psd_solve(pred_cov, cross_cov.T).T
     diff = wrap_components(next_mean - pred_mean, angles)
     mean = filt_mean + (gain @ diff if diff.ndim == 1 else diff @ gain.T)
-    cov = clip_variances(symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T), filt_cov)
+    cov = clip_variances(symmetrize(filt_cov + gain @ (next_cov - pred_cov) @ gain.T), lambda: np.abs(
+        np.diagonal(filt_cov)) + abs_congruence_diagonal(gain, np.abs(next_cov) + np.abs(pred_cov)))
     return mean, cov, gain
 
 
@@ -721,14 +724,8 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
 
 
 def _residual(L: np.ndarray, cov: np.ndarray) -> float:
-    """The largest ``|L Lᵀ - cov|`` on each entry's components' scale, ``√(c_ii c_jj)`` (inf off a zero one).
-
-    A variance within ``8 n ε`` of the largest entry is on that entry's scale, as :func:`gaussfuse._validation.check_psd`
-    judges it (-1e-3 beside 1e12 is a zero variance computed with round-off).
-    """
-    top = np.max(np.abs(cov), initial=0.0)
-    variances = np.abs(np.diagonal(cov))
-    d = np.sqrt(np.where(variances > 8 * cov.shape[0] * np.finfo(float).eps * top, variances, top))
+    """The largest ``|L Lᵀ - cov|`` on each entry's components' scale, ``√(c_ii c_jj)`` (inf off a zero one)."""
+    d = np.sqrt(np.abs(np.diagonal(cov)))
     scale = np.outer(d, d)
     error = np.abs(L @ L.T - cov)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -316,7 +316,8 @@ def test_a_tiny_intensity_over_a_huge_step_is_not_an_overflow():
         gf.ConstantVelocity(q=1.0).transition(1e200)
 
 
-@pytest.mark.parametrize("order, dt, q", [(100, 20.0, 1.0), (170, 10.0, 1.0), (99, 1.0, 1.0), (2, 1e-66, 1e60)])
+@pytest.mark.parametrize("order, dt, q", [(100, 20.0, 1.0), (170, 10.0, 1.0), (99, 1.0, 1.0), (2, 1e-66, 1e60),
+                                         (1, 2.5e-108, 1e300), (50, 1e-5, 1e100)])
 def test_white_noise_chains_keep_entries_whose_factors_overflow_or_underflow(order, dt, q):
     """Order 100 gave Q = 0 for 1.8e-57: (K - i)! (K - j)! overflowed (past order 98, though orders to 170 are
     accepted); dt^5 = 1e-330 underflowed before q = 1e60 scaled it (audit S). Against exact rationals."""
@@ -330,13 +331,16 @@ def test_white_noise_chains_keep_entries_whose_factors_overflow_or_underflow(ord
 
 
 def test_piecewise_noise_keeps_entries_whose_g_g_t_underflows():
-    """g gᵀ = (dt³/6)² underflowed before var = 1e100 scaled it: 0 for 2.8e-262 (audit S)."""
+    """g gᵀ = (dt³/6)² underflowed before var = 1e100 scaled it: 0 for 2.8e-262 (audit S); g itself underflowed
+    (dt = 1e-100), or overflowed before a tiny var scaled it (dt = 1e100, var = 1e-300: a "step too long" for an
+    exact 2.5e99), audit R5."""
     from fractions import Fraction
 
-    Q = piecewise_white_noise(2, 1e-60, 1e100)
-    g = [Fraction(1e-60) ** 3 / 6, Fraction(1e-60) ** 2 / 2, Fraction(1e-60)]
-    for i in range(3):
-        for j in range(3):
-            exact = float(Fraction(1e100) * g[i] * g[j])
-            assert Q[i, j] == pytest.approx(exact, rel=1e-14) if exact > 0.0 else Q[i, j] == 0.0, (i, j)
+    for K, dt, var in ((2, 1e-60, 1e100), (3, 1e-100, 1e200), (1, 1e100, 1e-300), (3, 1e50, 1e-100)):
+        Q = piecewise_white_noise(K, dt, var)
+        g = [Fraction(dt) ** (K + 1 - i) / factorial(K + 1 - i) for i in range(K + 1)]
+        for i in range(K + 1):
+            for j in range(K + 1):
+                exact = float(Fraction(var) * g[i] * g[j])
+                assert Q[i, j] == pytest.approx(exact, rel=1e-12, abs=1e-320), (K, dt, var, i, j)
     assert np.array_equal(piecewise_white_noise(1, 2.0, 0.5), [[2.0, 2.0], [2.0, 2.0]])  # exact where nothing underflows

@@ -12,7 +12,7 @@ components needs no view):
 ``cholesky(S, L, p) -> bool``               ``L[:p, :p]``: the lower Cholesky factor of ``S[:p, :p]``
 ``roundoff_pivot(L, S, p) -> bool``         whether that factor has a pivot of round-off
 ``cho_solve(L, X, p, r)``                   ``X[:p, :r] = (L Lᵀ)⁻¹ X``, two triangular solves
-``clip_variances(P, X, n)``                 the row and column of a zero variance computed below 0 set to 0
+``clip_variances(P, t, n)``                 the row and column of a zero variance computed below 0 set to 0
 ==========================================  ==========================================
 
 Every covariance the filters form is a :func:`congruence`: the prediction
@@ -115,26 +115,45 @@ def congruence(B, P, Y, out, BP, k, n):
 
 
 @register_jitable(**_JIT)
-def clip_variances(P, X, n):
-    """_linalg.clip_variances: in ``P[:n, :n]``, computed from the covariance ``X[:n, :n]``, the row and column
-    of each variance that is zero to round-off, but below 0, set to 0 (unless P holds inf or NaN, an overflow to
-    report). Rows are judged one by one; a row set to 0 was within the bound of the rows after it."""
+def negative_variance(P, n):
+    """Whether ``P[:n, :n]`` has a variance below 0 and no inf or NaN (an overflow to report, not to clip)."""
     negative = False
     for j in range(n):
         negative = negative or P[j, j] < 0.0
     if not negative:
-        return
+        return False
     for j in range(n):
         for c in range(n):
             if not math.isfinite(P[j, c]):
-                return
+                return False
+    return True
+
+
+@register_jitable(**_JIT)
+def abs_congruence_diagonal(A, X, t, n, k, add):
+    """``t[:n] (+)= diag(|A[:n, :k]| |X[:k, :k]| |A[:n, :k]|ᵀ)``: the size of the terms of ``A X Aᵀ``."""
+    for j in range(n):
+        total = 0.0
+        for a in range(k):
+            if A[j, a] != 0.0:
+                row = 0.0
+                for b in range(k):
+                    row += abs(X[a, b]) * abs(A[j, b])
+                total += abs(A[j, a]) * row
+        t[j] = t[j] + total if add else total
+
+
+@register_jitable(**_JIT)
+def clip_variances(P, t, n):
+    """_linalg.clip_variances, given the terms' sizes ``t[:n]`` (:func:`abs_congruence_diagonal`): the row and
+    column of each variance below 0 whose row is all within ``16 n ε √(t_i t_j)`` of 0 set to 0. Rows are judged
+    one by one; a row set to 0 was within the bound of the rows after it."""
     tol = 16.0 * n * _EPS
     for j in range(n):
         if P[j, j] < 0.0:
-            sj = max(X[j, j], -P[j, j])
             quiet = True
             for c in range(n):
-                if abs(P[j, c]) > tol * math.sqrt(sj * max(X[c, c], abs(P[c, c]))):
+                if abs(P[j, c]) > tol * math.sqrt(t[j] * t[c]):
                     quiet = False
             if quiet:
                 for c in range(n):

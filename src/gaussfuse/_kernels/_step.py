@@ -39,7 +39,8 @@ from ..errors import ReadablePath, not_finite as not_finite_message
 from ..inference.results import FilterResult
 from ..kalman import _S_NAME, _S_WHY
 from ._jit import jit
-from ._dense import cho_solve, cholesky, clip_variances, congruence, matmul, roundoff_pivot
+from ._dense import (abs_congruence_diagonal, cho_solve, cholesky, clip_variances, congruence, matmul,
+                     negative_variance, roundoff_pivot)
 
 __all__ = ["Work", "workspace", "SqrtWork", "sqrt_workspace", "tria", "predict_sqrt", "update_sqrt", "square",
            "SqrtBack", "sqrt_back_workspace", "joint_factor", "rts_back", "downdate", "times_factor",
@@ -140,6 +141,11 @@ def predict(w, mean, cov, A, Q, b, pred_mean, pred_cov):
     n = mean.shape[0]
     predict_mean(mean, A, b, pred_mean)
     congruence(A, cov, Q, pred_cov, w.A1, n, n)      # A P in w.A1 (the smoother gain's Cᵀ)
+    if negative_variance(pred_cov, n):  # round-off of a zero variance, on the terms' scale |A| |P| |A|ᵀ + |Q|
+        abs_congruence_diagonal(A, cov, w.diff, n, n, False)
+        for j in range(n):
+            w.diff[j] += abs(Q[j, j])
+        clip_variances(pred_cov, w.diff, n)
 
 
 @jit(inline="always", **_JIT)
@@ -214,7 +220,10 @@ def update(w, mean, cov, z, H, R, d, angles, post_mean, post_cov, innovation, S_
             w.A1[i, j] = (1.0 if i == j else 0.0) - w.A1[i, j]
     congruence(w.K, w.R_o, None, w.A3, w.KR, n, mo)  # K R_oo Kᵀ
     congruence(w.A1, cov, w.A3, post_cov, w.A2, n, n)  # (I - K H_o) P⁻ (I - K H_o)ᵀ + K R_oo Kᵀ
-    clip_variances(post_cov, cov, n)
+    if negative_variance(post_cov, n):  # on the scale |I - K H| |P⁻| |I - K H|ᵀ + |K| |R| |K|ᵀ
+        abs_congruence_diagonal(w.A1, cov, w.diff, n, n, False)
+        abs_congruence_diagonal(w.K, w.R_o, w.diff, n, mo, True)
+        clip_variances(post_cov, w.diff, n)
     return True, log_density(w.L, w.v, w.white, mo), mo
 
 
@@ -882,7 +891,14 @@ def rts_step(w, filt_mean, filt_cov, pred_mean, pred_cov, next_mean, next_cov, g
         for j in range(n):
             w.A1[i, j] = next_cov[i, j] - pred_cov[i, j]
     congruence(gain, w.A1, filt_cov, cov, w.A2, n, n)  # sym(P + G (P^s - P⁻) Gᵀ)
-    clip_variances(cov, filt_cov, n)
+    if negative_variance(cov, n):  # on the scale |P| + |G| (|P^s| + |P⁻|) |G|ᵀ
+        for i in range(n):
+            for j in range(n):
+                w.A1[i, j] = abs(next_cov[i, j]) + abs(pred_cov[i, j])
+        abs_congruence_diagonal(gain, w.A1, w.diff, n, n, False)
+        for j in range(n):
+            w.diff[j] += abs(filt_cov[j, j])
+        clip_variances(cov, w.diff, n)
 
 
 @jit(inline="always", **_JIT)

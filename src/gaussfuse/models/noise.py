@@ -223,8 +223,10 @@ def white_noise_chains(K: int, dts: np.ndarray, q: float) -> np.ndarray:
     power = 2 * K + 1 - i - j
     dts = dts[:, None, None]
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        Q = q * (dts**power / power / fact[K - i] / fact[K - j])  # (q dt^p first could overflow where Q does not)
-        lost = ~np.isfinite(Q) | (Q == 0.0)
+        base = dts**power / (power * fact[K - i] * fact[K - j])
+        Q = q * base  # (q dt^p first could overflow where Q does not)
+        tiny = np.finfo(np.float64).tiny
+        lost = ~np.isfinite(Q) | (base < tiny) | (Q < tiny)  # (subnormal: digits lost)
         if q > 0.0 and lost.any():  # dt^p overflowed or underflowed where q dt^p need not (q = 1e-300, dt = 1e110;
             # q = 1e60, dt = 1e-66), or the two factorials' product did (order 100)
             logs = np.log(q) + power * np.log(dts) - np.log(power) - _log_factorial[K - i] - _log_factorial[K - j]
@@ -232,7 +234,15 @@ def white_noise_chains(K: int, dts: np.ndarray, q: float) -> np.ndarray:
     return Q
 
 
-_log_factorial = np.array([lgamma(k + 1.0) for k in range(171)])
+def _power(x: float, k: int) -> float:
+    """``x ** k`` as Python computes it, inf where that overflows (Python raises)."""
+    try:
+        return x**k
+    except OverflowError:
+        return float("inf")
+
+
+_log_factorial = np.array([lgamma(k + 1.0) for k in range(172)])  # 0! .. 171!, in logarithms
 
 
 @finite_step("Q")
@@ -282,10 +292,15 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
     K = _order(order)
     dt = real("dt", dt, positive=True)
     var = real("var", var, nonnegative=True)
-    g = np.array([dt ** (K + 1 - i) / factorial(K + 1 - i) for i in range(K + 1)])
-    with np.errstate(under="ignore"):
-        Q = var * np.outer(g, g)
-    if var > 0.0 and (Q == 0.0).any():  # g gᵀ underflowed where var g gᵀ need not (dt = 1e-60, var = 1e100)
-        g = np.sqrt(var) * g
-        Q = np.where(Q == 0.0, np.outer(g, g), Q)
+    power = K + 1 - np.arange(K + 1)
+    g = np.array([_power(dt, int(k)) / factorial(int(k)) for k in power])
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        gg = np.outer(g, g)
+        Q = var * gg
+    tiny = np.finfo(np.float64).tiny
+    lost = ~np.isfinite(Q) | (gg < tiny) | (Q < tiny)
+    if var > 0.0 and lost.any():  # g or g gᵀ overflowed or underflowed where var g gᵀ need not (dt = 1e-60,
+        # var = 1e100; dt = 1e100, var = 1e-300): in logarithms
+        log_g = power * np.log(dt) - _log_factorial[power]
+        Q = np.where(lost, np.exp(np.log(var) + log_g[:, None] + log_g[None, :]), Q)
     return Q
