@@ -309,3 +309,23 @@ def test_smoothed_variances_of_round_off_stay_zero_through_large_gains(engine, d
     assert (np.diagonal(sm.covs, axis1=1, axis2=2) >= 0.0).all()
     for P in sm.covs[:2]:
         gf.Gaussian(np.zeros(3), P)  # refused where indefinite
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e-170, 1.0, 1e150, 1e160, 1e300])
+def test_the_compiled_clip_decides_as_the_readable_one_at_every_scale(scale):
+    """The compiled mirror took √(t_i t_j), which overflows past 1e154 and underflows below 1e-154: at 1e160 it
+    zeroed a variance of -3.5 s of a negative sigma-point weight (the smoother's check then saw nothing), and at
+    1e-170 it kept the round-off the readable path clips (audit R6)."""
+    from gaussfuse._kernels import _dense
+    from gaussfuse._linalg import clip_variances
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        G = rng.standard_normal((3, 2))
+        P = scale * (G @ G.T)
+        P[2, 2] = -scale * 10.0 ** rng.uniform(-18, 0)
+        P[2, :2] = P[:2, 2] = scale * 10.0 ** rng.uniform(-20, -14, size=2) * rng.choice([-1.0, 1.0], 2)
+        t = scale * np.abs(G) ** 2 @ np.ones(2) + scale
+        compiled = P.copy()
+        _dense.clip_variances(compiled, t, 3)
+        np.testing.assert_array_equal(compiled, clip_variances(P, lambda: t))

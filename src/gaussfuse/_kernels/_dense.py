@@ -153,7 +153,7 @@ def clip_variances(P, t, n):
         if P[j, j] < 0.0:
             quiet = True
             for c in range(n):
-                if abs(P[j, c]) > tol * math.sqrt(t[j] * t[c]):
+                if abs(P[j, c]) > tol * math.sqrt(t[j]) * math.sqrt(t[c]):  # (t_j t_c overflows past 1e154)
                     quiet = False
             if quiet:
                 for c in range(n):
