@@ -12,6 +12,9 @@ components needs no view):
 ``cholesky(S, L, p) -> bool``               ``L[:p, :p]``: the lower Cholesky factor of ``S[:p, :p]``
 ``roundoff_pivot(L, S, p) -> bool``         whether that factor has a pivot of round-off
 ``cho_solve(L, X, p, r)``                   ``X[:p, :r] = (L Lᵀ)⁻¹ X``, two triangular solves
+``negative_variance(P, n) -> bool``         whether ``P`` has a variance below 0 (and no inf or NaN)
+``abs_congruence_diagonal(A, X, t, ...)``   ``t = diag(|A| |X| |A|ᵀ)`` (or added to t): the size of the terms
+                                            of a congruence, on which its round-off is judged
 ``clip_variances(P, t, n)``                 the row and column of a zero variance computed below 0 set to 0
 ==========================================  ==========================================
 
