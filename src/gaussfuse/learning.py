@@ -1618,8 +1618,10 @@ def fit(
         noise-free component), with its row and column ("scalar" has one
         variance for every component, so it keeps 0 only when all start
         there). EM keeps the rows of F and B of a noise-free state (a zero
-        variance of Q) at their start, as its M-step has no noise there to
-        weigh them by: learn those rows with ``method="mle"``.
+        variance of Q) at their start, to round-off (0.9999999999999993 for
+        1): its M-step has no noise there to weigh them by, and its
+        regression returns them because the smoothed moments obey that row
+        exactly. Learn those rows with ``method="mle"``.
         A start outside its structure is first projected
         onto it (the mean of its variances for "scalar", its diagonal for
         "diagonal"), and the history starts from that model.
