@@ -297,6 +297,7 @@ def test_ctrl_c_returns_the_best_model_so_far(method):
     [
         (dict(learn=("Z",)), ValueError, r"`learn` must name distinct entries of \['F', 'H', 'Q', 'R', 'B', 'm0', 'P0'\]; got \['Z'\]"),
         (dict(learn=()), ValueError, r"`learn` must name distinct entries"),
+        (dict(learn={"Q": 1}), TypeError, r"`learn` must be a sequence of names .*, not a dict"),
         (dict(learn=("B",)), ValueError, r"`learn` includes 'B' but the model has no control input"),
         (dict(method="newton"), ValueError, r"`method` must be one of \['em', 'mle'\]; got 'newton'"),
         (dict(iterations=0), ValueError, r"`iterations` must be a positive integer; got 0"),

@@ -1518,6 +1518,8 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
 def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, dict]:
     if isinstance(learn, str):
         learn = (learn,)
+    if isinstance(learn, Mapping):  # its values would be dropped without a word (a start belongs in the model)
+        raise TypeError(f"`learn` must be a sequence of names from {list(LEARNABLE)}, not a dict; got {learn!r}.")
     try:
         learn = tuple(learn)
     except TypeError:
