@@ -444,27 +444,30 @@ class _StandardOutput:
     names standard output (``> /dev/full`` said "[Errno 28] No space left on device", naming nothing)."""
 
     def __init__(self, binary: bool) -> None:
-        try:
+        with _failing_output():
             sys.stdout.flush()  # what was written as text goes first
-        except BrokenPipeError:
-            raise
-        except OSError as exc:
-            raise _OutputFailed from exc
         buffer = getattr(sys.stdout, "buffer", None) if binary else None
         self._write = sys.stdout.write if buffer is None else buffer.write
         self._decode = binary and buffer is None  # a text stream taking bytes, such as a test's StringIO
 
     def write(self, data) -> None:
-        try:
+        with _failing_output():
             self._write(data.decode("utf-8") if self._decode else data)
-        except BrokenPipeError:
-            raise  # a closed pipe is not an error: exit status 141
-        except OSError as exc:
-            raise _OutputFailed from exc
 
 
 class _OutputFailed(Exception):
     """A write of the results to standard output failed, with the OSError as its cause."""
+
+
+@contextmanager
+def _failing_output():
+    """An OSError of standard output as :class:`_OutputFailed`; a closed pipe stays one (exit status 141)."""
+    try:
+        yield
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise _OutputFailed from exc
 
 
 def _header(names: list[str]) -> bytes:
@@ -1021,27 +1024,22 @@ def main(argv: list[str] | None = None) -> int:
             code = args.run(args)
         code = _flushed(code, "the results")  # a closed pipe or a full disk shows here, not at interpreter exit
         return 143 if code == 130 and terminated else code
-    except _OutputFailed as exc:
-        return _write_failed(exc.__cause__, "the results")
-    except BrokenPipeError as exc:
-        if exc.filename is not None:  # a FIFO given as an output, not standard output
-            print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
-            return 2
-        _silence()
-        return 141
-    except (ValueError, TypeError, OSError, FloatingPointError, DivergenceWarning) as exc:
-        # ValueError includes InputFileError and LinAlgError; FloatingPointError is an overflow at a step;
-        # a DivergenceWarning is raised with --check raise
-        if _interrupted(exc):
-            return _stopped(terminated)
-        print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         return _stopped(terminated)
     except Exception as exc:
-        if not _interrupted(exc):
+        if _interrupted(exc):  # (an interrupted C extension's import raises ImportError from it)
+            return _stopped(terminated)
+        if isinstance(exc, _OutputFailed):
+            return _write_failed(exc.__cause__, "the results")
+        if isinstance(exc, BrokenPipeError) and exc.filename is None:  # standard output, not a FIFO given as one
+            _silence()
+            return 141
+        if not isinstance(exc, (ValueError, TypeError, OSError, FloatingPointError, DivergenceWarning)):
             raise
-        return _stopped(terminated)
+        # ValueError includes InputFileError and LinAlgError; FloatingPointError is an overflow at a step;
+        # a DivergenceWarning is raised with --check raise
+        print(f"gaussfuse: error: {_message(exc)}", file=sys.stderr)
+        return 2
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous)

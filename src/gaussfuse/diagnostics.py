@@ -389,7 +389,9 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
             or not 0.0 < probability < 1.0:
         raise ValueError(f"`probability` must be the gate's, in (0, 1); got {probability!r}.")
     r, o = np.asarray(rejected), np.asarray(offered)
-    if r.dtype.kind not in "biuf" or o.dtype.kind not in "biuf" or r.shape != o.shape or r.ndim not in (1, 2) or (r != np.round(r)).any() or (r < 0).any() or (r > o).any():
+    numbers = r.dtype.kind in "biuf" and o.dtype.kind in "biuf"
+    if not numbers or r.shape != o.shape or r.ndim not in (1, 2) or (r != np.round(r)).any() or (r < 0).any() \
+            or (r > o).any():
         raise ValueError(f"`rejected` and `offered` must be counts of one shape, (T,) or (N, T), with rejected <= "
                          f"offered; got shapes {r.shape} and {o.shape}.")
     r, o = np.atleast_2d(r.astype(np.int64)), np.atleast_2d(o.astype(np.int64))
@@ -682,7 +684,7 @@ class DivergenceMonitor:
             if found is not None:
                 first, last, K, N = found
                 messages.append(gate_lost([f"{K} of {N} over {where.format(first, last)}"], gate.by, gate.probability,
-                                          window=self.window))
+                                          0, self.window))
         if not messages:
             return
         message = " ".join(messages)

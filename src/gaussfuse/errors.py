@@ -72,7 +72,7 @@ def diverging(where: list[str], false_alarm: float, more: int = 0) -> str:
             "another method; check='off' turns this test off.")
 
 
-def gate_lost(where: list[str], by: str, probability: float, more: int = 0, window: int = 50) -> str:
+def gate_lost(where: list[str], by: str, probability: float, more: int, window: int) -> str:
     """The DivergenceWarning's sentence on a gate that rejected at least half of each flagged `window` of steps
     (`where`: "K of N over ...", per range of merged windows, which may hold less than half)."""
     extra = f" (and {more} more ranges)" if more else ""

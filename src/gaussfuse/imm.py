@@ -25,7 +25,7 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._validation import as_array, shape_error
+from ._validation import as_array
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
 from .inference.registry import check_options, linearisation, resolve_method
@@ -310,15 +310,14 @@ class _Mode:
 def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[_Mode]:
     """Each model's mode: LinearModels exact ("kf"), NonlinearModels by `method`."""
     angles = _state_angles(models)
+    us = None if us is None else as_array("us", us)  # its values, once: a NaN is no model's error
     any_nonlinear = any(isinstance(model, NonlinearModel) for model in models)
     modes = []
     for j, model in enumerate(models):
         check_steps(model, T)
         try:
             controls = check_controls(us, model, 1, T)
-        except ValueError as exc:
-            if "must be finite" in str(exc):  # the controls' values, not how this model takes them
-                raise
+        except ValueError as exc:  # the values are checked: whether and how this model takes controls
             raise ValueError(f"in `models[{j}]`: {exc}") from exc
         if isinstance(model, LinearModel) and (any_nonlinear or method not in (None, "kf")):
             if method is not None:  # for the NonlinearModels (if any): checked, though a LinearModel is exact

@@ -33,9 +33,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (PSD_RTOL, abs_congruence_diagonal, cho_solve, cholesky, clip_variances, correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
-                      pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions, whiten,
-                      with_slopes, wrap_components, zero_pivots)
+from ._linalg import (PSD_RTOL, abs_congruence_diagonal, cho_solve, cholesky, clip_variances, correlation_root,
+                      downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near, pivot_order, psd_solve,
+                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions, whiten, with_slopes,
+                      wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -714,11 +715,12 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
         L, failure = None, f"{name} {exc.args[0].removeprefix('the covariance ')}"
     # L Lᵀ must give back cov, each entry to round-off of its components' scales: else cov was not
     # symmetric, or not PSD there
-    if L is not None and _residual(L, cov) <= 16 * cov.shape[0] * np.finfo(float).eps:
+    residual = np.inf if L is None else _residual(L, cov)
+    if residual <= 16 * cov.shape[0] * np.finfo(float).eps:
         return L
-    roots = [root for root in (L, correlation_root(cov)) if root is not None]
-    L = min(roots, key=lambda root: _residual(root, cov))
-    if _residual(L, cov) <= PSD_RTOL:  # PSD to what a Gaussian or a model accepts
+    root = correlation_root(cov)
+    residual, L = min((residual, L), (_residual(root, cov), root), key=lambda pair: pair[0])
+    if residual <= PSD_RTOL:  # PSD to what a Gaussian or a model accepts
         return L
     raise np.linalg.LinAlgError(failure)
 

@@ -550,8 +550,8 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
     innovation to test. `share` is this result's part of a call's
     false-alarm rate (a chunk's series among all of a call's).
     """
-    gated = gate is not None and getattr(result, "rejected", None) is not None and result.rejected.any()
-    false_alarm = diagnostics.DIVERGENCE_FALSE_ALARM * share / (2 if gated else 1)  # shared by the two tests
+    gating = gate is not None and getattr(result, "rejected", None) is not None and result.rejected.any()
+    false_alarm = diagnostics.DIVERGENCE_FALSE_ALARM * share / (2 if gating else 1)  # shared by the two tests
     if check == "off" or result.nis is None:
         return
     seen = ~np.isnan(result.innovations)
@@ -564,7 +564,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
     many = result.nis.shape[0] > 1
     where = [f"{average_text(avg)} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
              for s, a, b, avg in diagnostics.divergence(result.nis, dof, false_alarm=false_alarm)]
-    if gated:
+    if gating:
         lost, there = diagnostics.gate_counts(result.rejected, seen, gate.by)
         gated = [f"{k} of {n} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
                  for s, a, b, k, n in diagnostics.rejections(lost, there, gate.probability, false_alarm=false_alarm)]

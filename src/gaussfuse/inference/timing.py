@@ -168,6 +168,9 @@ def _without_nat(name: str, arr: np.ndarray) -> np.ndarray:
     return arr
 
 
+_KINDS = "numbers (seconds) or times (datetime64, datetime, a pandas DatetimeIndex)"
+
+
 def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     """`times` as a 1-D array: float seconds (and None), or int64 counts of a datetime64/timedelta64 unit and the counts per second.
 
@@ -179,8 +182,7 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
         For a shape other than 1-D, or non-finite values.
     """
     if isinstance(times, (str, bytes)):  # not a 0-d array of characters
-        raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
-                        f"DatetimeIndex), one per step; got {type(times).__name__} {times!r}.")
+        raise TypeError(f"`{name}` must be {_KINDS}, one per step; got {type(times).__name__} {times!r}.")
     arr = _array(times)
     if arr.ndim != 1:
         raise ValueError(f"`{name}` must be one-dimensional, one time per step; got shape {arr.shape}.")
@@ -193,14 +195,12 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
             if bad is None and arr.size:  # numbers and times mixed: the first that differs from the first
                 bad = next(i for i, v in enumerate(read) if (v is None) != (read[0] is None))
             got = "nothing" if bad is None else f"{type(arr[bad]).__name__} at `{name}[{bad}]`"
-            raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
-                            f"DatetimeIndex), all of one kind; got {got}.")
+            raise TypeError(f"`{name}` must be {_KINDS}, all of one kind; got {got}.")
         arr = _in_one_unit(name, read)
     if arr.dtype.kind in "Mm":
         return ticks(name, _without_nat(name, arr))
     if arr.dtype.kind not in "iuf" or arr.dtype.kind == "b":
-        raise TypeError(f"`{name}` must be numbers (seconds) or times (datetime64, datetime, a pandas "
-                        f"DatetimeIndex); got {arr.dtype} values.")
+        raise TypeError(f"`{name}` must be {_KINDS}; got {arr.dtype} values.")
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"`{name}` must be finite.")

@@ -223,14 +223,24 @@ def white_noise_chains(K: int, dts: np.ndarray, q: float) -> np.ndarray:
     power = 2 * K + 1 - i - j
     dts = dts[:, None, None]
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        base = dts**power / (power * fact[K - i] * fact[K - j])
-        Q = q * base  # (q dt^p first could overflow where Q does not)
-        tiny = np.finfo(np.float64).tiny
-        lost = ~np.isfinite(Q) | (base < tiny) | (Q < tiny)  # (subnormal: digits lost)
-        if q > 0.0 and lost.any():  # dt^p overflowed or underflowed where q dt^p need not (q = 1e-300, dt = 1e110;
-            # q = 1e60, dt = 1e-66), or the two factorials' product did (order 100)
-            logs = np.log(q) + power * np.log(dts) - np.log(power) - _log_factorial[K - i] - _log_factorial[K - j]
-            Q = np.where(lost, np.exp(logs), Q)
+        base = dts**power / (power * fact[K - i] * fact[K - j])  # (q dt^p first could overflow where Q does not)
+    return _scaled(q, base, lambda: power * np.log(dts) - np.log(power) - _log_factorial[K - i]
+                   - _log_factorial[K - j])
+
+
+def _scaled(scale: float, base: np.ndarray, log_base) -> np.ndarray:
+    """``scale * base``; where `base` or the product is not a normal float, ``exp(log scale + log_base())``.
+
+    `base` is a noise matrix for a unit intensity, whose factors can overflow or underflow (or go subnormal,
+    losing digits) where the scaled matrix need not: ``dt^p`` for q = 1e-300, dt = 1e110 or q = 1e60,
+    dt = 1e-66, the two factorials' product past order 98, g gᵀ for dt = 1e-60, var = 1e100.
+    """
+    tiny = np.finfo(np.float64).tiny
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):  # (an overflow is the caller's to name)
+        Q = scale * base
+        lost = ~np.isfinite(Q) | (base < tiny) | (Q < tiny)
+        if scale > 0.0 and lost.any():
+            Q = np.where(lost, np.exp(np.log(scale) + log_base()), Q)
     return Q
 
 
@@ -294,13 +304,7 @@ def piecewise_white_noise(order: int, dt: float, var: float) -> np.ndarray:
     var = real("var", var, nonnegative=True)
     power = K + 1 - np.arange(K + 1)
     g = np.array([_power(dt, int(k)) / factorial(int(k)) for k in power])
+    log_g = power * np.log(dt) - _log_factorial[power]
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        gg = np.outer(g, g)
-        Q = var * gg
-    tiny = np.finfo(np.float64).tiny
-    lost = ~np.isfinite(Q) | (gg < tiny) | (Q < tiny)
-    if var > 0.0 and lost.any():  # g or g gᵀ overflowed or underflowed where var g gᵀ need not (dt = 1e-60,
-        # var = 1e100; dt = 1e100, var = 1e-300): in logarithms
-        log_g = power * np.log(dt) - _log_factorial[power]
-        Q = np.where(lost, np.exp(np.log(var) + log_g[:, None] + log_g[None, :]), Q)
-    return Q
+        base = np.outer(g, g)
+    return _scaled(var, base, lambda: log_g[:, None] + log_g[None, :])
