@@ -434,6 +434,24 @@ def test_cov_factor_refuses_a_block_that_is_indefinite_beside_a_large_variance()
             kalman.cov_factor(np.array([[1e12, 0.0, 0.0], [0.0, 1.0, c], [0.0, c, -1e-3]]))
 
 
+def test_cov_factor_takes_a_variance_below_zero_that_a_gaussian_accepts_as_round_off():
+    """diag(1e12, 1, -1e-3): a Gaussian and a model accept the -1e-3 as a zero variance to the round-off of the
+    1e12, and simulate and the square-root filter then refused that prior or Q (LinAlgError: no factor)."""
+    P = np.diag([1e12, 1.0, -1e-3])
+    P[0, 2] = P[2, 0] = 1e-4  # a covariance as small as the variance beside it
+    prior, Q = gf.Gaussian(np.zeros(3), P), gf.LinearModel(F=np.eye(3), H=np.eye(3), Q=P, R=np.eye(3)).Q
+    for cov in (prior.cov, Q):
+        L = kalman.cov_factor(cov)
+        np.testing.assert_array_equal(L @ L.T, np.diag([1e12, 1.0, 0.0]))
+    model = gf.LinearModel(F=np.eye(3), H=np.eye(3), Q=Q, R=np.eye(3))
+    sim = gf.simulate(model, prior, 4, rng=0)
+    assert np.all(np.diff(np.asarray(sim.states)[:, 2]) == 0.0)  # a component of zero variance does not move
+    zs = np.ones((3, 3))
+    sqrt, cov = gf.filter(model, prior, zs, form="sqrt").means, gf.filter(model, prior, zs).means
+    np.testing.assert_allclose(sqrt[:, :2], cov[:, :2], rtol=1e-12)
+    assert np.all(sqrt[:, 2] == 0.0)  # the covariance form moves it by the -1e-3, a round-off of the 1e12's
+
+
 def test_cov_factor_keeps_valid_singular_and_graded_covariances():
     for cov in (np.diag([1e300, 1e-300, 0.0]), np.ones((2, 2)), np.zeros((3, 3))):
         L = kalman.cov_factor(cov)

@@ -694,7 +694,10 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
         :func:`gaussfuse._linalg.correlation_root`, to
         :data:`gaussfuse._linalg.PSD_RTOL` on those scales, as a Gaussian or
         a model accepts a covariance (a rank-2 Q accepted by ``LinearModel``
-        was refused here, in one case in 80).
+        was refused here, in one case in 80). A variance below 0 by no more
+        than the round-off of the largest entry, with a row as small, is
+        taken as 0 first, as a Gaussian or a model takes it
+        (``diag(1e12, 1, -1e-3)`` was accepted there and refused here).
 
     Raises
     ------
@@ -707,6 +710,8 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
     cov = np.asarray(cov, dtype=np.float64)
     if not np.isfinite(cov).all():
         raise np.linalg.LinAlgError(f"{name} is not finite (inf or NaN): a factor needs finite variances.")
+    # a variance below 0 within round-off of the largest entry, whose row is as small, is 0 (check_psd accepts it)
+    cov = clip_variances(cov, lambda: np.full(cov.shape[0], np.max(np.abs(cov))))
     try:
         L = sqrt_cov(cov)[0]
         failure = f"{name} is not symmetric positive semi-definite on the scale of its components: no factor L " \
