@@ -75,6 +75,13 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
         ("t,x\n1,\"2\n", r"data\.csv: line 2: unexpected end of data", 2),
         ("t,x\n1,\"2\"x\n", r"data\.csv: line 2: .*expected after", 2),
         ("t,x,x\n1,2,3\n", r"data\.csv: line 1: the header names column\(s\) \['x'\] more than once", 1),
+        # a trailing comma: a column '' always missing, taken as a measurement (m = 2)
+        ("t,x,\n1,2,\n", r"data\.csv: line 1: the header's column 3 has no name", 1),
+        # datetime read a fraction of the minute or the hour as one of the second: 12:00.5 as 12:00:00.5
+        ("t,x\n2026-05-01T12:00:00,1\n2026-05-01T12:00.5,2\n",
+         r"line 3: column `t`: '2026-05-01T12:00\.5' has a fraction of an hour or a minute", 3),
+        ('t,x\n"2026-05-01 12,25",1\n', r"line 2: column `t`: '2026-05-01 12,25' has a fraction of an hour", 2),
+        ("t,x\n20260501T1200.5,1\n", r"line 2: column `t`: '20260501T1200\.5' has a fraction of an hour", 2),
     ],
 )
 def test_read_measurements_errors(tmp_path, text, match, line):
@@ -95,11 +102,34 @@ def test_read_measurements_checks_the_number_of_columns(tmp_path):
         read_measurements(path, m=2)
 
 
-def test_read_measurements_not_utf8(tmp_path):
+@pytest.mark.parametrize("data, line, column", [
+    (b"t,x\n1,\xff\n", 2, 3),
+    (b"t,x\r1,2\r2,a\xe9b\r", 3, 4),  # lines that end in "\r" alone
+    (b"t,x\r\n1,2\r\n3,\xc3\xa9\xff\r\n", 3, 4),  # columns in characters: the \xc3\xa9 before is one
+    (b"t,x\n" + b"".join(b"%d,%d\n" % (k, k) for k in range(300_000)) + b"300000,\xe9\n", 300_002, 8),
+])
+def test_read_measurements_not_utf8_names_the_line_and_column(tmp_path, data, line, column):
+    """The file is decoded in blocks of 1 MiB: the error gave the decoder's position in its block (823859 for a
+    byte on line 300002), not the line."""
     path = tmp_path / "data.csv"
-    path.write_bytes(b"t,x\n1,\xff\n")
-    with pytest.raises(InputFileError, match=r"data\.csv: not UTF-8 text: 'utf-8' codec can't decode"):
+    path.write_bytes(data)
+    with pytest.raises(InputFileError, match=rf"data\.csv: line {line}: not UTF-8 text: byte 0x.. at column "
+                                             rf"{column} cannot be decoded\.$") as info:
         read_measurements(path)
+    assert info.value.line == line
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"columns": "xy"}, r"`columns` must be a sequence of column names; got the str 'xy' \(for one column: "
+                        r"\['xy'\]\)"),  # its letters were the columns x and y
+    ({"columns": [1]}, r"`columns` must be a sequence of column names \(str\); got \[1\]"),
+    ({"time_column": 0}, r"`time_column` must be a column's name \(a str\); got 0"),
+])
+def test_read_measurements_checks_the_names_it_is_given(tmp_path, kwargs, match):
+    path = write(tmp_path / "data.csv", "t,x,y,xy\n1,2,3,4\n")
+    with pytest.raises(TypeError, match=match):
+        read_measurements(path, **kwargs)
+    assert read_measurements(path, columns=(c for c in ["xy", "x"])).columns == ["t", "xy", "x"]
 
 
 def test_read_measurements_missing_file(tmp_path):
@@ -224,6 +254,10 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
                                                                             r"numbers; got booleans\."),
         (EXPLICIT + '[prior]\nmean = ["1", "2"]\n', r"\[prior\] mean: `mean` must be an array of numbers; got strings"),
         ("prior = 1\n" + EXPLICIT, r"m\.toml: `prior` must be a table"),
+        # the motion without its dt is checked at a step of 1 s, where this q's subnormal Q is not PSD: a bare
+        # ValueError named neither the file nor the key
+        ('[model]\nkind = "constant_velocity"\ndt = 0.5\nq = 5e-324\nr = 1.0\n',
+         r"m\.toml: \[model\] q: `Q` must be positive semi-definite"),
     ],
 )
 def test_read_model_errors(tmp_path, text, match):
@@ -824,7 +858,7 @@ def test_rows_must_be_a_positive_int(tmp_path, rows):
 
 
 @pytest.mark.parametrize("block", [1, 2, 3, 5, 64])
-@pytest.mark.parametrize("ending", ["\n", "\r\n", "\r"])
+@pytest.mark.parametrize("ending", ["\n", "\r\n", "\r", "\r\r\n"])
 def test_lines_read_in_blocks_are_the_lines_of_the_file(block, ending):
     """Small blocks split lines and "\\r\\n" endings anywhere: the lines (and their numbers) stay the file's."""
     text = ending.join(["t,x", "1,2", "", "3,44444", "5,6"]) + ending + "7,8"
@@ -832,7 +866,8 @@ def test_lines_read_in_blocks_are_the_lines_of_the_file(block, ending):
     got = list(gaussfuse.io._text_lines("f.csv", stdio.StringIO(text, newline=""), block=block))
     assert got == want
     bad = text.replace("44444", "44\x0044")
-    with pytest.raises(InputFileError, match="line 4: a NUL character"):
+    line = 1 + [k for k, text in enumerate(want) if "44444" in text][0]  # 4, or 7 after "\r\r\n"s
+    with pytest.raises(InputFileError, match=f"line {line}: a NUL character"):
         list(gaussfuse.io._text_lines("f.csv", stdio.StringIO(bad, newline=""), block=block))
 
 

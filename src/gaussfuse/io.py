@@ -9,9 +9,9 @@ A header row, then one row per time step::
     0.5,,0.12
     1.0,nan,NaN
 
-* One column is the time, named ``t`` or ``time`` (any case); its values must
-  be numbers and strictly increasing. It labels the rows: the model's own
-  time step is what the filter uses.
+* One column is the time, named ``t`` or ``time`` (any case); its values are
+  numbers of seconds or ISO-8601 times, strictly increasing (how the command
+  line steps by them: ``gaussfuse filter --help``).
 * Every other column, in order, is one component of the measurement.
 * An empty cell, ``nan`` or ``NaN`` is a missing component.
 
@@ -211,14 +211,15 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         The number of measurement components the model expects; when given,
         the file must have exactly that many measurement columns.
     time_column : str, optional
-        The time column's name (default: the one named ``t`` or ``time``,
-        in any case). Its cells are seconds, or ISO-8601 times
-        (``2026-05-01T12:00:00.5+02:00``; one without a zone is UTC), all
-        of one kind; ISO times (to the nanosecond) become seconds since the
-        file's first time, each rounded once from the exact difference.
+        The time column's name, matched exactly or else in any case
+        (default: the one named ``t`` or ``time``, in any case). Its cells
+        are seconds, or ISO-8601 times (``2026-05-01T12:00:00.5+02:00``; one
+        without a zone is UTC; a fraction only after the seconds), all of one
+        kind; ISO times (to the nanosecond) become seconds since the file's
+        first time, each rounded once from the exact difference.
     columns : sequence of str, optional
-        The measurement columns, in this order (default: every other one);
-        the others are not read.
+        The measurement columns, in this order (default: every other one,
+        each of which must have a name); the others are not read.
 
     Returns
     -------
@@ -230,12 +231,15 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
     Raises
     ------
     InputFileError
-        For a missing or repeated time column, a wrong number of columns or
-        cells, a cell that is not a number, an infinite value, a missing or
-        non-increasing time, or no data rows; for a file that is not text (a
-        NUL character, bytes that are not UTF-8, a line longer than
-        :data:`MAX_LINE_CHARS`); the message names the file and the line and
-        column.
+        For a missing or repeated time column, a measurement column without a
+        name, a wrong number of columns or cells, a cell that is not a
+        number, an infinite value, a missing or non-increasing time, or no
+        data rows; for a file that is not text (a NUL character, bytes that
+        are not UTF-8, a line longer than :data:`MAX_LINE_CHARS`); the
+        message names the file and the line and column.
+    TypeError
+        When `time_column` is not a str, or `columns` is a str or holds
+        something else.
     OSError
         When the file cannot be read.
 
@@ -278,6 +282,15 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
     """
     if not isinstance(rows, int) or isinstance(rows, bool) or rows < 1:
         raise ValueError(f"`rows` must be a positive int; got {rows!r}.")
+    if time_column is not None and not isinstance(time_column, str):
+        raise TypeError(f"`time_column` must be a column's name (a str); got {time_column!r}.")
+    if columns is not None:
+        if isinstance(columns, str):  # its letters were taken as the names
+            raise TypeError(f"`columns` must be a sequence of column names; got the str {columns!r} (for one "
+                            f"column: [{columns!r}]).")
+        columns = list(columns)
+        if not all(isinstance(name, str) for name in columns):
+            raise TypeError(f"`columns` must be a sequence of column names (str); got {columns!r}.")
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(_text_lines(path, f), strict=True)
         try:
@@ -306,8 +319,10 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
                     cells, lines = [], []
         except csv.Error as exc:
             raise InputFileError(path, str(exc), line=reader.line_num) from None
-        except UnicodeDecodeError as exc:  # decoded in blocks, so no line number
-            raise InputFileError(path, f"not UTF-8 text: {exc}") from None
+        except UnicodeDecodeError:  # decoded in blocks: the line is found again in the bytes
+            line, column, byte = _not_utf8(path)
+            raise InputFileError(path, f"not UTF-8 text: byte {byte:#04x} at column {column} cannot be decoded.",
+                                 line=line) from None
         if cells:
             yield parser.parse(cells, lines)
         elif parser.last is None:
@@ -386,6 +401,24 @@ class _Rows:
         self.last = (float(times[-1]), lines[-1], texts[-1])
 
 
+def _not_utf8(path) -> tuple[int, int, int]:
+    """The line, the column (from 1, in characters) and the value of the first byte of `path` that is not UTF-8.
+
+    Lines end as the reader ends them: at ``\\n``, ``\\r\\n`` or a ``\\r`` alone.
+    """
+    number = 0
+    with open(path, "rb") as f:
+        for raw in f:  # split at b"\n", which no UTF-8 character holds
+            try:
+                raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                head = raw[:exc.start]
+                number += 1 + head.count(b"\r") - head.count(b"\r\n")
+                return number, len(head[head.rfind(b"\r") + 1:].decode("utf-8")) + 1, raw[exc.start]
+            number += 1 + raw.count(b"\r") - raw.count(b"\r\n")
+    raise AssertionError("the text decoder found a byte that is not UTF-8; the bytes do not")  # pragma: no cover
+
+
 def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
     """The lines of `f`, read in blocks of about `block` characters and checked to be text.
 
@@ -395,8 +428,8 @@ def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
     """
     number = 0
     while text := f.read(block):
-        if text.endswith("\r"):
-            text += f.read(1)  # a "\r\n" split between blocks stays one line ending
+        while text.endswith("\r") and (more := f.read(1)):
+            text += more  # a "\r\n" split between blocks stays one line ending (after any "\r" before it)
         if not text.endswith(("\n", "\r")):
             text += f.readline(MAX_LINE_CHARS + 2)
         lines = stdio.StringIO(text, newline="").readlines()
@@ -440,6 +473,10 @@ def _measurement_columns(path, header: list[str], time_col: int, columns) -> lis
         if twice:  # which column is which would be a guess (the output names them)
             raise InputFileError(path, f"the header names column(s) {twice} more than once; found columns {header}.",
                                  line=1)
+        unnamed = [i + 1 for i, h in enumerate(header) if not h]
+        if unnamed:  # a trailing comma made a column that is always missing, taken as a measurement
+            raise InputFileError(path, f"the header's column {unnamed[0]} has no name; found columns {header} (choose "
+                                 "the measurement columns with --columns).", line=1)
         return [i for i in range(len(header)) if i != time_col]
     out = []
     for name in columns:
@@ -463,6 +500,7 @@ def _float(text: str) -> float:
 
 
 _FRACTION = re.compile(r"((?::|[Tt ]\d\d\d\d)\d\d)[.,](\d+)")  # the seconds' fraction (12:00:00.5 or 120000.5)
+_COARSE_FRACTION = re.compile(r"[Tt ]\d\d(?::?\d\d)?[.,]\d")  # of the hour or the minute (T12.5, 12:00.5, 1200.5)
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 
@@ -473,6 +511,10 @@ def _parse_time(path, text: str, where: dict):
     try:
         value = _float(text)
     except ValueError:
+        if _COARSE_FRACTION.search(text):  # datetime reads "12:00.5" as 12:00:00.5, not 12:00:30
+            raise InputFileError(path, f"{text!r} has a fraction of an hour or a minute; write the time to the "
+                                 "second, with any fraction after the seconds (12:00:30 or 12:00:30.25).",
+                                 **where) from None
         found = _FRACTION.search(text)  # datetime reads at most 6 digits (Python 3.11 drops the rest silently)
         digits = found.group(2) if found else ""
         if len(digits) > 9:
@@ -597,7 +639,8 @@ def read_model(path: StrPath) -> ModelFile:
         raise InputFileError(path, "missing the [model] table.")
     if "kind" in table:
         model, names = _named_model(path, table)
-        timed = _timed(table)
+        with _field(path, "model", {"dim": "dim", "q": "q", "r": "r", "Q": "q", "R": "r"}):  # checked at dt = 1
+            timed = _timed(table)
     else:
         model, names = _explicit_model(path, table)
         timed = None
@@ -849,6 +892,10 @@ def write_estimates(
 def write_model(out: IO[str], model: LinearModel, prior: Gaussian | str, names: Sequence[str],
                 comments: Sequence[str] = ()) -> None:
     """Write a model file (explicit matrices) that :func:`read_model` reads back exactly.
+
+    F, H, Q, R, the prior and the state names read back bit for bit; a
+    model's ``dt`` (a label of the step its matrices are for) is not
+    written, and reads back as None.
 
     Parameters
     ----------
