@@ -678,6 +678,24 @@ def test_fit_writes_a_model_that_reads_back_whatever_the_names(tmp_path, capsys)
     assert first.startswith('# fitted by gaussfuse') and 'ni"le\\n\\data\t.csv' in first
 
 
+@pytest.mark.parametrize("encoding", ["ascii", "latin-1"])
+def test_fit_writes_utf8_to_standard_output_whatever_the_locale(tmp_path, encoding):
+    """fit wrote its model through the locale's encoding: under ASCII it failed half way (exit 2) leaving a
+    model without its states or prior, which read back as another model; under Latin-1 read_model refused it."""
+    data = tmp_path / "nile.csv"
+    data.write_text((EXAMPLES / "data" / "nile.csv").read_text())
+    model = tmp_path / "model.toml"
+    model.write_text('[model]\nF = 1.0\nH = 1.0\nQ = 1000.0\nR = 10000.0\nstates = ["niveau_é"]\n'
+                     "[prior]\ndiffuse = true\n", encoding="utf-8")
+    done = subprocess.run([sys.executable, "-m", "gaussfuse", "fit", str(data), "-m", str(model), "--iterations", "3",
+                           "--tol", "0", "--engine", "python"], capture_output=True, timeout=300,
+                          env={**os.environ, "PYTHONIOENCODING": encoding})
+    assert done.returncode == 0, done.stderr
+    (tmp_path / "fitted.toml").write_bytes(done.stdout)
+    fitted = gfio.read_model(tmp_path / "fitted.toml")
+    assert fitted.state_names == ["niveau_é"] and fitted.prior == "diffuse"
+
+
 # ---------------------------------------------------------------------------
 # outputs: never destroy a user's file
 # ---------------------------------------------------------------------------

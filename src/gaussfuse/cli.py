@@ -310,7 +310,7 @@ def _run_filter(args: argparse.Namespace) -> int:
             if drawn is not None:
                 plotting.save_figure(drawn.figure(spec, args.data, head.columns, args.smooth, steps.stamps), args.plot)
 
-        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_StandardOutput(binary=True)) as out:
+        with gfio.open_atomic(args.out, "wb") if args.out else nullcontext(_StandardOutput()) as out:
             if not args.out:
                 draw()
             out.write(_header(columns_out))
@@ -440,15 +440,16 @@ def _piece_rows(n: int, m: int) -> int:
 
 
 class _StandardOutput:
-    """Standard output for the results, taking bytes (after what was written as text) or text; a failed write
-    names standard output (``> /dev/full`` said "[Errno 28] No space left on device", naming nothing)."""
+    """Standard output for the results, taking UTF-8 bytes (after what was written as text), whatever the
+    locale's encoding; a failed write names standard output (``> /dev/full`` said "[Errno 28] No space left on
+    device", naming nothing)."""
 
-    def __init__(self, binary: bool) -> None:
+    def __init__(self) -> None:
         with _failing_output():
             sys.stdout.flush()  # what was written as text goes first
-        buffer = getattr(sys.stdout, "buffer", None) if binary else None
+        buffer = getattr(sys.stdout, "buffer", None)
         self._write = sys.stdout.write if buffer is None else buffer.write
-        self._decode = binary and buffer is None  # a text stream taking bytes, such as a test's StringIO
+        self._decode = buffer is None  # a text stream taking bytes, such as a test's StringIO
 
     def write(self, data) -> None:
         with _failing_output():
@@ -791,9 +792,13 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
                 f"--learn {','.join(learn)} --method {args.method}",
                 f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {_options(res.message)}",
                 *res.summary().splitlines()]
-    sink = gfio.open_atomic(args.out, "w", encoding="utf-8") if args.out else nullcontext(_StandardOutput(binary=False))
-    with sink as out:
-        gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
+    if args.out:
+        with gfio.open_atomic(args.out, "w", encoding="utf-8") as out:
+            gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
+    else:  # whole, and in UTF-8 whatever the locale's encoding (read_model reads UTF-8)
+        text = StringIO()
+        gfio.write_model(text, res.model, res.prior, spec.state_names, comments)
+        _StandardOutput().write(text.getvalue().encode("utf-8"))
     print(f"{args.method}: {_options(res.message).rstrip('.')}; log-likelihood {res.loglik:.6f} after "
           f"{len(res.history) - 1} iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
     if res.message.startswith("interrupted"):
