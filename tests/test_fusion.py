@@ -276,6 +276,34 @@ def test_nonlinear_default_is_ekf_and_smoother_runs():
     ) + 1e-9)
 
 
+def _scaled_scenario(c):
+    """A position fix, then a range and bearing: every length times c, every covariance times c² (bearings
+    unchanged), so that the result is the c = 1 result scaled, exactly."""
+    sensors = {"pos": gf.Position(dim=2, r=0.5 * c * c),
+               "rb": gf.RangeBearing(r_range=c * c, r_bearing=1e-3, origin=(5.0 * c, -3.0 * c))}
+    events = [(1.0, "pos", c * np.array([1.2, 0.4])), (1.3, "rb", np.array([6.0 * c, 2.5]))]
+    prior = gf.Gaussian(c * np.array([0.0, 1.0, 1.0, -0.5]), c * c * np.diag([4.0, 4.0, 1.0, 1.0]))
+    return gf.ConstantVelocity(dim=2, q=0.3 * c * c), sensors, prior, events
+
+
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+@pytest.mark.parametrize("c", [1e-18, 1e-20, 1e-100, 1e100])
+def test_units_of_any_size_give_the_same_fusion(c, form):
+    """Ranges of 1e-20 beside bearings of 1: the innovation covariance's factor had rows on scales 1e17 apart, and
+    its solves exchanged rows (LU with pivoting, not substitution); the range update raised var(x) from 0.615 to
+    7.03 (exact: 0.215) in the covariance form, and the square-root form's mean was off by 7e-2 (audit X1)."""
+    ref = gf.fuse_timeline(*_scaled_scenario(1.0)[:3], 0.0, _scaled_scenario(1.0)[3], method="ekf", form=form)
+    motion, sensors, prior, events = _scaled_scenario(c)
+    out = gf.fuse_timeline(motion, sensors, prior, 0.0, events, method="ekf", form=form)
+    np.testing.assert_allclose(out.means / c, ref.means, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(out.covs / c / c, ref.covs, rtol=1e-12, atol=1e-14)
+    if form == "cov":  # the online fuser's form
+        fuser = gf.Fuser(motion, sensors, prior, 0.0, method="ekf")
+        for event in events:
+            fuser.update(*event)
+        np.testing.assert_allclose(fuser.belief.cov / c / c, ref.covs[-1], rtol=1e-12, atol=1e-14)
+
+
 def test_bearing_innovation_is_wrapped():
     # A target due west of the radar: bearings near ±π on both sides of the cut.
     sensors = {"radar": gf.RangeBearing(r_range=1.0, r_bearing=1e-4)}

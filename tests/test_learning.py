@@ -190,12 +190,13 @@ def test_em_that_loses_the_diffuse_state_names_the_iteration():
     model, prior, zs, us, _ = _random_case(4229, 2, 2, (), False, True, True)
     assert prior == "diffuse"
     # the readable engine: near the singular H the engines' roundings part (-72.8673 and -72.8671 by
-    # iteration 13), and "auto" picks by what is compiled already
+    # iteration 13; the readable one's triangular solves moved it to -72.8672), and "auto" picks by what is
+    # compiled already
     res = gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=13, tol=0.0, engine="python")
     assert np.all(np.diff(res.history) > 0)
     assert np.linalg.svd(res.model.H, compute_uv=False).min() < 1e-7
     with pytest.raises(ValueError, match=r"^EM iteration 14: the learned model no longer identifies the diffuse "
-                                         r"initial state \(the log-likelihood rose to -72\.8673 on the way\): "
+                                         r"initial state \(the log-likelihood rose to -72\.867\d on the way\): "
                                          r"the diffuse initial state is not identified .* learn fewer of F and H"):
         gf.fit(model, prior, zs, us, learn=("R", "H", "Q", "B"), iterations=14, tol=0.0, engine="python")
 

@@ -33,10 +33,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._linalg import (PSD_RTOL, abs_congruence_diagonal, cho_solve, cholesky, clip_variances, correlation_root,
-                      downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near, pivot_order, psd_solve,
-                      semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions, whiten, with_slopes,
-                      wrap_components, zero_pivots)
+from ._linalg import (PSD_RTOL, abs_congruence_diagonal, back_substitute, cho_solve, cholesky, clip_variances,
+                      correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
+                      pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions,
+                      whiten, with_slopes, wrap_components, zero_pivots)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -946,7 +946,7 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
         back = tria(np.concatenate([L_S[np.argsort(order)], Kbar]))
         L_S, Kbar = back[:mo, :mo], back[mo:, :mo]
     return SqrtGain(Kbar, L_S, np.ascontiguousarray(post[mo:, mo:]), innovation_cov, observed,
-                    whiten(L_S.T, Kbar.T).T)  # K = K̄ L_S⁻¹
+                    back_substitute(L_S, Kbar.T).T)  # K = K̄ L_S⁻¹
 
 
 def _dependent(R_factor: np.ndarray, HL: np.ndarray, factor: np.ndarray) -> bool:

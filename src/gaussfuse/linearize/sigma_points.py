@@ -71,7 +71,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._linalg import (back_solve, circular_mean, sqrt_cov, symmetrize, unresolved, weighted_mean, whiten,
+from .._linalg import (back_solve, back_substitute, circular_mean, sqrt_cov, symmetrize, unresolved, weighted_mean,
                        wrap_angle)
 from .rules import SigmaRule, unscented
 
@@ -132,7 +132,7 @@ def slr(
     points = rule.points if keep.all() else rule.points[:, keep]  # (over the nonzero columns only)
     Xi = points.T @ weighted                            # C = L Ξ
     A = np.zeros((dY.shape[1], mean.shape[0]))
-    A[:, keep] = whiten(L[np.ix_(keep, keep)].T, Xi).T  # Aᵀ = L⁻ᵀ Ξ: back substitution
+    A[:, keep] = back_substitute(L[np.ix_(keep, keep)], Xi).T  # Aᵀ = L⁻ᵀ Ξ
     # Ω = Σ w_i e_i e_iᵀ from the residuals e_i = δY_i - Ξᵀ ξ_i, not as S - ΞᵀΞ: that difference of terms of the
     # prior's size left its round-off (more than R, for a huge prior and a precise sensor) in Ω
     E = _resolved(dY - points @ Xi, rule, mean, L, A, dY, y_mean)
