@@ -662,14 +662,26 @@ class Fuser:
             Name of the sensor.
         z : array_like of shape (m_s,)
             The measurement (a scalar when m_s = 1); NaN components are missing.
+
+        Returns
+        -------
+        Gaussian
+            The updated belief, also in :attr:`belief`. An update that
+            raises (an invalid argument, or an innovation covariance that is
+            not positive definite) leaves the fuser as it was.
         """
         t = _time("t", t, self._dated)
         name = self._timeline.check_name(sensor, "sensor")
         z = self._timeline.measurement_vector(name, z)
+        before = self.belief, self.t
         self._advance(t, "t")
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
-            post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
-                                  state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
+                post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
+                                      state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
+        except Exception:  # a failed update leaves the fuser as it was (it had moved to `t`)
+            self.belief, self.t = before
+            raise
         self.belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         if self._monitor is not None:
