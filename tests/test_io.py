@@ -72,7 +72,9 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
         ("t,x\nnan,2\n", r"line 2: column `t`: the time is missing", 2),
         ("t,x\nabc,2\n", r"line 2: column `t`: 'abc' is neither a number of seconds nor an ISO-8601 time", 2),
         ("t,x\n1,-inf\n", r"data\.csv: line 2: column `x`: '-inf' is not finite", 2),
-        ("t,x\n1,\"2\n", r"data\.csv: line 2: unexpected end of data", 2),
+        ("t,x\n1,\"2\n", r"data\.csv: line 2: a quoted cell is not closed \(a '\"' opens it and the file ends\)\.$",
+         2),
+        ("t,x\n1,2\n\n2,\"3\n3,4\n4,5\n", r"data\.csv: line 4: a quoted cell is not closed", 4),  # said line 6
         ("t,x\n1,\"2\"x\n", r"data\.csv: line 2: .*expected after", 2),
         ("t,x,x\n1,2,3\n", r"data\.csv: line 1: the header names column\(s\) \['x'\] more than once", 1),
         # a trailing comma: a column '' always missing, taken as a measurement (m = 2)

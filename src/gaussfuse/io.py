@@ -293,6 +293,7 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
             raise TypeError(f"`columns` must be a sequence of column names (str); got {columns!r}.")
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(_text_lines(path, f), strict=True)
+        done = 0  # the lines read before the row being read
         try:
             header = [name.strip() for name in next(reader, [])]
             time_col = _time_column(path, header, time_column)
@@ -307,7 +308,9 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
             parser = _Rows(path, header, time_col, wanted, names)
             cells: list[list[str]] = []
             lines: list[int] = []
+            done = reader.line_num
             for row in reader:
+                done = reader.line_num
                 if len(row) != len(header):
                     if len(row) <= 1 and not "".join(row).strip():
                         continue  # a blank line
@@ -318,7 +321,10 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
                     yield parser.parse(cells, lines)
                     cells, lines = [], []
         except csv.Error as exc:
-            raise InputFileError(path, str(exc), line=reader.line_num) from None
+            text, line = str(exc), reader.line_num
+            if text == "unexpected end of data":  # the file ends within quotes: name the line the row starts on
+                text, line = "a quoted cell is not closed (a '\"' opens it and the file ends).", done + 1
+            raise InputFileError(path, text, line=line) from None
         except UnicodeDecodeError:  # decoded in blocks: the line is found again in the bytes
             line, column, byte = _not_utf8(path)
             raise InputFileError(path, f"not UTF-8 text: byte {byte:#04x} at column {column} cannot be decoded.",
