@@ -168,7 +168,7 @@ def test_online_rejects_out_of_order():
         gf.Fuser(_motion(), _sensors(), _prior(), 0.0).predict(-1.0)
 
 
-def test_an_update_that_fails_leaves_the_fuser_as_it_was():
+def test_an_update_that_fails_leaves_the_fuser_as_it_was(monkeypatch):
     """A sensor that measures nothing with R = 0 has an innovation covariance of 0: the update raises, and it had
     already moved the fuser to its time, so that a measurement at an earlier time was refused as out of order
     (audit X1)."""
@@ -178,6 +178,12 @@ def test_an_update_that_fails_leaves_the_fuser_as_it_was():
     before, loglik = fuser.belief, fuser.loglik
     with pytest.raises(np.linalg.LinAlgError):
         fuser.update(5.0, "nil", 1.0)
+    assert fuser.belief is before and fuser.t == 1.0 and fuser.loglik == loglik
+    with monkeypatch.context() as patch:  # Ctrl-C during the correction
+        patch.setattr(gaussfuse.fusion.kalman, "correct", lambda *args, **kwargs: (_ for _ in ()).throw(
+            KeyboardInterrupt))
+        with pytest.raises(KeyboardInterrupt):
+            fuser.update(5.0, "p", 1.0)
     assert fuser.belief is before and fuser.t == 1.0 and fuser.loglik == loglik
     after = fuser.update(2.0, "p", 1.0)
     twin = gf.Fuser(gf.ConstantVelocity(dim=1, q=0.5), sensors, gf.Gaussian([0.0, 1.0], np.diag([4.0, 1.0])), 0.0)

@@ -84,6 +84,7 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
          r"line 3: column `t`: '2026-05-01T12:00\.5' has a fraction of an hour or a minute", 3),
         ('t,x\n"2026-05-01 12,25",1\n', r"line 2: column `t`: '2026-05-01 12,25' has a fraction of an hour", 2),
         ("t,x\n20260501T1200.5,1\n", r"line 2: column `t`: '20260501T1200\.5' has a fraction of an hour", 2),
+        ("t,x\n2026-05-01_12.5,1\n", r"line 2: column `t`: '2026-05-01_12\.5' has a fraction of an hour", 2),
     ],
 )
 def test_read_measurements_errors(tmp_path, text, match, line):
@@ -108,6 +109,7 @@ def test_read_measurements_checks_the_number_of_columns(tmp_path):
     (b"t,x\n1,\xff\n", 2, 3),
     (b"t,x\r1,2\r2,a\xe9b\r", 3, 4),  # lines that end in "\r" alone
     (b"t,x\r\n1,2\r\n3,\xc3\xa9\xff\r\n", 3, 4),  # columns in characters: the \xc3\xa9 before is one
+    (b"\xef\xbb\xbft,\xff\n1,2\n", 1, 3),  # a byte-order mark is not a column
     (b"t,x\n" + b"".join(b"%d,%d\n" % (k, k) for k in range(300_000)) + b"300000,\xe9\n", 300_002, 8),
 ])
 def test_read_measurements_not_utf8_names_the_line_and_column(tmp_path, data, line, column):
@@ -119,6 +121,15 @@ def test_read_measurements_not_utf8_names_the_line_and_column(tmp_path, data, li
                                              rf"{column} cannot be decoded\.$") as info:
         read_measurements(path)
     assert info.value.line == line
+
+
+def test_a_time_column_without_a_name_is_read_when_chosen(tmp_path):
+    """pandas writes an unnamed index as the header's empty first cell: chosen as the time column, it is read."""
+    path = write(tmp_path / "data.csv", ",a,b\n1,2,3\n2,4,5\n")
+    read = read_measurements(path, time_column="")
+    assert read.columns == ["", "a", "b"] and read.times.tolist() == [1.0, 2.0]
+    with pytest.raises(InputFileError, match=r"line 1: the header's column 3 has no name"):
+        read_measurements(write(tmp_path / "more.csv", "t,a,\n1,2,3\n"))
 
 
 @pytest.mark.parametrize("kwargs, match", [

@@ -429,9 +429,16 @@ def test_cov_factor_takes_every_rank_deficient_covariance_a_model_accepts():
 def test_cov_factor_refuses_a_block_that_is_indefinite_beside_a_large_variance():
     """[[1e12, 0, 0], [0, 1, c], [0, c, -1e-3]] (smallest eigenvalue -0.62 for c = 1): judging the -1e-3 on the
     1e12 scale accepted a factor whose L Lᵀ gives that component a variance of c² (audit R5)."""
-    for c in (1.0, 10.0, 30.0):
+    for c in (1.0, 10.0, 30.0, 1e-2, 1e-3):
         with pytest.raises(np.linalg.LinAlgError):
             kalman.cov_factor(np.array([[1e12, 0.0, 0.0], [0.0, 1.0, c], [0.0, c, -1e-3]]))
+    # a correlation of 32 beside a variance of 1e-6, and a variance below 0 by more than the round-off check_psd
+    # allows (8 n ε of 1e12 is 5.3e-3): a Gaussian refuses both, and so does the factor (review R7)
+    for cov in (np.array([[1e12, 0.0, 0.0], [0.0, 1e-6, 1e-3], [0.0, 1e-3, -1e-3]]), np.diag([1e12, 1.0, -8e-3])):
+        with pytest.raises(ValueError):
+            gf.Gaussian(np.zeros(3), cov)
+        with pytest.raises(np.linalg.LinAlgError):
+            kalman.cov_factor(cov)
 
 
 def test_cov_factor_takes_a_variance_below_zero_that_a_gaussian_accepts_as_round_off():

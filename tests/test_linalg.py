@@ -126,6 +126,11 @@ def test_triangular_solves_keep_each_row_on_its_own_scale(seed):
     np.testing.assert_allclose(_linalg.back_substitute(L, want), back, rtol=1e-10)
     np.testing.assert_allclose(_linalg.cho_solve(L, X), back, rtol=1e-10)
     np.testing.assert_allclose(_linalg.cho_solve(np.stack([L, L]), np.stack([X, X]))[0], back, rtol=1e-10)
+    # a stack of factors and one vector: each factor's solve (it was taken as one (k, r) matrix after the first)
+    for T in (n, n + 1):
+        stack = np.stack([L * (t + 1.0) for t in range(T)])
+        np.testing.assert_allclose(_linalg.cho_solve(stack, X[:, 0]), [back[:, 0] / (t + 1.0) ** 2 for t in range(T)],
+                                   rtol=1e-10)
 
 
 def test_observed_gram_over_the_observed_components():

@@ -671,16 +671,22 @@ def circular_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.arctan2(weights @ np.sin(values), weights @ np.cos(values))
 
 
-def _upper_solve(U: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``U⁻¹ x`` for an upper-triangular U: a back substitution.
+def _upper_solve(U: np.ndarray, x: np.ndarray, vector: bool) -> np.ndarray:
+    """``U⁻¹ x`` for an upper-triangular U: a back substitution; `x` a (stack of) vector(s) where `vector`.
 
     LAPACK's LU solve (NumPy's gufunc, without np.linalg's wrapper) finds no
-    row to exchange below an upper-triangular matrix's diagonal, so its
-    factors are I and U and it substitutes back, each row on its own scale.
+    row to exchange below an upper-triangular matrix's diagonal: for finite
+    entries its factors are I and U, and it substitutes back, each row on its
+    own scale.
     """
-    if _gesv is None:
-        return np.linalg.solve(U, x)
-    return _gesv1(U, x) if x.ndim == 1 else _gesv(U, x)
+    if _gesv is None:  # pragma: no cover - every NumPy since 1.8 has the gufuncs
+        return np.linalg.solve(U, x[..., None])[..., 0] if vector else np.linalg.solve(U, x)
+    return _gesv1(U, x) if vector else _gesv(U, x)
+
+
+def _reversed(x: np.ndarray, vector: bool) -> np.ndarray:
+    """`x` with its components (the last axis of vectors, the rows of matrices) in reverse order: a view."""
+    return x[..., ::-1] if vector else x[..., ::-1, :]
 
 
 def whiten(L: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -693,18 +699,18 @@ def whiten(L: np.ndarray, x: np.ndarray) -> np.ndarray:
     of the small one (the covariance form's EKF update raised a variance,
     0.615 to 7.03 for 0.215).
     """
-    rows = (Ellipsis, slice(None, None, -1)) if x.ndim == 1 else (Ellipsis, slice(None, None, -1), slice(None))
-    return _upper_solve(L[..., ::-1, ::-1], x[rows])[rows]
+    vector = x.ndim == 1
+    return _reversed(_upper_solve(L[..., ::-1, ::-1], _reversed(x, vector), vector), vector)
 
 
 def back_substitute(L: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``L⁻ᵀ x`` for a lower-triangular L: a back substitution (stacks broadcast)."""
-    return _upper_solve(L.T if L.ndim == 2 else L.swapaxes(-1, -2), x)
+    """``L⁻ᵀ x`` for a lower-triangular L: a back substitution; `x` as for :func:`whiten`."""
+    return _upper_solve(np.swapaxes(L, -1, -2), x, x.ndim == 1)
 
 
 def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``C⁻¹ b`` for ``C = L Lᵀ``: two triangular solves, no inverse (stacks broadcast)."""
-    return back_substitute(L, whiten(L, b))
+    """``C⁻¹ b`` for ``C = L Lᵀ``: two triangular solves, no inverse (stacks broadcast, a vector b too)."""
+    return _upper_solve(np.swapaxes(L, -1, -2), whiten(L, b), b.ndim == 1)  # whiten broadcasts b to L's stack
 
 
 def general_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:

@@ -668,7 +668,9 @@ class Fuser:
         Gaussian
             The updated belief, also in :attr:`belief`. An update that
             raises (an invalid argument, or an innovation covariance that is
-            not positive definite) leaves the fuser as it was.
+            not positive definite) leaves the fuser as it was; the divergence
+            check's ``DivergenceWarning`` (``check="raise"``) is raised after
+            the update is taken.
         """
         t = _time("t", t, self._dated)
         name = self._timeline.check_name(sensor, "sensor")
@@ -679,7 +681,7 @@ class Fuser:
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
                 post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
                                       state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
-        except Exception:  # a failed update leaves the fuser as it was (it had moved to `t`)
+        except BaseException:  # a failed (or interrupted) update leaves the fuser as it was (it had moved to `t`)
             self.belief, self.t = before
             raise
         self.belief = Gaussian._trusted(post.mean, post.cov)

@@ -420,7 +420,10 @@ def _not_utf8(path) -> tuple[int, int, int]:
             except UnicodeDecodeError as exc:
                 head = raw[:exc.start]
                 number += 1 + head.count(b"\r") - head.count(b"\r\n")
-                return number, len(head[head.rfind(b"\r") + 1:].decode("utf-8")) + 1, raw[exc.start]
+                line = head[head.rfind(b"\r") + 1:].decode("utf-8")
+                if number == 1:
+                    line = line.removeprefix("\ufeff")  # a byte-order mark is not a column
+                return number, len(line) + 1, raw[exc.start]
             number += 1 + raw.count(b"\r") - raw.count(b"\r\n")
     raise AssertionError("the text decoder found a byte that is not UTF-8; the bytes do not")  # pragma: no cover
 
@@ -479,7 +482,7 @@ def _measurement_columns(path, header: list[str], time_col: int, columns) -> lis
         if twice:  # which column is which would be a guess (the output names them)
             raise InputFileError(path, f"the header names column(s) {twice} more than once; found columns {header}.",
                                  line=1)
-        unnamed = [i + 1 for i, h in enumerate(header) if not h]
+        unnamed = [i + 1 for i, h in enumerate(header) if not h and i != time_col]
         if unnamed:  # a trailing comma made a column that is always missing, taken as a measurement
             raise InputFileError(path, f"the header's column {unnamed[0]} has no name; found columns {header} (choose "
                                  "the measurement columns with --columns).", line=1)
@@ -506,7 +509,9 @@ def _float(text: str) -> float:
 
 
 _FRACTION = re.compile(r"((?::|[Tt ]\d\d\d\d)\d\d)[.,](\d+)")  # the seconds' fraction (12:00:00.5 or 120000.5)
-_COARSE_FRACTION = re.compile(r"[Tt ]\d\d(?::?\d\d)?[.,]\d")  # of the hour or the minute (T12.5, 12:00.5, 1200.5)
+# a fraction of the hour or the minute (T12.5, T12:00.5, T1200.5), after a calendar, week or ordinal date and any
+# one separator, as datetime reads them
+_COARSE_FRACTION = re.compile(r"^(?:\d{4}-\d\d-\d\d|\d{8}|\d{4}-?W\d\d(?:-?\d)?|\d{4}-?\d{3}).\d\d(?::?\d\d)?[.,]\d")
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 

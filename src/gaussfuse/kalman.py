@@ -710,8 +710,11 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
     cov = np.asarray(cov, dtype=np.float64)
     if not np.isfinite(cov).all():
         raise np.linalg.LinAlgError(f"{name} is not finite (inf or NaN): a factor needs finite variances.")
-    # a variance below 0 within round-off of the largest entry, whose row is as small, is 0 (check_psd accepts it)
-    cov = clip_variances(cov, lambda: np.full(cov.shape[0], np.max(np.abs(cov))))
+    # A variance below 0 within round-off of the largest entry t, whose covariances are within round-off of t and
+    # the other component's variance, is 0, as check_psd accepts it: clip_variances' bound 16 n ε √(t_i t_j) on
+    # halves of t (that row) and of |c_ii| (the others) is check_psd's 8 n ε √(t |c_ii|)
+    diag = np.diagonal(cov)
+    cov = clip_variances(cov, lambda: 0.5 * np.where(diag < 0.0, np.max(np.abs(cov)), np.abs(diag)))
     try:
         L = sqrt_cov(cov)[0]
         failure = f"{name} is not symmetric positive semi-definite on the scale of its components: no factor L " \
