@@ -195,6 +195,21 @@ def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
             gf.fit(model, prior, lazy, us[0])
 
 
+@pytest.mark.parametrize("run", [gf.filter, gf.smooth])
+def test_a_diffuse_prior_that_takes_more_than_two_steps_to_identify(run):
+    """Constant acceleration measured in position: the probe that reads the result's structure ran 2 steps, which
+    do not identify 3 states, and raised NotIdentified before any chunk ran (audit X3)."""
+    F = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
+    model = gf.LinearModel(F=F, H=[[1.0, 0.0, 0.0]], Q=0.1 * np.eye(3), R=1.0)
+    zs = np.cumsum(np.random.default_rng(0).normal(size=(4, 12, 1)), axis=1)
+    with dask.config.set(scheduler="synchronous"):
+        got = run(model, "diffuse", da.from_array(zs, chunks=(2, 12, 1)), engine="python", check="off")
+        want = run(model, "diffuse", zs, engine="python", check="off")
+        np.testing.assert_array_equal(np.asarray(got.means), want.means)
+        np.testing.assert_array_equal(np.asarray(got.covs), want.covs)
+        assert got.means.shape == want.means.shape and got.covs.shape == want.covs.shape
+
+
 def test_times_with_chunked_measurements():
     """With `times`, a dask `zs` raised "`times` must have 2 entries ..." (the probe that reads the result's shape
     ran 2 steps at the real times): a TimedModel could not be used with dask at all (audit F)."""

@@ -16,7 +16,7 @@ The divergence check (``check``) runs in each chunk's task, naming series
 by their number in the whole array; a warning is issued where the task runs
 (in a worker's log on a cluster), and ``check="raise"`` raises from
 ``compute``. Each field of a result is built from the same task per chunk, so
-``dask.compute(res.means, res.covs)`` (or ``res.compute()``) runs each
+``dask.compute(res.means, res.covs)`` (or ``dask.compute(res)``) runs each
 chunk's filter once; computing the fields one after another runs it once per
 field.
 """
@@ -117,8 +117,8 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     zs, us : dask arrays (N, T, m) and (N, T, p) or None
     kwargs : dict
         The other arguments of `run`. The result's structure is read from
-        `run` on one series of zeros (readable path, no check), of a length
-        that no other dimension equals, so that a time axis is told apart.
+        `run` on one series of zeros (readable path, no check), and again on
+        one a step longer: the axes whose lengths differ are time axes.
 
     Returns
     -------
@@ -143,30 +143,35 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
                    **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
-    probe = max(zs.shape[2], *_trailing(meta(2))) + 3
-    template = meta(probe)
+    # Two probes, one step apart: an axis whose length differs between them is the time axis. They are longer
+    # than the state dimension, so that a diffuse prior is identified (2 steps did not identify 3 states measured
+    # by one component: NotIdentified before any chunk ran).
+    probe = max(zs.shape[2], getattr(kwargs.get("model"), "n", 0)) + 3
+    template, longer = meta(probe), meta(probe + 1)
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
              for first, block, control, size in zip(firsts, blocks, controls, sizes)]
 
-    def build(template, path):
+    def build(template, longer, path):
         if not is_dataclass(template):
             return template
         values = {}
         for f in fields(template):
-            value = getattr(template, f.name)
+            value, other = getattr(template, f.name), getattr(longer, f.name)
             if is_dataclass(value):
-                values[f.name] = build(value, path + (f.name,))
+                values[f.name] = build(value, other, path + (f.name,))
             elif isinstance(value, np.ndarray) and value.ndim >= 1:
+                # a time axis of the probe's length, or one less, is T's (or T - 1's)
+                shape = tuple(d if d == e else T + d - probe for d, e in zip(value.shape[1:], other.shape[1:]))
                 values[f.name] = da.concatenate([
                     da.from_delayed(dask.delayed(_field, pure=True)(task, path + (f.name,)),
-                                    shape=(size, *_shape(value.shape[1:], probe, T)), dtype=value.dtype)
+                                    shape=(size, *shape), dtype=value.dtype)
                     for task, size in zip(tasks, sizes)])
             else:
                 values[f.name] = value
         return type(template)(**values)
 
-    return build(template, ())
+    return build(template, longer, ())
 
 
 def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwargs: dict, share: float = 1.0):
@@ -186,26 +191,3 @@ def _field(result, path: tuple):
     for name in path:
         result = getattr(result, name)
     return result
-
-
-def _shape(trailing: tuple, probe: int, T: int) -> tuple:
-    """A probe's trailing shape with the time axis (of `probe` or `probe` - 1 steps) set to T's."""
-    if not trailing:
-        return ()
-    if trailing[0] == probe:
-        return (T, *trailing[1:])
-    if trailing[0] == probe - 1:
-        return (T - 1, *trailing[1:])
-    return trailing
-
-
-def _trailing(result) -> list:
-    """Every trailing dimension of a result's arrays (to choose a probe length none equals)."""
-    out = [0]
-    for f in fields(result):
-        value = getattr(result, f.name)
-        if is_dataclass(value):
-            out += _trailing(value)
-        elif isinstance(value, np.ndarray):
-            out += list(value.shape[1:])
-    return out
