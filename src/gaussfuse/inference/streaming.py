@@ -151,7 +151,7 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         offsets, belief, before, start = [], prior, None, 0
         for piece, result in filter_pieces(model, prior, pieces, timed=timed, engine=engine, check=check):
             offsets.append(spool.tell())
-            pickle.dump((piece, belief, before, start), spool, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump((piece, belief, before, start, result.loglik), spool, protocol=pickle.HIGHEST_PROTOCOL)
             start += piece.zs.shape[0]
             belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
             before = piece.times[-1]
@@ -163,7 +163,7 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         after = None  # the next piece and its smoothed result
         for offset in reversed(offsets):
             spool.seek(offset)
-            piece, belief, before, start = pickle.load(spool)
+            piece, belief, before, start, loglik = pickle.load(spool)
             zs, times, ending = piece.zs, piece.times, None
             if after is not None:  # one step more, whose smoothed belief the pass starts from
                 zs = np.concatenate([zs, after[0].zs[:1]])
@@ -173,7 +173,7 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
                 result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending,
                                     smooth=True))
             if after is not None:
-                result = _head(result, piece.zs.shape[0])
+                result = _head(result, piece.zs.shape[0], loglik)
             after = (piece, result)
             yield piece, result
 
@@ -226,17 +226,20 @@ def _run(model, prior, zs: np.ndarray, times, engine: str, ending: Gaussian | No
     return drivers.filter_batch(spec, model, prior, zs, us, options, engine, "all")
 
 
-def _head(result, T: int):
-    """The first T steps of a result (a SmoothResult's ``.filtered`` too); its ``loglik`` is the whole run's."""
+def _head(result, T: int, loglik: float):
+    """The first T steps of a result (a SmoothResult's ``.filtered`` too): a filter's last belief is that after
+    step T-1, and its ``loglik`` is `loglik`, the first T steps' (the run's included the next piece's first)."""
     cut = {}
     for f in fields(result):
         value = getattr(result, f.name)
         if isinstance(value, FilterResult):
-            cut[f.name] = _head(value, T)
+            cut[f.name] = _head(value, T, loglik)
         elif f.name == "gains" and isinstance(result, SmoothResult):
             cut[f.name] = value[:T - 1]
         elif isinstance(value, np.ndarray) and not f.name.startswith("last_"):
             cut[f.name] = value[:T]
+    if isinstance(result, FilterResult):
+        cut.update(last_mean=result.means[T - 1], last_cov=result.covs[T - 1], loglik=loglik)
     return replace(result, **cut)
 
 
