@@ -155,7 +155,7 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
     (tmp_path / "d.csv").write_text(text, encoding="utf-8")
     part = panels.read_partition(str(tmp_path / "d.csv"), "id", 1)
     assert part.ids == ["a", "b"] and part.columns == ["id", "t", "z"]
-    np.testing.assert_array_equal(part.times[0], [3600.0, 3600.0000001])  # exact to the nanosecond
+    np.testing.assert_array_equal(part.times[0], [0.0, 1e-7])  # exact to the nanosecond, from the series' first
     np.testing.assert_array_equal(part.times[1], [0.0, 3601.0])  # rows in any order: by time within a series
     np.testing.assert_array_equal(np.concatenate(part.zs)[:, 0], [1.0, np.nan, 2.0, np.nan])
     assert part.frame["t"].tolist()[0] == "2026-05-01T12:00:00.000000000Z"
@@ -169,6 +169,28 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
     (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")
     with pytest.raises(gfio.InputFileError, match=r"l\.csv: not UTF-8 text"):
         panels.read_partition(str(tmp_path / "l.csv"), "id", 1)
+
+
+@pytest.mark.parametrize("parquet", [False, True])
+def test_each_series_times_count_from_its_own_first(tmp_path, parquet):
+    """Seconds since the partition's first time: a series two centuries after another, stepped by 1 µs, had steps of
+    9.5e-7 s (the float's resolution there), where its own file gives 1e-6 (audit X3)."""
+    pd = pytest.importorskip("pandas")
+    stamps = ["1970-01-01T00:00:00Z", "1970-01-01T00:00:01Z", *(f"2200-01-01T00:00:00.{k:06d}Z" for k in range(10))]
+    frame = pd.DataFrame({"id": ["old"] * 2 + ["new"] * 10, "t": stamps, "z": np.arange(12.0)})
+    if parquet:
+        pytest.importorskip("pyarrow")
+        frame["t"] = pd.to_datetime(frame["t"], utc=True, format="ISO8601").astype("datetime64[us, UTC]")
+        path = tmp_path / "p.parquet"
+        frame.to_parquet(path)
+    else:
+        path = tmp_path / "p.csv"
+        frame.to_csv(path, index=False)
+    part = panels.read_partition(str(path), "id", 1)
+    (tmp_path / "one.csv").write_text("t,z\n" + "".join(f"{t},{k}\n" for k, t in enumerate(stamps[2:])))
+    np.testing.assert_array_equal(part.times[1], gfio.read_measurements(tmp_path / "one.csv").times)
+    np.testing.assert_allclose(np.diff(part.times[1]), 1e-6, rtol=1e-15)  # k µs, each rounded once
+    np.testing.assert_array_equal(part.times[0], [0.0, 1.0])
 
 
 def test_matrices_per_row_are_refused_with_series_naming_the_file(tmp_path, capsys):

@@ -34,7 +34,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
-from .inference.timing import Steps, per_second, round_off, since
+from .inference.timing import Steps, per_second, round_off
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
                  _parse_time, _time_column, _wrong_cells)
 
@@ -53,7 +53,7 @@ class Partition(NamedTuple):
         The series ids.
     times : list of ndarray
         Each series' times, in seconds (datetimes as seconds since the
-        partition's first, each from the exact difference).
+        series' first, each from the exact difference).
     zs : list of ndarray
         Each series' measurements (T_i, m); NaN where missing.
     frame : pandas.DataFrame
@@ -177,12 +177,12 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
             raise InputFileError(path, f"a measurement is not a number: {exc}") from None
     if np.isinf(values).any():
         raise InputFileError(path, "a measurement is infinite.")
-    seconds = _seconds(path, frame[time_col], time_col, lines)
     codes, ids = pd.factorize(frame[series_column], sort=False)
     if (codes < 0).any():
         row = int(np.flatnonzero(codes < 0)[0])
         raise InputFileError(path, "a row has no series id.", field=f"column `{series_column}`",
                              line=None if lines is None else lines[row])
+    seconds = _seconds(path, frame[time_col], time_col, lines, codes)
     order = np.lexsort((seconds, codes))  # by series (first appearance), then time
     codes, seconds, values = codes[order], seconds[order], values[order]
     bounds = np.flatnonzero(np.diff(codes)) + 1
@@ -200,14 +200,14 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
 
 def _same_time(path: str, column, name: str, series_id, a: int, b: int, lines: list[int] | None):
     """The error for rows `a` and `b` of a series at one time in seconds: two rows at one time, or two ISO times
-    finer apart than seconds since the partition's first time resolve (as the single-file reader names them)."""
+    finer apart than seconds since the series' first time resolve (as the single-file reader names them)."""
     texts = [str(column.iloc[a]), str(column.iloc[b])]
     where = {"field": f"column `{name}`", "line": None if lines is None else lines[b]}
     if texts[0] != texts[1] and not any(map(_is_number, texts)):
         apart = abs(_parse_time(path, texts[1], where) - _parse_time(path, texts[0], where))
         if apart:
             raise InputFileError(path, f"series {_shown(series_id)}: {texts[1]} is {apart} ns from {texts[0]}, finer "
-                                       "than seconds since the partition's first time resolve there (float64).",
+                                       "than seconds since the series' first time resolve there (float64).",
                                  **where)
     raise InputFileError(path, f"series {_shown(series_id)} has two rows at one time"
                                f"{'' if lines is None else f' (lines {lines[a]} and {lines[b]})'}; times must "
@@ -270,10 +270,11 @@ def _is_number(cell) -> bool:
     return True
 
 
-def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarray:
+def _seconds(path: str, column, name: str, lines: list[int] | None, codes: np.ndarray) -> np.ndarray:
     """A time column as float seconds: numbers as they are; times (ISO-8601 text, read as the single-file reader
-    reads it, or a Parquet timestamp column) as seconds since the first, each an exact integer difference rounded
-    once, whatever their span."""
+    reads it, or a Parquet timestamp column) as seconds since the first of their series (`codes`, one a row), each
+    an exact integer difference rounded once, whatever their span. (From the partition's first time, a series
+    two centuries later stepped by 1 µs had steps of 9.5e-7 s.)"""
     import pandas as pd
 
     field = f"column `{name}`"
@@ -288,8 +289,7 @@ def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarra
             column = column.dt.tz_convert("UTC").dt.tz_localize(None)
         counts = column.to_numpy()
         unit = np.datetime_data(counts.dtype)[0]
-        counts = counts.astype(np.int64).tolist()
-        return since(counts, min(counts), per_second(unit))
+        return _since_first(counts.astype(np.int64).tolist(), codes, per_second(unit))
     numbers = None if pd.api.types.is_numeric_dtype(column) else column.map(_is_number)
     if numbers is None:
         seconds = column.to_numpy(dtype=np.float64)
@@ -298,18 +298,28 @@ def _seconds(path: str, column, name: str, lines: list[int] | None) -> np.ndarra
     elif numbers.any():
         raise InputFileError(path, "the times mix numbers (seconds) and ISO-8601 times; use one kind.", field=field)
     else:  # ISO-8601 text: each distinct cell read once, by the single-file reader's rules
-        codes, texts = pd.factorize(column.astype(str))
+        texts_of, texts = pd.factorize(column.astype(str))
         read = _plain_stamps(texts)
         if read is None:
-            firsts = np.unique(codes, return_index=True)[1]  # the row each distinct cell is first on
+            firsts = np.unique(texts_of, return_index=True)[1]  # the row each distinct cell is first on
             read = [_parse_time(path, text, {"line": None if lines is None else lines[row], "field": field})
                     for text, row in zip(texts, firsts.tolist())]
-        return since(read, min(read), 10**9)[codes]
+        return _since_first([read[k] for k in texts_of.tolist()], codes, 10**9)
     if np.isinf(seconds).any():
         raise InputFileError(path, "a time is not finite.", field=field)
     if np.isnan(seconds).any():
         raise InputFileError(path, "a time is missing; every row needs a time.", field=field)
     return seconds
+
+
+def _since_first(counts: list[int], codes: np.ndarray, per_second: int) -> np.ndarray:
+    """Integer `counts` of 1/`per_second` s (one a row) as float seconds after the first of their series (`codes`)."""
+    first: dict[int, int] = {}
+    for count, code in zip(counts, codes.tolist()):
+        if count < first.get(code, count + 1):
+            first[code] = count
+    return np.array([(count - first[code]) / per_second for count, code in zip(counts, codes.tolist())],
+                    dtype=np.float64)
 
 
 _PLAIN = r"^\d{4}-\d\d-\d\d[T ]\d\d:\d\d:\d\d(?:\.\d{1,9})?(?:Z|[+-]\d\d:\d\d)?$"
