@@ -166,6 +166,9 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
                  rf"n\.csv: line 3: column `z`: '{cell}' is not a number\.")
     _refused(tmp_path / "m.csv", "id,t,z\na,0,1\na,2026-05-01T12:00:01Z,2\n",
              r"the times mix numbers \(seconds\) and ISO-8601 times")
+    # named by its line, column and series, as one file's reader names it (it said "a measurement is infinite.")
+    _refused(tmp_path / "i.csv", "id,t,z\na,0,1\n\nb,1,-inf\n",
+             r"i\.csv: line 4: column `z`: series 'b': a measurement is infinite \(-inf\)\.$")
     (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")
     with pytest.raises(gfio.InputFileError, match=r"l\.csv: not UTF-8 text"):
         panels.read_partition(str(tmp_path / "l.csv"), "id", 1)
@@ -484,7 +487,8 @@ def test_a_diverging_series_is_named(tmp_path, capsys, scheduler):
     code, _, err = run(capsys, *base, "--out", tmp_path / "o")
     lines = err.splitlines()
     assert code == 0 and len(lines) == 2, err
-    assert lines[0].startswith("gaussfuse: warning: part.parquet: series 'u7' may be diverging")
+    # named in full: every partition of a hive dataset is a part.parquet
+    assert lines[0].startswith(f"gaussfuse: warning: {data / 'group=b' / 'part.parquet'}: series 'u7' may be diverging")
     code, _, err = run(capsys, *base, "--out", tmp_path / "o2", "--check", "raise")
     assert code == 2 and "series 'u7' may be diverging" in err and err.count("\n") == 1
 

@@ -176,7 +176,10 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
         except (TypeError, ValueError) as exc:
             raise InputFileError(path, f"a measurement is not a number: {exc}") from None
     if np.isinf(values).any():
-        raise InputFileError(path, "a measurement is infinite.")
+        row, col = (int(k) for k in np.argwhere(np.isinf(values))[0])
+        raise InputFileError(path, f"series {_shown(frame[series_column].iloc[row])}: a measurement is infinite "
+                                   f"({values[row, col]:g}).", field=f"column `{wanted[col]}`",
+                             line=None if lines is None else lines[row])
     codes, ids = pd.factorize(frame[series_column], sort=False)
     if (codes < 0).any():
         row = int(np.flatnonzero(codes < 0)[0])
@@ -453,7 +456,8 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
     messages = _divergence(path, part.ids, nis, seen, check)
     grid = step_range(part.times)
     if spec.timed is None and grid is not None and not grid.regular:
-        messages.insert(0, f"{os.path.basename(path)}: " + IRREGULAR.format(low=grid.dts[0], high=grid.dts[1]))
+        messages.insert(0, f"{path}: " + IRREGULAR.format(low=grid.dts[0], high=grid.dts[1]))  # (named in full, as
+        # errors are: hive partitions are all part.parquet)
     names = spec.state_names
     table = part.frame.copy()
     for j, name in enumerate(names):
@@ -483,7 +487,7 @@ def _divergence(path: str, ids: list, nis: list, seen: list, check: str) -> list
         flagged = diagnostics.divergence(values, dof)
         if flagged:
             where = "; ".join(f"{average_text(avg)} over steps {a}-{b}" for _, a, b, avg in flagged[:3])
-            out.append(f"{os.path.basename(path)}: series {_shown(name)} may be diverging: its normalised innovations "
+            out.append(f"{path}: series {_shown(name)} may be diverging: its normalised innovations "
                        f"average, per observed component, {where} (1 expected).")
             if check == "raise":
                 raise DivergenceWarning(out[-1])
