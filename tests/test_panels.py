@@ -500,7 +500,7 @@ def test_a_time_that_is_not_a_finite_number_is_refused(tmp_path, cell, message):
     """Reading partitions as text let a NaN or infinite time through (its row sorted last, its value kept); the
     single-file reader refuses it, as the partition reader did before."""
     (tmp_path / "d.csv").write_text(f"id,t,z\na,0,1\na,{cell},2\na,2,3\n")
-    with pytest.raises(gfio.InputFileError, match=re.escape(f"column `t`: {message}")):
+    with pytest.raises(gfio.InputFileError, match=re.escape(f"line 3: column `t`: {message}")):  # (no line before)
         panels.read_partition(str(tmp_path / "d.csv"), "id", 1)
 
 

@@ -308,10 +308,11 @@ def _seconds(path: str, column, name: str, lines: list[int] | None, codes: np.nd
             read = [_parse_time(path, text, {"line": None if lines is None else lines[row], "field": field})
                     for text, row in zip(texts, firsts.tolist())]
         return _since_first([read[k] for k in texts_of.tolist()], codes, 10**9)
-    if np.isinf(seconds).any():
-        raise InputFileError(path, "a time is not finite.", field=field)
-    if np.isnan(seconds).any():
-        raise InputFileError(path, "a time is missing; every row needs a time.", field=field)
+    for bad, what in ((np.isinf(seconds), "a time is not finite."),
+                      (np.isnan(seconds), "a time is missing; every row needs a time.")):
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise InputFileError(path, what, field=field, line=None if lines is None else lines[row])
     return seconds
 
 
