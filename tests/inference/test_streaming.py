@@ -219,6 +219,15 @@ def test_a_model_function_error_names_the_step_of_the_whole_series(run):
     assert str(pieces.value) == str(whole.value)
 
 
+@pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
+def test_an_empty_piece_is_named(track, run):
+    model, prior, zs, times = track
+    pieces = cut(zs, times, 40)
+    pieces.insert(2, SimpleNamespace(zs=zs[:0], times=times[:0]))
+    with pytest.raises(ValueError, match=r"^piece 2 of the series has no rows; every piece needs at least one\.$"):
+        list(run(model, prior, pieces, timed=True, engine="python", check="off"))
+
+
 def test_bad_check():
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="`check` must be one of"):

@@ -100,7 +100,9 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     monitor = _Monitor(check)
     belief, before, start = prior, None, 0
     pending = []  # a diffuse prior's pieces so far, none of which has identified the state
-    for piece, engine_k in _engines(pieces, engine):
+    for k, (piece, engine_k) in enumerate(_engines(pieces, engine)):
+        if np.shape(piece.zs)[0] == 0:  # the filter's "`zs` must have T >= 1" named neither the piece nor the step
+            raise ValueError(f"piece {k} of the series has no rows; every piece needs at least one.")
         if isinstance(belief, str):
             pending.append(piece)
             if np.isnan(piece.zs).all():
