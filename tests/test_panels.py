@@ -352,6 +352,13 @@ def test_panels_step_as_one_series_file_does(tmp_path, capsys, scheduler):
         fits.append(gfio.tomllib.loads(stdout)["model"])
     assert fits[1]["F"] == [[1.0, 1.0], [0.0, 1.0]]
     np.testing.assert_allclose(fits[1]["R"], fits[0]["R"], rtol=1e-8)
+    # and a filter says so as one file's does (a panel said nothing; audit X3)
+    for data, extra in (("one.csv", []), ("many.csv", ["--series-column", "id", "--scheduler", scheduler])):
+        code, _, err = run(capsys, "filter", tmp_path / data, "-m", tmp_path / "cv.toml", "-o", tmp_path / f"f{data}",
+                           "--check", "off", *extra)
+        warned = [line for line in err.splitlines() if line.startswith("gaussfuse: warning: ")]
+        assert code == 0 and len(warned) == 1 and warned[0].endswith(
+            "the model file's dt = 0.5 s, but the times step by 1 s; each step uses the times' own step."), err
     # explicit matrices: batches of similar lengths, each series as it is alone; irregular times named
     lengths = [1, 2, 3, 40, 5, 300, 7]
     rows = [(f"u{i}", t + (0.5 if t % 7 == 3 else 0.0), float(rng.normal())) for i, L in enumerate(lengths)

@@ -508,15 +508,10 @@ class _Steps:
     def warn(self) -> None:
         if self.high < 0:
             return
-        grid = timing.Steps(np.array([self.low, self.high]), timing.round_off(self.largest))
-        dt = self.spec.model.dt
-        if self.timed and grid.regular and not grid.near(dt):
-            print(f"gaussfuse: warning: the model file's dt = {dt:g} s, but the times step by {self.low:g} s; "
-                  "each step uses the times' own step.", file=sys.stderr)
-        elif not self.timed and not grid.regular:
-            print(f"gaussfuse: warning: the times are irregular (steps from {self.low:g} s to {self.high:g} s), but "
-                  "the model file's explicit matrices are for one fixed step: every row is filtered as one step. A "
-                  "named model (kind = ...) is discretised for each step's own dt.", file=sys.stderr)
+        said = panels.step_warning(self.spec, timing.Steps(np.array([self.low, self.high]),
+                                                           timing.round_off(self.largest)))
+        if said is not None:
+            print(f"gaussfuse: warning: {said}", file=sys.stderr)
 
 
 def _is_number(text: str) -> bool:

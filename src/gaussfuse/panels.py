@@ -390,6 +390,18 @@ def joined_range(ranges: list) -> Steps | None:
 IRREGULAR = ("the times are irregular (steps from {low:g} s to {high:g} s), but the model file's explicit matrices "
              "are for one fixed step: every row is filtered as one step. A named model (kind = ...) is discretised "
              "for each step's own dt.")
+OTHER_DT = "the model file's dt = {dt:g} s, but the times step by {step:g} s; each step uses the times' own step."
+
+
+def step_warning(spec: ModelFile, grid: Steps | None) -> str | None:
+    """What to say of a model file's step and the times' (:data:`IRREGULAR`, :data:`OTHER_DT`), or None."""
+    if grid is None:
+        return None
+    if spec.timed is None and not grid.regular:
+        return IRREGULAR.format(low=grid.dts[0], high=grid.dts[1])
+    if spec.timed is not None and grid.regular and not grid.near(spec.model.dt):
+        return OTHER_DT.format(dt=spec.model.dt, step=grid.dts[0])
+    return None
 
 
 def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *, smooth: bool = False,
@@ -455,10 +467,9 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         means, covs, nis, seen = (list(a) for a in zip(*(found[i] for i in range(len(lengths)))))
         means, covs = np.concatenate(means), np.concatenate(covs)
     messages = _divergence(path, part.ids, nis, seen, check)
-    grid = step_range(part.times)
-    if spec.timed is None and grid is not None and not grid.regular:
-        messages.insert(0, f"{path}: " + IRREGULAR.format(low=grid.dts[0], high=grid.dts[1]))  # (named in full, as
-        # errors are: hive partitions are all part.parquet)
+    steps = step_warning(spec, step_range(part.times))
+    if steps is not None:  # (named in full, as errors are: hive partitions are all part.parquet)
+        messages.insert(0, f"{path}: {steps}")
     names = spec.state_names
     table = part.frame.copy()
     for j, name in enumerate(names):
