@@ -175,15 +175,15 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
             values = frame[wanted].apply(pd.to_numeric).to_numpy(dtype=np.float64, na_value=np.nan)
         except (TypeError, ValueError) as exc:
             raise InputFileError(path, f"a measurement is not a number: {exc}") from None
-    if np.isinf(values).any():
-        row, col = (int(k) for k in np.argwhere(np.isinf(values))[0])
-        raise InputFileError(path, f"series {_shown(frame[series_column].iloc[row])}: a measurement is infinite "
-                                   f"({values[row, col]:g}).", field=f"column `{wanted[col]}`",
-                             line=None if lines is None else lines[row])
     codes, ids = pd.factorize(frame[series_column], sort=False)
     if (codes < 0).any():
         row = int(np.flatnonzero(codes < 0)[0])
         raise InputFileError(path, "a row has no series id.", field=f"column `{series_column}`",
+                             line=None if lines is None else lines[row])
+    if np.isinf(values).any():
+        row, col = (int(k) for k in np.argwhere(np.isinf(values))[0])
+        raise InputFileError(path, f"series {_shown(ids[codes[row]])}: a measurement is infinite "
+                                   f"({values[row, col]:g}).", field=f"column `{wanted[col]}`",
                              line=None if lines is None else lines[row])
     seconds = _seconds(path, frame[time_col], time_col, lines, codes)
     order = np.lexsort((seconds, codes))  # by series (first appearance), then time

@@ -210,6 +210,23 @@ def test_a_diffuse_prior_that_takes_more_than_two_steps_to_identify(run):
         assert got.means.shape == want.means.shape and got.covs.shape == want.covs.shape
 
 
+@pytest.mark.parametrize("run", [gf.filter, gf.smooth])
+def test_matrices_per_step_with_chunked_measurements(run):
+    """An R per step filtered in memory; with dask input the probe that reads the result's structure ran a few
+    steps and raised "the model is time-varying over 9 steps but `zs` has 5 steps" (review R8)."""
+    T = 9
+    zs = np.random.default_rng(1).normal(size=(4, T, 1))
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=0.1 * np.eye(2),
+                           R=np.linspace(0.5, 2.0, T)[:, None, None])
+    prior = gf.Gaussian(np.zeros(2), 10.0 * np.eye(2))
+    with dask.config.set(scheduler="synchronous"):
+        got = run(model, prior, da.from_array(zs, chunks=(2, T, 1)), engine="python")
+        want = run(model, prior, zs, engine="python")
+        assert got.means.shape == want.means.shape
+        np.testing.assert_array_equal(np.asarray(got.means), want.means)
+        np.testing.assert_array_equal(np.asarray(got.covs), want.covs)
+
+
 def test_times_with_chunked_measurements():
     """With `times`, a dask `zs` raised "`times` must have 2 entries ..." (the probe that reads the result's shape
     ran 2 steps at the real times): a TimedModel could not be used with dask at all (audit F)."""

@@ -63,6 +63,8 @@ def test_pieces_equal_the_whole_series_with_times(track, engine, rows):
             assert got.loglik == fi.loglik
         np.testing.assert_array_equal(sm.filtered.last_mean, fi.last_mean)
         np.testing.assert_array_equal(sm.filtered.last_cov, fi.last_cov)
+        for got in (sm.filtered, fi):  # their own arrays, as gf.filter's are, not views of the last step's
+            assert not np.shares_memory(got.last_mean, got.means) and not np.shares_memory(got.last_cov, got.covs)
     assert sum(sm.loglik for _, sm in smoothed) == pytest.approx(whole.loglik, rel=1e-12)
 
 

@@ -117,8 +117,9 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     zs, us : dask arrays (N, T, m) and (N, T, p) or None
     kwargs : dict
         The other arguments of `run`. The result's structure is read from
-        `run` on one series of zeros (readable path, no check), and again on
-        one a step longer: the axes whose lengths differ are time axes.
+        `run` on one series of zeros (readable path, no check), longer than
+        n, m and p by more than one step, so that its time axes are told
+        apart from the model's.
 
     Returns
     -------
@@ -143,26 +144,28 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
                    **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
-    # Two probes, one step apart: an axis whose length differs between them is the time axis. They are longer
-    # than the state dimension, so that a diffuse prior is identified (2 steps did not identify 3 states measured
-    # by one component: NotIdentified before any chunk ran).
-    probe = max(zs.shape[2], getattr(kwargs.get("model"), "n", 0)) + 3
-    template, longer = meta(probe), meta(probe + 1)
+    # A result's other axes are the model's n, m and p: an axis of the probe's length, or one less or more, is a
+    # time axis. The probe is longer than the state dimension, so that a diffuse prior is identified (2 steps did
+    # not identify 3 states measured by one component: NotIdentified before any chunk ran).
+    probe = max(zs.shape[2], getattr(kwargs.get("model"), "n", 0), 0 if us is None else us.shape[2]) + 3
+    if getattr(kwargs.get("model"), "steps", None) is not None:  # matrices per step: T steps, whose axes are T's
+        probe = T
+    template = meta(probe)
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
              for first, block, control, size in zip(firsts, blocks, controls, sizes)]
 
-    def build(template, longer, path):
+    def build(template, path):
         if not is_dataclass(template):
             return template
         values = {}
         for f in fields(template):
-            value, other = getattr(template, f.name), getattr(longer, f.name)
+            value = getattr(template, f.name)
             if is_dataclass(value):
-                values[f.name] = build(value, other, path + (f.name,))
+                values[f.name] = build(value, path + (f.name,))
             elif isinstance(value, np.ndarray) and value.ndim >= 1:
-                # a time axis of the probe's length, or one less, is T's (or T - 1's)
-                shape = tuple(d if d == e else T + d - probe for d, e in zip(value.shape[1:], other.shape[1:]))
+                # a time axis of the probe's length (or one less or more) is T's (or T - 1's or T + 1's)
+                shape = tuple(T + d - probe if abs(d - probe) <= 1 else d for d in value.shape[1:])
                 values[f.name] = da.concatenate([
                     da.from_delayed(dask.delayed(_field, pure=True)(task, path + (f.name,)),
                                     shape=(size, *shape), dtype=value.dtype)
@@ -171,7 +174,7 @@ def map_series(run: Callable, zs, us, kwargs: dict):
                 values[f.name] = value
         return type(template)(**values)
 
-    return build(template, longer, ())
+    return build(template, ())
 
 
 def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwargs: dict, share: float = 1.0):

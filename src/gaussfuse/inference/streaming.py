@@ -241,7 +241,7 @@ def _head(result, T: int, loglik: float):
         elif isinstance(value, np.ndarray) and not f.name.startswith("last_"):
             cut[f.name] = value[:T]
     if isinstance(result, FilterResult):
-        cut.update(last_mean=result.means[T - 1], last_cov=result.covs[T - 1], loglik=loglik)
+        cut.update(last_mean=result.means[T - 1].copy(), last_cov=result.covs[T - 1].copy(), loglik=loglik)
     return replace(result, **cut)
 
 
@@ -258,7 +258,7 @@ def _rows(result: FilterResult, a: int, b: int, last: bool) -> FilterResult:
         return result
     cut = {f.name: getattr(result, f.name)[a:b] for f in fields(result)
            if isinstance(getattr(result, f.name), np.ndarray) and not f.name.startswith("last_")}
-    return replace(result, **cut, last_mean=result.means[b - 1], last_cov=result.covs[b - 1],
+    return replace(result, **cut, last_mean=result.means[b - 1].copy(), last_cov=result.covs[b - 1].copy(),
                    loglik=result.loglik if last else 0.0)
 
 
