@@ -522,8 +522,19 @@ def test_datetimes_are_drawn_as_dates(filtered):
                                                                                         model.H)):
             line = fig.axes[0].get_lines()[-1]
             np.testing.assert_allclose(mdates.date2num(line.get_xdata()), want, rtol=0, atol=1e-9)
-    fig = plot_series(pd.to_timedelta(np.arange(12), unit="s"), res.means, res.covs)
-    assert fig.axes[0].get_lines()[0].get_xdata().dtype.kind == "m"
+    # durations in seconds, whatever their unit: matplotlib drew their counts (4 s was 4, 4000 or 4e6; audit X4)
+    for times in (np.arange(12) * np.timedelta64(1, "s"), np.arange(12) * np.timedelta64(1000, "ms"),
+                  pd.to_timedelta(np.arange(12), unit="s")):
+        for fig in (plot_series(times, res.means, res.covs, zs=zs),
+                    plot_measurements(times, zs, res.means, res.covs, model.H)):
+            np.testing.assert_array_equal(fig.axes[0].get_lines()[-1].get_xdata(), np.arange(12.0))
+            assert "time (s)" in [ax.get_xlabel() for ax in fig.axes]
+        assert plot_series(times, res.means, res.covs).axes[0].get_xlabel() == "time (s)"
+        assert plot_series(times, res.means, res.covs, time_unit="sec").axes[0].get_xlabel() == "time (sec)"
+        probs = np.full((12, 2), 0.5)
+        fig = plot_mode_probabilities(times, probs)
+        assert fig.axes[0].get_xlabel() == "time (s)"
+        np.testing.assert_array_equal(fig.axes[0].get_lines()[0].get_xdata(), np.arange(12.0))
     with pytest.raises(ValueError, match="`times` must not hold NaT"):
         plot_series(np.r_[utc[:11], np.datetime64("NaT")], res.means, res.covs)
 

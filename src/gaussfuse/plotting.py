@@ -78,9 +78,9 @@ def plot_series(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times: numbers, or dates and durations (datetime64, timedelta64,
-        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
-        as such.
+        Times: numbers; dates (datetime64, datetime, a pandas
+        DatetimeIndex; a time zone drawn as UTC), drawn as dates; or
+        durations (timedelta64), drawn in seconds.
     means : array_like of shape (T, n) or (T,)
         Means (filtered or smoothed), e.g. ``res.means``.
     covs : array_like of shape (T, n, n), or (T,) variances when `means` is 1-D, optional
@@ -105,7 +105,7 @@ def plot_series(
         Label of the value axis; ``"component <c>"`` by default.
     unit, time_unit : str, optional
         Units of the values and of the times, shown in the axis labels as
-        ``"<label> (<unit>)"``.
+        ``"<label> (<unit>)"``; durations' `time_unit` is "s" unless given.
 
     Returns
     -------
@@ -129,7 +129,8 @@ def plot_series(
     >>> [line.get_label() for line in fig.axes[0].get_lines()]
     ['measurement', 'estimate']
     """
-    times = _times("times", times)
+    times, seconds = _times("times", times)
+    time_unit = seconds if time_unit is None else time_unit
     T = times.shape[0]
     means = _data("means", means, (1, 2), T, "(T,) or (T, n)")
     if means.ndim == 1:
@@ -352,9 +353,9 @@ def plot_mode_probabilities(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times: numbers, or dates and durations (datetime64, timedelta64,
-        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
-        as such.
+        Times: numbers; dates (datetime64, datetime, a pandas
+        DatetimeIndex; a time zone drawn as UTC), drawn as dates; or
+        durations (timedelta64), drawn in seconds.
     probs : array_like of shape (T, M)
         Probability of each of the M modes at each step, e.g.
         ``res.mode_probs`` of :func:`gaussfuse.imm_filter`.
@@ -379,7 +380,7 @@ def plot_mode_probabilities(
         If `names` is a string rather than a sequence of them, or `stacked`
         is not a bool.
     """
-    times = _times("times", times)
+    times, seconds = _times("times", times)
     probs = as_array("probs", probs)
     T = times.shape[0]
     if probs.ndim != 2 or probs.shape[0] != T or probs.shape[1] == 0:
@@ -395,7 +396,7 @@ def plot_mode_probabilities(
     else:
         for j in range(M):
             ax.plot(times, probs[:, j], label=names[j])
-    ax.set(xlabel="time", ylabel="mode probability", ylim=(-0.02, 1.02))
+    ax.set(xlabel=_with_unit("time", seconds), ylabel="mode probability", ylim=(-0.02, 1.02))
     ax.legend(loc="best", fontsize="small")
     return fig
 
@@ -434,9 +435,9 @@ def plot_measurements(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times: numbers, or dates and durations (datetime64, timedelta64,
-        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
-        as such.
+        Times: numbers; dates (datetime64, datetime, a pandas
+        DatetimeIndex; a time zone drawn as UTC), drawn as dates; or
+        durations (timedelta64), drawn in seconds.
     zs : array_like of shape (T, m) or (T,)
         Measurements; NaN (missing) components are not drawn.
     means : array_like of shape (T, n)
@@ -456,7 +457,7 @@ def plot_measurements(
     xlabel : str, default "time"
         Label of the time axis.
     time_unit : str, optional
-        Unit of the times.
+        Unit of the times ("s" for durations unless given).
     title : str, optional
         Title of the figure.
     track : bool, default False
@@ -475,7 +476,8 @@ def plot_measurements(
         If `fig` is not a Figure, `names` is a string rather than a
         sequence of them, or `track` is not a bool.
     """
-    times = _times("times", times)
+    times, seconds = _times("times", times)
+    time_unit = seconds if time_unit is None else time_unit
     T = times.shape[0]
     zs = _data("zs", zs, (1, 2), T, "(T,) or (T, m)")
     zs = zs.reshape(T, -1)
@@ -541,9 +543,9 @@ def plot_demo(
     Parameters
     ----------
     times : array_like of shape (T,)
-        Times: numbers, or dates and durations (datetime64, timedelta64,
-        datetime, a pandas DatetimeIndex; a time zone drawn as UTC), drawn
-        as such.
+        Times: numbers; dates (datetime64, datetime, a pandas
+        DatetimeIndex; a time zone drawn as UTC), drawn as dates; or
+        durations (timedelta64), drawn in seconds.
     zs : array_like of shape (T, 2)
         Position measurements (x, y).
     truth : array_like of shape (T, n)
@@ -727,15 +729,19 @@ def _described(estimates) -> str:
     return type(estimates).__name__
 
 
-def _times(name: str, value) -> np.ndarray:
-    """Times to draw against: numbers, or datetimes (datetime64, datetime, pandas; a zone as UTC) kept as
-    datetime64 or timedelta64, which matplotlib draws as dates and durations."""
+def _times(name: str, value) -> tuple[np.ndarray, str | None]:
+    """Times to draw against, and their unit when it is known: numbers as they are; datetimes (datetime64,
+    datetime, pandas; a zone as UTC) as datetime64, which matplotlib draws as dates; durations (timedelta64) as
+    float seconds, unit "s" (matplotlib drew their counts, of a unit it did not show: 4 s was 4, 4000 or 4e6)."""
     arr = as_instants(name, value)
+    unit = None
     if arr is None:
         arr = as_array(name, value)
+    elif arr.dtype.kind == "m":
+        arr, unit = arr / np.timedelta64(1, "s"), "s"
     if arr.ndim != 1 or arr.shape[0] == 0:
         raise shape_error(name, "(T,) with T >= 1", arr.shape)
-    return arr
+    return arr, unit
 
 
 def _data(name: str, value, ndims: tuple[int, ...], T: int | None, expected: str) -> np.ndarray:
