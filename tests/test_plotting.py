@@ -362,7 +362,10 @@ BAD = [
      r"`means` must have shape .*got shape \(4, 2\)"),
     (lambda: plot_series(np.zeros((3, 1)), np.zeros((3, 2)), None), r"`times` must have shape \(T,\)"),
     (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), np.zeros((3, 3, 3))),
-     r"`covs` must have shape \(3, 2, 2\) to match `means`.*got shape \(3, 3, 3\)"),
+     r"`covs` must have shape \(3, 2, 2\) \(`means` has n = 2, `times` T = 3\); got shape \(3, 3, 3\)"),
+    # two reasons ran together: "(4, 2, 2) to match `means` with T = 4 to match `times`" (audit X4)
+    (lambda: plot_series(np.arange(4.0), np.zeros((4, 2)), np.zeros((4, 2))),
+     r"^`covs` must have shape \(4, 2, 2\) \(`means` has n = 2, `times` T = 4\); got shape \(4, 2\)\.$"),
     (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), None, component=2), r"`component` must be"),
     (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), None, zs=np.zeros(4)), r"`zs` must have shape"),
     (lambda: plot_series(np.arange(3.0), np.zeros((3, 2)), None, component=1, truth=np.zeros((3, 1))),
@@ -550,6 +553,19 @@ def test_a_refused_series_or_trajectory_leaves_no_pyplot_figure_open():
         "         lambda: plot_trajectory(m, P, zs=np.zeros(3)),\n"
         "         lambda: plot_trajectory(m, P, truth=np.zeros((4, 1)))]\n"
     ) == "0"
+
+
+def test_a_single_step_is_a_point_and_a_bar():
+    """A line and a band of one step have no length and no width: only their legend was drawn (audit X4)."""
+    fig = plot_series(np.array([2.0]), np.array([[1.0, 0.0]]), np.array([np.diag([0.25, 1.0])]), k=3)
+    ax = fig.axes[0]
+    (line,) = ax.get_lines()
+    assert line.get_marker() == "o" and line.get_xydata().tolist() == [[2.0, 1.0]]
+    (bar,) = ax.collections
+    np.testing.assert_allclose(bar.get_segments()[0], [[2.0, 1.0 - 1.5], [2.0, 1.0 + 1.5]])
+    assert bar.get_label() == "estimate ±3σ"
+    line = plot_series(np.arange(2.0), np.zeros((2, 1)), np.ones((2, 1, 1))).axes[0].get_lines()[0]
+    assert line.get_marker() in (None, "None", "")  # two steps or more: a line, as before
 
 
 def test_messages_name_the_argument_at_fault(filtered):

@@ -142,11 +142,12 @@ def plot_series(
                          f"got {component!r}.")
     std = None
     if covs is not None:
-        covs = _data("covs", covs, (1, 3), T, f"({T}, {n}, {n}) to match `means`")
-        if covs.ndim == 1:
+        covs = as_array("covs", covs, allow_nan=True)
+        given = covs.shape
+        if covs.ndim == 1:  # the variances of a scalar state
             covs = covs[:, None, None]
         if covs.shape != (T, n, n):
-            raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+            raise shape_error("covs", f"({T}, {n}, {n}) (`means` has n = {n}, `times` T = {T})", given)
         std = marginal_std(covs)[:, component]
     k = real("k", k, positive=True)
     zs = None if zs is None else _column("zs", zs, T, component)  # checked before a figure is made
@@ -783,9 +784,17 @@ def _nanmean(values: np.ndarray, axis: int) -> np.ndarray:
 
 def _band(ax: Axes, times: np.ndarray, mean: np.ndarray, std: np.ndarray | None, label: str,
           k: float = 2.0) -> None:
-    """A line for `mean` and a shaded band of ±k `std` in the same colour."""
-    (line,) = ax.plot(times, mean, label=label)
-    if std is not None:
+    """A line for `mean` and a shaded band of ±k `std` in the same colour.
+
+    A single step is a point and a bar (a line and a band of one step have no length and no width: nothing was
+    drawn but their legend).
+    """
+    one = times.shape[0] == 1
+    (line,) = ax.plot(times, mean, label=label, marker="o" if one else None)
+    if std is not None and one:
+        ax.vlines(times, mean - k * std, mean + k * std, color=line.get_color(), alpha=0.2, linewidth=8,
+                  label=f"{label} ±{k:g}σ")
+    elif std is not None:
         ax.fill_between(times, mean - k * std, mean + k * std, color=line.get_color(),
                         alpha=0.2, linewidth=0, label=f"{label} ±{k:g}σ")
 
