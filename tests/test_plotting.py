@@ -555,6 +555,19 @@ def test_a_refused_series_or_trajectory_leaves_no_pyplot_figure_open():
     ) == "0"
 
 
+def test_measurements_without_covariances_are_drawn_without_bands(filtered):
+    """A keep="means" result has no covariances: plot_measurements refused it ("`covs` must be an array of numbers;
+    got NoneType"), where plot_series and plot_trajectory draw it without bands (audit X4)."""
+    times, zs, res, model = filtered
+    H = np.atleast_2d(model.H)
+    fig = plot_measurements(times, np.column_stack([zs, zs]) if zs.ndim == 1 else zs, res.means, None,
+                            np.vstack([H, H]) if H.shape[0] == 1 else H, track=True)
+    for ax in fig.axes:
+        assert not ax.collections and not ax.patches  # no band, no ellipse
+    line = fig.axes[0].get_lines()[-1]
+    np.testing.assert_allclose(line.get_ydata(), (res.means @ H.T)[:, 0])
+
+
 def test_a_single_step_is_a_point_and_a_bar():
     """A line and a band of one step have no length and no width: only their legend was drawn (audit X4)."""
     fig = plot_series(np.array([2.0]), np.array([[1.0, 0.0]]), np.array([np.diag([0.25, 1.0])]), k=3)

@@ -443,8 +443,9 @@ def plot_measurements(
         Measurements; NaN (missing) components are not drawn.
     means : array_like of shape (T, n)
         State means (filtered or smoothed).
-    covs : array_like of shape (T, n, n)
-        State covariances.
+    covs : array_like of shape (T, n, n) or None
+        State covariances; None (a result kept with ``keep="means"``) draws
+        no bands or ellipses.
     H : array_like of shape (m, n) or (T, m, n)
         Measurement matrix, e.g. ``model.H``.
     names : sequence of str of length m, optional
@@ -485,9 +486,10 @@ def plot_measurements(
     m = zs.shape[1]
     means = _data("means", means, (2,), T, "(T, n)")
     n = means.shape[1]
-    covs = _data("covs", covs, (3,), T, f"({T}, {n}, {n}) to match `means`")
-    if covs.shape != (T, n, n):
-        raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+    if covs is not None:  # ("`covs` must be an array of numbers; got NoneType" for a keep="means" result)
+        covs = _data("covs", covs, (3,), T, f"({T}, {n}, {n}) to match `means`")
+        if covs.shape != (T, n, n):
+            raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
     H = as_array("H", H)
     if H.ndim == 1 and m == 1:
         H = H[None]
@@ -506,7 +508,7 @@ def plot_measurements(
     if track and m != 2:
         raise ValueError(f"`track` draws two measurement components against each other; these have m = {m}.")
     est = (H @ means[..., None])[..., 0]
-    zcov = H @ covs @ np.swapaxes(H, -1, -2)
+    zcov = None if covs is None else H @ covs @ np.swapaxes(H, -1, -2)
     fig = _given_figure(fig) or _figure((12.0 if track else 7.0, 1.0 + 2.2 * max(m, 2 if track else 1)))
     grid = fig.add_gridspec(m, 2 if track else 1, width_ratios=(3, 2) if track else None)
     axes = [fig.add_subplot(grid[0, 0])]
