@@ -84,19 +84,18 @@ def _scales(x: np.ndarray, spread: np.ndarray | None, floor: bool = True) -> np.
 
     ``spread_j`` where given and positive (at least ``1e-7 |x_j|``), else
     ``|x_j|``; the state's, ``0.1 max_i |x_i|`` (0.01 for a
-    state of zeros), where that is 0 or below 1e-287 (a complex step of
-    1e-20 of it would be subnormal: at 1e-281 a step of 0.01 gave sqrt a
-    slope of 7e10 for 1.6e140); and without `spread`, the state's as a
+    state of zeros), where that is 0 or below 1e-280 (a complex step of
+    1e-20 of it would underflow); and without `spread`, the state's as a
     floor for every component, unless ``floor=False``.
     """
     largest = np.max(np.abs(x))
-    whole = 0.1 * largest if largest > 1e-286 else 1e-2  # an all-zero state has no scale: a guess
+    whole = 0.1 * largest if largest > 1e-279 else 1e-2  # an all-zero state has no scale: a guess
     # the belief's spread where given: a range to a beacon 10 m away in Earth-centred metres (|x| = 6.4e6,
     # spread 1) was stepped by 6.4e5 m; no finer than 1e-7 |x|, or the steps would reach round-off
     own = np.abs(x) if spread is None else np.where(spread > 0, np.maximum(spread, 1e-7 * np.abs(x)), np.abs(x))
     if floor and spread is None:
         return np.maximum(own, whole)
-    return np.where(own > 1e-287, own, whole)
+    return np.where(own > 1e-280, own, whole)
 
 
 class _RejectsComplex(Exception):
