@@ -533,7 +533,12 @@ def test_datetimes_are_drawn_as_dates(filtered):
             np.testing.assert_array_equal(fig.axes[0].get_lines()[-1].get_xdata(), np.arange(12.0))
             assert "time (s)" in [ax.get_xlabel() for ax in fig.axes]
         assert plot_series(times, res.means, res.covs).axes[0].get_xlabel() == "time (s)"
-        assert plot_series(times, res.means, res.covs, time_unit="sec").axes[0].get_xlabel() == "time (sec)"
+        # in the unit asked for (review R9: 3 minutes under "time (min)" were drawn as 0, 60, 120)
+        fig = plot_series(times, res.means, res.covs, time_unit="ms")
+        assert fig.axes[0].get_xlabel() == "time (ms)"
+        np.testing.assert_array_equal(fig.axes[0].get_lines()[-1].get_xdata(), 1000.0 * np.arange(12.0))
+        with pytest.raises(ValueError, match=r"^`time_unit` must be one of D, h, m, s, ms, us, ns .* got 'min'\.$"):
+            plot_series(times, res.means, res.covs, time_unit="min")
         probs = np.full((12, 2), 0.5)
         fig = plot_mode_probabilities(times, probs)
         assert fig.axes[0].get_xlabel() == "time (s)"
@@ -579,6 +584,11 @@ def test_a_single_step_is_a_point_and_a_bar():
     assert bar.get_label() == "estimate ±3σ"
     line = plot_series(np.arange(2.0), np.zeros((2, 1)), np.ones((2, 1, 1))).axes[0].get_lines()[0]
     assert line.get_marker() in (None, "None", "")  # two steps or more: a line, as before
+    # the truth, and a trajectory's estimate and truth, of one step are dots too (review R9)
+    ax = plot_series(np.array([2.0]), np.array([[1.0]]), None, truth=np.array([[0.5]])).axes[0]
+    assert [line.get_marker() for line in ax.get_lines()] == ["o", "o"]
+    ax = plot_trajectory(np.array([[1.0, 2.0]]), truth=np.array([[1.5, 2.5]])).axes[0]
+    assert [line.get_marker() for line in ax.get_lines()] == ["o", "o"]
 
 
 def test_messages_name_the_argument_at_fault(filtered):

@@ -80,7 +80,7 @@ def plot_series(
     times : array_like of shape (T,)
         Times: numbers; dates (datetime64, datetime, a pandas
         DatetimeIndex; a time zone drawn as UTC), drawn as dates; or
-        durations (timedelta64), drawn in seconds.
+        durations (timedelta64), drawn in `time_unit` (seconds by default).
     means : array_like of shape (T, n) or (T,)
         Means (filtered or smoothed), e.g. ``res.means``.
     covs : array_like of shape (T, n, n), or (T,) variances when `means` is 1-D, optional
@@ -105,7 +105,8 @@ def plot_series(
         Label of the value axis; ``"component <c>"`` by default.
     unit, time_unit : str, optional
         Units of the values and of the times, shown in the axis labels as
-        ``"<label> (<unit>)"``; durations' `time_unit` is "s" unless given.
+        ``"<label> (<unit>)"``. Durations are drawn in `time_unit`, one of
+        NumPy's ("D", "h", "m", "s", "ms", "us", "ns"; default "s").
 
     Returns
     -------
@@ -129,8 +130,7 @@ def plot_series(
     >>> [line.get_label() for line in fig.axes[0].get_lines()]
     ['measurement', 'estimate']
     """
-    times, seconds = _times("times", times)
-    time_unit = seconds if time_unit is None else time_unit
+    times, time_unit = _times("times", times, time_unit)
     T = times.shape[0]
     means = _data("means", means, (1, 2), T, "(T,) or (T, n)")
     if means.ndim == 1:
@@ -156,7 +156,7 @@ def plot_series(
     if zs is not None:
         ax.plot(times, zs, label="measurement", **_MEASUREMENT_STYLE)
     if truth is not None:
-        ax.plot(times, truth, label="truth", **_TRUTH_STYLE)
+        ax.plot(times, truth, label="truth", **_TRUTH_STYLE, marker="o" if T == 1 else None)
     _band(ax, times, means[:, component], std, label, k)
     ax.set_xlabel(_with_unit(xlabel, time_unit))
     ax.set_ylabel(_with_unit(f"component {component}" if ylabel is None else ylabel, unit))
@@ -241,8 +241,8 @@ def plot_trajectory(
     if zs is not None:
         ax.plot(zs[:, 0], zs[:, 1], label="measurement", **_MEASUREMENT_STYLE)
     if truth is not None:
-        ax.plot(truth[:, 0], truth[:, 1], label="truth", **_TRUTH_STYLE)
-    (line,) = ax.plot(means[:, 0], means[:, 1], label=label)
+        ax.plot(truth[:, 0], truth[:, 1], label="truth", **_TRUTH_STYLE, marker="o" if len(truth) == 1 else None)
+    (line,) = ax.plot(means[:, 0], means[:, 1], label=label, marker="o" if T == 1 else None)  # one point: a dot
     if covs is not None:
         _ellipses(ax, means[::every, :2], covs[::every, :2, :2], k, line.get_color(), f"{label} {k:g}σ")
     ax.set(xlabel=_with_unit(xlabel, unit), ylabel=_with_unit(ylabel, unit), aspect="equal", adjustable="datalim")
@@ -438,7 +438,7 @@ def plot_measurements(
     times : array_like of shape (T,)
         Times: numbers; dates (datetime64, datetime, a pandas
         DatetimeIndex; a time zone drawn as UTC), drawn as dates; or
-        durations (timedelta64), drawn in seconds.
+        durations (timedelta64), drawn in `time_unit` (seconds by default).
     zs : array_like of shape (T, m) or (T,)
         Measurements; NaN (missing) components are not drawn.
     means : array_like of shape (T, n)
@@ -459,7 +459,8 @@ def plot_measurements(
     xlabel : str, default "time"
         Label of the time axis.
     time_unit : str, optional
-        Unit of the times ("s" for durations unless given).
+        Unit of the times; durations are drawn in it, one of NumPy's ("D",
+        "h", "m", "s", "ms", "us", "ns"; default "s").
     title : str, optional
         Title of the figure.
     track : bool, default False
@@ -478,8 +479,7 @@ def plot_measurements(
         If `fig` is not a Figure, `names` is a string rather than a
         sequence of them, or `track` is not a bool.
     """
-    times, seconds = _times("times", times)
-    time_unit = seconds if time_unit is None else time_unit
+    times, time_unit = _times("times", times, time_unit)
     T = times.shape[0]
     zs = _data("zs", zs, (1, 2), T, "(T,) or (T, m)")
     zs = zs.reshape(T, -1)
@@ -732,16 +732,24 @@ def _described(estimates) -> str:
     return type(estimates).__name__
 
 
-def _times(name: str, value) -> tuple[np.ndarray, str | None]:
-    """Times to draw against, and their unit when it is known: numbers as they are; datetimes (datetime64,
-    datetime, pandas; a zone as UTC) as datetime64, which matplotlib draws as dates; durations (timedelta64) as
-    float seconds, unit "s" (matplotlib drew their counts, of a unit it did not show: 4 s was 4, 4000 or 4e6)."""
+_DURATION_UNITS = ("D", "h", "m", "s", "ms", "us", "ns")
+
+
+def _times(name: str, value, unit: str | None = None) -> tuple[np.ndarray, str | None]:
+    """Times to draw against, and the unit of the time axis: numbers as they are (in `unit`); datetimes
+    (datetime64, datetime, pandas; a zone as UTC) as datetime64, which matplotlib draws as dates; durations
+    (timedelta64) as floats in `unit`, one of NumPy's (seconds by default): matplotlib drew their counts, of a unit
+    it did not show (4 s was 4, 4000 or 4e6)."""
     arr = as_instants(name, value)
-    unit = None
     if arr is None:
         arr = as_array(name, value)
     elif arr.dtype.kind == "m":
-        arr, unit = arr / np.timedelta64(1, "s"), "s"
+        if unit is None:
+            unit = "s"
+        if unit not in _DURATION_UNITS:
+            raise ValueError(f"`time_unit` must be one of {', '.join(_DURATION_UNITS)} (or None, seconds) for "
+                             f"durations, which are drawn in it; got {unit!r}.")
+        arr = arr / np.timedelta64(1, unit)
     if arr.ndim != 1 or arr.shape[0] == 0:
         raise shape_error(name, "(T,) with T >= 1", arr.shape)
     return arr, unit
