@@ -170,6 +170,10 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
     _refused(tmp_path / "i.csv", "id,t,z\na,0,1\n\nb,1,-inf\n",
              r"i\.csv: line 4: column `z`: series 'b': a measurement is infinite \(-inf\)\.$")
     _refused(tmp_path / "j.csv", "id,t,z\na,0,1\n,1,-inf\n", r"j\.csv: line 3: column `id`: a row has no series id")
+    (tmp_path / "k.csv").write_text("id,t,z\na,0,1\n")  # it said "no column named `id`" (audit X3)
+    with pytest.raises(gfio.InputFileError, match=r"k\.csv: the time column `id` is the series-id column; found "
+                                                  r"columns \['id', 't', 'z'\]\.$"):
+        panels.read_partition(str(tmp_path / "k.csv"), "id", 1, time_column="id")
     (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")
     with pytest.raises(gfio.InputFileError, match=r"l\.csv: not UTF-8 text"):
         panels.read_partition(str(tmp_path / "l.csv"), "id", 1)

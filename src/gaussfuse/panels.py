@@ -152,6 +152,9 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     if columns is not None and series_column in columns:
         raise InputFileError(path, f"measurement column `{series_column}` is the series-id column; found columns "
                                    f"{header}.")
+    if time_column == series_column:  # ("no column named `id`" where there is one)
+        raise InputFileError(path, f"the time column `{time_column}` is the series-id column; found columns "
+                                   f"{header}.")
     rest = [h for h in header if h != series_column]  # the time and measurement columns, as in one series' file
     try:
         at = _time_column(path, rest, time_column)
