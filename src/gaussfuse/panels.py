@@ -34,7 +34,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
-from .inference.timing import Steps, per_second, round_off
+from .inference.timing import Steps, per_second, round_off, since
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _float, _measurement_columns,
                  _parse_time, _time_column, _wrong_cells)
 
@@ -320,13 +320,15 @@ def _seconds(path: str, column, name: str, lines: list[int] | None, codes: np.nd
 
 
 def _since_first(counts: list[int], codes: np.ndarray, per_second: int) -> np.ndarray:
-    """Integer `counts` of 1/`per_second` s (one a row) as float seconds after the first of their series (`codes`)."""
-    first: dict[int, int] = {}
-    for count, code in zip(counts, codes.tolist()):
-        if count < first.get(code, count + 1):
-            first[code] = count
-    return np.array([(count - first[code]) / per_second for count, code in zip(counts, codes.tolist())],
-                    dtype=np.float64)
+    """Integer `counts` of 1/`per_second` s (one a row) as float seconds after the first of their series (`codes`):
+    :func:`~.inference.timing.since` on each series' rows."""
+    order = np.argsort(codes, kind="stable")
+    counts = np.array(counts, dtype=object)  # Python integers, of any span
+    out = np.empty(len(counts))
+    for rows in np.split(order, np.flatnonzero(np.diff(codes[order])) + 1):
+        mine = counts[rows].tolist()
+        out[rows] = since(mine, min(mine), per_second)
+    return out
 
 
 _PLAIN = r"^\d{4}-\d\d-\d\d[T ]\d\d:\d\d:\d\d(?:\.\d{1,9})?(?:Z|[+-]\d\d:\d\d)?$"

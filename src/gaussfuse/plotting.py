@@ -142,12 +142,7 @@ def plot_series(
                          f"got {component!r}.")
     std = None
     if covs is not None:
-        covs = as_array("covs", covs, allow_nan=True)
-        given = covs.shape
-        if covs.ndim == 1:  # the variances of a scalar state
-            covs = covs[:, None, None]
-        if covs.shape != (T, n, n):
-            raise shape_error("covs", f"({T}, {n}, {n}) (`means` has n = {n}, `times` T = {T})", given)
+        covs = _covs(covs, T, n, f"(`means` has n = {n}, `times` T = {T})", variances=True)
         std = marginal_std(covs)[:, component]
     k = real("k", k, positive=True)
     zs = None if zs is None else _column("zs", zs, T, component)  # checked before a figure is made
@@ -156,7 +151,7 @@ def plot_series(
     if zs is not None:
         ax.plot(times, zs, label="measurement", **_MEASUREMENT_STYLE)
     if truth is not None:
-        ax.plot(times, truth, label="truth", **_TRUTH_STYLE, marker="o" if T == 1 else None)
+        ax.plot(times, truth, label="truth", **_TRUTH_STYLE, **_dot(T))
     _band(ax, times, means[:, component], std, label, k)
     ax.set_xlabel(_with_unit(xlabel, time_unit))
     ax.set_ylabel(_with_unit(f"component {component}" if ylabel is None else ylabel, unit))
@@ -229,9 +224,7 @@ def plot_trajectory(
     if n < 2:
         raise shape_error("means", "(T, n) with n >= 2", means.shape)
     if covs is not None:
-        covs = _data("covs", covs, (3,), None, f"({T}, {n}, {n}) to match `means`")  # its T checked below
-        if covs.shape != (T, n, n):
-            raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+        covs = _covs(covs, T, n, "to match `means`")
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise ValueError(f"`every` must be a positive integer; got {every!r}.")
     k = real("k", k, positive=True)
@@ -241,8 +234,8 @@ def plot_trajectory(
     if zs is not None:
         ax.plot(zs[:, 0], zs[:, 1], label="measurement", **_MEASUREMENT_STYLE)
     if truth is not None:
-        ax.plot(truth[:, 0], truth[:, 1], label="truth", **_TRUTH_STYLE, marker="o" if len(truth) == 1 else None)
-    (line,) = ax.plot(means[:, 0], means[:, 1], label=label, marker="o" if T == 1 else None)  # one point: a dot
+        ax.plot(truth[:, 0], truth[:, 1], label="truth", **_TRUTH_STYLE, **_dot(len(truth)))
+    (line,) = ax.plot(means[:, 0], means[:, 1], label=label, **_dot(T))
     if covs is not None:
         _ellipses(ax, means[::every, :2], covs[::every, :2, :2], k, line.get_color(), f"{label} {k:g}σ")
     ax.set(xlabel=_with_unit(xlabel, unit), ylabel=_with_unit(ylabel, unit), aspect="equal", adjustable="datalim")
@@ -381,7 +374,7 @@ def plot_mode_probabilities(
         If `names` is a string rather than a sequence of them, or `stacked`
         is not a bool.
     """
-    times, seconds = _times("times", times)
+    times, time_unit = _times("times", times)
     probs = as_array("probs", probs)
     T = times.shape[0]
     if probs.ndim != 2 or probs.shape[0] != T or probs.shape[1] == 0:
@@ -397,7 +390,7 @@ def plot_mode_probabilities(
     else:
         for j in range(M):
             ax.plot(times, probs[:, j], label=names[j])
-    ax.set(xlabel=_with_unit("time", seconds), ylabel="mode probability", ylim=(-0.02, 1.02))
+    ax.set(xlabel=_with_unit("time", time_unit), ylabel="mode probability", ylim=(-0.02, 1.02))
     ax.legend(loc="best", fontsize="small")
     return fig
 
@@ -487,9 +480,7 @@ def plot_measurements(
     means = _data("means", means, (2,), T, "(T, n)")
     n = means.shape[1]
     if covs is not None:  # ("`covs` must be an array of numbers; got NoneType" for a keep="means" result)
-        covs = _data("covs", covs, (3,), T, f"({T}, {n}, {n}) to match `means`")
-        if covs.shape != (T, n, n):
-            raise shape_error("covs", f"({T}, {n}, {n}) to match `means`", covs.shape)
+        covs = _covs(covs, T, n, "to match `means`")
     H = as_array("H", H)
     if H.ndim == 1 and m == 1:
         H = H[None]
@@ -764,6 +755,22 @@ def _data(name: str, value, ndims: tuple[int, ...], T: int | None, expected: str
     return arr
 
 
+def _covs(value, T: int, n: int, because: str, variances: bool = False) -> np.ndarray:
+    """`value` as covariances (T, n, n), refused naming `because`; a (T,) array of variances too where `variances`."""
+    covs = as_array("covs", value, allow_nan=True)
+    given = covs.shape
+    if variances and covs.ndim == 1:  # the variances of a scalar state
+        covs = covs[:, None, None]
+    if covs.shape != (T, n, n):
+        raise shape_error("covs", f"({T}, {n}, {n}) {because}", given)
+    return covs
+
+
+def _dot(points: int) -> dict:
+    """The marker of a line of `points` points: a dot for one, which as a line has no length and is not drawn."""
+    return {"marker": "o"} if points == 1 else {}
+
+
 def _column(name: str, value, T: int, component: int) -> np.ndarray:
     """Column `component` of a (T, d) array, or a (T,) array as it is."""
     arr = _data(name, value, (1, 2), T, f"(T,) or (T, d) with d > {component}")
@@ -799,9 +806,8 @@ def _band(ax: Axes, times: np.ndarray, mean: np.ndarray, std: np.ndarray | None,
     A single step is a point and a bar (a line and a band of one step have no length and no width: nothing was
     drawn but their legend).
     """
-    one = times.shape[0] == 1
-    (line,) = ax.plot(times, mean, label=label, marker="o" if one else None)
-    if std is not None and one:
+    (line,) = ax.plot(times, mean, label=label, **_dot(times.shape[0]))
+    if std is not None and times.shape[0] == 1:
         ax.vlines(times, mean - k * std, mean + k * std, color=line.get_color(), alpha=0.2, linewidth=8,
                   label=f"{label} ±{k:g}σ")
     elif std is not None:
