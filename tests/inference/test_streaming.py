@@ -234,3 +234,23 @@ def test_bad_check():
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="`check` must be one of"):
         list(filter_pieces(model, gf.Gaussian(0.0, 1.0), [], check="loud"))
+
+
+def test_a_nonlinear_models_pieces_run_forward_and_backward_on_one_engine():
+    """With engine="auto", a nonlinear model's pieces are smoothed on the readable path; their forward pass
+    ran compiled, so a piece's loglik and starting belief came from another arithmetic than its smoothed and
+    filtered beliefs (3e-17 apart in `last_mean`). Both passes now run on the readable path."""
+    rng = np.random.default_rng(4)
+    model = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.RangeBearing(r_range=0.5, r_bearing=0.01), dt=0.5)
+    times = 0.5 * np.arange(40.0)
+    track = np.array([2.6, 1.4])[None] + np.array([0.3, 0.5])[None] * times[:, None]
+    zs = np.c_[np.hypot(*track.T), np.arctan2(track[:, 1], track[:, 0])] + rng.normal(size=(40, 2)) * [0.7, 0.1]
+    prior = gf.Gaussian([2.6, 1.4, 0.0, 0.5], np.eye(4))
+    got = list(smooth_pieces(model, prior, cut(zs, times, 7), engine="auto", check="off"))
+    want = list(smooth_pieces(model, prior, cut(zs, times, 7), engine="python", check="off"))
+    for (_, g), (_, w) in zip(got, want, strict=True):
+        for a, b in ((g, w), (g.filtered, w.filtered)):
+            assert a.loglik == b.loglik
+            np.testing.assert_array_equal(a.means, b.means)
+            np.testing.assert_array_equal(a.covs, b.covs)
+        np.testing.assert_array_equal(g.filtered.last_mean, w.filtered.last_mean)

@@ -33,6 +33,7 @@ import pickle
 import re
 from contextlib import contextmanager
 from dataclasses import fields, replace
+from itertools import chain, islice
 import tempfile
 import warnings
 from collections.abc import Iterable, Iterator
@@ -85,9 +86,9 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     engine : {"auto", "numba", "python"}
         With "auto" and more than one piece, the compiled engine for all of
         them (so that every piece runs the same arithmetic); but
-        :func:`smooth_pieces` smooths a nonlinear model's pieces on the
-        readable path, the only one that starts a backward pass from the
-        next piece's smoothed belief.
+        :func:`smooth_pieces` runs a nonlinear model's pieces, forward and
+        backward, on the readable path, the only one that starts a backward
+        pass from the next piece's smoothed belief.
     check : {"warn", "raise", "off"}
         The divergence check, over the whole series: "raise" stops at the
         first window that fails; "warn" warns once at the end.
@@ -149,9 +150,15 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         Each piece with its smoothed beliefs, the last piece first. Each
         result's ``.filtered`` is the forward pass over the piece.
     """
+    pieces = iter(pieces)
+    head = list(islice(pieces, 2))
+    if engine == "auto" and len(head) > 1:  # the compiled smoother's ending is the linear kernel's; the forward
+        # pass runs on the smoother's engine, so that a piece's loglik and beliefs come from one arithmetic
+        engine = "numba" if isinstance(model, LinearModel) or getattr(model, "linear", False) is True else "python"
     with tempfile.TemporaryFile(dir=spool_dir) as spool:
         offsets, belief, before, start = [], prior, None, 0
-        for piece, result in filter_pieces(model, prior, pieces, timed=timed, engine=engine, check=check):
+        for piece, result in filter_pieces(model, prior, chain(head, pieces), timed=timed, engine=engine,
+                                           check=check):
             offsets.append(spool.tell())
             pickle.dump((piece, belief, before, start, result.loglik), spool, protocol=pickle.HIGHEST_PROTOCOL)
             start += piece.zs.shape[0]
@@ -160,8 +167,6 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         if isinstance(prior, str) and len(offsets) > 1:
             raise ValueError("smoothing in pieces needs a Gaussian prior; give a 'diffuse' one the whole series "
                              "as one piece.")
-        if engine == "auto" and len(offsets) > 1:  # the compiled smoother's ending is the linear kernel's
-            engine = "numba" if isinstance(model, LinearModel) or getattr(model, "linear", False) is True else "python"
         after = None  # the next piece and its smoothed result
         for offset in reversed(offsets):
             spool.seek(offset)
