@@ -41,6 +41,20 @@ def test_nile_maximum_likelihood_matches_durbin_koopman(nile_mle):
     assert 0 < res.standard_errors["Q"][0, 0] < res.model.Q[0, 0]
 
 
+@pytest.mark.parametrize("start", [(1.0, 1.0), (1e-3, 1e-3), (1.0, 1e8)])
+def test_nile_maximum_likelihood_from_a_start_far_from_the_datas_scale(start):
+    """BFGS began with the identity for the inverse Hessian: from Q = R = 1 (the data's variance is 3e4) its first
+    step was the gradient, about 1e3 in log variance, and the search stalled after 2 iterations at loglik -1384.95
+    with Q = 8e-16 (audit Y2). statsmodels reaches the maximum from there; the first step now moves no log
+    variance by more than 1."""
+    _, flow = nile()
+    res = gf.fit(gf.LinearModel(F=1, H=1, Q=start[0], R=start[1]), "diffuse", flow, method="mle")
+    assert res.converged
+    assert res.model.R[0, 0] == pytest.approx(15099.0, rel=1e-4)
+    assert res.model.Q[0, 0] == pytest.approx(1469.1, rel=2e-4)
+    assert res.loglik == pytest.approx(-633.4646, abs=1e-4)  # statsmodels' exact diffuse loglik (audit X5)
+
+
 def test_nile_em_agrees_with_mle(nile_mle):
     _, flow = nile()
     em = gf.fit(_nile_start(), "diffuse", flow, method="em", iterations=3000, tol=1e-12)

@@ -80,7 +80,10 @@ so the sums over transitions start at :math:`t = 2`.
   stationary in the gain at the optimal gain. With a diffuse prior the same
   recursion carries the sensitivity columns of :mod:`gaussfuse.inference.diffuse`,
   and the diffuse terms are differentiated through their information
-  :math:`\mathcal S_T` and score :math:`s_T`.
+  :math:`\mathcal S_T` and score :math:`s_T`. The search's first step moves
+  no entry of :math:`\theta` by more than one of its units (a log variance by
+  a factor e): from variances far below the data's, the gradient is huge and
+  a step of its size would leave the region the search can come back from.
 
 Standard errors, for both methods, come from the observed information: the
 Hessian of the log-likelihood at the estimate, by central differences of
@@ -1340,8 +1343,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
     from scipy import optimize
 
     try:
+        # the first step is -hess_inv0 @ gradient: at most 1 in any entry of φ. With the identity, a start far
+        # below the data's variances stepped a log variance by ~1e3 and stalled there (audit Y2: Nile from
+        # Q = R = 1 stopped at loglik -1384.95 with Q = 8e-16)
+        steepest = float(np.max(np.abs(objective(theta0 / units)[1])))
+        hess_inv0 = np.eye(theta0.size) / max(1.0, steepest)
         res = optimize.minimize(objective, theta0 / units, jac=True, method="BFGS", callback=on_iteration,
-                                options={"maxiter": iterations, "gtol": tol})
+                                options={"maxiter": iterations, "gtol": tol, "hess_inv0": hess_inv0})
         theta, converged, message = res.x * units, bool(res.success), str(res.message)
         if evaluate(theta)[0] < best[1]:
             theta = best[0]
