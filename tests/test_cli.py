@@ -144,8 +144,9 @@ def test_demo_as_a_subprocess_compiles_nothing(tmp_path):
 # ---------------------------------------------------------------------------
 
 
-def test_help_as_a_subprocess_and_the_entry_point():
-    proc = subprocess.run([sys.executable, "-m", "gaussfuse", "--help"], capture_output=True, text=True,
+@pytest.mark.parametrize("module", ["gaussfuse", "gaussfuse.cli"])  # (the second ran nothing, exit 0: audit Y3)
+def test_help_as_a_subprocess_and_the_entry_point(module):
+    proc = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 0 and proc.stderr == ""
     assert proc.stdout.startswith("usage: gaussfuse ")
