@@ -6,6 +6,8 @@ given; the tests pin them with anchored regular expressions.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -364,8 +366,23 @@ def test_unknown_method(run):
 
 @front
 def test_unknown_option(run):
-    with pytest.raises(TypeError, match=r"^unknown option\(s\) \['alpha', 'bogus'\] for method 'kf'; valid options are none\.$"):
+    with pytest.raises(TypeError, match=r"^unknown option\(s\) \['alpha', 'bogus'\] for method 'kf'; valid options are none\. "
+                                        r"\(`alpha` is an option of method\(s\) \['ukf'\]; `\w+` has no argument `bogus`\)$"):
         run(_model(), PRIOR, [1.0], alpha=1.0, bogus=2)
+
+
+@pytest.mark.parametrize("call, kwargs, note", [
+    (gf.filter, dict(gatee=0.9), "did you mean `gate` for `gatee`?"),
+    (gf.smooth, dict(keep="last"), "`smooth` has no argument `keep`"),  # (a filter's argument)
+    (gf.filter, dict(tol=1e-3), "`tol` is an option of method(s) ['iekf', 'iplf']"),
+    (gf.KalmanFilter, dict(chekc="off"), "did you mean `check` for `chekc`?"),
+])
+def test_an_unknown_keyword_is_explained(call, kwargs, note):
+    """Each unknown keyword said only "valid options are none" for method 'kf' (audit Y3): now whose option it
+    is, the argument a misspelt one is close to, or that the function has no such argument."""
+    args = (_model(), PRIOR) if call is gf.KalmanFilter else (_model(), PRIOR, [1.0])
+    with pytest.raises(TypeError, match=re.escape(f"for method 'kf'; valid options are none. ({note})")):
+        call(*args, **kwargs)
 
 
 @front

@@ -159,7 +159,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         raise ValueError("`times` is required: the model was built by gf.model(motion, sensor) without dt.")
     steps = integer("steps", steps)
     belief = _last_belief(belief, model.n)
-    spec, options = resolve_method(model, method, options)
+    spec, options = resolve_method(model, method, options, forecast)
     model_steps = getattr(model, "steps", None)
     if model_steps is not None and model_steps < steps:
         raise ValueError(f"the model is time-varying over {model_steps} steps, fewer than `steps` = {steps}.")

@@ -594,7 +594,7 @@ class Fuser:
         self.loglik = 0.0
         probe, _ = self._timeline.model(np.zeros(1))
         method = self._timeline.default_method() if method is None else method
-        self._spec, options = resolve_method(probe, method, options)
+        self._spec, options = resolve_method(probe, method, options, type(self))
         if self._spec.iterated:
             raise ValueError(
                 f"`method` {method!r} iterates over the whole series; the online Fuser takes "

@@ -321,10 +321,10 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
             raise ValueError(f"in `models[{j}]`: {exc}") from exc
         if isinstance(model, LinearModel) and (any_nonlinear or method not in (None, "kf")):
             if method is not None:  # for the NonlinearModels (if any): checked, though a LinearModel is exact
-                check_options(method, options)
+                check_options(method, options, imm_filter)
             spec, opts = resolve_method(model, "kf", {})
         else:
-            spec, opts = resolve_method(model, method, options)
+            spec, opts = resolve_method(model, method, options, imm_filter)
         lin, iterations, tol = linearisation(spec, model, None if controls is None else controls[0], opts)
         z_angles = getattr(model, "measurement_angles", None)
         modes.append(_Mode(j, lin, iterations, tol, angles,

@@ -132,7 +132,7 @@ class KalmanFilter:
         self.timed = model if isinstance(model, TimedModel) else None
         if self.timed is not None:
             model = self.timed.at(np.array([1.0]))[0]  # its form over one step: the method, dimensions and angles
-        spec, options = resolve_method(model, method, options)
+        spec, options = resolve_method(model, method, options, KalmanFilter)
         check_form(spec, form)
         self._monitor = DivergenceMonitor.for_check(check)
         self._model, self._method, self._form = model, spec.name, form

@@ -228,7 +228,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
             model=model, prior=prior, method=method, engine=engine, keep=keep, form=form, steady=steady,
             gains=gains, check=check, gate=gate, gate_by=gate_by, times=times, **options))
     model, zs, us, table, names = _inputs(model, zs, us, times)
-    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
+    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form, filter)
     check_steady(steady, spec, form, prior)
     gains = flag("gains", gains)
     if gains and prior == "diffuse":
@@ -330,7 +330,7 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
             model=model, prior=prior, method=method, engine=engine, form=form, check=check, gate=gate,
             gate_by=gate_by, times=times, **options))
     model, zs, us, table, names = _inputs(model, zs, us, times)
-    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form)
+    spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form, smooth)
     gate = _gate(gate, gate_by, prior)
     drivers.checked(check)
     if prior == "diffuse":

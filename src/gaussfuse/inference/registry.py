@@ -113,8 +113,11 @@ OPTION_CHECKS: dict[str, Callable] = {
 }
 
 
-def resolve_method(model, method: str | None, options: dict) -> tuple[Method, dict]:
+def resolve_method(model, method: str | None, options: dict, caller: Callable | None = None) -> tuple[Method, dict]:
     """The method for `model` (the default for its type when None) and its checked options, defaults filled in.
+
+    `caller`, the function the user called with `options` as its keyword
+    arguments, is named in the message for an unknown one.
 
     Raises
     ------
@@ -132,23 +135,46 @@ def resolve_method(model, method: str | None, options: dict) -> tuple[Method, di
         else:
             known = ", ".join(c.__name__ for c in DEFAULT_METHOD)
             raise TypeError(f"`model` must be a {known}; got {type(model).__name__}.")
-    spec, options = check_options(method, options)
+    spec, options = check_options(method, options, caller)
     if not isinstance(model, spec.model_types):
         fits = sorted(k for k, v in METHODS.items() if isinstance(model, v.model_types))
         raise TypeError(f"method {method!r} does not apply to a {type(model).__name__}; valid methods for it are {fits}.")
     return spec, {**spec.options, **options}
 
 
-def check_options(method: str, options: dict) -> tuple[Method, dict]:
+def check_options(method: str, options: dict, caller: Callable | None = None) -> tuple[Method, dict]:
     """The method named `method` and its `options`, checked (an unknown name or option raises, see above)."""
     if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"`method` must be one of {sorted(METHODS)}; got {method!r}.")
     spec = METHODS[method]
     unknown = sorted(set(options) - set(spec.options))
     if unknown:
-        valid = sorted(spec.options) or "none"
-        raise TypeError(f"unknown option(s) {unknown} for method {method!r}; valid options are {valid}.")
+        raise TypeError(_unknown(spec, unknown, caller))
     return spec, {name: OPTION_CHECKS[name](name, value) for name, value in options.items()}
+
+
+def _unknown(spec: Method, unknown: list[str], caller: Callable | None) -> str:
+    """The message for keyword arguments that are not options of `spec`'s method: whose options they are, or the
+    argument of `caller` (the function the user called) a misspelt one is close to, or that `caller` has no such
+    argument (audit Y3: ``smooth(keep=...)`` and ``filter(gatee=...)`` said only that 'kf' takes no options)."""
+    import difflib
+    import inspect
+
+    valid = sorted(spec.options) or "none"
+    text = f"unknown option(s) {unknown} for method {spec.name!r}; valid options are {valid}."
+    arguments = [] if caller is None else [name for name, p in inspect.signature(caller).parameters.items()
+                                           if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    notes = []
+    for name in unknown:
+        owners = sorted(m.name for m in METHODS.values() if name in m.options)
+        close = difflib.get_close_matches(name, arguments + sorted(spec.options), n=1)
+        if owners:
+            notes.append(f"`{name}` is an option of method(s) {owners}")
+        elif close:
+            notes.append(f"did you mean `{close[0]}` for `{name}`?")
+        elif caller is not None:
+            notes.append(f"`{caller.__name__}` has no argument `{name}`")
+    return text if not notes else f"{text} ({'; '.join(notes)})"
 
 
 def linearisation(spec: Method, model, us, options: dict):

@@ -121,8 +121,8 @@ def check_steady(steady, spec, form: str, prior) -> None:
                                                                    else "."))
 
 
-def prepare(model, prior, zs, us, method, options, form: str = "cov"):
-    spec, options = resolve_method(model, method, options)
+def prepare(model, prior, zs, us, method, options, form: str = "cov", caller=None):
+    spec, options = resolve_method(model, method, options, caller)
     check_form(spec, form)
     if form != "cov" and isinstance(prior, str) and prior == "diffuse":
         raise ValueError(f"a 'diffuse' prior is for the covariance form; with `form={form!r}` give a Gaussian "
