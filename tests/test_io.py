@@ -56,7 +56,11 @@ def test_read_measurements_time_column_anywhere_any_case(tmp_path):
     [
         ("x,y\n1,2\n", r"data\.csv: no time column: .*`t` or `time`; found columns \['x', 'y'\]", None),
         ("t,time,x\n1,2,3\n", r"data\.csv: more than one time column", None),
-        ("", r"data\.csv: no time column", None),
+        # ("found columns []" and "found columns ['t;x']" said nothing of why: audit Y3)
+        ("", r"data\.csv: no header: the file is empty or its first line is blank", None),
+        ("\nt,x\n1,2\n", r"data\.csv: no header: the file is empty or its first line is blank", None),
+        ("t;x\n1;2\n", r"data\.csv: one column named 't;x': the file's columns seem to be separated by ';'", None),
+        ("t\tx\n1\t2\n", r"data\.csv: one column named 't\\tx': .* separated by '\\t'; gaussfuse reads comma", None),
         ("t\n1\n", r"data\.csv: no measurement columns besides `t`", None),
         ("t,x\n", r"data\.csv: no data rows", None),
         ("t,x,y\n1,2,3\n2,abc,4\n", r"data\.csv: line 3: column `x`: 'abc' is not a number\.", 3),
