@@ -172,6 +172,14 @@ def test_help(capsys, argv, phrases):
         assert phrase in out
 
 
+def test_help_says_a_panels_rows_may_come_in_any_order(capsys):
+    """The panel reader sorts each series by its times, where one file must be in time order (audit Y3: the help
+    said "strictly increasing" for both)."""
+    code, out, _ = run(capsys, "filter", "--help")
+    assert code == 0
+    assert "Its rows may come in any order: each series is ordered by its times" in " ".join(out.split())
+
+
 def test_default_prior_in_help_is_the_one_used():
     assert DEFAULT_PRIOR_VAR == 1e6
 

@@ -947,7 +947,9 @@ def _columns(args: argparse.Namespace) -> list[str] | None:
 
 def _many_options(command: argparse.ArgumentParser, what: str) -> None:
     many = command.add_argument_group("many series (on Dask; pip install -e \".[dask]\")")
-    many.add_argument("--series-column", metavar="NAME", type=_given, help=f"the series-id column: {what}")
+    many.add_argument("--series-column", metavar="NAME", type=_given,
+                      help=f"the series-id column: {what}. Its rows may come in any order: each series is "
+                           "ordered by its times, which must differ (one file alone must be in time order)")
     many.add_argument("--scheduler", metavar="ADDRESS", type=_given,
                       help="with --series-column: the Dask scheduler of an existing cluster (tcp://host:8786)")
     many.add_argument("--workers", metavar="N", type=int,
