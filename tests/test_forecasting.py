@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 import statsmodels.api as sm
 
@@ -144,3 +145,54 @@ def test_a_level_just_below_one_has_its_quantile():
 def test_a_model_of_the_wrong_kind_is_named(model):
     with pytest.raises(TypeError, match=r"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel"):
         gf.forecast(model, gf.Gaussian(0.0, 1.0), 2)
+
+
+# ---------------------------------------------------------------------------
+# to_pandas (audit Y3: a Forecast had none, and a forecast of a dated Series lost its dates)
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("index, labels", [
+    (pd.date_range("2024-01-01", periods=4, freq="D"), pd.date_range("2024-01-05", periods=3, freq="D")),
+    (pd.DatetimeIndex(["2024-01-31", "2024-02-29", "2024-03-31", "2024-04-30"]),  # (a month end, inferred)
+     pd.date_range("2024-05-31", periods=3, freq="ME")),
+    (pd.timedelta_range("0s", periods=4, freq="2s"), pd.timedelta_range("8s", periods=3, freq="2s")),
+    (pd.period_range("1871", periods=4, freq="Y"), pd.period_range("1875", periods=3, freq="Y")),
+    (pd.date_range("2024-03-31 00:00", periods=4, freq="h", tz="Europe/Paris"),  # across the clock change
+     pd.date_range("2024-03-31 05:00", periods=3, freq="h", tz="Europe/Paris")),
+    (pd.RangeIndex(10, 18, 2), pd.RangeIndex(18, 24, 2)),
+    (pd.Index([0.5, 1.0, 2.0, 4.0]), pd.RangeIndex(1, 4, name="steps ahead")),  # no step of its own
+])
+def test_to_pandas_continues_the_index_of_the_series_filtered(index, labels):
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0)
+    series = pd.Series([1.0, 2.0, np.nan, 3.0], index=index, name="flow")
+    if isinstance(index, pd.TimedeltaIndex):  # (times in seconds, which a model without dt refuses)
+        model = gf.model(gf.RandomWalk(q=1.0), gf.Position(r=2.0), dt=2.0)
+    fc = gf.forecast(model, gf.filter(model, gf.Gaussian(0.0, 10.0), series), 3)
+    frame = fc.to_pandas()
+    pd.testing.assert_index_equal(frame.index, labels, check_names=False)
+    assert list(frame.columns) == ["flow", "flow_sd"]
+    np.testing.assert_array_equal(frame["flow"], fc.measurement_means[:, 0])
+    np.testing.assert_array_equal(frame["flow_sd"], np.sqrt(fc.measurement_covs[:, 0, 0]))
+    states = fc.to_pandas(of="states", names=["level"])
+    np.testing.assert_array_equal(states["level_sd"], np.sqrt(fc.covs[:, 0, 0]))
+
+
+def test_to_pandas_of_a_forecast_at_times_and_of_a_gaussian():
+    model = gf.model(gf.ConstantVelocity(), gf.Position(r=1.0))
+    times = pd.DatetimeIndex(["2024-01-04", "2024-01-04 00:00:01", "2024-01-04 00:00:03"])
+    fc = gf.forecast(model, gf.Gaussian([0.0, 1.0], np.eye(2)), times=times)
+    frame = fc.to_pandas(of="states", covariances=True)
+    pd.testing.assert_index_equal(frame.index, times[1:])
+    assert list(frame.columns) == ["x0", "x1", "x0_sd", "x1_sd", "cov_x0_x1"]
+    np.testing.assert_array_equal(frame["cov_x0_x1"], fc.covs[:, 0, 1])
+    plain = gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0), gf.Gaussian(0.0, 1.0), 2)
+    assert list(plain.to_pandas().columns) == ["z0", "z0_sd"]
+    unnamed = pd.Series([1.0, 2.0], index=pd.RangeIndex(2))
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0)
+    frame = gf.forecast(model, gf.filter(model, gf.Gaussian(0.0, 1.0), unnamed), 2).to_pandas()
+    assert list(frame.columns) == ["z0", "z0_sd"]  # (not "None")
+    pd.testing.assert_index_equal(frame.index, pd.RangeIndex(2, 4))
+    pd.testing.assert_index_equal(plain.to_pandas().index, pd.RangeIndex(1, 3, name="steps ahead"))
+    with pytest.raises(ValueError, match=r"`of` must be 'measurements' or 'states'; got 'state'"):
+        plain.to_pandas(of="state")

@@ -31,6 +31,7 @@ from ._validation import integer
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .models.compose import TimedModel
+from .inference.frames import ahead
 from .inference.registry import linearisation, resolve_method
 from .inference.results import FilterResult, SmoothResult
 from .inference.timing import as_seconds, resolve
@@ -53,12 +54,20 @@ class Forecast:
         Predicted measurements.
     measurement_covs : ndarray of shape (k, m, m)
         Their covariances, the measurement noise included.
+    index : array_like of shape (k,) or None
+        The forecast steps' labels for :meth:`to_pandas`: `times` after the
+        belief's, or the steps after a pandas input's index (see there).
+    state_names, measurement_names : tuple of str or None
+        The components' names, from the result forecast from.
     """
 
     means: np.ndarray
     covs: np.ndarray
     measurement_means: np.ndarray
     measurement_covs: np.ndarray
+    index: object = None
+    state_names: tuple[str, ...] | None = None
+    measurement_names: tuple[str, ...] | None = None
 
     __reduce__ = reduce_frozen
     __repr__ = shapes_repr
@@ -89,6 +98,44 @@ class Forecast:
         z = -NormalDist().inv_cdf((1.0 - level) / 2.0)  # not inv_cdf(0.5 + level / 2): that rounds to 1 near 1
         half = z * marginal_std(covs)
         return means - half, means + half
+
+    def to_pandas(self, of: str = "measurements", covariances: bool = False, names=None):
+        """The forecast's means and standard deviations as a pandas DataFrame, one row per step ahead.
+
+        Parameters
+        ----------
+        of : {"measurements", "states"}, default "measurements"
+            The predicted measurements or the predicted states.
+        covariances : bool, default False
+            Also the covariances, one column ``cov_a_b`` per pair of components.
+        names : sequence of str, optional
+            The components' names (default: those of the pandas input or the
+            model the belief came from, else z0, z1, ... or x0, x1, ...).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``name`` and ``name_sd`` per component. Its index is
+            `times` after the belief's when the forecast was given them; else
+            the steps that follow the index of the Series or DataFrame the
+            belief was filtered from, where that index has a regular step
+            (a frequency, a RangeIndex); else the steps ahead, 1 to k.
+        """
+        from .inference.frames import Table, to_frame
+
+        if not isinstance(of, str) or of not in ("measurements", "states"):
+            raise ValueError(f"`of` must be 'measurements' or 'states'; got {of!r}.")
+        if of == "measurements":
+            means, covs, default, letter = (self.measurement_means, self.measurement_covs, self.measurement_names,
+                                            "z")
+        else:
+            means, covs, default, letter = self.means, self.covs, self.state_names, "x"
+        import pandas as pd
+
+        index = pd.RangeIndex(1, means.shape[0] + 1, name="steps ahead") if self.index is None else pd.Index(
+            self.index)
+        names = names or default or tuple(f"{letter}{i}" for i in range(means.shape[1]))
+        return to_frame(means, covs, Table(index, None), names, covariances)
 
 
 def forecast(model, belief, steps: int | None = None, us=None, *, times=None, method: str | None = None,
@@ -158,7 +205,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     elif isinstance(model, TimedModel):
         raise ValueError("`times` is required: the model was built by gf.model(motion, sensor) without dt.")
     steps = integer("steps", steps)
-    belief = _last_belief(belief, model.n)
+    given, belief = belief, _last_belief(belief, model.n)
     spec, options = resolve_method(model, method, options, forecast)
     model_steps = getattr(model, "steps", None)
     if model_steps is not None and model_steps < steps:
@@ -184,7 +231,22 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         raise at_step(exc, k) from exc
     for a in (means, covs, zmeans, zcovs):
         a.setflags(write=False)
-    return Forecast(means, covs, zmeans, zcovs)
+    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps))
+
+
+def _labels(belief, times, steps: int) -> tuple:
+    """The forecast's index, state names and measurement names (see :class:`Forecast`): from `times` or the
+    pandas input of the result `belief`, if any."""
+    if isinstance(belief, SmoothResult):
+        belief = belief.filtered
+    result = belief if isinstance(belief, FilterResult) else None
+    table = None if result is None else result.table
+    if times is not None:
+        index = times[1:]  # (a pandas Index only in to_pandas: pandas is optional)
+    else:
+        index = None if table is None else ahead(table.index, steps)
+    names = None if table is None else table.columns
+    return index, None if result is None else result.state_names, names
 
 
 def _angles(model, name: str) -> np.ndarray | None:

@@ -16,7 +16,7 @@ import numpy as np
 from .._linalg import marginal_std
 from ..models import TimedModel
 
-__all__ = ["Table", "by_rows", "unpack", "to_frame"]
+__all__ = ["Table", "ahead", "by_rows", "unpack", "to_frame"]
 
 
 class Table:
@@ -64,6 +64,15 @@ def _calendar(index) -> bool:
 
     if not isinstance(index, pd.DatetimeIndex) or np.unique(np.diff(index.asi8)).size <= 1:
         return False
+    freq = _frequency(index)
+    return freq is not None and not isinstance(freq, pd.tseries.offsets.Tick)
+
+
+def _frequency(index):
+    """A DatetimeIndex's or TimedeltaIndex's frequency: pandas' own, or inferred from three or more entries;
+    None where it has none."""
+    import pandas as pd
+
     freq = index.freq
     if freq is None and len(index) >= 3:
         try:  # pandas 3 warns that infer_freq will return an offset, not a string, unless asked for the offset
@@ -72,7 +81,7 @@ def _calendar(index) -> bool:
         except KeyError:  # an earlier pandas, without that option: a string
             inferred = pd.infer_freq(index)
         freq = None if inferred is None else pd.tseries.frequencies.to_offset(inferred)
-    return freq is not None and not isinstance(freq, pd.tseries.offsets.Tick)
+    return freq
 
 
 def by_rows(model) -> bool:
@@ -100,11 +109,29 @@ def unpack(zs, times, rows: bool):
         values = zs.to_numpy(dtype=np.float64, na_value=np.nan)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
-    columns = tuple(str(c) for c in zs.columns) if hasattr(zs, "columns") else (str(zs.name),)
+    columns = (tuple(str(c) for c in zs.columns) if hasattr(zs, "columns")
+               else None if zs.name is None else (str(zs.name),))  # (an unnamed Series' column is not "None")
     if times is None and type(zs.index).__name__ in ("DatetimeIndex", "TimedeltaIndex") and (
             not rows or not _calendar(zs.index)):
         times = zs.index
     return values, times, Table(zs.index, columns)
+
+
+def ahead(index, k: int):
+    """The k labels that follow a pandas `index` at its own step, or None where it has none: a RangeIndex goes
+    on; a DatetimeIndex, TimedeltaIndex or PeriodIndex with a frequency (set, or inferred from three or more
+    entries) steps by it."""
+    import pandas as pd
+
+    if isinstance(index, pd.RangeIndex):
+        return pd.RangeIndex(index.stop, index.stop + k * index.step, index.step, name=index.name)
+    if isinstance(index, pd.PeriodIndex):
+        return pd.period_range(index[-1] + 1, periods=k, freq=index.freq, name=index.name)
+    freq = _frequency(index) if isinstance(index, (pd.DatetimeIndex, pd.TimedeltaIndex)) else None
+    if freq is None:
+        return None
+    span = pd.date_range if isinstance(index, pd.DatetimeIndex) else pd.timedelta_range
+    return span(index[-1] + freq, periods=k, freq=freq, name=index.name)
 
 
 def to_frame(means: np.ndarray, covs: np.ndarray | None, table: Table | None, names, covariances: bool):
