@@ -582,6 +582,12 @@ class Fuser:
     >>> _ = fuser.predict(1.5)
     >>> fuser.t, fuser.belief.dim
     (1.5, 2)
+
+    A :class:`Measurement` is the arguments of :meth:`update`:
+
+    >>> _ = fuser.update(*gf.Measurement(2.0, "gps", 2.1))
+    >>> fuser
+    Fuser(sensors=['gps'], method='kf', t=2.0, loglik=-4.26778)
     """
 
     def __init__(self, motion, sensors, prior: Gaussian, t0: float, method: str | None = None,
@@ -605,6 +611,10 @@ class Fuser:
         self._state_angles, self._measurement_angles = (
             mask if mask is not None and mask.any() else None
             for mask in (getattr(probe, "state_angles", None), getattr(probe, "measurement_angles", None)))
+
+    def __repr__(self) -> str:  # (the default named only the object's address: audit Y3)
+        return (f"Fuser(sensors={list(self._timeline.names)}, method={self._method!r}, t={self.t!r}, "
+                f"loglik={self.loglik:.6g})")
 
     def __copy__(self) -> Fuser:
         # a copy fuses on its own: a shallow one would share the divergence monitor with the original
