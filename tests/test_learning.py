@@ -903,6 +903,20 @@ def test_a_variance_the_likelihood_does_not_see_has_no_standard_error(method, st
         assert np.isnan(got.bse["R[1,0]"])
     assert got.bse["Q"] == pytest.approx(alone.bse["Q"], rel=1e-4)
     assert got.bse["R[0,0]"] == pytest.approx(alone.bse["R"], rel=1e-4)
+    flat = "R[1,0], R[1,1]" if structure == "full" else "R[1,1]"  # (the summary said nothing of why: audit Y3)
+    assert got.summary().splitlines()[-1] == (f"std err nan: the log-likelihood does not depend on {flat} (the "
+                                              "others' are those of the model without them)")
+    assert "std err nan" not in alone.summary()
+
+
+def test_a_summary_says_why_every_standard_error_is_nan():
+    """F = 0: only Q + R is identified, and the information is singular (audit Y2)."""
+    z = np.random.default_rng(1).normal(size=50)
+    res = gf.fit(gf.LinearModel(F=0.0, H=1, Q=1.0, R=1.0), gf.Gaussian(0.0, 1.0), z, method="mle")
+    assert all(np.isnan(v) for v in res.bse.values())
+    assert res.summary().splitlines()[-1] == ("std err nan: the observed information is not positive definite here "
+                                              "(the fit is not at a maximum, or the data do not identify every "
+                                              "parameter)")
 
 
 @pytest.mark.parametrize("structure", ["full", "diagonal"])

@@ -255,6 +255,13 @@ class FitResult:
             se = self.bse.get(name, np.nan)
             lines.append(f"{name:<14} {_fmt(value):>11} {_fmt(se):>12} {_fmt(value - 1.959963984540054 * se):>12} "
                          f"{_fmt(value + 1.959963984540054 * se):>12}")
+        missing = [name for name in self.params if not np.isfinite(self.bse.get(name, np.nan))]
+        if missing:  # (a table of nan said nothing of why: audit Y3)
+            lines.append("std err nan: " + (
+                "the observed information is not positive definite here (the fit is not at a maximum, or the data "
+                "do not identify every parameter)" if len(missing) == len(self.params) else
+                f"the log-likelihood does not depend on {', '.join(missing)} (the others' are those of the model "
+                "without them)"))
         return "\n".join(lines)
 
 
