@@ -25,6 +25,7 @@ Run ``python ekf_slam.py --plot slam.png`` to also draw the map.
 """
 
 import argparse
+import warnings
 
 import numpy as np
 
@@ -158,10 +159,18 @@ def main(argv=None):
           f"final std at most {stds.max():.3f} m (prior {PRIOR_STD:g} m)")
 
     origin = gf.Gaussian(np.concatenate([START, np.zeros(2 * K)]), prior_cov)
-    naive = {method: gf.filter(model, origin, zs, odometry, method=method) for method in ("ekf", "iekf")}
+    naive, flagged = {}, []
+    for method in ("ekf", "iekf"):
+        with warnings.catch_warnings(record=True) as caught:  # the divergence check's, printed below
+            warnings.simplefilter("always", gf.DivergenceWarning)
+            naive[method] = gf.filter(model, origin, zs, odometry, method=method)
+        flagged += [method.upper()] * any(issubclass(w.category, gf.DivergenceWarning) for w in caught)
     print("every landmark guessed at the origin instead: landmark RMS error "
           + ", ".join(f"{method.upper()} {rmse(r.last_mean[3:].reshape(K, 2), LANDMARKS):.3f} m"
                       for method, r in naive.items()))
+    if flagged:
+        print(f"  the divergence check flagged {' and '.join(flagged)}: innovations too large for the filter's "
+              "own covariances, the sign of a linearisation far from the truth")
 
     if args.plot:
         import matplotlib.pyplot as plt  # a pyplot figure: shown by notebooks and the docs gallery, saved here

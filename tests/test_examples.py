@@ -70,3 +70,6 @@ def test_example_runs(script, tmp_path):
         # the map is learned: errors and uncertainties far below the prior's 100 m
         assert prior == 100 and worst < 0.5 and std < 1.0
         assert worst < 3 * std
+        # the naive EKF's divergence warning is explained in the output, not left on stderr unexplained (audit Y3)
+        assert "DivergenceWarning" not in done.stderr
+        assert re.search(r"^  the divergence check flagged EKF: innovations too large", done.stdout, re.M)
