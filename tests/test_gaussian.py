@@ -86,7 +86,8 @@ def test_singular_covariance_is_allowed():
         ([0.0, 0.0], np.eye(3), ValueError, r"^`cov` must have shape \(2, 2\); got shape \(3, 3\)\.$"),
         ([0.0, 0.0], np.ones((3, 2, 2)), ValueError, r"^`cov` must have shape \(2, 2\); got shape \(3, 2, 2\)\.$"),
         ([0.0, 0.0], [1.0, 1.0], ValueError, r"^`cov` must have shape \(2, 2\); got shape \(2,\)\.$"),
-        ([0.0, 0.0], 1.0, ValueError, r"^`cov` must have shape \(2, 2\); got shape \(\)\.$"),
+        ([0.0, 0.0], 1.0, ValueError, r"^`cov` must have shape \(2, 2\); got shape \(\)\. A number is a 1 × 1 matrix "
+                                      r"only; for 1 times the identity give 1 \* np\.eye\(2\)\.$"),
         ([[0.0, 0.0]], np.eye(2), ValueError, r"^`mean` must have shape \(n,\) with n >= 1; got shape \(1, 2\)\.$"),
         ([], np.zeros((0, 0)), ValueError, r"^`mean` must have shape \(n,\) with n >= 1; got shape \(0,\)\.$"),
         ("ab", np.eye(2), TypeError, r"^`mean` must be an array of numbers; got str\.$"),

@@ -172,7 +172,10 @@ def test_as_matrix_forms():
         (np.ones((5, 2, 2)), (2, 2), {"steps": 4}, r"^`M` must have shape \(2, 2\) or, time-varying, \(4, 2, 2\); got shape \(5, 2, 2\)\.$"),
         (np.ones((1, 2, 2, 2)), (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(1, 2, 2, 2\)\.$"),
         (np.ones((3, 2, 2)), (2, 2), {"time_varying": False}, r"^`M` must have shape \(2, 2\); got shape \(3, 2, 2\)\.$"),
-        (5.0, (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(\)\.$"),
+        # (filterpy's users write R = 5: audit Y3)
+        (5.0, (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(\)\. A number is a "
+                          r"1 × 1 matrix only; for 5 times the identity give 5 \* np\.eye\(2\)\.$"),
+        (5.0, (2, 3), {}, r"^`M` must have shape \(2, 3\) or, time-varying, \(T, 2, 3\); got shape \(\)\.$"),
         (np.ones((0, 2)), (None, 2), {}, r"^`M` must have shape \(m, 2\) or, time-varying, \(T, m, 2\); got shape \(0, 2\)\.$"),
         (np.ones((0, 2, 2)), (2, 2), {}, r"^`M` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\); got shape \(0, 2, 2\)\.$"),
     ],

@@ -185,6 +185,9 @@ def as_matrix(
     if arr.ndim not in ((2, 3) if time_varying else (2,)) or 0 in arr.shape:
         raise shape_error(name, expected, given)
     if (rows is not None and arr.shape[-2] != rows) or (cols is not None and arr.shape[-1] != cols):
+        if given == () and rows == cols:  # (filterpy's users write R = 5; audit Y3)
+            raise ValueError(f"{shape_error(name, expected, given)} A number is a 1 × 1 matrix only; for "
+                             f"{arr[0, 0]:g} times the identity give {arr[0, 0]:g} * np.eye({rows}).")
         raise shape_error(name, expected, given)
     if arr.ndim == 3 and steps is not None and arr.shape[0] != steps:
         raise shape_error(name, expected, given)

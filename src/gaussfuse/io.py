@@ -452,7 +452,7 @@ def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
         yield from lines
 
 
-def check_separator(path, header: list[str]) -> None:
+def _check_separator(path, header: list[str]) -> None:
     """A header of one column whose name holds a ';', a tab or a '|' is refused as a file of other separators."""
     if len(header) == 1 and (separator := next((c for c in ";\t|" if c in header[0]), None)):
         raise InputFileError(path, f"one column named {header[0]!r}: the file's columns seem to be separated by "
@@ -464,7 +464,7 @@ def _time_column(path, header: list[str], name: str | None = None) -> int:
     if not header or header == [""]:  # ("found columns []" said nothing of why: audit Y3)
         raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a header row "
                                    "naming the columns (`t` and the measurements), then one row per time.")
-    check_separator(path, header)
+    _check_separator(path, header)
     if name is not None:
         found = [i for i, h in enumerate(header) if h == name] or [i for i, h in enumerate(header)
                                                                   if h.lower() == name.lower()]

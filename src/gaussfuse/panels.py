@@ -35,7 +35,7 @@ from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
 from .inference.timing import Steps, per_second, round_off, since
-from .io import (InputFileError, ModelFile, TIME_COLUMNS, check_separator, estimate_columns, open_atomic, _float,
+from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _check_separator, _float,
                  _measurement_columns, _parse_time, _time_column, _wrong_cells)
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
@@ -148,7 +148,7 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
                              line=1 if csv_file else None)
     frame.columns = header
     if series_column not in header:
-        check_separator(path, header)
+        _check_separator(path, header)
         raise InputFileError(path, f"no column named `{series_column}` (the series ids); found columns {header}.")
     if columns is not None and series_column in columns:
         raise InputFileError(path, f"measurement column `{series_column}` is the series-id column; found columns "

@@ -342,7 +342,8 @@ def test_nonlinear_built_models_pickle_and_filter_the_same(name):
 
 
 def test_a_linear_sensor_whose_R_does_not_fit_its_H_names_both():
-    with pytest.raises(ValueError, match=r"^`R` must have shape \(2, 2\), because `H` has 2 rows; got shape \(\)\.$"):
+    with pytest.raises(ValueError, match=r"^`R` must have shape \(2, 2\), because `H` has 2 rows; got shape \(\)\. A number "
+                                         r"is a 1 × 1 matrix only; for 1 times the identity give 1 \* np\.eye\(2\)\.$"):
         gf.model(gf.ConstantVelocity(dim=1, q=1.0), gf.LinearSensor(H=[[1, 0], [0, 1]], R=1.0), dt=1.0)
 
 

@@ -92,7 +92,8 @@ INVALID = [
     ({"H": np.ones((2, 3))}, ValueError, r"^`H` must have shape \(m, 2\) or, time-varying, \(T, m, 2\), because `F` is 2 × 2 \(2 state components\); got shape \(2, 3\)\.$"),
     ({"H": None}, TypeError, r"^`H` must be an array of numbers; got NoneType\.$"),
     ({"Q": np.eye(3)}, ValueError, r"^`Q` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\), because `F` is 2 × 2 \(2 state components\); got shape \(3, 3\)\.$"),
-    ({"Q": 1.0}, ValueError, r"^`Q` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\), because `F` is 2 × 2 \(2 state components\); got shape \(\)\.$"),
+    ({"Q": 1.0}, ValueError, r"^`Q` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\), because `F` is 2 × 2 \(2 state components\); got shape \(\)\. A number is a 1 × 1 matrix only; "
+     r"for 1 times the identity give 1 \* np\.eye\(2\)\.$"),
     ({"Q": [[1.0, 0.5], [0.0, 1.0]]}, ValueError, r"^`Q` must be symmetric; it is not\.$"),
     ({"Q": -np.eye(2)}, ValueError, r"^`Q` must be positive semi-definite; its smallest eigenvalue is -1\.$"),
     ({"Q": np.stack([np.eye(2), [[1.0, 2.0], [0.0, 1.0]]])}, ValueError, r"^`Q` must be symmetric; it is not at time step 1\.$"),
@@ -106,7 +107,8 @@ INVALID = [
     # H with two rows and a scalar R: R is what is wrong, because of H (it was reported as a wrong R alone)
     ({"H": np.eye(2), "R": 1.0}, ValueError,
      r"^`R` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\), because `H` has 2 rows \(2 measurement "
-     r"components\); got shape \(\)\.$"),
+     r"components\); got shape \(\)\. A number is a 1 × 1 matrix only; "
+     r"for 1 times the identity give 1 \* np\.eye\(2\)\.$"),
     ({"H": np.eye(2), "R": np.eye(3)}, ValueError, r"^`R` must have shape \(2, 2\).*because `H` has 2 rows"),
     ({"F": np.stack([F2] * 3), "H": np.ones((4, 1, 2))}, ValueError,
      r"^time-varying matrices must all have the same number of steps; `F` has 3, `H` has 4\.$"),
