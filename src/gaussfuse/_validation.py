@@ -343,8 +343,11 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
     try:
         out = fn(x, *args)
     except Exception as exc:  # a user's function may raise anything
+        hint = ""
+        if name == "f" and not args and isinstance(exc, TypeError) and "required positional argument" in str(exc):
+            hint = " (without `us`, f is called as f(x); f(x, u) needs `us`, a control per step)"  # (audit Y3)
         raise ModelFunctionError(
-            f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}"
+            f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}{hint}"
         ) from exc
     try:
         kind = np.asarray(out).dtype.kind
@@ -403,7 +406,7 @@ def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, fi
                 append(fn(x))
     except Exception as exc:  # the points before it are checked first, as one by one they would have been
         _check_each(name, outs, X, size)
-        raise_call(name, exc, X[len(outs)])
+        raise_call(name, exc, X[len(outs)], args)
     # Only float64 arrays of the right shape are stacked as they are: stacking would turn a boolean output
     # among them into numbers, and put a wrong shape's error in NumPy's words.
     try:
@@ -420,12 +423,12 @@ def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, fi
     return _check_each(name, outs, X, size)
 
 
-def raise_call(name: str, exc: Exception, x: np.ndarray) -> None:
-    """Raise :func:`call_checked`'s error for a function `name` that raised `exc` on the input `x`."""
+def raise_call(name: str, exc: Exception, x: np.ndarray, args: tuple = ()) -> None:
+    """Raise :func:`call_checked`'s error for a function `name` that raised `exc` on the input `x` (and `args`)."""
     def again(*_):
         raise exc
 
-    call_checked(name, again, x, (), ())
+    call_checked(name, again, x, args, ())
 
 
 def _check_each(name: str, outs: list, X: np.ndarray, size: int) -> np.ndarray:

@@ -71,6 +71,18 @@ def test_checked_evaluation():
         raising.transition(np.zeros(2))  # called without the control it requires
 
 
+@pytest.mark.parametrize("method, engine", [("ekf", "python"), ("ukf", "python"), ("ukf", "numba")])
+def test_a_transition_of_a_control_without_us_says_so(method, engine):
+    """f(x, u) called as f(x) said only "missing 1 required positional argument: 'u'" (audit Y3)."""
+    model = gf.NonlinearModel(lambda x, u: x + u, lambda x: x[:1], np.eye(2), 1.0)
+    with pytest.raises(ModelFunctionError, match=r"'u' \(without `us`, f is called as f\(x\); f\(x, u\) needs `us`"):
+        gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0], method=method, engine=engine)
+    three = gf.NonlinearModel(lambda x, u, extra: x + u, lambda x: x[:1], np.eye(2), 1.0)  # with `us`, no such hint
+    with pytest.raises(ModelFunctionError, match=r"required positional argument: 'extra'$"):
+        gf.filter(three, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0], us=np.ones((2, 1)), method=method,
+                  engine=engine)
+
+
 def test_pickles_and_copies_as_an_equal_immutable_model():
     model = gf.NonlinearModel(f, h, np.stack([np.eye(2)] * 3), 0.5, f_jacobian=None, h_jacobian=h,
                               vectorized=True, state_angles=[1], measurement_angles=(0,))
