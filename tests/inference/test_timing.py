@@ -126,7 +126,8 @@ def test_a_nonlinear_motion_steps_by_each_dt():
 
 @pytest.mark.parametrize("times, model, message", [
     (np.array([0.0, 1.0, 2.0, 4.0, 5.0]), "fixed", r"`times` are irregular \(steps from 1 s to 2 s\)"),
-    (np.arange(5.0), "dt2", r"`times` step by 1 s but the model is for dt = 2 s"),
+    (np.arange(5.0), "dt2", r"`times` step by 1 s but the model is for dt = 2 s; .* or, if each row is one step of "
+                            r"dt whatever its time, leave `times` out \(for a pandas `zs`, pass its values\)\.$"),
     (None, "timed", "`times` is required"),
     (np.array([0.0, 1.0, 1.0, 2.0, 3.0]), "timed", "strictly increasing; step 2 has dt = 0"),
     (np.arange(3.0), "timed", "must have 5 entries, one per measurement, or 6"),

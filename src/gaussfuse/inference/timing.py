@@ -331,5 +331,6 @@ def resolve(model, times, zs, us=None, name: str = "times"):
     dt = getattr(model, "dt", None)
     if dt is not None and not grid.near(dt):
         raise ValueError(f"`{name}` step by {grid.step:g} s but the model is for dt = {dt:g} s; build it for the times' "
-                         "step, or with gf.model(motion, sensor) without dt.")
+                         "step, or with gf.model(motion, sensor) without dt, or, if each row is one step of dt "
+                         "whatever its time, leave `times` out (for a pandas `zs`, pass its values).")  # (audit Y3)
     return model, us
