@@ -436,3 +436,12 @@ def test_logpdf_far_in_the_tail_is_minus_infinity_without_a_warning():
         assert gf.Gaussian([0.0], [[1.0]]).logpdf([1e200]) == -np.inf
         assert gf.Gaussian([0.0], [[1e-300]]).logpdf([1e10]) == -np.inf
         assert gf.Gaussian([0.0], [[1.0]]).logpdf([1e100]) == pytest.approx(-5e199)  # below that: a number
+
+
+def test_the_repr_gives_mean_and_covariance_alike_on_one_line():
+    """The mean printed to 6 digits and the covariance to 17, and a 50-dimensional belief's repr was 12,774
+    characters (audit Y3)."""
+    got = repr(gf.Gaussian([0.123456789, 1.0], [[2.0, 0.1], [0.1, 1 / 3]]))
+    assert got == "Gaussian(mean=[0.123457, 1.      ], cov=[[2.      , 0.1     ], [0.1     , 0.333333]])"
+    big = repr(gf.Gaussian(np.arange(50.0), np.eye(50)))
+    assert "\n" not in big and len(big) < 1000 and "..." in big
