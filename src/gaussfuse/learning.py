@@ -689,10 +689,13 @@ def _em(model, prior, data, learn, structure, iterations, tol, nobs, callback, e
             except NotIdentified as exc:
                 if it == 0:
                     raise
-                raise NotIdentified(
-                    f"EM iteration {it}: the learned model no longer identifies the diffuse initial state "
-                    f"(the log-likelihood rose to {history[-1]:.6g} on the way): {exc} Or learn fewer of F "
-                    "and H, whose smallest singular values EM can shrink toward zero.") from None
+                # the diffuse likelihood grows without bound as a learned F or H loses rank: stopped as below,
+                # with the model before it (the error lost the iterations' work: audit Y2)
+                message = (f"stopped at iteration {it}: the learned model no longer identifies the diffuse initial "
+                           f"state (the log-likelihood rose to {history[-1]:.6g} on the way): {exc} Or learn fewer "
+                           "of F and H, whose smallest singular values EM can shrink toward zero; the model before "
+                           "it is returned")
+                break
             except (np.linalg.LinAlgError, FloatingPointError) as exc:
                 if it == 0:
                     raise
@@ -1688,17 +1691,19 @@ def fit(
     Warns
     -----
     ConvergenceWarning
-        When the fit stops at its iteration limit (EM) or the optimiser
-        reports a failure (MLE) before meeting `tol`, or EM meets `tol`
-        where a Newton step would still gain over 1000 times `tol` per
-        observation (stalled, not at a maximum); the result is the best
-        model found, with ``converged=False``.
+        When the fit stops at its iteration limit (EM, unless ``tol=0``) or
+        the optimiser reports a failure (MLE) before meeting `tol`; when EM
+        meets `tol` where a Newton step would still gain over 1000 times
+        `tol` per observation (stalled, not at a maximum); or when EM's
+        learned model can no longer be filtered or no longer identifies a
+        diffuse state (the likelihood growing without bound). The result is
+        the best model found, with ``converged=False``.
 
     Raises
     ------
     ValueError, TypeError
         For invalid arguments, data with no observed value, or a diffuse
-        state the data do not identify.
+        state the starting model does not identify.
     FloatingPointError
         When the fit overflows (measurements or matrices near float64's
         limits): the message names what is not finite.
@@ -1841,7 +1846,9 @@ def fit(
             errors, names, values = None, labels.names(), labels.values(model, prior)
             bse = np.full(values.size, np.nan)
     _check_fitted(model, prior, history, values)
-    if not converged and not message.startswith("interrupted") and not (method == "em" and tol == 0):
+    # (EM with tol=0 runs the iterations asked for: reaching the limit is no news, but a stop before it is)
+    limit = method == "em" and tol == 0 and message.startswith("stopped at the limit")
+    if not converged and not message.startswith("interrupted") and not limit:
         how = "EM" if method == "em" else "maximum likelihood"
         warnings.warn(ConvergenceWarning(
             f"{how} did not converge: {message.rstrip('.')}. The result is the best model found (loglik "
