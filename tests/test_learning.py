@@ -915,6 +915,38 @@ def test_a_variance_the_likelihood_does_not_see_has_no_standard_error(method, st
     assert "std err nan" not in alone.summary()
 
 
+def test_standard_errors_at_an_optimum_whatever_the_units_of_theta():
+    """The test of the information against the gradient compared an eigenvalue (1/unit²) with a gradient
+    (1/unit): at genuine optima it refused the standard errors of a `params` θ in natural units (the Nile's Q
+    and R) and of a learned H in small state units (review R10). It is on the correlation scale now, over the
+    covariances' entries only."""
+    _, flow = nile()
+    natural = gf.fit(gf.LinearModel(F=1, H=1, Q=1.0, R=1.0), "diffuse", flow, method="mle", x0=[1000.0, 10000.0],
+                     params=lambda th: gf.LinearModel(F=1, H=1, Q=th[0], R=th[1]))
+    assert natural.converged
+    np.testing.assert_allclose(list(natural.bse.values()), [1280.4, 3145.5], rtol=2e-2)  # the built-in fit's
+    rng = np.random.default_rng(0)
+    x, y = 0.0, []
+    for _ in range(300):
+        x = 0.7 * x + rng.normal(0, 1.0)
+        y.append(x + rng.normal(0, 0.5))
+    fits = [gf.fit(gf.LinearModel(F=0.5, H=h, Q=q, R=1.0), gf.Gaussian([0.0], [[q]]), np.array(y),
+                   learn=("F", "H", "R"), method="mle") for h, q in ((500.0, 1e-6), (5e4, 1e-10))]
+    assert all(f.converged for f in fits)
+    np.testing.assert_allclose([fits[1].bse["F"], fits[1].bse["H"] / 100, fits[1].bse["R"]],
+                               [fits[0].bse["F"], fits[0].bse["H"], fits[0].bse["R"]], rtol=1e-4)
+
+
+def test_a_params_fit_that_does_not_converge_warns():
+    """Its warning's hint about a vanishing learned covariance read `learn`, which is None with `params`:
+    TypeError (review R10)."""
+    _, flow = nile()
+    with pytest.warns(gf.ConvergenceWarning, match="maximum likelihood did not converge"):
+        res = gf.fit(gf.LinearModel(F=1, H=1, Q=1.0, R=1.0), "diffuse", flow, method="mle", x0=[1e5, 1e5],
+                     params=lambda th: gf.LinearModel(F=1, H=1, Q=th[0], R=th[1]), iterations=1)
+    assert not res.converged
+
+
 @pytest.mark.parametrize("method", ["mle", "em"])
 def test_a_summary_says_why_every_standard_error_is_nan(method):
     """F = 0: only Q + R is identified, and the log-likelihood is flat along Q - R. EM stops short of the

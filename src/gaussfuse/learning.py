@@ -891,6 +891,11 @@ class _Parametrisation:
                 out.append(np.ones(t.size))
         return np.concatenate(out) if out else np.zeros(0)
 
+    def curved(self) -> np.ndarray:
+        """Which entries of θ a learned covariance's are (see :func:`_beyond_gradient`)."""
+        return np.concatenate([np.full(size, name in COVARIANCES) for name, size in zip(self.learn, self.sizes)]
+                              + [np.zeros(0, dtype=bool)])
+
     def split(self, theta: np.ndarray) -> dict:
         out, start = {}, 0
         for name, size in zip(self.learn, self.sizes):
@@ -1039,6 +1044,10 @@ class _UserParams:
     def units(self, theta: np.ndarray) -> np.ndarray:
         """1 for each entry: a user's θ is in the units the user chose."""
         return np.ones(theta.size)
+
+    def curved(self) -> np.ndarray:
+        """None of a user's θ: how its model depends on it is not known (see :func:`_beyond_gradient`)."""
+        return np.zeros(self.size, dtype=bool)
 
     def natural(self, theta: np.ndarray) -> np.ndarray:
         return theta
@@ -1292,8 +1301,11 @@ def _boundary(model, prior, learn, start=None) -> str:
     short of their tolerance with a model that is as good as the maximum.
     Where the learned noise vanished altogether (below 1e-100 of the
     `start` model's), the data are fitted exactly and the likelihood has no
-    maximum at all.
+    maximum at all. A user's `params` (`learn` None) get none: what they
+    learn is not known.
     """
+    if learn is None:  # (it raised TypeError on a `params` fit that did not converge: review R10)
+        return ""
     vanished = [name for name in ("Q", "R") if name in learn and isinstance(getattr(start, name, None), np.ndarray)
                 and np.max(np.abs(getattr(model, name))) <= 1e-100 * np.max(np.abs(getattr(start, name)))]
     if vanished:
@@ -1447,18 +1459,27 @@ def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarra
     return flat
 
 
-def _beyond_gradient(information: np.ndarray, gradient: np.ndarray, units: np.ndarray) -> bool:
-    """Whether the information's smallest eigenvalue, in θ's `units`, is over 10 times the gradient's largest
-    entry there.
+def _beyond_gradient(information: np.ndarray, gradient: np.ndarray, curved: np.ndarray) -> bool:
+    """Whether the information, on its correlation scale, has its smallest eigenvalue over 10 times what the
+    gradient adds to it through the parametrisation's curvature.
 
-    Away from a stationary point the Hessian in θ carries the gradient times the parametrisation's second
-    derivatives (for a log variance, the gradient itself on the diagonal), so a curvature of the gradient's
-    size cannot be told from none. EM stops where its steps become small, short of the stationary point: where
-    only Q + R was identified (F = 0), the information along Q - R was that term, 1.2e-5 of the largest, and
-    passed for positive definite (standard errors of 31.8 on estimates of 0.39; audit Y2).
+    Away from a stationary point the Hessian in θ carries, besides the curvature of the log-likelihood, the
+    gradient times the parametrisation's second derivatives: for a log variance exactly the gradient on the
+    diagonal, which on the correlation scale :math:`C = D^{-1/2} I D^{-1/2}` is :math:`g_i / I_{ii}`, and
+    moves C's eigenvalues by at most the largest of these (Weyl). `curved` marks the entries that carry such a
+    term: a learned covariance's (its log variances, its Cholesky factor's entries, taken alike); F, H, B and
+    m0 enter linearly, and a user's `params` are not known, and none is counted. EM stops where its steps
+    become small, short of the stationary point: where only Q + R was identified (F = 0), the information
+    along Q - R was that term alone and passed for positive definite (standard errors of 31.8 on estimates of
+    0.39; audit Y2). Both sides are unit-free (review R10: an eigenvalue against a gradient in arbitrary units
+    refused genuine optima).
     """
-    scaled = information * np.outer(units, units)
-    return bool(np.linalg.eigvalsh(scaled)[0] > 10.0 * np.max(np.abs(gradient * units), initial=0.0))
+    diag = np.diagonal(information)
+    term = np.max(np.abs(gradient[curved]) / diag[curved], initial=0.0)
+    if term == 0.0:
+        return True
+    scale = np.sqrt(diag)
+    return bool(np.linalg.eigvalsh(information / np.outer(scale, scale))[0] > 10.0 * term)
 
 
 def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None, tol: float,
@@ -1509,7 +1530,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         return None, nan, None
     cov_theta = np.zeros((k, k))
     cov_theta[np.ix_(kept, kept)] = cho_solve(cholesky(information[np.ix_(kept, kept)]), np.eye(int(kept.sum())))
-    if not _beyond_gradient(information[np.ix_(kept, kept)], evaluate(theta)[1][kept], units[kept]):
+    if not _beyond_gradient(information[np.ix_(kept, kept)], evaluate(theta)[1][kept], build.curved()[kept]):
         return None, nan, cov_theta  # (what a Newton step would gain is still told: see _em_stalled)
 
     def jacobian(fn) -> np.ndarray:
