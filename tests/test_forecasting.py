@@ -196,3 +196,18 @@ def test_to_pandas_of_a_forecast_at_times_and_of_a_gaussian():
     pd.testing.assert_index_equal(plain.to_pandas().index, pd.RangeIndex(1, 3, name="steps ahead"))
     with pytest.raises(ValueError, match=r"`of` must be 'measurements' or 'states'; got 'state'"):
         plain.to_pandas(of="state")
+
+
+def test_to_pandas_with_another_model_than_the_filters_and_names_as_an_array():
+    """A forecast through a model of another m took the filtered Series' one name for its two measurements and
+    failed, blaming `names` and "state components"; names as an array raised NumPy's "truth value ... is
+    ambiguous" (review R10)."""
+    single = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0)
+    double = gf.LinearModel(F=1.0, H=[[1.0], [1.0]], Q=1.0, R=np.eye(2))
+    filtered = gf.filter(single, gf.Gaussian(0.0, 10.0), pd.Series(np.arange(6.0), name="q"))
+    fc = gf.forecast(double, filtered, 2)
+    assert list(fc.to_pandas().columns) == ["z0", "z1", "z0_sd", "z1_sd"]
+    assert list(fc.to_pandas(names=np.array(["a", "b"])).columns) == ["a", "b", "a_sd", "b_sd"]
+    assert list(filtered.to_pandas(names=np.array(["level"])).columns) == ["level", "level_sd"]
+    with pytest.raises(ValueError, match=r"`names` must have 2 entries, one per measurement component; got 1\."):
+        fc.to_pandas(names=["a"])

@@ -134,8 +134,9 @@ class Forecast:
 
         index = pd.RangeIndex(1, means.shape[0] + 1, name="steps ahead") if self.index is None else pd.Index(
             self.index)
-        names = names or default or tuple(f"{letter}{i}" for i in range(means.shape[1]))
-        return to_frame(means, covs, Table(index, None), names, covariances)
+        if names is None:
+            names = default or tuple(f"{letter}{i}" for i in range(means.shape[1]))
+        return to_frame(means, covs, Table(index, None), names, covariances, of[:-1])
 
 
 def forecast(model, belief, steps: int | None = None, us=None, *, times=None, method: str | None = None,
@@ -231,10 +232,10 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         raise at_step(exc, k) from exc
     for a in (means, covs, zmeans, zcovs):
         a.setflags(write=False)
-    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps))
+    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps, n, m))
 
 
-def _labels(belief, times, steps: int) -> tuple:
+def _labels(belief, times, steps: int, n: int, m: int) -> tuple:
     """The forecast's index, state names and measurement names (see :class:`Forecast`): from `times` or the
     pandas input of the result `belief`, if any."""
     if isinstance(belief, SmoothResult):
@@ -245,8 +246,12 @@ def _labels(belief, times, steps: int) -> tuple:
         index = times[1:]  # (a pandas Index only in to_pandas: pandas is optional)
     else:
         index = None if table is None else ahead(table.index, steps)
-    names = None if table is None else table.columns
-    return index, None if result is None else result.state_names, names
+    def fitting(names, size: int):  # (the forecast's model may have another m, or n, than the filter's)
+        return names if names is not None and len(names) == size else None
+
+    columns = None if table is None else table.columns
+    states = None if result is None else result.state_names
+    return index, fitting(states, n), fitting(columns, m)
 
 
 def _angles(model, name: str) -> np.ndarray | None:

@@ -134,20 +134,22 @@ def ahead(index, k: int):
     return span(index[-1] + freq, periods=k, freq=freq, name=index.name)
 
 
-def to_frame(means: np.ndarray, covs: np.ndarray | None, table: Table | None, names, covariances: bool):
-    """A DataFrame of means and standard deviations (and covariances) per step, indexed like the input."""
+def to_frame(means: np.ndarray, covs: np.ndarray | None, table: Table | None, names, covariances: bool,
+             what: str = "state"):
+    """A DataFrame of means and standard deviations (and covariances) per step, indexed like the input; `what`
+    the components are, for the messages."""
     import pandas as pd
 
     if means is None or means.ndim != 2:
         raise ValueError("to_pandas() is for one series whose means were kept (keep='all' or 'means').")
     n = means.shape[1]
     if names is not None and (isinstance(names, (str, bytes)) or not all(isinstance(x, str) for x in names)):
-        raise TypeError(f"`names` must be a sequence of {n} str, one per state component; got {names!r:.60}.")
+        raise TypeError(f"`names` must be a sequence of {n} str, one per {what} component; got {names!r:.60}.")
     if not isinstance(covariances, (bool, np.bool_)):
         raise TypeError(f"`covariances` must be True or False; got {covariances!r:.60}.")
     names = tuple(names) if names is not None else tuple(f"x{i}" for i in range(n))
     if len(names) != n:
-        raise ValueError(f"`names` must have {n} entries, one per state component; got {len(names)}.")
+        raise ValueError(f"`names` must have {n} entries, one per {what} component; got {len(names)}.")
     data = {name: means[:, i] for i, name in enumerate(names)}
     columns = list(names)
     if covs is not None:

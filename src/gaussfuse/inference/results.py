@@ -126,7 +126,7 @@ class FilterResult:
         """
         from .frames import to_frame
 
-        return to_frame(self.means, self.covs, self.table, names or self.state_names, covariances)
+        return to_frame(self.means, self.covs, self.table, self.state_names if names is None else names, covariances)
 
     @property
     def last(self) -> Gaussian:
@@ -199,7 +199,7 @@ class SmoothResult:
         """
         from .frames import to_frame
 
-        return to_frame(self.means, self.covs, self.filtered.table, names or self.filtered.state_names, covariances)
+        return to_frame(self.means, self.covs, self.filtered.table, self.filtered.state_names if names is None else names, covariances)
 
 
 def stack(results: list):
