@@ -327,11 +327,12 @@ def size_reason(name: str, size: int, n: int | None = None) -> str | None:
 
 
 def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tuple[int, ...],
-                 because: str | None = None) -> np.ndarray:
+                 because: str | None = None, user: Callable | None = None) -> np.ndarray:
     """Call ``fn(x, *args)`` and check that it returns a finite array of `shape`.
 
     `because` says what fixed `shape` (see :func:`size_reason`), for the
-    message of a wrong shape.
+    message of a wrong shape; `user` is the user's function when `fn` wraps
+    it (default `fn`), for the message of a call it cannot take.
 
     Raises
     ------
@@ -343,9 +344,8 @@ def call_checked(name: str, fn: Callable, x: np.ndarray, args: tuple, shape: tup
     try:
         out = fn(x, *args)
     except Exception as exc:  # a user's function may raise anything
-        hint = ""
-        if name == "f" and not args and isinstance(exc, TypeError) and "required positional argument" in str(exc):
-            hint = " (without `us`, f is called as f(x); f(x, u) needs `us`, a control per step)"  # (audit Y3)
+        hint = " (without `us`, f is called as f(x); f(x, u) needs `us`, a control per step)" \
+            if name == "f" and not args and isinstance(exc, TypeError) and not _takes_one(user or fn) else ""
         raise ModelFunctionError(
             f"`{name}` raised {type(exc).__name__} on an input of shape {x.shape}: {exc}{hint}"
         ) from exc
@@ -406,7 +406,7 @@ def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, fi
                 append(fn(x))
     except Exception as exc:  # the points before it are checked first, as one by one they would have been
         _check_each(name, outs, X, size)
-        raise_call(name, exc, X[len(outs)], args)
+        raise_call(name, exc, X[len(outs)], args, fn)
     # Only float64 arrays of the right shape are stacked as they are: stacking would turn a boolean output
     # among them into numbers, and put a wrong shape's error in NumPy's words.
     try:
@@ -423,12 +423,28 @@ def call_each(name: str, fn: Callable, X: np.ndarray, args: tuple, size: int, fi
     return _check_each(name, outs, X, size)
 
 
-def raise_call(name: str, exc: Exception, x: np.ndarray, args: tuple = ()) -> None:
-    """Raise :func:`call_checked`'s error for a function `name` that raised `exc` on the input `x` (and `args`)."""
+def raise_call(name: str, exc: Exception, x: np.ndarray, args: tuple = (), fn: Callable | None = None) -> None:
+    """Raise :func:`call_checked`'s error for the function `fn`, named `name`, that raised `exc` on the input `x`
+    (and `args`)."""
     def again(*_):
         raise exc
 
-    call_checked(name, again, x, args, ())
+    call_checked(name, again, x, args, (), user=fn)
+
+
+def _takes_one(fn: Callable) -> bool:
+    """Whether `fn` can be called with one argument (True where its signature is not known): f(x, u) cannot,
+    which is what the user meant whose f asks for a control and who gave no `us` (audit Y3). A TypeError raised
+    inside an f that takes one argument is not that (review R10)."""
+    import inspect
+
+    try:
+        inspect.signature(fn).bind(None)
+    except TypeError:
+        return False
+    except ValueError:  # no signature (a builtin, a compiled function)
+        return True
+    return True
 
 
 def _check_each(name: str, outs: list, X: np.ndarray, size: int) -> np.ndarray:

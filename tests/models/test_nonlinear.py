@@ -82,6 +82,13 @@ def test_a_transition_of_a_control_without_us_says_so(method, engine):
         gf.filter(three, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0], us=np.ones((2, 1)), method=method,
                   engine=engine)
 
+    def helper(a, b):
+        return a
+
+    inside = gf.NonlinearModel(lambda x: helper(x), lambda x: x[:1], np.eye(2), 1.0)  # f takes x: not that (R10)
+    with pytest.raises(ModelFunctionError, match=r"helper\(\) missing 1 required positional argument: 'b'$"):
+        gf.filter(inside, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0, 2.0], method=method, engine=engine)
+
 
 def test_pickles_and_copies_as_an_equal_immutable_model():
     model = gf.NonlinearModel(f, h, np.stack([np.eye(2)] * 3), 0.5, f_jacobian=None, h_jacobian=h,

@@ -841,7 +841,7 @@ def _evaluate(name, fn, X, Y, u, vectorized):
         try:
             out = fn(X, *args)
         except Exception as exc:
-            raise_call(name, exc, X, args)
+            raise_call(name, exc, X, args, fn)
         if type(out) is not np.ndarray or out.shape != Y.shape or out.dtype is not _F64:
             out = call_checked(name, lambda *_: out, X, (), Y.shape, size_reason(name, Y.shape[1]))
         if out.strides != Y.strides or not out.flags.writeable:  # a view (say X[:, :1]): copy it
@@ -941,7 +941,7 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool =
             name = "f" if stage == FORECAST else "h"
             try:
                 raise_call(name, exc, np.empty((k, n)) if model.vectorized else np.empty(n),
-                           () if us is None else (us,))
+                           () if us is None else (us,), model.f if name == "f" else model.h)
             except ModelFunctionError as err:
                 where_ = where(int(cursor.series[0]), int(cursor.step[0]), N)
                 raise ModelFunctionError(f"{where_}: {err}") from err
