@@ -211,3 +211,14 @@ def test_to_pandas_with_another_model_than_the_filters_and_names_as_an_array():
     assert list(filtered.to_pandas(names=np.array(["level"])).columns) == ["level", "level_sd"]
     with pytest.raises(ValueError, match=r"`names` must have 2 entries, one per measurement component; got 1\."):
         fc.to_pandas(names=["a"])
+
+
+def test_a_misspelt_steps_and_times_at_another_dt_are_explained():
+    """`step=3` got "needs `steps`" without naming the misspelling, and times at another step than the model's
+    dt were told to leave `times` out and pass a Series' values, which a forecast has not (review R10)."""
+    with pytest.raises(TypeError, match=r"^forecast\(\) needs `steps` .* or `times` \(`step` for `steps`\?\)\.$"):
+        gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0), gf.Gaussian([0.0], [[1.0]]), step=3)
+    model = gf.model(gf.ConstantVelocity(dim=1, q=0.1), gf.Position(dim=1, r=4.0), dt=1.0)
+    with pytest.raises(ValueError, match=r"^`times` step by 2 s but the model is for dt = 1 s; build it for the "
+                                         r"times' step, or with gf.model\(motion, sensor\) without dt\.$"):
+        gf.forecast(model, gf.Gaussian([0.0, 1.0], np.eye(2)), times=[0.0, 2.0, 4.0])

@@ -202,7 +202,11 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
             raise ValueError("`times` must hold the belief's time and at least one time to forecast at.")
         model, us = resolve(model, times, steps, us)
     elif steps is None:
-        raise TypeError("forecast() needs `steps` (how many steps ahead) or `times`.")
+        import difflib
+
+        typo = [f" (`{k}` for `{close[0]}`?)" for k in options for close in [difflib.get_close_matches(
+            k, ["steps", "times"], n=1)] if close]  # (it was not named: review R10)
+        raise TypeError("forecast() needs `steps` (how many steps ahead) or `times`" + "".join(typo) + ".")
     elif isinstance(model, TimedModel):
         raise ValueError("`times` is required: the model was built by gf.model(motion, sensor) without dt.")
     steps = integer("steps", steps)
