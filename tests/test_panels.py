@@ -174,6 +174,8 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
     with pytest.raises(gfio.InputFileError, match=r"k\.csv: the time column `id` is the series-id column; found "
                                                   r"columns \['id', 't', 'z'\]\.$"):
         panels.read_partition(str(tmp_path / "k.csv"), "id", 1, time_column="id")
+    _refused(tmp_path / "o.csv", "id\na\n",  # (it was told the file is empty: review R10)
+             r"o\.csv: no columns besides the series ids `id`: expected a time column and the measurements")
     _refused(tmp_path / "s.csv", "id;t;z\na;0;1\n",  # (it said "no column named `id`": audit Y3)
              r"s\.csv: one column named 'id;t;z': the file's columns seem to be separated by ';'")
     (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")

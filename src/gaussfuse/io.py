@@ -296,6 +296,10 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
         done = 0  # the lines read before the row being read
         try:
             header = [name.strip() for name in next(reader, [])]
+            if not header or header == [""]:  # ("found columns []" said nothing of why: audit Y3)
+                raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a "
+                                           "header row naming the columns (`t` and the measurements), then one row "
+                                           "per time.")
             time_col = _time_column(path, header, time_column)
             wanted = _measurement_columns(path, header, time_col, columns)
             names = [header[time_col]] + [header[i] for i in wanted]
@@ -461,9 +465,6 @@ def _check_separator(path, header: list[str]) -> None:
 
 def _time_column(path, header: list[str], name: str | None = None) -> int:
     """Index of the time column in `header`: the one named `name`, or the one named t or time."""
-    if not header or header == [""]:  # ("found columns []" said nothing of why: audit Y3)
-        raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a header row "
-                                   "naming the columns (`t` and the measurements), then one row per time.")
     _check_separator(path, header)
     if name is not None:
         found = [i for i, h in enumerate(header) if h == name] or [i for i, h in enumerate(header)

@@ -157,6 +157,9 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
         raise InputFileError(path, f"the time column `{time_column}` is the series-id column; found columns "
                                    f"{header}.")
     rest = [h for h in header if h != series_column]  # the time and measurement columns, as in one series' file
+    if not rest:  # (it was told the file is empty: review R10)
+        raise InputFileError(path, f"no columns besides the series ids `{series_column}`: expected a time column "
+                                   f"and the measurements; found columns {header}.")
     try:
         at = _time_column(path, rest, time_column)
         wanted = [rest[i] for i in _measurement_columns(path, rest, at, columns)]
