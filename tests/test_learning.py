@@ -937,6 +937,26 @@ def test_standard_errors_at_an_optimum_whatever_the_units_of_theta():
                                [fits[0].bse["F"], fits[0].bse["H"], fits[0].bse["R"]], rtol=1e-4)
 
 
+def test_standard_errors_of_full_covariances_scale_with_the_data():
+    """A full covariance's Cholesky entries off the diagonal are in a standard deviation's units: counted in the
+    gradient test, they refused the standard errors of a converged EM fit with the data in units of 1e6 only
+    (review R11). Only the log variances are counted now."""
+    rng = np.random.default_rng(0)
+    F = np.array([[0.9, 0.1], [0.0, 0.7]])
+    Q, R = np.array([[1.0, 0.4], [0.4, 0.8]]), np.array([[0.5, -0.2], [-0.2, 0.7]])
+    x, zs = np.zeros(2), []
+    for _ in range(400):
+        x = F @ x + rng.multivariate_normal(np.zeros(2), Q)
+        zs.append(x + rng.multivariate_normal(np.zeros(2), R))
+    errors = []
+    for scale in (1.0, 1e6):
+        res = gf.fit(gf.LinearModel(F=F, H=np.eye(2), Q=np.eye(2) * scale**2, R=np.eye(2) * scale**2), "diffuse",
+                     np.array(zs) * scale, method="em", structure={"Q": "full", "R": "full"})
+        assert res.converged
+        errors.append(np.concatenate([res.standard_errors[name].ravel() for name in ("Q", "R")]) / scale**2)
+    np.testing.assert_allclose(errors[1], errors[0], rtol=1e-6)
+
+
 def test_a_params_fit_that_does_not_converge_warns():
     """Its warning's hint about a vanishing learned covariance read `learn`, which is None with `params`:
     TypeError (review R10)."""

@@ -432,7 +432,8 @@ BAD_TABLES = [
     ("unit,t,x\nu1,True,0.5\nu1,False,0.7\n",
      "line 2: column `t`: 'True' is neither a number of seconds nor an ISO-8601"),
     ("unit,t,x\nu1,1.0,True\nu1,2.0,False\n", "line 2: column `x`: 'True' is not a number"),
-    ("", "the file is empty"),
+    ("", "no header: the file is empty or its first line is blank"),
+    ("\nunit,t,x\nu1,1.0,0.5\n", "no header: the file is empty or its first line is blank"),  # (review R11)
 ]
 
 

@@ -200,7 +200,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         steps = len(as_seconds("times", times)) - 1
         if steps < 1:
             raise ValueError("`times` must hold the belief's time and at least one time to forecast at.")
-        model, us = resolve(model, times, steps, us)
+        model, us = resolve(model, times, steps, us, rows=False)  # (no rows to take one step each: review R10)
     elif steps is None:
         import difflib
 

@@ -891,10 +891,17 @@ class _Parametrisation:
                 out.append(np.ones(t.size))
         return np.concatenate(out) if out else np.zeros(0)
 
-    def curved(self) -> np.ndarray:
-        """Which entries of θ a learned covariance's are (see :func:`_beyond_gradient`)."""
-        return np.concatenate([np.full(size, name in COVARIANCES) for name, size in zip(self.learn, self.sizes)]
-                              + [np.zeros(0, dtype=bool)])
+    def curved(self, theta: np.ndarray) -> np.ndarray:
+        """Which entries of θ are log variances: a diagonal or scalar covariance's, and a full one's Cholesky
+        diagonal (see :func:`_beyond_gradient`; a full one's other entries have a standard deviation's units)."""
+        out = []
+        for name, t in self.split(theta).items():
+            if name in COVARIANCES and self.structure[name] == "full" and t.size:
+                rows, cols = np.tril_indices(self._factor(name, t).shape[0])
+                out.append(rows == cols)
+            else:
+                out.append(np.full(t.size, name in COVARIANCES))
+        return np.concatenate(out) if out else np.zeros(0, dtype=bool)
 
     def split(self, theta: np.ndarray) -> dict:
         out, start = {}, 0
@@ -1045,9 +1052,9 @@ class _UserParams:
         """1 for each entry: a user's θ is in the units the user chose."""
         return np.ones(theta.size)
 
-    def curved(self) -> np.ndarray:
+    def curved(self, theta: np.ndarray) -> np.ndarray:
         """None of a user's θ: how its model depends on it is not known (see :func:`_beyond_gradient`)."""
-        return np.zeros(self.size, dtype=bool)
+        return np.zeros(theta.size, dtype=bool)
 
     def natural(self, theta: np.ndarray) -> np.ndarray:
         return theta
@@ -1464,15 +1471,16 @@ def _beyond_gradient(information: np.ndarray, gradient: np.ndarray, curved: np.n
     gradient adds to it through the parametrisation's curvature.
 
     Away from a stationary point the Hessian in θ carries, besides the curvature of the log-likelihood, the
-    gradient times the parametrisation's second derivatives: for a log variance exactly the gradient on the
-    diagonal, which on the correlation scale :math:`C = D^{-1/2} I D^{-1/2}` is :math:`g_i / I_{ii}`, and
-    moves C's eigenvalues by at most the largest of these (Weyl). `curved` marks the entries that carry such a
-    term: a learned covariance's (its log variances, its Cholesky factor's entries, taken alike); F, H, B and
-    m0 enter linearly, and a user's `params` are not known, and none is counted. EM stops where its steps
-    become small, short of the stationary point: where only Q + R was identified (F = 0), the information
-    along Q - R was that term alone and passed for positive definite (standard errors of 31.8 on estimates of
-    0.39; audit Y2). Both sides are unit-free (review R10: an eigenvalue against a gradient in arbitrary units
-    refused genuine optima).
+    gradient times the parametrisation's second derivatives: for a log variance (a variance, or a Cholesky
+    factor's diagonal entry, :math:`e^{\theta_i}`) exactly the gradient on the diagonal, which on the
+    correlation scale :math:`C = D^{-1/2} I D^{-1/2}` is :math:`g_i / I_{ii}`, and moves C's eigenvalues by at
+    most the largest of these (Weyl). `curved` marks the log variances, where both sides are unit-free; F, H,
+    B and m0 enter linearly, a Cholesky factor's other entries are in a standard deviation's units (review
+    R11: counted, they refused a fit's errors in units of 1e6 only), and a user's `params` are not known. EM
+    stops where its steps become small, short of the stationary point: where only Q + R was identified
+    (F = 0), the information along Q - R was that term alone and passed for positive definite (standard
+    errors of 31.8 on estimates of 0.39; audit Y2). (Review R10: an eigenvalue against a gradient in θ's units
+    refused genuine optima.)
     """
     diag = np.diagonal(information)
     term = np.max(np.abs(gradient[curved]) / diag[curved], initial=0.0)
@@ -1530,7 +1538,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         return None, nan, None
     cov_theta = np.zeros((k, k))
     cov_theta[np.ix_(kept, kept)] = cho_solve(cholesky(information[np.ix_(kept, kept)]), np.eye(int(kept.sum())))
-    if not _beyond_gradient(information[np.ix_(kept, kept)], evaluate(theta)[1][kept], build.curved()[kept]):
+    if not _beyond_gradient(information[np.ix_(kept, kept)], evaluate(theta)[1][kept], build.curved(theta)[kept]):
         return None, nan, cov_theta  # (what a Newton step would gain is still told: see _em_stalled)
 
     def jacobian(fn) -> np.ndarray:

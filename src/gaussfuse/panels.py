@@ -244,8 +244,9 @@ def _check_cells(path: str) -> list[int]:
     with open(path, newline="", encoding="utf-8-sig") as f:
         rows = csv.reader(f)
         header = next(rows, None)
-        if header is None:
-            raise InputFileError(path, "the file is empty: expected a header row, then one row per measurement.")
+        if not header or header == [""]:  # (a blank first line was "line 2: expected 0 cells": review R11)
+            raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a header "
+                                       "row, then one row per measurement.")
         lines, end = [], rows.line_num
         for row in rows:
             start, end = end + 1, rows.line_num

@@ -298,12 +298,14 @@ def steps(name: str, times, T: int) -> Steps:
     return Steps(dts, slack)
 
 
-def resolve(model, times, zs, us=None, name: str = "times"):
+def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True):
     """The model to filter `zs` with at `times`, and its controls.
 
     A :class:`TimedModel` becomes the model of its steps (exactly
     discretised for each dt); a model with fixed matrices is returned as it
     is, once `times` are found regular (and at its ``dt``, if it has one).
+    `rows` is whether the steps are rows of data, which the messages then
+    offer to take one step each (a forecast's are not).
 
     Raises
     ------
@@ -322,17 +324,16 @@ def resolve(model, times, zs, us=None, name: str = "times"):
     if timed:
         return model.at(grid.dts, us)
     low, high = float(grid.dts.min()), float(grid.dts.max())
-    rows = isinstance(zs, int)  # (a forecast's steps: no rows to take one step each)
     if not grid.regular:
         raise ValueError(
             f"`{name}` are irregular (steps from {low:g} s to {high:g} s) but the model's matrices are fixed; build "
             "it with gf.model(motion, sensor) without dt, which discretises each step for its own dt in seconds"
-            + ("." if rows else ", or, if each row is one step whatever its time, leave `times` out (for a pandas "
+            + ("." if not rows else ", or, if each row is one step whatever its time, leave `times` out (for a pandas "
                                 "`zs`, pass its values), with a row of NaN for a step missed."))
     dt = getattr(model, "dt", None)
     if dt is not None and not grid.near(dt):
         raise ValueError(f"`{name}` step by {grid.step:g} s but the model is for dt = {dt:g} s; build it for the times' "
                          "step, or with gf.model(motion, sensor) without dt" + (
-                             "." if rows else ", or, if each row is one step of dt whatever its time, leave `times` "
+                             "." if not rows else ", or, if each row is one step of dt whatever its time, leave `times` "
                                               "out (for a pandas `zs`, pass its values)."))  # (audit Y3)
     return model, us
