@@ -170,9 +170,10 @@ class FitResult:
         held at zero are not parameters.
     bse : dict of str to float
         The standard error of each of `params` (NaN when the observed
-        information is not positive definite at the estimate, or its
-        smallest curvature is within 10 times the gradient there, which
-        short of a stationary point adds a term of its size; and for a
+        information is not positive definite at the estimate, or, on its
+        correlation scale, its smallest eigenvalue is within 10 times
+        the term the gradient of the learned log variances adds to it short
+        of a stationary point (:math:`g_i / I_{ii}`); and for a
         parameter the log-likelihood does not depend on, such as the
         variance of a sensor never observed: the others are then those of
         the model without it).
