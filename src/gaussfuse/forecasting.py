@@ -121,6 +121,8 @@ class Forecast:
             belief was filtered from, where that index has a regular step
             (a frequency, a RangeIndex); else the steps ahead, 1 to k.
         """
+        import pandas as pd
+
         from .inference.frames import Table, to_frame
 
         if not isinstance(of, str) or of not in ("measurements", "states"):
@@ -130,10 +132,8 @@ class Forecast:
                                             "z")
         else:
             means, covs, default, letter = self.means, self.covs, self.state_names, "x"
-        import pandas as pd
-
-        index = pd.RangeIndex(1, means.shape[0] + 1, name="steps ahead") if self.index is None else pd.Index(
-            self.index)
+        index = (pd.RangeIndex(1, means.shape[0] + 1, name="steps ahead") if self.index is None
+                 else pd.Index(self.index))
         if names is None:
             names = default or tuple(f"{letter}{i}" for i in range(means.shape[1]))
         return to_frame(means, covs, Table(index, None), names, covariances, of[:-1])
@@ -250,6 +250,7 @@ def _labels(belief, times, steps: int, n: int, m: int) -> tuple:
         index = times[1:]  # (a pandas Index only in to_pandas: pandas is optional)
     else:
         index = None if table is None else ahead(table.index, steps)
+
     def fitting(names, size: int):  # (the forecast's model may have another m, or n, than the filter's)
         return names if names is not None and len(names) == size else None
 

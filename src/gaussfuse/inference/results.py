@@ -199,7 +199,8 @@ class SmoothResult:
         """
         from .frames import to_frame
 
-        return to_frame(self.means, self.covs, self.filtered.table, self.filtered.state_names if names is None else names, covariances)
+        names = self.filtered.state_names if names is None else names
+        return to_frame(self.means, self.covs, self.filtered.table, names, covariances)
 
 
 def stack(results: list):

@@ -324,16 +324,15 @@ def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True):
     if timed:
         return model.at(grid.dts, us)
     low, high = float(grid.dts.min()), float(grid.dts.max())
+    each = ", or, if each row is one step{} whatever its time, leave `times` out (for a pandas `zs`, pass its values)"
     if not grid.regular:
         raise ValueError(
             f"`{name}` are irregular (steps from {low:g} s to {high:g} s) but the model's matrices are fixed; build "
             "it with gf.model(motion, sensor) without dt, which discretises each step for its own dt in seconds"
-            + ("." if not rows else ", or, if each row is one step whatever its time, leave `times` out (for a pandas "
-                                "`zs`, pass its values), with a row of NaN for a step missed."))
+            + (each.format("") + ", with a row of NaN for a step missed." if rows else "."))
     dt = getattr(model, "dt", None)
-    if dt is not None and not grid.near(dt):
+    if dt is not None and not grid.near(dt):  # (the rows' part: audit Y3)
         raise ValueError(f"`{name}` step by {grid.step:g} s but the model is for dt = {dt:g} s; build it for the times' "
-                         "step, or with gf.model(motion, sensor) without dt" + (
-                             "." if not rows else ", or, if each row is one step of dt whatever its time, leave `times` "
-                                              "out (for a pandas `zs`, pass its values)."))  # (audit Y3)
+                         "step, or with gf.model(motion, sensor) without dt" + (each.format(" of dt") + "." if rows
+                                                                                  else "."))
     return model, us
