@@ -189,6 +189,18 @@ def test_read_named_constant_acceleration_default_dim_and_var_prior(tmp_path):
     np.testing.assert_array_equal(prior.cov, 9 * np.eye(3))
 
 
+def test_read_named_constant_position_in_two_axes(tmp_path):
+    """A random walk per axis seen by a position sensor: the CLI named only velocity and acceleration models
+    (audit Y3); the matrices are gf.model's of the same motion and sensor."""
+    path = write(tmp_path / "m.toml", '[model]\nkind = "constant_position"\ndim = 2\ndt = 0.5\nq = 3\nr = 4\n')
+    model, prior, names, timed = read_model(path)
+    want = gf.model(gf.ConstantPosition(dim=2, q=3.0), gf.Position(dim=2, r=4.0), dt=0.5)
+    for name in ("F", "H", "Q", "R"):
+        np.testing.assert_array_equal(getattr(model, name), getattr(want, name))
+    np.testing.assert_array_equal(model.Q, 1.5 * np.eye(2))  # q dt
+    assert names == ["x", "y"] and isinstance(timed, gf.TimedModel)
+
+
 def test_read_explicit_model_with_states_and_cov_prior(tmp_path):
     path = write(tmp_path / "m.toml", "[model]\nF = [[1, 1], [0, 1]]\nH = [1, 0]\nQ = [[1, 0], [0, 3]]\n"
                                       'R = 10\nstates = ["pos", "vel"]\n'
@@ -235,7 +247,7 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         ('[model]\nkind = "constant_velocity"\ndt = 1\n', r"\[model\]: missing key\(s\) \['q', 'r'\]"),
         ('[model]\nkind = "singer"\ndt = 1\nq = 1\nr = 1\n', r"m\.toml: \[model\] kind: unknown model kind "
                                                            r"'singer'; valid kinds are constant_acceleration, "
-                                                           r"constant_velocity\."),
+                                                           r"constant_position, constant_velocity\."),
         ("[model]\nkind = 3\n", r"\[model\] kind: unknown model kind 3"),
         (NAMED.replace("dt = 1", "dt = -1"), r"m\.toml: \[model\] dt: `dt` must be a positive number"),
         (NAMED.replace("dt = 1", 'dt = "soon"'), r"m\.toml: \[model\] dt: `dt` must be a positive number"),

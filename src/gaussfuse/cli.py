@@ -64,7 +64,7 @@ MODEL.toml: explicit matrices
 (with `filter`, any of F, H, Q and R may instead be an array of matrices,
 one per row of DATA.csv: Q = [[[0.25]], [[0.5]], ...]), or a named model
     [model]
-    kind = "constant_velocity"     # or "constant_acceleration"
+    kind = "constant_velocity"     # or "constant_position", "constant_acceleration"
     dim = 2                        # 1, 2 or 3 axes (default 1)
     dt = 0.5
     q = 1.0

@@ -27,11 +27,13 @@ array is one row of ``H``)::
     R = [[4.0]]
     states = ["x", "v"]          # optional; default x0, x1, ...
 
-or a named motion model (:func:`gaussfuse.constant_velocity`,
-:func:`gaussfuse.constant_acceleration`)::
+or a named motion model (:class:`gaussfuse.ConstantPosition`,
+:class:`~gaussfuse.ConstantVelocity` or :class:`~gaussfuse.ConstantAcceleration`
+seen by :class:`~gaussfuse.Position`, as :func:`gaussfuse.constant_velocity`
+builds)::
 
     [model]
-    kind = "constant_velocity"   # or "constant_acceleration"
+    kind = "constant_velocity"   # or "constant_position", "constant_acceleration"
     dim = 2                      # 1, 2 or 3 axes; default 1
     dt = 0.5
     q = 1.0
@@ -91,12 +93,12 @@ from typing import IO, NamedTuple
 import numpy as np
 
 from ._linalg import marginal_std
-from ._validation import as_array, as_vector, shape_error
+from ._validation import as_array, as_vector, real, shape_error
 from .gaussian import Gaussian
 from .models.linear import LinearModel
-from .models.compose import TimedModel, constant_acceleration, constant_velocity
+from .models.compose import TimedModel
 from .models.compose import model as compose_model
-from .models.motion import ConstantAcceleration, ConstantVelocity, state_names
+from .models.motion import ConstantAcceleration, ConstantPosition, ConstantVelocity, state_names
 from .models.sensors import Position
 
 __all__ = [
@@ -136,9 +138,9 @@ _QUOTED = re.compile(r'[,"\r\n]')  # what the csv module quotes
 
 StrPath = str | os.PathLike[str]
 
-# kind -> (constructor, order of the integrated white-noise model)
-_KINDS = {"constant_velocity": (constant_velocity, 1), "constant_acceleration": (constant_acceleration, 2)}
-_MOTIONS = {"constant_velocity": ConstantVelocity, "constant_acceleration": ConstantAcceleration}
+# kind -> (motion, order of the integrated white-noise model), seen by a Position sensor
+_KINDS = {"constant_position": (ConstantPosition, 0), "constant_velocity": (ConstantVelocity, 1),
+          "constant_acceleration": (ConstantAcceleration, 2)}
 _EXPLICIT_KEYS = ("F", "H", "Q", "R", "states")
 _NAMED_KEYS = ("kind", "dim", "dt", "q", "r", "states")
 _PRIOR_KEYS = ("mean", "cov", "var", "diffuse")
@@ -661,9 +663,7 @@ def read_model(path: StrPath) -> ModelFile:
     if table is None:
         raise InputFileError(path, "missing the [model] table.")
     if "kind" in table:
-        model, names = _named_model(path, table)
-        with _field(path, "model", {"dim": "dim", "q": "q", "r": "r", "Q": "q", "R": "r"}):  # checked at dt = 1
-            timed = _timed(table)
+        model, names, timed = _named_model(path, table)
     else:
         model, names = _explicit_model(path, table)
         timed = None
@@ -737,7 +737,8 @@ def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
     return model, [f"x{i}" for i in range(model.n)]
 
 
-def _named_model(path, table: dict) -> tuple[LinearModel, list[str]]:
+def _named_model(path, table: dict) -> tuple[LinearModel, list[str], TimedModel]:
+    """A named model at its dt, its state names, and the model for any dt (checked at dt = 1)."""
     _check_keys(path, "model", table, _NAMED_KEYS,
                 f" (a named model), or {', '.join(_EXPLICIT_KEYS)} (explicit matrices, without `kind`)")
     kind = table["kind"]
@@ -747,16 +748,17 @@ def _named_model(path, table: dict) -> tuple[LinearModel, list[str]]:
             field="[model] kind",
         )
     _require(path, table, ("dt", "q", "r"), f"a {kind} model needs dt, q and r (and optionally dim)")
-    build, order = _KINDS[kind]
+    order = _KINDS[kind][1]
     dim = table.get("dim", 1)
-    with _field(path, "model", {k: k for k in ("dim", "dt", "q", "r")}):
-        model = build(table["dt"], table["q"], table["r"], dim=dim)
-    return model, state_names(order, dim)
+    with _field(path, "model", {"dim": "dim", "dt": "dt", "q": "q", "r": "r", "Q": "q", "R": "r"}):
+        timed = _timed(table)
+        model = compose_model(timed.motion, timed.sensor, real("dt", table["dt"], positive=True))
+    return model, state_names(order, dim), timed
 
 
 def _timed(table: dict) -> TimedModel:
-    """A named model's motion and sensor, without its dt (read after :func:`_named_model` checked them)."""
-    motion = _MOTIONS[table["kind"]](dim=table.get("dim", 1), q=table["q"])
+    """A named model's motion and sensor, without its dt."""
+    motion = _KINDS[table["kind"]][0](dim=table.get("dim", 1), q=table["q"])
     return compose_model(motion, Position(dim=table.get("dim", 1), r=table["r"]))
 
 
