@@ -237,6 +237,21 @@ def test_a_component_in_other_units_is_identified_as_in_its_own(engine):
 
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
+@pytest.mark.parametrize("q, r", [(1e-20, 1e-22), (2.11e-73, 1.08e-85)])
+def test_a_constant_series_far_from_zero_in_units_of_tiny_noise(q, r, engine):
+    """A stuck sensor reading 3.0 under a local level with noise far below it: the data are exact, so their
+    diffuse likelihood is that of zeros. One recentring left innovations of 3 ε, 1e21 and 1e36 standard
+    deviations: the loglik was 7.7e25 where it is 4053.93 (audit Y2; `fit` went there). The base run is
+    recentred until it starts near the estimate."""
+    model = gf.LinearModel(F=1.0, H=1.0, Q=q, R=r)
+    stuck = gf.filter(model, "diffuse", np.full(50, 3.0), engine=engine, check="off")
+    zero = gf.filter(model, "diffuse", np.zeros(50), engine=engine, check="off")
+    assert stuck.loglik == pytest.approx(zero.loglik, rel=1e-12)
+    np.testing.assert_allclose(stuck.covs, zero.covs, rtol=1e-9)
+    np.testing.assert_array_equal(stuck.means[1:], 3.0)
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
 @pytest.mark.parametrize("level", [1e6, 1e8, 1e10])
 def test_data_far_from_zero_keep_the_diffuse_likelihood(level, engine):
     """Under a flat x_1, adding a level to a local level's data (or a level and a slope to a local linear
