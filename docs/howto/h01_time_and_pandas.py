@@ -144,8 +144,9 @@ assert error_stamped < error_fixes < error_counted
 # %%
 # The figure shows the error of the x coordinate (estimate minus truth) over
 # the first two minutes, with ±2σ bands: the fixes, and both smoothers. The
-# row-counting smoother swings away from the truth at every long gap, far
-# outside its own band.
+# row-counting smoother swings away from the truth at the long gaps, far
+# outside its own band (after 12 of the 14 six-second gaps; 92 % of its
+# steps in these two minutes lie outside ±2σ).
 
 fig, ax = plt.subplots(figsize=(7.5, 3.5), layout="constrained")
 first = seconds <= 120

@@ -127,8 +127,8 @@ mine = run(ours)
 # %%
 # With filterpy installed, the same function runs its filter, and the code
 # checks every quantity after every update to 1e-10. At the missing reading
-# filterpy leaves the previous ``y``, ``S`` and ``K`` in place, so only ``x``
-# and ``P`` are compared there. The total log-likelihood, ``ours.loglik``,
+# filterpy sets ``y`` to zero and leaves the previous ``S`` and ``K`` in
+# place, so only ``x`` and ``P`` are compared there. The total log-likelihood, ``ours.loglik``,
 # is the sum of filterpy's per-update terms (checked).
 
 try:

@@ -61,8 +61,10 @@ start = gf.LinearModel(F=1, H=1, Q=1000.0, R=10000.0)  # a starting guess
 # states, and repeat. Each EM iteration cannot lower the likelihood, but
 # near the optimum it creeps.
 #
-# With only 100 steps, ``engine="auto"`` would run the readable Python
-# filter, and EM's hundreds of smoother passes would take seconds. We pass
+# With only 100 steps, ``engine="auto"`` starts EM on the readable Python
+# filter and moves to the compiled one once its readable passes would have
+# paid for loading it: on a 2-core machine with the kernels cached, this fit
+# took about 7 s readable, 4 s with "auto" and 2 s compiled. We pass
 # ``engine="numba"`` for the compiled filters: the first compiled call of a
 # process loads them from numba's cache on disk, or compiles them once if
 # the cache is empty, which takes longer.
