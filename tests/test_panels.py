@@ -343,6 +343,24 @@ def test_a_series_the_diffuse_prior_cannot_start_is_named(tmp_path, capsys, sche
                           "identified") and err.count("\n") == 1, err
 
 
+def test_a_tables_step_is_its_series_mean_step_and_its_round_off_theirs():
+    """step_range kept the smallest and the largest step: a pooled fit stepped by their mean (0.1000000238 for
+    0.1000000019 at epoch seconds, 12 times further off than one file's), and a 1.001 ms grid passed for the
+    model file's 1 ms, the times' round-off shared by 2 steps instead of all of them (audit Y5)."""
+    from gaussfuse.inference.timing import steps
+
+    for step, dt in ((0.1, 0.1), (0.001001, 0.001)):
+        times = [1.7e9 + step * np.arange(n) for n in (40, 25)]
+        grid = panels.step_range(times)
+        alone = steps("times", times[0], 40)  # one series' file, as the single-file reader steps it
+        assert grid.count == 63
+        assert grid.step == pytest.approx(float(np.mean(np.concatenate([np.diff(t) for t in times]))), rel=1e-15)
+        assert grid.near(dt) == alone.near(dt) == (dt == step)
+        joined = panels.joined_range([grid, panels.step_range(times[:1])])
+        assert joined.count == 63 + 39
+        assert joined.step == pytest.approx((grid.total + np.diff(times[0]).sum()) / joined.count, rel=1e-15)
+
+
 def test_panels_step_as_one_series_file_does(tmp_path, capsys, scheduler):
     """A pooled fit used the model file's dt = 0.5 for series 1 s apart, silently (R 10.6% off the single-file fit,
     which warns and fits at 1 s); a panel filter with explicit matrices met irregular times without the warning a

@@ -379,14 +379,17 @@ def partition_shape(path: str, series_column: str, m: int, time_column: str | No
 
 
 def step_range(times: list) -> Steps | None:
-    """The smallest and largest step of series at `times` (a list of arrays), as :class:`~.inference.timing.Steps`
-    with the round-off of those times; None without a series of two rows."""
+    """The smallest and largest step of series at `times` (a list of arrays), and the sum and number of all their
+    steps, as :class:`~.inference.timing.Steps` with the round-off of those times; None without a series of two
+    rows. Its mean step, and how near it must be to a model's dt, are those of one series' steps (audit Y5: the
+    mean of the smallest and the largest, and a count of 2, lost the model's dt warning)."""
     steps = [np.diff(t) for t in times if len(t) > 1]
     if not steps:
         return None
     low, high = min(float(d.min()) for d in steps), max(float(d.max()) for d in steps)
     largest = max(float(np.abs(t).max()) for t in times)
-    return Steps(np.array([low, high]), round_off(largest))
+    return Steps(np.array([low, high]), round_off(largest), sum(float(np.sum(d)) for d in steps),
+                 sum(d.size for d in steps))
 
 
 def joined_range(ranges: list) -> Steps | None:
@@ -394,7 +397,8 @@ def joined_range(ranges: list) -> Steps | None:
     ranges = [r for r in ranges if r is not None]
     if not ranges:
         return None
-    return Steps(np.array([min(r.dts[0] for r in ranges), max(r.dts[1] for r in ranges)]), max(r.slack for r in ranges))
+    return Steps(np.array([min(r.dts[0] for r in ranges), max(r.dts[1] for r in ranges)]), max(r.slack for r in ranges),
+                 sum(r.total for r in ranges), sum(r.count for r in ranges))
 
 
 IRREGULAR = ("the times are irregular (steps from {low:g} s to {high:g} s), but the model file's explicit matrices "
@@ -410,7 +414,7 @@ def step_warning(spec: ModelFile, grid: Steps | None) -> str | None:
     if spec.timed is None and not grid.regular:
         return IRREGULAR.format(low=grid.dts[0], high=grid.dts[1])
     if spec.timed is not None and grid.regular and not grid.near(spec.model.dt):
-        return OTHER_DT.format(dt=spec.model.dt, step=grid.dts[0])
+        return OTHER_DT.format(dt=spec.model.dt, step=grid.step)
     return None
 
 

@@ -243,6 +243,8 @@ class Steps(NamedTuple):
     dts: np.ndarray  # (T,) seconds
     slack: float     # seconds: 8 eps max|t| for float seconds (a 0.1 s grid as seconds since 1970 steps by
     #                  0.09999990 to 0.10000014 s), 0 for datetimes (exact differences)
+    total: float | None = None  # the steps' sum and number, where `dts` holds only the smallest and the largest
+    count: int = 0              # (a table's series: gaussfuse.panels.step_range)
 
     @property
     def regular(self) -> bool:
@@ -254,12 +256,13 @@ class Steps(NamedTuple):
     @property
     def step(self) -> float:
         """The mean step: a regular grid's step."""
-        return float(self.dts.mean())
+        return float(self.dts.mean()) if self.total is None else self.total / self.count
 
     def near(self, dt: float) -> bool:
         """Whether a regular grid steps by `dt`, to 1e-9 of it or to the round-off of its mean step (the times'
         round-off over the number of steps: a grid of 1.0001 ms is not one of 1 ms)."""
-        return abs(self.step - dt) <= 1e-9 * dt + self.slack / self.dts.shape[0]
+        count = self.dts.shape[0] if self.total is None else self.count
+        return abs(self.step - dt) <= 1e-9 * dt + self.slack / count
 
 
 def round_off(largest: float) -> float:
