@@ -1102,6 +1102,20 @@ def test_times_that_mix_seconds_and_iso_are_refused(tmp_path, capsys):
     assert_one_line_error(err, r"line 3: column `t`: the times mix numbers \(seconds\) and ISO-8601 times")
 
 
+def test_a_file_read_in_pieces_tells_a_grid_near_the_models_dt_by_its_mean_step(tmp_path, capsys):
+    """The filter kept only the smallest and the largest step of a file read in pieces: a 1.0001 ms grid at
+    epoch seconds (steps scattered by the times' round-off, 3e-7 s) passed for the model file's 1 ms, the
+    round-off shared by 2 steps; the mean of all 2,000 steps tells them apart, as the panel reader's does
+    (review R12). A 1 ms grid still passes."""
+    for step, warned in ((0.0010001, True), (0.001, False)):
+        cells = "".join(f"{1.7e9 + step * k!r},{float(np.sin(k / 50.0))!r}\n" for k in range(2000))
+        data, model = _files(tmp_path, "t,x\n" + cells, '[model]\nkind = "constant_velocity"\ndt = 0.001\nq = 1.0\n'
+                                                             'r = 0.5\n')
+        code, _, err = run(capsys, "filter", data, "-m", model, "-o", tmp_path / "o.csv", "--check", "off")
+        assert code == 0, err
+        assert ("the model file's dt = 0.001 s, but the times step by 0.0010001 s" in err) == warned, err
+
+
 def test_a_regular_grid_of_iso_times_is_fitted_at_its_step(tmp_path, capsys):
     """ISO times 100 ms apart became float seconds since 1970, whose steps scatter by 2.4e-7 s: fit called them
     irregular and fitted at the file's dt = 1 s (R 21% off); seconds written as 0.1 * k crashed ("time-varying over

@@ -243,8 +243,9 @@ class Steps(NamedTuple):
     dts: np.ndarray  # (T,) seconds
     slack: float     # seconds: 8 eps max|t| for float seconds (a 0.1 s grid as seconds since 1970 steps by
     #                  0.09999990 to 0.10000014 s), 0 for datetimes (exact differences)
-    total: float | None = None  # the steps' sum and number, where `dts` holds only the smallest and the largest
-    count: int = 0              # (a table's series: gaussfuse.panels.step_range)
+    total: float | None = None  # the steps' sum and number, and the number of series they belong to, where `dts`
+    count: int = 0              # holds only the smallest and the largest (a file read in pieces, a table's series:
+    series: int = 1             # gaussfuse.panels.step_range)
 
     @property
     def regular(self) -> bool:
@@ -260,8 +261,11 @@ class Steps(NamedTuple):
 
     def near(self, dt: float) -> bool:
         """Whether a regular grid steps by `dt`, to 1e-9 of it or to the round-off of its mean step (the times'
-        round-off over the number of steps: a grid of 1.0001 ms is not one of 1 ms)."""
-        count = self.dts.shape[0] if self.total is None else self.count
+        round-off over the number of steps: a grid of 1.0001 ms is not one of 1 ms). Each series' mean step is
+        off by its times' round-off over its number of steps, and series on one grid are off alike: their mean
+        over all steps by as many times that as there are series (review R12: 200 series of 2 rows, allowed the
+        round-off over 200 steps, were told a 0.1 s grid steps by 0.0999999 s)."""
+        count = self.dts.shape[0] if self.total is None else self.count / self.series
         return abs(self.step - dt) <= 1e-9 * dt + self.slack / count
 
 
