@@ -88,6 +88,16 @@ PSD_RTOL = 1e-9
 matrix's eigenvalues, a factor's residual) and still be one: round-off in a matrix computed from others."""
 
 
+def unit_diagonal(mat: np.ndarray) -> np.ndarray:
+    r"""`mat` (a stack too) on its diagonal's scale, :math:`D^{-1/2} M D^{-1/2}` with D its diagonal (divided
+    twice: the product of two scales may overflow); a row and column whose diagonal entry is not positive are
+    left as they are. The correlation matrix of a covariance; an information matrix whose eigenvalues no longer
+    span its components' units."""
+    diag = np.diagonal(mat, axis1=-2, axis2=-1)
+    scale = np.sqrt(np.where(diag > 0.0, diag, 1.0))
+    return mat / scale[..., :, None] / scale[..., None, :]
+
+
 def correlation_root(cov: np.ndarray) -> np.ndarray:
     r"""A lower-triangular L with :math:`L L^\top` = `cov` to round-off on each component's own scale.
 

@@ -298,10 +298,7 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
         done = 0  # the lines read before the row being read
         try:
             header = [name.strip() for name in next(reader, [])]
-            if not header or header == [""]:  # ("found columns []" said nothing of why: audit Y3)
-                raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a "
-                                           "header row naming the columns (`t` and the measurements), then one row "
-                                           "per time.")
+            _check_header(path, header)
             time_col = _time_column(path, header, time_column)
             wanted = _measurement_columns(path, header, time_col, columns)
             names = [header[time_col]] + [header[i] for i in wanted]
@@ -456,6 +453,14 @@ def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
                     raise InputFileError(path, f"longer than {MAX_LINE_CHARS} characters.", line=k)
         number += len(lines)
         yield from lines
+
+
+def _check_header(path, header: list[str] | None) -> None:
+    """A file without a header (empty, or a blank first line) is refused as such ("found columns []" said nothing
+    of why: audit Y3; the panel reader's "line 2: expected 0 cells": review R11)."""
+    if not header or header == [""]:
+        raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a header row "
+                                   "naming the columns (the time, the measurements), then one row per time.")
 
 
 def _check_separator(path, header: list[str]) -> None:

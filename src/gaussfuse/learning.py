@@ -107,7 +107,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize
+from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize, unit_diagonal
 from ._validation import as_vector, integer, real
 from .errors import ConvergenceWarning, ModelFunctionError
 from .gaussian import Gaussian
@@ -1483,12 +1483,8 @@ def _beyond_gradient(information: np.ndarray, gradient: np.ndarray, curved: np.n
     errors of 31.8 on estimates of 0.39; audit Y2). (Review R10: an eigenvalue against a gradient in θ's units
     refused genuine optima.)
     """
-    diag = np.diagonal(information)
-    term = np.max(np.abs(gradient[curved]) / diag[curved], initial=0.0)
-    if term == 0.0:
-        return True
-    scale = np.sqrt(diag)
-    return bool(np.linalg.eigvalsh(information / np.outer(scale, scale))[0] > 10.0 * term)
+    term = np.max(np.abs(gradient[curved]) / np.diagonal(information)[curved], initial=0.0)
+    return term == 0.0 or bool(np.linalg.eigvalsh(unit_diagonal(information))[0] > 10.0 * term)
 
 
 def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None, tol: float,

@@ -35,8 +35,8 @@ from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
 from .inference.timing import Steps, per_second, round_off, since
-from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _check_separator, _float,
-                 _measurement_columns, _parse_time, _time_column, _wrong_cells)
+from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _check_header,
+                 _check_separator, _float, _measurement_columns, _parse_time, _time_column, _wrong_cells)
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
            "filter_partition"]
@@ -244,9 +244,7 @@ def _check_cells(path: str) -> list[int]:
     with open(path, newline="", encoding="utf-8-sig") as f:
         rows = csv.reader(f)
         header = next(rows, None)
-        if not header or header == [""]:  # (a blank first line was "line 2: expected 0 cells": review R11)
-            raise InputFileError(path, "no header: the file is empty or its first line is blank; expected a header "
-                                       "row, then one row per measurement.")
+        _check_header(path, header)
         lines, end = [], rows.line_num
         for row in rows:
             start, end = end + 1, rows.line_num

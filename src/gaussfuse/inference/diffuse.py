@@ -78,7 +78,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._linalg import cho_solve, cholesky, is_positive_definite, observed_gram, symmetrize, whiten
+from .._linalg import cho_solve, cholesky, is_positive_definite, observed_gram, symmetrize, unit_diagonal, whiten
 from ..diagnostics import nis
 from ..gaussian import Gaussian
 from ..models.linear import LinearModel
@@ -222,10 +222,8 @@ def _identified(info: np.ndarray) -> np.ndarray:
     refused identified states at 1e-12. Once identified, a state stays so:
     the information only grows.
     """
-    diag = np.diagonal(info, axis1=-2, axis2=-1)
-    seen = (diag > 0.0).all(axis=-1)
-    scale = 1.0 / np.sqrt(np.where(diag > 0.0, diag, 1.0))
-    eig = np.linalg.eigvalsh(info * scale[:, :, None] * scale[:, None, :])
+    seen = (np.diagonal(info, axis1=-2, axis2=-1) > 0.0).all(axis=-1)
+    eig = np.linalg.eigvalsh(unit_diagonal(info))
     return np.logical_or.accumulate(seen & (eig[:, 0] > 1e-12 * eig[:, -1]))
 
 
