@@ -75,3 +75,23 @@ def car_track() -> dict[str, np.ndarray]:
     with open(DATA_DIR / "car_track.json", encoding="utf-8") as fh:
         raw = json.load(fh)
     return {"X": np.asarray(raw["X"], dtype=float), "Y": np.asarray(raw["Y"], dtype=float)}
+
+
+@pytest.fixture(scope="session")
+def robot() -> dict[str, np.ndarray]:
+    """Abbeel's robot data as pykalman ships it, with the MATLAB filter's, smoother's and EM's published results.
+
+    The model is x_k = A x_{k-1} + b_{k-1} + w_k, y_k = C x_k + d + v_k for k = 1..500, from x_0 ~ N(x0, P_0)
+    one step before the first measurement (gaussfuse's convention). ``xfilt``/``Vfilt`` and ``xsmooth``/``Vsmooth``
+    have 501 entries, the first being x_0's; ``ll`` is the log-likelihood before each of 50 EM iterations that
+    learn Q and R from 10 I, ending at ``Q`` and ``R`` (which the filter and smoother used).
+    """
+    from scipy.io import loadmat
+
+    raw = loadmat(DATA_DIR / "robot.mat")
+    out = {name: np.asarray(raw[name], dtype=float) for name in ("A", "C", "Q", "R", "P_0")}
+    out["x0"], out["d"], out["ll"] = raw["x0"][:, 0], raw["d"][:, 0], raw["ll"][0]
+    out["y"], out["b"], out["xfilt"], out["xsmooth"] = raw["y"].T, raw["b"].T, raw["xfilt"].T, raw["xsmooth"].T
+    for name in ("Vfilt", "Vsmooth"):  # MATLAB cell arrays: an object array of 5 x 5 matrices
+        out[name] = np.stack([np.asarray(v, dtype=float) for v in raw[name][0]])
+    return out

@@ -1037,6 +1037,22 @@ def test_em_stalled_on_a_parameter_it_cannot_move_is_not_called_converged():
         assert fit.loglik == pytest.approx(want, abs=1e-9)
 
 
+@pytest.mark.parametrize("engine, iterations", [("python", 10), ("numba", 50)])
+def test_em_on_the_robot_data_retraces_the_published_matlab_iterations(robot, engine, iterations):
+    """pykalman's robot data (Abbeel, 2011): 50 EM iterations learning Q and R from 10 I, run in MATLAB.
+
+    Each iteration's log-likelihood (before its M-step) and the Q and R of the 50th are published."""
+    model = gf.LinearModel(F=robot["A"], H=robot["C"], Q=10 * np.eye(5), R=10 * np.eye(2), B=np.eye(5))
+    logliks = []
+    fit = gf.fit(model, gf.Gaussian(robot["x0"], robot["P_0"]), robot["y"] - robot["d"], us=robot["b"],
+                 iterations=iterations, tol=0, engine=engine, callback=lambda i, loglik: logliks.append(loglik))
+    np.testing.assert_allclose(logliks[:iterations], robot["ll"][:iterations], rtol=1e-13)  # -3373.0 to -3189.7
+    if iterations == 50:
+        np.testing.assert_allclose(fit.model.Q, robot["Q"], rtol=0, atol=1e-11 * np.abs(robot["Q"]).max())
+        np.testing.assert_allclose(fit.model.R, robot["R"], rtol=0, atol=1e-11 * np.abs(robot["R"]).max())
+    assert fit.loglik > logliks[iterations - 1]  # the final model's, one M-step on
+
+
 def test_an_em_step_for_r_sums_over_the_steps_with_an_observation():
     """A step with nothing observed added the current R to R's sum (its expected residual given no data),
     which slowed EM; it is left out, as pykalman does: one step is the dense oracle's smoothed residuals over

@@ -366,6 +366,24 @@ def test_car_track_against_dense_oracle(car_track):
     assert_filter_matches(sm.filtered, ref, Y)
 
 
+def robot_model(robot: dict, Q=None, R=None) -> gf.LinearModel:
+    """The robot data's model: the offsets b_k enter as controls u_k through B = I; d is taken off the data."""
+    return gf.LinearModel(F=robot["A"], H=robot["C"], Q=robot["Q"] if Q is None else Q,
+                          R=robot["R"] if R is None else R, B=np.eye(5))
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_robot_filter_and_smoother_equal_the_published_matlab_results(robot, engine):
+    """pykalman's robot data (Abbeel, 2011): 500 steps of a 5-state model, filtered and smoothed in MATLAB."""
+    zs = robot["y"] - robot["d"]
+    sm = gf.smooth(robot_model(robot), gf.Gaussian(robot["x0"], robot["P_0"]), zs, us=robot["b"], engine=engine)
+    scale = np.abs(robot["xfilt"]).max()  # about 60; the covariances are of order 1
+    np.testing.assert_allclose(sm.filtered.means, robot["xfilt"][1:], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(sm.filtered.covs, robot["Vfilt"][1:], rtol=0, atol=1e-11)
+    np.testing.assert_allclose(sm.means, robot["xsmooth"][1:], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(sm.covs, robot["Vsmooth"][1:], rtol=0, atol=1e-11)
+
+
 def _cv_model(method: str):
     """A 2-D constant-velocity model, as a LinearModel for "kf" or the same functions for "ukf"."""
     linear = gf.constant_velocity(dt=0.1, q=1.0, r=0.25, dim=2)
