@@ -184,8 +184,8 @@ def test_to_pandas_of_a_forecast_at_times_and_of_a_gaussian():
     fc = gf.forecast(model, gf.Gaussian([0.0, 1.0], np.eye(2)), times=times)
     frame = fc.to_pandas(of="states", covariances=True)
     pd.testing.assert_index_equal(frame.index, times[1:])
-    assert list(frame.columns) == ["x0", "x1", "x0_sd", "x1_sd", "cov_x0_x1"]
-    np.testing.assert_array_equal(frame["cov_x0_x1"], fc.covs[:, 0, 1])
+    assert list(frame.columns) == ["x", "vx", "x_sd", "vx_sd", "cov_x_vx"]  # the motion's names
+    np.testing.assert_array_equal(frame["cov_x_vx"], fc.covs[:, 0, 1])
     plain = gf.forecast(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=2.0), gf.Gaussian(0.0, 1.0), 2)
     assert list(plain.to_pandas().columns) == ["z0", "z0_sd"]
     unnamed = pd.Series([1.0, 2.0], index=pd.RangeIndex(2))

@@ -58,7 +58,7 @@ class Forecast:
         The forecast steps' labels for :meth:`to_pandas`: `times` after the
         belief's, or the steps after a pandas input's index (see there).
     state_names, measurement_names : tuple of str or None
-        The components' names, from the result forecast from.
+        The components' names, from the result forecast from, else the model's.
     """
 
     means: np.ndarray
@@ -110,7 +110,8 @@ class Forecast:
             Also the covariances, one column ``cov_a_b`` per pair of components.
         names : sequence of str, optional
             The components' names (default: those of the pandas input or the
-            model the belief came from, else z0, z1, ... or x0, x1, ...).
+            model the belief came from, else the states' of `model`, else
+            z0, z1, ... or x0, x1, ...).
 
         Returns
         -------
@@ -236,12 +237,12 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         raise at_step(exc, k) from exc
     for a in (means, covs, zmeans, zcovs):
         a.setflags(write=False)
-    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps, n, m))
+    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps, n, m, getattr(model, "names", None)))
 
 
-def _labels(belief, times, steps: int, n: int, m: int) -> tuple:
+def _labels(belief, times, steps: int, n: int, m: int, names) -> tuple:
     """The forecast's index, state names and measurement names (see :class:`Forecast`): from `times` or the
-    pandas input of the result `belief`, if any."""
+    pandas input of the result `belief`, if any; the state names else the model's `names`."""
     if isinstance(belief, SmoothResult):
         belief = belief.filtered
     result = belief if isinstance(belief, FilterResult) else None
@@ -256,7 +257,7 @@ def _labels(belief, times, steps: int, n: int, m: int) -> tuple:
 
     columns = None if table is None else table.columns
     states = None if result is None else result.state_names
-    return index, fitting(states, n), fitting(columns, m)
+    return index, fitting(states, n) or names, fitting(columns, m)
 
 
 def _angles(model, name: str) -> np.ndarray | None:

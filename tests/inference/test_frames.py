@@ -38,7 +38,7 @@ def test_a_series_with_a_plain_index_keeps_it_and_a_masked_array_is_missing_valu
     prior = gf.Gaussian([0.0, 1.0], np.eye(2))
     series = pd.Series([1.0, 2.0, None, 4.0], index=[10, 11, 12, 13], name="pos")
     frame = gf.filter(model, prior, series).to_pandas()
-    assert list(frame.index) == [10, 11, 12, 13] and list(frame.columns) == ["x0", "x1", "x0_sd", "x1_sd"]
+    assert list(frame.index) == [10, 11, 12, 13] and list(frame.columns) == ["x", "vx", "x_sd", "vx_sd"]
     masked = np.ma.masked_array([1.0, 2.0, 99.0, 4.0], mask=[False, False, True, False])
     np.testing.assert_array_equal(gf.filter(model, prior, masked).means, gf.filter(model, prior, series).means)
 

@@ -542,3 +542,37 @@ def test_stacked_checks_what_it_is_given(make, error, message):
     and booleans to NumPy (audit S)."""
     with pytest.raises(error, match=message):
         make()
+
+
+@pytest.mark.parametrize("build, names", [
+    (lambda: gf.constant_velocity(0.1, 1.0, 0.25, dim=2), ("x", "y", "vx", "vy")),
+    (lambda: gf.constant_acceleration(0.1, 1.0, 0.25), ("x", "vx", "ax")),
+    (lambda: gf.model(gf.CoordinatedTurn(), gf.RangeBearing(), dt=1.0), ("x", "y", "vx", "vy", "omega")),
+])
+def test_a_model_at_a_fixed_dt_keeps_the_motions_state_names(build, names):
+    """Y3: gf.model without dt labelled its results x, vx; with dt (and gf.constant_velocity) x0, x1."""
+    model = build()
+    assert model.names == names
+    assert pickle.loads(pickle.dumps(model)).names == names
+    prior = gf.Gaussian(np.arange(model.n) + 1.0, np.eye(model.n))
+    zs = np.asarray(gf.simulate(model, prior, 6, rng=np.random.default_rng(0)).measurements)
+    for result in (gf.filter(model, prior, zs), gf.smooth(model, prior, zs)):
+        frame = result.to_pandas()
+        assert list(frame.columns) == [*names, *(f"{name}_sd" for name in names)]
+    assert list(gf.forecast(model, prior, 2).to_pandas(of="states").columns)[:model.n] == list(names)
+    if isinstance(model, gf.LinearModel):
+        fit = gf.fit(model, prior, zs, iterations=2, tol=0)
+        assert fit.model.names == names
+
+
+@pytest.mark.parametrize("make", [
+    lambda names: gf.LinearModel(np.eye(2), [1.0, 0.0], np.eye(2), 1.0, names=names),
+    lambda names: gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0, names=names),
+])
+def test_a_models_names_are_checked_and_default_to_none(make):
+    assert make(None).names is None
+    assert make(["a", "b"]).names == ("a", "b")
+    with pytest.raises(ValueError, match=r"`names` must have 2 entries, one per component; got 3"):
+        make(["a", "b", "c"])
+    with pytest.raises(TypeError, match=r"`names` must be a sequence of 2 strings"):
+        make("ab")

@@ -98,7 +98,7 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
 
     if isinstance(motion, LinearMotion) and isinstance(sensor, LinearSensor):
         H, R = sensor.linear(n)
-        return LinearModel(F=F, H=H, Q=Q, R=R, B=B, dt=dt)
+        return LinearModel(F=F, H=H, Q=Q, R=R, B=B, dt=dt, names=motion.names)
 
     # f, h and their Jacobians are partials of module-level functions (or a sensor's
     # bound methods), not closures, so that the model pickles.
@@ -125,7 +125,8 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
     return NonlinearModel(f, h, Q, R, f_jacobian=f_jacobian, h_jacobian=h_jacobian, vectorized=True,
                           state_angles=motion.state_angles,
                           measurement_angles=sensor.measurement_angles, dt=dt,
-                          p=B.shape[1] if isinstance(motion, LinearMotion) and B is not None else 0)
+                          p=B.shape[1] if isinstance(motion, LinearMotion) and B is not None else 0,
+                          names=motion.names)
 
 
 class TimedModel(Frozen):
@@ -225,7 +226,7 @@ class TimedModel(Frozen):
                 H, R = self.sensor.linear(n)
                 first = self.motion.control(float(unique[0]))
                 controls = None if first is None else np.stack([self.motion.control(float(d)) for d in unique])
-                distinct = LinearModel(Fs, H, Qs, R, controls)
+                distinct = LinearModel(Fs, H, Qs, R, controls, names=self.motion.names)
                 return LinearModel._indexed(distinct, index), us
             Q = Qs[index]
         else:
@@ -256,7 +257,8 @@ class TimedModel(Frozen):
             [np.broadcast_to(dts[:, None], (*np.shape(us)[:-1], 1)), np.asarray(us, dtype=np.float64)], axis=-1)
         return NonlinearModel(stepped, h, Q, R, f_jacobian=stepped.jacobian, h_jacobian=h_jacobian,
                               vectorized=True, state_angles=self.motion.state_angles,
-                              measurement_angles=self.sensor.measurement_angles, p=1 + p), controls
+                              measurement_angles=self.sensor.measurement_angles, p=1 + p,
+                              names=self.motion.names), controls
 
 
 class _Stepped:

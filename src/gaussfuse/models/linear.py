@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_matrix, check_psd, real
+from ._base import check_names
 
 __all__ = ["LinearModel"]
 
@@ -34,6 +35,10 @@ class LinearModel:
         The time step the matrices are for, when they come from one (as
         :func:`gaussfuse.model` records): `times` given to a filter must
         then be that regular.
+    names : sequence of n str, optional
+        The state components' names, which results' ``to_pandas`` use
+        (:func:`gaussfuse.model` records its motion's, such as
+        ``("x", "vx")``); default x0, x1, ....
 
     Notes
     -----
@@ -53,7 +58,7 @@ class LinearModel:
     (2, 1, 0)
     """
 
-    __slots__ = ("F", "H", "Q", "R", "B", "dt")
+    __slots__ = ("F", "H", "Q", "R", "B", "dt", "names")
 
     F: np.ndarray
     H: np.ndarray
@@ -61,8 +66,9 @@ class LinearModel:
     R: np.ndarray
     B: np.ndarray | None
     dt: float | None
+    names: tuple[str, ...] | None
 
-    def __init__(self, F, H, Q, R, B=None, dt: float | None = None) -> None:
+    def __init__(self, F, H, Q, R, B=None, dt: float | None = None, names=None) -> None:
         F = as_matrix("F", F, None, None, row_name="n")
         if F.shape[-1] != F.shape[-2]:
             raise ValueError(
@@ -89,6 +95,7 @@ class LinearModel:
                 a.setflags(write=False)
             object.__setattr__(self, name, a)
         object.__setattr__(self, "dt", None if dt is None else real("dt", dt, positive=True))
+        object.__setattr__(self, "names", check_names(names, n, None))
 
     def __setattr__(self, name, value):
         raise AttributeError("LinearModel is immutable; build a new one instead.")
@@ -110,12 +117,13 @@ class LinearModel:
                 a.setflags(write=False)
             object.__setattr__(out, name, a)
         object.__setattr__(out, "dt", None)
+        object.__setattr__(out, "names", distinct.names)
         return out
 
     def __reduce__(self):
         # Pickled and copied by its arguments: the constructor validates them again and
         # makes the arrays read-only, which the default protocol (setattr) cannot.
-        return type(self), (self.F, self.H, self.Q, self.R, self.B, self.dt)
+        return type(self), (self.F, self.H, self.Q, self.R, self.B, self.dt, self.names)
 
     @property
     def n(self) -> int:

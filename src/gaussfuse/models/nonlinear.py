@@ -9,6 +9,7 @@ import numpy as np
 
 from .._validation import (as_matrix, call_checked, call_each, check_psd, component_mask, flag, integer, real,
                            size_reason)
+from ._base import check_names
 
 __all__ = ["NonlinearModel"]
 
@@ -55,6 +56,8 @@ class NonlinearModel:
         then require ``us`` of that width (``f(x, u)`` with u of shape
         (p,)). None (the default): controls are optional and passed to f
         as given.
+    names : sequence of n str, optional
+        The state components' names (see :class:`LinearModel`'s `names`).
 
     Notes
     -----
@@ -82,7 +85,7 @@ class NonlinearModel:
     """
 
     __slots__ = ("f", "h", "Q", "R", "f_jacobian", "h_jacobian", "vectorized",
-                 "state_angles", "measurement_angles", "dt", "p")
+                 "state_angles", "measurement_angles", "dt", "p", "names")
 
     def __init__(
         self,
@@ -98,6 +101,7 @@ class NonlinearModel:
         measurement_angles=(),
         dt: float | None = None,
         p: int | None = None,
+        names=None,
     ) -> None:
         for name, fn, required in (("f", f, True), ("h", h, True),
                                    ("f_jacobian", f_jacobian, False),
@@ -129,6 +133,7 @@ class NonlinearModel:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "dt", None if dt is None else real("dt", dt, positive=True))
         object.__setattr__(self, "p", None if p is None else integer("p", p, minimum=0))
+        object.__setattr__(self, "names", check_names(names, Q.shape[-1], None))
 
     def __setattr__(self, name, value):
         raise AttributeError("NonlinearModel is immutable; build a new one instead.")
@@ -139,7 +144,7 @@ class NonlinearModel:
         # error; a module-level function, a partial of one or a picklable callable object works.
         angles = {name: tuple(np.flatnonzero(getattr(self, name)).tolist())
                   for name in ("state_angles", "measurement_angles")}
-        return (functools.partial(type(self), **angles, dt=self.dt, p=self.p),
+        return (functools.partial(type(self), **angles, dt=self.dt, p=self.p, names=self.names),
                 (self.f, self.h, self.Q, self.R, self.f_jacobian, self.h_jacobian, self.vectorized))
 
     @property
