@@ -445,3 +445,15 @@ def test_the_repr_gives_mean_and_covariance_alike_on_one_line():
     assert got == "Gaussian(mean=[0.123457, 1.      ], cov=[[2.      , 0.1     ], [0.1     , 0.333333]])"
     big = repr(gf.Gaussian(np.arange(50.0), np.eye(50)))
     assert "\n" not in big and len(big) < 1000 and "..." in big
+
+
+@pytest.mark.parametrize("degrees", [(179.0, -179.0), (-179.0, 179.0), (180.0, -180.0), (90.0, -90.0 + 1e-13)])
+def test_a_mixtures_circular_mean_is_wrapped_to_minus_pi_up_to_pi(degrees):
+    """Audit Z1: atan2 gives +π for modes at ±179° (the mean of an IMM's heading), outside [-π, π)."""
+    from gaussfuse.gaussian import moment_match
+    means = np.array([[1.0, np.radians(degrees[0])], [3.0, np.radians(degrees[1])]])
+    covs = np.stack([np.diag([1.0, 0.01])] * 2)
+    mean, cov = moment_match(np.array([0.5, 0.5]), means, covs, np.array([False, True]))
+    assert -np.pi <= mean[1] < np.pi and mean[0] == 2.0
+    spread = gf.wrap_angle(means[:, 1] - mean[1])  # each mode's heading from the mean, the short way round
+    assert cov[1, 1] == pytest.approx(0.01 + np.mean(spread ** 2), rel=1e-12)

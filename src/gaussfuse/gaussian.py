@@ -8,7 +8,7 @@ import numpy as np
 
 from . import kalman
 from ._linalg import (circular_mean, cholesky, is_positive_definite, log_density, marginal_std, symmetrize, whiten,
-                      wrap_components)
+                      wrap_angle, wrap_components)
 from ._validation import as_array, as_matrix, as_vector, check_psd, generator
 
 __all__ = ["Gaussian", "fuse", "moment_match"]
@@ -255,8 +255,8 @@ def moment_match(weights: np.ndarray, means: np.ndarray, covs: np.ndarray,
     covs : array of shape (M, n, n)
         Component covariances.
     angles : array of bool, shape (n,), optional
-        Components that are angles: their mean is circular and their spread
-        is measured with wrapped differences.
+        Components that are angles: their mean is circular, in [-π, π), and
+        their spread is measured with wrapped differences.
 
     Returns
     -------
@@ -272,7 +272,7 @@ def moment_match(weights: np.ndarray, means: np.ndarray, covs: np.ndarray,
     """
     mean = weights @ means
     if angles is not None and angles.any():
-        mean[angles] = circular_mean(means[:, angles], weights)
+        mean[angles] = wrap_angle(circular_mean(means[:, angles], weights))  # atan2's +π is -π
     diff = wrap_components(means - mean, angles)
     cov = np.einsum("i,ijk->jk", weights, covs) + (diff * weights[:, None]).T @ diff
     return mean, symmetrize(cov)
