@@ -246,3 +246,12 @@ def test_a_sensor_with_zero_variance_measures_exactly(form, engine):
         J = sensor.jacobian(m0[:2])
         np.testing.assert_allclose(J @ (post.means[0, :2] - m0[:2]), z - sensor.h(m0[:2]), rtol=1e-13)
         assert np.abs(J @ post.covs[0, :2, :2] @ J.T).max() <= 1e-14
+
+
+def test_the_range_bearing_elevation_jacobian_is_nan_where_its_docstring_says():
+    sensor = gf.RangeBearingElevation(origin=(1.0, 2.0, 3.0))
+    above = sensor.jacobian(np.array([1.0, 2.0, 8.0, 0.0]))  # on the vertical: bearing and elevation in x and y
+    np.testing.assert_array_equal(np.isnan(above), [[0, 0, 0, 0], [1, 1, 0, 0], [1, 1, 0, 0]])
+    np.testing.assert_array_equal(above[0], [0, 0, 1, 0])
+    at = sensor.jacobian(np.array([1.0, 2.0, 3.0, 0.0]))  # at the sensor: the range's row, the elevation's z too
+    np.testing.assert_array_equal(np.isnan(at), [[1, 1, 1, 0], [1, 1, 0, 0], [1, 1, 1, 0]])

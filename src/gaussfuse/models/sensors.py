@@ -458,7 +458,9 @@ class RangeBearingElevation(NonlinearSensor):
         ndarray of shape (3, n) or (j, 3, n)
             The Jacobian, zero past the first 3 columns; on the vertical
             through the sensor, where the bearing and elevation are not
-            differentiable in x and y, their x and y columns hold NaN.
+            differentiable in x and y, their x and y columns hold NaN; at
+            the sensor itself, the range's row and the elevation's z
+            column too.
         """
         x, n = _position(x, 3)
         dx, dy, dz = (x[..., i] - self.origin[i] for i in range(3))
