@@ -209,3 +209,33 @@ else:
             online.predict()
         online.update(z)
         assert np.max(np.abs(online.x - pk_means[k])) < 1e-10
+
+# %%
+# Models of several axes, from Stone Soup or filterpy
+# ---------------------------------------------------
+#
+# A gaussfuse motion orders its state by derivative, then by axis:
+# ``[x, y, vx, vy]`` (its ``names``). Stone Soup's combined constant-velocity
+# models and filterpy's ``Q_continuous_white_noise(2, dt, q, block_size=2)``
+# order it by axis: ``[x, vx, y, vy]``. The blocks are the same, so permute
+# the rows and columns (checked below against filterpy). Sensors give
+# ``[range, bearing]`` and ``[range, bearing, elevation]``; Stone Soup's
+# ``CartesianToBearingRange`` gives ``[bearing, range]`` and
+# ``CartesianToElevationBearingRange`` ``[elevation, bearing, range]``.
+# Stone Soup's ``Singer(damping_coeff=K, noise_diff_coeff=q)`` is
+# ``gf.Singer(tau=1 / K, sigma=np.sqrt(q / (2 * K)))``. One ``q`` serves all
+# axes of a gaussfuse motion, and a sensor has an ``origin`` but no rotation.
+
+dt, q = 0.7, 2.0
+cv = gf.ConstantVelocity(dim=2, q=q)
+F2, Q2 = cv.transition(dt)
+by_axis = [0, 2, 1, 3]  # x, vx, y, vy
+print(cv.names, "->", [cv.names[i] for i in by_axis])
+try:
+    from filterpy.common import Q_continuous_white_noise
+except ImportError:
+    print("filterpy is not installed: no comparison")
+else:
+    assert np.allclose(Q2[np.ix_(by_axis, by_axis)], Q_continuous_white_noise(2, dt, q, block_size=2), rtol=1e-14)
+    print("filterpy's Q, ordered by axis, agrees")
+
