@@ -84,6 +84,13 @@ import gaussfuse as gf
 #      - ``results.llf``
 #      - ``result.loglik`` (``kf.loglik`` online)
 #
+# Every log-likelihood here includes the :math:`-\tfrac12 \log 2\pi` of each
+# observed component. simdkalman's leaves it out: with nothing missing,
+# gaussfuse's is simdkalman's minus :math:`T m \cdot \tfrac12 \log 2\pi`
+# (simdkalman's initial state is at the first measurement, as pykalman's is:
+# convert it as below). Under an exact diffuse prior, KFAS leaves it out for
+# the observations that identify the first state.
+#
 # **Converting the initial belief.** pykalman's first measurement
 # :math:`z_0` observes :math:`x_0 \sim N(\mu_0, \Sigma_0)` directly (its
 # ``KalmanFilter`` docstring: :math:`z_t = C_t x_t + \dots`), and statsmodels'

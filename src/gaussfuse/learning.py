@@ -1664,7 +1664,9 @@ def fit(
     prior : Gaussian or "diffuse"
         The prior, one step before the first measurement (see :func:`filter`);
         ``"diffuse"`` makes the first state x₁ diffuse, as Durbin & Koopman,
-        KFAS and statsmodels do, so the log-likelihood is theirs.
+        KFAS and statsmodels do; the log-likelihood is Durbin & Koopman's
+        and statsmodels' (KFAS's leaves out the ½ log 2π of the
+        observations that identify x₁).
     zs : array_like of shape (T, m), (T,) or (N, T, m)
         Measurements; NaN = missing. N series share one set of parameters
         and are pooled.

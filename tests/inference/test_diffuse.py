@@ -40,6 +40,26 @@ def test_nile_against_statsmodels_exact_diffuse():
     np.testing.assert_allclose(sm_res.covs[:, 0, 0], ref.smoothed_state_cov[0, 0], rtol=1e-10)
 
 
+@pytest.mark.parametrize("F, H, variances, kfas, diffuse", [
+    # KFAS's log-likelihoods at its estimates (R = the first variance, Q the rest) of US unemployment, as published
+    # in statsmodels' tsa/statespace/tests/results/results_structural.py (from its test_ucm.R; BSD licence)
+    (1.0, 1.0, [4.256647886e-06, 0.1182078808], -70.97242557, 1),
+    ([[1, 1], [0, 1]], [1, 0], [1.339852549e-06, 0.01008704925, 0.0609176081], -31.15640107, 2),
+], ids=["local level", "local linear trend"])
+def test_kfas_reports_the_diffuse_log_likelihood_without_the_constant_of_its_diffuse_observations(
+        F, H, variances, kfas, diffuse):
+    """Audit Z2: the docs said the exact diffuse log-likelihood equals KFAS's. It is Durbin & Koopman's (eq. 7.4) and
+    statsmodels', whose every observation carries -½ log 2π; KFAS leaves it out for the d observations that identify
+    x₁, so it is d·½ log 2π higher."""
+    unemployment = sm.datasets.macrodata.load_pandas().data["unemp"].to_numpy()
+    model = gf.LinearModel(F=F, H=H, Q=np.diag(variances[1:]), R=variances[0])
+    ours = gf.filter(model, "diffuse", unemployment, check="off").loglik
+    assert ours + diffuse * 0.5 * np.log(2 * np.pi) == pytest.approx(kfas, abs=2e-7)  # KFAS's 10 digits
+    ref = sm.tsa.UnobservedComponents(unemployment, "local level" if diffuse == 1 else "local linear trend",
+                                      use_exact_diffuse=True).loglike(variances)
+    assert ours == pytest.approx(ref, rel=1e-9)
+
+
 def test_local_linear_trend_with_missing_data_against_statsmodels():
     rng = np.random.default_rng(3)
     T = 60

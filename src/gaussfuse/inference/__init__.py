@@ -45,8 +45,10 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         flat prior, handled exactly: :mod:`gaussfuse.inference.diffuse`), as Durbin &
         Koopman, KFAS and statsmodels do, so the transition into x₁ plays no
         part; beliefs are NaN until the measurements identify the state,
-        and `loglik` is the exact diffuse log-likelihood, equal to theirs
-        for every F whose measurements identify x₁ (else NotIdentified).
+        and `loglik` is the exact diffuse log-likelihood, equal to Durbin &
+        Koopman's and statsmodels' for every F whose measurements identify
+        x₁ (else NotIdentified); KFAS's leaves out the ½ log 2π of the
+        observations that identify x₁.
     zs : array_like of shape (T, m), (T,) when m = 1, or (N, T, m)
         Measurements; a NaN component (or a masked entry of a masked array)
         is missing. A leading axis holds N independent series, and every

@@ -55,9 +55,11 @@ The diffuse log-likelihood is
 with :math:`m_t` the number of observed components at step t: every
 observation, including those that identify the initial state, carries the
 :math:`\log 2\pi` constant, as in Durbin & Koopman (2012, eq. 7.4), and the
-flat prior contributes no constant. It equals statsmodels' and KFAS's exact
-diffuse log-likelihood for every transition matrix whose measurements
-identify :math:`x_1`, singular ones included; where a component of
+flat prior contributes no constant. It equals statsmodels' exact diffuse
+log-likelihood for every transition matrix whose measurements identify
+:math:`x_1`, singular ones included (KFAS reports :math:`d \cdot \tfrac12 \log 2\pi`
+more, leaving out the constant of the d observations that identify
+:math:`x_1`); where a component of
 :math:`x_1` is never seen (a singular F forgets it before any measurement),
 it is refused as not identified, where statsmodels gives a value.
 Filtered and predicted beliefs before the state is identified are NaN; the
