@@ -1417,6 +1417,22 @@ def test_fit_names_the_data_file_in_errors_of_the_data(tmp_path, capsys, text, m
     assert_one_line_error(err, message)
 
 
+@pytest.mark.parametrize("many", [[], ["--series-column", "id"]], ids=["one file", "a table of series"])
+@pytest.mark.parametrize("extra, match", [
+    (["--structure", "Q=banana"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
+    (["--structure", "P0=scalar"], r"--structure constrains P0, which --learn does not learn"),
+    (["--learn", "m0", "--structure", "R=scalar"], r"--structure constrains R, which --learn does not learn"),
+])
+def test_fit_checks_learn_and_structure_before_reading_the_data(tmp_path, capsys, many, extra, match):
+    """Audit Y5 (D4): --structure was checked only after every partition had been read (with a cluster started
+    for a table of series): a typo cost the whole read. Here the data cannot be read at all."""
+    data = tmp_path / "unreadable.csv"
+    data.write_text("id,t,z\na,0,1\na,one,2\n", encoding="utf-8")
+    code, stdout, err = run(capsys, "fit", data, "--model", EXAMPLES / "models" / "local_level.toml", *many, *extra)
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, match)
+
+
 @pytest.mark.parametrize("structure, message", [("Q=diagonal,Q=scalar", r"--structure names Q twice"),
                                                 ("=", r"--structure takes NAME=KIND pairs")])
 def test_a_malformed_structure_is_refused(capsys, structure, message):

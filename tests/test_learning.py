@@ -251,7 +251,7 @@ def _parametrised_case(seed, n, m, learn, missing, controls, diffuse, structure)
     model, prior, zs, us, learn = _random_case(seed, n, m, learn, missing, controls, diffuse)
     if diffuse and m < n:
         prior = gf.Gaussian(np.zeros(n), np.eye(n))
-    learn, structures = learning._check_learn(model, prior, learn, {k: structure for k in ("Q", "R") if k in learn})
+    learn, structures = learning.check_learn(model, prior, learn, {k: structure for k in ("Q", "R") if k in learn})
     param = learning._Parametrisation(model, prior, learn, structures)
     return param, zs[None], None if us is None else us[None]
 

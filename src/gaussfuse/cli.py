@@ -650,16 +650,20 @@ def _names(text: str, what: str, valid) -> list[str]:
     return items
 
 
-def _structure(text: str | None) -> dict:
-    if not text:
-        return {}
-    out = {}
-    for item in text.split(","):
+def _structure(text: str | None, learn: list[str]) -> dict:
+    """--structure as :func:`gaussfuse.fit`'s `structure`, each name one that --learn learns."""
+    out: dict = {}
+    for item in text.split(",") if text else ():
         name, sep, kind = (part.strip() for part in item.partition("="))
         if not sep or not name or not kind or name in out:
             why = "names " + name + " twice" if sep and name and kind else "takes NAME=KIND pairs"
             raise ValueError(f"--structure {why} (pairs such as Q=diagonal,R=scalar); got {text!r}.")
         out[name] = kind
+    idle = sorted(set(out) - set(learn))
+    if idle:  # it would constrain nothing
+        them = "it" if len(idle) == 1 else "them"
+        raise ValueError(f"--structure constrains {', '.join(idle)}, which --learn does not learn ({','.join(learn)}): "
+                         f"add {them} to --learn, or leave {them} out of --structure.")
     return out
 
 
@@ -698,15 +702,17 @@ def _run_fit(args: argparse.Namespace) -> int:
                          "`fit` takes one set of matrices.")
     columns = _columns(args)
     learn = _names(args.learn, "--learn", [name for name in learning.LEARNABLE if name != "B"])  # no B in a file
+    structure = _structure(args.structure, learn)
+    learning.check_learn(spec.model, spec.prior, learn, structure)  # before any data are read (audit Y5)
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
         T = data.times.shape[0]
         grid = timing.steps("times", data.times, T - 1) if T > 1 else None  # the T - 1 steps between the rows
-        return _fit_and_write(args, _stepped(spec, grid), learn, data.zs)
+        return _fit_and_write(args, _stepped(spec, grid), learn, structure, data.zs)
     parts = panels.partitions(args.data)  # a missing or empty path is named before a cluster starts
     with _cluster(args) as client:
         zs, grid = _pooled(args, spec, columns, parts, client)
-        return _fit_and_write(args, _stepped(spec, grid), learn, zs)
+        return _fit_and_write(args, _stepped(spec, grid), learn, structure, zs)
 
 
 def _stepped(spec: gfio.ModelFile, grid: timing.Steps | None) -> gfio.ModelFile:
@@ -756,19 +762,13 @@ def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, parts: list
     return client.persist(da.concatenate(blocks)), panels.joined_range([grid for _, _, grid in shapes])
 
 
-def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[str], zs) -> int:
+def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[str], structure: dict, zs) -> int:
     """`gaussfuse fit`'s fit of `zs` (an array, or a dask array of many series) and its output."""
     iterations = args.iterations if args.iterations is not None else (500 if args.method == "em" else 1000)
     progress = _Progress(args.method, iterations)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
-            structure = _structure(args.structure)
-            idle = sorted(set(structure) - set(learn))
-            if idle:  # it would constrain nothing
-                raise ValueError(f"--structure constrains {', '.join(idle)}, which --learn does not learn "
-                                 f"({','.join(learn)}): add {'it' if len(idle) == 1 else 'them'} to --learn, or leave "
-                                 f"{'it' if len(idle) == 1 else 'them'} out of --structure.")
             try:
                 res = learning.fit(spec.model, spec.prior, zs, learn=learn, method=args.method,
                                    structure=structure, iterations=iterations, tol=args.tol,

@@ -1580,7 +1580,8 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
 # ---------------------------------------------------------------------------
 
 
-def _check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, dict]:
+def check_learn(model: LinearModel, prior, learn, structure) -> tuple[tuple, dict]:
+    """`learn` as a tuple and `structure` as a dict for every covariance, checked against the model and prior."""
     if isinstance(learn, str):
         learn = (learn,)
     if isinstance(learn, Mapping):  # its values would be dropped without a word (a start belongs in the model)
@@ -1856,7 +1857,7 @@ def fit(
         if x0 is not None:
             raise ValueError("`x0` is the starting point of `params` and is used only with it; "
                              "the starting point of a fit without `params` is `model` (and `prior`).")
-        learn, structure = _check_learn(model, prior, learn, structure)
+        learn, structure = check_learn(model, prior, learn, structure)
         controls = _control_sizes(us) if "B" in learn else None  # the units of B's entries
         if method == "mle":
             build = _Parametrisation(model, prior, learn, structure, controls=controls)
