@@ -931,6 +931,25 @@ def test_a_closed_pipe_on_stdout_exits_141_quietly(inputs):
     assert (proc.returncode, proc.stderr) == (141, "")
 
 
+def test_a_pipe_closed_in_the_middle_of_the_results_exits_141(tmp_path):
+    """Audit Z3: `gaussfuse filter big.csv | head -2` exited 0. The results went out in one write, of which the
+    pipe took 64 kB before its reader closed; Python's buffered writer returns that short count without an error,
+    and it was ignored: the rest was lost with a status of success."""
+    data, model = tmp_path / "big.csv", tmp_path / "m.toml"
+    data.write_text("t,z\n" + "".join(f"{i},{0.5 * i}\n" for i in range(20_000)), encoding="utf-8")  # 1.4 MB out
+    model.write_text("[model]\nF = [[1.0, 1.0], [0.0, 1.0]]\nH = [[1.0, 0.0]]\nQ = [[0.25, 0.5], [0.5, 1.0]]\n"
+                     "R = [[4.0]]\n", encoding="utf-8")
+    proc = subprocess.Popen([sys.executable, "-m", "gaussfuse", "filter", str(data), "-m", str(model)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert proc.stdout.read(1000).count(b"\n") > 2  # past the header: the writer is in the body's write,
+        proc.stdout.close()  # which the pipe cannot hold whole, when its reader goes, as `head` does
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert (proc.returncode, err) == (141, b"")
+
+
 def test_a_closed_stdout_is_one_line_error(tmp_path, inputs):
     data, model = inputs
     shell = 'exec "$@" >&-'  # start gaussfuse with no standard output at all

@@ -453,7 +453,15 @@ class _StandardOutput:
 
     def write(self, data) -> None:
         with _failing_output():
-            self._write(data.decode("utf-8") if self._decode else data)
+            if self._decode:
+                self._write(data.decode("utf-8"))
+                return
+            view = memoryview(data)
+            while view:  # a pipe closed in the middle takes part and returns its count; the next write raises
+                written = self._write(view)
+                if not written:  # (a stream that took nothing and said nothing: never loop on it)
+                    raise OSError(errno.EIO, "standard output took none of the results")
+                view = view[written:]
 
 
 class _OutputFailed(Exception):
