@@ -140,3 +140,19 @@ def test_a_calendar_index_is_one_step_a_row_for_a_model_with_fixed_matrices():
     seconds = (monthly.index - monthly.index[0]).total_seconds().to_numpy()
     np.testing.assert_array_equal(gf.filter(timed, prior, monthly).means,
                                   gf.filter(timed, prior, flow[:5], times=seconds).means)
+
+
+def test_pd_na_in_a_data_frame_of_object_dtype_is_missing():
+    """Audit Z3: pd.DataFrame({"z": [1.0, pd.NA, 2.0]}) (object dtype, pandas' default for such a list) raised
+    TypeError "not 'NAType'", though the same column as a Series, or as Float64, is missing values."""
+    model, prior = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian(0.0, 1.0)
+    frame = pd.DataFrame({"z": [1.0, pd.NA, 2.0], "w": [pd.NA, 3, 4.5]})
+    assert (frame.dtypes == object).all()
+    two = gf.LinearModel(F=1.0, H=[[1.0], [1.0]], Q=1.0, R=np.eye(2))
+    want = gf.filter(two, prior, np.array([[1.0, np.nan], [np.nan, 3.0], [2.0, 4.5]]))
+    got = gf.filter(two, prior, frame)
+    np.testing.assert_array_equal(got.means, want.means)
+    assert got.loglik == want.loglik
+    np.testing.assert_array_equal(gf.filter(model, prior, frame[["z"]]).means, gf.filter(model, prior, frame["z"]).means)
+    with pytest.raises(TypeError, match=r"`zs` must hold numbers; got str values in column 'z'"):
+        gf.filter(two, prior, pd.DataFrame({"z": [1.0, pd.NA, "2"], "w": [1.0, 2.0, 3.0]}))
