@@ -214,6 +214,20 @@ def test_read_explicit_model_with_states_and_cov_prior(tmp_path):
     np.testing.assert_array_equal(prior.cov, 500 * np.eye(2))
 
 
+@pytest.mark.parametrize("text", ["[model]\nF = [[1, 1], [0, 1]]\nH = [1, 0]\nQ = [[1, 0], [0, 3]]\nR = 10\n",
+                                  '[model]\nkind = "constant_velocity"\ndt = 0.5\nq = 2\nr = 0.25\n'],
+                         ids=["explicit", "named"])
+def test_a_model_files_states_name_its_model_as_the_cli_names_its_columns(tmp_path, text):
+    """Review R13: a named model's file with states = ["pos", "vel"] gave a model named x, vx, so results in
+    Python were labelled otherwise than the same file's in the CLI."""
+    spec = read_model(write(tmp_path / "m.toml", text + 'states = ["pos", "vel"]\n'))
+    assert spec.model.names == ("pos", "vel") and spec.state_names == ["pos", "vel"]
+    frame = gf.filter(spec.model, spec.prior, [1.0, 2.0, 2.5]).to_pandas()
+    assert list(frame.columns) == ["pos", "vel", "pos_sd", "vel_sd"]
+    unnamed = read_model(write(tmp_path / "u.toml", text))
+    assert unnamed.model.names in (None, ("x", "vx"))  # an explicit model's are x0, x1 by default; a named one's its motion's
+
+
 def test_read_explicit_model_default_names_and_prior_mean(tmp_path):
     path = write(tmp_path / "m.toml", "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.5]]\nR = [[2.0]]\n"
                                       "[prior]\ncov = [[4.0]]\n")

@@ -576,3 +576,6 @@ def test_a_models_names_are_checked_and_default_to_none(make):
         make(["a", "b", "c"])
     with pytest.raises(TypeError, match=r"`names` must be a sequence of 2 strings"):
         make("ab")
+    for bad in (["x", "x"], ["", "v"]):  # they label columns, which to_pandas would refuse later (review R13)
+        with pytest.raises(ValueError, match=r"`names` must be distinct and non-empty"):
+            make(bad)

@@ -31,6 +31,8 @@ def check_names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
         raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
     if len(names) != n:
         raise ValueError(f"`names` must have {n} entries, one per component; got {len(names)}.")
+    if not all(names) or len(set(names)) != n:  # they label columns (review R13)
+        raise ValueError(f"`names` must be distinct and non-empty; got {list(names)!r:.200}.")
     return names
 
 
