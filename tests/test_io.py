@@ -225,7 +225,7 @@ def test_a_model_files_states_name_its_model_as_the_cli_names_its_columns(tmp_pa
     frame = gf.filter(spec.model, spec.prior, [1.0, 2.0, 2.5]).to_pandas()
     assert list(frame.columns) == ["pos", "vel", "pos_sd", "vel_sd"]
     unnamed = read_model(write(tmp_path / "u.toml", text))
-    assert unnamed.model.names in (None, ("x", "vx"))  # an explicit model's are x0, x1 by default; a named one's its motion's
+    assert unnamed.model.names in (None, ("x", "vx"))  # an explicit model's default (x0, x1), or the motion's
 
 
 def test_read_explicit_model_default_names_and_prior_mean(tmp_path):

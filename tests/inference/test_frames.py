@@ -153,6 +153,7 @@ def test_pd_na_in_a_data_frame_of_object_dtype_is_missing():
     got = gf.filter(two, prior, frame)
     np.testing.assert_array_equal(got.means, want.means)
     assert got.loglik == want.loglik
-    np.testing.assert_array_equal(gf.filter(model, prior, frame[["z"]]).means, gf.filter(model, prior, frame["z"]).means)
+    one = gf.filter(model, prior, frame[["z"]])
+    np.testing.assert_array_equal(one.means, gf.filter(model, prior, frame["z"]).means)
     with pytest.raises(TypeError, match=r"`zs` must hold numbers; got str values in column 'z'"):
         gf.filter(two, prior, pd.DataFrame({"z": [1.0, pd.NA, "2"], "w": [1.0, 2.0, 3.0]}))

@@ -106,8 +106,10 @@ def unpack(zs, times, rows: bool):
                          "padded at the end with NaN.")
     _check_columns(zs)
     try:  # a DataFrame column by column: its own cast fails on pd.NA in an object column, a Series' does not
-        values = (zs.to_numpy(dtype=np.float64, na_value=np.nan) if not hasattr(zs, "columns") or zs.shape[1] == 0
-                  else np.column_stack([column.to_numpy(dtype=np.float64, na_value=np.nan) for _, column in zs.items()]))
+        if not hasattr(zs, "columns") or zs.shape[1] == 0:
+            values = zs.to_numpy(dtype=np.float64, na_value=np.nan)
+        else:
+            values = np.column_stack([column.to_numpy(dtype=np.float64, na_value=np.nan) for _, column in zs.items()])
     except (TypeError, ValueError) as exc:
         raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
     columns = (tuple(str(c) for c in zs.columns) if hasattr(zs, "columns")
