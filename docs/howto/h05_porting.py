@@ -45,7 +45,8 @@ import gaussfuse as gf
 #      - ``B @ u``
 #      - ``transition_offsets`` b, ``observation_offsets`` d
 #      - ``["state_intercept"]`` c, ``["obs_intercept"]`` d
-#      - ``B=np.eye(n)`` with the offsets as ``us``; take d off the data: ``zs - d``
+#      - ``B=np.eye(n)`` with the offsets as ``us``, shifted by one as time-varying matrices are (``us[k]`` is
+#        pykalman's ``transition_offsets[k - 1]``); take d off the data: ``zs - d``
 #    * - One step
 #      - ``predict(u, F=, Q=)``, ``update(z, R=, H=)``
 #      - ``filter_update(mean, cov, observation)`` (a predict and an update)
