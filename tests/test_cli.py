@@ -579,8 +579,8 @@ def test_help_documents_the_non_convergence_status(capsys):
         # the library's errors, in the command's words
         (["--learn", "m0,P0"], r"^gaussfuse: error: --learn cannot include 'm0' with a diffuse prior\.$"),
         (["--structure", "Q=banana"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
-        (["--structure", "P0=scalar"], r"--structure constrains P0, which --learn does not learn \(Q,R\): add it to "
-                                       r"--learn, or leave it out of --structure\."),  # was silently ignored
+        (["--structure", "P0=scalar"], r"--structure constrains P0, which is not learned \(--learn = \['Q', 'R'\]\): "
+                                       r"a structure applies to a learned covariance"),  # was silently ignored
         (["--structure", "Q"], r"--structure takes NAME=KIND pairs"),
         (["--structure", "Q=banded"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
         (["--iterations", "0"], r"--iterations must be a positive integer; got 0"),
@@ -1439,8 +1439,9 @@ def test_fit_names_the_data_file_in_errors_of_the_data(tmp_path, capsys, text, m
 @pytest.mark.parametrize("many", [[], ["--series-column", "id"]], ids=["one file", "a table of series"])
 @pytest.mark.parametrize("extra, match", [
     (["--structure", "Q=banana"], r"--structure maps \['Q', 'R', 'P0'\] to one of"),
-    (["--structure", "P0=scalar"], r"--structure constrains P0, which --learn does not learn"),
-    (["--learn", "m0", "--structure", "R=scalar"], r"--structure constrains R, which --learn does not learn"),
+    (["--structure", "P0=scalar"], r"--structure constrains P0, which is not learned"),
+    (["--learn", "Q", "--structure", "R=scalar"], r"--structure constrains R, which is not learned"),
+    (["--learn", "m0"], r"--learn cannot include 'm0' with a diffuse prior"),
 ])
 def test_fit_checks_learn_and_structure_before_reading_the_data(tmp_path, capsys, many, extra, match):
     """Audit Y5 (D4): --structure was checked only after every partition had been read (with a cluster started

@@ -658,8 +658,8 @@ def _names(text: str, what: str, valid) -> list[str]:
     return items
 
 
-def _structure(text: str | None, learn: list[str]) -> dict:
-    """--structure as :func:`gaussfuse.fit`'s `structure`, each name one that --learn learns."""
+def _structure(text: str | None) -> dict:
+    """--structure as :func:`gaussfuse.fit`'s `structure` (which checks it)."""
     out: dict = {}
     for item in text.split(",") if text else ():
         name, sep, kind = (part.strip() for part in item.partition("="))
@@ -667,11 +667,6 @@ def _structure(text: str | None, learn: list[str]) -> dict:
             why = "names " + name + " twice" if sep and name and kind else "takes NAME=KIND pairs"
             raise ValueError(f"--structure {why} (pairs such as Q=diagonal,R=scalar); got {text!r}.")
         out[name] = kind
-    idle = sorted(set(out) - set(learn))
-    if idle:  # it would constrain nothing
-        them = "it" if len(idle) == 1 else "them"
-        raise ValueError(f"--structure constrains {', '.join(idle)}, which --learn does not learn ({','.join(learn)}): "
-                         f"add {them} to --learn, or leave {them} out of --structure.")
     return out
 
 
@@ -710,7 +705,7 @@ def _run_fit(args: argparse.Namespace) -> int:
                          "`fit` takes one set of matrices.")
     columns = _columns(args)
     learn = _names(args.learn, "--learn", [name for name in learning.LEARNABLE if name != "B"])  # no B in a file
-    structure = _structure(args.structure, learn)
+    structure = _structure(args.structure)
     learning.check_learn(spec.model, spec.prior, learn, structure)  # before any data are read (audit Y5)
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
