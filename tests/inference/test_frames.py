@@ -157,3 +157,17 @@ def test_pd_na_in_a_data_frame_of_object_dtype_is_missing():
     np.testing.assert_array_equal(one.means, gf.filter(model, prior, frame["z"]).means)
     with pytest.raises(TypeError, match=r"`zs` must hold numbers; got str values in column 'z'"):
         gf.filter(two, prior, pd.DataFrame({"z": [1.0, pd.NA, "2"], "w": [1.0, 2.0, 3.0]}))
+
+
+@pytest.mark.parametrize("column", [
+    pd.to_datetime(["2026-01-01", "2026-01-02", "2026-01-03"]),
+    pd.to_datetime(["2026-01-01", "2026-01-02", "2026-01-03"]).tz_localize("Europe/Berlin"),
+    pd.to_timedelta([1.0, 2.0, 3.0], unit="s"),
+], ids=["datetime", "zoned", "timedelta"])
+def test_a_column_of_dates_or_durations_is_not_measurements(column):
+    """Review R13: such a column became nanosecond counts (1.7e18 for 2026), filtered as measurements."""
+    model, prior = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian(0.0, 1.0)
+    with pytest.raises(TypeError, match=r"`zs` must hold numbers; got (datetime|timedelta) values in column 't'"):
+        gf.filter(model, prior, pd.DataFrame({"t": column}))
+    with pytest.raises(TypeError, match=r"`zs` must hold numbers; got (datetime|timedelta) values in column 't'"):
+        gf.filter(model, prior, pd.Series(column, name="t"))

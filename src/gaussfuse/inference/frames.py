@@ -36,12 +36,13 @@ def _is_pandas(value) -> bool:
 
 
 def _check_columns(zs) -> None:
-    """Refuse what :func:`gaussfuse._validation.as_array` refuses in an array: complex, boolean and text values.
+    """Refuse what :func:`gaussfuse._validation.as_array` refuses in an array: complex, boolean, date and text values.
 
     pandas' cast to float dropped an imaginary part (with only its own
     warning), read True as 1.0 and parsed the text "1".
     """
-    from pandas.api.types import is_bool_dtype, is_complex_dtype, is_numeric_dtype
+    from pandas.api.types import (is_bool_dtype, is_complex_dtype, is_datetime64_any_dtype, is_numeric_dtype,
+                                  is_timedelta64_dtype)
 
     columns = zs.items() if hasattr(zs, "columns") else [(zs.name, zs)]
     for name, column in columns:
@@ -49,6 +50,10 @@ def _check_columns(zs) -> None:
             raise TypeError(f"`zs` must be real; got complex values in column {name!r}.")
         if is_bool_dtype(column.dtype):
             raise TypeError(f"`zs` must hold numbers; got booleans in column {name!r}.")
+        if is_datetime64_any_dtype(column.dtype) or is_timedelta64_dtype(column.dtype):  # (as nanosecond counts)
+            what = "timedelta" if is_timedelta64_dtype(column.dtype) else "datetime"
+            raise TypeError(f"`zs` must hold numbers; got {what} values in column {name!r} (times go in `times` "
+                            "or the index).")
         if not is_numeric_dtype(column.dtype):
             odd = [v for v in column.dropna() if isinstance(v, (str, bytes, bool, np.bool_, complex))]
             if odd:
