@@ -86,9 +86,12 @@ def congruence(B, P, Y, out, BP, k, n):
     """``BP[:k, :n] = B[:k, :n] @ P[:n, :n]`` and ``out[:k, :k] = sym(BP Bᵀ + Y)`` (Y: k × k, or None).
 
     P (and Y) must be exactly symmetric, as every covariance here is: the
-    loops then read rows where the product has columns (``P[c, j] = P[j, c]``),
-    and compute the lower triangle of `out` and mirror it; BLAS computes the
-    whole product and averages it with its transpose.
+    loops then read rows where the product has columns (``P[c, j] = P[j, c]``).
+    Both compute the whole product and average it with its transpose, as the
+    readable path does: the loops once mirrored one triangle, whose round-off
+    is one-sided (audit Z4: under a prior 1e12 times the sensor's, 14 and 15
+    states lost positive definiteness where the readable path and BLAS, from
+    16 states, did not).
     """
     if k * n * n < _BLAS_WORK or not (_rows(B) and _rows(P) and _rows(out) and _rows(BP)):
         for i in range(k):
@@ -97,14 +100,17 @@ def congruence(B, P, Y, out, BP, k, n):
                 for c in range(n):
                     t += B[i, c] * P[j, c]
                 BP[i, j] = t
-            for j in range(i + 1):  # row i of (B P) Bᵀ + Y, mirrored
-                t = 0.0
+            for j in range(i + 1):  # entries (i, j) and (j, i) of (B P) Bᵀ + Y, averaged (rows j <= i of BP are done)
+                x = 0.0
+                y = 0.0
                 for c in range(n):
-                    t += BP[i, c] * B[j, c]
+                    x += BP[i, c] * B[j, c]
+                    y += BP[j, c] * B[i, c]
                 if Y is not None:
-                    t += Y[i, j]
-                out[i, j] = t
-                out[j, i] = t
+                    x += Y[i, j]
+                    y += Y[j, i]
+                out[i, j] = 0.5 * x + 0.5 * y  # as _linalg.symmetrize: no overflow of x + y
+                out[j, i] = out[i, j]
         return
     matmul(B, P, BP, k, n, n)
     # out = (B P) Bᵀ: to Fortran, outᵀ = B (B P)ᵀ, B used transposed
