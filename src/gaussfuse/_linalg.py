@@ -309,9 +309,11 @@ def negative_weight(weights: np.ndarray | None) -> str:
     if weights is None or weights.min() >= 0.0:
         return ""
     return (f". The rule weighs a point negatively ({weights.min():.3g}), so a regression's residual spread, and a "
-            "covariance it adds to, can be indefinite: the unscented rule's weights are all positive with "
-            "alpha = 1 and kappa >= 0 (its default, 3 - n, is negative past three states), and the cubature "
-            "rule's always are (method='ckf')")
+            f"covariance it adds to, can be indefinite: {_POSITIVE_RULES}")
+
+
+_POSITIVE_RULES = ("the unscented rule's weights are all positive with alpha = 1 and kappa >= 0 (its default, 3 - n, "
+                   "is negative past three states), and the cubature rule's always are (method='ckf')")
 
 
 def factorable(mats: np.ndarray) -> np.ndarray:
@@ -608,7 +610,7 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
                 except np.linalg.LinAlgError:
                     raise np.linalg.LinAlgError(
                         f"{name} is not positive semi-definite: taking away a negatively weighted term leaves "
-                        f"component {k} a variance of {rho2:.3g}"
+                        f"component {k} a variance of {rho2:.3g}. {_POSITIVE_RULES[0].upper()}{_POSITIVE_RULES[1:]}"
                     ) from None
             rho = np.sqrt(rho2)
             c, s = rho / a, v[k] / a

@@ -735,3 +735,19 @@ def test_an_error_in_one_of_several_series_names_it_on_every_engine(call, form):
             call(twin, gf.Gaussian([0.0, 0.0], np.eye(2)), zs, engine=engine, form=form)
     with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: "):  # one series: no series to name
         call(twin, gf.Gaussian([0.0, 0.0], np.eye(2)), zs[2], engine="python", form=form)
+
+
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_an_innovation_covariance_a_negative_weight_made_indefinite_names_the_weight(form, engine):
+    """Audit Z4: with the unscented rule's default kappa = 3 - n (negative past three states) the measurements'
+    spread can come out indefinite; the covariance form's error blamed S = H P Hᵀ + R and advised a larger R."""
+    n = 10
+    model = gf.NonlinearModel(lambda x: x, lambda x: np.array([x @ x]), 0.01 * np.eye(n), 0.01)
+    with pytest.raises(np.linalg.LinAlgError) as info:
+        gf.filter(model, gf.Gaussian(np.zeros(n), np.eye(n)), [1.0, 2.0], method="ukf", form=form, engine=engine)
+    message = str(info.value)
+    assert message.startswith("at step 0: ") and "innovation covariance" in message
+    assert "kappa >= 0 (its default, 3 - n, is negative past three states)" in message and "method='ckf'" in message
+    assert message.count("method='ckf'") == 1
+    gf.filter(model, gf.Gaussian(np.zeros(n), np.eye(n)), [1.0, 2.0], method="ckf", form=form, engine=engine)

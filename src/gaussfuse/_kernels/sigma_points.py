@@ -79,7 +79,7 @@ from numba.experimental import structref
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload, register_jitable
 
-from .._linalg import UNRESOLVED, sqrt_cov, symmetrize
+from .._linalg import UNRESOLVED, negative_weight, sqrt_cov, symmetrize
 from ..kalman import cov_factor
 from .._validation import call_checked, call_each, raise_call, size_reason
 from ..errors import ModelFunctionError
@@ -865,8 +865,9 @@ def _give_root(cursor: Cursor, bel: Belief, gf, gh, N: int, weights: np.ndarray)
     cursor.given[0] = 1
 
 
-def _raise_failed(cursor: Cursor, fail, model, k: int, N: int) -> None:
-    """Raise the readable path's error for a stopped series."""
+def _raise_failed(cursor: Cursor, fail, model, k: int, N: int, weights: np.ndarray) -> None:
+    """Raise the readable path's error for a stopped series (a rule's negative covariance `weights` named as the
+    likely cause of a covariance that is not positive definite, as the readable path names it)."""
     s = int(cursor.series[0])
     code, step = int(fail.code[s]), int(fail.step[s])
     if code in (F_NOT_FINITE, H_NOT_FINITE, F_SHAPE, H_SHAPE):
@@ -881,7 +882,10 @@ def _raise_failed(cursor: Cursor, fail, model, k: int, N: int) -> None:
         else:
             message = f"`{name}` returned a non-finite value (NaN or inf) for an input of shape {x_shape}."
         raise ModelFunctionError(f"{where(s, step, N)}: {message}")
-    raise_failure(fail)
+    try:
+        raise_failure(fail)
+    except np.linalg.LinAlgError as exc:
+        raise np.linalg.LinAlgError(f"{exc}{negative_weight(weights)}") from None
 
 
 def _problem(lin, model, prior, zs, sqrt: bool) -> Problem:
@@ -948,7 +952,7 @@ def _forward(lin, model, prior, zs, us, keep: str, smoothing: bool, sqrt: bool =
         if status == NEED_ROOT:
             _give_root(cursor, bel, gf, gh, N, prob.rule.wc)
         elif status == FAILED:
-            _raise_failed(cursor, fail, model, k, N)
+            _raise_failed(cursor, fail, model, k, N, prob.rule.wc)
         else:
             return out, bel
 
@@ -974,7 +978,7 @@ def _python_mode(model, us, cursor, Yf, Yh, prob, bel, out, w, gf, gh, fail, k: 
         elif status == NEED_ROOT:
             _give_root(cursor, bel, gf, gh, N, prob.rule.wc)
         elif status == FAILED:
-            _raise_failed(cursor, fail, model, k, N)
+            _raise_failed(cursor, fail, model, k, N, prob.rule.wc)
         else:
             return
 

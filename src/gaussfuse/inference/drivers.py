@@ -150,7 +150,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
                 loglik += post.loglik
                 unconverged += not st.converged
     except STEP_ERRORS as exc:
-        raise at_step(exc, k) from exc
+        raise at_step(_weighed(exc, lin), k) from exc
     per_step = (means, covs, pmeans, pcovs, innov, icovs)
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
                           _square(cov) if sqrt else cov, used if used.shape[0] else None,
@@ -482,6 +482,16 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     if form == "cov" and not spec.iterated:
         _spread_checked(linearisation(spec, model, None, options)[0], result, to_prior)
     return result
+
+
+def _weighed(exc: Exception, lin) -> Exception:
+    """`exc`, a LinAlgError of a sigma-point rule that weighs a point negatively, with that as its likely cause
+    (audit Z4: the innovation covariance's error blamed S = H P Hᵀ + R and advised a larger R)."""
+    rule = getattr(lin, "rule", None)
+    if not isinstance(exc, np.linalg.LinAlgError) or rule is None or "method='ckf'" in str(exc):
+        return exc
+    hint = negative_weight(rule.wc)
+    return type(exc)(f"{exc}{hint}") if hint else exc
 
 
 def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:
