@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "factorable", "indefinite", "unseen_directions", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "factorable", "indefinite", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -301,6 +301,14 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None, name: str = "the c
             raise np.linalg.LinAlgError(str(exc).replace("the covariance", name, 1) + negative_weight(weights)) from None
         return L, np.diag(L) > 0.0
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
+
+
+def indefinite_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
+    """The LinAlgError `message` for a matrix `S` that has no Cholesky factor, marked with whether S is indefinite
+    (``.indefinite``: an eigenvalue below round-off, not a singular S), which a negative weight can cause."""
+    exc = np.linalg.LinAlgError(message)
+    exc.indefinite = bool(np.isfinite(S).all() and indefinite(S[None])[0])
+    return exc
 
 
 def negative_weight(weights: np.ndarray | None) -> str:

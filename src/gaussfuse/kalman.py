@@ -36,7 +36,7 @@ import numpy as np
 from ._linalg import (PSD_RTOL, abs_congruence_diagonal, back_substitute, cho_solve, cholesky, clip_variances,
                       correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
                       pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions,
-                      whiten, with_slopes, wrap_components, zero_pivots)
+                      whiten, with_slopes, wrap_components, zero_pivots, indefinite_error)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -323,7 +323,7 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     except np.linalg.LinAlgError as exc:
         if not np.isfinite(S).all():  # an overflow upstream, not a covariance that is indefinite
             raise FloatingPointError(not_finite("filtered")) from None
-        raise np.linalg.LinAlgError(f"{exc} {_S_WHY}") from None
+        raise indefinite_error(f"{exc} {_S_WHY}", S) from None
     if K is None:
         K = cho_solve(L, HP_o).T                  # Kᵀ = S⁻¹ H_o P⁻
     elif observed is not None:

@@ -885,6 +885,8 @@ def _raise_failed(cursor: Cursor, fail, model, k: int, N: int, weights: np.ndarr
     try:
         raise_failure(fail)
     except np.linalg.LinAlgError as exc:
+        if not getattr(exc, "indefinite", False):  # (a singular S is not a weight's doing: review R14)
+            raise
         raise np.linalg.LinAlgError(f"{exc}{negative_weight(weights)}") from None
 
 

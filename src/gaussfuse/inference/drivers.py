@@ -488,7 +488,7 @@ def _weighed(exc: Exception, lin) -> Exception:
     """`exc`, a LinAlgError of a sigma-point rule that weighs a point negatively, with that as its likely cause
     (audit Z4: the innovation covariance's error blamed S = H P Hᵀ + R and advised a larger R)."""
     rule = getattr(lin, "rule", None)
-    if not isinstance(exc, np.linalg.LinAlgError) or rule is None or "method='ckf'" in str(exc):
+    if not getattr(exc, "indefinite", False) or rule is None:  # (a singular S is not a weight's doing: review R14)
         return exc
     hint = negative_weight(rule.wc)
     return type(exc)(f"{exc}{hint}") if hint else exc
