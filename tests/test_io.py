@@ -277,6 +277,7 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         (EXPLICIT.replace("R = 1", "R = [[1], [2, 3]]"), r"\[model\] R: `R` must be a rectangular array of real numbers; got rows of different lengths \(1, 2\)"),
         (EXPLICIT + 'states = ["a"]\n', r"m\.toml: \[model\] states: `states` must be a list of 2 distinct names"),
         (EXPLICIT + 'states = ["a", "a"]\n', r"\[model\] states: `states` must be a list of 2 distinct names"),
+        (EXPLICIT + 'states = ["a", "a_sd"]\n', r"\[model\] states: `states` must not hold a name with '_sd' after"),
         (EXPLICIT + "states = [1, 2]\n", r"\[model\] states: `states` must be a list of 2 distinct names"),
         (EXPLICIT + "states = [[1], [2]]\n", r"\[model\] states: `states` must be a list of 2 distinct names"),
         (EXPLICIT + 'states = "xy"\n', r"\[model\] states: `states` must be a list of 2 distinct names"),

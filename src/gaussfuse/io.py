@@ -95,6 +95,7 @@ import numpy as np
 from ._linalg import marginal_std
 from ._validation import as_array, as_vector, real, shape_error
 from .gaussian import Gaussian
+from .models._base import check_names
 from .models.linear import LinearModel
 from .models.compose import TimedModel
 from .models.compose import model as compose_model
@@ -779,6 +780,10 @@ def _state_names(path, given, default: list[str]) -> list[str]:
             path, f"`states` must be a list of {n} distinct names, one per state; got {given!r:.80}.",
             field="[model] states",
         )
+    try:
+        check_names(given, n, None)  # as a model's names (which it becomes)
+    except ValueError as exc:
+        raise InputFileError(path, str(exc).replace("`names`", "`states`"), field="[model] states") from None
     return given
 
 

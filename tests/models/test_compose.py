@@ -579,3 +579,5 @@ def test_a_models_names_are_checked_and_default_to_none(make):
     for bad in (["x", "x"], ["", "v"]):  # they label columns, which to_pandas would refuse later (review R13)
         with pytest.raises(ValueError, match=r"`names` must be distinct and non-empty"):
             make(bad)
+    with pytest.raises(ValueError, match=r"`names` must not hold a name with '_sd' after another.*got 'x_sd'"):
+        make(["x", "x_sd"])  # (review R14)

@@ -33,6 +33,10 @@ def check_names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
         raise ValueError(f"`names` must have {n} entries, one per component; got {len(names)}.")
     if not all(names) or len(set(names)) != n:  # they label columns (review R13)
         raise ValueError(f"`names` must be distinct and non-empty; got {list(names)!r:.200}.")
+    taken = sorted(set(names) & {f"{name}_sd" for name in names})
+    if taken:  # to_pandas names a standard deviation so (review R14)
+        raise ValueError(f"`names` must not hold a name with '_sd' after another, the column of its standard "
+                         f"deviation; got {taken[0]!r}.")
     return names
 
 
