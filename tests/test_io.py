@@ -222,6 +222,7 @@ def test_a_model_files_states_name_its_model_as_the_cli_names_its_columns(tmp_pa
     Python were labelled otherwise than the same file's in the CLI."""
     spec = read_model(write(tmp_path / "m.toml", text + 'states = ["pos", "vel"]\n'))
     assert spec.model.names == ("pos", "vel") and spec.state_names == ["pos", "vel"]
+    assert spec.timed is None or spec.timed.names == ("pos", "vel")  # the named model for irregular times too
     frame = gf.filter(spec.model, spec.prior, [1.0, 2.0, 2.5]).to_pandas()
     assert list(frame.columns) == ["pos", "vel", "pos_sd", "vel_sd"]
     unnamed = read_model(write(tmp_path / "u.toml", text))

@@ -581,3 +581,17 @@ def test_a_models_names_are_checked_and_default_to_none(make):
             make(bad)
     with pytest.raises(ValueError, match=r"`names` must not hold a name with '_sd' after another.*got 'x_sd'"):
         make(["x", "x_sd"])  # (review R14)
+
+
+def test_a_timed_model_takes_names_and_keeps_them_at_every_step():
+    """Review R14: a model file's states named its fixed-dt model but not the model for irregular times."""
+    timed = gf.model(gf.ConstantVelocity(), gf.Position(r=1.0), names=["pos", "vel"])
+    assert timed.names == ("pos", "vel") and "names=('pos', 'vel')" in repr(timed)
+    assert pickle.loads(pickle.dumps(timed)).names == ("pos", "vel")
+    assert "names" not in repr(gf.model(gf.ConstantVelocity(), gf.Position(r=1.0)))  # the motion's, by default
+    for times in ([0.0, 1.0, 3.0], [0.0, 1.0, 2.0]):  # irregular, and one step (a model at that dt)
+        frame = gf.filter(timed, gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0, 2.0, 2.5], times=times).to_pandas()
+        assert list(frame.columns) == ["pos", "vel", "pos_sd", "vel_sd"]
+    assert gf.model(gf.ConstantVelocity(), gf.Position(r=1.0), 0.5, names=["pos", "vel"]).names == ("pos", "vel")
+    with pytest.raises(ValueError, match=r"`names` must have 2 entries"):
+        gf.model(gf.ConstantVelocity(), gf.Position(r=1.0), names=["pos"])

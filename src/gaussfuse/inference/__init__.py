@@ -17,7 +17,6 @@ import numpy as np
 from .. import kalman
 from .._validation import flag
 from ..gaussian import Gaussian
-from ..models.compose import TimedModel
 from . import chunked, diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
@@ -350,7 +349,7 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
 def _inputs(model, zs, us, times):
     """A pandas `zs` unpacked and a TimedModel discretised at `times`: ``(model, zs, us, table, state names)``."""
     zs, times, table = frames.unpack(zs, times, frames.by_rows(model))
-    names = tuple(model.motion.names) if isinstance(model, TimedModel) else getattr(model, "names", None)
+    names = getattr(model, "names", None)
     model, us = timing.resolve(model, times, zs, us)
     return model, zs, us, table, names
 

@@ -12,7 +12,7 @@ from functools import partial
 import numpy as np
 
 from .._validation import StepOverflowError, as_array, as_numbers, call_checked, component_mask, integer, real, shape_error
-from ._base import Frozen
+from ._base import Frozen, check_names
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
 from .nonlinear import NonlinearModel
@@ -21,7 +21,7 @@ from .sensors import LinearSensor, NonlinearSensor, Position
 __all__ = ["model", "TimedModel", "constant_velocity", "constant_acceleration", "stack_sensors", "Stacked"]
 
 
-def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearModel | TimedModel:
+def model(motion, sensor, dt: float | None = None, *, names=None) -> LinearModel | NonlinearModel | TimedModel:
     r"""The state-space model of a motion observed by a sensor, stepped every dt.
 
     Parameters
@@ -35,6 +35,9 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
     dt : float, optional
         Time step, > 0. Without it, a :class:`TimedModel`: the filters
         discretise it for each step's own dt, from their `times`.
+    names : sequence of n str, optional
+        The state components' names, which results' ``to_pandas`` use;
+        default the motion's (``motion.names``, such as ``("x", "vx")``).
 
     Returns
     -------
@@ -87,8 +90,9 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
         )
     n = motion.n
     _check_fit(motion, sensor, n)
+    names = check_names(names, n, tuple(motion.names))
     if dt is None:
-        return TimedModel(motion, sensor)
+        return TimedModel(motion, sensor, names)
 
     if isinstance(motion, LinearMotion):
         F, Q = motion.transition(dt)
@@ -98,7 +102,7 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
 
     if isinstance(motion, LinearMotion) and isinstance(sensor, LinearSensor):
         H, R = sensor.linear(n)
-        return LinearModel(F=F, H=H, Q=Q, R=R, B=B, dt=dt, names=motion.names)
+        return LinearModel(F=F, H=H, Q=Q, R=R, B=B, dt=dt, names=names)
 
     # f, h and their Jacobians are partials of module-level functions (or a sensor's
     # bound methods), not closures, so that the model pickles.
@@ -126,7 +130,7 @@ def model(motion, sensor, dt: float | None = None) -> LinearModel | NonlinearMod
                           state_angles=motion.state_angles,
                           measurement_angles=sensor.measurement_angles, dt=dt,
                           p=B.shape[1] if isinstance(motion, LinearMotion) and B is not None else 0,
-                          names=motion.names)
+                          names=names)
 
 
 class TimedModel(Frozen):
@@ -142,6 +146,8 @@ class TimedModel(Frozen):
     ----------
     motion : LinearMotion or NonlinearMotion
     sensor : LinearSensor or NonlinearSensor
+    names : sequence of n str, optional
+        The state components' names (default the motion's; see :func:`model`).
 
     Attributes
     ----------
@@ -158,14 +164,18 @@ class TimedModel(Frozen):
     array([0.5, 2. ])
     """
 
-    __slots__ = ("motion", "sensor")
+    __slots__ = ("motion", "sensor", "names")
 
-    def __init__(self, motion, sensor) -> None:
+    def __init__(self, motion, sensor, names=None) -> None:
         try:
             model(motion, sensor, 1.0)  # checks that they fit, as model() does
         except StepOverflowError:
             pass  # a step of 1 s too long for the motion says nothing of the steps it will be given
-        self._set(motion=motion, sensor=sensor)
+        self._set(motion=motion, sensor=sensor, names=check_names(names, motion.n, tuple(motion.names)))
+
+    def __repr__(self) -> str:
+        named = "" if self.names == tuple(self.motion.names) else f", names={self.names!r}"
+        return f"TimedModel(motion={self.motion!r}, sensor={self.sensor!r}{named})"
 
     @property
     def n(self) -> int:
@@ -218,7 +228,7 @@ class TimedModel(Frozen):
             raise ValueError(f"`dts` must be positive step sizes; got {float(dts[k])!r} at index {k}.")
         unique, index = np.unique(dts, return_inverse=True)
         if unique.shape[0] == 1 and (self.linear or us is None) and isinstance(self.motion, LinearMotion):
-            return model(self.motion, self.sensor, float(unique[0])), us
+            return model(self.motion, self.sensor, float(unique[0]), names=self.names), us
         n = self.n
         if isinstance(self.motion, LinearMotion):
             Fs, Qs = self.motion.transitions(unique)
@@ -226,7 +236,7 @@ class TimedModel(Frozen):
                 H, R = self.sensor.linear(n)
                 first = self.motion.control(float(unique[0]))
                 controls = None if first is None else np.stack([self.motion.control(float(d)) for d in unique])
-                distinct = LinearModel(Fs, H, Qs, R, controls, names=self.motion.names)
+                distinct = LinearModel(Fs, H, Qs, R, controls, names=self.names)
                 return LinearModel._indexed(distinct, index), us
             Q = Qs[index]
         else:
@@ -258,7 +268,7 @@ class TimedModel(Frozen):
         return NonlinearModel(stepped, h, Q, R, f_jacobian=stepped.jacobian, h_jacobian=h_jacobian,
                               vectorized=True, state_angles=self.motion.state_angles,
                               measurement_angles=self.sensor.measurement_angles, p=1 + p,
-                              names=self.motion.names), controls
+                              names=self.names), controls
 
 
 class _Stepped:
