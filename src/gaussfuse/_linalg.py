@@ -305,9 +305,11 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None, name: str = "the c
 
 def indefinite_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
     """The LinAlgError `message` for a matrix `S` that has no Cholesky factor, marked with whether S is indefinite
-    (``.indefinite``: an eigenvalue below round-off, not a singular S), which a negative weight can cause."""
+    (``.indefinite``: a negative variance, or an eigenvalue below round-off on the components' own scales; not a
+    singular S), which a negative weight can cause."""
     exc = np.linalg.LinAlgError(message)
-    exc.indefinite = bool(np.isfinite(S).all() and indefinite(S[None])[0])
+    exc.indefinite = bool(np.isfinite(S).all() and (  # on each component's own scale (review R15)
+        (np.diagonal(S) < 0.0).any() or indefinite(unit_diagonal(S)[None])[0]))
     return exc
 
 

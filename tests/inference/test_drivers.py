@@ -751,6 +751,11 @@ def test_an_innovation_covariance_a_negative_weight_made_indefinite_names_the_we
     assert "kappa >= 0 (its default, 3 - n, is negative past three states)" in message and "method='ckf'" in message
     assert message.count("method='ckf'") == 1
     gf.filter(model, gf.Gaussian(np.zeros(n), np.eye(n)), [1.0, 2.0], method="ckf", form=form, engine=engine)
+    if form == "cov":  # beside a measurement on a scale 1e12 times larger in variance (review R15)
+        scaled = gf.NonlinearModel(lambda x: x, lambda x: np.array([x @ x, 1e6 * x[0]]), 0.01 * np.eye(n),
+                                   0.01 * np.eye(2))
+        with pytest.raises(np.linalg.LinAlgError, match=r"kappa >= 0 \(its default"):
+            gf.filter(scaled, gf.Gaussian(np.zeros(n), np.eye(n)), [[1.0, 0.0]], method="ukf", engine=engine)
     # A singular S that is not indefinite (one state measured twice without noise) is not the weight's doing:
     # the cubature filter fails alike (review R14)
     twice = gf.NonlinearModel(lambda x: x, lambda x: x[[0, 0]], 0.01 * np.eye(n), np.zeros((2, 2)))
