@@ -595,3 +595,13 @@ def test_a_timed_model_takes_names_and_keeps_them_at_every_step():
     assert gf.model(gf.ConstantVelocity(), gf.Position(r=1.0), 0.5, names=["pos", "vel"]).names == ("pos", "vel")
     with pytest.raises(ValueError, match=r"`names` must have 2 entries"):
         gf.model(gf.ConstantVelocity(), gf.Position(r=1.0), names=["pos"])
+
+
+@pytest.mark.parametrize("first", [gf.LinearSensor([[1.0, 0.0, 0.0, 0.0]], 1.0, names=["bearing"]), gf.BearingOnly()],
+                         ids=["linear", "nonlinear"])
+def test_stacked_names_that_join_to_one_name_are_refused_naming_the_sensors(first):
+    """Review R14: sensors "a.b" with component "bearing" and "a" with "b.bearing" both give "a.b.bearing"; the
+    error blamed `names`, which nobody gave (and the nonlinear Stacked sensor did not check them)."""
+    sensors = {"a.b": first, "a": gf.LinearSensor([[0.0, 1.0, 0.0, 0.0]], 1.0, names=["b.bearing"])}
+    with pytest.raises(ValueError, match=r"`sensors` join to the name 'a\.b\.bearing' twice"):
+        gf.stack_sensors(sensors, gf.ConstantVelocity(dim=2))

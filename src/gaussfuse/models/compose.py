@@ -422,6 +422,10 @@ def _sensor_mapping(sensors) -> dict:
                 f"`sensors[{name!r}]` must be a sensor (a LinearSensor, Position or NonlinearSensor, "
                 f"e.g. gaussfuse.RangeBearing); got {type(sensor).__name__}."
             )
+    joined = _stacked_names(sensors)
+    twice = next((name for i, name in enumerate(joined) if name in joined[:i]), None)
+    if twice is not None:  # (review R14: the stacked sensor's own check blamed `names`, which nobody gave)
+        raise ValueError(f"`sensors` join to the name {twice!r} twice (\"<sensor>.<component>\"): rename a sensor.")
     return dict(sensors)
 
 
