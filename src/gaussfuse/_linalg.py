@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "factorable", "indefinite", "unseen_directions", "with_slopes",
+    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "weighed", "factorable", "indefinite", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -311,6 +311,14 @@ def indefinite_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
     exc.indefinite = bool(np.isfinite(S).all() and (  # on each component's own scale (review R15)
         (np.diagonal(S) < 0.0).any() or indefinite(unit_diagonal(S)[None])[0]))
     return exc
+
+
+def weighed(exc: Exception, weights: np.ndarray | None) -> Exception:
+    """`exc`, or, for an :func:`indefinite_error` of a sigma-point rule whose covariance `weights` has a negative
+    one, the same error naming that weight as its likely cause (audit Z4: the innovation covariance's error
+    blamed S = H P Hᵀ + R and advised a larger R; a singular S is not a weight's doing: review R14)."""
+    hint = negative_weight(weights) if getattr(exc, "indefinite", False) else ""
+    return type(exc)(f"{exc}{hint}") if hint else exc
 
 
 def negative_weight(weights: np.ndarray | None) -> str:

@@ -675,7 +675,7 @@ def read_model(path: StrPath) -> ModelFile:
         timed = None
     names = _state_names(path, table.get("states"), names)
     if "states" in table:  # the models' own names too, which results' to_pandas use
-        model = LinearModel(model.F, model.H, model.Q, model.R, model.B, dt=model.dt, names=names)
+        model = model._replace(names=names)
         timed = None if timed is None else TimedModel(timed.motion, timed.sensor, names)
     prior = _prior(path, _table(path, doc, "prior") or {}, model.n)
     return ModelFile(model, prior, names, timed)

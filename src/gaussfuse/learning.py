@@ -567,7 +567,7 @@ def _second_solve(model: LinearModel, prior, first: dict, new: dict, second: dic
         P0 = _structured(second["P0"] / first["series"], structure["P0"], fixed["P0"]) if "P0" in learn \
             else prior.cov
         new_prior = Gaussian(new["m0"], P0)
-    return LinearModel(new["F"], new["H"], Q, R, new["B"], dt=model.dt, names=model.names), new_prior
+    return model._replace(F=new["F"], H=new["H"], Q=Q, R=R, B=new["B"]), new_prior
 
 
 def _second_needs_the_first(learn: tuple) -> bool:
@@ -763,8 +763,7 @@ def _structured_start(model: LinearModel, prior, learn: tuple, structure: dict, 
     if not new:
         return model, prior
     if "Q" in new or "R" in new:
-        model = LinearModel(model.F, model.H, new.get("Q", model.Q), new.get("R", model.R), model.B, dt=model.dt,
-                            names=model.names)
+        model = model._replace(Q=new.get("Q", model.Q), R=new.get("R", model.R))
     if "P0" in new:
         prior = Gaussian(prior.mean, new["P0"])
     return model, prior
@@ -914,12 +913,10 @@ class _Parametrisation:
 
     def __call__(self, theta: np.ndarray):
         parts = {name: self._decode(name, t) for name, t in self.split(theta).items()}
-        model = self.model
-        mats = {k: parts.get(k, getattr(model, k)) for k in _MATRICES}
         prior = self.prior
         if "m0" in parts or "P0" in parts:
             prior = Gaussian(parts.get("m0", prior.mean), parts.get("P0", prior.cov))
-        return LinearModel(**mats, dt=model.dt, names=model.names), prior
+        return self.model._replace(**{k: parts[k] for k in _MATRICES if k in parts}), prior
 
     def directions(self, theta: np.ndarray) -> list[dict]:
         """``∂(learned matrices)/∂θ_j`` for each j: a dict of the one matrix θ_j moves."""

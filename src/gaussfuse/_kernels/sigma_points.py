@@ -79,7 +79,7 @@ from numba.experimental import structref
 from numba.core.errors import NumbaError, NumbaExperimentalFeatureWarning
 from numba.extending import is_jitted, overload, register_jitable
 
-from .._linalg import UNRESOLVED, negative_weight, sqrt_cov, symmetrize
+from .._linalg import UNRESOLVED, sqrt_cov, symmetrize, weighed
 from ..kalman import cov_factor
 from .._validation import call_checked, call_each, raise_call, size_reason
 from ..errors import ModelFunctionError
@@ -885,9 +885,7 @@ def _raise_failed(cursor: Cursor, fail, model, k: int, N: int, weights: np.ndarr
     try:
         raise_failure(fail)
     except np.linalg.LinAlgError as exc:
-        if not getattr(exc, "indefinite", False):  # (a singular S is not a weight's doing: review R14)
-            raise
-        raise np.linalg.LinAlgError(f"{exc}{negative_weight(weights)}") from None
+        raise weighed(exc, weights) from None
 
 
 def _problem(lin, model, prior, zs, sqrt: bool) -> Problem:

@@ -21,7 +21,7 @@ import numpy as np
 from .. import kalman
 from .. import _kernels
 from .._kernels import jitted_loop_state, kernel_states, kernels
-from .._linalg import indefinite, negative_weight, symmetrize, wrap_components
+from .._linalg import indefinite, negative_weight, symmetrize, weighed, wrap_components
 from .. import diagnostics
 from ..errors import (STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, average_text, diverging,
                       gate_lost)
@@ -150,7 +150,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
                 loglik += post.loglik
                 unconverged += not st.converged
     except STEP_ERRORS as exc:
-        raise at_step(_weighed(exc, lin), k) from exc
+        raise at_step(weighed(exc, getattr(getattr(lin, "rule", None), "wc", None)), k) from exc
     per_step = (means, covs, pmeans, pcovs, innov, icovs)
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
                           _square(cov) if sqrt else cov, used if used.shape[0] else None,
@@ -482,16 +482,6 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     if form == "cov" and not spec.iterated:
         _spread_checked(linearisation(spec, model, None, options)[0], result, to_prior)
     return result
-
-
-def _weighed(exc: Exception, lin) -> Exception:
-    """`exc`, a LinAlgError of a sigma-point rule that weighs a point negatively, with that as its likely cause
-    (audit Z4: the innovation covariance's error blamed S = H P Hᵀ + R and advised a larger R)."""
-    rule = getattr(lin, "rule", None)
-    if not getattr(exc, "indefinite", False) or rule is None:  # (a singular S is not a weight's doing: review R14)
-        return exc
-    hint = negative_weight(rule.wc)
-    return type(exc)(f"{exc}{hint}") if hint else exc
 
 
 def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:

@@ -120,6 +120,11 @@ class LinearModel:
         object.__setattr__(out, "names", distinct.names)
         return out
 
+    def _replace(self, **changes) -> LinearModel:
+        """The model with the given arguments (of the constructor: matrices, `dt`, `names`) changed and the
+        others kept, checked as the constructor checks them (as a NamedTuple's ``_replace``)."""
+        return type(self)(**{**{name: getattr(self, name) for name in self.__slots__}, **changes})
+
     def __reduce__(self):
         # Pickled and copied by its arguments: the constructor validates them again and
         # makes the arrays read-only, which the default protocol (setattr) cannot.
