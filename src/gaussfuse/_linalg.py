@@ -303,13 +303,14 @@ def sqrt_cov(cov: np.ndarray, mean: np.ndarray | None = None, name: str = "the c
     return L, _made_once(("every", cov.shape[0]), lambda: np.ones(cov.shape[0], dtype=bool))
 
 
-def indefinite_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
-    """The LinAlgError `message` for a matrix `S` that has no Cholesky factor, marked with whether S is indefinite
-    (``.indefinite``: a negative variance, or an eigenvalue below round-off on the components' own scales; not a
-    singular S), which a negative weight can cause."""
-    exc = np.linalg.LinAlgError(message)
-    exc.indefinite = bool(np.isfinite(S).all() and (  # on each component's own scale (review R15)
-        (np.diagonal(S) < 0.0).any() or indefinite(unit_diagonal(S)[None])[0]))
+def indefinite_error(message: str, S: np.ndarray, singular: str, negative: str) -> np.linalg.LinAlgError:
+    """The LinAlgError for a matrix `S` that has no Cholesky factor: `message`, then why, `negative` when S is
+    indefinite (a negative variance, or an eigenvalue below round-off on the components' own scales: review R15)
+    and `singular` when it is singular to round-off. The error's ``.indefinite`` says which, for
+    :func:`weighed`: a negative sigma-point weight can make S indefinite, not singular."""
+    flag = bool(np.isfinite(S).all() and ((np.diagonal(S) < 0.0).any() or indefinite(unit_diagonal(S)[None])[0]))
+    exc = np.linalg.LinAlgError(f"{message} {negative if flag else singular}")
+    exc.indefinite = flag
     return exc
 
 

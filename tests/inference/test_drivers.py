@@ -751,16 +751,20 @@ def test_an_innovation_covariance_a_negative_weight_made_indefinite_names_the_we
     assert "kappa >= 0 (its default, 3 - n, is negative past three states)" in message and "method='ckf'" in message
     assert message.count("method='ckf'") == 1
     gf.filter(model, gf.Gaussian(np.zeros(n), np.eye(n)), [1.0, 2.0], method="ckf", form=form, engine=engine)
-    if form == "cov":  # beside a measurement on a scale 1e12 times larger in variance (review R15)
-        scaled = gf.NonlinearModel(lambda x: x, lambda x: np.array([x @ x, 1e6 * x[0]]), 0.01 * np.eye(n),
-                                   0.01 * np.eye(2))
-        with pytest.raises(np.linalg.LinAlgError, match=r"kappa >= 0 \(its default"):
-            gf.filter(scaled, gf.Gaussian(np.zeros(n), np.eye(n)), [[1.0, 0.0]], method="ukf", engine=engine)
+    assert "singular" not in message  # not the advice for a singular S
+    # beside a measurement on a scale 1e12 times larger in variance (review R15; the square-root form's error said
+    # "singular" and lost the hint)
+    scaled = gf.NonlinearModel(lambda x: x, lambda x: np.array([x @ x, 1e6 * x[0]]), 0.01 * np.eye(n),
+                               0.01 * np.eye(2))
+    with pytest.raises(np.linalg.LinAlgError, match=r"S is indefinite.*kappa >= 0 \(its default") as info:
+        gf.filter(scaled, gf.Gaussian(np.zeros(n), np.eye(n)), [[1.0, 0.0]], method="ukf", form=form, engine=engine)
+    assert "singular" not in str(info.value) and "1.0100e+12" in str(info.value)
     # A singular S that is not indefinite (one state measured twice without noise) is not the weight's doing:
     # the cubature filter fails alike (review R14)
     twice = gf.NonlinearModel(lambda x: x, lambda x: x[[0, 0]], 0.01 * np.eye(n), np.zeros((2, 2)))
     for method in ("ukf", "ckf"):
         with pytest.raises(np.linalg.LinAlgError) as info:
-            gf.filter(twice, gf.Gaussian(np.zeros(n), np.eye(n)), [[1.0, 1.0]], method=method, form="cov",
+            gf.filter(twice, gf.Gaussian(np.zeros(n), np.eye(n)), [[1.0, 1.0]], method=method, form=form,
                       engine=engine)
-        assert "negatively" not in str(info.value) and "R = 0" in str(info.value)
+        assert "negatively" not in str(info.value) and "indefinite" not in str(info.value)
+        assert "S is singular to round-off where" in str(info.value) and "R = 0" in str(info.value)
