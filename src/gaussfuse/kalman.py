@@ -53,7 +53,7 @@ _S_NEGATIVE = ("(S is indefinite: it has a negative variance, or an eigenvalue b
                "scales, which positive semi-definite P and R cannot give)")
 
 
-def innovation_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
+def _innovation_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
     """The LinAlgError `message` for an innovation covariance `S` with no Cholesky factor, with why: singular to
     round-off, or indefinite (``.indefinite``, which a negative sigma-point weight can cause)."""
     return indefinite_error(message, S, _S_WHY, _S_NEGATIVE)
@@ -332,7 +332,7 @@ def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | N
     except np.linalg.LinAlgError as exc:
         if not np.isfinite(S).all():  # an overflow upstream, not a covariance that is indefinite
             raise FloatingPointError(not_finite("filtered")) from None
-        raise innovation_error(str(exc), S) from None
+        raise _innovation_error(str(exc), S) from None
     if K is None:
         K = cho_solve(L, HP_o).T                  # Kᵀ = S⁻¹ H_o P⁻
     elif observed is not None:
@@ -956,7 +956,7 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
         S = innovation_cov if observed is None else innovation_cov[np.ix_(observed, observed)]
         with np.printoptions(precision=4, threshold=36):
             shown = np.array2string(S, separator=", ").replace("\n", "")
-        raise innovation_error(f"{_S_NAME} is not positive definite: {shown}", S)
+        raise _innovation_error(f"{_S_NAME} is not positive definite: {shown}", S)
     if moved:  # back to the measurements' order: [L_S; K̄] turned by one orthogonal Θ, so L_S L_Sᵀ and K̄ L_Sᵀ stay
         back = tria(np.concatenate([L_S[np.argsort(order)], Kbar]))
         L_S, Kbar = back[:mo, :mo], back[mo:, :mo]

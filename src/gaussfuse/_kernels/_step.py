@@ -37,7 +37,7 @@ from numba.extending import register_jitable
 
 from ..errors import ReadablePath, not_finite as not_finite_message
 from ..inference.results import FilterResult
-from ..kalman import _S_NAME, innovation_error
+from ..kalman import _S_NAME, _innovation_error
 from ._jit import jit
 from ._dense import (abs_congruence_diagonal, cho_solve, cholesky, clip_variances, congruence, matmul,
                      negative_variance, roundoff_pivot)
@@ -1024,7 +1024,7 @@ def raise_failure(fail: Failures) -> None:
         size = int(fail.size[s])
         with np.printoptions(precision=4, threshold=36):
             shown = np.array2string(fail.S[s, :size, :size], separator=", ").replace("\n", "")
-        raise innovation_error(
+        raise _innovation_error(
             f"{where(s, step, N)}: {_S_NAME} is not positive definite, so it cannot be factorised: {shown}",
             fail.S[s, :size, :size])
     if code in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):
