@@ -50,8 +50,8 @@ def test_the_site_builds_without_a_warning(tmp_path):
                           capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-5000:]
     html = tmp_path / "html"
-    for page in ("index", "api", "cli", "changelog", "auto_tutorial/index", "auto_howto/index",
-                 "auto_examples/index", "generated/gaussfuse.filter"):
+    for page in ("index", "api", "cli", "changelog", "accuracy", "performance", "auto_tutorial/index",
+                 "auto_howto/index", "auto_examples/index", "generated/gaussfuse.filter"):
         assert (html / f"{page}.html").exists(), page
     # the figures were drawn: the tutorial's pages have images
     assert list((html / "_images").glob("sphx_glr_t02_*.png"))

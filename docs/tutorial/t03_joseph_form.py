@@ -163,8 +163,8 @@ for delta in (1e-6, 1e-12, 0.0):
 # :func:`gaussfuse.kalman.update`, used (as written, or compiled) by every
 # covariance-form filter in the library, computes the gain by Cholesky solves with :math:`S` (never an explicit
 # inverse) and the posterior in the Joseph form, symmetrised. It is not proof
-# against every round-off: see the README's section "When covariances are not
-# accurate enough", whose example (:math:`P_0 = 10^{12} I`,
+# against every round-off: see :doc:`/accuracy` and the README's section "When
+# covariances are not accurate enough", whose example (:math:`P_0 = 10^{12} I`,
 # :math:`R = 10^{-6}`, :math:`Q = 0`) we run in both forms against the exact
 # filter. ``form="sqrt"`` propagates Cholesky factors by orthogonal
 # transformations, so no covariance is ever formed or subtracted.

@@ -174,6 +174,6 @@ print("after compute:", type(last_mean).__name__, last_mean.shape, "equal to the
 # long-format table with a series column (a CSV or Parquet file, or a
 # directory of them) is filtered partition by partition with
 # ``gaussfuse filter DATA -m model.toml --series-column id --out DIR``. The
-# README's section "Many series on a Dask cluster" explains how to size the
-# chunks, the memory each one needs, and what a cluster does and does not
-# buy on one machine.
+# page :doc:`/performance` (its section "Many series on a Dask cluster")
+# explains how to size the chunks, the memory each one needs, and what a
+# cluster does and does not buy on one machine.

@@ -200,7 +200,7 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, rng=None
         precision of the filter's factors: with no process noise and
         dynamics that squeeze a direction below round-off, the spread along
         it is lost at the late steps and magnified at the early ones (the
-        README's squeezing example over 6 steps: one variance 17-20% low
+        squeezing example of docs/accuracy.md over 6 steps: one variance 17-20% low
         with ``"cov"``, right to sampling error with ``"sqrt"``; over 12 steps
         ``"cov"`` up to 21% low and ``"sqrt"`` up to 1.32 times too large,
         its means off by up to 0.04 standard deviations). A process noise of

@@ -55,7 +55,7 @@ def test_the_covariance_form_fails_where_the_square_root_form_does_not():
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
 def test_a_prediction_squeezed_toward_singular_is_the_square_root_smoothers_case(engine):
-    """The README's case: Q = 0 and a direction shrunk about 30-fold a step make P⁻ nearly singular (condition
+    """The case in docs/accuracy.md: Q = 0 and a direction shrunk about 30-fold a step make P⁻ nearly singular (condition
     1e17 by step 6); the covariance smoother's gain solves with it and is off by 1e-4 (by percents, 9% and 16%
     compiled, while a Cholesky pivot of round-off was divided by), the square-root smoother stays within 1e-7
     of 50 digits."""
@@ -78,9 +78,9 @@ def test_a_prediction_squeezed_toward_singular_is_the_square_root_smoothers_case
 @pytest.mark.parametrize("engine", ["python", "numba"])
 def test_a_process_noise_far_below_the_variances_lets_both_forms_smooth_longer_squeezes(engine):
     """Over 12 steps of the squeezing dynamics without process noise neither form smooths exactly (the backward
-    pass magnifies round-off about 30-fold a step: the square-root form was 22% off, see the README); with
+    pass magnifies round-off about 30-fold a step: the square-root form was 22% off, see docs/accuracy.md); with
     Q = 1e-16 I, a model within round-off of it, the square-root form is within 2e-10 of the noise-free answer and
-    the covariance form within 5e-5 (the README's figures). Against the noise-free model at 50 digits."""
+    the covariance form within 5e-5 (the figures in docs/accuracy.md). Against the noise-free model at 50 digits."""
     F, H, R = np.array([[0.8, 0.3], [0.1, 0.01]]), np.array([[1.0, 0.0]]), np.array([[1.0]])
     zs = np.random.default_rng(0).normal(size=12)
     _, ref = smooth_50_digits(F, H, np.zeros((2, 2)), R, np.zeros(2), np.eye(2), zs)
@@ -94,7 +94,7 @@ def test_a_process_noise_far_below_the_variances_lets_both_forms_smooth_longer_s
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
 def test_a_noise_free_sensor_with_a_singular_q_is_a_squeeze_too(engine):
-    """The README's figures (audit Z3): an ARMA(1,1) measured without noise, Q = g gᵀ. The sensor fixes the first
+    """The figures in docs/accuracy.md (audit Z3): an ARMA(1,1) measured without noise, Q = g gᵀ. The sensor fixes the first
     state and the second's smoothed standard deviation falls below 1e-6 by step 14; over 100 steps the covariance
     form's smoothed variances are up to 6% off and the square-root form's means about 3e-3 standard deviations;
     over 12 steps both are within 6e-7. Against dense conditioning (equal to 50 digits to 4e-16 here)."""
@@ -118,8 +118,8 @@ def test_the_compiled_covariance_form_is_as_accurate_as_the_readable_one_below_b
     """Audit Z4: below 16 states the compiled products are loops, which mirrored one triangle of each covariance
     (the readable path and BLAS average both). Under a prior 1e12 times the sensor's, n = 14 and 15 then raised
     "S is not positive definite" in 3 of 6 cases where the readable path returned, and were 14 to 27 times
-    further from 50 digits elsewhere. Both are inexact here (the covariance form under a huge prior, see the
-    README); the compiled one must be as good, within a factor of 3."""
+    further from 50 digits elsewhere. Both are inexact here (the covariance form under a huge prior, see
+    docs/accuracy.md); the compiled one must be as good, within a factor of 3."""
     rng = np.random.default_rng(seed)
     U, _ = np.linalg.qr(rng.standard_normal((n, n)))
     P0 = 1e12 * (U * np.logspace(0, 1, n)) @ U.T
@@ -1037,7 +1037,7 @@ def test_the_square_root_kernel_is_not_taken_for_the_covariance_forms():
 
 @pytest.mark.parametrize("V", [1e8, 1e12])
 def test_the_engines_differ_by_the_condition_of_S_in_the_covariance_form_only(V):
-    """The README's figures: two sensors on one state under a prior V times their noise (cond(S) = 2V). The
+    """The figures in docs/accuracy.md: two sensors on one state under a prior V times their noise (cond(S) = 2V). The
     covariance forms' engines round the same ill-conditioned solve differently, by up to cond(S) ε; the
     square-root forms, which never form S, agree to round-off."""
     model = gf.LinearModel(F=[[1.0]], H=[[1.0], [1.0]], Q=[[0.0]], R=np.eye(2))
@@ -1056,7 +1056,7 @@ def test_the_engines_differ_by_the_condition_of_S_in_the_covariance_form_only(V)
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
 def test_a_component_measured_exactly_twice_is_refused_by_the_square_root_form(engine):
-    """The README's limit of the covariance form: x0 measured with R = 0 at two steps and no process noise
+    """The limit of the covariance form in docs/accuracy.md: x0 measured with R = 0 at two steps and no process noise
     between leaves S = 1e-32 of round-off at the second, which the covariance form cannot tell from a real
     variance (its log-likelihood, 104 or 106 by engine, means nothing); the square-root form's factor has an
     exact zero there, and it refuses S."""
