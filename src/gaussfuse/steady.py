@@ -81,9 +81,12 @@ def steady_state(model: LinearModel) -> Stationary:
         velocity with piecewise noise measured with R = 0 has one at -1):
         then the filter's covariance has no steady state to converge to, or
         converges to one only as 1/k, at which the filter is not stable;
-        or a mode on the unit circle that Q does not drive (a
-        constant estimated without process noise: its variance falls to 0
-        as 1/k, and the gain with it). Also when the steady state has a singular innovation
+        or a mode on the unit circle (to 1e-9 of its modulus, so that a
+        rotation is one whatever round-off makes of it) that Q does not
+        drive (a constant estimated without process noise: its variance
+        falls to 0 as 1/k, and the gain with it), or drives so faintly
+        beside R that the filter's pole at 1, about 1 - √(Q/R), rounds to 1
+        (a random walk with Q below about 1e-32 R). Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
         there), which leaves the gain undefined.
 
@@ -159,15 +162,18 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
     from scipy.linalg import solve_discrete_are  # SciPy on first use: `import gaussfuse` loads NumPy only
 
     F, H, Q, R = model.F, model.H, model.Q, model.R
-    if not Q.any() and np.max(np.abs(np.linalg.eigvals(F))) < 1.0:
-        return np.zeros_like(Q)
     q, r = np.abs(Q).max(), np.abs(R).max()
+    vals, left = np.linalg.eig(F.T)  # wᵀ F = λ wᵀ: a mode, and how much Q drives it (w* Q w)
+    unit = [(complex(v), abs(np.conj(w) @ Q @ w)) for v, w in zip(vals, left.T) if abs(abs(v) - 1.0) <= 1e-9]
+    still = [v for v, drive in unit if drive <= 1e-12 * max(q, 1e-300)]
+    if not still and not Q.any() and np.max(np.abs(vals)) < 1.0:
+        return np.zeros_like(Q)
     found, error = [], None
-    for unit in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
-        unit = np.ldexp(1.0, int(np.frexp(unit)[1]))
+    for scale in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
+        scale = np.ldexp(1.0, int(np.frexp(scale)[1]))
         try:
             with np.errstate(invalid="ignore"):  # SciPy's own casts, where it fails
-                found.append(symmetrize(unit * solve_discrete_are(F.T, H.T, Q / unit, R / unit)))
+                found.append(symmetrize(scale * solve_discrete_are(F.T, H.T, Q / scale, R / scale)))
         except (np.linalg.LinAlgError, ValueError) as exc:
             error = exc
     found.append(_doubled(model))
@@ -175,21 +181,24 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
     known = [P for P in found if P is not None and _covariance(P) and _residual(model, P) == np.inf]
     if not kept and known:  # a solution whose S is singular: steady_state names it
         return known[0]
+    if still:  # whatever the candidates: a rotation's pole computed as 1 - 4e-16 passed their test (audit AA2)
+        raise ValueError(
+            f"the filter of `model` has no steady state: F has a mode on the unit circle (eigenvalue "
+            f"{still[0]:.3g}) that Q does not drive, as a constant estimated without process noise: its "
+            "variance falls to 0 as 1/k, and the gain with it, with no steady gain to hold. Give Q a "
+            "variance there, or filter without steady=True.")
     if not kept:
         iterated = _iterated(model)
         if iterated is not None and _stabilises(model, iterated):
             return iterated
         why = f" (SciPy: {error})" if error is not None else ""
-        vals, left = np.linalg.eig(F.T)  # wᵀ F = λ wᵀ: a mode, and whether Q drives it (w* Q w > 0)
-        still = [complex(v) for v, w in zip(vals, left.T)
-                 if abs(abs(v) - 1.0) <= 1e-9 and abs(np.conj(w) @ Q @ w) <= 1e-12 * max(q, 1e-300)]
-        if still:
+        faint = [(v, drive) for v, drive in unit if drive < 1e-24 * r]
+        if faint:  # the gain, about √(Q/R) there, and the loop's distance from the circle are round-off
             raise ValueError(
-                f"the filter of `model` has no steady state: F has a mode on the unit circle (eigenvalue "
-                f"{still[0]:.3g}) that Q does not drive, as a constant estimated without process noise: its "
-                "variance falls to 0 as 1/k, and the gain with it, with no steady gain to hold. Give Q a "
-                "variance there, or filter without steady=True."
-            ) from None
+                f"the filter of `model` has no steady state that float64 can hold: F has a mode on the unit "
+                f"circle (eigenvalue {faint[0][0]:.3g}) that Q drives with {faint[0][1]:.3g}, beside R's "
+                f"{r:.3g}: its steady gain, about √(Q/R), leaves the filter's pole at 1 to round-off. Give Q a "
+                "larger variance there, or filter without steady=True.") from None
         raise ValueError(
             f"the filter of `model` has no steady state: the Riccati equation has no stabilising solution{why}. "
             "Check that every unstable mode of F is seen through H and reached by Q, and that R is positive "
@@ -197,7 +206,28 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
             "a zero on the unit circle (as a constant velocity with piecewise noise and R = 0, at -1), where the "
             "covariance converges only as 1/k, to no stable gain: give R a positive variance."
         ) from None
-    return min(kept, key=lambda P: _residual(model, P))
+    return min(kept, key=lambda P: (_residual(model, P) > _ROUND_OFF, _balance(model, P)))
+
+
+_ROUND_OFF = 1e-14  # a residual relative to P's size that is round-off: candidates within it are told apart by
+#                    _balance
+
+
+def _balance(model: LinearModel, P: np.ndarray) -> float:
+    """The Riccati equation's residual as two balances, ``(F P Fᵀ - P) + (Q - F K S Kᵀ Fᵀ)``, relative to the larger
+    of Q and the information term ``F K S Kᵀ Fᵀ``.
+
+    Near the unit circle, F P Fᵀ ≈ P and both Q and the information a step gains are far below P, so the residual
+    relative to P (:func:`_residual`) is round-off for any candidate near the solution: for a random walk with
+    Q = 1e-21 R, SciPy's answer 2.3e-6 off and the doubling's 8e-9 off both had 0 (audit AA2). Measured against
+    the terms that balance, they differ by those errors.
+    """
+    g = kalman.gain(P, model.H, model.R)
+    info = model.F @ (g.K @ g.innovation_cov @ g.K.T) @ model.F.T
+    scale = max(np.abs(model.Q).max(), np.abs(info).max())
+    if scale == 0.0:
+        return 0.0
+    return float(np.abs((model.F @ P @ model.F.T - P) + (model.Q - info)).max() / scale)
 
 
 def _stabilises(model: LinearModel, P: np.ndarray) -> bool:
