@@ -391,6 +391,12 @@ def _call(**changes):
      "`measurements` and `times` are both empty: there is nothing to estimate."),
     (dict(smooth="yes"), TypeError, "`smooth` must be True or False; got 'yes'."),
     (dict(keep="last"), TypeError, "`keep` is not an option of fuse_timeline: it returns every step."),
+    # gf.filter's own arguments, which the timeline sets: a bare "multiple values" TypeError, and `steady` an error
+    # about a time-varying `model` the caller never passed (audit AA1)
+    (dict(us=[1.0]), TypeError, "`us` is not an option of fuse_timeline: the motions it takes have no control input."),
+    (dict(zs=[1.0]), TypeError, "`zs` is not an option of fuse_timeline: the measurements are `measurements`"),
+    (dict(model=None), TypeError, "`model` is not an option of fuse_timeline: the model is the motion and the sensors"),
+    (dict(steady=True), TypeError, "`steady` is not an option of fuse_timeline: each step has its own dt"),
     (dict(method="ekf"), TypeError, "method 'ekf' does not apply to a LinearModel; valid methods for it are ['kf']."),
     (dict(alpha=0.5), TypeError, "unknown option(s) ['alpha'] for method 'kf'; valid options are none."),
     # `engine` is gf.filter's (numba for long timelines; checked equal to python to 1e-15 by hand).

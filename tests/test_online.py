@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import pickle
+import re
 import warnings
 
 import numpy as np
@@ -537,3 +538,54 @@ def test_a_prediction_that_overflows_raises_naming_its_step_and_keeps_the_belief
     with pytest.raises(FloatingPointError, match=r"^at step 1: the predicted mean or covariance is not finite"):
         kf.predict()
     assert kf.step == 1 and np.isfinite(kf.P).all()
+
+
+def test_a_nonlinear_models_control_width_is_checked_online():
+    """Audit AA1: the online filter checked `u` against a LinearModel's p only. A NonlinearModel with p = 1 took
+    `u` of width 2 without a word, and without `u` failed inside f; the batch filter refuses both."""
+    def f(x, u):
+        return x + u[0]
+
+    model = gf.NonlinearModel(f, lambda x: x[:1], 0.1 * np.eye(2), 1.0, p=1)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    with pytest.raises(ValueError, match=re.escape("`u` must have shape (1,); got shape (2,).")):
+        gf.KalmanFilter(model, prior, method="ekf").predict([1.0, 99.0])
+    with pytest.raises(ValueError, match=re.escape("`u` is required: the model has a control input with p = 1.")):
+        gf.KalmanFilter(model, prior, method="ukf").predict()
+    without = gf.NonlinearModel(lambda x: x, lambda x: x[:1], 0.1 * np.eye(2), 1.0, p=0)
+    with pytest.raises(ValueError, match=re.escape("`u` was given but the model has no control input.")):
+        gf.KalmanFilter(without, prior).predict([1.0])
+    for p in (1, None):  # a width given, and none: u is passed to f as it is
+        kf = gf.KalmanFilter(gf.NonlinearModel(f, lambda x: x[:1], 0.1 * np.eye(2), 1.0, p=p), prior, method="ekf")
+        kf.predict([2.0])
+        np.testing.assert_array_equal(kf.x, [2.0, 2.0])
+
+
+def test_in_place_changes_through_x_count_after_p_or_the_belief_is_read():
+    """Audit AA1: reading `P` took in a change made through a saved `x`, then stopped tracking that `x`, so its
+    next change was lost. Both handles keep counting until the belief moves on."""
+    model = gf.LinearModel(F=np.eye(2), H=[1.0, 0.0], Q=np.zeros((2, 2)), R=1.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
+    x = kf.x
+    x[0] = 5.0
+    P = kf.P
+    x[1] = 3.0
+    P[1, 1] = 9.0
+    kf.predict()
+    np.testing.assert_array_equal(kf.x_prior, [5.0, 3.0])
+    np.testing.assert_array_equal(kf.P_prior, [[1.0, 0.0], [0.0, 9.0]])
+    x = kf.x
+    x[0] = 1.0
+    assert kf.belief.mean[0] == 1.0
+    x[1] = 7.0
+    kf.predict()
+    np.testing.assert_array_equal(kf.x_prior, [1.0, 7.0])
+
+
+def test_setting_the_belief_to_something_else_names_the_belief():
+    """Audit AA1: the error named `prior`."""
+    kf = gf.KalmanFilter(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian([0.0], [[1.0]]))
+    with pytest.raises(TypeError, match=re.escape("`belief` must be a gaussfuse.Gaussian(mean, cov); got 'x'.")):
+        kf.belief = "x"
+    with pytest.raises(ValueError, match=re.escape("`belief` must have dimension 1 (the model's state); got 2.")):
+        kf.belief = gf.Gaussian([0.0, 0.0], np.eye(2))

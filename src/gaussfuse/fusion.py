@@ -384,6 +384,15 @@ def _steps(events, outputs: np.ndarray, timeline: _Timeline):
     return np.array(times, dtype=outputs.dtype), np.array(zs, dtype=float).reshape(len(times), timeline.m), sources
 
 
+_TIMELINE_OWN = {
+    "keep": "it returns every step",
+    "model": "the model is the motion and the sensors, discretised for each step",
+    "zs": "the measurements are `measurements`, placed on the timeline",
+    "us": "the motions it takes have no control input",
+    "steady": "each step has its own dt, so the model is time-varying and has no steady state",
+}
+
+
 def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, times=None,
                   smooth: bool = False, method: str | None = None, **options) -> Fused:
     r"""Fuse timestamped measurements from several sensors into one trajectory estimate.
@@ -487,8 +496,8 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     t0 = _time("t0", t0)
     dated = isinstance(t0, np.datetime64)
     smooth = flag("smooth", smooth)
-    if "keep" in options:
-        raise TypeError("`keep` is not an option of fuse_timeline: it returns every step.")
+    for name in _TIMELINE_OWN.keys() & options.keys():  # filter's arguments that the timeline sets (audit AA1)
+        raise TypeError(f"`{name}` is not an option of fuse_timeline: {_TIMELINE_OWN[name]}.")
     outputs = np.zeros(0)
     if times is not None:
         outputs = np.atleast_1d(_times("times", times, dated))

@@ -195,7 +195,7 @@ class KalmanFilter:
 
     @belief.setter
     def belief(self, value: Gaussian) -> None:
-        self._belief = check_prior(value, self.model.n)
+        self._belief = check_prior(value, self.model.n, name="belief")
         self._views.clear()
         self._steady = self._fresh_steady()  # the recursion starts again from a belief set by hand
 
@@ -230,11 +230,17 @@ class KalmanFilter:
         return self._views[name]
 
     def _adopt_views(self) -> None:
-        """Make the belief what the handed-out x and P now hold, if they were changed in place."""
-        x, P = self._views.get("x"), self._views.get("P")
+        """Make the belief what the handed-out x and P now hold, if they were changed in place. They stay handed
+        out, holding the belief as adopted: a later change to either counts too (audit AA1: reading P took in a
+        change to x, and then dropped x, so its next change was lost)."""
+        views = dict(self._views)
+        x, P = views.get("x"), views.get("P")
         if (x is None or np.array_equal(x, self._belief.mean)) and (P is None or np.array_equal(P, self._belief.cov)):
             return
         self.belief = self._checked(self._belief.mean if x is None else x, self._belief.cov if P is None else P)
+        for name, held in views.items():
+            np.copyto(held, self._belief.mean if name == "x" else self._belief.cov)
+        self._views.update(views)
 
     @property
     def L(self) -> np.ndarray:
@@ -285,9 +291,12 @@ class KalmanFilter:
         belief = self.belief
         k = self.step
         self._check_step(k)
-        p = self.model.p if isinstance(self.model, LinearModel) else None
+        # a NonlinearModel's too, when it knows its f's controls (audit AA1); a TimedModel's nonlinear steps take
+        # dt as a control of their own, which the user does not give
+        p = getattr(self.model, "p", None) if self.timed is None or isinstance(self.model, LinearModel) else None
         if p == 0 and u is not None:
-            raise ValueError("`u` was given but the model has no control input; give the model `B`.")
+            raise ValueError("`u` was given but the model has no control input"
+                             + ("; give the model `B`." if isinstance(self.model, LinearModel) else "."))
         if u is None and p:
             raise ValueError(f"`u` is required: the model has a control input with p = {p}.")
         if u is not None:
