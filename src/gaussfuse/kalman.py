@@ -48,9 +48,9 @@ __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_
 _S_NAME = "the innovation covariance S = H P Hᵀ + R"
 _S_WHY = ("(S is singular to round-off where a component measured without noise, R = 0 or below the round-off of "
           "H P Hᵀ, meets a state already known exactly, or another such component measuring the same: give R a "
-          "variance above round-off)")
+          "variance above round-off.)")
 _S_NEGATIVE = ("(S is indefinite: it has a negative variance, or an eigenvalue below round-off on its components' "
-               "scales, which positive semi-definite P and R cannot give)")
+               "scales, which positive semi-definite P and R cannot give.)")
 
 
 def _innovation_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:
