@@ -88,6 +88,10 @@ so the sums over transitions start at :math:`t = 2`.
 Standard errors, for both methods, come from the observed information: the
 Hessian of the log-likelihood at the estimate, by central differences of
 the exact gradient, and the delta method for the learned matrices' entries.
+A variance estimated at the boundary of its range (about 0, where the
+log-likelihood hardly moves with its logarithm) has none: there the
+gradient's differences are round-off, which a second difference of the
+log-likelihood over a wider step tells.
 
 References
 ----------
@@ -175,8 +179,9 @@ class FitResult:
         the term the gradient of the learned log variances adds to it short
         of a stationary point (:math:`g_i / I_{ii}`); and for a
         parameter the log-likelihood does not depend on, such as the
-        variance of a sensor never observed: the others are then those of
-        the model without it).
+        variance of a sensor never observed, or does not resolve from the
+        boundary of its range, a variance estimated at about 0: the others
+        are then those of the model with it held fixed).
     nobs : int
         The number of observed measurement components (NaN ones excluded),
         over all series.
