@@ -899,6 +899,13 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
     Returns
     -------
     ConsistencyReport
+
+    Raises
+    ------
+    ValueError
+        For a result without per-step innovations, with nothing observed,
+        or filtered with a gate (whose kept NIS are not χ²), and for a
+        `truth` of another shape than the means.
     """
     from .inference.results import FilterResult
 
@@ -907,6 +914,12 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
         raise TypeError(f"`result` must be a FilterResult from gaussfuse.filter{more}; got {type(result).__name__}.")
     if result.nis is None:
         raise ValueError("`result` holds no per-step innovations (keep='last'): filter with keep='all' or 'means'.")
+    if result.rejected is not None:  # (audit AA3: the true model's gated filter was called "too cautious")
+        raise ValueError(
+            "`result` was filtered with a gate: the NIS of the measurements it kept are χ² cut off at the gate, and "
+            "each rejection leaves the next predictions surer than they claim, so no χ² interval holds them. Test "
+            "the consistency of the same filter without `gate`, and see what the gate did with "
+            "gaussfuse.diagnostics.rejections.")
     # the filter's own NIS: with the steps of a diffuse prior's start (no innovation covariance) left out
     q = np.asarray(result.nis, dtype=np.float64)
     dof = (~np.isnan(result.innovations)).sum(axis=-1)
