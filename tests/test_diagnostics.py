@@ -1,5 +1,6 @@
 """Consistency diagnostics: NEES/NIS intervals catch a mistuned filter, whiteness, RMSE."""
 
+import re
 import warnings
 
 import numpy as np
@@ -546,3 +547,24 @@ def test_consistency_refuses_a_gated_result():
         gated = gf.filter(model, prior, sim.measurements, gate=0.99, gate_by=gate_by, check="off")
         with pytest.raises(ValueError, match=r"`result` was filtered with a gate: .* without `gate`"):
             dg.consistency(gated)
+
+
+def test_the_innovation_covariances_are_checked_alike_by_nis_nees_and_whiteness():
+    """Audit AA3: `whiteness` took an asymmetric S and used one triangle (13.08 with S, 11.50 with Sᵀ); `nis` raised
+    on a step whose S is NaN, where `nees` gives NaN, and named no step for an indefinite S."""
+    v = np.random.default_rng(0).normal(size=(1000, 2))
+    S = np.broadcast_to([[2.0, 0.5], [0.5, 1.0]], (1000, 2, 2)).copy()
+    skew = S.copy()
+    skew[:, 0, 1] = 1.4
+    for check in (dg.nis, dg.whiteness):
+        with pytest.raises(ValueError, match=re.escape("`innovation_covs` must be symmetric; it is not at index "
+                                                       "(0, 0, 1).")):
+            check(v, skew)
+    missing = S.copy()
+    missing[3] = np.nan
+    assert np.isnan(dg.nis(v, missing)[3]) and np.isnan(dg.nees(v, missing)[3])
+    np.testing.assert_array_equal(np.delete(dg.nis(v, missing), 3), np.delete(dg.nis(v, S), 3))
+    indefinite = S.copy()
+    indefinite[7] = [[1.0, 2.0], [2.0, 1.0]]
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 7: `innovation_covs` is not positive definite"):
+        dg.nis(v, indefinite)

@@ -827,7 +827,12 @@ def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str 
     gram, logdet = np.zeros((T, r, r)), np.zeros(T)
     full = observed.all(axis=1)
     if full.any():
-        L = cholesky(S[full], name)
+        try:
+            L = cholesky(S[full], name)
+        except np.linalg.LinAlgError:  # named at its step, as one partly observed is (audit AA3)
+            t = int(np.flatnonzero(full)[np.argmin(factorable(S[full]))])
+            cholesky(S[t], f"at step {t}: {name}")
+            raise
         W = whiten(L, X[full])
         gram[full] = W.swapaxes(-1, -2) @ W
         logdet[full] = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)

@@ -56,20 +56,26 @@ def _vectors(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.nda
         raise shape_error(name, "(..., m), one vector of m >= 1 components per step", e.shape)
     if C.shape != e.shape + e.shape[-1:]:
         raise shape_error(cov_name, f"{e.shape + e.shape[-1:]} to match `{name}` {e.shape}", C.shape)
+    _symmetric(cov_name, C)
+    return e, C
+
+
+def _symmetric(cov_name: str, C: np.ndarray) -> None:
+    """Raise, naming the first index, where the covariances `C` (..., m, m) are not symmetric to round-off: one
+    triangle of each would be used, silently."""
     d = np.sqrt(np.abs(np.diagonal(C, axis1=-2, axis2=-1)))
     with np.errstate(invalid="ignore"):  # (NaN entries: a step not computed)
         asym = np.abs(C - np.swapaxes(C, -1, -2)) > PSD_RTOL * d[..., :, None] * d[..., None, :]
-    if asym.any():  # its lower triangle was used, silently
+    if asym.any():
         where = tuple(int(i) for i in np.argwhere(asym)[0])
         raise ValueError(f"`{cov_name}` must be symmetric; it is not at index {where}.")
-    return e, C
 
 
 def _quadratic(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.ndarray]:
     """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number (arguments `name` and `cov_name`)."""
     e, C = _vectors(name, errors, cov_name, covs)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
-    observed = ~np.isnan(flat_e)
+    observed = ~np.isnan(flat_e) & np.isfinite(flat_C).all(axis=(1, 2))[:, None]  # NaN C: a step not computed
     gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`")
     dof = observed.sum(axis=1)
     out = np.where(dof > 0, gram[:, 0, 0], np.nan)
@@ -89,15 +95,17 @@ def nis(innovations, innovation_covs) -> np.ndarray:
     Returns
     -------
     ndarray of shape (..., T)
-        NaN where nothing was observed. Each value is χ² with as many degrees
-        of freedom as observed components.
+        NaN where nothing was observed, or S holds NaN (a step without an
+        innovation covariance, as :func:`nees` takes it). Each value is χ²
+        with as many degrees of freedom as observed components.
 
     Raises
     ------
     ValueError
         For a covariance that is not symmetric, or shapes that do not match.
     numpy.linalg.LinAlgError
-        Where S of the observed components is singular (a noise-free
+        Naming the first such step, where S of the observed components is
+        not positive definite: indefinite, or singular (a noise-free
         measurement of a state known exactly): v has no density to weigh
         there (:func:`nees` takes a singular P, whose error is 0 off its
         range).
@@ -758,6 +766,7 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
         raise shape_error("innovations", "(T, m), m >= 1", v.shape)
     if S.shape != v.shape + v.shape[-1:]:
         raise shape_error("innovation_covs", f"{v.shape + v.shape[-1:]} to match `innovations` {v.shape}", S.shape)
+    _symmetric("innovation_covs", S)  # one triangle was used, silently (audit AA3)
     keep = ~np.isnan(v).any(axis=1)
     w = whiten(cholesky(S[keep], "the innovation covariance"), v[keep][..., None])[..., 0]  # (T', m) whitened
     T, m = w.shape
