@@ -241,3 +241,35 @@ def test_simulated_angles_are_wrapped_as_the_filter_wraps_its_means():
         assert (-np.pi <= got[..., angle]).all() and (got[..., angle] < np.pi).all()
         np.testing.assert_allclose(np.delete(got, angle, -1), np.delete(want, angle, -1), atol=1e-12)
         np.testing.assert_allclose(got[..., angle], gf.wrap_angle(want[..., angle]), atol=1e-12)
+
+
+def test_sample_posterior_steps_a_timed_model_by_its_times():
+    """Audit AA3: a TimedModel (and the README's workaround, TimedModel.at(dts), a tuple) was refused as "exact
+    for linear-Gaussian models only". With `times` it draws from the model of its steps: the same draws as from
+    that model, and their moments those of the smoother at those times."""
+    track = gf.model(gf.ConstantVelocity(dim=1, q=0.1), gf.Position(dim=1, r=1.0))
+    prior, zs, times = gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0, 1.4, np.nan, 3.0], [0.0, 1.0, 1.5, 3.5, 4.0]
+    draws = gf.sample_posterior(track, prior, zs, 20_000, times=times, rng=4)
+    stepped, _ = track.at(np.diff(times))
+    np.testing.assert_array_equal(draws, gf.sample_posterior(stepped, prior, zs, 20_000, rng=4))
+    sm = gf.smooth(track, prior, zs, times=times)
+    sd = np.sqrt(np.diagonal(sm.covs, axis1=1, axis2=2))
+    assert np.all(np.abs(draws.mean(axis=0) - sm.means) < 5 * sd / np.sqrt(20_000))
+    with pytest.raises(ValueError, match="`times` is required"):
+        gf.sample_posterior(track, prior, zs, 5)
+    turning = gf.model(gf.CoordinatedTurn(), gf.Position(dim=2, r=1.0))
+    with pytest.raises(TypeError, match=r"got TimedModel \(a TimedModel of a nonlinear motion or sensor\)"):
+        gf.sample_posterior(turning, gf.Gaussian(np.zeros(5), np.eye(5)), np.zeros((2, 2)), 5, times=[0.0, 1.0, 2.0])
+
+
+def test_sample_posteriors_divergence_warning_points_at_the_callers_line():
+    """Audit AA3: it pointed at gaussfuse/simulation.py, where filter's points at the caller's line."""
+    model = gf.LinearModel(F=1.0, H=1.0, Q=1e-6, R=1e-6)
+    zs = np.random.default_rng(0).normal(size=200)  # far too noisy for the model: the check fires
+    with pytest.warns(gf.DivergenceWarning) as caught:
+        gf.sample_posterior(model, gf.Gaussian([0.0], [[1.0]]), zs, 3, rng=0)
+    assert [w.filename for w in caught] == [__file__]
+    with pytest.raises(gf.DivergenceWarning):
+        gf.sample_posterior(model, gf.Gaussian([0.0], [[1.0]]), zs, 3, rng=0, check="raise")
+    with pytest.raises(ValueError, match="`check`"):
+        gf.sample_posterior(model, gf.Gaussian([0.0], [[1.0]]), zs, 3, rng=0, check="loud")
