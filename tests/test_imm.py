@@ -277,7 +277,7 @@ _NL = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0, state_angl
     (dict(method="foo"), ValueError, "`method` must be one of"),
     (dict(alpha=0.5), TypeError, "unknown option(s) ['alpha'] for method 'kf'; valid options are none."),
     (dict(models=[_CV, gf.LinearModel(np.stack([np.eye(2)] * 3), [1.0, 0.0], np.eye(2), 1.0)]), ValueError,
-     "the model is time-varying over 3 steps but `zs` has 2 steps; they must agree."),
+     "in `models[1]`: the model is time-varying over 3 steps but `zs` has 2 steps; they must agree."),  # (AA2)
 ])
 def test_validation(changes, error, message):
     with pytest.raises(error, match=re.escape(message)):

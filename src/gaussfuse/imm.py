@@ -314,8 +314,8 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
     any_nonlinear = any(isinstance(model, NonlinearModel) for model in models)
     modes = []
     for j, model in enumerate(models):
-        check_steps(model, T)
         try:
+            check_steps(model, T)  # (named: audit AA2)
             controls = check_controls(us, model, 1, T)
         except ValueError as exc:  # the values are checked: whether and how this model takes controls
             raise ValueError(f"in `models[{j}]`: {exc}") from exc
