@@ -1294,6 +1294,8 @@ def _evaluator(build, data, engine):
 
     def prefetch(thetas: list[np.ndarray]) -> None:
         todo = {theta.tobytes(): theta for theta in thetas if theta.tobytes() not in cache}
+        if not todo:  # (on a cluster, a round trip for nothing)
+            return
         try:
             results = data.scores([(*build(theta), build.directions(theta)) for theta in todo.values()], engine)
         except NO_LIKELIHOOD:  # left to evaluate(), one θ at a time, to raise where it does alone
@@ -1406,16 +1408,17 @@ def _sizes(theta: np.ndarray, units: np.ndarray) -> np.ndarray:
     return np.maximum(units, np.abs(theta))
 
 
-def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray, also: tuple = ()) -> np.ndarray:
     """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised).
 
-    Each step is 1e-5 of the entry's `sizes` (:func:`_sizes`).
+    Each step is 1e-5 of the entry's `sizes` (:func:`_sizes`). The θ in `also` are evaluated in the same pass
+    over the data (on a cluster, one round trip).
     """
     k = theta.size
     steps = 1e-5 * sizes
     up = [theta + h * e for h, e in zip(steps, np.eye(k))]
     down = [theta - h * e for h, e in zip(steps, np.eye(k))]
-    evaluate.prefetch([theta] + up + down)  # (θ's gradient too, which the standard errors' test reads)
+    evaluate.prefetch([theta] + up + down + list(also))  # (θ's gradient too, which the standard errors' test reads)
     hess = np.zeros((k, k))
     for j in range(k):
         hess[:, j] = (evaluate(up[j])[1] - evaluate(down[j])[1]) / (2 * steps[j])
@@ -1483,18 +1486,23 @@ def _unresolved(evaluate, theta: np.ndarray, information: np.ndarray, curved: np
     not resolved.
     """
     bad = np.zeros(theta.size, dtype=bool)
-    checked = np.flatnonzero(curved)
-    if not checked.size:
-        return bad
-    steps = np.full(theta.size, 1e-2)
-    moved = {j: [theta + sign * steps[j] * np.eye(theta.size)[j] for sign in (1.0, -1.0)] for j in checked}
-    evaluate.prefetch([t for pair in moved.values() for t in pair])  # one pass over the data for all of them
+    moved = _wider(theta, curved)
+    evaluate.prefetch([t for pair in moved.values() for t in pair])  # (done with the Hessian's: _standard_errors)
     ll = evaluate(theta)[0]
     noise = 4e-13 * (1.0 + abs(ll))  # the round-off of three log-likelihoods in a second difference
     for j, (up, down) in moved.items():
-        curvature = -(evaluate(up)[0] - 2.0 * ll + evaluate(down)[0]) / steps[j] ** 2
-        bad[j] = abs(curvature - information[j, j]) > 0.5 * abs(information[j, j]) + noise / steps[j] ** 2
+        curvature = -(evaluate(up)[0] - 2.0 * ll + evaluate(down)[0]) / _WIDER ** 2
+        bad[j] = abs(curvature - information[j, j]) > 0.5 * abs(information[j, j]) + noise / _WIDER ** 2
     return bad
+
+
+_WIDER = 1e-2  # :func:`_unresolved`'s step in a log variance
+
+
+def _wider(theta: np.ndarray, curved: np.ndarray) -> dict[int, list[np.ndarray]]:
+    """θ moved each way by :data:`_WIDER` along each log variance (`curved`), by index: :func:`_unresolved`'s."""
+    return {j: [theta + sign * _WIDER * np.eye(theta.size)[j] for sign in (1.0, -1.0)]
+            for j in np.flatnonzero(curved)}
 
 
 def _beyond_gradient(information: np.ndarray, gradient: np.ndarray, curved: np.ndarray) -> bool:
@@ -1556,9 +1564,11 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
     units = build.units(theta)
     sizes = _sizes(theta, units)
     try:
-        information = -_hessian(evaluate, theta, sizes)
+        curved = build.curved(theta)
+        information = -_hessian(evaluate, theta, sizes, also=[t for pair in _wider(theta, curved).values()
+                                                              for t in pair])
         flat = _flat(evaluate, theta, information, units)
-        flat |= _unresolved(evaluate, theta, information, build.curved(theta))  # (as flat: held fixed)
+        flat |= _unresolved(evaluate, theta, information, curved)  # (as flat: held fixed)
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan, None
     kept = ~flat
