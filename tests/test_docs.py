@@ -53,5 +53,6 @@ def test_the_site_builds_without_a_warning(tmp_path):
     for page in ("index", "api", "cli", "changelog", "accuracy", "performance", "auto_tutorial/index",
                  "auto_howto/index", "auto_examples/index", "generated/gaussfuse.filter"):
         assert (html / f"{page}.html").exists(), page
+    assert "<table" in (html / "performance.html").read_text(encoding="utf-8")  # the benchmark table (review R16)
     # the figures were drawn: the tutorial's pages have images
     assert list((html / "_images").glob("sphx_glr_t02_*.png"))
