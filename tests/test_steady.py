@@ -298,3 +298,25 @@ def test_a_zero_on_the_unit_circle_with_a_noise_free_sensor_is_named():
     assert 0.1 / k < np.abs(kf.P_prior - model.Q).max() < 1.0 / k
     closed = F @ (np.eye(2) - np.array([[1.0], [2.0]]) @ model.H)  # the gain at P⁻ = Q
     np.testing.assert_allclose(sorted(np.linalg.eigvals(closed).real), [-1.0, 0.0], atol=1e-15)
+
+
+def test_modes_near_or_on_the_unit_circle_are_judged_on_their_own_round_off():
+    """Review R16 of the rotation fix: judged against Q's largest entry, Q = diag(1, 1e-13) did not drive F = I's
+    second mode; within 1e-9 of the circle, F = 1 ± 1e-10 with Q = 0 was refused though its steady state is P = 0
+    or (F² - 1) R; the faint-Q message blamed Q where an unstable mode was unseen; and a Jordan block in
+    coordinates that are not triangular, whose eigenvalue is computed only to about 1e-8, escaped the check and
+    got a loop with a pole of 1 - 7e-16. Each mode's eigenvalue is now judged to its own round-off."""
+    two = gf.steady_state(gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.diag([1.0, 1e-13]), R=np.eye(2)))
+    for i, q in enumerate((1.0, 1e-13)):
+        assert two.predicted_cov[i, i] == pytest.approx(_scalar_root(1.0, q, 1.0), rel=1e-8, abs=0.0)
+    assert not gf.steady_state(gf.LinearModel(F=1 - 1e-10, H=1.0, Q=0.0, R=1.0)).predicted_cov.any()
+    grows = gf.steady_state(gf.LinearModel(F=1 + 1e-10, H=1.0, Q=0.0, R=1.0)).predicted_cov[0, 0]
+    assert grows == pytest.approx((1 + 1e-10) ** 2 - 1, rel=1e-5, abs=0.0)
+    with pytest.raises(ValueError, match="Check that every unstable mode of F is seen through H") as info:
+        gf.steady_state(gf.LinearModel(F=np.diag([1.0, 1.5]), H=[[1.0, 0.0]], Q=1e-30 * np.eye(2), R=1.0))
+    assert "float64 can hold" not in str(info.value)
+    T = np.random.default_rng(0).normal(size=(2, 2))
+    F = T @ np.array([[1.0, 1.0], [0.0, 1.0]]) @ np.linalg.inv(T)  # a constant velocity, its velocity undriven
+    with pytest.raises(ValueError, match="mode on the unit circle .* that Q does not drive"):
+        gf.steady_state(gf.LinearModel(F=F, H=np.array([[1.0, 0.0]]) @ np.linalg.inv(T),
+                                       Q=T @ np.diag([1.0, 0.0]) @ T.T, R=1.0))

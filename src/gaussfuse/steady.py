@@ -81,9 +81,9 @@ def steady_state(model: LinearModel) -> Stationary:
         velocity with piecewise noise measured with R = 0 has one at -1):
         then the filter's covariance has no steady state to converge to, or
         converges to one only as 1/k, at which the filter is not stable;
-        or a mode on the unit circle (to 1e-9 of its modulus, so that a
-        rotation is one whatever round-off makes of it) that Q does not
-        drive (a constant estimated without process noise: its variance
+        or a mode on the unit circle (to its eigenvalue's round-off, ε ‖F‖
+        times its condition number, so that a rotation is one whatever
+        round-off makes of it) that Q does not drive beyond round-off (a constant estimated without process noise: its variance
         falls to 0 as 1/k, and the gain with it), or drives so faintly
         beside R that the filter's pole at 1, about 1 - √(Q/R), rounds to 1
         (a random walk with Q below about 1e-32 R). Also when the steady state has a singular innovation
@@ -163,10 +163,9 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
 
     F, H, Q, R = model.F, model.H, model.Q, model.R
     q, r = np.abs(Q).max(), np.abs(R).max()
-    vals, left = np.linalg.eig(F.T)  # wᵀ F = λ wᵀ: a mode, and how much Q drives it (w* Q w)
-    unit = [(complex(v), abs(np.conj(w) @ Q @ w)) for v, w in zip(vals, left.T) if abs(abs(v) - 1.0) <= 1e-9]
-    still = [v for v, drive in unit if drive <= 1e-12 * max(q, 1e-300)]
-    if not still and not Q.any() and np.max(np.abs(vals)) < 1.0:
+    unit = _unit_circle_modes(F, Q)
+    still = [v for v, drive, noise in unit if drive <= noise]
+    if not still and not Q.any() and max(abs(v) for v in np.linalg.eigvals(F)) < 1.0:
         return np.zeros_like(Q)
     found, error = [], None
     for scale in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
@@ -192,7 +191,7 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
         if iterated is not None and _stabilises(model, iterated):
             return iterated
         why = f" (SciPy: {error})" if error is not None else ""
-        faint = [(v, drive) for v, drive in unit if drive < 1e-24 * r]
+        faint = [(v, drive) for v, drive, _ in unit if drive < 1e-31 * r]
         if faint:  # the gain, about √(Q/R) there, and the loop's distance from the circle are round-off
             raise ValueError(
                 f"the filter of `model` has no steady state that float64 can hold: F has a mode on the unit "
@@ -207,6 +206,29 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
             "covariance converges only as 1/k, to no stable gain: give R a positive variance."
         ) from None
     return min(kept, key=lambda P: (_residual(model, P) > _ROUND_OFF, _balance(model, P)))
+
+
+def _unit_circle_modes(F: np.ndarray, Q: np.ndarray) -> list[tuple[complex, float, float]]:
+    """The modes of F on the unit circle, to each eigenvalue's round-off: (λ, how much Q drives it, w* Q w for
+    the left eigenvector w, and that drive's own round-off).
+
+    An eigenvalue is computed to about ε ‖F‖ times its condition number 1 / |yᴴ x| (y and x its unit left and
+    right eigenvectors): a rotation's is exact to 1e-16, so that a stable mode at 1 - 1e-10 is told from it, and a
+    Jordan block's, in coordinates that are not triangular, only to about 1e-8 (its condition number near 1e8).
+    A drive within the round-off of Q's entries along w is none: Q = diag(1, 1e-13) drives both of F = I's
+    modes (review R16: judged against Q's largest entry, the second was not driven).
+    """
+    from scipy.linalg import eig
+
+    vals, left, right = eig(F, left=True, right=True)
+    size, eps = max(np.abs(F).max(), 1.0), float(np.finfo(np.float64).eps)
+    modes = []
+    for v, y, x in zip(vals, left.T, right.T):
+        condition = 1.0 / max(abs(np.vdot(y, x)), 1e-300)
+        if abs(abs(v) - 1.0) <= 64.0 * eps * size * condition:
+            w = y / np.linalg.norm(y)
+            modes.append((complex(v), float(abs(np.conj(w) @ Q @ w)), float(64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w)))))
+    return modes
 
 
 _ROUND_OFF = 1e-14  # a residual relative to P's size that is round-off: candidates within it are told apart by
