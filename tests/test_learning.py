@@ -910,9 +910,10 @@ def test_a_variance_the_likelihood_does_not_see_has_no_standard_error(method, st
     assert got.bse["Q"] == pytest.approx(alone.bse["Q"], rel=1e-4)
     assert got.bse["R[0,0]"] == pytest.approx(alone.bse["R"], rel=1e-4)
     flat = "R[1,0], R[1,1]" if structure == "full" else "R[1,1]"  # (the summary said nothing of why: audit Y3)
+    them, their = ("them", "their") if structure == "full" else ("it", "its")
     assert got.summary().splitlines()[-1] == (f"std err nan: the log-likelihood does not depend on {flat}, or does "
-                                              "not resolve it from the boundary of its range, a variance of 0 (the "
-                                              "others' are those of the model with it held fixed)")
+                                              f"not resolve {them} from the boundary of {their} range, a variance of "
+                                              f"0 (the others' are those of the model with {them} held fixed)")
     assert "std err nan" not in alone.summary()
 
 
@@ -1161,3 +1162,20 @@ def test_a_variance_estimated_at_its_boundary_has_no_standard_error(seed):
     fixed = gf.fit(gf.LinearModel(F=1, H=1, Q=res.params["Q"], R=1.0), "diffuse", z, learn=("R",), method="mle")
     assert res.bse["R"] == pytest.approx(fixed.bse["R"], rel=1e-4)
     assert "does not resolve it from the boundary of its range" in res.summary()
+
+
+def test_a_variance_collapsed_beside_one_of_order_one_is_held_fixed_for_the_others_errors():
+    """Review R16: Q[1,1] fitted to 1.7e-14 has an information of 1.2e-10, which its second difference matches
+    within round-off, so it was not marked, and every standard error was NaN ("not positive definite"). The
+    others' are now those of the model with it held fixed, against a finite-difference Hessian of the
+    log-likelihood in the variances with Q[1,1] fixed (0.24393152, 0.17728239, 0.07042263)."""
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=300))
+    z = np.stack([x + rng.normal(size=300), 5 + rng.normal(size=300)], 1)
+    start = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", gf.ConvergenceWarning)
+        res = gf.fit(start, "diffuse", z, method="mle", structure={"Q": "diagonal", "R": "diagonal"})
+    assert res.params["Q[1,1]"] < 1e-10 and np.isnan(res.bse["Q[1,1]"])
+    got = [res.bse[name] for name in ("Q[0,0]", "R[0,0]", "R[1,1]")]
+    np.testing.assert_allclose(got, [0.24393152, 0.17728239, 0.07042263], rtol=1e-4)

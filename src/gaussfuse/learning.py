@@ -264,13 +264,15 @@ class FitResult:
             lines.append(f"{name:<14} {_fmt(value):>11} {_fmt(se):>12} {_fmt(value - 1.959963984540054 * se):>12} "
                          f"{_fmt(value + 1.959963984540054 * se):>12}")
         missing = [name for name in self.params if not np.isfinite(self.bse.get(name, np.nan))]
+        them, their = ("it", "its") if len(missing) == 1 else ("them", "their")
         if missing:  # (a table of nan said nothing of why: audit Y3)
             lines.append("std err nan: " + (
                 "the observed information is not positive definite here, or not beyond the gradient (the fit is "
                 "not at a maximum, or the data do not identify every parameter)" if len(missing) == len(self.params)
                 else
-                f"the log-likelihood does not depend on {', '.join(missing)}, or does not resolve it from the "
-                "boundary of its range, a variance of 0 (the others' are those of the model with it held fixed)"))
+                f"the log-likelihood does not depend on {', '.join(missing)}, or does not resolve {them} from the "
+                f"boundary of {their} range, a variance of 0 (the others' are those of the model with {them} held "
+                "fixed)"))
         return "\n".join(lines)
 
 
@@ -1482,8 +1484,8 @@ def _unresolved(evaluate, theta: np.ndarray, information: np.ndarray, curved: np
     log-likelihood's own curvature, and the standard error of a variance estimated at 3e-9 was 3.5e-7 where
     statsmodels' is 3.1e-3 (audit AA3). So each log variance's information is checked against the second
     difference of the log-likelihood over steps of 0.01 (a variance times e^±0.02, in any units of the data),
-    whose round-off is far below an interior estimate's curvature; where they differ by more than half, it is
-    not resolved.
+    whose round-off is far below an interior estimate's curvature; where they differ by more than half, or the
+    information is below that round-off (a variance of 1.7e-14 beside one of 1: review R16), it is not resolved.
     """
     bad = np.zeros(theta.size, dtype=bool)
     moved = _wider(theta, curved)
@@ -1492,7 +1494,8 @@ def _unresolved(evaluate, theta: np.ndarray, information: np.ndarray, curved: np
     noise = 4e-13 * (1.0 + abs(ll))  # the round-off of three log-likelihoods in a second difference
     for j, (up, down) in moved.items():
         curvature = -(evaluate(up)[0] - 2.0 * ll + evaluate(down)[0]) / _WIDER ** 2
-        bad[j] = abs(curvature - information[j, j]) > 0.5 * abs(information[j, j]) + noise / _WIDER ** 2
+        floor = noise / _WIDER ** 2  # the least curvature the second difference resolves
+        bad[j] = information[j, j] <= floor or abs(curvature - information[j, j]) > 0.5 * information[j, j] + floor
     return bad
 
 
@@ -1547,7 +1550,8 @@ def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None
     return None
 
 
-def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | None, np.ndarray, np.ndarray | None]:
+def _standard_errors(evaluate, build, theta: np.ndarray, learn,
+                     nobs: int) -> tuple[dict | None, np.ndarray, np.ndarray | None]:
     """Standard errors from the observed information, by central differences of the exact gradient.
 
     Returns the per-matrix standard errors (None if the information is not
@@ -1568,7 +1572,10 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn) -> tuple[dict | 
         information = -_hessian(evaluate, theta, sizes, also=[t for pair in _wider(theta, curved).values()
                                                               for t in pair])
         flat = _flat(evaluate, theta, information, units)
-        flat |= _unresolved(evaluate, theta, information, curved)  # (as flat: held fixed)
+        # (as flat: held fixed) where the log-likelihood is stationary along it, to maximum likelihood's tolerance;
+        # elsewhere it is a plateau, not a boundary (EM stalled from Q = 1e-6 on the Nile: review R16)
+        still = np.abs(evaluate(theta)[1] * units) <= _MLE_GTOL * nobs
+        flat |= _unresolved(evaluate, theta, information, curved & still)
     except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
         return None, nan, None
     kept = ~flat
@@ -1925,7 +1932,7 @@ def fit(
             # be at a maximum anyway
             interrupted = message.startswith("interrupted")
             errors, bse, cov_theta = (None, np.full(build.natural(theta).size, np.nan), None) if interrupted else \
-                _standard_errors(evaluate, build, theta, learn)
+                _standard_errors(evaluate, build, theta, learn, nobs)
             names, values = build.names(), build.natural(theta)
             stalled = _em_stalled(evaluate, build, theta, cov_theta, tol, nobs) \
                 if method == "em" and converged and theta.size else None
