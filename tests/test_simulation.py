@@ -257,6 +257,13 @@ def test_sample_posterior_steps_a_timed_model_by_its_times():
     assert np.all(np.abs(draws.mean(axis=0) - sm.means) < 5 * sd / np.sqrt(20_000))
     with pytest.raises(ValueError, match="`times` is required"):
         gf.sample_posterior(track, prior, zs, 5)
+    pd = pytest.importorskip("pandas")  # a Series' DatetimeIndex supplies the times, as in filter (review R16)
+    dated = pd.Series(zs, index=pd.Timestamp("2026-01-01") + pd.to_timedelta(times[1:], unit="s"))
+    np.testing.assert_array_equal(gf.sample_posterior(track, prior, dated, 50, rng=4),
+                                  gf.sample_posterior(track, prior, zs, 50, times=times[1:], rng=4))
+    plain = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0)  # not "irregular times"
+    with pytest.raises(TypeError, match=r"linear-Gaussian models only; got NonlinearModel\.$"):
+        gf.sample_posterior(plain, prior, zs, 5, times=times)
     turning = gf.model(gf.CoordinatedTurn(), gf.Position(dim=2, r=1.0))
     with pytest.raises(TypeError, match=r"got TimedModel \(a TimedModel of a nonlinear motion or sensor\)"):
         gf.sample_posterior(turning, gf.Gaussian(np.zeros(5), np.eye(5)), np.zeros((2, 2)), 5, times=[0.0, 1.0, 2.0])

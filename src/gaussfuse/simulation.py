@@ -43,7 +43,7 @@ from ._linalg import wrap_components
 from ._frozen import reduce_frozen, shapes_repr
 from ._validation import generator, integer
 from .errors import ModelFunctionError, at_step
-from .inference import drivers
+from .inference import drivers, frames
 from .inference import filter as run_filter
 from .inference.results import stack
 from .inference.timing import resolve
@@ -182,14 +182,16 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, times=No
     prior : Gaussian
         As in :func:`gaussfuse.filter`.
     zs : array_like of shape (T, m) or (T,)
-        One series of measurements; NaN = missing.
+        One series of measurements (a pandas Series or DataFrame too);
+        NaN = missing.
     n : int
         How many trajectories, at least 1.
     us : array_like of shape (T, p), optional
         Controls, when the model has ``B``.
     times : array_like of shape (T,) or (T + 1,), optional
-        The measurements' times, as in :func:`gaussfuse.filter`: a
-        TimedModel of a linear motion and sensor steps by them.
+        The measurements' times, as in :func:`gaussfuse.filter` (a pandas
+        `zs` with a DatetimeIndex supplies them): a TimedModel of a linear
+        motion and sensor steps by them.
     rng : None, int or numpy.random.Generator
     form : {"cov", "sqrt"}, default "cov"
         The filter's form (see :func:`gaussfuse.filter`): ``"sqrt"`` where
@@ -234,12 +236,18 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, times=No
     (1000, 4, 1)
     """
     given = type(model).__name__
+
+    def refuse(of: str = "") -> TypeError:
+        return TypeError("`model` must be a gaussfuse.LinearModel: backward sampling is exact for linear-Gaussian "
+                         f"models only; got {given}{of}.")
+
+    if not isinstance(model, (LinearModel, TimedModel)):
+        raise refuse()
+    zs, times, _ = frames.unpack(zs, times, frames.by_rows(model))  # a pandas index supplies the times, as in filter
     if times is not None or isinstance(model, TimedModel):  # (audit AA3: a TimedModel was refused as not linear)
         model, us = resolve(model, times, check_measurements(zs, model.m, one=True), us)
     if not isinstance(model, LinearModel):
-        of = " (a TimedModel of a nonlinear motion or sensor)" if given == "TimedModel" else ""
-        raise TypeError("`model` must be a gaussfuse.LinearModel: backward sampling is exact for linear-Gaussian "
-                        f"models only; got {given}{of}.")
+        raise refuse(" (a TimedModel of a nonlinear motion or sensor)")
     prior = check_prior(prior, model.n)
     count = integer("n", n)
     arr = check_measurements(zs, model.m, one=True)
