@@ -568,3 +568,24 @@ def test_the_innovation_covariances_are_checked_alike_by_nis_nees_and_whiteness(
     indefinite[7] = [[1.0, 2.0], [2.0, 1.0]]
     with pytest.raises(np.linalg.LinAlgError, match=r"^at step 7: `innovation_covs` is not positive definite"):
         dg.nis(v, indefinite)
+
+
+def test_innovation_covariances_that_fail_are_named_at_their_series_and_step():
+    """Review R16: `nis` on a batch named a flattened index ("at step 57" in series of 50 steps); `whiteness` named
+    no step and printed the whole stack, and refused the NaN innovation covariances of a diffuse start, where
+    `nis` gives NaN."""
+    v = np.random.default_rng(0).normal(size=(2, 50, 2))
+    S = np.tile(np.eye(2), (2, 50, 1, 1))
+    S[1, 7] = [[1.0, 2.0], [2.0, 1.0]]
+    with pytest.raises(np.linalg.LinAlgError, match=r"^in series 1, at step 7: `innovation_covs` is not positive "
+                                                    r"definite, so it cannot be factorised: \[\[1\., 2\.\], \[2\., 1\.\]\]$"):
+        dg.nis(v, S)
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 7: `innovation_covs` is not positive definite, so it "
+                                                    r"cannot be factorised: \[\[1\., 2\.\], \[2\., 1\.\]\]$"):
+        dg.whiteness(v[1], S[1])
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=0.1 * np.eye(2), R=1.0)
+    res = gf.filter(model, "diffuse", np.cumsum(np.random.default_rng(1).normal(size=100)))
+    assert np.isnan(res.innovation_covs[:2]).all()  # the two steps that identify the diffuse state
+    got = dg.whiteness(res.innovations, res.innovation_covs)
+    want = dg.whiteness(res.innovations[2:], res.innovation_covs[2:])
+    assert got.statistic == want.statistic and got.p_value == want.p_value

@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "weighed", "factorable", "indefinite", "unseen_directions", "with_slopes",
+    "observed_gram", "step_cholesky", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "weighed", "factorable", "indefinite", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -798,7 +798,19 @@ def log_det(L: np.ndarray) -> float | np.ndarray:
     return 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
 
 
-def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str = "the covariance"):
+def step_cholesky(S: np.ndarray, name: str, steps: np.ndarray, where=lambda t: f"at step {t}") -> np.ndarray:
+    """The Cholesky factors of a stack `S` (k, n, n) of a series' covariances at `steps` (k,); one that is not
+    positive definite is named at its step (audit AA3: a stack's error named none)."""
+    try:
+        return cholesky(S, name)
+    except np.linalg.LinAlgError:
+        i = int(np.argmin(factorable(S)))
+        cholesky(S[i], f"{where(int(steps[i]))}: {name}")
+        raise
+
+
+def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str = "the covariance",
+                  where=lambda t: f"at step {t}"):
     r"""``X_oᵀ S_oo⁻¹ X_o`` and ``log|S_oo|`` at each step, over the observed components o.
 
     Parameters
@@ -811,6 +823,8 @@ def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str 
         The components that count at each step; a step with none gives zeros.
     name : str
         What S is, for the error when an observed block is not positive definite.
+    where : callable, optional
+        Step t's place in that error ("at step t"; a batch's caller names the series).
 
     Returns
     -------
@@ -827,18 +841,13 @@ def observed_gram(S: np.ndarray, X: np.ndarray, observed: np.ndarray, name: str 
     gram, logdet = np.zeros((T, r, r)), np.zeros(T)
     full = observed.all(axis=1)
     if full.any():
-        try:
-            L = cholesky(S[full], name)
-        except np.linalg.LinAlgError:  # named at its step, as one partly observed is (audit AA3)
-            t = int(np.flatnonzero(full)[np.argmin(factorable(S[full]))])
-            cholesky(S[t], f"at step {t}: {name}")
-            raise
+        L = step_cholesky(S[full], name, np.flatnonzero(full), where)
         W = whiten(L, X[full])
         gram[full] = W.swapaxes(-1, -2) @ W
         logdet[full] = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     for t in np.flatnonzero(observed.any(axis=1) & ~full):
         o = observed[t]
-        L = cholesky(S[t][np.ix_(o, o)], f"at step {t}: {name}")
+        L = cholesky(S[t][np.ix_(o, o)], f"{where(t)}: {name}")
         W = whiten(L, X[t][o])
         gram[t], logdet[t] = W.T @ W, 2.0 * np.sum(np.log(np.diag(L)))
     return gram, logdet

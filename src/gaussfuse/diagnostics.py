@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._linalg import PSD_RTOL, UNRESOLVED, cholesky, observed_gram, whiten, wrap_components
+from ._linalg import PSD_RTOL, UNRESOLVED, observed_gram, step_cholesky, whiten, wrap_components
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
 from ._validation import as_array, component_mask, integer, shape_error
 
@@ -71,12 +71,23 @@ def _symmetric(cov_name: str, C: np.ndarray) -> None:
         raise ValueError(f"`{cov_name}` must be symmetric; it is not at index {where}.")
 
 
+def _place(index: tuple) -> str:
+    """Where a step of one series (T,), of N series (N, T) or of a deeper batch is, for an error message."""
+    index = tuple(int(i) for i in index)
+    if len(index) == 1:
+        return f"at step {index[0]}"
+    if len(index) == 2:
+        return f"in series {index[0]}, at step {index[1]}"
+    return f"at index {index}"
+
+
 def _quadratic(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.ndarray]:
     """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number (arguments `name` and `cov_name`)."""
     e, C = _vectors(name, errors, cov_name, covs)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
     observed = ~np.isnan(flat_e) & np.isfinite(flat_C).all(axis=(1, 2))[:, None]  # NaN C: a step not computed
-    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`")
+    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`", where=lambda t: _place(
+        np.unravel_index(t, e.shape[:-1])))
     dof = observed.sum(axis=1)
     out = np.where(dof > 0, gram[:, 0, 0], np.nan)
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
@@ -743,7 +754,8 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     innovations : array_like of shape (T, m)
         ``res.innovations`` of one series; NaN components are missing.
     innovation_covs : array_like of shape (T, m, m)
-        ``res.innovation_covs``.
+        ``res.innovation_covs``; a step where it is NaN (a diffuse prior's
+        first steps) is left out with its innovation.
     lags : int, default 10
         Autocorrelation lags 1..lags, in [1, T' - 1] for the T' steps with
         no missing component.
@@ -761,14 +773,16 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
 
     confidence = _confidence(confidence)
     v = as_array("innovations", innovations, allow_nan=True)
-    S = as_array("innovation_covs", innovation_covs)
+    S = as_array("innovation_covs", innovation_covs, allow_nan=True)
     if v.ndim != 2 or not v.shape[1]:
         raise shape_error("innovations", "(T, m), m >= 1", v.shape)
     if S.shape != v.shape + v.shape[-1:]:
         raise shape_error("innovation_covs", f"{v.shape + v.shape[-1:]} to match `innovations` {v.shape}", S.shape)
     _symmetric("innovation_covs", S)  # one triangle was used, silently (audit AA3)
-    keep = ~np.isnan(v).any(axis=1)
-    w = whiten(cholesky(S[keep], "the innovation covariance"), v[keep][..., None])[..., 0]  # (T', m) whitened
+    # complete innovations with an innovation covariance (a diffuse start's first steps have neither: review R16)
+    keep = ~np.isnan(v).any(axis=1) & np.isfinite(S).all(axis=(1, 2))
+    L = step_cholesky(S[keep], "`innovation_covs`", np.flatnonzero(keep))  # (named at its step: review R16)
+    w = whiten(L, v[keep][..., None])[..., 0]  # (T', m) whitened
     T, m = w.shape
     if isinstance(lags, (bool, np.bool_)) or not isinstance(lags, (int, np.integer)):
         raise TypeError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")
