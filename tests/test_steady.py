@@ -320,3 +320,23 @@ def test_modes_near_or_on_the_unit_circle_are_judged_on_their_own_round_off():
     with pytest.raises(ValueError, match="mode on the unit circle .* that Q does not drive"):
         gf.steady_state(gf.LinearModel(F=F, H=np.array([[1.0, 0.0]]) @ np.linalg.inv(T),
                                        Q=T @ np.diag([1.0, 0.0]) @ T.T, R=1.0))
+
+
+def test_the_unit_circle_check_takes_a_badly_scaled_f_and_a_repeated_eigenvalue():
+    """Review R17: F = [[0.5, 1e7], [0, 0.9]], whose eigenvalues are exact, was refused as having a mode on the
+    unit circle: the first-order bound on an eigenvalue's round-off, ε ‖F‖ κ, reached past 0.5 (now on the
+    balanced F, and at most 1e-6). And F = I with Q = 1 1ᵀ never drives x1 - x2, which neither eigenvector SciPy
+    returns for the repeated eigenvalue shows: a P came back whose loop has a pole at 1 - 1e-13 (as on 2f40a13);
+    the least-driven direction of the eigenspace is now judged."""
+    F, H = np.array([[0.5, 1e7], [0.0, 0.9]]), np.array([[1.0, 0.0]])
+    assert not gf.steady_state(gf.LinearModel(F=F, H=H, Q=np.zeros((2, 2)), R=1.0)).predicted_cov.any()
+    driven = gf.steady_state(gf.LinearModel(F=F, H=H, Q=np.diag([1.0, 0.0]), R=1.0)).predicted_cov
+    p = _scalar_root(0.5, 1.0, 1.0)  # the second state is never driven: the first is a scalar AR(1)
+    np.testing.assert_allclose(driven, [[p, 0.0], [0.0, 0.0]], rtol=1e-12, atol=0.0)
+    with pytest.raises(ValueError, match=r"mode on the unit circle \(eigenvalue 1\+0j\) that Q does not drive"):
+        gf.steady_state(gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.ones((2, 2)), R=1e-3 * np.eye(2)))
+    turns = np.kron(np.eye(2), [[0.0, -1.0], [1.0, 0.0]])  # two rotations by 90 degrees, driven alike
+    with pytest.raises(ValueError, match="mode on the unit circle .* that Q does not drive"):
+        gf.steady_state(gf.LinearModel(F=turns, H=np.eye(4), Q=np.kron(np.ones((2, 2)), np.eye(2)), R=np.eye(4)))
+    both = gf.steady_state(gf.LinearModel(F=turns, H=np.eye(4), Q=np.eye(4), R=np.eye(4))).predicted_cov
+    np.testing.assert_allclose(both, _scalar_root(1.0, 1.0, 1.0) * np.eye(4), rtol=1e-12)

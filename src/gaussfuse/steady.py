@@ -218,17 +218,35 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray) -> list[tuple[complex, floa
     A drive within the round-off of Q's entries along w is none: Q = diag(1, 1e-13) drives both of F = I's
     modes (review R16: judged against Q's largest entry, the second was not driven).
     """
-    from scipy.linalg import eig
+    from scipy.linalg import eig, matrix_balance
 
-    vals, left, right = eig(F, left=True, right=True)
-    size, eps = max(np.abs(F).max(), 1.0), float(np.finfo(np.float64).eps)
+    B, (scale, _) = matrix_balance(F, permute=False, separate=True)  # B = D⁻¹ F D, as LAPACK balances
+    vals, left, right = eig(B, left=True, right=True)
+    size, eps = max(np.abs(B).max(), 1.0), float(np.finfo(np.float64).eps)
     modes = []
     for v, y, x in zip(vals, left.T, right.T):
         condition = 1.0 / max(abs(np.vdot(y, x)), 1e-300)
-        if abs(abs(v) - 1.0) <= 64.0 * eps * size * condition:
-            w = y / np.linalg.norm(y)
+        # at most 1e-6 off the circle: a badly scaled F's first-order bound can reach past 0.5 (review R17)
+        tol = min(64.0 * eps * size * condition, 1e-6)
+        if abs(abs(v) - 1.0) <= tol:
+            w = _least_driven(F, Q, complex(v), max(tol, 64.0 * eps) * size, y / scale)
             modes.append((complex(v), float(abs(np.conj(w) @ Q @ w)), float(64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w)))))
     return modes
+
+
+def _least_driven(F: np.ndarray, Q: np.ndarray, v: complex, tol: float, w: np.ndarray) -> np.ndarray:
+    """The unit left eigenvector for `v` (in F's eigenspace there: singular values of F - v I up to `tol`) that Q
+    drives least, or `w` normalised where the eigenspace is one direction.
+
+    A repeated eigenvalue's eigenvectors are any basis of its eigenspace: with F = I and Q = 1 1ᵀ, neither
+    returned one shows that Q never drives x1 - x2 (review R17)."""
+    U, sv, _ = np.linalg.svd(F - v * np.eye(F.shape[0]))
+    space = U[:, sv <= tol]
+    if space.shape[1] < 2:
+        return w / np.linalg.norm(w)
+    _, vecs = np.linalg.eigh(space.conj().T @ Q @ space)  # the drive within the eigenspace, least first
+    least = space @ vecs[:, 0]
+    return least / np.linalg.norm(least)
 
 
 _ROUND_OFF = 1e-14  # a residual relative to P's size that is round-off: candidates within it are told apart by
