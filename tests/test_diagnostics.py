@@ -589,3 +589,18 @@ def test_innovation_covariances_that_fail_are_named_at_their_series_and_step():
     got = dg.whiteness(res.innovations, res.innovation_covs)
     want = dg.whiteness(res.innovations[2:], res.innovation_covs[2:])
     assert got.statistic == want.statistic and got.p_value == want.p_value
+
+
+def test_an_innovation_covariance_nan_in_part_is_refused_and_none_at_all_is_said_so():
+    """Review R17: `whiteness` left out a step whose covariance was NaN in one entry (not a step left uncomputed,
+    which is NaN throughout), and with no covariance at all said "`lags` must be an integer in [1, -1]"."""
+    v = np.random.default_rng(0).normal(size=(50, 2))
+    S = np.tile(np.eye(2), (50, 1, 1))
+    S[10, 0, 1] = np.nan
+    for check in (dg.whiteness, dg.nis):
+        with pytest.raises(ValueError, match=re.escape("`innovation_covs` must be finite where it was computed; it "
+                                                       "is NaN or infinite in part at step 10.")):
+            check(v, S)
+    with pytest.raises(ValueError, match=re.escape("whiteness needs at least 2 steps with a complete innovation and "
+                                                   "its covariance; 0 of the 50 have both.")):
+        dg.whiteness(v, np.full((50, 2, 2), np.nan))

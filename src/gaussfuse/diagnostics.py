@@ -85,7 +85,12 @@ def _quadratic(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.n
     """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number (arguments `name` and `cov_name`)."""
     e, C = _vectors(name, errors, cov_name, covs)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
-    observed = ~np.isnan(flat_e) & np.isfinite(flat_C).all(axis=(1, 2))[:, None]  # NaN C: a step not computed
+    uncomputed = np.isnan(flat_C).all(axis=(1, 2))  # a step without its covariance (a diffuse start's)
+    broken = np.flatnonzero(~uncomputed & ~np.isfinite(flat_C).all(axis=(1, 2)))
+    if broken.size:  # not one left uncomputed (review R17)
+        raise ValueError(f"`{cov_name}` must be finite where it was computed; it is NaN or infinite in part "
+                         f"{_place(np.unravel_index(int(broken[0]), e.shape[:-1]))}.")
+    observed = ~np.isnan(flat_e) & ~uncomputed[:, None]
     gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`", where=lambda t: _place(
         np.unravel_index(t, e.shape[:-1])))
     dof = observed.sum(axis=1)
@@ -779,8 +784,17 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     if S.shape != v.shape + v.shape[-1:]:
         raise shape_error("innovation_covs", f"{v.shape + v.shape[-1:]} to match `innovations` {v.shape}", S.shape)
     _symmetric("innovation_covs", S)  # one triangle was used, silently (audit AA3)
-    # complete innovations with an innovation covariance (a diffuse start's first steps have neither: review R16)
-    keep = ~np.isnan(v).any(axis=1) & np.isfinite(S).all(axis=(1, 2))
+    # complete innovations with an innovation covariance (a diffuse start's first steps have neither: review R16);
+    # a covariance NaN in part is not one left uncomputed (review R17)
+    uncomputed = np.isnan(S).all(axis=(1, 2))
+    broken = np.flatnonzero(~uncomputed & ~np.isfinite(S).all(axis=(1, 2)))
+    if broken.size:
+        raise ValueError("`innovation_covs` must be finite where it was computed; it is NaN or infinite in part at "
+                         f"step {int(broken[0])}.")
+    keep = ~np.isnan(v).any(axis=1) & ~uncomputed
+    if keep.sum() < 2:
+        raise ValueError(f"whiteness needs at least 2 steps with a complete innovation and its covariance; "
+                         f"{int(keep.sum())} of the {v.shape[0]} have both.")
     L = step_cholesky(S[keep], "`innovation_covs`", np.flatnonzero(keep))  # (named at its step: review R16)
     w = whiten(L, v[keep][..., None])[..., 0]  # (T', m) whitened
     T, m = w.shape
