@@ -161,7 +161,9 @@ def test_the_standard_errors_of_a_chunked_fit_are_one_pass_over_the_chunks():
             got = gf.fit(start, prior, da.from_array(zs, chunks=(2, 30, 2)), learn=("Q", "R"), structure=diagonal,
                          iterations=2, tol=0)
     k = 4 + 3  # Q's variances, and R (2 x 2, symmetric)
-    assert Computes.count <= 2 + 3 < 2 * k  # EM's passes (the start's, one an iteration, the last), and one more
+    # EM's passes (the start's, one an iteration, the last), one for the Hessian, and one for the boundary test of
+    # its weakly identified variances (Q[0,0] = 0.056 with a standard error of 0.18: learning._unresolved)
+    assert Computes.count <= 2 + 4 < 2 * k
     for name in ("Q", "R"):
         np.testing.assert_allclose(got.standard_errors[name], want.standard_errors[name], rtol=1e-6)
 
