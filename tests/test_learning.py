@@ -1179,3 +1179,18 @@ def test_a_variance_collapsed_beside_one_of_order_one_is_held_fixed_for_the_othe
     assert res.params["Q[1,1]"] < 1e-10 and np.isnan(res.bse["Q[1,1]"])
     got = [res.bse[name] for name in ("Q[0,0]", "R[0,0]", "R[1,1]")]
     np.testing.assert_allclose(got, [0.24393152, 0.17728239, 0.07042263], rtol=1e-4)
+
+
+def test_an_interior_variance_beside_a_level_far_from_zero_keeps_its_standard_error():
+    """Review R18: with the level at 1e6 the log-likelihood's round-off made the second difference over the
+    Hessian's small steps disagree with the information, and that verdict was final: a variance 2.6 standard
+    errors from 0 was NaN. Only agreement there is final now; the wider steps decide the rest. Against the same
+    fit without the offset, which the standard errors do not depend on."""
+    rng = np.random.default_rng(0)
+    T = 20_000  # (review R18's case)
+    walk = np.cumsum(rng.normal(size=T) * np.sqrt(1e-5)) + rng.normal(size=T)
+    start = gf.LinearModel(F=1, H=1, Q=3e-5, R=0.5)
+    far = gf.fit(start, "diffuse", walk + 1e6, method="mle")
+    near = gf.fit(start, "diffuse", walk, method="mle")
+    assert far.converged and np.isfinite(far.bse["Q"])
+    assert far.bse["Q"] == pytest.approx(near.bse["Q"], rel=1e-3)

@@ -340,3 +340,16 @@ def test_the_unit_circle_check_takes_a_badly_scaled_f_and_a_repeated_eigenvalue(
         gf.steady_state(gf.LinearModel(F=turns, H=np.eye(4), Q=np.kron(np.ones((2, 2)), np.eye(2)), R=np.eye(4)))
     both = gf.steady_state(gf.LinearModel(F=turns, H=np.eye(4), Q=np.eye(4), R=np.eye(4))).predicted_cov
     np.testing.assert_allclose(both, _scalar_root(1.0, 1.0, 1.0) * np.eye(4), rtol=1e-12)
+
+
+@pytest.mark.parametrize("dt", [1e-6, 1e-8])
+def test_a_fast_constant_velocity_with_piecewise_noise_has_its_steady_state(dt):
+    """Review R18: a clock's phase and drift tracked at 1 MHz (F = [[1, dt], [0, 1]], Q = q g gᵀ, rank one) was
+    refused as having an undriven mode: the eigenvalue's bound (1e-6) was used to count the eigenspace, so the
+    Jordan block's coupling dt made it two-dimensional. Against SciPy."""
+    from scipy.linalg import solve_discrete_are
+
+    F, H, g = np.array([[1.0, dt], [0.0, 1.0]]), np.array([[1.0, 0.0]]), np.array([[dt * dt / 2], [dt]])
+    Q, R = 1e6 * g @ g.T, np.array([[1e-4]])
+    got = gf.steady_state(gf.LinearModel(F, H, Q, R)).predicted_cov
+    np.testing.assert_allclose(got, solve_discrete_are(F.T, H.T, Q, R), rtol=1e-8)

@@ -229,7 +229,9 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray) -> list[tuple[complex, floa
         # at most 1e-6 off the circle: a badly scaled F's first-order bound can reach past 0.5 (review R17)
         tol = min(64.0 * eps * size * condition, 1e-6)
         if abs(abs(v) - 1.0) <= tol:
-            w = _least_driven(F, Q, complex(v), max(tol, 64.0 * eps) * size, y / scale)
+            # its eigenspace: the singular values of F - v I that are round-off, not a Jordan block's coupling of 1e-6
+            # (a clock's phase and drift at 1 MHz was refused when the eigenvalue's bound was used: review R18)
+            w = _least_driven(F, Q, complex(v), 1e-10 * max(np.abs(F).max(), 1.0), y / scale)
             modes.append((complex(v), float(abs(np.conj(w) @ Q @ w)), float(64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w)))))
     return modes
 
