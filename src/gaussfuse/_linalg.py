@@ -17,7 +17,7 @@ import numpy as np
 __all__ = [
     "LOG_2PI", "marginal_std", "symmetrize", "eye", "cholesky", "is_positive_definite", "semidefinite_cholesky", "cho_solve",
     "psd_solve", "sqrt_cov", "tria", "pivot_order", "in_pivot_order", "downdate", "zero_pivots", "factor_solve", "back_solve", "weighted_mean", "circular_mean", "whiten", "log_density", "log_det",
-    "observed_gram", "step_cholesky", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "weighed", "factorable", "indefinite", "unseen_directions", "with_slopes",
+    "observed_gram", "step_cholesky", "shown", "wrap_angle", "wrap_components", "near", "unresolved", "negative_weight", "indefinite_error", "weighed", "factorable", "indefinite", "unseen_directions", "with_slopes",
 ]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
@@ -176,9 +176,13 @@ def cholesky(mat: np.ndarray, name: str = "the matrix", resolved: bool = False) 
         if corner.ndim == 0 and corner == corner or corner.ndim and (corner == corner).all():
             if not resolved or not roundoff_pivot(L, mat):
                 return L  # (NaN marks a failed factorisation)
+    raise np.linalg.LinAlgError(f"{name} is not positive definite, so it cannot be factorised: {shown(mat)}")
+
+
+def shown(mat) -> str:
+    """A matrix as an error message shows it: on one line, to 4 digits, elided past 36 entries."""
     with np.printoptions(precision=4, threshold=36):
-        shown = np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
-    raise np.linalg.LinAlgError(f"{name} is not positive definite, so it cannot be factorised: {shown}")
+        return np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
 
 
 def roundoff_pivot(L: np.ndarray, mat: np.ndarray) -> bool:

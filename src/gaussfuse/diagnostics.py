@@ -81,18 +81,27 @@ def _place(index: tuple) -> str:
     return f"at index {index}"
 
 
+def _uncomputed(cov_name: str, C: np.ndarray) -> np.ndarray:
+    """Which covariances of `C` (..., m, m) were not computed (NaN throughout: a diffuse start's first steps), as a
+    bool array (...); raises, naming the step, for one that is NaN or infinite in part (review R17)."""
+    uncomputed = np.isnan(C).all(axis=(-2, -1))
+    broken = np.argwhere(~uncomputed & ~np.isfinite(C).all(axis=(-2, -1)))
+    if broken.size:
+        raise ValueError(f"`{cov_name}` must be finite where it was computed; it is NaN or infinite in part "
+                         f"{_place(broken[0])}.")
+    return uncomputed
+
+
 def _quadratic(name: str, errors, cov_name: str, covs) -> tuple[np.ndarray, np.ndarray]:
     """``eᵀ C⁻¹ e`` over the non-NaN components of each e, and their number (arguments `name` and `cov_name`)."""
     e, C = _vectors(name, errors, cov_name, covs)
     flat_e, flat_C = e.reshape(-1, e.shape[-1]), C.reshape(-1, *C.shape[-2:])
-    uncomputed = np.isnan(flat_C).all(axis=(1, 2))  # a step without its covariance (a diffuse start's)
-    broken = np.flatnonzero(~uncomputed & ~np.isfinite(flat_C).all(axis=(1, 2)))
-    if broken.size:  # not one left uncomputed (review R17)
-        raise ValueError(f"`{cov_name}` must be finite where it was computed; it is NaN or infinite in part "
-                         f"{_place(np.unravel_index(int(broken[0]), e.shape[:-1]))}.")
-    observed = ~np.isnan(flat_e) & ~uncomputed[:, None]
-    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`", where=lambda t: _place(
-        np.unravel_index(t, e.shape[:-1])))
+    observed = ~np.isnan(flat_e) & ~_uncomputed(cov_name, C).reshape(-1)[:, None]
+
+    def where(t: int) -> str:
+        return _place(np.unravel_index(t, e.shape[:-1]))
+
+    gram, _ = observed_gram(flat_C, np.nan_to_num(flat_e)[..., None], observed, f"`{cov_name}`", where=where)
     dof = observed.sum(axis=1)
     out = np.where(dof > 0, gram[:, 0, 0], np.nan)
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
@@ -784,14 +793,8 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     if S.shape != v.shape + v.shape[-1:]:
         raise shape_error("innovation_covs", f"{v.shape + v.shape[-1:]} to match `innovations` {v.shape}", S.shape)
     _symmetric("innovation_covs", S)  # one triangle was used, silently (audit AA3)
-    # complete innovations with an innovation covariance (a diffuse start's first steps have neither: review R16);
-    # a covariance NaN in part is not one left uncomputed (review R17)
-    uncomputed = np.isnan(S).all(axis=(1, 2))
-    broken = np.flatnonzero(~uncomputed & ~np.isfinite(S).all(axis=(1, 2)))
-    if broken.size:
-        raise ValueError("`innovation_covs` must be finite where it was computed; it is NaN or infinite in part at "
-                         f"step {int(broken[0])}.")
-    keep = ~np.isnan(v).any(axis=1) & ~uncomputed
+    # complete innovations with an innovation covariance (a diffuse start's first steps have neither: review R16)
+    keep = ~np.isnan(v).any(axis=1) & ~_uncomputed("innovation_covs", S)
     if keep.sum() < 2:
         raise ValueError(f"whiteness needs at least 2 steps with a complete innovation and its covariance; "
                          f"{int(keep.sum())} of the {v.shape[0]} have both.")

@@ -36,7 +36,7 @@ import numpy as np
 from ._linalg import (PSD_RTOL, abs_congruence_diagonal, back_substitute, cho_solve, cholesky, clip_variances,
                       correlation_root, downdate, eye, factor_solve, in_pivot_order, log_det, log_density, near,
                       pivot_order, psd_solve, semidefinite_cholesky, sqrt_cov, symmetrize, tria, unseen_directions,
-                      whiten, with_slopes, wrap_components, zero_pivots, indefinite_error)
+                      shown, whiten, with_slopes, wrap_components, zero_pivots, indefinite_error)
 from .errors import ModelFunctionError, not_finite
 
 __all__ = ["predict", "predict_mean", "update", "gain", "apply_gain", "observed_components", "rts_step",
@@ -954,9 +954,7 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
     if not np.all(np.diagonal(L_S) > 0.0) or zero_pivots(L_S).any() and (
             D_o is not None or _dependent(R_factor if observed is None else R_factor[observed], HL_o, factor)):
         S = innovation_cov if observed is None else innovation_cov[np.ix_(observed, observed)]
-        with np.printoptions(precision=4, threshold=36):
-            shown = np.array2string(S, separator=", ").replace("\n", "")
-        raise _innovation_error(f"{_S_NAME} is not positive definite: {shown}", S)
+        raise _innovation_error(f"{_S_NAME} is not positive definite: {shown(S)}", S)
     if moved:  # back to the measurements' order: [L_S; K̄] turned by one orthogonal Θ, so L_S L_Sᵀ and K̄ L_Sᵀ stay
         back = tria(np.concatenate([L_S[np.argsort(order)], Kbar]))
         L_S, Kbar = back[:mo, :mo], back[mo:, :mo]

@@ -1493,21 +1493,21 @@ def _unresolved(evaluate, theta: np.ndarray, information: np.ndarray, curved: np
     ll = evaluate(theta)[0]
     noise = 4e-13 * (1.0 + abs(ll))  # the round-off of three log-likelihoods in a second difference
 
-    def judged(j: int, h: float) -> bool | None:
-        """Whether θ_j is unresolved by the second difference over ±h, or None where that cannot tell."""
+    def confirmed(j: int, h: float) -> bool:
+        """Whether the second difference over ±h confirms θ_j's information: within half of it, and it above ten
+        times the least curvature that difference resolves."""
         e = h * np.eye(theta.size)[j]
         curvature = -(evaluate(theta + e)[0] - 2.0 * ll + evaluate(theta - e)[0]) / h ** 2
-        floor = noise / h ** 2  # the least curvature it resolves
-        if abs(curvature - information[j, j]) > 0.5 * abs(information[j, j]) + floor:
-            return True
-        return None if information[j, j] <= 10.0 * floor else False
+        floor = noise / h ** 2
+        return abs(curvature - information[j, j]) <= 0.5 * abs(information[j, j]) + floor \
+            and information[j, j] > 10.0 * floor
 
-    # only agreement over the small steps is final: their second difference carries the data's round-off, which a
-    # level of 1e6 makes larger than assumed (an interior variance 2.6 standard errors from 0 was NaN'd: review R18)
-    doubt = [j for j in np.flatnonzero(curved) if judged(j, steps[j]) is not False]
+    # only confirmation over the small steps is final: their second difference carries the data's round-off, which
+    # a level of 1e6 makes larger than assumed (an interior variance 2.6 standard errors from 0 was NaN'd: review R18)
+    doubt = [j for j in np.flatnonzero(curved) if not confirmed(j, steps[j])]
     evaluate.prefetch([theta + sign * _WIDER * np.eye(theta.size)[j] for j in doubt for sign in (1.0, -1.0)])
     for j in doubt:
-        bad[j] = judged(j, _WIDER) is not False
+        bad[j] = not confirmed(j, _WIDER)
     return bad
 
 

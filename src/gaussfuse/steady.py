@@ -81,12 +81,13 @@ def steady_state(model: LinearModel) -> Stationary:
         velocity with piecewise noise measured with R = 0 has one at -1):
         then the filter's covariance has no steady state to converge to, or
         converges to one only as 1/k, at which the filter is not stable;
-        or a mode on the unit circle (to its eigenvalue's round-off, ε ‖F‖
-        times its condition number, so that a rotation is one whatever
-        round-off makes of it) that Q does not drive beyond round-off (a constant estimated without process noise: its variance
-        falls to 0 as 1/k, and the gain with it), or drives so faintly
-        beside R that the filter's pole at 1, about 1 - √(Q/R), rounds to 1
-        (a random walk with Q below about 1e-32 R). Also when the steady state has a singular innovation
+        or a mode on the unit circle (to its eigenvalue's round-off, at most
+        1e-6, so that a rotation is one whatever round-off makes of it)
+        that Q does not drive beyond round-off (a constant estimated without
+        process noise: its variance falls to 0 as 1/k, and the gain with
+        it), or drives so faintly beside R that the filter's pole at 1,
+        about 1 - √(Q/R), rounds to 1 (a random walk with Q below about
+        1e-32 R). Also when the steady state has a singular innovation
         covariance (no noise reaches a measured component and R is zero
         there), which leaves the gain undefined.
 
@@ -232,7 +233,8 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray) -> list[tuple[complex, floa
             # its eigenspace: the singular values of F - v I that are round-off, not a Jordan block's coupling of 1e-6
             # (a clock's phase and drift at 1 MHz was refused when the eigenvalue's bound was used: review R18)
             w = _least_driven(F, Q, complex(v), 1e-10 * max(np.abs(F).max(), 1.0), y / scale)
-            modes.append((complex(v), float(abs(np.conj(w) @ Q @ w)), float(64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w)))))
+            drive, noise = abs(np.conj(w) @ Q @ w), 64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w))
+            modes.append((complex(v), float(drive), float(noise)))
     return modes
 
 

@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import register_jitable
 
+from .._linalg import shown
 from ..errors import ReadablePath, not_finite as not_finite_message
 from ..inference.results import FilterResult
 from ..kalman import _S_NAME, _innovation_error
@@ -1021,12 +1022,9 @@ def raise_failure(fail: Failures) -> None:
     if code == READABLE:
         raise ReadablePath(f"{where(s, step, N)}: the square-root step needs the readable path")
     if code == NOT_POSITIVE_DEFINITE:
-        size = int(fail.size[s])
-        with np.printoptions(precision=4, threshold=36):
-            shown = np.array2string(fail.S[s, :size, :size], separator=", ").replace("\n", "")
+        S = fail.S[s, :int(fail.size[s]), :int(fail.size[s])]
         raise _innovation_error(
-            f"{where(s, step, N)}: {_S_NAME} is not positive definite, so it cannot be factorised: {shown}",
-            fail.S[s, :size, :size])
+            f"{where(s, step, N)}: {_S_NAME} is not positive definite, so it cannot be factorised: {shown(S)}", S)
     if code in (PREDICTED_NOT_FINITE, FILTERED_NOT_FINITE):
         stage = "predicted" if code == PREDICTED_NOT_FINITE else "filtered"
         raise FloatingPointError(f"{where(s, step, N)}: {not_finite_message(stage)}")
