@@ -365,6 +365,20 @@ def test_filter_plot_of_iso_times_counts_seconds_from_the_first(tmp_path, capsys
     np.testing.assert_array_equal(ax.get_lines()[1].get_xdata(), [0.0, 2.0, 3.0])
 
 
+def test_filter_plot_of_explicit_matrices_gives_their_time_column_no_unit(tmp_path, capsys, monkeypatch):
+    """Explicit matrices only label the rows with the time column (here years): it is not in seconds."""
+    data = tmp_path / "nile.csv"
+    data.write_text("year,flow\n1871,1120\n1872,1160\n1873,963\n")
+    toml = tmp_path / "m.toml"
+    toml.write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1469.1]]\nR = [[15099.0]]\n")
+    drawn = []
+    monkeypatch.setattr(cli.plotting, "save_figure", lambda fig, path: drawn.append(fig))
+    assert run(capsys, "filter", data, "-m", toml, "--time-column", "year", "--plot", tmp_path / "f.png")[0] == 0
+    (ax,) = drawn[0].get_axes()
+    assert ax.get_xlabel() == "year"
+    np.testing.assert_array_equal(ax.get_lines()[1].get_xdata(), [1871.0, 1872.0, 1873.0])
+
+
 @pytest.mark.parametrize("model", ["cv2d.toml", "explicit.toml"])
 def test_filter_the_examples(tmp_path, capsys, model):
     out = tmp_path / "track-out.csv"

@@ -569,7 +569,9 @@ class _Drawn:
     def figure(self, spec: gfio.ModelFile, data: str, columns: list[str], smoothed: bool, stamps: bool):
         """Measurements against the estimates, titled; with an x–y panel for two measurement columns.
 
-        ISO-8601 times are drawn as seconds since the first.
+        ISO-8601 times are drawn as seconds since the first. Plain numbers are
+        seconds to a named model, which steps by them, and have no unit to
+        explicit matrices, which only label the rows with them (a year).
         """
         parts = sorted(self.parts, key=lambda p: p[0][0])  # the smoother's come last first
         times, zs, means, covs = (np.concatenate(a) for a in list(zip(*parts))[:4])
@@ -579,7 +581,8 @@ class _Drawn:
             xlabel = f"{columns[0]} since {parts[0][4]}"
             times = times - times[0]
         return plotting.plot_measurements(
-            times, zs, means, covs, spec.model.H, names=columns[1:], label=what, xlabel=xlabel, time_unit="s",
+            times, zs, means, covs, spec.model.H, names=columns[1:], label=what, xlabel=xlabel,
+            time_unit="s" if stamps or spec.timed is not None else None,
             title=f"{os.path.basename(data)}: {what} estimates, ±2σ", track=len(columns) == 3)
 
 
