@@ -1826,8 +1826,8 @@ def fit(
     start = model
     zs, times, _ = frames.unpack(zs, times, frames.by_rows(model))
     pooled = chunked.is_dask(zs)
-    if pooled and zs.ndim != 3:
-        raise ValueError(f"`zs` as a dask array must have a leading series axis, shape (N, T, m); got {zs.shape}.")
+    if pooled:
+        chunked.check_lazy(zs, us, model)
     T = zs.shape[1] if pooled else zs
     if timed and times is not None and params is None:
         grid = timing.steps("times", times, T if pooled else check_measurements(zs, model.m).shape[1])
@@ -1847,8 +1847,6 @@ def fit(
         raise ValueError(f"`method` must be one of {list(METHODS)}; got {method!r}.")
     prior = check_prior(prior, model.n, diffuse_ok=True)
     if pooled:  # chunks of series, each summed where it is (_Chunks)
-        if zs.shape[2] != model.m:
-            raise ValueError(f"`zs` must have m = {model.m} components per step (the model's); got shape {zs.shape}.")
         us = chunked.chunked_like(us, zs)
         if (us is None) != (model.B is None) or (us is not None and us.shape[:2] != zs.shape[:2]):
             raise ValueError(f"`us` must be given, of shape (N, T, p) with the N and T of `zs`, exactly when the model "

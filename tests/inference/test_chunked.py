@@ -170,12 +170,83 @@ def test_the_standard_errors_of_a_chunked_fit_are_one_pass_over_the_chunks():
 
 def test_dask_input_errors():
     model, prior, zs = panel(N=4, T=5)
-    with pytest.raises(ValueError, match=r"leading series axis, shape \(N, T, k\); got shape \(5, 2\)"):
+    with pytest.raises(ValueError, match=r"`zs` must have shape \(N, T, 2\) .* got shape \(5, 2\)"):
         gf.filter(model, prior, da.from_array(zs[0]))
     with pytest.raises(ValueError, match="`check` must be one of"):
         gf.filter(model, prior, da.from_array(zs), check="loud")
-    with pytest.raises(ValueError, match="m = 2 components"):
+    with pytest.raises(ValueError, match=r"`zs` must have shape \(N, T, 2\) .* got shape \(4, 5, 1\)"):
         gf.fit(model, prior, da.from_array(zs[..., :1]))
+
+
+def test_dask_input_is_checked_before_any_chunk_runs_and_named_as_the_user_gave_it():
+    """The result's structure is read from a short probe series: its shapes named the errors ("got shape (1, 6, 3)"
+    for a (5, 10, 3) `zs`), a `us` of the wrong length failed only in compute, no series gave ZeroDivisionError
+    and strings NumPy's message (audit BB3)."""
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=0.1 * np.eye(2), R=1.0, B=np.eye(2))
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = da.zeros((5, 10, 1), chunks=(2, 10, 1))
+    us = da.zeros((5, 10, 2), chunks=(2, 10, 2))
+    for run in (gf.filter, gf.smooth, gf.fit):
+        with pytest.raises(ValueError, match=r"^`zs` must have shape \(N, T, 1\) .*; got shape \(5, 10, 3\)\.$"):
+            run(model, prior, da.zeros((5, 10, 3), chunks=(2, 10, 3)), us)
+        with pytest.raises(ValueError, match=r"^`zs` must have shape .* N >= 1 .*; got shape \(0, 10, 1\)\.$"):
+            run(model, prior, da.zeros((0, 10, 1), chunks=(1, 10, 1)), us[:0])
+        with pytest.raises(TypeError, match=r"^`zs` must be an array of real numbers; got a dask array of <U1\.$"):
+            run(model, prior, da.from_array(np.full((5, 10, 1), "a"), chunks=(2, 10, 1)), us)
+        for wrong in ((5, 10, 3), (5, 11, 2)):
+            with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, 2\) = \(5, 10, 2\), the series and "
+                                                 rf"steps of `zs`; got shape \({wrong[0]}, {wrong[1]}, {wrong[2]}\)\.$"):
+                run(model, prior, zs, da.zeros(wrong, chunks=(2, *wrong[1:])))
+
+
+def test_an_error_in_a_chunk_names_the_series_by_its_number_in_the_whole_array():
+    """A chunk's run counted its series from 0: an inf in series 4 was "at index (0, 7, 0)" (audit BB3)."""
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[[1.0, 0.0]], Q=0.1 * np.eye(2), R=0.0)
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.zeros((5, 10, 1))
+    zs[4, 7, 0] = np.inf
+    with pytest.raises(ValueError, match=r"at index \(4, 7, 0\)"):
+        gf.filter(model, prior, zs)
+    with dask.config.set(scheduler="synchronous"), pytest.raises(ValueError, match=r"at index \(4, 7, 0\)\.$"):
+        gf.filter(model, prior, da.from_array(zs, chunks=(2, 10, 1))).means.compute()
+    # a model function that fails where series 3's data lead it, with chunks of 2 series and of 1
+
+    def h(x):
+        if x[0] > 100:
+            raise ValueError("out of range")
+        return x[:1]
+
+    model = gf.NonlinearModel(f=lambda x: x, h=h, Q=[[1.0]], R=1.0)
+    prior = gf.Gaussian([0.0], [[1e4]])
+    zs = np.zeros((5, 4, 1))
+    zs[3, 1:] = 1000.0
+    with pytest.raises(ValueError) as in_memory:
+        gf.filter(model, prior, zs, method="ekf")
+    assert str(in_memory.value).startswith("in series 3, at step 2"), str(in_memory.value)
+    for size in (2, 1):
+        with dask.config.set(scheduler="synchronous"), pytest.raises(ValueError) as chunked:
+            gf.filter(model, prior, da.from_array(zs, chunks=(size, 4, 1)), method="ekf").means.compute()
+        assert str(chunked.value) == str(in_memory.value)
+
+
+def test_a_model_that_fails_on_zeros_reads_its_structure_from_the_data():
+    """The result's structure was read from a probe series of zeros, which led a square root of a level below 0:
+    gf.filter failed on a dask array whose every series filters in memory (audit BB3)."""
+
+    def h(x):
+        if x[0] < 0:
+            raise ValueError("no square root of a negative level")
+        return np.sqrt(x[:1])
+
+    model = gf.NonlinearModel(f=lambda x: x, h=h, Q=[[0.01]], R=1e-6)
+    prior = gf.Gaussian([50.0], [[1.0]])
+    zs = np.sqrt(50.0) + 0.001 * np.random.default_rng(0).normal(size=(4, 3, 1))  # shorter than the probe
+    want = gf.filter(model, prior, zs, method="ekf")
+    with dask.config.set(scheduler="synchronous"):
+        got = gf.filter(model, prior, da.from_array(zs, chunks=(2, 3, 1)), method="ekf")
+        np.testing.assert_array_equal(got.means.compute(), want.means)
+        np.testing.assert_array_equal(got.covs.compute(), want.covs)
+        np.testing.assert_array_equal(got.loglik.compute(), want.loglik)
 
 
 def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
@@ -196,9 +267,9 @@ def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
                 warnings.simplefilter("ignore", gf.ConvergenceWarning)
                 got, want = (gf.fit(model, start, data, us, learn=("R",), iterations=3, tol=0) for data in (lazy, zs))
             np.testing.assert_allclose(got.history, want.history, rtol=1e-12)
-        with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, p\) = \(4, 20, p\), .* got \(4, 19, 1\)"):
+        with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, 1\) = \(4, 20, 1\), .* got shape \(4, 19, 1\)"):
             gf.filter(model, prior, lazy, us[:, :19])
-        with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, p\) = \(4, 20, p\), .* got \(20, 1\)"):
+        with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, 1\) = \(4, 20, 1\), .* got shape \(20, 1\)"):
             gf.fit(model, prior, lazy, us[0])
 
 

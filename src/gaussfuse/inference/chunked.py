@@ -23,12 +23,14 @@ field.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import fields, is_dataclass
 
 import numpy as np
 
 from .. import kalman
+from .._validation import shape_error
 from . import drivers, timing
 
 __all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed"]
@@ -53,40 +55,24 @@ def observed_series(zs) -> np.ndarray:
     return np.asarray((~da.isnan(zs)).any(axis=(1, 2)).compute())
 
 
-def series_blocks(name: str, a, ndim: int = 3):
-    """A dask array (N, T, k), whole along every axis but the series axis: its blocks, one per chunk of series.
+def series_blocks(a):
+    """A dask array (N, T, k), checked by :func:`check_lazy`: its blocks, one per chunk of series, and their sizes.
 
-    Raises
-    ------
-    ValueError
-        When `a` is not 3-D; a chunked time or component axis is rejoined
-        (each chunk of series needs its whole series).
+    A chunked time or component axis is rejoined: each chunk of series needs its whole series.
     """
-    if a.ndim != ndim:
-        raise ValueError(f"`{name}` as a dask array must have a leading series axis, shape (N, T, k); "
-                         f"got shape {a.shape}.")
     if any(len(c) > 1 for c in a.chunks[1:]):
-        a = a.rechunk({axis: -1 for axis in range(1, ndim)})
+        a = a.rechunk({1: -1, 2: -1})
     return a.astype(np.float64).to_delayed().reshape(-1).tolist(), a.chunks[0]
 
 
 def chunked_like(us, zs):
-    """`us` as a dask array: as it is if it is one, else (an array in memory) chunked over series as `zs` is.
-
-    Raises
-    ------
-    ValueError
-        When `us` in memory is not (N, T, p) with the N and T of `zs`.
-    """
+    """`us` as a dask array: as it is if it is one, else (an array in memory, of the shape :func:`check_lazy`
+    checked) chunked over series as `zs` is."""
     if us is None or is_dask(us):
         return us
     import dask.array as da
 
-    us = np.asarray(us)
-    if us.ndim != 3 or us.shape[:2] != zs.shape[:2]:
-        raise ValueError(f"`us` must have shape (N, T, p) = ({zs.shape[0]}, {zs.shape[1]}, p), the series and steps of "
-                         f"`zs`; got {us.shape}.")
-    return da.from_array(us, chunks=(zs.chunks[0], -1, -1))
+    return da.from_array(np.asarray(us), chunks=(zs.chunks[0], -1, -1))
 
 
 def paired_blocks(zs, us) -> tuple[list, list, tuple]:
@@ -97,10 +83,10 @@ def paired_blocks(zs, us) -> tuple[list, list, tuple]:
     ValueError
         When `us` is not chunked over series as `zs` is.
     """
-    blocks, sizes = series_blocks("zs", zs)
+    blocks, sizes = series_blocks(zs)
     if us is None:
         return blocks, [None] * len(blocks), sizes
-    controls, control_sizes = series_blocks("us", chunked_like(us, zs))
+    controls, control_sizes = series_blocks(chunked_like(us, zs))
     if control_sizes != sizes:
         raise ValueError(f"`us` must be chunked over series as `zs` is; got chunks {control_sizes} and {sizes}.")
     return blocks, controls, sizes
@@ -119,7 +105,17 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         The other arguments of `run`. The result's structure is read from
         `run` on one series of zeros (readable path, no check), longer than
         n, m and p by more than one step, so that its time axes are told
-        apart from the model's.
+        apart from the model's; where the model's functions fail on zeros,
+        on the first series' own first steps (computed, and cycled to that
+        length).
+
+    Raises
+    ------
+    TypeError, ValueError
+        Before any chunk runs, when `zs` or `us` is not an array of numbers
+        of the shape the model needs (:func:`check_lazy`). An error of a
+        chunk's run, raised by ``compute``, names the series by its number
+        in the whole array.
 
     Returns
     -------
@@ -129,6 +125,7 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     import dask
     import dask.array as da
 
+    check_lazy(zs, us, kwargs.get("model"))
     blocks, controls, sizes = paired_blocks(zs, us)
     T = zs.shape[1]
 
@@ -138,11 +135,13 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     grid = None if times is None else timing.steps("times", times, T)
     start = None if times is None else float(timing.as_seconds("times", times)[0])
 
-    def meta(steps: int):
+    def meta(steps: int, own: bool = False):
         stepped = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
             np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
-        return run(zs=np.zeros((1, steps, zs.shape[2])), us=None if us is None else np.zeros((1, steps, us.shape[2])),
-                   **{**kwargs, "engine": "python", "check": "off", "times": stepped})
+        probes = [None if a is None else np.zeros((1, steps, a.shape[2])) if not own else
+                  np.resize(np.asarray(a[:1, :min(steps, T)].compute(), dtype=np.float64), (1, steps, a.shape[2]))
+                  for a in (zs, us)]
+        return run(zs=probes[0], us=probes[1], **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
     # A result's other axes are the model's n, m and p: an axis of the probe's length, or one less or more, is a
     # time axis. The probe is longer than the state dimension, so that a diffuse prior is identified (2 steps did
@@ -150,7 +149,10 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     probe = max(zs.shape[2], getattr(kwargs.get("model"), "n", 0), 0 if us is None else us.shape[2]) + 3
     if getattr(kwargs.get("model"), "steps", None) is not None:  # matrices per step: T steps, whose axes are T's
         probe = T
-    template = meta(probe)
+    try:
+        template = meta(probe)
+    except Exception:  # the model's f or h fail where zeros lead it (a square root of a level: audit BB3): the data's
+        template = meta(probe, own=True)  # own first steps lead it where the chunks will
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
              for first, block, control, size in zip(firsts, blocks, controls, sizes)]
@@ -177,17 +179,63 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     return build(template, ())
 
 
+def check_lazy(zs, us, model) -> None:
+    """Check the dtype and shape of a dask `zs` (N, T, m) and `us` (N, T, p), without computing them.
+
+    Their values are checked where each chunk runs.
+
+    Raises
+    ------
+    TypeError
+        When either is not an array of numbers.
+    ValueError
+        When `zs` is not (N, T, m) with the model's m, N >= 1 and T >= 1, or
+        `us` is not (N, T, p) with the N and T of `zs` (and the model's p,
+        when it has one).
+    """
+    for name, a in (("zs", zs), ("us", us)):
+        if a is not None and np.dtype(a.dtype).kind not in "iuf":
+            raise TypeError(f"`{name}` must be an array of real numbers; got a dask array of {a.dtype}.")
+    m = getattr(model, "m", None)
+    if zs.ndim != 3 or 0 in zs.shape[:2] or (isinstance(m, int) and zs.shape[2] != m):
+        raise shape_error("zs", f"(N, T, {m if isinstance(m, int) else 'm'}) with N >= 1 and T >= 1 (a dask "
+                          "array of N series)", zs.shape)
+    p = getattr(model, "p", None)
+    if us is not None and (np.ndim(us) != 3 or np.shape(us)[:2] != zs.shape[:2]
+                           or (isinstance(p, int) and p > 0 and np.shape(us)[2] != p)):
+        raise shape_error("us", f"(N, T, {p if isinstance(p, int) and p > 0 else 'p'}) = ({zs.shape[0]}, "
+                          f"{zs.shape[1]}, {p if isinstance(p, int) and p > 0 else 'p'}), the series and steps of "
+                          "`zs`", np.shape(us))
+
+
 def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwargs: dict, share: float = 1.0):
-    """`run` on one chunk of series; its divergence check names the series by their numbers in the whole array.
+    """`run` on one chunk of series; its errors and divergence check name the series by their numbers in the
+    whole array.
 
     The chunk's test spends its `share` of the series of the false-alarm rate, so that the call's is the one
     an in-memory call has (each chunk spending all of it made 1,000 one-series chunks warn in 2.6% of calls
     on consistent data, for 4.5e-6 in memory)."""
     check = kwargs.get("check", "warn")
-    result = run(zs=zs, us=us, **{**kwargs, "check": "off"})
+    try:
+        result = run(zs=zs, us=us, **{**kwargs, "check": "off"})
+    except (ValueError, TypeError, FloatingPointError) as err:  # (LinAlgError and ModelFunctionError are ValueErrors)
+        _renumber(err, first, zs.shape[0])
+        raise
     gate = kalman.Gate.of(kwargs.get("gate"), kwargs.get("gate_by", "measurement"))  # the gate's lost-track test too
     drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first, gate=gate, share=share)
     return result
+
+
+def _renumber(err: Exception, first: int, size: int) -> None:
+    """Name the series in `err`'s message by their numbers in the whole array, whose chunk of `size` starts at
+    `first`: "in series s" and "at index (s, ..." move by `first`; a message naming none gets the chunk's."""
+    if not err.args or not isinstance(err.args[0], str):
+        return
+    message = err.args[0]
+    renumbered = re.sub(r"\b(in series |at index \()(\d+)", lambda g: f"{g.group(1)}{int(g.group(2)) + first}", message)
+    if renumbered == message and not re.search(r"\b(in series |at index \()\d", message):
+        renumbered = f"in series {first}{'' if size == 1 else f' to {first + size - 1}'}, {message}"
+    err.args = (renumbered, *err.args[1:])
 
 
 def _field(result, path: tuple):
