@@ -1601,6 +1601,29 @@ def test_a_standard_output_whose_flush_fails_is_named(inputs, capsys, monkeypatc
     assert capsys.readouterr().err == "gaussfuse: error: writing the results to standard output: Input/output error\n"
 
 
+class _FullFolder(io.BytesIO):
+    """A temporary file in a folder that is full: every write fails as the disk's would."""
+
+    def write(self, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_a_full_temporary_folder_is_named_and_tmpdir_suggested(tmp_path, capsys, monkeypatch, smooth):
+    """With TMPDIR full, `filter` said "[Errno 28] No space left on device", as for a full output disk (audit
+    BB2): the two could not be told apart."""
+    out = tmp_path / "out.csv"
+    out.write_text("old")
+    monkeypatch.setattr(cli.tempfile, "TemporaryFile", lambda *a, **k: _FullFolder())  # the CLI's and the smoother's
+    code, stdout, err = run(capsys, "filter", EXAMPLES / "data" / "track.csv", "-m", EXAMPLES / "models" / "cv2d.toml",
+                            "--out", out, *(["--smooth"] if smooth else []))
+    assert (code, stdout) == (2, "")
+    import tempfile
+    assert err == (f"gaussfuse: error: {tempfile.gettempdir()}: No space left on device (in a temporary file of the "
+                   "work in progress; TMPDIR chooses another folder)\n")
+    assert out.read_text() == "old"
+
+
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
 @pytest.mark.parametrize("argv", [["filter", EXAMPLES / "data" / "track.csv", "-m", EXAMPLES / "models" / "cv2d.toml"],
                                   ["fit", EXAMPLES / "data" / "nile.csv", "-m",

@@ -407,6 +407,24 @@ def test_open_atomic_leaves_nothing_on_error(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
+def test_open_atomic_names_the_file_in_a_write_error_that_names_none(tmp_path):
+    """A full disk said "[Errno 28] No space left on device", naming no file (audit BB2)."""
+    path = tmp_path / "out.csv"
+    path.write_text("old")
+    with pytest.raises(OSError) as failed:
+        with open_atomic(path) as f:
+            f.write("new")
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert (failed.value.errno, failed.value.filename) == (errno.ENOSPC, str(path))
+    other = tmp_path / "input.csv"
+    with pytest.raises(FileNotFoundError) as named:  # one that names its own file keeps it
+        with open_atomic(path) as f:
+            open(other)
+    assert named.value.filename == str(other)
+    assert path.read_text() == "old"
+    assert sorted(os.listdir(tmp_path)) == ["out.csv"]
+
+
 def test_open_atomic_keeps_the_old_file_on_error(tmp_path):
     path = tmp_path / "out.txt"
     path.write_text("old")

@@ -32,7 +32,7 @@ import numpy as np
 
 from . import __version__, inference, learning, panels, plotting
 from . import io as gfio
-from .errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning
+from .errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, spooled
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference import streaming, timing
@@ -290,7 +290,7 @@ def _run_filter(args: argparse.Namespace) -> int:
                 gfio.write_estimates(text, piece.time_text, result.means, result.covs, spec.state_names,
                                      header=False)
                 starts.append(spool.tell())
-                spool.write(text.getvalue().encode("utf-8"))
+                spooled(spool.write, text.getvalue().encode("utf-8"))
                 if args.smooth:
                     progress.add("smoothed", piece.zs.shape[0])
                 if drawn is not None:
@@ -301,6 +301,7 @@ def _run_filter(args: argparse.Namespace) -> int:
             raise type(exc)(f"{args.data}: {exc}") from exc  # the data's series: name the file
         finally:
             progress.close()
+        spooled(spool.flush)  # (a full folder may show only here)
         steps.warn()
         spans = list(zip(starts, starts[1:] + [spool.tell()]))
         # Into a file, the CSV is written (to its temporary name) before the figure is saved, and appears
@@ -317,7 +318,7 @@ def _run_filter(args: argparse.Namespace) -> int:
             for start, stop in (reversed(spans) if args.smooth else spans):  # the smoother wrote the last first
                 spool.seek(start)
                 while start < stop:
-                    block = spool.read(min(stop - start, 2**24))
+                    block = spooled(spool.read, min(stop - start, 2**24))
                     out.write(block)
                     start += len(block)
             if args.out:

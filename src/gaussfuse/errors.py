@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import tempfile
+
 import numpy as np
 
 __all__ = ["ConvergenceWarning", "DivergenceWarning", "ModelFunctionError", "not_finite", "diverging", "STEP_ERRORS",
-           "at_step"]
+           "at_step", "spooled"]
 
 
 class ConvergenceWarning(UserWarning):
@@ -91,3 +93,21 @@ STEP_ERRORS = (np.linalg.LinAlgError, ModelFunctionError, FloatingPointError)
 def at_step(exc: Exception, k: int) -> Exception:
     """`exc` again, with the step it happened at in front of its message."""
     return type(exc)(f"at step {k}: {exc}")
+
+
+
+def spooled(call, *args, folder: str | None = None, **kwargs):
+    """``call(*args, **kwargs)``, a write or read of a temporary file in `folder` (default TMPDIR's), whose
+    OSError (a full disk) names the folder.
+
+    Python's says only "[Errno 28] No space left on device", which does not
+    tell a full temporary folder from a full output disk (audit BB2).
+    """
+    try:
+        return call(*args, **kwargs)
+    except OSError as exc:
+        if exc.filename is not None:
+            raise
+        where = tempfile.gettempdir() if folder is None else folder
+        raise type(exc)(exc.errno, f"{exc.strerror} (in a temporary file of the work in progress; TMPDIR chooses "
+                                   "another folder)", where) from None

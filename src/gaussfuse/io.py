@@ -1042,8 +1042,10 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
     ------
     OSError
         When `path` cannot be written (its directory is missing, it is a
-        directory, the user may not write it); the error names `path`, never
-        the temporary file.
+        directory, the user may not write it, the disk is full); the error
+        names `path`, never the temporary file. An OSError of the block
+        that names no file (a write to the file given) is given `path`'s
+        name.
     ValueError
         When `path` is a socket or a block device, or for an unknown `mode`.
     """
@@ -1094,7 +1096,12 @@ def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: 
                 os.fchown(fd, info.st_uid, info.st_gid)
             os.fchmod(fd, stat.S_IMODE(info.st_mode))
         f = open(fd, mode, closefd=False, **kwargs)
-        yield f
+        try:
+            yield f
+        except OSError as exc:  # a write of the block's (a full disk: audit BB2 found it named no file)
+            if exc.filename is not None:
+                raise
+            raise _naming(exc, path) from None
         try:
             f.close()
             closing, fd = fd, -1  # forgotten before it is closed: a descriptor is never closed twice

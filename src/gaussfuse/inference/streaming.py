@@ -42,7 +42,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from .. import diagnostics
-from ..errors import DivergenceWarning, ModelFunctionError, average_text
+from ..errors import DivergenceWarning, ModelFunctionError, average_text, spooled
 from ..gaussian import Gaussian
 from ..models import LinearModel
 from . import diffuse, drivers, timing
@@ -160,7 +160,8 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         for piece, result in filter_pieces(model, prior, chain(head, pieces), timed=timed, engine=engine,
                                            check=check):
             offsets.append(spool.tell())
-            pickle.dump((piece, belief, before, start, result.loglik), spool, protocol=pickle.HIGHEST_PROTOCOL)
+            spooled(pickle.dump, (piece, belief, before, start, result.loglik), spool, protocol=pickle.HIGHEST_PROTOCOL,
+                    folder=spool_dir)
             start += piece.zs.shape[0]
             belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
             before = piece.times[-1]
@@ -169,8 +170,8 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
                              "as one piece.")
         after = None  # the next piece and its smoothed result
         for offset in reversed(offsets):
-            spool.seek(offset)
-            piece, belief, before, start, loglik = pickle.load(spool)
+            spooled(spool.seek, offset, folder=spool_dir)  # (a full folder may show only here: it flushes)
+            piece, belief, before, start, loglik = spooled(pickle.load, spool, folder=spool_dir)
             zs, times, ending = piece.zs, piece.times, None
             if after is not None:  # one step more, whose smoothed belief the pass starts from
                 zs = np.concatenate([zs, after[0].zs[:1]])
