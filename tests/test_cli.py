@@ -429,7 +429,7 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
          r"model\.toml: \[model\] B: a control input is not supported by the command line yet"),
         (GOOD_CSV, GOOD_TOML + "[prior]\nmean = [0, 0]\n", [], r"model\.toml: \[prior\] mean: `mean` must have"),
         # the filter itself fails after reading: a zero innovation covariance
-        ("t,x\n1,0.5\n", EXPLICIT_1D + "[prior]\nvar = 0\n", [], r"step 0: .*not positive definite"),
+        ("t,x\n1,0.5\n", EXPLICIT_1D + "[prior]\nvar = 0\n", [], r"step 0 \(time 1\): .*not positive definite"),
         # the figure fails after the CSV was written to its temporary file
         (GOOD_CSV, GOOD_TOML, ["--plot", "{tmp}/fig.nope"], r"fig\.nope: unknown image format 'nope'"),
         (GOOD_CSV, GOOD_TOML, ["--plot", "{tmp}/nodir/fig.png"], r"nodir/fig\.png: No such file or directory"),
@@ -1036,7 +1036,7 @@ def test_an_overflow_is_one_line_and_exit_code_2(tmp_path, capsys):
     out = tmp_path / "out.csv"
     code, stdout, err = run(capsys, "filter", data, "--model", model, "--out", out)
     assert code == 2 and stdout == "" and not out.exists()
-    assert_one_line_error(err, r"at step \d+: the (predicted|filtered) mean.*not finite")
+    assert_one_line_error(err, r"at step (\d) \(time \1\): the (predicted|filtered) mean.*not finite")
 
 
 def test_library_words_are_the_commands_options():
@@ -1265,7 +1265,7 @@ def test_an_error_in_a_later_piece_leaves_no_output(tmp_path, capsys, monkeypatc
 
 @pytest.mark.parametrize("times, match", [
     ("0\n1e300\n2e300", r"a step of dt = 1e\+300 s is too long for ConstantVelocity"),
-    ("-1.7e308\n1.7e308\n1.75e308", r"`times` step 0 is longer than the largest float64"),
+    ("-1.7e308\n1.7e308\n1.75e308", r"`times` step 0 (\(time -1\.7e308\) )?is longer than the largest float64"),
 ])
 @pytest.mark.parametrize("command", ["filter", "fit"])
 def test_times_too_far_apart_are_one_line(tmp_path, capsys, command, times, match):
@@ -1299,7 +1299,8 @@ def test_an_error_in_a_later_piece_names_the_file_and_the_step_of_the_file(tmp_p
     for argv in ([], ["--smooth"]):
         code, stdout, err = run(capsys, "filter", data, "-m", model, *argv)
         assert code == 2 and stdout == ""
-        assert_one_line_error(err, rf"^gaussfuse: error: {re.escape(str(data))}: at step 22: the \w+ mean")
+        assert_one_line_error(err, rf"^gaussfuse: error: {re.escape(str(data))}: at step 22 "
+                                   rf"\(time {re.escape(lines[23].split(',')[0])}\): the \w+ mean")
 
 
 def _traced_peak(argv):
@@ -1599,6 +1600,19 @@ def test_a_standard_output_whose_flush_fails_is_named(inputs, capsys, monkeypatc
     code = main(["filter", str(data), "-m", str(model)])
     assert code == 2
     assert capsys.readouterr().err == "gaussfuse: error: writing the results to standard output: Input/output error\n"
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_an_error_at_a_step_names_its_time_as_written(tmp_path, capsys, smooth):
+    """"at step 1" was a 0-based count of the data's rows, which the user had to translate to a line (audit
+    BB2); the step's time cell finds it."""
+    data, toml = tmp_path / "si.csv", tmp_path / "si.toml"
+    data.write_text("t,z\n0,1\n1,2\n2,1.5\n")
+    toml.write_text("[model]\nF = [[1.0, 0.0], [0.0, 1.0]]\nH = [1.0, 0.0]\nQ = [[0.0, 0.0], [0.0, 0.0]]\nR = 0.0\n"
+                    "[prior]\ncov = [[1.0, 0.0], [0.0, 0.0]]\n")
+    code, stdout, err = run(capsys, "filter", data, "-m", toml, *(["--smooth"] if smooth else []))
+    assert (code, stdout) == (2, "")
+    assert err.startswith(f"gaussfuse: error: {data}: at step 1 (time 1): the innovation covariance S "), err
 
 
 class _FullFolder(io.BytesIO):

@@ -6,6 +6,7 @@ processes started here (`--scheduler`), and once on a local cluster of their
 own (`--workers`).
 """
 
+import io
 import os
 import re
 import warnings
@@ -15,6 +16,7 @@ import pytest
 
 import gaussfuse as gf
 from gaussfuse import io as gfio, panels
+from gaussfuse import cli
 from gaussfuse.cli import main
 
 pd = pytest.importorskip("pandas")
@@ -102,6 +104,26 @@ def test_filter_csv_partitions_with_explicit_matrices_on_a_cluster_of_its_own(tm
     for name, (t, x) in series.items():  # explicit matrices: every row one step; series padded in the batch
         want = gf.filter(spec.model, spec.prior, x, engine="numba", check="off")
         np.testing.assert_array_equal(got[got.unit == name][["x0", "x1"]].to_numpy(), want.means)
+
+
+def test_progress_on_a_terminal_counts_partitions(tmp_path, capsys, monkeypatch, scheduler):
+    """It said "partitions: 1 rows", "partitions: 2 rows" (audit BB3)."""
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    shown = Terminal()
+    made = cli._RowProgress
+    monkeypatch.setattr(cli, "_RowProgress", lambda stream=None, **kw: made(shown, **kw))
+    data = tmp_path / "data"
+    dataset(data, kind="csv", seed=1)
+    (tmp_path / "m.toml").write_text(EXPLICIT)
+    code, _, err = run(capsys, "filter", data, "-m", tmp_path / "m.toml", "--series-column", "unit", "--columns", "x",
+                       "--out", tmp_path / "out", "--scheduler", scheduler, "--check", "off")
+    assert code == 0, err
+    parts = len(list(data.rglob("*.csv")))
+    assert parts > 1
+    assert shown.getvalue() == "".join(f"\rdone: {k} of {parts} partitions" for k in range(1, parts + 1)) + "\n"
 
 
 @pytest.mark.parametrize("smooth", [False, True])

@@ -358,11 +358,11 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
                                  smooth=args.smooth, time_column=args.time_column, columns=columns,
                                  engine=args.engine, check=args.check, pure=False)
                    for part, temp in zip(parts, temps)]
-        progress = _RowProgress()
+        progress = _RowProgress(unit=f"of {len(parts):,} partitions")  # (it said "partitions: 2 rows": audit BB3)
         try:
             for future in distributed.as_completed(futures):
                 future.result()  # a partition's error stops the command here
-                progress.add("partitions", 1)
+                progress.add("done", 1)
         except Exception:
             distributed.wait(futures)  # the partitions still running finish first: none writes after the cleanup
             raise
@@ -534,10 +534,11 @@ def _is_number(text: str) -> bool:
 
 
 class _RowProgress:
-    """Rows done, on one line of stderr, when stderr is a terminal: ``filtered: 1,234,567 rows``."""
+    """Rows (or other `unit`s) done, on one line of stderr, when stderr is a terminal: ``filtered: 1,234,567 rows``."""
 
-    def __init__(self, stream=None) -> None:
+    def __init__(self, stream=None, unit: str = "rows") -> None:
         self.done: dict[str, int] = {}
+        self.unit = unit
         self.stream = stream if stream is not None else sys.stderr
         self.live = self.stream is not None and self.stream.isatty()
 
@@ -550,7 +551,7 @@ class _RowProgress:
     def add(self, what: str, rows: int) -> None:
         self.done[what] = self.done.get(what, 0) + rows
         if self.live:
-            self.stream.write("\r" + ", ".join(f"{name}: {n:,} rows" for name, n in self.done.items()))
+            self.stream.write("\r" + ", ".join(f"{name}: {n:,} {self.unit}" for name, n in self.done.items()))
             self.stream.flush()
 
     def close(self) -> None:

@@ -230,6 +230,41 @@ def test_an_empty_piece_is_named(track, run):
         list(run(model, prior, pieces, timed=True, engine="python", check="off"))
 
 
+@pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
+def test_a_piece_of_the_wrong_shape_is_named(track, run):
+    """A (1, T_c, m) piece gave one row of its T_c, and the others' errors named neither the piece nor what was
+    given (audit BB3)."""
+    model, prior, zs, times = track
+    for k, wrong, message in [
+            (0, SimpleNamespace(zs=zs[None, :40], times=times[:40]), r"`zs` must have shape \(T_c, 2\); got shape "
+                                                                      r"\(1, 40, 2\)"),
+            (2, SimpleNamespace(zs=np.ones((40, 3)), times=times[80:120]), r"`zs` must have shape \(T_c, 2\); got "
+                                                                           r"shape \(40, 3\)"),
+            (2, SimpleNamespace(zs=zs[80:120], times=times[80:82]), r"`times` must have shape \(40,\), one a row "
+                                                                    r"of its `zs`; got shape \(2,\)")]:
+        pieces = cut(zs, times, 40)
+        pieces[k] = wrong
+        with pytest.raises(ValueError, match=rf"^piece {k} of the series: {message}\.$"):
+            list(run(model, prior, pieces, timed=True, engine="python", check="off"))
+
+
+@pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
+def test_an_error_names_the_time_as_written_when_the_pieces_have_it(track, run):
+    """A file's pieces carry their time cells: an error names the step's, which finds its row (audit BB2: a
+    0-based step did not); a time out of order names the step of the whole series (it named the piece's)."""
+    model, prior, zs, times = track
+    zs = zs.copy()
+    zs[130, 1] = 1e300
+    pieces = [SimpleNamespace(**vars(p), time_text=[f"t{i}" for i in range(40 * c, 40 * c + len(p.zs))])
+              for c, p in enumerate(cut(zs, times, 40))]
+    with pytest.raises(FloatingPointError, match=r"^at step 130 \(time t130\): the filtered mean"):
+        list(run(model, prior, pieces, timed=True, engine="python", check="off"))
+    late = cut(zs, times, 40)
+    late[1].times = late[1].times - 100.0
+    with pytest.raises(ValueError, match=r"^`times` must be strictly increasing; step 40 has dt = "):
+        list(run(model, prior, late, timed=True, engine="python", check="off"))
+
+
 def test_bad_check():
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="`check` must be one of"):

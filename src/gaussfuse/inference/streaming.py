@@ -53,7 +53,12 @@ __all__ = ["Piece", "filter_pieces", "smooth_pieces"]
 
 
 class Piece(Protocol):
-    """What a piece of a series has: its measurements and their times (seconds)."""
+    """What a piece of a series has: its measurements and their times (seconds).
+
+    A piece may also have ``time_text``, its times as written (as
+    :class:`gaussfuse.io.Measurements` has): an error at a step then names
+    that step's time as written.
+    """
 
     zs: np.ndarray
     times: np.ndarray
@@ -102,22 +107,22 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     belief, before, start = prior, None, 0
     pending = []  # a diffuse prior's pieces so far, none of which has identified the state
     for k, (piece, engine_k) in enumerate(_engines(pieces, engine)):
-        if np.shape(piece.zs)[0] == 0:  # the filter's "`zs` must have T >= 1" named neither the piece nor the step
-            raise ValueError(f"piece {k} of the series has no rows; every piece needs at least one.")
+        _check_piece(piece, k, model.m, timed)
         if isinstance(belief, str):
             pending.append(piece)
             if np.isnan(piece.zs).all():
                 continue  # nothing observed: it cannot identify anything
-            group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]))
+            group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]),
+                            _texts(pending))
             try:
-                with _steps_from(start):
+                with _located(start, group):
                     result = first(_run(model, belief, group.zs, _times(group, before, timed), engine_k,
                                         ending=None, smooth=False))
             except diffuse.NotIdentified:
                 continue
             done, pending = pending, []
         else:
-            with _steps_from(start):
+            with _located(start, piece):
                 result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
                                     smooth=False))
             done = [piece]
@@ -130,7 +135,7 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
             offset += T
         before, start = done[-1].times[-1], start + offset
     if pending:  # the whole series never identifies the state: the error of one run over it
-        group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]))
+        group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]), None)
         _run(model, belief, group.zs, _times(group, before, timed), "auto", ending=None, smooth=False)
     monitor.finish()
 
@@ -172,12 +177,13 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         for offset in reversed(offsets):
             spooled(spool.seek, offset, folder=spool_dir)  # (a full folder may show only here: it flushes)
             piece, belief, before, start, loglik = spooled(pickle.load, spool, folder=spool_dir)
-            zs, times, ending = piece.zs, piece.times, None
+            zs, times, ending, rows = piece.zs, piece.times, None, piece
             if after is not None:  # one step more, whose smoothed belief the pass starts from
                 zs = np.concatenate([zs, after[0].zs[:1]])
                 times = np.concatenate([times, after[0].times[:1]])
                 ending = Gaussian._trusted(after[1].means[0], after[1].covs[0])
-            with _steps_from(start):
+                rows = _Joined(zs, times, _texts([piece, after[0]]))
+            with _located(start, rows):
                 result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending,
                                     smooth=True))
             if after is not None:
@@ -186,18 +192,47 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
             yield piece, result
 
 
+def _check_piece(piece: Piece, k: int, m: int, timed: bool) -> None:
+    """A piece's `zs` is (T_c, m) (or (T_c,) when m = 1) with T_c >= 1, and its `times` (T_c,) when they are used.
+
+    The filter's own messages named neither the piece nor its shapes, and a
+    (1, T_c, m) `zs` gave one row of T_c (audit BB3).
+    """
+    shape = np.shape(piece.zs)
+    if len(shape) not in (1, 2) or (len(shape) == 1 and m != 1) or (len(shape) == 2 and shape[1] != m):
+        raise ValueError(f"piece {k} of the series: `zs` must have shape (T_c, {m}){' or (T_c,)' if m == 1 else ''}; "
+                         f"got shape {shape}.")
+    if shape[0] == 0:  # the filter's "`zs` must have T >= 1" named neither the piece nor the step
+        raise ValueError(f"piece {k} of the series has no rows; every piece needs at least one.")
+    if timed and np.shape(piece.times) != shape[:1]:
+        raise ValueError(f"piece {k} of the series: `times` must have shape ({shape[0]},), one a row of its `zs`; "
+                         f"got shape {np.shape(piece.times)}.")
+
+
 @contextmanager
-def _steps_from(start: int):
-    """An error of one piece's run names the step of the whole series: its step in the piece plus `start`."""
+def _located(start: int, rows):
+    """An error of one run over `rows` (a piece, or pieces joined) names the step of the whole series, its step
+    in the run plus `start` (as :func:`gaussfuse.filter` on the whole series does); and, when the rows have
+    ``time_text`` (a file's, :class:`gaussfuse.io.Measurements`), that step's time as written, which finds its
+    row in the file (audit BB2: a 0-based step did not)."""
     try:
         yield
     except (ValueError, FloatingPointError) as err:  # (a LinAlgError is a ValueError)
-        message = str(err)
-        renumbered = re.sub(r"\bat step (\d+)", lambda m: f"at step {int(m.group(1)) + start}", message, count=1)
-        if start == 0 or renumbered == message or type(err) not in (ValueError, FloatingPointError,
-                                                                     np.linalg.LinAlgError, ModelFunctionError):
+        if type(err) not in (ValueError, FloatingPointError, np.linalg.LinAlgError, ModelFunctionError):
             raise
-        raise type(err)(renumbered) from err
+        texts = getattr(rows, "time_text", None)
+
+        def where(found: re.Match) -> str:
+            j = int(found.group(2))
+            if texts is not None and j < len(texts):
+                return f"{found.group(1)}{j + start} (time {texts[j]})"
+            return f"{found.group(1)}{j + start}"
+
+        message = str(err)
+        located = re.sub(r"\b(at step |step )(\d+)\b", where, message, count=1)
+        if located == message:
+            raise
+        raise type(err)(located) from err
 
 
 def _engines(pieces: Iterable[Piece], engine: str) -> Iterator[tuple[Piece, str]]:
@@ -252,10 +287,17 @@ def _head(result, T: int, loglik: float):
 
 
 class _Joined(NamedTuple):
-    """Consecutive pieces as one (a diffuse prior's first pieces)."""
+    """Consecutive pieces as one (a diffuse prior's first pieces; a piece and the next one's first row)."""
 
     zs: np.ndarray
     times: np.ndarray
+    time_text: list | None
+
+
+def _texts(pieces: list) -> list | None:
+    """The time cells as written of consecutive `pieces` (the last may count only its first), if they have them."""
+    texts = [getattr(p, "time_text", None) for p in pieces]
+    return None if any(t is None for t in texts) else [cell for t in texts for cell in t]
 
 
 def _rows(result: FilterResult, a: int, b: int, last: bool) -> FilterResult:
