@@ -330,6 +330,84 @@ def test_white_noise_chains_keep_entries_whose_factors_overflow_or_underflow(ord
         assert Q[i, j] == pytest.approx(float(exact), rel=1e-12, abs=0.0), (i, j)
 
 
+@pytest.mark.parametrize("fn", [continuous_white_noise, piecewise_white_noise])
+def test_white_noise_entries_are_correct_to_a_few_ulps_at_any_scale_and_exactly_symmetric(fn):
+    """Entries rescued from an overflowing or underflowing factor were exp(log) of them, off by 1e-13 at
+    q = 1e300 (about 2,000 ulps); order 22 was not symmetric by an ulp; q = 0 over a long step was NaN, "a step
+    too long" (audit BB1). Against exact rationals, every entry of a grid of orders, steps and intensities."""
+    from fractions import Fraction
+
+    rng = np.random.default_rng(5)
+    tiny = np.finfo(np.float64).tiny
+    worst = 0.0
+    for order in (0, 1, 2, 3, 7, 22, 60, 98, 170):
+        for dt in (1e-100, 2.5e-8, 0.1, 1.0, 3.7, 1e4, 1e50):
+            for q in (1e-300, 0.37, 1.0, 1e100, 1e300):
+                dt_ = dt * (1.0 + 0.1 * rng.random())
+                with contextlib.suppress(ValueError):  # a Q past 1e308: refused, as a step too long
+                    Q = fn(order, dt_, q)
+                    assert np.array_equal(Q, Q.T), (order, dt_, q)
+                    for i, j in {(0, 0), (0, order), (order // 2, order), (order, order)}:
+                        if fn is continuous_white_noise:
+                            p = 2 * order + 1 - i - j
+                            exact = Fraction(q) * Fraction(dt_) ** p / (p * factorial(order - i) * factorial(order - j))
+                        else:
+                            gi, gj = (Fraction(dt_) ** (order + 1 - k) / factorial(order + 1 - k) for k in (i, j))
+                            exact = Fraction(q) * gi * gj
+                        if exact >= Fraction(tiny) and exact < Fraction(1e308):  # (subnormal results: below)
+                            worst = max(worst, abs(float((Fraction(Q[i, j]) - exact) / exact)))
+                        elif exact < Fraction(tiny):
+                            assert abs(Fraction(Q[i, j]) - exact) <= Fraction(5e-324) * 4, (order, dt_, q, i, j)
+    assert worst < 1e-15, worst  # (it was 1.6e-13)
+    assert np.array_equal(fn(2, 1e100, 0.0), np.zeros((3, 3)))
+
+
+def _van_loan_in_digits(A, W, dt, digits=100):
+    """F and Q of van_loan's block exponential in `digits` significant digits (mpmath), rounded to float64."""
+    import mpmath as mp
+
+    n = A.shape[0]
+    with mp.workdps(digits):
+        M = mp.matrix(2 * n, 2 * n)
+        for i in range(n):
+            for j in range(n):
+                M[i, j] = -mp.mpf(A[i, j]) * dt
+                M[i, n + j] = mp.mpf(W[i, j]) * dt
+                M[n + i, n + j] = mp.mpf(A[j, i]) * dt
+        E = mp.expm(M)
+        Phi = mp.matrix([[E[n + j, n + i] for j in range(n)] for i in range(n)])
+        G = mp.matrix([[E[i, n + j] for j in range(n)] for i in range(n)])
+        Q = Phi * G
+        return (np.array([[float(Phi[i, j]) for j in range(n)] for i in range(n)]),
+                np.array([[float(Q[i, j]) for j in range(n)] for i in range(n)]))
+
+
+@pytest.mark.parametrize("A, W, dt, was", [
+    (np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1e-9]]), np.diag([0.0, 0.0, 2e-9]), 1e9, 7.4e-9),
+    (np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1e-4]]), np.diag([0.0, 0.0, 2e-4]), 1e4, 1.2e-12),
+    (np.array([[-1e-3, 1e6], [0.0, -2e-3]]), np.eye(2), 1e3, 1.5e-8),
+    (np.array([[0.0, 1e3], [-4e-3, -0.1]]), np.diag([0.0, 1.0]), 10.0, 1.7e-12),
+], ids=["singer-1e9", "singer-1e4", "triangular-mixed-units", "oscillator-mixed-units"])
+def test_a_coupling_is_not_a_rate(A, W, dt, was):
+    """The halvings were set by ||A||_1, which counts a coupling (an integrator's 1, a change of units) as a rate:
+    Singer's model at tau = dt = 1e9 s was 7.4e-9 off in F and Q after 31 squarings (audit BB1). Al-Mohy and
+    Higham's alpha (powers of A) leaves it to the rates. Against a 100-digit block exponential, entry by entry."""
+    F, Q = van_loan(A, np.eye(A.shape[0]), W, dt)
+    F_exact, Q_exact = _van_loan_in_digits(A, W, dt)
+    worst = max(np.max(np.abs(got - exact)[exact != 0] / np.abs(exact[exact != 0]))
+                for got, exact in ((F, F_exact), (Q, Q_exact)))
+    assert worst < 5e-14, (worst, was)
+
+
+def test_a_stiff_drift_loses_its_slow_mode_as_documented():
+    """van_loan's Notes: rates 1e9 and 1e-3 over 1e4 s leave the slow mode's F 4.5e-8 off; rates 1e12 and 1e-4
+    over 1e5 s lose it (F = 1 for 4.5e-5, Q = 1e5 for 5000). A rate is a rate: alpha is the fastest one here."""
+    F = van_loan(np.diag([-1e9, -1e-3]), np.eye(2), np.eye(2), 1e4)[0]
+    assert abs(F[1, 1] / np.exp(-10.0) - 1) == pytest.approx(4.5e-8, rel=0.01)
+    F, Q = van_loan(np.diag([-1e12, -1e-4]), np.eye(2), np.eye(2), 1e5)
+    assert (F[1, 1], Q[1, 1]) == (1.0, 1e5)
+
+
 def test_piecewise_noise_keeps_entries_whose_g_g_t_underflows():
     """g gᵀ = (dt³/6)² underflowed before var = 1e100 scaled it: 0 for 2.8e-262 (audit S); g itself underflowed
     (dt = 1e-100), or overflowed before a tiny var scaled it (dt = 1e100, var = 1e-300: a "step too long" for an

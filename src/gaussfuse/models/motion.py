@@ -535,7 +535,8 @@ class Singer(LinearMotion):
         \begin{bmatrix} 0 \\ 0 \\ 1 \end{bmatrix} d\beta, \qquad
         E[d\beta^2] = \frac{2\sigma^2}{\tau} dt,
 
-    discretised exactly by :func:`~gaussfuse.models.noise.van_loan` [1]_:
+    discretised exactly (to round-off: 2.5e-14 at :math:`\tau = \Delta t` =
+    1e9 s) by :func:`~gaussfuse.models.noise.van_loan` [1]_:
     :math:`F = e^{A\Delta t}` has
     :math:`F_{02} = \tau^2 (e^{-\Delta t/\tau} - 1 + \Delta t/\tau)`,
     :math:`F_{12} = \tau (1 - e^{-\Delta t/\tau})`,
@@ -801,7 +802,7 @@ class LocalLinearTrend(LinearMotion):
 
 
 class LinearSDE(LinearMotion):
-    r"""Any linear time-invariant SDE :math:`dx = A x\,dt + L\,d\beta`, discretised exactly.
+    r"""Any linear time-invariant SDE :math:`dx = A x\,dt + L\,d\beta`, discretised exactly (to round-off).
 
     Parameters
     ----------
@@ -819,7 +820,9 @@ class LinearSDE(LinearMotion):
     -----
     ``transition(dt)`` is :func:`~gaussfuse.models.noise.van_loan`:
     :math:`F = e^{A\Delta t}`,
-    :math:`Q = \int_0^{\Delta t} e^{As} L Q_c L^T e^{A^Ts} ds`.
+    :math:`Q = \int_0^{\Delta t} e^{As} L Q_c L^T e^{A^Ts} ds`, each entry
+    to its own round-off for a drift that is not stiff; a stiff one's slow
+    modes lose digits (see van_loan's Notes for figures).
 
     Examples
     --------
