@@ -185,6 +185,22 @@ def test_as_matrix_errors(value, args, kwargs, match):
         as_matrix("M", value, *args, **kwargs)
 
 
+def test_a_variance_rounded_to_zero_among_subnormals_is_round_off():
+    """A motion's own Q at q = 1e-300 was refused when it built a model (naming `Q`, which the user never gave):
+    c_00 = 3.3e-325 rounds to 0 beside c_01 = 5e-317, and a subnormal variance of 2.8e-320 carries a relative
+    round-off of 1e-4 (audit BB1). The spacing of subnormals, 2**-1074, is an entry's least round-off."""
+    for motion, dt in ((gf.ConstantVelocity(q=1e-300), 1e-8), (gf.ConstantAcceleration(q=1e-300), 1e-8),
+                       (gf.ConstantAcceleration(q=1e-300, noise="piecewise"), 1e-3)):
+        Q = motion.transition(dt)[1]
+        np.testing.assert_array_equal(check_psd("Q", Q), Q)
+        assert np.array_equal(gf.model(motion, gf.Position(), dt).Q, Q)
+    # what is past that round-off is still refused, at every scale
+    for wrong in ([[1e-320, 2e-320], [2e-320, 1e-320]], [[-1e-320]], [[1e-310, 0.0], [0.0, -1e-318]],
+                  [[0.0, 1e-200], [1e-200, 1e-300]], [[1e10, 0.0], [0.0, -0.5]]):
+        with pytest.raises(ValueError, match="`Q` must be positive semi-definite"):
+            check_psd("Q", np.array(wrong))
+
+
 def test_check_psd():
     sym = check_psd("P", np.array([[1.0, 0.5 + 1e-12], [0.5, 1.0]]))
     np.testing.assert_array_equal(sym, sym.T)

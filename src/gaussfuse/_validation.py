@@ -207,9 +207,13 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     \epsilon` of it: a zero variance computed as -1e-20, say) is judged on
     the largest entry's scale instead, and its covariances must still obey
     :math:`|c_{ij}| \le \sqrt{c_{ii} c_{jj}}` to the round-off that scale
-    leaves.
+    leaves. An entry's round-off is at least the spacing of the subnormal
+    floats, 2**-1074, which a variance of that size may have lost
+    entirely: a motion's Q at q = 1e-300 over 1e-8 s has c_00 = 3.3e-325,
+    rounded to 0, beside c_01 = 5e-317 (audit BB1).
     """
     n = cov.shape[-1]
+    u = 2.0**-1074
     top = np.max(np.abs(cov), axis=(-2, -1))[..., None]
     top = np.where(top > 0, top, 1.0)
     diag = np.abs(np.diagonal(cov, axis1=-2, axis2=-1))
@@ -224,7 +228,7 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     # averaged halves first, so that entries near the largest float do not overflow.
     cov_t = np.swapaxes(cov, -1, -2)
     sym = np.where(cov == cov_t, cov, 0.5 * cov + 0.5 * cov_t)
-    low = np.linalg.eigvalsh(0.5 * K + 0.5 * K_t)[..., 0] < -rtol
+    low = np.linalg.eigvalsh(0.5 * K + 0.5 * K_t)[..., 0] < -(rtol + n * u / np.min(s, axis=-1) ** 2)
     if np.any(low):
         where = _where(np.argwhere(np.atleast_1d(low))[0], cov.ndim) if cov.ndim > 2 else ""
         eig = float(np.min(np.linalg.eigvalsh(sym)))
@@ -236,7 +240,8 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     # ε √(c_max) √(c_jj).
     d = marginal_std(sym)
     slack = 8 * n * np.finfo(np.float64).eps * np.sqrt(top[..., None]) * np.maximum(d[..., :, None], d[..., None, :])
-    wide = (np.abs(sym) > d[..., :, None] * d[..., None, :] * (1.0 + rtol) + slack) & ~np.eye(n, dtype=bool)
+    e = np.sqrt(np.maximum(np.diagonal(sym, axis1=-2, axis2=-1), 0.0) + u)  # d, but for a variance rounded to 0
+    wide = (np.abs(sym) > e[..., :, None] * e[..., None, :] * (1.0 + rtol) + slack) & ~np.eye(n, dtype=bool)
     if wide.any():
         at = np.argwhere(wide)[0]
         i, j = int(at[-2]), int(at[-1])
