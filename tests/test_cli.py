@@ -516,8 +516,11 @@ def test_fit_em_to_stdout_with_structure(tmp_path, capsys, series):
     assert code == cli.NOT_CONVERGED == 3
     assert err.splitlines()[-1].startswith("gaussfuse: warning: EM did not converge: stopped at the limit of 5 ")
     assert "Warning" not in err  # no Python warning text, no traceback
-    code, _, err = run(capsys, "fit", data, "--model", toml, "--learn", "Q,R", "--iterations", "5", "--tol", "0")
+    code, stdout, err = run(capsys, "fit", data, "--model", toml, "--learn", "Q,R", "--iterations", "5", "--tol", "0")
     assert code == 0 and "gaussfuse: warning" not in err  # tol=0: exactly the iterations asked
+    # ... which the summary says, rather than "NOT converged" with no warning and exit status 0 (audit BB2)
+    assert "\n# gaussfuse fit: EM, ran the 5 iterations asked for (--tol 0 tests no convergence)\n" in stdout
+    assert err.startswith("em: ran the 5 iterations asked for (--tol 0 tests no convergence); log-likelihood "), err
 
 
 def test_fit_time_column_and_columns(tmp_path, capsys):

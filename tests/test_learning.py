@@ -189,6 +189,8 @@ def test_em_never_lowers_the_likelihood(seed, n, m, learn, missing, controls, di
     if diffuse and m < n:
         prior = gf.Gaussian(np.zeros(n), np.eye(n))
     res = gf.fit(model, prior, zs, us, learn=learn, iterations=12, tol=0.0)
+    assert (res.converged, res.message) == (False, "ran the 12 iterations asked for (tol=0 tests no convergence)")
+    assert res.summary().startswith("gaussfuse fit: EM, ran the 12 iterations asked for (tol=0 tests no convergence)\n")
     steps = np.diff(res.history)
     assert np.all(steps >= -1e-8 * (1 + abs(res.history[-1]))), (learn, res.history)
     assert len(res.history) == 13

@@ -796,7 +796,7 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
     comments = [f"fitted by gaussfuse {__version__}: gaussfuse fit {os.path.basename(args.data)} "
                 f"--learn {','.join(learn)} --method {args.method}",
                 f"log-likelihood {res.loglik!r} after {len(res.history) - 1} iterations; {_options(res.message)}",
-                *res.summary().splitlines()]
+                *map(_options, res.summary().splitlines())]
     if args.out:
         with gfio.open_atomic(args.out, "w", encoding="utf-8") as out:
             gfio.write_model(out, res.model, res.prior, spec.state_names, comments)
@@ -1118,6 +1118,7 @@ def _message(exc: Exception) -> str:
 _OPTION_WORDS = [(re.compile(pattern), replacement) for pattern, replacement in (
     (r"`(learn|structure|iterations|tol|check|engine)`", r"--\1"),
     (r"\b(method|check|engine)='(\w+)'", r"--\1 \2"),
+    (r"\btol=0\b", r"--tol 0"),
     (r"`?structure=\{'(\w+)': '(\w+)'\}`?", r"--structure \1=\2"),
 )]
 

@@ -252,7 +252,8 @@ class FitResult:
         R                  15098.5       3145.5       8933.4      21263.7
         """
         how = {"em": "EM", "mle": "maximum likelihood"}[self.method]
-        state = "converged" if self.converged else f"NOT converged ({self.message})"
+        state = "converged" if self.converged else self.message if self.message.startswith("ran the ") else \
+            f"NOT converged ({self.message})"
         k = self._diffuse_states
         after = f" (with {k} diffuse state{'s' * (k > 1)})" if k else ""
         lines = [f"gaussfuse fit: {how}, {state}",
@@ -1948,6 +1949,8 @@ def fit(
     _check_fitted(model, prior, history, values)
     # (EM with tol=0 runs the iterations asked for: reaching the limit is no news, but a stop before it is)
     limit = method == "em" and tol == 0 and message.startswith("stopped at the limit")
+    if limit:  # (its summary said "NOT converged" of a fit that tested nothing: audit BB2)
+        message = f"ran the {iterations} iterations asked for (tol=0 tests no convergence)"
     if not converged and not message.startswith("interrupted") and not limit:
         how = "EM" if method == "em" else "maximum likelihood"
         warnings.warn(ConvergenceWarning(
