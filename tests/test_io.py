@@ -4,6 +4,7 @@ import doctest
 import errno
 import io as stdio
 import os
+import re
 import socket
 import stat
 import subprocess
@@ -299,10 +300,6 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
                                                                             r"numbers; got booleans\."),
         (EXPLICIT + '[prior]\nmean = ["1", "2"]\n', r"\[prior\] mean: `mean` must be an array of numbers; got strings"),
         ("prior = 1\n" + EXPLICIT, r"m\.toml: `prior` must be a table"),
-        # the motion without its dt is checked at a step of 1 s, where this q's subnormal Q is not PSD: a bare
-        # ValueError named neither the file nor the key
-        ('[model]\nkind = "constant_velocity"\ndt = 0.5\nq = 5e-324\nr = 1.0\n',
-         r"m\.toml: \[model\] q: `Q` must be positive semi-definite"),
     ],
 )
 def test_read_model_errors(tmp_path, text, match):
@@ -700,6 +697,63 @@ def test_write_model_escapes_what_toml_cannot_hold_raw(tmp_path, names, comments
     lines = path.read_text(encoding="utf-8").split("\n")
     assert len(lines) == len(comments) + 11  # [model], F, H, Q, R, states, "", [prior], mean, cov, ""
     assert all(line.startswith("# ") for line in lines[:len(comments)])
+
+
+def test_write_model_refuses_what_would_not_read_back_before_writing():
+    """A prior of "gaussian" was written as diffuse, a prior of another dimension and names x, x_sd were written
+    for read_model to refuse, and prior=None raised AttributeError after [model] was written (audit BB2)."""
+    model = gf.LinearModel(np.eye(2), [[1.0, 0.0]], np.eye(2), 1.0)
+    for prior, names, error, match in [
+            ("gaussian", ["a", "b"], TypeError, r"^`prior` must be a gaussfuse\.Gaussian\(mean, cov\) or 'diffuse'; "
+                                                r"got 'gaussian'\.$"),
+            (None, ["a", "b"], TypeError, r"^`prior` must be .*; got NoneType\.$"),
+            (gf.Gaussian(np.zeros(3), np.eye(3)), ["a", "b"], ValueError, r"^`prior` must have dimension 2"),
+            ("diffuse", ["x", "x_sd"], ValueError, r"^`names` must not hold a name with '_sd' after another")]:
+        out = stdio.StringIO()
+        with pytest.raises(error, match=match):
+            gaussfuse.io.write_model(out, model, prior, names)
+        assert out.getvalue() == ""
+    with pytest.raises(TypeError, match=r"^`model` must be a gaussfuse\.LinearModel; got str\.$"):
+        gaussfuse.io.write_model(stdio.StringIO(), "model", "diffuse", ["a", "b"])
+
+
+def test_read_measurements_checks_m(tmp_path):
+    """m = "1" was reported as the file's fault: "found 1 measurement column(s) ... but the model measures m = 1"
+    (audit BB2)."""
+    path = tmp_path / "d.csv"
+    path.write_text("t,z\n0,1\n1,2\n")
+    for m, error in (("1", TypeError), (1.5, TypeError), (True, TypeError), (0, ValueError), (-1, ValueError)):
+        with pytest.raises(error, match=rf"^`m` must be a positive integer; got {re.escape(repr(m))}\.$"):
+            read_measurements(path, m=m)
+    assert read_measurements(path, m=np.int64(1)).zs.shape == (2, 1)
+
+
+def test_write_estimates_checks_its_arguments_before_writing():
+    """Times mixing strings and numbers, complex means and a str of state names gave NumPy's messages or wrote
+    the letters as columns (audit BB2)."""
+    for args, error, match in [
+            ((["a", 1.0], [[1.0], [2.0]], [[[1.0]]] * 2, ["s"]), TypeError, r"^`times` must be an array of numbers"),
+            (([0.0], [[1 + 2j]], [[[1.0]]], ["s"]), TypeError, r"^`means` must be real"),
+            (([0.0], [[np.inf]], [[[1.0]]], ["s"]), ValueError, r"^`means` must be finite"),
+            (([0.0, 1.0], np.ones((2, 2)), np.tile(np.eye(2), (2, 1, 1)), "xy"), TypeError,
+             r"^`state_names` must be a sequence of 2 strings; got 'xy'\.$")]:
+        out = stdio.StringIO()
+        with pytest.raises(error, match=match):
+            write_estimates(out, *args)
+        assert out.getvalue() == ""
+    out = stdio.StringIO()  # a negative variance is the round-off of 0
+    write_estimates(out, [0.0], [[1.0]], [[[-1e-18]]], np.array(["s"]))
+    assert out.getvalue() == "t,s,std_s\n0.0,1.0,0.0\n"
+
+
+def test_a_subnormal_noise_intensity_reads(tmp_path):
+    """q = 5e-324 was refused ("`Q` must be positive semi-definite", named [model] q): its Q at the 1 s step the
+    motion is checked at had a covariance rounded up beside variances rounded down. Each entry is now rounded once
+    from its exact value (audit BB1): at dt = 0.5 every one is below half the least subnormal, so Q is 0."""
+    path = tmp_path / "m.toml"
+    path.write_text('[model]\nkind = "constant_velocity"\ndt = 0.5\nq = 5e-324\nr = 1.0\n')
+    assert np.array_equal(read_model(path).model.Q, np.zeros((2, 2)))
+    assert np.array_equal(gf.ConstantVelocity(q=5e-324).transition(1.0)[1], [[0.0, 0.0], [0.0, 5e-324]])
 
 
 @pytest.mark.parametrize(

@@ -93,8 +93,9 @@ from typing import IO, NamedTuple
 import numpy as np
 
 from ._linalg import marginal_std
-from ._validation import as_array, as_vector, real, shape_error
+from ._validation import as_array, as_vector, integer, real, shape_error
 from .gaussian import Gaussian
+from .inference.validation import check_prior
 from .models._base import check_names
 from .models.linear import LinearModel
 from .models.compose import TimedModel
@@ -241,8 +242,10 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         are not UTF-8, a line longer than :data:`MAX_LINE_CHARS`); the
         message names the file and the line and column.
     TypeError
-        When `time_column` is not a str, or `columns` is a str or holds
-        something else.
+        When `m` is not an integer, `time_column` not a str, or `columns` a
+        str or a sequence holding something else.
+    ValueError
+        When `m` is below 1.
     OSError
         When the file cannot be read.
 
@@ -285,6 +288,8 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
     """
     if not isinstance(rows, int) or isinstance(rows, bool) or rows < 1:
         raise ValueError(f"`rows` must be a positive int; got {rows!r}.")
+    if m is not None:  # (m = "1" was blamed on the file: "found 1 measurement column(s) ... m = 1": audit BB2)
+        m = integer("m", m)
     if time_column is not None and not isinstance(time_column, str):
         raise TypeError(f"`time_column` must be a column's name (a str); got {time_column!r}.")
     if columns is not None:
@@ -882,10 +887,18 @@ def write_estimates(
         Whether to write the header row first (False for the rows that
         continue a file).
 
+    Raises
+    ------
+    TypeError, ValueError
+        When an argument is not of the type or shape above, or a number is
+        infinite or complex; nothing is written then.
+
     Notes
     -----
     Floats are written with ``repr``, the shortest text that reads back to
-    the same float64.
+    the same float64. A variance below 0 is written as a standard deviation
+    of 0, as a round-off of 0: a smoothed covariance is a difference of
+    covariances, whose round-off is relative to those, not to the result.
 
     Examples
     --------
@@ -899,8 +912,13 @@ def write_estimates(
     """
     verbatim = len(times) > 0 and all(isinstance(t, str) for t in times)
     stamps = list(times) if verbatim else None
-    times = np.zeros(len(times)) if verbatim else times
-    times, means, covs = (np.asarray(a, dtype=np.float64) for a in (times, means, covs))
+    times = np.zeros(len(times)) if verbatim else as_array("times", times, copy=False)
+    means, covs = as_array("means", means, allow_nan=True, copy=False), as_array("covs", covs, allow_nan=True, copy=False)
+    try:
+        n = len(state_names) if hasattr(state_names, "__len__") else means.shape[-1] if means.ndim else 1
+        state_names = check_names(state_names, n, ())
+    except (TypeError, ValueError) as exc:  # (a str was taken for its letters: audit BB2)
+        raise type(exc)(str(exc).replace("`names`", "`state_names`")) from None
     T, n = times.shape[0], len(state_names)
     for name, arr, shape in (("times", times, (T,)), ("means", means, (T, n)), ("covs", covs, (T, n, n))):
         if arr.shape != shape:
@@ -953,23 +971,32 @@ def write_model(out: IO[str], model: LinearModel, prior: Gaussian | str, names: 
 
     Raises
     ------
+    TypeError
+        If `model` is not a LinearModel, `prior` neither a Gaussian nor
+        "diffuse", or `names` not a sequence of strings.
     ValueError
-        If the model is time-varying or has a control input, or if `names`
-        would not read back (wrong number, repeated or empty names, or
-        surrogate code points, which are not Unicode text).
+        If the model is time-varying or has a control input, the prior's
+        dimension is not the model's, or `names` would not read back (wrong
+        number, repeated or empty names, a name with ``_sd`` after another,
+        or surrogate code points, which are not Unicode text). Nothing is
+        written then.
 
     Notes
     -----
     Floats are written with ``repr``, which reads back to the same float64,
     including ``-0.0`` and subnormal numbers.
     """
+    if not isinstance(model, LinearModel):
+        raise TypeError(f"`model` must be a gaussfuse.LinearModel; got {type(model).__name__}.")
     if model.steps is not None or model.B is not None:
         raise ValueError("only a time-invariant model without control input can be written as a model file.")
+    prior = check_prior(prior, model.n, diffuse_ok=True)  # ("gaussian" was written as diffuse: audit BB2)
     names = list(names)
     if (len(names) != model.n or not all(isinstance(name, str) and name for name in names)
             or len(set(names)) != model.n):
         raise ValueError(f"`names` must be {model.n} distinct non-empty strings, one per state; "
                          f"got {names!r:.80}.")
+    check_names(names, model.n, ())  # as read_model reads them back ("x" beside "x_sd" did not)
     if any(_SURROGATE.search(name) for name in names):
         raise ValueError(f"`names` must be Unicode text, without surrogate code points; got {names!r:.80}.")
     for line in comments:
