@@ -76,7 +76,7 @@ def test_singular_covariance_is_allowed():
 @pytest.mark.parametrize(
     ("mean", "cov", "error", "match"),
     [
-        ([0.0, 0.0], [[1.0, 0.5], [0.0, 1.0]], ValueError, r"^`cov` must be symmetric; it is not\.$"),
+        ([0.0, 0.0], [[1.0, 0.5], [0.0, 1.0]], ValueError, r"^`cov` must be symmetric; its entries \[0, 1\] and \[1, 0\] differ, 0\.5 and 0\.0\.$"),
         ([0.0, 0.0], [[1.0, 2.0], [2.0, 1.0]], ValueError,
          r"^`cov` must be positive semi-definite; its smallest eigenvalue is -1\.$"),
         ([0.0, np.nan], np.eye(2), ValueError,

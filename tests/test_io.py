@@ -541,10 +541,31 @@ def test_read_model_accepts_the_nesting_limit(tmp_path):
 
 
 def test_read_model_not_utf8_names_the_file(tmp_path):
+    """It named the byte's offset in the file ("position 9"), where the CSV reader names the line and column."""
     path = tmp_path / "m.toml"
     path.write_bytes(b"[model]\nkind = \"\xff\"\n")
-    with pytest.raises(InputFileError, match=r"m\.toml: not UTF-8 text: 'utf-8' codec can't decode byte 0xff"):
+    with pytest.raises(InputFileError, match=r"m\.toml: line 2: not UTF-8 text: byte 0xff at column 9 cannot be "
+                                             r"decoded\.$"):
         read_model(path)
+
+
+def test_a_hint_in_a_model_file_is_in_the_files_words(tmp_path):
+    """A scalar Q for two states was told "give 1 * np.eye(2)", which a TOML file cannot hold (audit BB2)."""
+    path = tmp_path / "m.toml"
+    path.write_text("[model]\nF = [[1.0, 0.0], [0.0, 1.0]]\nH = [1.0, 0.0]\nQ = 2.5\nR = 1.0\n")
+    with pytest.raises(InputFileError, match=r"\[model\] Q: `Q` must have shape \(2, 2\).* A number is a 1 × 1 matrix "
+                                             r"only; for 2\.5 times the identity write the 2 × 2 matrix with 2\.5 on its "
+                                             r"diagonal\.$"):
+        read_model(path)
+
+
+def test_open_atomic_refuses_a_folders_name(tmp_path):
+    """"out.csv/" wrote the file out.csv, where the shell's `>` refuses a name ending in '/' (audit BB2)."""
+    with pytest.raises(IsADirectoryError) as refused:
+        with open_atomic(str(tmp_path / "out.csv") + "/") as f:
+            f.write("x")
+    assert refused.value.filename == str(tmp_path / "out.csv") + "/"
+    assert os.listdir(tmp_path) == []
 
 
 def test_read_model_rejects_a_file_over_the_size_limit(tmp_path):

@@ -221,9 +221,11 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     K = cov / s[..., :, None] / s[..., None, :]  # divided twice: s_i s_j may overflow
     K_t = np.swapaxes(K, -1, -2)
     asym = np.abs(K - K_t) > rtol * np.maximum(1.0, np.abs(K))
-    if asym.any():
-        where = _where(np.argwhere(asym)[0], cov.ndim)
-        raise ValueError(f"`{name}` must be symmetric; it is not{where}.")
+    if asym.any():  # (the entries were not named: audit BB2)
+        at = np.argwhere(asym)[0]
+        i, j = int(at[-2]), int(at[-1])
+        raise ValueError(f"`{name}` must be symmetric; its entries [{i}, {j}] and [{j}, {i}] differ, "
+                         f"{float(cov[(*at[:-2], i, j)])!r} and {float(cov[(*at[:-2], j, i)])!r}{_where(at, cov.ndim)}.")
     # The user's symmetric entries are kept bit for bit (subnormals too); the others are
     # averaged halves first, so that entries near the largest float do not overflow.
     cov_t = np.swapaxes(cov, -1, -2)

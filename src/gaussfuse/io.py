@@ -661,8 +661,10 @@ def read_model(path: StrPath) -> ModelFile:
     too_deep = f"invalid TOML: tables and arrays nested more than {MAX_NESTING} levels deep."
     try:
         doc = tomllib.loads(data.decode("utf-8-sig"))  # a byte-order mark, as some editors write, is not content
-    except UnicodeDecodeError as exc:
-        raise InputFileError(path, f"not UTF-8 text: {exc}") from None
+    except UnicodeDecodeError:  # (it said "position 5", a byte's: audit BB2)
+        line, column, byte = _not_utf8(path)
+        raise InputFileError(path, f"not UTF-8 text: byte {byte:#04x} at column {column} cannot be decoded.",
+                             line=line) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputFileError(path, f"invalid TOML: {exc}") from None
     except RecursionError:  # tomllib recurses once per level: no other way to stop it
@@ -734,7 +736,9 @@ def _field(path, table_name: str, fields: dict[str, str]) -> Iterator[None]:
         named = re.search(r"`(\w+)`", str(exc))
         key = fields.get(named.group(1)) if named else None
         field = f"[{table_name}] {key}" if key else f"[{table_name}]"
-        raise InputFileError(path, str(exc), field=field) from exc
+        # a hint in Python's words ("give 2 * np.eye(3)") in the file's (audit BB2)
+        text = re.sub(r"give (\S+) \* np\.eye\((\d+)\)\.", r"write the \2 × \2 matrix with \1 on its diagonal.", str(exc))
+        raise InputFileError(path, text, field=field) from exc
 
 
 def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
@@ -1073,12 +1077,17 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
         names `path`, never the temporary file. An OSError of the block
         that names no file (a write to the file given) is given `path`'s
         name.
+    IsADirectoryError
+        When `path` ends with a separator (a folder's name), as the
+        shell's ``>`` refuses it.
     ValueError
         When `path` is a socket or a block device, or for an unknown `mode`.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"`mode` must be 'w' or 'wb'; got {mode!r}.")
     path = os.fspath(path)
+    if path.endswith(("/", os.sep)):  # a folder's name: "out.csv/" wrote out.csv (audit BB2), where `>` refuses it
+        raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (the name ends with a '/')", path)
     try:
         info = os.stat(path)  # of the file a symlink points to
     except FileNotFoundError:

@@ -94,9 +94,9 @@ INVALID = [
     ({"Q": np.eye(3)}, ValueError, r"^`Q` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\), because `F` is 2 × 2 \(2 state components\); got shape \(3, 3\)\.$"),
     ({"Q": 1.0}, ValueError, r"^`Q` must have shape \(2, 2\) or, time-varying, \(T, 2, 2\), because `F` is 2 × 2 \(2 state components\); got shape \(\)\. A number is a 1 × 1 matrix only; "
      r"for 1 times the identity give 1 \* np\.eye\(2\)\.$"),
-    ({"Q": [[1.0, 0.5], [0.0, 1.0]]}, ValueError, r"^`Q` must be symmetric; it is not\.$"),
+    ({"Q": [[1.0, 0.5], [0.0, 1.0]]}, ValueError, r"^`Q` must be symmetric; its entries \[0, 1\] and \[1, 0\] differ, 0\.5 and 0\.0\.$"),
     ({"Q": -np.eye(2)}, ValueError, r"^`Q` must be positive semi-definite; its smallest eigenvalue is -1\.$"),
-    ({"Q": np.stack([np.eye(2), [[1.0, 2.0], [0.0, 1.0]]])}, ValueError, r"^`Q` must be symmetric; it is not at time step 1\.$"),
+    ({"Q": np.stack([np.eye(2), [[1.0, 2.0], [0.0, 1.0]]])}, ValueError, r"^`Q` must be symmetric; its entries \[0, 1\] and \[1, 0\] differ, 2\.0 and 0\.0 at time step 1\.$"),
     ({"Q": np.stack([np.eye(2), np.eye(2), -np.eye(2)])}, ValueError, r"^`Q` must be positive semi-definite; its smallest eigenvalue is -1 at time step 2\.$"),
     ({"R": np.eye(2)}, ValueError, r"^`R` must have shape \(1, 1\) or, time-varying, \(T, 1, 1\), because `H` has 1 row \(1 measurement component\); got shape \(2, 2\)\.$"),
     ({"R": -1.0}, ValueError, r"^`R` must be positive semi-definite; its smallest eigenvalue is -1\.$"),
