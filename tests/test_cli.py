@@ -414,7 +414,7 @@ EXPLICIT_1D = "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[0.0]]\nR = [[0.0]]\n"
         ("t,x,y\n1,2,3\n2,inf,4\n", GOOD_TOML, [], r"data\.csv: line 3: column `x`: 'inf' is not finite"),
         (GOOD_CSV, "[model]\nkind = \n", [], r"model\.toml: invalid TOML: .*\(at line 2, column \d+\)"),
         (GOOD_CSV, "a = " + "[" * 5000 + "]" * 5000, [],
-         r"model\.toml: invalid TOML: tables and arrays nested more than 16 levels deep\.$"),
+         r"model\.toml: not a model file: tables and arrays nested more than 16 levels deep\.$"),
         ("t,x,y\n1,2,\x003\n", GOOD_TOML, [], r"data\.csv: line 2: a NUL character: not a text file\.$"),
         (GOOD_CSV, "[model]\nF = [[1, 0], [0, 1]]\nH = [[1, 0, 0]]\nQ = [[1, 0], [0, 1]]\nR = 1\n", [],
          r"model\.toml: \[model\] H: `H` must have shape"),

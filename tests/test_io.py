@@ -527,7 +527,7 @@ def test_docstring_examples():
 )
 def test_read_model_rejects_deep_nesting_in_one_line(tmp_path, text):
     path = write(tmp_path / "m.toml", text)
-    with pytest.raises(InputFileError, match=r"m\.toml: invalid TOML: tables and arrays nested more than "
+    with pytest.raises(InputFileError, match=r"m\.toml: not a model file: tables and arrays nested more than "
                                              r"16 levels deep") as info:
         read_model(path)
     assert "\n" not in str(info.value)

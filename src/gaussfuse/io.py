@@ -658,7 +658,7 @@ def read_model(path: StrPath) -> ModelFile:
         data = f.read(MAX_MODEL_BYTES + 1)
     if len(data) > MAX_MODEL_BYTES:
         raise InputFileError(path, f"larger than {MAX_MODEL_BYTES} bytes; not a model file.")
-    too_deep = f"invalid TOML: tables and arrays nested more than {MAX_NESTING} levels deep."
+    too_deep = f"not a model file: tables and arrays nested more than {MAX_NESTING} levels deep."  # (valid TOML)
     try:
         doc = tomllib.loads(data.decode("utf-8-sig"))  # a byte-order mark, as some editors write, is not content
     except UnicodeDecodeError:  # (it said "position 5", a byte's: audit BB2)
