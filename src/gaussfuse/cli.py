@@ -376,6 +376,8 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
                     raise ValueError(f"series {i!r} is in two partitions ({seen[i]} and {part}); each series must "
                                      "lie in one partition (a part alone would start again from the prior).")
                 seen[i] = part
+        if not seen:  # (a partition of a header only is one without series, but not all of them)
+            raise ValueError(_no_rows(args.data, parts))
     for _, _, messages in done:
         for message in messages:
             print(f"gaussfuse: warning: {message}", file=sys.stderr)
@@ -742,6 +744,12 @@ def _stepped(spec: gfio.ModelFile, grid: timing.Steps | None) -> gfio.ModelFile:
     return spec
 
 
+def _no_rows(data: str, parts: list[str]) -> str:
+    """The error for a dataset whose every partition has a header only (one such partition among others is none)."""
+    which = "its partition" if len(parts) == 1 else f"each of its {len(parts)} partitions"
+    return f"{data}: no data rows: {which} has a header only."
+
+
 def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, parts: list[str], client):
     """Every series of the partitions `parts` as one dask array (N, T, m), each read on a worker; and the
     range of the series' steps (:func:`gaussfuse.panels.step_range`).
@@ -762,6 +770,8 @@ def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, parts: list
                 raise ValueError(f"series {i!r} is in two partitions ({seen[i]} and {part}); each series must lie "
                                  "in one partition.")
             seen[i] = part
+    if not seen:
+        raise ValueError(_no_rows(args.data, parts))
     T = max(steps for _, steps, _ in shapes)
     blocks = [da.from_delayed(dask.delayed(panels.partition_arrays)(part, **read, steps=T),
                               shape=(len(ids), T, spec.model.m), dtype=np.float64)

@@ -119,6 +119,9 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
                    columns: list[str] | None = None) -> Partition:
     """Read one partition of a long-format table (see the module notes).
 
+    A partition of a header only (as a dataset's writer may leave) has no
+    series; its columns are checked all the same.
+
     Raises
     ------
     InputFileError
@@ -139,8 +142,6 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
             raise InputFileError(path, f"not UTF-8 text: {exc}") from None
         frame = frame.apply(lambda column: column.str.strip())
         frame = frame.mask(frame == "")  # an empty cell: a missing id, time or value
-    if len(frame) == 0:
-        raise InputFileError(path, "no data rows: the table has a header only.")
     header = _header(path) if csv_file else [str(c) for c in frame.columns]
     twice = sorted({h for h in header if header.count(h) > 1})
     if twice:  # pandas would rename the second x to x.1: which column is which would be a guess
@@ -172,6 +173,8 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
     if len(wanted) != m:
         raise InputFileError(path, f"found measurement column(s) {wanted} besides `{series_column}` and "
                                    f"`{time_col}`, but the model measures m = {m} component(s).")
+    if len(frame) == 0:  # a header only: no series (a dataset's writer leaves such files; audit BB3)
+        return Partition([], [], [], frame[[series_column, time_col]], [series_column, time_col, *wanted])
     if csv_file:
         values = np.column_stack([_numbers(path, frame[name], name, lines) for name in wanted])
     else:
@@ -371,9 +374,10 @@ def _padded(part: Partition, m: int, steps: int | None = None, rows=None) -> np.
 
 def partition_shape(path: str, series_column: str, m: int, time_column: str | None = None,
                     columns: list[str] | None = None) -> tuple[list, int, Steps | None]:
-    """A partition's series ids, its longest series' length, and the range of its series' steps (:func:`step_range`)."""
+    """A partition's series ids, its longest series' length (0 without a series), and the range of its series'
+    steps (:func:`step_range`)."""
     part = read_partition(path, series_column, m, time_column, columns)
-    return part.ids, max(len(t) for t in part.times), step_range(part.times)
+    return part.ids, max((len(t) for t in part.times), default=0), step_range(part.times)
 
 
 def step_range(times: list) -> Steps | None:
@@ -444,7 +448,10 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
     except ValueError as exc:
         raise InputFileError(path, str(exc)) from None
     run = inference.smooth if smooth else inference.filter
-    if spec.timed is not None:  # each series stepped by its own times
+    if not part.ids:  # a header only: so is the output
+        means, covs = np.zeros((0, spec.model.n)), np.zeros((0, spec.model.n, spec.model.n))
+        nis, seen = [], []
+    elif spec.timed is not None:  # each series stepped by its own times
         results = []
         for name, t, z in zip(part.ids, part.times, part.zs):
             try:
