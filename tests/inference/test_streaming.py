@@ -265,6 +265,33 @@ def test_an_error_names_the_time_as_written_when_the_pieces_have_it(track, run):
         list(run(model, prior, late, timed=True, engine="python", check="off"))
 
 
+@pytest.mark.parametrize("method, options", [("ekf", {}), ("ukf", {"alpha": 0.5}), ("ghkf", {"order": 5}),
+                                             ("iekf", {"iterations": 40})])
+def test_a_nonlinear_model_in_pieces_takes_the_method_asked_for(method, options):
+    """A NonlinearModel in pieces always ran its default method (the UKF): 0.63 off an EKF's means (audit BB3).
+    The oracle is gf.filter and gf.smooth on the whole series with the same method and options."""
+    model = gf.NonlinearModel(f=lambda x: np.array([x[0] + 0.1 * x[1], 0.95 * x[1] - 0.2 * np.sin(x[0])]),
+                              h=lambda x: np.array([np.sin(x[0]) + 0.5 * x[0]]), Q=np.diag([1e-3, 1e-2]), R=0.05)
+    prior = gf.Gaussian([0.3, 0.0], np.diag([0.5, 0.5]))
+    zs = np.random.default_rng(3).normal(scale=0.5, size=(90, 1)).cumsum(axis=0) * 0.1
+    times = np.arange(90.0)
+    whole = gf.filter(model, prior, zs, method=method, engine="python", check="off", **options)
+    got = list(filter_pieces(model, prior, cut(zs, times, 25), method=method, engine="python", check="off", **options))
+    close(joined(got, "means"), whole.means)
+    close(joined(got, "covs"), whole.covs)
+    if method == "iekf":  # its smoother's passes are over the whole series
+        with pytest.raises(ValueError, match=r"^`method` 'iekf' smooths by passes over the whole series"):
+            list(smooth_pieces(model, prior, cut(zs, times, 25), method=method, check="off", **options))
+        return
+    smoothed = gf.smooth(model, prior, zs, method=method, engine="python", check="off", **options)
+    got = sorted(smooth_pieces(model, prior, cut(zs, times, 25), method=method, engine="python", check="off",
+                               **options), key=lambda pr: pr[0].times[0])
+    close(joined(got, "means"), smoothed.means)
+    close(joined(got, "covs"), smoothed.covs)
+    with pytest.raises(TypeError, match="unknown option"):
+        list(filter_pieces(model, prior, cut(zs, times, 25), method=method, check="off", gatee=3.0))
+
+
 def test_bad_check():
     model = gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="`check` must be one of"):

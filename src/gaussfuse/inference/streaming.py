@@ -46,6 +46,7 @@ from ..errors import DivergenceWarning, ModelFunctionError, average_text, spoole
 from ..gaussian import Gaussian
 from ..models import LinearModel
 from . import diffuse, drivers, timing
+from .registry import METHODS
 from .results import FilterResult, SmoothResult, first, stack
 from .validation import prepare
 
@@ -65,7 +66,8 @@ class Piece(Protocol):
 
 
 def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, timed: bool = False,
-                  engine: str = "auto", check: str = "warn") -> Iterator[tuple[Piece, FilterResult]]:
+                  engine: str = "auto", check: str = "warn", method: str | None = None,
+                  **options) -> Iterator[tuple[Piece, FilterResult]]:
     """Filter a series given in pieces, each from the belief the previous piece ended in.
 
     With a "diffuse" prior the first pieces are joined until one run over
@@ -97,6 +99,12 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     check : {"warn", "raise", "off"}
         The divergence check, over the whole series: "raise" stops at the
         first window that fails; "warn" warns once at the end.
+    method : str, optional
+        As for :func:`gaussfuse.filter` (its default by the model's type).
+        :func:`smooth_pieces` refuses an iterated method (``"iekf"``,
+        ``"iplf"``), whose smoother repeats its pass over the whole series.
+    **options
+        The method's options, as for :func:`gaussfuse.filter`.
 
     Yields
     ------
@@ -117,14 +125,14 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
             try:
                 with _located(start, group):
                     result = first(_run(model, belief, group.zs, _times(group, before, timed), engine_k,
-                                        ending=None, smooth=False))
+                                        ending=None, smooth=False, method=method, options=options))
             except diffuse.NotIdentified:
                 continue
             done, pending = pending, []
         else:
             with _located(start, piece):
                 result = first(_run(model, belief, piece.zs, _times(piece, before, timed), engine_k, ending=None,
-                                    smooth=False))
+                                    smooth=False, method=method, options=options))
             done = [piece]
         monitor.add(result)
         belief = Gaussian._trusted(result.last_mean.copy(), result.last_cov.copy())
@@ -136,12 +144,14 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         before, start = done[-1].times[-1], start + offset
     if pending:  # the whole series never identifies the state: the error of one run over it
         group = _Joined(np.concatenate([p.zs for p in pending]), np.concatenate([p.times for p in pending]), None)
-        _run(model, belief, group.zs, _times(group, before, timed), "auto", ending=None, smooth=False)
+        _run(model, belief, group.zs, _times(group, before, timed), "auto", ending=None, smooth=False, method=method,
+             options=options)
     monitor.finish()
 
 
 def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, timed: bool = False, engine: str = "auto",
-                  check: str = "warn", spool_dir: str | None = None) -> Iterator[tuple[Piece, SmoothResult]]:
+                  check: str = "warn", spool_dir: str | None = None, method: str | None = None,
+                  **options) -> Iterator[tuple[Piece, SmoothResult]]:
     """Smooth a series given in pieces; yield the pieces last first (see the module notes).
 
     Takes :func:`filter_pieces`'s arguments. The pieces and their starting
@@ -155,6 +165,9 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         Each piece with its smoothed beliefs, the last piece first. Each
         result's ``.filtered`` is the forward pass over the piece.
     """
+    if isinstance(method, str) and method in METHODS and METHODS[method].iterated:
+        raise ValueError(f"`method` {method!r} smooths by passes over the whole series, which pieces do not give; "
+                         "smooth it whole with gaussfuse.smooth, or take a one-pass method.")
     pieces = iter(pieces)
     head = list(islice(pieces, 2))
     if engine == "auto" and len(head) > 1:  # the compiled smoother's ending is the linear kernel's; the forward
@@ -163,7 +176,7 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     with tempfile.TemporaryFile(dir=spool_dir) as spool:
         offsets, belief, before, start = [], prior, None, 0
         for piece, result in filter_pieces(model, prior, chain(head, pieces), timed=timed, engine=engine,
-                                           check=check):
+                                           check=check, method=method, **options):
             offsets.append(spool.tell())
             spooled(pickle.dump, (piece, belief, before, start, result.loglik), spool, protocol=pickle.HIGHEST_PROTOCOL,
                     folder=spool_dir)
@@ -185,7 +198,7 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
                 rows = _Joined(zs, times, _texts([piece, after[0]]))
             with _located(start, rows):
                 result = first(_run(model, belief, zs, _times(piece, before, timed, times), engine, ending,
-                                    smooth=True))
+                                    smooth=True, method=method, options=options))
             if after is not None:
                 result = _head(result, piece.zs.shape[0], loglik)
             after = (piece, result)
@@ -257,10 +270,12 @@ def _times(piece: Piece, before, timed: bool, times: np.ndarray | None = None) -
     return times if before is None else np.concatenate([[before], times])
 
 
-def _run(model, prior, zs: np.ndarray, times, engine: str, ending: Gaussian | None, smooth: bool):
+def _run(model, prior, zs: np.ndarray, times, engine: str, ending: Gaussian | None, smooth: bool,
+         method: str | None = None, options: dict | None = None):
     """The filter (or smoother) of one piece, with its series axis; no divergence check."""
     model, us = timing.resolve(model, times, zs)
-    spec, options, prior, zs, us, _ = prepare(model, prior, zs, us, None, {})  # (a nonlinear TimedModel's dt controls)
+    # (a nonlinear TimedModel's dt controls; a NonlinearModel ran its default method whatever was wanted: audit BB3)
+    spec, options, prior, zs, us, _ = prepare(model, prior, zs, us, method, dict(options or {}), caller=filter_pieces)
     if isinstance(prior, str):  # the first piece, with a diffuse prior
         run = diffuse.diffuse_smooth if smooth else diffuse.diffuse_filter
         return stack([run(model, zs[0], None, engine)])
