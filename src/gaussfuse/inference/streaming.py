@@ -163,7 +163,10 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     ------
     (Piece, SmoothResult)
         Each piece with its smoothed beliefs, the last piece first. Each
-        result's ``.filtered`` is the forward pass over the piece.
+        result's ``.filtered`` is the forward pass over the piece. Its
+        ``gains`` are T_c, the last from the piece's last step to the next
+        piece's first, or T_c - 1 for the last piece: joined in order, the
+        whole series' T - 1.
     """
     if isinstance(method, str) and method in METHODS and METHODS[method].iterated:
         raise ValueError(f"`method` {method!r} smooths by passes over the whole series, which pieces do not give; "
@@ -292,8 +295,8 @@ def _head(result, T: int, loglik: float):
         value = getattr(result, f.name)
         if isinstance(value, FilterResult):
             cut[f.name] = _head(value, T, loglik)
-        elif f.name == "gains" and isinstance(result, SmoothResult):
-            cut[f.name] = value[:T - 1]
+        elif f.name == "gains" and isinstance(result, SmoothResult):  # T: the last to the next piece's first step
+            cut[f.name] = value[:T]  # (it kept T - 1, and the gain across the boundary was lost: audit BB3)
         elif isinstance(value, np.ndarray) and not f.name.startswith("last_"):
             cut[f.name] = value[:T]
     if isinstance(result, FilterResult):
