@@ -1618,10 +1618,12 @@ def test_an_error_at_a_step_names_its_time_as_written(tmp_path, capsys, smooth):
     assert err.startswith(f"gaussfuse: error: {data}: at step 1 (time 1): the innovation covariance S "), err
 
 
+@pytest.mark.parametrize("end", ["/", "/."])
 @pytest.mark.parametrize("option", ["--out", "--plot"])
-def test_an_output_named_as_a_folder_is_refused_before_the_work(tmp_path, capsys, option):
-    """`--out out.csv/` wrote out.csv and exited 0, where the shell's `>` refuses the name (audit BB2)."""
-    target = str(tmp_path / "out.csv") + "/"
+def test_an_output_named_as_a_folder_is_refused_before_the_work(tmp_path, capsys, option, end):
+    """`--out out.csv/` (audit BB2) and `out.csv/.` (review R19) wrote out.csv and exited 0, where the shell's `>`
+    refuses the name."""
+    target = str(tmp_path / "out.csv") + end
     code, stdout, err = run(capsys, "filter", EXAMPLES / "data" / "nile.csv", "-m", EXAMPLES / "models" /
                             "local_level.toml", option, target)
     assert (code, stdout) == (2, "")

@@ -559,13 +559,28 @@ def test_a_hint_in_a_model_file_is_in_the_files_words(tmp_path):
         read_model(path)
 
 
-def test_open_atomic_refuses_a_folders_name(tmp_path):
-    """"out.csv/" wrote the file out.csv, where the shell's `>` refuses a name ending in '/' (audit BB2)."""
+@pytest.mark.parametrize("end", ["/", "/.", "/./", "/.."])
+def test_open_atomic_refuses_a_folders_name(tmp_path, end):
+    """"out.csv/" (audit BB2) and "out.csv/." (review R19) wrote the file out.csv, where the shell's `>` refuses
+    a folder's name."""
     with pytest.raises(IsADirectoryError) as refused:
-        with open_atomic(str(tmp_path / "out.csv") + "/") as f:
+        with open_atomic(str(tmp_path / "out.csv") + end) as f:
             f.write("x")
-    assert refused.value.filename == str(tmp_path / "out.csv") + "/"
+    assert refused.value.filename == str(tmp_path / "out.csv") + end
     assert os.listdir(tmp_path) == []
+
+
+def test_open_atomic_leaves_an_error_of_the_block_that_is_not_a_write_as_it_is(tmp_path):
+    """Every OSError of the block that named no file was given the output's name: reading a closed input
+    inside it said the output had a bad file descriptor (review R19)."""
+    reader, writer = os.pipe()
+    os.close(reader)
+    with pytest.raises(OSError) as failed:
+        with open_atomic(tmp_path / "out.csv") as f:
+            f.write("x")
+            os.read(reader, 1)
+    assert (failed.value.errno, failed.value.filename) == (errno.EBADF, None)
+    os.close(writer)
 
 
 def test_read_model_rejects_a_file_over_the_size_limit(tmp_path):

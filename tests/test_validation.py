@@ -194,9 +194,13 @@ def test_a_variance_rounded_to_zero_among_subnormals_is_round_off():
         Q = motion.transition(dt)[1]
         np.testing.assert_array_equal(check_psd("Q", Q), Q)
         assert np.array_equal(gf.model(motion, gf.Position(), dt).Q, Q)
-    # what is past that round-off is still refused, at every scale
+    # what is past that round-off is still refused, at every scale; an indefinite block beside a tiny variance too
+    # (review R19: the allowance was scaled by the smallest variance, and took those in)
+    block = np.zeros((4, 4))
+    block[:3, :3] = 2.3e-308 * (np.full((3, 3), -0.525) + 1.525 * np.eye(3))  # eigenvalues down to -0.05 of it
+    block[3, 3] = 48 * np.finfo(np.float64).eps * 2.3e-308
     for wrong in ([[1e-320, 2e-320], [2e-320, 1e-320]], [[-1e-320]], [[1e-310, 0.0], [0.0, -1e-318]],
-                  [[0.0, 1e-200], [1e-200, 1e-300]], [[1e10, 0.0], [0.0, -0.5]]):
+                  [[0.0, 1e-200], [1e-200, 1e-300]], [[1e10, 0.0], [0.0, -0.5]], np.diag([-1e-310, 5e-324]), block):
         with pytest.raises(ValueError, match="`Q` must be positive semi-definite"):
             check_psd("Q", np.array(wrong))
 

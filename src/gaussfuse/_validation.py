@@ -207,13 +207,15 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     \epsilon` of it: a zero variance computed as -1e-20, say) is judged on
     the largest entry's scale instead, and its covariances must still obey
     :math:`|c_{ij}| \le \sqrt{c_{ii} c_{jj}}` to the round-off that scale
-    leaves. An entry's round-off is at least the spacing of the subnormal
-    floats, 2**-1074, which a variance of that size may have lost
-    entirely: a motion's Q at q = 1e-300 over 1e-8 s has c_00 = 3.3e-325,
-    rounded to 0, beside c_01 = 5e-317 (audit BB1).
+    leaves. An entry's round-off is at least half the spacing of the
+    subnormal floats, u = 2**-1074, which a variance of that size may have
+    lost entirely (a motion's Q at q = 1e-300 over 1e-8 s has c_00 =
+    3.3e-325, rounded to 0, beside c_01 = 5e-317: audit BB1); such errors
+    move an eigenvalue by at most n u / 2, so the tests are of
+    :math:`C + n u I`.
     """
     n = cov.shape[-1]
-    u = 2.0**-1074
+    floor = n * 2.0**-1074 * np.eye(n)  # the absolute round-off of subnormal entries, as a variance (see above)
     top = np.max(np.abs(cov), axis=(-2, -1))[..., None]
     top = np.where(top > 0, top, 1.0)
     diag = np.abs(np.diagonal(cov, axis1=-2, axis2=-1))
@@ -230,7 +232,8 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     # averaged halves first, so that entries near the largest float do not overflow.
     cov_t = np.swapaxes(cov, -1, -2)
     sym = np.where(cov == cov_t, cov, 0.5 * cov + 0.5 * cov_t)
-    low = np.linalg.eigvalsh(0.5 * K + 0.5 * K_t)[..., 0] < -(rtol + n * u / np.min(s, axis=-1) ** 2)
+    raised = (cov + floor) / s[..., :, None] / s[..., None, :]
+    low = np.linalg.eigvalsh(0.5 * raised + 0.5 * np.swapaxes(raised, -1, -2))[..., 0] < -rtol
     if np.any(low):
         where = _where(np.argwhere(np.atleast_1d(low))[0], cov.ndim) if cov.ndim > 2 else ""
         eig = float(np.min(np.linalg.eigvalsh(sym)))
@@ -242,7 +245,7 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     # ε √(c_max) √(c_jj).
     d = marginal_std(sym)
     slack = 8 * n * np.finfo(np.float64).eps * np.sqrt(top[..., None]) * np.maximum(d[..., :, None], d[..., None, :])
-    e = np.sqrt(np.maximum(np.diagonal(sym, axis1=-2, axis2=-1), 0.0) + u)  # d, but for a variance rounded to 0
+    e = np.sqrt(np.maximum(np.diagonal(sym, axis1=-2, axis2=-1), 0.0) + floor[0, 0])  # d, with its round-off
     wide = (np.abs(sym) > e[..., :, None] * e[..., None, :] * (1.0 + rtol) + slack) & ~np.eye(n, dtype=bool)
     if wide.any():
         at = np.argwhere(wide)[0]

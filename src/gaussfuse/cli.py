@@ -621,7 +621,7 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
         if path is None:
             continue
         made = option == "--out" and args.command == "filter" and args.series_column is not None  # a directory
-        if (os.path.isdir(path) or str(path).endswith(("/", os.sep))) and not made:
+        if (os.path.isdir(path) or gfio.names_a_folder(str(path))) and not made:
             raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (`{option}` names a file)", path)
         folder = os.path.dirname(os.path.realpath(path))  # a link's target's folder: where the file is written
         if not made and not os.path.isdir(folder):

@@ -114,6 +114,7 @@ __all__ = [
     "estimate_columns",
     "write_model",
     "open_atomic",
+    "names_a_folder",
     "DEFAULT_PRIOR_VAR",
     "MAX_LINE_CHARS",
     "MAX_MODEL_BYTES",
@@ -894,8 +895,10 @@ def write_estimates(
     Raises
     ------
     TypeError, ValueError
-        When an argument is not of the type or shape above, or a number is
-        infinite or complex; nothing is written then.
+        When an argument is not of the type or shape above, a time is
+        neither a finite number nor text (NaN, or a datetime64: give such
+        times as their text), or a mean or covariance is infinite or
+        complex; nothing is written then.
 
     Notes
     -----
@@ -1074,20 +1077,20 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
     OSError
         When `path` cannot be written (its directory is missing, it is a
         directory, the user may not write it, the disk is full); the error
-        names `path`, never the temporary file. An OSError of the block
-        that names no file (a write to the file given) is given `path`'s
-        name.
+        names `path`, never the temporary file. A full disk or a file too
+        large (ENOSPC, EDQUOT, EFBIG) in the block, which names no file, is
+        given `path`'s name; other errors of the block are left as they are.
     IsADirectoryError
-        When `path` ends with a separator (a folder's name), as the
-        shell's ``>`` refuses it.
+        When `path` ends as a folder's name does (a separator, ``.`` or
+        ``..``), as the shell's ``>`` refuses it.
     ValueError
         When `path` is a socket or a block device, or for an unknown `mode`.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"`mode` must be 'w' or 'wb'; got {mode!r}.")
     path = os.fspath(path)
-    if path.endswith(("/", os.sep)):  # a folder's name: "out.csv/" wrote out.csv (audit BB2), where `>` refuses it
-        raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (the name ends with a '/')", path)
+    if names_a_folder(path):  # "out.csv/" and "out.csv/." wrote out.csv (audit BB2, review R19); `>` refuses them
+        raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (a folder's name)", path)
     try:
         info = os.stat(path)  # of the file a symlink points to
     except FileNotFoundError:
@@ -1135,7 +1138,7 @@ def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: 
         try:
             yield f
         except OSError as exc:  # a write of the block's (a full disk: audit BB2 found it named no file)
-            if exc.filename is not None:
+            if exc.filename is not None or exc.errno not in _WRITE_ERRORS:
                 raise
             raise _naming(exc, path) from None
         try:
@@ -1171,6 +1174,27 @@ def _write_in_place(path: str, mode: str, kwargs: dict) -> Iterator[IO]:
             out.write(buffer.getvalue())
     except OSError as exc:
         raise _naming(exc, path) from None
+
+
+_WRITE_ERRORS = {errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
+"""What a write to a file fails with for want of room: the file's, when the error names none."""
+
+
+def names_a_folder(path: str) -> bool:
+    """Whether `path` ends as a folder's name does: with a separator, ``.`` or ``..``.
+
+    Parameters
+    ----------
+    path : str
+        A path to write.
+
+    Returns
+    -------
+    bool
+        True for ``out.csv/`` and ``out.csv/.``, which the shell's ``>``
+        refuses (writing them wrote ``out.csv``).
+    """
+    return os.path.basename(path) in ("", ".", "..")
 
 
 def _naming(exc: OSError, path: str) -> OSError:

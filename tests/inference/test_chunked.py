@@ -228,6 +228,19 @@ def test_an_error_in_a_chunk_names_the_series_by_its_number_in_the_whole_array()
             gf.filter(model, prior, da.from_array(zs, chunks=(size, 4, 1)), method="ekf").means.compute()
         assert str(chunked.value) == str(in_memory.value)
 
+    def h_own(x):  # a model function's own text with an index in it is not renumbered (review R19)
+        if x[0] > 100:
+            raise ValueError("table lookup failed at index (0, 2)")
+        return x[:1]
+
+    model = gf.NonlinearModel(f=lambda x: x, h=h_own, Q=[[1.0]], R=1.0)
+    with pytest.raises(ValueError) as in_memory:
+        gf.filter(model, prior, zs, method="ekf")
+    with dask.config.set(scheduler="synchronous"), pytest.raises(ValueError) as chunked:
+        gf.filter(model, prior, da.from_array(zs, chunks=(2, 4, 1)), method="ekf").means.compute()
+    assert str(chunked.value) == str(in_memory.value)
+    assert str(chunked.value).startswith("in series 3, ") and str(chunked.value).endswith("at index (0, 2)")
+
 
 def test_a_model_that_fails_on_zeros_reads_its_structure_from_the_data():
     """The result's structure was read from a probe series of zeros, which led a square root of a level below 0:
@@ -248,6 +261,21 @@ def test_a_model_that_fails_on_zeros_reads_its_structure_from_the_data():
         np.testing.assert_array_equal(got.covs.compute(), want.covs)
         np.testing.assert_array_equal(got.loglik.compute(), want.loglik)
 
+    # a series shorter than the probe: the data's steps, then missing ones; cycled, it ran across a seam (its last
+    # row, then its first) that failed where no series does (review R19)
+    def h_range(x):
+        if x[0] < 40:
+            raise ValueError(f"level {x[0]:.3g} below the sensor's range")
+        return x[:1]
+
+    model = gf.NonlinearModel(f=lambda x: np.array([x[0] + x[1], x[1]]), h=h_range, Q=np.diag([1.0, 100.0]), R=0.01)
+    prior = gf.Gaussian([50.0, 10.0], np.diag([1.0, 1.0]))
+    zs = np.array([[[60.0], [160.0], [260.0]]] * 2)
+    want = gf.filter(model, prior, zs, method="ekf")
+    with dask.config.set(scheduler="synchronous"):
+        got = gf.filter(model, prior, da.from_array(zs, chunks=(1, 3, 1)), method="ekf", check="off")
+        np.testing.assert_array_equal(got.means.compute(), want.means)
+
 
 def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
     """A NumPy `us` with a dask `zs` raised AttributeError ('numpy.ndarray' object has no attribute 'chunks', or
@@ -262,11 +290,15 @@ def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():
         for run in (gf.filter, gf.smooth):
             got, want = run(model, prior, lazy, us), run(model, prior, zs, us)
             np.testing.assert_array_equal(np.asarray(got.means), want.means)
+            # controls as nested lists, as in memory (review R19: AttributeError)
+            np.testing.assert_array_equal(np.asarray(run(model, prior, lazy, us.tolist()).means), want.means)
         for start in (prior, "diffuse"):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", gf.ConvergenceWarning)
                 got, want = (gf.fit(model, start, data, us, learn=("R",), iterations=3, tol=0) for data in (lazy, zs))
+                listed = gf.fit(model, start, lazy, us.tolist(), learn=("R",), iterations=3, tol=0)
             np.testing.assert_allclose(got.history, want.history, rtol=1e-12)
+            np.testing.assert_array_equal(listed.history, got.history)
         with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, 1\) = \(4, 20, 1\), .* got shape \(4, 19, 1\)"):
             gf.filter(model, prior, lazy, us[:, :19])
         with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, 1\) = \(4, 20, 1\), .* got shape \(20, 1\)"):

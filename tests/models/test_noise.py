@@ -399,6 +399,15 @@ def test_a_coupling_is_not_a_rate(A, W, dt, was):
     assert worst < 5e-14, (worst, was)
 
 
+def test_a_chain_of_integrators_is_not_halved():
+    """Its powers end: alpha is 0, and its series is summed over the whole step (the second zero power was not
+    formed, and a chain of every order took log2(dt) + 1 halvings: review R19)."""
+    for k in range(1, 9):
+        assert noise._rate(np.diag(np.ones(k), 1)) == 0.0
+    assert noise._rate(np.diag(np.ones(9), 1)) == 1.0  # its 10th power is 0: past the 9 formed
+    assert noise._rate(np.zeros((3, 3))) == 0.0 and noise._rate(np.array([[-2.0]])) == 2.0
+
+
 def test_a_stiff_drift_loses_its_slow_mode_as_documented():
     """van_loan's Notes: rates 1e9 and 1e-3 over 1e4 s leave the slow mode's F 4.5e-8 off; rates 1e12 and 1e-4
     over 1e5 s lose it (F = 1 for 4.5e-5, Q = 1e5 for 5000). A rate is a rate: alpha is the fastest one here."""

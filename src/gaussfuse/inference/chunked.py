@@ -106,8 +106,8 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         `run` on one series of zeros (readable path, no check), longer than
         n, m and p by more than one step, so that its time axes are told
         apart from the model's; where the model's functions fail on zeros,
-        on the first series' own first steps (computed, and cycled to that
-        length).
+        on the first series' own first steps (its first chunk computed),
+        with measurements missing past its end.
 
     Raises
     ------
@@ -126,6 +126,7 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     import dask.array as da
 
     check_lazy(zs, us, kwargs.get("model"))
+    us = chunked_like(us, zs)  # (a list or an array in memory)
     blocks, controls, sizes = paired_blocks(zs, us)
     T = zs.shape[1]
 
@@ -138,9 +139,13 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     def meta(steps: int, own: bool = False):
         stepped = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
             np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
-        probes = [None if a is None else np.zeros((1, steps, a.shape[2])) if not own else
-                  np.resize(np.asarray(a[:1, :min(steps, T)].compute(), dtype=np.float64), (1, steps, a.shape[2]))
-                  for a in (zs, us)]
+        probes = [None if a is None else np.zeros((1, steps, a.shape[2])) for a in (zs, us)]
+        if own:  # the first series' first steps; past its end, measurements missing and controls 0
+            head = min(steps, T)
+            probes[0][:, head:] = np.nan
+            for probe, a in zip(probes, (zs, us)):
+                if a is not None:
+                    probe[:, :head] = np.asarray(a[:1, :head].compute(), dtype=np.float64)
         return run(zs=probes[0], us=probes[1], **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
     # A result's other axes are the model's n, m and p: an axis of the probe's length, or one less or more, is a
@@ -151,8 +156,10 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         probe = T
     try:
         template = meta(probe)
-    except Exception:  # the model's f or h fail where zeros lead it (a square root of a level: audit BB3): the data's
-        template = meta(probe, own=True)  # own first steps lead it where the chunks will
+    except (ValueError, FloatingPointError):  # (a ModelFunctionError, a LinAlgError)
+        template = None  # the model's f or h fail where zeros lead it (a square root of a level: audit BB3)
+    if template is None:  # the data's own first steps lead it where the chunks will (not within `except`: its
+        template = meta(probe, own=True)  # error is then the data's alone)
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
              for first, block, control, size in zip(firsts, blocks, controls, sizes)]
@@ -194,8 +201,10 @@ def check_lazy(zs, us, model) -> None:
         when it has one).
     """
     for name, a in (("zs", zs), ("us", us)):
-        if a is not None and np.dtype(a.dtype).kind not in "iuf":
-            raise TypeError(f"`{name}` must be an array of real numbers; got a dask array of {a.dtype}.")
+        dtype = None if a is None else a.dtype if is_dask(a) else np.asarray(a).dtype  # (`us` may be a list)
+        if dtype is not None and dtype.kind not in "iuf":
+            raise TypeError(f"`{name}` must be an array of real numbers; got {'a dask array' if is_dask(a) else 'an array'}"
+                            f" of {dtype}.")
     m = getattr(model, "m", None)
     if zs.ndim != 3 or 0 in zs.shape[:2] or (isinstance(m, int) and zs.shape[2] != m):
         raise shape_error("zs", f"(N, T, {m if isinstance(m, int) else 'm'}) with N >= 1 and T >= 1 (a dask "
@@ -228,12 +237,15 @@ def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwa
 
 def _renumber(err: Exception, first: int, size: int) -> None:
     """Name the series in `err`'s message by their numbers in the whole array, whose chunk of `size` starts at
-    `first`: "in series s" and "at index (s, ..." move by `first`; a message naming none gets the chunk's."""
+    `first`: the drivers' leading "in series s" and the check of `zs` or `us` ("... at index (s, ...") move by
+    `first` (not a number in the user's own text: review R19); a message naming none gets the chunk's series."""
     if not err.args or not isinstance(err.args[0], str):
         return
     message = err.args[0]
-    renumbered = re.sub(r"\b(in series |at index \()(\d+)", lambda g: f"{g.group(1)}{int(g.group(2)) + first}", message)
-    if renumbered == message and not re.search(r"\b(in series |at index \()\d", message):
+    ours = re.match(r"(in series |`(?:zs|us)` must [^:]*? at index \()(\d+)", message)
+    if ours:
+        renumbered = f"{ours.group(1)}{int(ours.group(2)) + first}{message[ours.end():]}"
+    else:
         renumbered = f"in series {first}{'' if size == 1 else f' to {first + size - 1}'}, {message}"
     err.args = (renumbered, *err.args[1:])
 

@@ -84,7 +84,7 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     step :math:`h = \Delta t / 2^j` with :math:`\alpha h \le 1/2`, where
     :math:`\alpha = \min_{p < 9} \max(d_p, d_{p+1})`,
     :math:`d_p = \|A^p\|_1^{1/p}` [2]_ (at most :math:`\|A\|_1`; 0 for a
-    chain of integrators):
+    chain of up to 8 integrators, whose series end):
 
     .. math::
 
@@ -153,8 +153,8 @@ def _rate(A: np.ndarray, most: int = 9) -> float:
     :math:`d_p = \|A^p\|_1^{1/p}` (Al-Mohy and Higham's :math:`\alpha_p`), at most :math:`\|A\|_1`.
 
     The powers are taken of :math:`A / \|A\|_1`, each scaled to norm 1 on the way (its size kept in
-    logarithms), so that none overflows or underflows; a power that is exactly 0 (a chain of integrators) is
-    rate 0.
+    logarithms), so that none overflows or underflows; a power up to the 9th that is exactly 0 (a chain of up
+    to 8 integrators) makes the rate 0.
     """
     norm = float(np.max(np.sum(np.abs(A), axis=0)))
     if norm == 0.0:
@@ -164,8 +164,8 @@ def _rate(A: np.ndarray, most: int = 9) -> float:
     for _ in range(2, most + 1):
         power = B @ power
         size = float(np.max(np.sum(np.abs(power), axis=0)))
-        if size == 0.0:
-            logs.append(-np.inf)
+        if size == 0.0:  # and so every higher power: d_p = d_{p+1} = 0 (review R19: the second was not formed)
+            logs += [-np.inf, -np.inf]
             break
         logs.append(logs[-1] + np.log(size))
         power = power / size
