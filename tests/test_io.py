@@ -568,6 +568,9 @@ def test_open_atomic_refuses_a_folders_name(tmp_path, end):
             f.write("x")
     assert refused.value.filename == str(tmp_path / "out.csv") + end
     assert os.listdir(tmp_path) == []
+    with pytest.raises(FileNotFoundError):  # as the shell's `> ""` (review R20: "Is a directory")
+        with open_atomic("") as f:
+            f.write("x")
 
 
 def test_open_atomic_leaves_an_error_of_the_block_that_is_not_a_write_as_it_is(tmp_path):

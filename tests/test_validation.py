@@ -194,6 +194,13 @@ def test_a_variance_rounded_to_zero_among_subnormals_is_round_off():
         Q = motion.transition(dt)[1]
         np.testing.assert_array_equal(check_psd("Q", Q), Q)
         assert np.array_equal(gf.model(motion, gf.Position(), dt).Q, Q)
+    u = 5e-324  # a covariance of u beside variances of 0 is their round-off; 2 u is not, for any n (review R20)
+    check_psd("Q", np.array([[0.0, u], [u, 0.0]]))
+    for n in (2, 50):
+        wrong = np.zeros((n, n))
+        wrong[0, 1] = wrong[1, 0] = 2 * u
+        with pytest.raises(ValueError, match="`Q` must be positive semi-definite"):
+            check_psd("Q", wrong)
     # what is past that round-off is still refused, at every scale; an indefinite block beside a tiny variance too
     # (review R19: the allowance was scaled by the smallest variance, and took those in)
     block = np.zeros((4, 4))

@@ -210,12 +210,14 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     leaves. An entry's round-off is at least half the spacing of the
     subnormal floats, u = 2**-1074, which a variance of that size may have
     lost entirely (a motion's Q at q = 1e-300 over 1e-8 s has c_00 =
-    3.3e-325, rounded to 0, beside c_01 = 5e-317: audit BB1); such errors
-    move an eigenvalue by at most n u / 2, so the tests are of
-    :math:`C + n u I`.
+    3.3e-325, rounded to 0, beside c_01 = 5e-317: audit BB1). Such errors
+    move an eigenvalue by at most n u / 2, so the eigenvalue test is of
+    :math:`C + (n u / 2) I` (n u / 2 rounded to a float), and the entry
+    bound takes each variance as up to u larger.
     """
     n = cov.shape[-1]
-    floor = n * 2.0**-1074 * np.eye(n)  # the absolute round-off of subnormal entries, as a variance (see above)
+    u = 2.0**-1074
+    floor = n * u / 2 * np.eye(n)  # the eigenvalues' absolute round-off, as a variance (see above)
     top = np.max(np.abs(cov), axis=(-2, -1))[..., None]
     top = np.where(top > 0, top, 1.0)
     diag = np.abs(np.diagonal(cov, axis1=-2, axis2=-1))
@@ -245,7 +247,7 @@ def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarr
     # ε √(c_max) √(c_jj).
     d = marginal_std(sym)
     slack = 8 * n * np.finfo(np.float64).eps * np.sqrt(top[..., None]) * np.maximum(d[..., :, None], d[..., None, :])
-    e = np.sqrt(np.maximum(np.diagonal(sym, axis1=-2, axis2=-1), 0.0) + floor[0, 0])  # d, with its round-off
+    e = np.sqrt(np.maximum(np.diagonal(sym, axis1=-2, axis2=-1), 0.0) + u)  # d, with its round-off
     wide = (np.abs(sym) > e[..., :, None] * e[..., None, :] * (1.0 + rtol) + slack) & ~np.eye(n, dtype=bool)
     if wide.any():
         at = np.argwhere(wide)[0]

@@ -1089,6 +1089,8 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
     if mode not in ("w", "wb"):
         raise ValueError(f"`mode` must be 'w' or 'wb'; got {mode!r}.")
     path = os.fspath(path)
+    if not path:  # (as the shell's `> ""`: review R20)
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path)
     if names_a_folder(path):  # "out.csv/" and "out.csv/." wrote out.csv (audit BB2, review R19); `>` refuses them
         raise IsADirectoryError(errno.EISDIR, f"{os.strerror(errno.EISDIR)} (a folder's name)", path)
     try:

@@ -193,6 +193,8 @@ def test_dask_input_is_checked_before_any_chunk_runs_and_named_as_the_user_gave_
             run(model, prior, da.zeros((0, 10, 1), chunks=(1, 10, 1)), us[:0])
         with pytest.raises(TypeError, match=r"^`zs` must be an array of real numbers; got a dask array of <U1\.$"):
             run(model, prior, da.from_array(np.full((5, 10, 1), "a"), chunks=(2, 10, 1)), us)
+        with pytest.raises(TypeError, match=r"^`us` must be a rectangular array"):  # (NumPy's message: review R20)
+            run(model, prior, zs, [[[0.0, 0.0]] * 10] * 4 + [[[0.0]] * 10])
         for wrong in ((5, 10, 3), (5, 11, 2)):
             with pytest.raises(ValueError, match=r"^`us` must have shape \(N, T, 2\) = \(5, 10, 2\), the series and "
                                                  rf"steps of `zs`; got shape \({wrong[0]}, {wrong[1]}, {wrong[2]}\)\.$"):
@@ -275,6 +277,30 @@ def test_a_model_that_fails_on_zeros_reads_its_structure_from_the_data():
     with dask.config.set(scheduler="synchronous"):
         got = gf.filter(model, prior, da.from_array(zs, chunks=(1, 3, 1)), method="ekf", check="off")
         np.testing.assert_array_equal(got.means.compute(), want.means)
+
+    # ... and its controls past its end are its own again: zeros failed an f of log u (review R20)
+    def f_log(x, u):
+        return np.array([x[0] + np.log(u[0])])
+
+    model = gf.NonlinearModel(f=f_log, h=np.log, Q=[[0.01]], R=[[0.01]], p=1)
+    prior = gf.Gaussian([10.0], [[0.01]])
+    us = np.random.default_rng(1).uniform(1.0, 1.2, size=(4, 2, 1))
+    zs = np.log(10 * np.cumprod(us, axis=1))
+    for run in (gf.filter, gf.smooth):
+        want = run(model, prior, zs, us, method="ekf", check="off")
+        with dask.config.set(scheduler="synchronous"):
+            got = run(model, prior, da.from_array(zs, chunks=(2, 2, 1)), us.tolist(), method="ekf", check="off")
+            np.testing.assert_array_equal(got.means.compute(), want.means)
+
+    # where the first series' own steps fail, the error names it, as in memory (review R20: it named none)
+    model = gf.NonlinearModel(f=lambda x: np.sqrt(x - 1.0), h=lambda x: x, Q=[[1e-6]], R=[[1e-2]])
+    prior = gf.Gaussian([10.0], [[1e-6]])
+    zs = np.array([[[3.0], [1.4], [0.6], [0.1], [0.1], [0.1]]] * 3)
+    with pytest.raises(gf.ModelFunctionError) as in_memory:
+        gf.filter(model, prior, zs, method="ekf")
+    with pytest.raises(gf.ModelFunctionError) as chunked:
+        gf.filter(model, prior, da.from_array(zs, chunks=(1, 6, 1)), method="ekf")
+    assert str(chunked.value) == str(in_memory.value) and str(in_memory.value).startswith("in series 0, at step 3")
 
 
 def test_controls_in_memory_with_chunked_measurements_are_chunked_as_they_are():

@@ -406,6 +406,13 @@ def test_a_chain_of_integrators_is_not_halved():
         assert noise._rate(np.diag(np.ones(k), 1)) == 0.0
     assert noise._rate(np.diag(np.ones(9), 1)) == 1.0  # its 10th power is 0: past the 9 formed
     assert noise._rate(np.zeros((3, 3))) == 0.0 and noise._rate(np.array([[-2.0]])) == 2.0
+    # summed over the whole step, a term near the largest float overflowed before its division (review R20)
+    from fractions import Fraction
+
+    for order, dt, q in ((3, 1e30, 1e100), (1, 1e100, 2.9e7), (8, 1e17, 1e28)):
+        F, Q = van_loan(*chain(order), q, dt)
+        exact = Fraction(q) * Fraction(dt) ** (2 * order + 1) / ((2 * order + 1) * factorial(order) ** 2)
+        assert float(exact) > 1e306 and Q[0, 0] == pytest.approx(float(exact), rel=1e-14), (order, Q[0, 0])
 
 
 def test_a_stiff_drift_loses_its_slow_mode_as_documented():

@@ -30,7 +30,7 @@ from dataclasses import fields, is_dataclass
 import numpy as np
 
 from .. import kalman
-from .._validation import shape_error
+from .._validation import as_array, shape_error
 from . import drivers, timing
 
 __all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed"]
@@ -140,12 +140,12 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         stepped = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
             np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
         probes = [None if a is None else np.zeros((1, steps, a.shape[2])) for a in (zs, us)]
-        if own:  # the first series' first steps; past its end, measurements missing and controls 0
+        if own:  # the first series' first steps; past its end, measurements missing and its controls again
             head = min(steps, T)
-            probes[0][:, head:] = np.nan
-            for probe, a in zip(probes, (zs, us)):
-                if a is not None:
-                    probe[:, :head] = np.asarray(a[:1, :head].compute(), dtype=np.float64)
+            probes[0][:, :head] = np.asarray(zs[:1, :head].compute(), dtype=np.float64)
+            probes[0][:, head:] = np.nan  # (its measurements again made a seam the model failed on: review R19)
+            if us is not None:  # (0 past its end failed an f of log u: review R20)
+                probes[1] = np.resize(np.asarray(us[:1, :head].compute(), dtype=np.float64), probes[1].shape)
         return run(zs=probes[0], us=probes[1], **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
     # A result's other axes are the model's n, m and p: an axis of the probe's length, or one less or more, is a
@@ -159,7 +159,13 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     except (ValueError, FloatingPointError):  # (a ModelFunctionError, a LinAlgError)
         template = None  # the model's f or h fail where zeros lead it (a square root of a level: audit BB3)
     if template is None:  # the data's own first steps lead it where the chunks will (not within `except`: its
-        template = meta(probe, own=True)  # error is then the data's alone)
+        try:  # error is then the data's alone)
+            template = meta(probe, own=True)
+        except (ValueError, FloatingPointError) as err:  # at a step of the first series: name it, as a chunk does
+            step = re.match(r"at step (\d+)", str(err))
+            if step is not None and int(step.group(1)) < T:
+                _renumber(err, 0, 1)
+            raise
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
              for first, block, control, size in zip(firsts, blocks, controls, sizes)]
@@ -201,7 +207,7 @@ def check_lazy(zs, us, model) -> None:
         when it has one).
     """
     for name, a in (("zs", zs), ("us", us)):
-        dtype = None if a is None else a.dtype if is_dask(a) else np.asarray(a).dtype  # (`us` may be a list)
+        dtype = None if a is None else a.dtype if is_dask(a) else as_array(name, a).dtype  # (`us` may be a list)
         if dtype is not None and dtype.kind not in "iuf":
             raise TypeError(f"`{name}` must be an array of real numbers; got {'a dask array' if is_dask(a) else 'an array'}"
                             f" of {dtype}.")

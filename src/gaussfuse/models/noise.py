@@ -83,8 +83,9 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     and it is computed here by the power series of both integrals over a
     step :math:`h = \Delta t / 2^j` with :math:`\alpha h \le 1/2`, where
     :math:`\alpha = \min_{p < 9} \max(d_p, d_{p+1})`,
-    :math:`d_p = \|A^p\|_1^{1/p}` [2]_ (at most :math:`\|A\|_1`; 0 for a
-    chain of up to 8 integrators, whose series end):
+    :math:`d_p = \|A^p\|_1^{1/p}` [2]_ (at most :math:`\|A\|_1`; 0 where
+    :math:`A^p = 0` for a p up to 9, as for a chain of up to 8 integrators,
+    whose series end):
 
     .. math::
 
@@ -150,11 +151,11 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 def _rate(A: np.ndarray, most: int = 9) -> float:
     r"""How fast the series of :math:`e^{Ah}` grows with h: :math:`\min_{p < 9} \max(d_p, d_{p+1})`, with
-    :math:`d_p = \|A^p\|_1^{1/p}` (Al-Mohy and Higham's :math:`\alpha_p`), at most :math:`\|A\|_1`.
+    :math:`d_p = \|A^p\|_1^{1/p}` (Al-Mohy and Higham's :math:`\alpha_p`), at most :math:`\|A\|_1`; 0 when
+    a power up to the 9th is exactly 0 (a chain of up to 8 integrators), as every higher one then is.
 
     The powers are taken of :math:`A / \|A\|_1`, each scaled to norm 1 on the way (its size kept in
-    logarithms), so that none overflows or underflows; a power up to the 9th that is exactly 0 (a chain of up
-    to 8 integrators) makes the rate 0.
+    logarithms), so that none overflows or underflows.
     """
     norm = float(np.max(np.sum(np.abs(A), axis=0)))
     if norm == 0.0:
@@ -181,12 +182,12 @@ def _series(A: np.ndarray, W: np.ndarray, h: float, most: int = 80) -> tuple[np.
     n = A.shape[0]
     Ah = A * h
     term = np.hstack([np.eye(n), W * h])  # [(A h)^N / N!, h^{N+1} T_N / (N + 1)!], N = 0
-    total = term
+    total = term.copy()
     for N in range(1, most):
+        term[:, :n] /= N  # divided before the product: over a whole step (a chain), a product near the largest
+        term[:, n:] /= N + 1  # float overflowed before its division (review R20)
         term = Ah @ term
-        term[:, :n] /= N
         term[:, n:] += term[:, n:].T.copy()
-        term[:, n:] /= N + 1
         grown = total + term
         if (grown == total).all():
             break
