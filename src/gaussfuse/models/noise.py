@@ -23,6 +23,7 @@ the highest derivative is held constant over each step.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from math import ceil, factorial, log2
 
 import numpy as np
@@ -149,7 +150,17 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return F, Q
 
 
-def _rate(A: np.ndarray, most: int = 9) -> float:
+def _rate(A: np.ndarray) -> float:
+    """:func:`_rate_of` A, remembered for the last matrices (a motion's A is discretised for step after step)."""
+    return _rate_of(A.shape, A.tobytes())
+
+
+@lru_cache(maxsize=64)
+def _rate_of(shape: tuple, data: bytes) -> float:
+    return _rate_uncached(np.frombuffer(data, dtype=np.float64).reshape(shape))
+
+
+def _rate_uncached(A: np.ndarray, most: int = 9) -> float:
     r"""How fast the series of :math:`e^{Ah}` grows with h: :math:`\min_{p < 9} \max(d_p, d_{p+1})`, with
     :math:`d_p = \|A^p\|_1^{1/p}` (Al-Mohy and Higham's :math:`\alpha_p`), at most :math:`\|A\|_1`; 0 when
     a power up to the 9th is exactly 0 (a chain of up to 8 integrators), as every higher one then is.
