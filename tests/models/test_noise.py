@@ -415,6 +415,21 @@ def test_a_chain_of_integrators_is_not_halved():
         assert float(exact) > 1e306 and Q[0, 0] == pytest.approx(float(exact), rel=1e-14), (order, Q[0, 0])
 
 
+@pytest.mark.parametrize("A, dt", [(np.array([[0.0, 1.0], [-4.0, -0.4]]), 1e3), (np.array([[0.0, 1e8], [-1e-8, 0.0]]), 1e-3),
+                                   (np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]), 1e3)])
+@pytest.mark.parametrize("q", [1e-320, 1e-310])
+def test_a_subnormal_density_keeps_its_digits(A, dt, q):
+    """A subnormal W lost digits in the series, which divides each term (80 ulps at q = 1e-320; 1e-10 relative
+    on a normal Q = 3.3e-304: review R21). Q is linear in W: it is scaled by a power of 2 and back. Against a
+    700-digit block exponential of the float W."""
+    n = A.shape[0]
+    W = np.zeros((n, n))
+    W[-1, -1] = q
+    Q = van_loan(A, np.eye(n), W, dt)[1]
+    exact = _van_loan_in_digits(A, W, dt, digits=700)[1]  # (e^{1000} meets e^{-1000} in the block exponential)
+    assert np.all(np.abs(Q - exact) <= 2 * 5e-324 + 1e-13 * np.abs(exact)), (Q, exact)
+
+
 def test_a_stiff_drift_loses_its_slow_mode_as_documented():
     """van_loan's Notes: rates 1e9 and 1e-3 over 1e4 s leave the slow mode's F 4.5e-8 off; rates 1e12 and 1e-4
     over 1e5 s lose it (F = 1 for 4.5e-5, Q = 1e5 for 5000). A rate is a rate: alpha is the fastest one here."""

@@ -193,18 +193,21 @@ def map_series(run: Callable, zs, us, kwargs: dict):
 
 
 def check_lazy(zs, us, model) -> None:
-    """Check the dtype and shape of a dask `zs` (N, T, m) and `us` (N, T, p), without computing them.
+    """Check the dtype and shape of a dask `zs` (N, T, m) and `us` (N, T, p), without computing a dask array.
 
-    Their values are checked where each chunk runs.
+    A dask array's values are checked where each chunk runs; a `us` in
+    memory (an array or nested lists) is checked whole here, as
+    :func:`gaussfuse.filter` checks it.
 
     Raises
     ------
     TypeError
-        When either is not an array of numbers.
+        When either is not an array of numbers (a `us` in memory: not a
+        rectangular array of real numbers).
     ValueError
         When `zs` is not (N, T, m) with the model's m, N >= 1 and T >= 1, or
         `us` is not (N, T, p) with the N and T of `zs` (and the model's p,
-        when it has one).
+        when it has one); when a `us` in memory is NaN or infinite.
     """
     for name, a in (("zs", zs), ("us", us)):
         dtype = None if a is None else a.dtype if is_dask(a) else as_array(name, a).dtype  # (`us` may be a list)

@@ -139,7 +139,11 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """
     A, L, Qc = sde_arrays(A, L, Qc)
     dt = real("dt", dt, positive=True)
-    W = symmetrize(L @ Qc @ L.T)
+    # Q is linear in Qc: a subnormal density, which has lost digits and would lose more in the series, is
+    # scaled to normal floats by a power of 2 (exact), and Q back at the end, rounded once (review R21)
+    top = float(np.max(np.abs(Qc), initial=0.0))
+    shift = -600 - int(np.frexp(top)[1]) if 0.0 < top < np.finfo(np.float64).tiny else 0
+    W = symmetrize(L @ np.ldexp(Qc, shift) @ L.T)
     rate = _rate(A)
     halvings = max(0, ceil(log2(rate) + log2(dt)) + 1) if rate > 0 else 0  # (rate * dt may overflow)
     h = float(np.ldexp(dt, -halvings))  # (dt / 2.0**halvings overflows for a rate dt past 2**1024)
@@ -147,7 +151,7 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     for _ in range(halvings):
         Q = symmetrize(F @ Q @ F.T + Q)
         F = F @ F
-    return F, Q
+    return F, Q if shift == 0 else np.ldexp(Q, -shift)
 
 
 def _rate(A: np.ndarray) -> float:
