@@ -219,3 +219,42 @@ def test_finite_differences_step_on_the_beliefs_spread_and_refuse_to_linearise_w
                                         h_jacobian=lambda x: ((x - beacon) / np.linalg.norm(x - beacon))[None]),
                       gf.Gaussian(x, np.eye(2)), [[9.0]], method="ekf", check="off")
     np.testing.assert_allclose(ekf.covs, exact.covs, rtol=1e-5)  # variances 0.64 and 0.37; were 1.0 and 0.019
+
+
+@pytest.mark.parametrize("vectorized", [False, True])
+@pytest.mark.parametrize("lost", ["norm", "vdot", "abs", "real"])
+def test_an_output_that_drops_the_imaginary_part_is_differentiated_by_finite_differences(lost, vectorized):
+    """Beside an output that keeps it, a range by np.linalg.norm (or vdot, abs, real) got a complex-step
+    derivative of exactly 0: the EKF ignored the range, silently (audit CC1: posterior variance 4 for 0.00998).
+    The oracle is the analytic Jacobian."""
+    beacon = np.array([10.0, 0.0])
+    distance = {"norm": lambda d: np.linalg.norm(d, axis=-1), "vdot": lambda d: np.sqrt(np.sum(d * d.conj(), axis=-1)),
+              "abs": lambda d: np.sqrt(np.abs(d[..., 0]) ** 2 + np.abs(d[..., 1]) ** 2),
+              "real": lambda d: np.sqrt(np.real(np.sum(d * d, axis=-1)))}[lost]
+
+    def h(x):
+        return np.stack([distance(x - beacon), x[..., 1]], axis=-1)
+
+    def h_jacobian(x):
+        d = x - beacon
+        return np.array([d / np.sqrt(d @ d), [0.0, 1.0]])
+
+    x = np.array([0.5, -0.3])
+    J = jacobian("h", h, x, (), 2, vectorized=vectorized, spread=np.array([2.0, 2.0]))
+    np.testing.assert_allclose(J, h_jacobian(x), rtol=1e-9, atol=1e-9)
+    model = NonlinearModel(lambda x: x, h, np.zeros((2, 2)), np.diag([0.01, 1.0]), vectorized=vectorized)
+    exact = NonlinearModel(lambda x: x, h, np.zeros((2, 2)), np.diag([0.01, 1.0]), vectorized=vectorized,
+                           f_jacobian=lambda x: np.eye(2), h_jacobian=h_jacobian)
+    prior = gf.Gaussian([0.0, 0.0], 4.0 * np.eye(2))
+    got, want = (gf.filter(m, prior, [[7.0, 0.1]], method="ekf") for m in (model, exact))
+    np.testing.assert_allclose(got.covs, want.covs, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(got.means, want.means, rtol=1e-8, atol=1e-12)
+
+
+def test_an_output_that_does_not_depend_on_the_state_keeps_the_complex_step():
+    """A constant output's row of zeros is checked (it stays 0) and the others keep the complex step's exact
+    derivative."""
+    h = lambda x: np.array([x[0] ** 3 + x[1], 5.0 + 0.0 * x[0]])  # noqa: E731
+    x = np.array([0.7, -2.0])
+    J = jacobian("h", h, x, (), 2, spread=np.array([1.0, 1.0]))
+    np.testing.assert_array_equal(J, [[3 * 0.7**2, 1.0], [0.0, 0.0]])

@@ -62,8 +62,15 @@ class NonlinearModel:
     Notes
     -----
     Complex-step differentiation assumes f and h are analytic in the real
-    variables: functions using ``abs``, ``np.maximum`` or comparisons give
-    wrong complex-step derivatives silently; pass analytic Jacobians for them.
+    variables. Operations that drop the imaginary part (``abs``,
+    ``np.linalg.norm``, ``np.vdot``, ``np.real``, ``np.angle``) give a
+    derivative of 0 through them: where a whole output's derivative comes
+    out that faint (a range by ``np.linalg.norm`` beside other outputs),
+    its change along a real step is checked and the Jacobian is taken by
+    finite differences instead; an output that mixes such an operation with
+    others (``x[0] + abs(x[1])``) is wrong silently. Pass analytic Jacobians
+    for such functions, or write them analytically (``np.sqrt`` of a sum of
+    squares).
 
     The model is immutable. It copies (``copy.copy``, ``copy.deepcopy``)
     whatever its functions, and pickles when they do: module-level
