@@ -366,10 +366,14 @@ def test_fuse_rejects_non_gaussian(which):
         gf.fuse(*args)
 
 
-def test_fuse_rejects_beliefs_both_certain_in_the_same_direction():
+@pytest.mark.parametrize("agree", [False, True])
+def test_fuse_rejects_beliefs_both_certain_in_the_same_direction(agree):
+    """Refused whether or not the means agree there; the message said "so their product is not a Gaussian", which
+    is untrue where they agree (audit CC1)."""
     a = gf.Gaussian([1.0, 0.0], np.diag([0.0, 1.0]))
-    b = gf.Gaussian([2.0, 0.0], np.diag([0.0, 3.0]))
-    with pytest.raises(ValueError, match=r"^`a\.cov \+ b\.cov` must be positive definite: the two beliefs are both certain"):
+    b = gf.Gaussian([1.0 if agree else 2.0, 0.0], np.diag([0.0, 3.0]))
+    with pytest.raises(ValueError, match=r"^`a\.cov \+ b\.cov` must be positive definite: the two beliefs are both certain"
+                                         r" in a common direction, where their product is a point if their means agree"):
         gf.fuse(a, b)
 
 

@@ -180,7 +180,9 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     a, b : Gaussian
         Two independent Gaussian beliefs of the same dimension n. Their
         covariances may be singular (a belief that is certain in some
-        direction), but not both in the same direction.
+        direction), but not both in the same direction (even where their
+        means agree in it, as the Kalman update refuses a noise-free
+        measurement of a state known exactly).
 
     Returns
     -------
@@ -232,9 +234,10 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
         with np.errstate(over="ignore", invalid="ignore"):  # the update's log-likelihood term is not used
             mean, cov = kalman.fuse_moments(a.mean, a.cov, b.mean, b.cov)
     except np.linalg.LinAlgError:
-        raise ValueError(
+        raise ValueError(  # (it said "so their product is not a Gaussian", untrue where they agree: audit CC1)
             "`a.cov + b.cov` must be positive definite: the two beliefs are both certain "
-            "in a common direction, so their product is not a Gaussian."
+            "in a common direction, where their product is a point if their means agree there and nothing if "
+            "not; fuse does not take such pairs: give one of them a variance in that direction."
         ) from None
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
         raise FloatingPointError("the fused mean or covariance is not finite (inf or NaN): the computation "
