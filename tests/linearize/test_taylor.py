@@ -258,3 +258,18 @@ def test_an_output_that_does_not_depend_on_the_state_keeps_the_complex_step():
     x = np.array([0.7, -2.0])
     J = jacobian("h", h, x, (), 2, spread=np.array([1.0, 1.0]))
     np.testing.assert_array_equal(J, [[3 * 0.7**2, 1.0], [0.0, 0.0]])
+
+
+def test_a_component_known_exactly_is_not_stepped_by_finite_differences():
+    """A component of 0 with a variance of 0 was stepped by a tenth of the state's largest (1e5 beside 1e6):
+    exp overflowed and the filter failed, though that column is never read (audit CC1). The oracle is the
+    analytic Jacobian."""
+    h = lambda x: np.array([math.exp(x[0]) * x[1]])  # noqa: E731 (math.exp refuses the complex step)
+    analytic = lambda x: np.array([[math.exp(x[0]) * x[1], math.exp(x[0])]])  # noqa: E731
+    prior = gf.Gaussian([0.0, 1e6], np.diag([0.0, 1.0]))
+    models = [NonlinearModel(lambda x: x, h, np.diag([0.0, 1.0]), 1.0, **kw) for kw in ({}, {"h_jacobian": analytic})]
+    got, want = (gf.filter(m, prior, [[1e6 + 0.5], [1e6 - 0.3]], method="ekf") for m in models)
+    np.testing.assert_allclose(got.means, want.means, rtol=1e-12)
+    np.testing.assert_allclose(got.covs, want.covs, rtol=1e-6, atol=1e-12)
+    J = finite_difference_jacobian("h", h, np.array([0.0, 1e6]), (), 1, spread=np.array([0.0, 1.0]))
+    assert J[0, 0] == 0.0 and J[0, 1] == pytest.approx(1.0, rel=1e-4)

@@ -173,10 +173,13 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     ``1e-7 |x_j|``, so that the steps stay above round-off), else ``|x_j|``
     (so domains like log(x) hold, and a component of size 0.3 beside one of
     size 1e6 is not stepped by 1e4). A component with neither (zero, and no
-    spread given or a spread of zero) takes the state's scale,
-    ``0.1 max_i |x_i|`` (0.01 for a state of zeros), so that it is not
-    stepped into round-off; without `spread`, that scale is every
-    component's floor.
+    spread given) takes the state's scale, ``0.1 max_i |x_i|`` (0.01 for a
+    state of zeros), so that it is not stepped into round-off; without
+    `spread`, that scale is every component's floor. A component whose
+    given spread is 0 (known exactly: its row and column of the covariance
+    are 0, so the linearisation never reads its column) is not stepped,
+    and its column is 0: stepped by the state's scale, a 0 beside 1e6 took
+    ``exp`` past the largest float, and the filter failed (audit CC1).
 
     SciPy then shrinks the steps until its error estimate is within 1e-11
     of the derivative or of :math:`|f_i(x)| / s_j` (:math:`s_j` the
@@ -208,6 +211,7 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
         return out.T.reshape(size, *xi.shape[1:])
 
     scale = _scales(x, spread)
+    stepped = scale if spread is None else np.where(spread > 0, scale, 0.0)  # (see above: 0 for a known component)
     at_x = stacked(x[:, None])[:, 0]
     value = np.abs(at_x)
     unit = np.where(value > _TINY_OUTPUT, value, 1.0)
@@ -216,7 +220,7 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     def scaled(u: np.ndarray) -> np.ndarray:
         # f at x + scale ⊙ u (angles within π of their value at x), divided by each output's size at x.
         shape = (n,) + (1,) * (u.ndim - 1)
-        out = stacked(x.reshape(shape) + scale.reshape(shape) * u)
+        out = stacked(x.reshape(shape) + stepped.reshape(shape) * u)
         if turning:
             base = at_x[angles].reshape((-1,) + shape[1:])
             out[angles] = base + wrap_angle(out[angles] - base)
