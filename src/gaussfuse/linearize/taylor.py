@@ -38,8 +38,10 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
 
     Complex-step differentiation [1]_ when `fn` accepts complex input:
     ``J[:, i] = Im fn(x + i h_i e_i) / h_i`` with :math:`h_i` 1e-20 times the
-    component's scale (see :func:`_scales`), exact to round-off for analytic functions (no subtractive
-    cancellation) at any scale. Otherwise adaptive
+    component's scale (see :func:`_scales`): no subtractive cancellation, so exact to round-off for analytic
+    functions at any scale, unless they curve over lengths below 1e-12 of the component's scale (the error is
+    of order (h_i / that length)²: a relative 7e-10 for 1 / (1 + x / 1e-16) under a spread
+    of 1, audit CC1). Otherwise adaptive
     central differences with Richardson extrapolation
     (:func:`scipy.differentiate.jacobian`), with steps on each component's
     own scale (:func:`finite_difference_jacobian`).
