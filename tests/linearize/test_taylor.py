@@ -273,3 +273,21 @@ def test_a_component_known_exactly_is_not_stepped_by_finite_differences():
     np.testing.assert_allclose(got.covs, want.covs, rtol=1e-6, atol=1e-12)
     J = finite_difference_jacobian("h", h, np.array([0.0, 1e6]), (), 1, spread=np.array([0.0, 1.0]))
     assert J[0, 0] == 0.0 and J[0, 1] == pytest.approx(1.0, rel=1e-4)
+
+
+def test_a_stationary_output_keeps_the_complex_step():
+    """At a stationary point the one-sided real check saw the quadratic term and fell back to finite
+    differences (27 calls for 2; review R22): the check is a central difference. A vectorized output of the
+    wrong shape met in the check is the library's error, not an IndexError."""
+    calls = []
+
+    def h(x):
+        calls.append(1)
+        return np.array([np.sin(x[0]), -np.cos(x[0])])
+
+    J = jacobian("h", h, np.array([0.0]), (), 2, spread=np.array([0.3]))
+    np.testing.assert_array_equal(J, [[1.0], [0.0]])
+    assert len(calls) <= 3
+    with pytest.raises(ModelFunctionError, match=r"`h` must return shape \(1, 1\) .* got shape \(1,\)"):  # (IndexError)
+        jacobian("h", lambda X: np.sum(np.abs(X - 10.0) ** 2, axis=-1) ** 0.5, np.array([0.5, -0.3]), (), 1,
+                 vectorized=True, spread=np.array([1.0, 1.0]))

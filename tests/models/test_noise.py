@@ -430,6 +430,20 @@ def test_a_subnormal_density_keeps_its_digits(A, dt, q):
     assert np.all(np.abs(Q - exact) <= 2 * 5e-324 + 1e-13 * np.abs(exact)), (Q, exact)
 
 
+@pytest.mark.parametrize("a, dt, L, Qc", [(-0.01, 1.0, 1e250, 1e-310), (1.0, 600.0, 1.0, 1e-310),
+                                         (0.5, 100.0, 1e-160, 1.0), (1e6, 5e-4, 1.0, 3e-308), (1e6, 5e-4, 1.0, 1e-320)])
+def test_a_small_density_is_scaled_only_as_far_as_its_q_allows(a, dt, L, Qc):
+    """A subnormal Qc was scaled up by 2**600 whatever L and the growth: Q = 9.9e189 and 7.1e210 overflowed
+    ("a step too long"), while W subnormal by a tiny L, or a Qc just above the subnormals, lost 5e-4 and 1e-9
+    (review R22). Against the closed form of a scalar drift, Q = W (e^{2 a dt} - 1) / (2 a), in 60 digits."""
+    import mpmath as mp
+
+    Q = van_loan([[a]], [[L]], Qc, dt)[1][0, 0]
+    with mp.workdps(60):
+        exact = mp.mpf(L) ** 2 * mp.mpf(Qc) * mp.expm1(2 * mp.mpf(a) * mp.mpf(dt)) / (2 * mp.mpf(a))
+    assert Q == pytest.approx(float(exact), rel=1e-12)
+
+
 def test_a_stiff_drift_loses_its_slow_mode_as_documented():
     """van_loan's Notes: rates 1e9 and 1e-3 over 1e4 s leave the slow mode's F 4.5e-8 off; rates 1e12 and 1e-4
     over 1e5 s lose it (F = 1 for 4.5e-5, Q = 1e5 for 5000). A rate is a rate: alpha is the fastest one here."""

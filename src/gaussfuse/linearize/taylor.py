@@ -124,17 +124,18 @@ def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, s
     J = Y.reshape(n, size).imag.T / step
     if not np.all(np.isfinite(J)):
         raise _RejectsComplex
-    scale = _scales(x, spread, floor=False)
-    faint = np.abs(J) @ scale <= 1e-8 * np.abs(Y.real.reshape(n, size)[0])  # a derivative of (nearly) nothing
-    if faint.any() and _dropped(fn, x, args, vectorized, scale, J, faint):
+    faint = np.abs(J) @ step <= 1e-28 * np.abs(Y.reshape(n, size)[0].real)  # (1e-8 of the output, over a scale)
+    if faint.any() and _dropped(fn, x, args, vectorized, step / _COMPLEX_STEP, J, faint, size):
         raise _RejectsComplex  # an output that the step's imaginary part did not reach, but x does
     return J
 
 
 def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: np.ndarray, J: np.ndarray,
-             rows: np.ndarray) -> bool:
-    """Whether outputs `rows` of ``fn`` change, when x moves by 1e-3 of its `scale` (in a direction of unequal
-    weights, so that a difference of components moves too), otherwise than their complex-step derivatives say.
+             rows: np.ndarray, size: int) -> bool:
+    """Whether outputs `rows` of ``fn`` change, when x moves by 1e-3 of its `scale` either way (in a direction
+    of unequal weights, so that a difference of components moves too), otherwise than their complex-step
+    derivatives say: half the central difference, whose quadratic term cancels at a stationary point (one
+    side's did not: review R22).
 
     A complex step gives an output a derivative of 0 (or of round-off) when the function drops the imaginary
     part on the way (``np.linalg.norm``, ``np.vdot``, ``np.abs``, ``np.real``, ``np.angle``) and returns other
@@ -146,12 +147,12 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     try:
         with np.errstate(all="ignore"):
             if vectorized:
-                y0, y1 = np.asarray(fn(np.stack([x, x + move]), *args), dtype=np.float64)
+                y0, y1 = np.asarray(fn(np.stack([x - move, x + move]), *args), dtype=np.float64).reshape(2, size)
             else:
-                y0, y1 = (np.asarray(fn(z, *args), dtype=np.float64).reshape(-1) for z in (x, x + move))
+                y0, y1 = (np.asarray(fn(z, *args), dtype=np.float64).reshape(size) for z in (x - move, x + move))
     except Exception:  # (a domain's edge a step away): no evidence either way
         return False
-    change, said = (y1 - y0)[rows], (J @ move)[rows]
+    change, said = (y1 - y0)[rows] / 2, (J @ move)[rows]
     slack = 64 * np.finfo(np.float64).eps * np.maximum(np.abs(y0), np.abs(y1))[rows]
     return bool(np.any(np.abs(change - said) > 0.01 * np.abs(change) + slack))
 

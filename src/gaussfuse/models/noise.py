@@ -109,7 +109,13 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     the slow mode's F 4.5e-8 off, and rates 1e12 and 1e-4 over 1e5 s lose it
     (F = 1 for 4.5e-5, Q = 1e5 for 5000); SciPy's ``expm`` of
     :math:`A \Delta t` alone, exact on a triangular A's diagonal, is the
-    better F there. A coupling is not a rate: against a 700-digit oracle,
+    better F there. A density whose :math:`W = L Q_c L^T` lies near or
+    below the smallest normal float is scaled into the normal ones by a
+    power of 2 and Q back (a q of 1e-320 is within 2.2e-13 where its Q
+    grows to 1e107), but an entry of W below the normal floats beside a far larger
+    one keeps only the digits its float has, and can lose them (W =
+    diag(1, 1e-320) gives a Q that should be 1e107 as 0). A coupling is not
+    a rate: against a 700-digit oracle,
     Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
@@ -139,19 +145,23 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """
     A, L, Qc = sde_arrays(A, L, Qc)
     dt = real("dt", dt, positive=True)
-    # Q is linear in Qc: a subnormal density, which has lost digits and would lose more in the series, is
-    # scaled to normal floats by a power of 2 (exact), and Q back at the end, rounded once (review R21)
-    top = float(np.max(np.abs(Qc), initial=0.0))
-    shift = -600 - int(np.frexp(top)[1]) if 0.0 < top < np.finfo(np.float64).tiny else 0
-    W = symmetrize(L @ np.ldexp(Qc, shift) @ L.T)
     rate = _rate(A)
     halvings = max(0, ceil(log2(rate) + log2(dt)) + 1) if rate > 0 else 0  # (rate * dt may overflow)
     h = float(np.ldexp(dt, -halvings))  # (dt / 2.0**halvings overflows for a rate dt past 2**1024)
-    F, Q = _series(A, W, h)
-    for _ in range(halvings):
-        Q = symmetrize(F @ Q @ F.T + Q)
-        F = F @ F
-    return F, Q if shift == 0 else np.ldexp(Q, -shift)
+    # Q is linear in Qc: a density whose W = L Qc Lᵀ would lie within 52 bits of the subnormal floats, where it
+    # has lost digits and would lose more in the series, is scaled into the normal ones by a power of 2 (exact),
+    # and Q back at the end, rounded once (review R21); unless that overflows, where W was not small (review R22)
+    tops = [float(np.max(np.abs(M), initial=0.0)) for M in (L, Qc)]
+    low = 2 * int(np.frexp(tops[0])[1]) + int(np.frexp(tops[1])[1])  # about log2 of W's largest entry
+    shift = max(0, -970 - low) if min(tops) > 0.0 else 0
+    for scale in ((shift, 0) if shift else (0,)):
+        F, Q = _series(A, symmetrize(L @ np.ldexp(Qc, scale) @ L.T), h)
+        for _ in range(halvings):
+            Q = symmetrize(F @ Q @ F.T + Q)
+            F = F @ F
+        if np.all(np.isfinite(Q)):
+            break
+    return F, Q if scale == 0 else np.ldexp(Q, -scale)
 
 
 def _rate(A: np.ndarray) -> float:

@@ -68,7 +68,8 @@ class NonlinearModel:
     out that faint (a range by ``np.linalg.norm`` beside other outputs),
     its change along a real step is checked and the Jacobian is taken by
     finite differences instead; an output that mixes such an operation with
-    others (``x[0] + abs(x[1])``) is wrong silently. Pass analytic Jacobians
+    others (``x[0] + abs(x[1])``, a pseudorange ``np.linalg.norm(p - s) +
+    b`` with a clock bias b) is wrong silently. Pass analytic Jacobians
     for such functions, or write them analytically (``np.sqrt`` of a sum of
     squares).
 
