@@ -278,7 +278,18 @@ def test_a_model_that_fails_on_zeros_reads_its_structure_from_the_data():
         got = gf.filter(model, prior, da.from_array(zs, chunks=(1, 3, 1)), method="ekf", check="off")
         np.testing.assert_array_equal(got.means.compute(), want.means)
 
-    # ... and its controls past its end are its own again: zeros failed an f of log u (review R20)
+    # ... nor beyond its end, where the model's own predictions took f out of its domain (review R21)
+    model = gf.NonlinearModel(f=lambda x: np.sqrt(x - 1.0), h=lambda x: x, Q=[[1e-4]], R=[[1e-2]])
+    prior = gf.Gaussian([10.0], [[1e-4]])
+    zs = np.array([[[10.0], [3.0]]] * 3)
+    for method in ("ekf", "ukf"):
+        want = gf.filter(model, prior, zs, method=method, check="off")
+        with dask.config.set(scheduler="synchronous"):
+            got = gf.filter(model, prior, da.from_array(zs, chunks=(1, 2, 1)), method=method, check="off")
+            np.testing.assert_array_equal(got.means.compute(), want.means)
+            np.testing.assert_array_equal(got.covs.compute(), want.covs)
+
+    # ... and its controls are its own: zeros failed an f of log u (review R20)
     def f_log(x, u):
         return np.array([x[0] + np.log(u[0])])
 

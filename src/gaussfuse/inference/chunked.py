@@ -107,7 +107,7 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         n, m and p by more than one step, so that its time axes are told
         apart from the model's; where the model's functions fail on zeros,
         on the first series' own first steps (its first chunk computed),
-        with measurements missing past its end.
+        or the whole of it when it is shorter.
 
     Raises
     ------
@@ -139,13 +139,8 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     def meta(steps: int, own: bool = False):
         stepped = None if grid is None else start + np.concatenate([[0.0], np.cumsum(
             np.full(steps, grid.step) if grid.regular else np.resize(grid.dts, steps))])
-        probes = [None if a is None else np.zeros((1, steps, a.shape[2])) for a in (zs, us)]
-        if own:  # the first series' first steps; past its end, measurements missing and its controls again
-            head = min(steps, T)
-            probes[0][:, :head] = np.asarray(zs[:1, :head].compute(), dtype=np.float64)
-            probes[0][:, head:] = np.nan  # (its measurements again made a seam the model failed on: review R19)
-            if us is not None:  # (0 past its end failed an f of log u: review R20)
-                probes[1] = np.resize(np.asarray(us[:1, :head].compute(), dtype=np.float64), probes[1].shape)
+        probes = [None if a is None else np.zeros((1, steps, a.shape[2])) if not own else
+                  np.asarray(a[:1, :steps].compute(), dtype=np.float64) for a in (zs, us)]  # (its first steps)
         return run(zs=probes[0], us=probes[1], **{**kwargs, "engine": "python", "check": "off", "times": stepped})
 
     # A result's other axes are the model's n, m and p: an axis of the probe's length, or one less or more, is a
@@ -159,7 +154,11 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     except (ValueError, FloatingPointError):  # (a ModelFunctionError, a LinAlgError)
         template = None  # the model's f or h fail where zeros lead it (a square root of a level: audit BB3)
     if template is None:  # the data's own first steps lead it where the chunks will (not within `except`: its
-        try:  # error is then the data's alone)
+        # error is then the data's alone); a series shorter than the probe is taken whole, whose axes are then
+        # the result's (made longer, by steps missing or by its steps again, the model met a state or a seam that
+        # no series has: reviews R19-R21)
+        probe = min(probe, T)
+        try:
             template = meta(probe, own=True)
         except (ValueError, FloatingPointError) as err:  # at a step of the first series: name it, as a chunk does
             step = re.match(r"at step (\d+)", str(err))
