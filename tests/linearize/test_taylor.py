@@ -275,6 +275,30 @@ def test_a_component_known_exactly_is_not_stepped_by_finite_differences():
     assert J[0, 0] == 0.0 and J[0, 1] == pytest.approx(1.0, rel=1e-4)
 
 
+@pytest.mark.parametrize("lost", ["norm", "vdot", "abs"])
+def test_a_dropped_range_is_found_whatever_the_offset(lost):
+    """Checked along one direction, a range whose offset from its beacon was perpendicular to it did not change
+    either way, and kept its row of 0 (review R23: x = (4, 3) under a spread of 1). The oracle is analytic."""
+    distance = {"norm": np.linalg.norm, "vdot": lambda d: np.sqrt(np.vdot(d, d)),
+                "abs": lambda d: np.abs(d[0] + 1j * d[1])}[lost]
+    h = lambda x: np.array([distance(x[:2]), x[1]])  # noqa: E731
+    for x in ([4.0, 3.0], [3.0, -4.0], [6.0, 5.0], [1.0, 1.0], [-2.0, 7.5]):
+        x = np.array(x)
+        J = jacobian("h", h, x, (), 2, spread=np.array([1.0, 1.0]))
+        np.testing.assert_allclose(J, [x / np.hypot(*x), [0.0, 1.0]], rtol=1e-9, atol=1e-9)
+
+
+def test_a_dropped_output_beside_a_domains_edge_is_found_from_the_side_that_has_it():
+    """The check's central difference had no evidence where f raised a step behind x, and kept a row of 0."""
+    def h(x):
+        if x[0] < 1.0:
+            raise ValueError("domain: x0 >= 1")
+        return np.array([np.linalg.norm(x - np.array([10.0, 0.0])), x[1]])
+
+    with pytest.raises(ModelFunctionError, match="domain: x0 >= 1"):  # (finite differences step across it too)
+        jacobian("h", h, np.array([1.0, 0.5]), (), 2, spread=np.array([1.0, 1.0]))
+
+
 def test_a_stationary_output_keeps_the_complex_step():
     """At a stationary point the one-sided real check saw the quadratic term and fell back to finite
     differences (27 calls for 2; review R22): the check is a central difference. A vectorized output of the
@@ -287,7 +311,7 @@ def test_a_stationary_output_keeps_the_complex_step():
 
     J = jacobian("h", h, np.array([0.0]), (), 2, spread=np.array([0.3]))
     np.testing.assert_array_equal(J, [[1.0], [0.0]])
-    assert len(calls) <= 3
+    assert len(calls) <= 5  # the complex step's, and the check's two directions (finite differences took 27)
     with pytest.raises(ModelFunctionError, match=r"`h` must return shape \(1, 1\) .* got shape \(1,\)"):  # (IndexError)
         jacobian("h", lambda X: np.sum(np.abs(X - 10.0) ** 2, axis=-1) ** 0.5, np.array([0.5, -0.3]), (), 1,
                  vectorized=True, spread=np.array([1.0, 1.0]))

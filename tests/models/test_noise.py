@@ -431,7 +431,8 @@ def test_a_subnormal_density_keeps_its_digits(A, dt, q):
 
 
 @pytest.mark.parametrize("a, dt, L, Qc", [(-0.01, 1.0, 1e250, 1e-310), (1.0, 600.0, 1.0, 1e-310),
-                                         (0.5, 100.0, 1e-160, 1.0), (1e6, 5e-4, 1.0, 3e-308), (1e6, 5e-4, 1.0, 1e-320)])
+                                         (0.5, 100.0, 1e-160, 1.0), (1e6, 5e-4, 1.0, 3e-308), (1e6, 5e-4, 1.0, 1e-320),
+                                         (1.0, 700.0, 1e-165, 1.0), (1e25, 3e-23, 1.0, 1e-320)])  # (review R23)
 def test_a_small_density_is_scaled_only_as_far_as_its_q_allows(a, dt, L, Qc):
     """A subnormal Qc was scaled up by 2**600 whatever L and the growth: Q = 9.9e189 and 7.1e210 overflowed
     ("a step too long"), while W subnormal by a tiny L, or a Qc just above the subnormals, lost 5e-4 and 1e-9
@@ -441,7 +442,15 @@ def test_a_small_density_is_scaled_only_as_far_as_its_q_allows(a, dt, L, Qc):
     Q = van_loan([[a]], [[L]], Qc, dt)[1][0, 0]
     with mp.workdps(60):
         exact = mp.mpf(L) ** 2 * mp.mpf(Qc) * mp.expm1(2 * mp.mpf(a) * mp.mpf(dt)) / (2 * mp.mpf(a))
-    assert Q == pytest.approx(float(exact), rel=1e-12)
+    assert Q == pytest.approx(float(exact), rel=1e-14 * max(1.0, 2 * abs(a) * dt))  # (the Notes' eps alpha dt)
+
+
+def test_a_density_and_a_growth_beyond_float64s_range_are_refused_not_zero():
+    """W = 1e-330 grown to 5e309, or to 1e301 (more than float64 spans from W), came back as Q = 0, silently, from
+    the retry without scaling, where W underflows (review R23)."""
+    for dt in (7e34, 6.9e34):
+        with pytest.raises(ValueError, match="too long for van_loan"):
+            van_loan([[1e-32]], [[1e-165]], 1.0, dt)
 
 
 def test_a_stiff_drift_loses_its_slow_mode_as_documented():

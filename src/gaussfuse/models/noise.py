@@ -148,14 +148,18 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     rate = _rate(A)
     halvings = max(0, ceil(log2(rate) + log2(dt)) + 1) if rate > 0 else 0  # (rate * dt may overflow)
     h = float(np.ldexp(dt, -halvings))  # (dt / 2.0**halvings overflows for a rate dt past 2**1024)
-    # Q is linear in Qc: a density whose W = L Qc Lᵀ would lie within 52 bits of the subnormal floats, where it
-    # has lost digits and would lose more in the series, is scaled into the normal ones by a power of 2 (exact),
-    # and Q back at the end, rounded once (review R21); unless that overflows, where W was not small (review R22)
+    # Q is linear in Qc: a density whose W h = L Qc Lᵀ h (the series' first term) would lie within 52 bits of the
+    # subnormal floats, where it has lost digits and would lose more in the series, is scaled into the normal ones
+    # by a power of 2 (exact), and Q back at the end, rounded once (review R21); by less where that overflows
+    # (review R22), and not at all as a last resort
     tops = [float(np.max(np.abs(M), initial=0.0)) for M in (L, Qc)]
-    low = 2 * int(np.frexp(tops[0])[1]) + int(np.frexp(tops[1])[1])  # about log2 of W's largest entry
+    low = 2 * int(np.frexp(tops[0])[1]) + int(np.frexp(tops[1])[1]) + min(0, int(np.frexp(h)[1]))  # W, W h: above
     shift = max(0, -970 - low) if min(tops) > 0.0 else 0
-    for scale in ((shift, 0) if shift else (0,)):
-        F, Q = _series(A, symmetrize(L @ np.ldexp(Qc, scale) @ L.T), h)
+    for scale in ((shift, shift // 2, shift // 4, 0) if shift else (0,)):
+        W = symmetrize(L @ np.ldexp(Qc, scale) @ L.T)
+        if shift and scale == 0 and not W.any():  # W and Q span more than float64 holds: said as an overflow,
+            return F, np.full_like(W, np.inf)  # not as a Q of 0 (review R23)
+        F, Q = _series(A, W, h)
         for _ in range(halvings):
             Q = symmetrize(F @ Q @ F.T + Q)
             F = F @ F
