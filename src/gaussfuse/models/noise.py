@@ -112,11 +112,12 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     better F there. A density whose :math:`W = L Q_c L^T` lies near or
     below the smallest normal float is scaled into the normal ones by a
     power of 2 and Q back (a q of 1e-320 is within 2.2e-13 where its Q
-    grows to 1e107), but an entry of W below the normal floats beside a far larger
-    one keeps only the digits its float has, and can lose them (W =
-    diag(1, 1e-320) gives a Q that should be 1e107 as 0). A coupling is not
-    a rate: against a 700-digit oracle,
-    Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
+    grows to 1e107), but an entry of W below the normal floats beside a
+    far larger one keeps only the digits its float has, and can lose them
+    (W = diag(1, 1e-320) gives a Q that should be 1e107 as 0); and a W and
+    a Q further apart than float64 spans (W = 1e-330 grown to 1e301) are
+    refused as an overflow. A coupling is not a rate: against a 700-digit
+    oracle, Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
     ``[[-1e-3, 1e6], [0, -2e-3]]`` over 1e3 s within 3.6e-15 (1.5e-8).
