@@ -299,6 +299,18 @@ def test_a_dropped_output_beside_a_domains_edge_is_found_from_the_side_that_has_
         jacobian("h", h, np.array([1.0, 0.5]), (), 2, spread=np.array([1.0, 1.0]))
 
 
+def test_a_stationary_output_beside_a_domains_edge_keeps_the_complex_step():
+    """One side's difference saw the quadratic term of an output at a stationary point, fell back to finite
+    differences, and those stepped past the edge (review R24: ModelFunctionError for an exact [[0, 0], [0, 1]])."""
+    def h(z):
+        if np.real(z[0]) < 0:
+            raise ValueError("domain: x0 >= 0")
+        return np.array([5.0 + z[0] ** 2, z[1]])
+
+    J = jacobian("h", h, np.array([0.0, 1.0]), (), 2, spread=np.array([0.1, 0.1]))
+    np.testing.assert_array_equal(J, [[0.0, 0.0], [0.0, 1.0]])
+
+
 def test_a_stationary_output_keeps_the_complex_step():
     """At a stationary point the one-sided real check saw the quadratic term and fell back to finite
     differences (27 calls for 2; review R22): the check is a central difference. A vectorized output of the

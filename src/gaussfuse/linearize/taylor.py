@@ -141,7 +141,8 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     (audit CC1). Only outputs whose derivatives are that faint are checked: along two directions of unequal
     weights (along one, a range whose offset was perpendicular to it did not change: review R23), each by half
     its central difference, whose quadratic term cancels at a stationary point (one side's did not: review
-    R22); by one side's difference from x where f raises on the other (a domain's edge).
+    R22); where f raises on one side (a domain's edge), by the other side's two steps, whose combination
+    2 (f(x + m) - f(x)) - (f(x + 2m) - f(x)) / 2 cancels it too (review R24).
     """
     n = x.shape[0]
     k = np.arange(n)
@@ -166,9 +167,10 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
         else:
             centre = at(x) if centre is None else centre
             side, sign = (ahead, 1.0) if ahead is not None else (behind, -1.0)
-            if side is None or centre is None:
+            further = None if side is None else at(x + 2 * sign * move)
+            if further is None or centre is None:
                 continue  # no evidence either way
-            change, ends = sign * (side - centre)[rows], (side, centre)
+            change, ends = sign * (2 * (side - centre) - (further - centre) / 2)[rows], (further, centre)
         slack = 64 * eps * np.maximum(np.abs(ends[0]), np.abs(ends[1]))[rows]
         if np.any(np.abs(change - (J @ move)[rows]) > 0.01 * np.abs(change) + slack):
             return True

@@ -115,8 +115,8 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     grows to 1e107), but an entry of W below the normal floats beside a
     far larger one keeps only the digits its float has, and can lose them
     (W = diag(1, 1e-320) gives a Q that should be 1e107 as 0); and a W and
-    a Q further apart than float64 spans (W = 1e-330 grown to 1e301) are
-    refused as an overflow. A coupling is not a rate: against a 700-digit
+    a Q further apart than float64's normal floats span, about 1e616 (W =
+    1e-340 grown to 2.7e289), are refused as an overflow. A coupling is not a rate: against a 700-digit
     oracle, Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
@@ -149,24 +149,34 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     rate = _rate(A)
     halvings = max(0, ceil(log2(rate) + log2(dt)) + 1) if rate > 0 else 0  # (rate * dt may overflow)
     h = float(np.ldexp(dt, -halvings))  # (dt / 2.0**halvings overflows for a rate dt past 2**1024)
-    # Q is linear in Qc: a density whose W h = L Qc Lᵀ h (the series' first term) would lie within 52 bits of the
-    # subnormal floats, where it has lost digits and would lose more in the series, is scaled into the normal ones
-    # by a power of 2 (exact), and Q back at the end, rounded once (review R21); by less where that overflows
-    # (review R22), and not at all as a last resort
-    tops = [float(np.max(np.abs(M), initial=0.0)) for M in (L, Qc)]
-    low = 2 * int(np.frexp(tops[0])[1]) + int(np.frexp(tops[1])[1]) + min(0, int(np.frexp(h)[1]))  # W, W h: above
-    shift = max(0, -970 - low) if min(tops) > 0.0 else 0
-    for scale in ((shift, shift // 2, shift // 4, 0) if shift else (0,)):
-        W = symmetrize(L @ np.ldexp(Qc, scale) @ L.T)
-        if shift and scale == 0 and not W.any():  # W and Q span more than float64 holds: said as an overflow,
-            return F, np.full_like(W, np.inf)  # not as a Q of 0 (review R23)
-        F, Q = _series(A, W, h)
+    F = Q = None
+    for a, b in _density_scales(L, Qc):
+        La = np.ldexp(L, a)
+        F, Q = _series(A, symmetrize(La @ np.ldexp(Qc, b) @ La.T), h)
         for _ in range(halvings):
             Q = symmetrize(F @ Q @ F.T + Q)
             F = F @ F
         if np.all(np.isfinite(Q)):
             break
-    return F, Q if scale == 0 else np.ldexp(Q, -scale)
+    return F, Q if 2 * a + b == 0 else np.ldexp(Q, -(2 * a + b))
+
+
+def _density_scales(L: np.ndarray, Qc: np.ndarray) -> list[tuple[int, int]]:
+    """The powers of 2 (a, b) to scale L and Qc by, tried in turn until Q is finite (Q scales by 2^-(2a + b)).
+
+    Q is linear in W = L Qc Lᵀ. A W below 2^-511 has lost digits, or would lose them in the series (its
+    terms are W h^k / k!), so it is taken to 2^-511 (L to about 1, Qc to the rest: neither overflows), which
+    leaves Q room to grow by 2^1534; where it grows more, to 2^-1000; and, where W is normal, as it is last.
+    Scaling by a power of 2 is exact, and Q is rounded once on the way back (reviews R21-R24: a subnormal W lost
+    80 ulps, a scaled Q overflowed, a retry underflowed W to 0).
+    """
+    tops = [float(np.max(np.abs(M), initial=0.0)) for M in (L, Qc)]
+    if min(tops) == 0.0:
+        return [(0, 0)]
+    eL, eQ = (int(np.frexp(top)[1]) for top in tops)
+    natural = 2 * eL + eQ  # about log2 of W's largest entry, from above
+    tries = [(-eL, target - eQ) for target in (-511, -1000) if natural < target]
+    return tries + [(0, 0)] if natural >= -1000 else tries
 
 
 def _rate(A: np.ndarray) -> float:
