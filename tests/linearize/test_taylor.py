@@ -310,6 +310,14 @@ def test_a_stationary_output_beside_a_domains_edge_keeps_the_complex_step():
     J = jacobian("h", h, np.array([0.0, 1.0]), (), 2, spread=np.array([0.1, 0.1]))
     np.testing.assert_array_equal(J, [[0.0, 0.0], [0.0, 1.0]])
 
+    def narrow(z):  # a domain narrower than the check's two steps: its one step still finds a dropped range
+        if not 0.0 <= np.real(z[0]) <= 1.5e-4:  # (review R25: no evidence, and a silent row of 0)
+            raise ValueError("domain: 0 <= x0 <= 1.5e-4")
+        return np.array([np.linalg.norm(z - np.array([10.0, 0.0])), z[1]])
+
+    with pytest.raises(ModelFunctionError, match="domain: 0 <= x0"):  # (finite differences step out of it)
+        jacobian("h", narrow, np.array([0.0, 1.0]), (), 2, spread=np.array([0.1, 0.1]))
+
 
 def test_a_stationary_output_keeps_the_complex_step():
     """At a stationary point the one-sided real check saw the quadratic term and fell back to finite

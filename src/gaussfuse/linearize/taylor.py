@@ -142,7 +142,8 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     weights (along one, a range whose offset was perpendicular to it did not change: review R23), each by half
     its central difference, whose quadratic term cancels at a stationary point (one side's did not: review
     R22); where f raises on one side (a domain's edge), by the other side's two steps, whose combination
-    2 (f(x + m) - f(x)) - (f(x + 2m) - f(x)) / 2 cancels it too (review R24).
+    2 (f(x + m) - f(x)) - (f(x + 2m) - f(x)) / 2 cancels it too (review R24), or its one step where the
+    second leaves the domain as well.
     """
     n = x.shape[0]
     k = np.arange(n)
@@ -167,10 +168,13 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
         else:
             centre = at(x) if centre is None else centre
             side, sign = (ahead, 1.0) if ahead is not None else (behind, -1.0)
-            further = None if side is None else at(x + 2 * sign * move)
-            if further is None or centre is None:
+            if side is None or centre is None:
                 continue  # no evidence either way
-            change, ends = sign * (2 * (side - centre) - (further - centre) / 2)[rows], (further, centre)
+            further = at(x + 2 * sign * move)
+            if further is not None:
+                change, ends = sign * (2 * (side - centre) - (further - centre) / 2)[rows], (further, centre)
+            else:  # a domain narrower than two steps: one step, whose quadratic term may send a stationary point
+                change, ends = sign * (side - centre)[rows], (side, centre)  # to finite differences (review R25)
         slack = 64 * eps * np.maximum(np.abs(ends[0]), np.abs(ends[1]))[rows]
         if np.any(np.abs(change - (J @ move)[rows]) > 0.01 * np.abs(change) + slack):
             return True

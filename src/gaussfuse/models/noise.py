@@ -114,9 +114,9 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     power of 2 and Q back (a q of 1e-320 is within 2.2e-13 where its Q
     grows to 1e107), but an entry of W below the normal floats beside a
     far larger one keeps only the digits its float has, and can lose them
-    (W = diag(1, 1e-320) gives a Q that should be 1e107 as 0); and a W and
-    a Q further apart than float64's normal floats span, about 1e616 (W =
-    1e-340 grown to 2.7e289), are refused as an overflow. A coupling is not a rate: against a 700-digit
+    (W = diag(1, 1e-320) gives a Q that should be 1e107 as 0); and a
+    subnormal W and a Q more than about 3e609 apart (W = 1e-340 grown to
+    2.7e289; less for a fast rate) are refused as an overflow. A coupling is not a rate: against a 700-digit
     oracle, Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
@@ -150,9 +150,12 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     halvings = max(0, ceil(log2(rate) + log2(dt)) + 1) if rate > 0 else 0  # (rate * dt may overflow)
     h = float(np.ldexp(dt, -halvings))  # (dt / 2.0**halvings overflows for a rate dt past 2**1024)
     F = Q = None
-    for a, b in _density_scales(L, Qc):
+    for a, b in _density_scales(L, Qc, h):
         La = np.ldexp(L, a)
-        F, Q = _series(A, symmetrize(La @ np.ldexp(Qc, b) @ La.T), h)
+        W = symmetrize(La @ np.ldexp(Qc, b) @ La.T)
+        if (a, b) == (0, 0) and Q is not None and np.max(np.abs(W)) < np.finfo(np.float64).tiny:
+            return F, np.full_like(W, np.inf)  # W and Q further apart than float64 holds: an overflow, not a Q
+        F, Q = _series(A, W, h)  # of subnormal digits (reviews R23, R25)
         for _ in range(halvings):
             Q = symmetrize(F @ Q @ F.T + Q)
             F = F @ F
@@ -161,22 +164,24 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return F, Q if 2 * a + b == 0 else np.ldexp(Q, -(2 * a + b))
 
 
-def _density_scales(L: np.ndarray, Qc: np.ndarray) -> list[tuple[int, int]]:
+def _density_scales(L: np.ndarray, Qc: np.ndarray, h: float) -> list[tuple[int, int]]:
     """The powers of 2 (a, b) to scale L and Qc by, tried in turn until Q is finite (Q scales by 2^-(2a + b)).
 
-    Q is linear in W = L Qc Lᵀ. A W below 2^-511 has lost digits, or would lose them in the series (its
-    terms are W h^k / k!), so it is taken to 2^-511 (L to about 1, Qc to the rest: neither overflows), which
-    leaves Q room to grow by 2^1534; where it grows more, to 2^-1000; and, where W is normal, as it is last.
-    Scaling by a power of 2 is exact, and Q is rounded once on the way back (reviews R21-R24: a subnormal W lost
-    80 ulps, a scaled Q overflowed, a retry underflowed W to 0).
+    Q is linear in W = L Qc Lᵀ, and the series' first term is W h. Where W h is below 2^-1000, it has lost
+    digits, or would lose them in the series, so W is taken to 2^-511 (L to about 1, Qc to the rest: neither
+    overflows), or higher where h is that small, which leaves Q room to grow by about 2^1534; where it grows
+    more, to the least that keeps W h at 2^-1000; and last, as it is. Scaling by a power of 2 is exact, and Q
+    is rounded once on the way back (reviews R21-R25: a subnormal W lost 80 ulps, a scaled Q overflowed, a
+    retry left W h subnormal or 0).
     """
     tops = [float(np.max(np.abs(M), initial=0.0)) for M in (L, Qc)]
     if min(tops) == 0.0:
         return [(0, 0)]
     eL, eQ = (int(np.frexp(top)[1]) for top in tops)
     natural = 2 * eL + eQ  # about log2 of W's largest entry, from above
-    tries = [(-eL, target - eQ) for target in (-511, -1000) if natural < target]
-    return tries + [(0, 0)] if natural >= -1000 else tries
+    least = -1000 - min(0, int(np.frexp(h)[1]))  # the least exponent of W that keeps W h at 2^-1000
+    targets = sorted({max(-511, least), least}, reverse=True)
+    return [(-eL, target - eQ) for target in targets if natural < target] + [(0, 0)]
 
 
 def _rate(A: np.ndarray) -> float:
