@@ -318,6 +318,14 @@ def test_a_stationary_output_beside_a_domains_edge_keeps_the_complex_step():
     with pytest.raises(ModelFunctionError, match="domain: 0 <= x0"):  # (finite differences step out of it)
         jacobian("h", narrow, np.array([0.0, 1.0]), (), 2, spread=np.array([0.1, 0.1]))
 
+    def narrow_stationary(z):  # ... where a stationary point keeps its exact derivative (review R26: it fell back)
+        if not 0.0 <= np.real(z[0]) <= 1.5e-4:
+            raise ValueError("domain: 0 <= x0 <= 1.5e-4")
+        return np.array([5.0 + z[0] ** 2, z[1]])
+
+    J = jacobian("h", narrow_stationary, np.array([0.0, 1.0]), (), 2, spread=np.array([0.1, 0.1]))
+    np.testing.assert_array_equal(J, [[0.0, 0.0], [0.0, 1.0]])
+
 
 def test_a_stationary_output_keeps_the_complex_step():
     """At a stationary point the one-sided real check saw the quadratic term and fell back to finite

@@ -436,7 +436,8 @@ def test_a_subnormal_density_keeps_its_digits(A, dt, q):
                                          (1000.0, 0.692706, 1e-175, 1.0), (1000.0, 0.692706, 1e-180, 1.0),
                                          (1.0, 700.0, 1e-180, 1.0), (1.0, 500.0, 1e-305, 1e-5),  # (review R24)
                                          (8.02e14, 7.97e-13, 1.0, 7e-306), (1e25, 6e-23, 1.0, 1e-310),
-                                         (1494.6, 0.4729, -8.56e-106, 5.6e-97)])  # (review R25)
+                                         (1494.6, 0.4729, -8.56e-106, 5.6e-97),  # (review R25)
+                                         (1e3, 0.7025, 1.0, 1e-320), (1e3, 0.704, 1.0, 1e-320)])  # (review R26)
 def test_a_small_density_is_scaled_only_as_far_as_its_q_allows(a, dt, L, Qc):
     """A subnormal Qc was scaled up by 2**600 whatever L and the growth: Q = 9.9e189 and 7.1e210 overflowed
     ("a step too long"), while W subnormal by a tiny L, or a Qc just above the subnormals, lost 5e-4 and 1e-9

@@ -141,9 +141,9 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     (audit CC1). Only outputs whose derivatives are that faint are checked: along two directions of unequal
     weights (along one, a range whose offset was perpendicular to it did not change: review R23), each by half
     its central difference, whose quadratic term cancels at a stationary point (one side's did not: review
-    R22); where f raises on one side (a domain's edge), by the other side's two steps, whose combination
-    2 (f(x + m) - f(x)) - (f(x + 2m) - f(x)) / 2 cancels it too (review R24), or its one step where the
-    second leaves the domain as well.
+    R22); where f raises on one side (a domain's edge), by that side's step and half step, whose combination
+    4 (f(x + m/2) - f(x)) - (f(x + m) - f(x)) cancels it too within the step (review R24; a second step
+    could leave a narrow domain: review R26).
     """
     n = x.shape[0]
     k = np.arange(n)
@@ -168,13 +168,10 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
         else:
             centre = at(x) if centre is None else centre
             side, sign = (ahead, 1.0) if ahead is not None else (behind, -1.0)
-            if side is None or centre is None:
+            half = None if side is None or centre is None else at(x + sign * move / 2)
+            if half is None:
                 continue  # no evidence either way
-            further = at(x + 2 * sign * move)
-            if further is not None:
-                change, ends = sign * (2 * (side - centre) - (further - centre) / 2)[rows], (further, centre)
-            else:  # a domain narrower than two steps: one step, whose quadratic term may send a stationary point
-                change, ends = sign * (side - centre)[rows], (side, centre)  # to finite differences (review R25)
+            change, ends = sign * (4 * (half - centre) - (side - centre))[rows], (side, centre)
         slack = 64 * eps * np.maximum(np.abs(ends[0]), np.abs(ends[1]))[rows]
         if np.any(np.abs(change - (J @ move)[rows]) > 0.01 * np.abs(change) + slack):
             return True

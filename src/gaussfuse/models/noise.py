@@ -115,8 +115,9 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     grows to 1e107), but an entry of W below the normal floats beside a
     far larger one keeps only the digits its float has, and can lose them
     (W = diag(1, 1e-320) gives a Q that should be 1e107 as 0); and a
-    subnormal W and a Q more than about 3e609 apart (W = 1e-340 grown to
-    2.7e289; less for a fast rate) are refused as an overflow. A coupling is not a rate: against a 700-digit
+    subnormal W and a Q more than about 8e609 apart (W = 1e-340 grown to
+    2.7e289; 1.6e605 at a rate of 1e11, where the last ones computed are
+    2e-10 off) are refused as an overflow. A coupling is not a rate: against a 700-digit
     oracle, Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
@@ -170,7 +171,7 @@ def _density_scales(L: np.ndarray, Qc: np.ndarray, h: float) -> list[tuple[int, 
     Q is linear in W = L Qc Lᵀ, and the series' first term is W h. Where W h is below 2^-1000, it has lost
     digits, or would lose them in the series, so W is taken to 2^-511 (L to about 1, Qc to the rest: neither
     overflows), or higher where h is that small, which leaves Q room to grow by about 2^1534; where it grows
-    more, to the least that keeps W h at 2^-1000; and last, as it is. Scaling by a power of 2 is exact, and Q
+    more, to the least that keeps W h at 2^-1000, then W at 2^-1000; and last, as it is. Scaling by a power of 2 is exact, and Q
     is rounded once on the way back (reviews R21-R25: a subnormal W lost 80 ulps, a scaled Q overflowed, a
     retry left W h subnormal or 0).
     """
@@ -180,7 +181,8 @@ def _density_scales(L: np.ndarray, Qc: np.ndarray, h: float) -> list[tuple[int, 
     eL, eQ = (int(np.frexp(top)[1]) for top in tops)
     natural = 2 * eL + eQ  # about log2 of W's largest entry, from above
     least = -1000 - min(0, int(np.frexp(h)[1]))  # the least exponent of W that keeps W h at 2^-1000
-    targets = sorted({max(-511, least), least}, reverse=True)
+    targets = sorted({max(-511, least), least, -1000}, reverse=True)  # (and W at 2^-1000, W h at least normal for
+    # a few steps' more growth: review R26)
     return [(-eL, target - eQ) for target in targets if natural < target] + [(0, 0)]
 
 
