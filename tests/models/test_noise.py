@@ -452,10 +452,15 @@ def test_a_small_density_is_scaled_only_as_far_as_its_q_allows(a, dt, L, Qc):
 
 def test_a_density_and_a_growth_beyond_float64s_range_are_refused_not_zero():
     """W = 1e-330 grown to 5e309, or to 1e301 (more than float64 spans from W), came back as Q = 0, silently, from
-    the retry without scaling, where W underflows (review R23)."""
+    the retry without scaling, where W underflows (review R23); at fast rates, tries whose W h had underflowed
+    gave 0 or 4.8% for Q = 1e265 to 1e288 (review R27)."""
     for dt in (7e34, 6.9e34):
         with pytest.raises(ValueError, match="too long for van_loan"):
             van_loan([[1e-32]], [[1e-165]], 1.0, dt)
+    for a, dt, q in ((1e25, 7.0264e-23, 1e-320), (1e20, 7.0264e-18, 1e-320), (1e25, 7.0264e-23, 1e-305),
+                     (1e20, 7.0264e-18, 1e-302)):
+        with pytest.raises(ValueError, match="too long for van_loan"):
+            van_loan([[a]], [[1.0]], q, dt)
 
 
 def test_a_stiff_drift_loses_its_slow_mode_as_documented():

@@ -116,8 +116,9 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     far larger one keeps only the digits its float has, and can lose them
     (W = diag(1, 1e-320) gives a Q that should be 1e107 as 0); and a
     subnormal W and a Q more than about 8e609 apart (W = 1e-340 grown to
-    2.7e289; 1.6e605 at a rate of 1e11, where the last ones computed are
-    2e-10 off) are refused as an overflow. A coupling is not a rate: against a 700-digit
+    2.7e289; less for a fast rate, 3e598 at a rate of 1e11 and 5e589 at
+    1e20, where the last ones computed are within 1.2e-12) are refused as
+    an overflow. A coupling is not a rate: against a 700-digit
     oracle, Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
@@ -154,8 +155,8 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     for a, b in _density_scales(L, Qc, h):
         La = np.ldexp(L, a)
         W = symmetrize(La @ np.ldexp(Qc, b) @ La.T)
-        if (a, b) == (0, 0) and Q is not None and np.max(np.abs(W)) < np.finfo(np.float64).tiny:
-            return F, np.full_like(W, np.inf)  # W and Q further apart than float64 holds: an overflow, not a Q
+        if (a, b) == (0, 0) and Q is not None and np.max(np.abs(W)) * min(1.0, h) < 2.0**-1032:  # (42 bits left)
+            return F, np.full_like(W, np.inf)  # W h and Q further apart than float64 holds: an overflow, not a Q
         F, Q = _series(A, W, h)  # of subnormal digits (reviews R23, R25)
         for _ in range(halvings):
             Q = symmetrize(F @ Q @ F.T + Q)
@@ -171,7 +172,9 @@ def _density_scales(L: np.ndarray, Qc: np.ndarray, h: float) -> list[tuple[int, 
     Q is linear in W = L Qc Lᵀ, and the series' first term is W h. Where W h is below 2^-1000, it has lost
     digits, or would lose them in the series, so W is taken to 2^-511 (L to about 1, Qc to the rest: neither
     overflows), or higher where h is that small, which leaves Q room to grow by about 2^1534; where it grows
-    more, to the least that keeps W h at 2^-1000, then W at 2^-1000; and last, as it is. Scaling by a power of 2 is exact, and Q
+    more, to the least that keeps W h at 2^-1000, then W at 2^-1000 where W h stays normal; and last, as it
+    is, unless W h keeps fewer than 42 bits there, below 2^-1032 (then refused as an overflow: a Q of lost
+    digits, or 0, is not one). Scaling by a power of 2 is exact, and Q
     is rounded once on the way back (reviews R21-R25: a subnormal W lost 80 ulps, a scaled Q overflowed, a
     retry left W h subnormal or 0).
     """
@@ -180,9 +183,10 @@ def _density_scales(L: np.ndarray, Qc: np.ndarray, h: float) -> list[tuple[int, 
         return [(0, 0)]
     eL, eQ = (int(np.frexp(top)[1]) for top in tops)
     natural = 2 * eL + eQ  # about log2 of W's largest entry, from above
-    least = -1000 - min(0, int(np.frexp(h)[1]))  # the least exponent of W that keeps W h at 2^-1000
-    targets = sorted({max(-511, least), least, -1000}, reverse=True)  # (and W at 2^-1000, W h at least normal for
-    # a few steps' more growth: review R26)
+    eh = min(0, int(np.frexp(h)[1]))
+    least = -1000 - eh  # the least exponent of W that keeps W h at 2^-1000
+    targets = sorted({t for t in (max(-511, least), least, -1000) if t + eh >= -1032}, reverse=True)  # (W at
+    # 2^-1000 too, for a few steps' more growth, review R26, where W h keeps 42 bits: review R27)
     return [(-eL, target - eQ) for target in targets if natural < target] + [(0, 0)]
 
 
