@@ -155,9 +155,11 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     for a, b in _density_scales(L, Qc, h):
         La = np.ldexp(L, a)
         W = symmetrize(La @ np.ldexp(Qc, b) @ La.T)
-        if (a, b) == (0, 0) and Q is not None and np.max(np.abs(W)) * min(1.0, h) < 2.0**-1032:  # (42 bits left)
-            return F, np.full_like(W, np.inf)  # W h and Q further apart than float64 holds: an overflow, not a Q
-        F, Q = _series(A, W, h)  # of subnormal digits (reviews R23, R25)
+        # the scaled tries overflowed, and unscaled, W h keeps fewer than 42 bits: W h and Q are further apart
+        # than float64 holds, an overflow, not a Q of subnormal digits or 0 (reviews R23, R25, R27)
+        if (a, b) == (0, 0) and Q is not None and np.max(np.abs(W)) * min(1.0, h) < 2.0**-1032:
+            return F, np.full_like(W, np.inf)
+        F, Q = _series(A, W, h)
         for _ in range(halvings):
             Q = symmetrize(F @ Q @ F.T + Q)
             F = F @ F
@@ -172,11 +174,10 @@ def _density_scales(L: np.ndarray, Qc: np.ndarray, h: float) -> list[tuple[int, 
     Q is linear in W = L Qc Lᵀ, and the series' first term is W h. Where W h is below 2^-1000, it has lost
     digits, or would lose them in the series, so W is taken to 2^-511 (L to about 1, Qc to the rest: neither
     overflows), or higher where h is that small, which leaves Q room to grow by about 2^1534; where it grows
-    more, to the least that keeps W h at 2^-1000, then W at 2^-1000 where W h stays normal; and last, as it
-    is, unless W h keeps fewer than 42 bits there, below 2^-1032 (then refused as an overflow: a Q of lost
-    digits, or 0, is not one). Scaling by a power of 2 is exact, and Q
-    is rounded once on the way back (reviews R21-R25: a subnormal W lost 80 ulps, a scaled Q overflowed, a
-    retry left W h subnormal or 0).
+    more, to the least that keeps W h at 2^-1000, then W at 2^-1000; each only where W h keeps 42 bits (at
+    least 2^-1032); and last, as it is, which :func:`van_loan` refuses as an overflow where W h keeps fewer (a
+    Q of lost digits, or 0, is not one). Scaling by a power of 2 is exact, and Q is rounded once on the way
+    back (reviews R21-R27: a subnormal W lost 80 ulps, a scaled Q overflowed, a retry left W h subnormal or 0).
     """
     tops = [float(np.max(np.abs(M), initial=0.0)) for M in (L, Qc)]
     if min(tops) == 0.0:
