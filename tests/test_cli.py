@@ -352,29 +352,30 @@ def test_filter_plot_has_a_title_a_track_panel_and_says_what_it_drew(tmp_path, c
     np.testing.assert_array_equal(track.get_lines()[1].get_xdata(), values[:, 1])
 
 
-def test_filter_plot_of_iso_times_counts_seconds_from_the_first(tmp_path, capsys, monkeypatch):
-    data = tmp_path / "d.csv"
-    data.write_text("time,z\n2026-05-01T12:00:00Z,1.0\n2026-05-01T12:00:02Z,2.0\n2026-05-01T12:00:03Z,2.5\n")
-    toml = tmp_path / "m.toml"
-    toml.write_text('[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.1\nr = 1.0\n')
+def _plotted_axis(tmp_path, capsys, monkeypatch, data_text: str, model_text: str, *argv):
+    """`gaussfuse filter --plot` of one measurement column: the figure's one axis (no track panel)."""
+    data, toml = tmp_path / "d.csv", tmp_path / "m.toml"
+    data.write_text(data_text)
+    toml.write_text(model_text)
     drawn = []
     monkeypatch.setattr(cli.plotting, "save_figure", lambda fig, path: drawn.append(fig))
-    assert run(capsys, "filter", data, "-m", toml, "--plot", tmp_path / "f.png")[0] == 0
-    (ax,) = drawn[0].get_axes()  # one column: no track panel
+    assert run(capsys, "filter", data, "-m", toml, *argv, "--plot", tmp_path / "f.png")[0] == 0
+    (ax,) = drawn[0].get_axes()
+    return ax
+
+
+def test_filter_plot_of_iso_times_counts_seconds_from_the_first(tmp_path, capsys, monkeypatch):
+    ax = _plotted_axis(tmp_path, capsys, monkeypatch,
+                       "time,z\n2026-05-01T12:00:00Z,1.0\n2026-05-01T12:00:02Z,2.0\n2026-05-01T12:00:03Z,2.5\n",
+                       '[model]\nkind = "constant_velocity"\ndt = 1.0\nq = 0.1\nr = 1.0\n')
     assert ax.get_xlabel() == "time since 2026-05-01T12:00:00Z (s)"
     np.testing.assert_array_equal(ax.get_lines()[1].get_xdata(), [0.0, 2.0, 3.0])
 
 
 def test_filter_plot_of_explicit_matrices_gives_their_time_column_no_unit(tmp_path, capsys, monkeypatch):
     """Explicit matrices only label the rows with the time column (here years): it is not in seconds."""
-    data = tmp_path / "nile.csv"
-    data.write_text("year,flow\n1871,1120\n1872,1160\n1873,963\n")
-    toml = tmp_path / "m.toml"
-    toml.write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1469.1]]\nR = [[15099.0]]\n")
-    drawn = []
-    monkeypatch.setattr(cli.plotting, "save_figure", lambda fig, path: drawn.append(fig))
-    assert run(capsys, "filter", data, "-m", toml, "--time-column", "year", "--plot", tmp_path / "f.png")[0] == 0
-    (ax,) = drawn[0].get_axes()
+    ax = _plotted_axis(tmp_path, capsys, monkeypatch, "year,flow\n1871,1120\n1872,1160\n1873,963\n",
+                       "[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1469.1]]\nR = [[15099.0]]\n", "--time-column", "year")
     assert ax.get_xlabel() == "year"
     np.testing.assert_array_equal(ax.get_lines()[1].get_xdata(), [1871.0, 1872.0, 1873.0])
 

@@ -197,11 +197,7 @@ def _rate(A: np.ndarray) -> float:
 
 
 @lru_cache(maxsize=64)
-def _rate_of(shape: tuple, data: bytes) -> float:
-    return _rate_uncached(np.frombuffer(data, dtype=np.float64).reshape(shape))
-
-
-def _rate_uncached(A: np.ndarray, most: int = 9) -> float:
+def _rate_of(shape: tuple, data: bytes, most: int = 9) -> float:
     r"""How fast the series of :math:`e^{Ah}` grows with h: :math:`\min_{p < 9} \max(d_p, d_{p+1})`, with
     :math:`d_p = \|A^p\|_1^{1/p}` (Al-Mohy and Higham's :math:`\alpha_p`), at most :math:`\|A\|_1`; 0 when
     a power up to the 9th is exactly 0 (a chain of up to 8 integrators), as every higher one then is.
@@ -209,6 +205,7 @@ def _rate_uncached(A: np.ndarray, most: int = 9) -> float:
     The powers are taken of :math:`A / \|A\|_1`, each scaled to norm 1 on the way (its size kept in
     logarithms), so that none overflows or underflows.
     """
+    A = np.frombuffer(data, dtype=np.float64).reshape(shape)
     norm = float(np.max(np.sum(np.abs(A), axis=0)))
     if norm == 0.0:
         return 0.0
