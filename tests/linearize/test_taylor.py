@@ -75,9 +75,12 @@ def test_vectorized_complex_step_uses_one_call():
         calls.append(X.shape)
         return np.stack([X[:, 0] * X[:, 1], np.cos(X[:, 0])], axis=-1)
 
-    J = jacobian("f", f, np.array([0.3, 2.0]), (), 2, vectorized=True)
+    J = jacobian("f", f, np.array([0.3, 2.0]), (), 2, vectorized=True, check="faint")
     np.testing.assert_allclose(J, [[2.0, 0.3], [-np.sin(0.3), 0.0]], rtol=1e-14)
     assert calls == [(2, 2)]
+    calls.clear()  # checking every row against differences costs four more calls, of one state each
+    np.testing.assert_array_equal(jacobian("f", f, np.array([0.3, 2.0]), (), 2, vectorized=True), J)
+    assert calls == [(2, 2)] + [(1, 2)] * 4
 
 
 def test_taylor_strategy_uses_given_jacobians_and_controls():
@@ -286,6 +289,57 @@ def test_a_dropped_range_is_found_whatever_the_offset(lost):
         x = np.array(x)
         J = jacobian("h", h, x, (), 2, spread=np.array([1.0, 1.0]))
         np.testing.assert_allclose(J, [x / np.hypot(*x), [0.0, 1.0]], rtol=1e-9, atol=1e-9)
+
+
+_BEACONS = np.array([[10.0, 0.0], [0.0, 12.0], [-7.0, -3.0]])
+
+
+def _pseudoranges(x):
+    """Ranges to three beacons through np.linalg.norm (which drops a complex step), plus a clock bias x[2]."""
+    return np.array([np.linalg.norm(x[:2] - b) + x[2] for b in _BEACONS])
+
+
+def _pseudorange_jacobian(x):
+    d = x[:2] - _BEACONS
+    return np.hstack([d / np.linalg.norm(d, axis=1)[:, None], np.ones((3, 1))])
+
+
+def test_a_dropped_range_beside_a_derivative_that_is_kept_is_found():
+    """The bias kept its derivative of 1, so no row was faint and the ranges' slopes were 0, silently: the EKF was
+    1.99 off the filter with the analytic Jacobian after 5 steps. The oracle is analytic."""
+    x = np.array([1.0, 2.0, 0.5])
+    J = jacobian("h", _pseudoranges, x, (), 3, spread=np.ones(3))
+    np.testing.assert_allclose(J, _pseudorange_jacobian(x), rtol=1e-9, atol=1e-9)
+    exact = jacobian("h", _pseudoranges, x, (), 3, spread=np.ones(3), check="faint")  # (the rows not checked)
+    np.testing.assert_array_equal(exact[:, :2], 0.0)
+
+    kw = dict(f=lambda x: x, h=_pseudoranges, Q=0.01 * np.eye(3), R=0.1 * np.eye(3))
+    models = [NonlinearModel(**kw), NonlinearModel(**kw, f_jacobian=lambda x: np.eye(3), h_jacobian=_pseudorange_jacobian)]
+    zs = np.array([_pseudoranges(np.array([1.0, 2.0, 0.5])) + 0.1 * k for k in range(5)])
+    prior = gf.Gaussian([0.0, 0.0, 0.0], np.eye(3))
+    for method in ("ekf", "iekf"):
+        got, want = (gf.filter(m, prior, zs, method=method) for m in models)
+        np.testing.assert_allclose(got.means, want.means, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(got.covs, want.covs, rtol=1e-8, atol=1e-10)
+
+
+def test_a_function_is_checked_at_its_first_jacobian_and_remembered():
+    """One that refuses complex input is not offered it again; one that drops it is differenced from then on."""
+    offered = []
+
+    def h(x):
+        offered.append(np.iscomplexobj(x))
+        if np.iscomplexobj(x):
+            raise TypeError("real only")
+        return np.array([math.sin(x[0])])
+
+    model = NonlinearModel(lambda x: x, h, np.eye(1), np.eye(1), f_jacobian=lambda x: np.eye(1))
+    gf.filter(model, gf.Gaussian([0.1], [[1.0]]), np.zeros((6, 1)), method="ekf")
+    assert sum(offered) == 1 and len(offered) > 6
+    lin = Taylor(NonlinearModel(lambda x: x, _pseudoranges, np.eye(3), np.eye(3)))
+    for x in ([1.0, 2.0, 0.5], [3.0, -1.0, 0.0]):
+        H = lin.measurement(0, np.array(x), np.eye(3))[0]
+        np.testing.assert_allclose(H, _pseudorange_jacobian(np.array(x)), rtol=1e-9, atol=1e-9)
 
 
 def test_a_dropped_output_beside_a_domains_edge_is_found_from_the_side_that_has_it():

@@ -33,7 +33,7 @@ lose an output below about 1e-208 to underflow."""
 
 def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
              vectorized: bool = False, spread: np.ndarray | None = None,
-             angles: np.ndarray | None = None) -> np.ndarray:
+             angles: np.ndarray | None = None, check: str = "all") -> np.ndarray:
     """Jacobian of ``fn(x, *args)`` (returning shape (size,)) at x of shape (n,).
 
     Complex-step differentiation [1]_ when `fn` accepts complex input:
@@ -65,6 +65,16 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
     angles : array of bool, shape (size,), optional
         Outputs that are angles: their finite differences are wrapped to
         [-π, π), so that a step across the ±π cut is not a jump of 2π.
+    check : {"all", "faint"}, default "all"
+        Which rows of the complex-step Jacobian are checked against
+        differences of `fn` (two central differences, :func:`_dropped`),
+        and replaced by finite differences where they disagree: every row,
+        or only those whose derivatives are all too small to move the
+        output. A function that drops the imaginary part on the way
+        (``np.linalg.norm``, ``np.abs``, ``np.real``) gives the affected
+        derivatives 0; a pseudorange ``norm(p - s) + b`` keeps only the
+        clock bias b's. :class:`Taylor` checks every row at a function's
+        first Jacobian and the faint ones after.
 
     Returns
     -------
@@ -76,7 +86,7 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
        derivative approximation", ACM TOMS 29(3), 2003.
     """
     try:
-        return complex_step_jacobian(name, fn, x, args, size, vectorized, spread)
+        return complex_step_jacobian(name, fn, x, args, size, vectorized, spread, check)
     except _RejectsComplex:
         return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread, angles)
 
@@ -105,8 +115,11 @@ class _RejectsComplex(Exception):
 
 
 def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
-                          vectorized: bool = False, spread: np.ndarray | None = None) -> np.ndarray:
-    """Complex-step Jacobian, shape (size, n); see :func:`jacobian`."""
+                          vectorized: bool = False, spread: np.ndarray | None = None,
+                          check: str = "all") -> np.ndarray:
+    """Complex-step Jacobian, shape (size, n); see :func:`jacobian`. Raises ``_RejectsComplex`` where `fn`
+    refuses a complex argument, returns a real or non-finite one, or changes otherwise than the `check`ed rows
+    say."""
     n = x.shape[0]
     step = _COMPLEX_STEP * _scales(x, spread, floor=False)  # no cancellation to fear: no state-wide floor
     X = x + 1j * np.diag(step)
@@ -124,8 +137,11 @@ def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, s
     J = Y.reshape(n, size).imag.T / step
     if not np.all(np.isfinite(J)):
         raise _RejectsComplex
-    faint = np.abs(J) @ step <= 1e-28 * np.abs(Y.reshape(n, size)[0].real)  # (1e-8 of the output, over a scale)
-    if faint.any() and _dropped(fn, x, args, vectorized, step / _COMPLEX_STEP, J, faint, size):
+    if check == "all":
+        rows = np.ones(size, dtype=bool)
+    else:  # derivatives that move the output by less than 1e-8 of itself over a scale
+        rows = np.abs(J) @ step <= 1e-28 * np.abs(Y.reshape(n, size)[0].real)
+    if rows.any() and _dropped(fn, x, args, vectorized, step / _COMPLEX_STEP, J, rows, size):
         raise _RejectsComplex  # an output that the step's imaginary part did not reach, but x does
     return J
 
@@ -138,7 +154,8 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     A complex step gives an output a derivative of 0 (or of round-off) when the function drops the imaginary
     part on the way (``np.linalg.norm``, ``np.vdot``, ``np.abs``, ``np.real``, ``np.angle``) and returns other
     outputs that keep it, so the result is complex: a range beside a bearing got no gradient at all, silently
-    (audit CC1). Only outputs whose derivatives are that faint are checked: along two directions of unequal
+    (audit CC1), and a pseudorange beside its clock bias only the bias's. The rows are checked along two
+    directions of unequal
     weights (along one, a range whose offset was perpendicular to it did not change: review R23), each by half
     its central difference, whose quadratic term cancels at a stationary point (one side's did not: review
     R22); where f raises on one side (a domain's edge), by that side's step and half step, whose combination
@@ -280,6 +297,7 @@ class Taylor:
 
     def __init__(self, model, us: np.ndarray | None = None) -> None:
         self.model, self.us = model, us
+        self._complex: dict[str, bool] = {}  # whether f's and h's complex steps held at their first Jacobian
 
     def _affine(self, name, fn, jac, x, spread, args, size, vectorized):
         y = (self.model.transition(x, *args) if name == "f" else self.model.measurement(x))
@@ -287,9 +305,23 @@ class Taylor:
             A = call_checked(f"{name}_jacobian", jac, x, args, (size, x.shape[0]),
                              size_reason(f"{name}_jacobian", size, x.shape[0]))
         else:
-            angles = self.model.state_angles if name == "f" else self.model.measurement_angles
-            A = jacobian(name, fn, x, args, size, vectorized, spread, angles)
+            A = self._jacobian(name, fn, x, args, size, vectorized, spread)
         return A, y - A @ x
+
+    def _jacobian(self, name, fn, x, args, size, vectorized, spread):
+        # The first Jacobian of f (or h) checks every row of its complex step against differences (:func:`jacobian`);
+        # a function that failed it is differenced from then on, one that passed has only its faint rows checked:
+        # a norm inside f drops the imaginary part at every x, and checking every row costs four more calls of f.
+        trusted = self._complex.get(name)
+        if trusted is not False:
+            try:
+                A = complex_step_jacobian(name, fn, x, args, size, vectorized, spread, "faint" if trusted else "all")
+                self._complex[name] = True
+                return A
+            except _RejectsComplex:
+                self._complex.setdefault(name, False)
+        angles = self.model.state_angles if name == "f" else self.model.measurement_angles
+        return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread, angles)
 
     def transition(self, k: int, mean: np.ndarray, cov: np.ndarray | None):
         """``(A, b, Q)`` with A the Jacobian of f at `mean` (`cov`, if given, only scales finite differences)."""

@@ -64,14 +64,17 @@ class NonlinearModel:
     Complex-step differentiation assumes f and h are analytic in the real
     variables. Operations that drop the imaginary part (``abs``,
     ``np.linalg.norm``, ``np.vdot``, ``np.real``, ``np.angle``) give a
-    derivative of 0 through them: where a whole output's derivative comes
-    out that faint (a range by ``np.linalg.norm`` beside other outputs),
-    its change along a real step is checked and the Jacobian is taken by
-    finite differences instead; an output that mixes such an operation with
-    others (``x[0] + abs(x[1])``, a pseudorange ``np.linalg.norm(p - s) +
-    b`` with a clock bias b) is wrong silently. Pass analytic Jacobians
-    for such functions, or write them analytically (``np.sqrt`` of a sum of
-    squares).
+    derivative of 0 through them. So the first Jacobian of f, and of h,
+    in each filter or smoother run is checked row by row against central
+    differences along two directions, and a function that fails the check
+    (a range by ``np.linalg.norm``, a pseudorange ``np.linalg.norm(p - s)
+    + b`` with a clock bias b) is differentiated by finite differences
+    from then on; after the first, only an output whose whole derivative
+    comes out faint is checked again. A function that drops the imaginary
+    part at some states and not at the first (behind a branch on x) can
+    give a wrong derivative silently there. Pass analytic Jacobians for
+    such functions, or write them analytically (``np.sqrt`` of a sum of
+    squares) for exact derivatives.
 
     The model is immutable. It copies (``copy.copy``, ``copy.deepcopy``)
     whatever its functions, and pickles when they do: module-level
