@@ -8,13 +8,14 @@ import numpy as np
 
 from . import kalman
 from ._linalg import symmetrize
-from ._validation import as_array, as_matrix, check_psd, real, shape_error
+from ._validation import StepOverflowError, as_array, as_matrix, check_psd, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .inference.registry import linearisation, resolve_method
 from .inference.validation import check_form, check_prior
 from .models.compose import TimedModel
+from .models.motion import LinearMotion
 from .models.linear import LinearModel
 
 __all__ = ["KalmanFilter"]
@@ -43,10 +44,12 @@ class KalmanFilter:
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
+    model : LinearModel, NonlinearModel or TimedModel
         The model; for a time-varying one, the k-th call of :meth:`predict`
         uses its matrices at step k (counting from 0), and :meth:`update`
-        those of the step last predicted.
+        those of the step last predicted. A TimedModel (built by
+        :func:`gaussfuse.model` without dt) is discretised for the `dt` of
+        each :meth:`predict`.
     prior : Gaussian
         The belief before the first :meth:`predict`.
     form : {"cov", "sqrt"}, default "cov"
@@ -84,7 +87,9 @@ class KalmanFilter:
         As given (read-only).
     F, H, Q, R, B : ndarray
         The model's matrices (read-only: assigning one is an error that
-        says how to change it, as filterpy's ``f.Q = ...`` would not work).
+        says how to change it, as filterpy's ``f.Q = ...`` would not work);
+        for a TimedModel, those of the last step predicted (before the
+        first, of a step of 1 s, or shorter where that overflows).
     step : int
         Number of predictions made so far.
     loglik : float
@@ -131,7 +136,7 @@ class KalmanFilter:
                  **options) -> None:
         self.timed = model if isinstance(model, TimedModel) else None
         if self.timed is not None:
-            model = self.timed.at(np.array([1.0]))[0]  # its form over one step: the method, dimensions and angles
+            model, self._timed_p = _one_step(self.timed)
         spec, options = resolve_method(model, method, options, KalmanFilter)
         check_form(spec, form)
         self._monitor = DivergenceMonitor.for_check(check)
@@ -152,7 +157,7 @@ class KalmanFilter:
         self.y = self.S = self.K = self.rejected = None
         self.log_likelihood = self.mahalanobis = np.nan
 
-    model = _fixed("model", lambda self: self._model, "The model (read-only).")
+    model = _fixed("model", lambda self: self.timed or self._model, "The model as given (read-only).")
     method = _fixed("method", lambda self: self._method, "The method's name (read-only).")
     form = _fixed("form", lambda self: self._form, 'The form, "cov" or "sqrt" (read-only).')
     F, H, Q, R, B = (_fixed(name, lambda self, name=name: getattr(self._model, name), f"The model's {name} (read-only).")
@@ -165,9 +170,14 @@ class KalmanFilter:
         return kalman.SteadyState() if getattr(self._lin, "invariant", False) and self._iterations == 1 else None
 
     def __getstate__(self) -> dict:
-        # pickles and copies keep the read-only arrays (x_prior, y, ...) read-only
+        # pickles and copies keep the read-only arrays (x_prior, y, ...) read-only, and the belief's arrays
+        # themselves: the fixed point is held by the very covariance (and factor) object, which a Gaussian,
+        # pickled by copying its arrays, lost (audit DD3: a copy then differed from the original by 4e-16)
         state = dict(self.__dict__)
         state["_readonly"] = [name for name, v in state.items() if isinstance(v, np.ndarray) and not v.flags.writeable]
+        state["_belief"] = (self._belief.mean, self._belief.cov)
+        if self._factor is not None:
+            state["_factor"] = self._factor[1] if self._factor[0] is self._belief else None
         return state
 
     def __copy__(self) -> KalmanFilter:
@@ -178,11 +188,13 @@ class KalmanFilter:
     def __setstate__(self, state: dict) -> None:
         readonly = state.pop("_readonly", ())
         self.__dict__.update(state)
+        self._belief = Gaussian._trusted(*state["_belief"])
+        self._factor = None if state["_factor"] is None else (self._belief, state["_factor"])
         for name in readonly:
             self.__dict__[name].setflags(write=False)
 
     def __repr__(self) -> str:
-        return (f"KalmanFilter({self.timed or self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "
+        return (f"KalmanFilter({self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "
                 f"loglik={self.loglik:.6g})")
 
     # -- the belief, and filterpy's x and P --------------------------------
@@ -195,7 +207,7 @@ class KalmanFilter:
 
     @belief.setter
     def belief(self, value: Gaussian) -> None:
-        self._belief = check_prior(value, self.model.n, name="belief")
+        self._belief = check_prior(value, self._model.n, name="belief")
         self._views.clear()
         self._steady = self._fresh_steady()  # the recursion starts again from a belief set by hand
 
@@ -221,7 +233,7 @@ class KalmanFilter:
 
     def _checked(self, x, P) -> Gaussian:
         """``Gaussian(x, P)``, its errors naming `x` and `P` (filterpy's names, the ones the user wrote)."""
-        return Gaussian._named(x, P, self.model.n, ("x", "P"))
+        return Gaussian._named(x, P, self._model.n, ("x", "P"))
 
     def _view(self, name: str, value: np.ndarray) -> np.ndarray:
         """A writable copy of the belief's `value`, the same one until the belief changes."""
@@ -247,12 +259,17 @@ class KalmanFilter:
         """A lower-triangular factor of the belief's covariance, ``P = L Lᵀ``, shape (n, n); read-only, as the
         belief's arrays are (the square-root form steps on from it: a write into it changed the next step's
         covariance, while `P` still showed the old one)."""
+        view = self._own_factor().view()
+        view.setflags(write=False)
+        return view
+
+    def _own_factor(self) -> np.ndarray:
+        """The belief's factor itself, which the square-root form steps from: the fixed point is held by that very
+        object (a view of it, as :attr:`L` hands out, never reused it: audit DD3)."""
         belief = self.belief
         if self._factor is None or self._factor[0] is not belief:  # a belief set by hand, or the prior
             self._factor = (belief, kalman.cov_factor(belief.cov, "the belief's covariance"))
-        view = self._factor[1].view()
-        view.setflags(write=False)
-        return view
+        return self._factor[1]
 
     def _set(self, mean: np.ndarray, factor: np.ndarray) -> Gaussian:
         """Make ``N(mean, L Lᵀ)`` the belief, remembering its factor L."""
@@ -261,7 +278,7 @@ class KalmanFilter:
         return self._belief
 
     def _check_step(self, k: int) -> None:
-        steps = getattr(self.model, "steps", None)
+        steps = getattr(self._model, "steps", None)
         if steps is not None and not 0 <= k < steps:
             raise ValueError(f"the time-varying model has {steps} steps; step {k} is beyond it.")
 
@@ -291,12 +308,12 @@ class KalmanFilter:
         belief = self.belief
         k = self.step
         self._check_step(k)
-        # a NonlinearModel's too, when it knows its f's controls (audit AA1); a TimedModel's nonlinear steps take
-        # dt as a control of their own, which the user does not give
-        p = getattr(self.model, "p", None) if self.timed is None or isinstance(self.model, LinearModel) else None
+        # a NonlinearModel's too, when it knows its f's controls (audit AA1); a TimedModel's, its motion's (its
+        # nonlinear steps take dt as a control of their own, which the user does not give: audit DD3)
+        p = getattr(self._model, "p", None) if self.timed is None else self._timed_p
         if p == 0 and u is not None:
             raise ValueError("`u` was given but the model has no control input"
-                             + ("; give the model `B`." if isinstance(self.model, LinearModel) else "."))
+                             + ("; give the model `B`." if isinstance(self._model, LinearModel) else "."))
         if u is None and p:
             raise ValueError(f"`u` is required: the model has a control input with p = {p}.")
         if u is not None:
@@ -309,10 +326,10 @@ class KalmanFilter:
         self._controls[k] = u
         lin = self._replaced(F=F, Q=Q)
         # f(x) or f(x, u): a strategy passes u_k when it has controls at all
-        lin.us = self._controls if u is not None or isinstance(self.model, LinearModel) else None
+        lin.us = self._controls if u is not None or isinstance(self._model, LinearModel) else None
         steady = self._steady if lin is self._lin else None
         if self.form == "sqrt":
-            self._set(*self._run(kalman.forecast_sqrt, lin, k, belief.mean, self.L, self._roots, self._angles[0],
+            self._set(*self._run(kalman.forecast_sqrt, lin, k, belief.mean, self._own_factor(), self._roots, self._angles[0],
                                  steady=steady))
         else:
             mean, cov = self._run(kalman.forecast, lin, k, belief.mean, belief.cov, self._angles[0], steady=steady)
@@ -353,9 +370,9 @@ class KalmanFilter:
         belief = self.belief
         k = max(self.step - 1, 0)
         self._check_step(k)
-        m = self.model.m if H is None else self._matrix("H", H, None, self.model.n).shape[0]
-        if H is not None and m != self.model.m and R is None:
-            raise ValueError(f"`R` is required with an `H` of {m} rows: the model's R is for {self.model.m}.")
+        m = self._model.m if H is None else self._matrix("H", H, None, self._model.n).shape[0]
+        if H is not None and m != self._model.m and R is None:
+            raise ValueError(f"`R` is required with an `H` of {m} rows: the model's R is for {self._model.m}.")
         z = np.full(m, np.nan) if z is None else np.atleast_1d(as_array("z", z, allow_nan=True))
         if z.shape != (m,):
             raise shape_error("z", f"({m},)", z.shape)
@@ -364,7 +381,7 @@ class KalmanFilter:
         xa, za = self._angles
         checked_gate = kalman.Gate.of(gate, gate_by)
         if self.form == "sqrt":
-            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self.L, z, self._roots, xa, za, steady=steady,
+            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self._own_factor(), z, self._roots, xa, za, steady=steady,
                              gate=checked_gate)
             self._set(post.mean, post.factor)
         else:
@@ -376,7 +393,7 @@ class KalmanFilter:
         self._views.clear()
         self.loglik += post.loglik
         observed = ~np.isnan(post.innovation)
-        K = np.zeros((self.model.n, m))
+        K = np.zeros((self._model.n, m))
         if post.gain is not None:
             K[:, observed] = post.gain
         self.x_post, self.P_post = self._belief.mean, self._belief.cov
@@ -396,7 +413,7 @@ class KalmanFilter:
             raise ValueError("`dt` is required: the model was built by gf.model(motion, sensor) without dt, so each "
                              "step is discretised for its own time step.")
         self._model, controls = self.timed.at(np.array([real("dt", dt, positive=True)]), None if u is None else u[None])
-        self._lin = linearisation(self._spec, self.model, self._controls, self._options)[0]
+        self._lin = linearisation(self._spec, self._model, self._controls, self._options)[0]
         return None if controls is None else controls[0]
 
     # -- one call's matrices ------------------------------------------------
@@ -410,14 +427,14 @@ class KalmanFilter:
         given = {name: value for name, value in given.items() if value is not None}
         if not given:
             return self._lin
-        n = self.model.n
-        linear = isinstance(self.model, LinearModel)
+        n = self._model.n
+        linear = isinstance(self._model, LinearModel)
         if not linear and ("F" in given or "H" in given):
             raise TypeError(f"`{'F' if 'F' in given else 'H'}` replaces a LinearModel's matrix; a NonlinearModel's "
                             "f and h are functions (replace Q and R only).")
         shapes = {"F": (n, n), "Q": (n, n), "H": (None, n), "R": (m, m)}
         checked = {name: self._matrix(name, value, *shapes[name]) for name, value in given.items()}
-        return linearisation(self._spec, _Replaced(self.model, checked), self._controls, self._options)[0]
+        return linearisation(self._spec, _Replaced(self._model, checked), self._controls, self._options)[0]
 
     @staticmethod
     def _run(half, lin, k: int, *args, **kwargs):
@@ -431,6 +448,21 @@ class KalmanFilter:
                 return half(lin, k, *args, **kwargs)
         except STEP_ERRORS as exc:
             raise at_step(exc, k) from exc
+
+
+def _one_step(timed: TimedModel) -> tuple:
+    """A TimedModel's model over one step, for the method, dimensions and angles, and the number of controls its
+    motion takes (its nonlinear steps take dt too, which the user does not give): of 1 s, or shorter where that
+    overflows (a LinearSDE's rate of 800/s: audit DD3), as :class:`TimedModel` checks itself."""
+    dt = 1.0
+    while True:
+        try:
+            B = timed.motion.control(dt) if isinstance(timed.motion, LinearMotion) else None
+            return timed.at(np.array([dt]))[0], 0 if B is None else B.shape[1]
+        except StepOverflowError:
+            if dt < 1e-290:
+                raise
+            dt *= 2.0**-32
 
 
 class _Replaced:

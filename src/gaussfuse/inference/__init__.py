@@ -230,7 +230,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
             gains=gains, check=check, gate=gate, gate_by=gate_by, times=times, **options))
     model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form, filter)
-    check_steady(steady, spec, form, prior)
+    check_steady(steady, spec, form, prior, model, times)
     gains = flag("gains", gains)
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")

@@ -112,13 +112,17 @@ def check_form(spec, form) -> None:
                          "(the iterated methods re-linearise within a step, which the square-root step does not).")
 
 
-def check_steady(steady, spec, form: str, prior) -> None:
-    """`steady` must be a bool, and True only for the Kalman filter in the covariance form, with a Gaussian prior."""
+def check_steady(steady, spec, form: str, prior, model, times) -> None:
+    """`steady` must be a bool, and True only for the Kalman filter in the covariance form, with a Gaussian prior,
+    and not at irregular `times` (`model` as they discretised it)."""
     flag("steady", steady)
     if steady and (spec.name != "kf" or form != "cov" or isinstance(prior, str)):
         raise ValueError("`steady=True` is for method 'kf' in the covariance form with a Gaussian prior; got "
                          f"method {spec.name!r}, form {form!r}" + (", a 'diffuse' prior." if isinstance(prior, str)
                                                                    else "."))
+    if steady and times is not None and np.ndim(model.F) == 3:  # (audit DD3: the message named a time axis)
+        raise ValueError("`steady=True` needs one time step, and the `times` given are irregular: each step has "
+                         "its own F and Q, so the filter has no steady state.")
 
 
 def prepare(model, prior, zs, us, method, options, form: str = "cov", caller=None):
