@@ -103,6 +103,44 @@ def test_rmse():
     assert dg.rmse(errors, np.zeros(4)) == dg.rmse(errors[:, None], np.zeros((4, 1)))
 
 
+def test_rmse_of_errors_near_the_ends_of_the_floats():
+    """The squares were formed directly: errors of 1e155 gave inf and of 1e-170 gave 0 (audit DD2). The oracle is
+    analytic: errors (e, e) and (2e, 0) have an RMSE of e sqrt(3)."""
+    for e in (1e300, 1e200, 1e155, 1.0, 1e-170, 1e-200, 1e-300):
+        errors = np.array([[e, e], [2 * e, 0.0]])
+        assert dg.rmse(errors, np.zeros((2, 2))) == pytest.approx(e * np.sqrt(3.0), rel=1e-15)
+    stacked = np.array([[[1e200, 0.0]], [[1e-200, 0.0]]])  # each mean over its own scale
+    np.testing.assert_allclose(dg.rmse(stacked, np.zeros_like(stacked), axis=1), [1e200, 1e-200], rtol=1e-15)
+    assert dg.rmse([1e308], [-1e308]) == np.inf  # a difference beyond the largest float
+
+
+def test_a_monitor_with_check_off_says_nothing_but_still_finds_the_windows():
+    """"off" was accepted and then warned like "warn" (audit DD2)."""
+    update = gf.kalman.update(np.zeros(1), np.eye(1), np.array([40.0]), np.eye(1), np.eye(1))
+    quiet = dg.DivergenceMonitor(window=4, check="off")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for k in range(8):
+            quiet.observe(update, k, "steps {}-{}")
+    tested = dg.DivergenceMonitor(window=4, check="off")  # the windows are still tested
+    assert [tested.add(update.nis, 1, k) for k in range(4)][-1] == (0, 3, update.nis)
+    loud = dg.DivergenceMonitor(window=4)
+    with pytest.warns(gf.DivergenceWarning):
+        for k in range(8):
+            loud.observe(update, k, "steps {}-{}")
+
+
+def test_the_default_whiteness_lags_count_the_steps_observed_in_full():
+    """The docstring said min(10, T // 5) of all T steps (audit DD2)."""
+    model = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=0.1 * np.eye(2), R=np.eye(2))
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    zs = np.array(gf.simulate(model, prior, 40, rng=0).measurements)
+    zs[::2, 1] = np.nan  # 20 of the 40 steps complete: min(10, 20 // 5) = 4 lags
+    assert dg.consistency(gf.filter(model, prior, zs)).whiteness.autocorrelation.size == 4
+    zs[:35, 1] = np.nan  # 5 complete steps: no test
+    assert dg.consistency(gf.filter(model, prior, zs)).whiteness is None
+
+
 # ---------------------------------------------------------------------------
 # divergence: the chi-square window test behind filter(check=...)
 # ---------------------------------------------------------------------------

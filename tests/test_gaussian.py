@@ -412,6 +412,23 @@ def test_sample_names_a_bad_rng(rng, error):
     with pytest.raises(error, match=r"^`rng` must be None, a non-negative integer seed or a numpy.random.Generator; got "):
         gf.Gaussian(0.0, 1.0).sample(2, rng=rng)
     assert gf.Gaussian(0.0, 1.0).sample(2, rng=3).shape == (2, 1)
+    # anything numpy.random.default_rng takes, as documented (audit DD2)
+    for seeded in (np.random.SeedSequence(3), np.random.RandomState(3), np.random.default_rng(3)):
+        assert gf.Gaussian(0.0, 1.0).sample(2, rng=seeded).shape == (2, 1)
+
+
+def test_a_component_known_exactly_fuses_to_zero_or_to_round_off_as_documented():
+    """Exactly 0 from the narrower belief (by trace), about ε² of the other's variance from the wider (audit DD2:
+    the Notes said round-off in both cases)."""
+    other = gf.Gaussian([0.0, 0.0], [[2.0, 0.5], [0.5, 1.0]])
+    narrower = gf.Gaussian([1.0, 2.0], [[0.0, 0.0], [0.0, 1.0]])
+    wider = gf.Gaussian([1.0, 2.0], [[0.0, 0.0], [0.0, 100.0]])
+    for a, b in ((narrower, other), (other, narrower)):
+        fused = gf.fuse(a, b)
+        assert fused.cov[0, 0] == 0.0 and fused.mean[0] == 1.0
+    fused = gf.fuse(wider, other)
+    assert 0.0 <= fused.cov[0, 0] <= 4 * np.finfo(float).eps ** 2 * 2.0
+    assert fused.mean[0] == pytest.approx(1.0, abs=1e-15)
 
 
 

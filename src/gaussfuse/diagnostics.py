@@ -529,8 +529,10 @@ class DivergenceMonitor:
     false_alarm : float, default 1e-3
         The largest probability that a consistent filter is ever flagged,
         however long it runs.
-    check : {"warn", "raise"}, default "warn"
-        What :meth:`observe` does with a failing window.
+    check : {"warn", "raise", "off"}, default "warn"
+        What :meth:`observe` does with a failing window: warn, raise, or
+        nothing ("off": :meth:`add` and :meth:`add_many` still return the
+        windows that fail).
 
     Notes
     -----
@@ -718,7 +720,7 @@ class DivergenceMonitor:
                 first, last, K, N = found
                 messages.append(gate_lost([f"{K} of {N} over {where.format(first, last)}"], gate.by, gate.probability,
                                           0, self.window))
-        if not messages:
+        if not messages or self.check == "off":  # (audit DD2: "off" warned)
             return
         message = " ".join(messages)
         if self.check == "raise":
@@ -846,8 +848,14 @@ def rmse(estimates, truth, axis=None, angles=None) -> np.ndarray | float:
         raise shape_error("truth", f"{a.shape}, that of `estimates`", b.shape)
     if a.ndim == 1:  # a series of scalars
         a, b = a[:, None], b[:, None]
-    diff = wrap_components(a - b, None if angles is None else component_mask("angles", angles, a.shape[-1]))
-    out = np.sqrt(np.mean(np.sum(diff ** 2, axis=-1), axis=axis))
+    with np.errstate(over="ignore"):  # (a difference beyond the largest float is an error of inf)
+        diff = wrap_components(a - b, None if angles is None else component_mask("angles", angles, a.shape[-1]))
+    # in units of the largest difference that each mean takes in, so that the squares neither overflow (errors
+    # of 1e155 gave inf) nor underflow (1e-170 gave 0: audit DD2)
+    top = np.max(np.abs(diff), axis=-1)
+    largest = np.max(top, axis=axis, keepdims=True)
+    unit = np.where((largest > 0.0) & np.isfinite(largest), largest, 1.0)
+    out = np.squeeze(unit, axis=axis) * np.sqrt(np.mean(np.sum((diff / unit[..., None]) ** 2, axis=-1), axis=axis))
     return float(out) if np.ndim(out) == 0 else out
 
 
@@ -930,7 +938,9 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
         True states (simulation): adds NEES and RMSE.
     confidence : float, default 0.95
     lags : int, optional
-        Whiteness lags (default min(10, T // 5)); the test needs T >= 10.
+        Whiteness lags (default min(10, C // 5), with C the steps whose
+        components are all observed, after a diffuse start); the test needs
+        C >= 10.
     angles : sequence of int or of bool, optional
         The state components that are angles (the model's
         ``state_angles``): their errors ``truth - mean`` are wrapped to

@@ -144,7 +144,8 @@ class Gaussian:
         size : int, optional
             Number of samples, >= 0; None for a single one.
         rng : int, numpy.random.Generator or None, optional
-            Seed or generator, as for :func:`numpy.random.default_rng`.
+            Seed or generator: anything :func:`numpy.random.default_rng`
+            takes (a ``SeedSequence``, a ``RandomState`` too).
 
         Returns
         -------
@@ -157,7 +158,7 @@ class Gaussian:
             When `size` is neither None nor an integer, or `rng` is not a seed
             or a Generator.
         ValueError
-            When `size` is negative.
+            When `size` or an integer `rng` is negative.
         """
         if size is not None:
             if isinstance(size, (bool, np.bool_)) or not isinstance(size, (int, np.integer)):
@@ -213,8 +214,8 @@ def fuse(a: Gaussian, b: Gaussian) -> Gaussian:
     inverse, and :math:`\Sigma_a + \Sigma_b` is never formed, so variances
     far apart (1e300 times, or near the largest float) lose nothing. A
     component that one belief knows exactly (a zero variance) comes out
-    with a variance of round-off, about :math:`\epsilon^2` of the other's,
-    rather than exactly 0. ``fuse(a, b)`` and ``fuse(b, a)`` are the same
+    with a variance of exactly 0 when that belief is the narrower (by
+    trace), else of round-off, about :math:`\epsilon^2` of the other's. ``fuse(a, b)`` and ``fuse(b, a)`` are the same
     numbers.
 
     Examples

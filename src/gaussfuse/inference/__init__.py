@@ -101,8 +101,9 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         stationary one (:func:`gaussfuse.steady_state`), that step's gain
         and covariances are reused and only the means are computed. The
         covariances and gains equal the full filter's to about 1e-10 after
-        that point, the means to that error times the innovations (1.6e-8
-        standard deviations measured with large innovations), the
+        that point, the means to that error times the innovations (on 20
+        random 4-state models, up to 9e-10 standard deviations with
+        innovations of about one, 9e-8 with innovations of 100), the
         log-likelihood accordingly; sooner than the
         default, which holds the covariance only once it stops changing to
         round-off (see :class:`gaussfuse.kalman.SteadyState`). Steps with
