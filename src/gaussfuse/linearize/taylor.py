@@ -155,12 +155,11 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     part on the way (``np.linalg.norm``, ``np.vdot``, ``np.abs``, ``np.real``, ``np.angle``) and returns other
     outputs that keep it, so the result is complex: a range beside a bearing got no gradient at all, silently
     (audit CC1), and a pseudorange beside its clock bias only the bias's. The rows are checked along two
-    directions of unequal
-    weights (along one, a range whose offset was perpendicular to it did not change: review R23), each by half
-    its central difference, whose quadratic term cancels at a stationary point (one side's did not: review
-    R22); where f raises on one side (a domain's edge), by that side's step and half step, whose combination
-    4 (f(x + m/2) - f(x)) - (f(x + m) - f(x)) cancels it too within the step (review R24; a second step
-    could leave a narrow domain: review R26).
+    directions of unequal weights (along one, a range whose offset was perpendicular to it did not change:
+    review R23), each by half its central difference, whose quadratic term cancels at a stationary point (one
+    side's did not: review R22); where f raises on one side (a domain's edge), by that side's step and half
+    step, whose combination 4 (f(x + m/2) - f(x)) - (f(x + m) - f(x)) cancels it too within the step (review
+    R24; a second step could leave a narrow domain: review R26).
     """
     n = x.shape[0]
     k = np.arange(n)
