@@ -112,6 +112,9 @@ def test_rmse_of_errors_near_the_ends_of_the_floats():
     stacked = np.array([[[1e200, 0.0]], [[1e-200, 0.0]]])  # each mean over its own scale
     np.testing.assert_allclose(dg.rmse(stacked, np.zeros_like(stacked), axis=1), [1e200, 1e-200], rtol=1e-15)
     assert dg.rmse([1e308], [-1e308]) == np.inf  # a difference beyond the largest float
+    with warnings.catch_warnings():  # no estimates: NaN, with NumPy's warnings of a mean of nothing (review R28)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert np.isnan(dg.rmse(np.zeros((0, 2)), np.zeros((0, 2)))) and np.isnan(dg.rmse([], []))
 
 
 def test_a_monitor_with_check_off_says_nothing_but_still_finds_the_windows():

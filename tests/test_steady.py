@@ -155,10 +155,13 @@ def test_steady_is_checked():
         gf.filter(gf.LinearModel(np.ones((5, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), np.zeros((5, 1)),
                   steady=True)
     timed = gf.model(gf.ConstantVelocity(), gf.Position())  # (the message named a time axis the user never gave)
-    with pytest.raises(ValueError, match="`steady=True` needs one time step, and the `times` given are irregular"):
+    with pytest.raises(ValueError, match="`steady=True` needs one time step, and the steps between the `times`"):
         gf.filter(timed, prior, np.ones((3, 1)), times=[0.0, 1.0, 2.5, 3.0], steady=True)
     regular = gf.filter(timed, prior, np.ones((3, 1)), times=[0.0, 1.0, 2.0, 3.0], steady=True)
     np.testing.assert_array_equal(regular.means, gf.filter(timed, prior, np.ones((3, 1)), times=[0, 1, 2, 3]).means)
+    with pytest.raises(ValueError, match="time-varying"):  # a time-varying model at regular times (review R28)
+        gf.filter(gf.LinearModel(np.ones((5, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), np.zeros((5, 1)),
+                  steady=True, times=np.arange(5.0))
 
 
 def test_a_step_with_missing_components_after_the_steady_point_stays_near_the_full_filter():

@@ -852,8 +852,8 @@ def rmse(estimates, truth, axis=None, angles=None) -> np.ndarray | float:
         diff = wrap_components(a - b, None if angles is None else component_mask("angles", angles, a.shape[-1]))
     # in units of the largest difference that each mean takes in, so that the squares neither overflow (errors
     # of 1e155 gave inf) nor underflow (1e-170 gave 0: audit DD2)
-    top = np.max(np.abs(diff), axis=-1)
-    largest = np.max(top, axis=axis, keepdims=True)
+    top = np.max(np.abs(diff), axis=-1, initial=0.0)  # (initial: no error on no estimates, whose RMSE is NaN)
+    largest = np.max(top, axis=axis, keepdims=True, initial=0.0)
     unit = np.where((largest > 0.0) & np.isfinite(largest), largest, 1.0)
     out = np.squeeze(unit, axis=axis) * np.sqrt(np.mean(np.sum((diff / unit[..., None]) ** 2, axis=-1), axis=axis))
     return float(out) if np.ndim(out) == 0 else out

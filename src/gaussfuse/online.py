@@ -413,7 +413,7 @@ class KalmanFilter:
             raise ValueError("`dt` is required: the model was built by gf.model(motion, sensor) without dt, so each "
                              "step is discretised for its own time step.")
         self._model, controls = self.timed.at(np.array([real("dt", dt, positive=True)]), None if u is None else u[None])
-        self._lin = linearisation(self._spec, self._model, self._controls, self._options)[0]
+        self._lin = self._sharing(linearisation(self._spec, self._model, self._controls, self._options)[0])
         return None if controls is None else controls[0]
 
     # -- one call's matrices ------------------------------------------------
@@ -434,7 +434,15 @@ class KalmanFilter:
                             "f and h are functions (replace Q and R only).")
         shapes = {"F": (n, n), "Q": (n, n), "H": (None, n), "R": (m, m)}
         checked = {name: self._matrix(name, value, *shapes[name]) for name, value in given.items()}
-        return linearisation(self._spec, _Replaced(self._model, checked), self._controls, self._options)[0]
+        return self._sharing(linearisation(self._spec, _Replaced(self._model, checked), self._controls,
+                                           self._options)[0])
+
+    def _sharing(self, lin):
+        """`lin`, keeping the record of the automatic Jacobians' checks (:class:`gaussfuse.linearize.Taylor`) of
+        the filter's strategy: each call's own strategy checked every row again (review R28)."""
+        if hasattr(lin, "checks") and hasattr(self._lin, "checks"):
+            lin.checks = self._lin.checks
+        return lin
 
     @staticmethod
     def _run(half, lin, k: int, *args, **kwargs):

@@ -17,6 +17,7 @@ import numpy as np
 from .. import kalman
 from .._validation import flag
 from ..gaussian import Gaussian
+from ..models.compose import TimedModel
 from . import chunked, diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
@@ -229,9 +230,10 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         return chunked.map_series(filter, zs, us, dict(
             model=model, prior=prior, method=method, engine=engine, keep=keep, form=form, steady=steady,
             gains=gains, check=check, gate=gate, gate_by=gate_by, times=times, **options))
+    timed = isinstance(model, TimedModel)
     model, zs, us, table, names = _inputs(model, zs, us, times)
     spec, options, prior, zs, us, batch = prepare(model, prior, zs, us, method, options, form, filter)
-    check_steady(steady, spec, form, prior, model, times)
+    check_steady(steady, spec, form, prior, model, timed)
     gains = flag("gains", gains)
     if gains and prior == "diffuse":
         raise ValueError("`gains=True` is not available with a 'diffuse' prior.")

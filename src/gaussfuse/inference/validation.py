@@ -112,17 +112,18 @@ def check_form(spec, form) -> None:
                          "(the iterated methods re-linearise within a step, which the square-root step does not).")
 
 
-def check_steady(steady, spec, form: str, prior, model, times) -> None:
+def check_steady(steady, spec, form: str, prior, model, timed: bool) -> None:
     """`steady` must be a bool, and True only for the Kalman filter in the covariance form, with a Gaussian prior,
-    and not at irregular `times` (`model` as they discretised it)."""
+    and not for a TimedModel (`timed`) at times of unequal steps (`model` as they discretised it)."""
     flag("steady", steady)
     if steady and (spec.name != "kf" or form != "cov" or isinstance(prior, str)):
         raise ValueError("`steady=True` is for method 'kf' in the covariance form with a Gaussian prior; got "
                          f"method {spec.name!r}, form {form!r}" + (", a 'diffuse' prior." if isinstance(prior, str)
                                                                    else "."))
-    if steady and times is not None and np.ndim(model.F) == 3:  # (audit DD3: the message named a time axis)
-        raise ValueError("`steady=True` needs one time step, and the `times` given are irregular: each step has "
-                         "its own F and Q, so the filter has no steady state.")
+    if steady and timed and np.ndim(model.F) == 3:  # (audit DD3: the message named a time axis)
+        raise ValueError("`steady=True` needs one time step, and the steps between the `times` given are not all "
+                         "the same (to the last bit): each step has its own F and Q, so the filter has no steady "
+                         "state.")
 
 
 def prepare(model, prior, zs, us, method, options, form: str = "cov", caller=None):

@@ -67,14 +67,16 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
         [-π, π), so that a step across the ±π cut is not a jump of 2π.
     check : {"all", "faint"}, default "all"
         Which rows of the complex-step Jacobian are checked against
-        differences of `fn` (two central differences, :func:`_dropped`),
-        and replaced by finite differences where they disagree: every row,
-        or only those whose derivatives are all too small to move the
-        output. A function that drops the imaginary part on the way
-        (``np.linalg.norm``, ``np.abs``, ``np.real``) gives the affected
-        derivatives 0; a pseudorange ``norm(p - s) + b`` keeps only the
-        clock bias b's. :class:`Taylor` checks every row at a function's
-        first Jacobian and the faint ones after.
+        differences of `fn` (:func:`_dropped`), the Jacobian then taken by
+        finite differences where they disagree: every row, along each
+        component (a component whose `spread` is 0 is not stepped), or
+        only the rows whose derivatives are all too small to move the
+        output, along two mixed directions. A function that drops the
+        imaginary part on the way (``np.linalg.norm``, ``np.abs``,
+        ``np.real``) gives the affected derivatives 0; a pseudorange
+        ``norm(p - s) + b`` keeps only the clock bias b's. :class:`Taylor`
+        checks every row at a function's first few Jacobians and the
+        faint ones after.
 
     Returns
     -------
@@ -85,6 +87,8 @@ def jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, size: int,
     .. [1] J. R. R. A. Martins, P. Sturdza and J. J. Alonso, "The complex-step
        derivative approximation", ACM TOMS 29(3), 2003.
     """
+    if check not in ("all", "faint"):
+        raise ValueError(f"`check` must be 'all' or 'faint'; got {check!r}.")
     try:
         return complex_step_jacobian(name, fn, x, args, size, vectorized, spread, check)
     except _RejectsComplex:
@@ -137,34 +141,37 @@ def complex_step_jacobian(name: str, fn: Callable, x: np.ndarray, args: tuple, s
     J = Y.reshape(n, size).imag.T / step
     if not np.all(np.isfinite(J)):
         raise _RejectsComplex
-    if check == "all":
+    scale = step / _COMPLEX_STEP
+    if check == "all":  # along each component the linearisation reads
         rows = np.ones(size, dtype=bool)
-    else:  # derivatives that move the output by less than 1e-8 of itself over a scale
+        moves = np.diag(1e-3 * scale)[np.ones(n, dtype=bool) if spread is None else spread > 0]
+    else:  # derivatives that move the output by less than 1e-8 of itself over a scale, along two directions
         rows = np.abs(J) @ step <= 1e-28 * np.abs(Y.reshape(n, size)[0].real)
-    if rows.any() and _dropped(fn, x, args, vectorized, step / _COMPLEX_STEP, J, rows, size):
+        k = np.arange(n)
+        moves = 1e-3 * scale * np.stack([(1.0 + k / (n + 1)) * (-1.0) ** k,
+                                         (1.0 + ((k + 1) * 0.6180339887498949) % 1.0) * (-1.0) ** (k // 2)])
+    if rows.any() and _dropped(fn, x, args, vectorized, moves, J, rows, size):
         raise _RejectsComplex  # an output that the step's imaginary part did not reach, but x does
     return J
 
 
-def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: np.ndarray, J: np.ndarray,
+def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: np.ndarray, J: np.ndarray,
              rows: np.ndarray, size: int) -> bool:
-    """Whether outputs `rows` of ``fn`` change, when x moves by 1e-3 of its `scale`, otherwise than their
-    complex-step derivatives say.
+    """Whether outputs `rows` of ``fn`` change along any of `moves` (k, n) otherwise than their complex-step
+    derivatives J say.
 
     A complex step gives an output a derivative of 0 (or of round-off) when the function drops the imaginary
     part on the way (``np.linalg.norm``, ``np.vdot``, ``np.abs``, ``np.real``, ``np.angle``) and returns other
     outputs that keep it, so the result is complex: a range beside a bearing got no gradient at all, silently
-    (audit CC1), and a pseudorange beside its clock bias only the bias's. The rows are checked along two
-    directions of unequal weights (along one, a range whose offset was perpendicular to it did not change:
-    review R23), each by half its central difference, whose quadratic term cancels at a stationary point (one
-    side's did not: review R22); where f raises on one side (a domain's edge), by that side's step and half
-    step, whose combination 4 (f(x + m/2) - f(x)) - (f(x + m) - f(x)) cancels it too within the step (review
-    R24; a second step could leave a narrow domain: review R26).
+    (audit CC1), and a pseudorange beside its clock bias only the bias's. Along each move m, f's change is
+    estimated twice: by central differences over m and over 2m (whose quadratic terms cancel, at a stationary
+    point too: review R22); inside a domain narrower than 2m, over m/2 and m; where f raises on one side of x
+    (a domain's edge), by 4 (f(x + m/2) - f(x)) - (f(x + m) - f(x)), whose quadratic term cancels, and by
+    f(x + m) - f(x) (review R24; a second step could leave a narrow domain: review R26). An output disagrees
+    when the first estimate is further from J m than 1% of itself, plus the two estimates' difference (the
+    truncation error, which grows with the step: at a stationary point of x³, or along sin(1000 x) stepped by
+    a thousandth of a spread of 1, the cubic term alone disagreed: review R28), plus f's round-off.
     """
-    n = x.shape[0]
-    k = np.arange(n)
-    moves = 1e-3 * scale * np.stack([(1.0 + k / (n + 1)) * (-1.0) ** k,
-                                     (1.0 + ((k + 1) * 0.6180339887498949) % 1.0) * (-1.0) ** (k // 2)])
     eps = np.finfo(np.float64).eps
 
     def at(z: np.ndarray) -> np.ndarray | None:
@@ -180,16 +187,24 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, scale: 
     for move in moves:
         ahead, behind = at(x + move), at(x - move)
         if ahead is not None and behind is not None:
-            change, ends = (ahead - behind)[rows] / 2, (ahead, behind)
+            far = (at(x + 2 * move), at(x - 2 * move))
+            if far[0] is not None and far[1] is not None:
+                fine, coarse, ends = (ahead - behind) / 2, (far[0] - far[1]) / 4, (ahead, behind, *far)
+            else:  # a domain's edge between one step and two
+                near = (at(x + move / 2), at(x - move / 2))
+                if near[0] is None or near[1] is None:
+                    continue  # no evidence either way
+                fine, coarse, ends = near[0] - near[1], (ahead - behind) / 2, (ahead, behind, *near)
         else:
             centre = at(x) if centre is None else centre
             side, sign = (ahead, 1.0) if ahead is not None else (behind, -1.0)
             half = None if side is None or centre is None else at(x + sign * move / 2)
             if half is None:
-                continue  # no evidence either way
-            change, ends = sign * (4 * (half - centre) - (side - centre))[rows], (side, centre)
-        slack = 64 * eps * np.maximum(np.abs(ends[0]), np.abs(ends[1]))[rows]
-        if np.any(np.abs(change - (J @ move)[rows]) > 0.01 * np.abs(change) + slack):
+                continue
+            fine, coarse, ends = sign * (4 * (half - centre) - (side - centre)), sign * (side - centre), (side, centre, half)
+        fine, coarse = fine[rows], coarse[rows]
+        slack = 64 * eps * np.max(np.abs(np.stack(ends)), axis=0)[rows]
+        if np.any(np.abs(fine - (J @ move)[rows]) > 0.01 * np.abs(fine) + np.abs(fine - coarse) + slack):
             return True
     return False
 
@@ -284,6 +299,10 @@ def finite_difference_jacobian(name: str, fn: Callable, x: np.ndarray, args: tup
     return J
 
 
+_FULL_CHECKS = 3
+"""How many of a function's first complex-step Jacobians :class:`Taylor` checks row by row."""
+
+
 class Taylor:
     """First-order Taylor linearisation of a NonlinearModel (the EKF's).
 
@@ -296,7 +315,9 @@ class Taylor:
 
     def __init__(self, model, us: np.ndarray | None = None) -> None:
         self.model, self.us = model, us
-        self._complex: dict[str, bool] = {}  # whether f's and h's complex steps held at their first Jacobian
+        self.checks: dict[str, int] = {}
+        """For "f" and "h": how many of their first complex-step Jacobians passed the check of every row, or -1
+        once one failed (an online filter's strategies for one call share it)."""
 
     def _affine(self, name, fn, jac, x, spread, args, size, vectorized):
         y = (self.model.transition(x, *args) if name == "f" else self.model.measurement(x))
@@ -308,17 +329,20 @@ class Taylor:
         return A, y - A @ x
 
     def _jacobian(self, name, fn, x, args, size, vectorized, spread):
-        # The first Jacobian of f (or h) checks every row of its complex step against differences (:func:`jacobian`);
-        # a function that failed it is differenced from then on, one that passed has only its faint rows checked:
-        # a norm inside f drops the imaginary part at every x, and checking every row costs four more calls of f.
-        trusted = self._complex.get(name)
-        if trusted is not False:
+        # The first few Jacobians of f (or h) check every row of the complex step against differences
+        # (:func:`jacobian`): a function that fails is differenced from then on, and after them only faint rows
+        # are checked. A norm inside f drops the imaginary part at every x, but the first x may hide it (|v| at
+        # v = 0), and checking every row costs 4 n more calls of f.
+        passed = self.checks.get(name, 0)
+        if passed >= 0:
             try:
-                A = complex_step_jacobian(name, fn, x, args, size, vectorized, spread, "faint" if trusted else "all")
-                self._complex[name] = True
+                A = complex_step_jacobian(name, fn, x, args, size, vectorized, spread,
+                                          "faint" if passed >= _FULL_CHECKS else "all")
+                self.checks[name] = min(passed + 1, _FULL_CHECKS)
                 return A
             except _RejectsComplex:
-                self._complex.setdefault(name, False)
+                if passed < _FULL_CHECKS:
+                    self.checks[name] = -1
         angles = self.model.state_angles if name == "f" else self.model.measurement_angles
         return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread, angles)
 

@@ -64,15 +64,16 @@ class NonlinearModel:
     Complex-step differentiation assumes f and h are analytic in the real
     variables. Operations that drop the imaginary part (``abs``,
     ``np.linalg.norm``, ``np.vdot``, ``np.real``, ``np.angle``) give a
-    derivative of 0 through them. So the first Jacobian of f, and of h,
-    in each filter or smoother run is checked row by row against central
-    differences along two directions, and a function that fails the check
-    (a range by ``np.linalg.norm``, a pseudorange ``np.linalg.norm(p - s)
-    + b`` with a clock bias b) is differentiated by finite differences
-    from then on; after the first, only an output whose whole derivative
-    comes out faint is checked again. A function that drops the imaginary
-    part at some states and not at the first (behind a branch on x) can
-    give a wrong derivative silently there. Pass analytic Jacobians for
+    derivative of 0 through them. So the first three Jacobians of f, and
+    of h, in each run are checked row by row against central differences
+    along each component, and a function that fails the check (a range by
+    ``np.linalg.norm``, a pseudorange ``np.linalg.norm(p - s) + b`` with a
+    clock bias b) is differentiated by finite differences from then on;
+    after them, only an output whose whole derivative comes out faint is
+    checked again. A function that drops the imaginary part at some states
+    and not at the first three (behind a branch on x), or whose dropped
+    part is hidden by its curvature over a thousandth of the belief's
+    spread, can give a wrong derivative silently. Pass analytic Jacobians for
     such functions, or write them analytically (``np.sqrt`` of a sum of
     squares) for exact derivatives.
 
