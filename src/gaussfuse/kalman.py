@@ -1753,15 +1753,26 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
         # linearised at the previous posterior on the prediction's side of ±π: the affine map is applied to the
         # prediction, and one made at the wrapped point would be 2π off there
         point = near(post_mean, mean, state_angles)
-        H, d, R = lin.measurement(k, point, post_cov)
-        unseen = unseen_directions(point, post_cov, scale) if slope is not None and regresses else None
-        if unseen is not None:  # a slope the posterior cannot see (a regression's): the previous pass's
-            H, d = with_slopes(H, d, slope, point, unseen)
-        slope = H
-        post = update(mean, cov, z, H, R, d, measurement_angles)
-        previous, post_mean, post_cov = post_mean, post.mean, post.cov
-        if state_angles is not None:
-            post_mean = wrap_components(post_mean, state_angles)
+        try:
+            H, d, R = lin.measurement(k, point, post_cov)
+            unseen = unseen_directions(point, post_cov, scale) if slope is not None and regresses else None
+            if unseen is not None:  # a slope the posterior cannot see (a regression's): the previous pass's
+                H, d = with_slopes(H, d, slope, point, unseen)
+            slope = H
+            post = update(mean, cov, z, H, R, d, measurement_angles)
+            previous, post_mean, post_cov = post_mean, post.mean, post.cov
+            if state_angles is not None:
+                post_mean = wrap_components(post_mean, state_angles)
+            if i and not np.all(np.isfinite(post_mean)):
+                raise FloatingPointError(not_finite("filtered"))
+        except (ModelFunctionError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            if not i:
+                raise
+            raise type(exc)(  # (audit DD4: h's overflow named neither the iterations nor where they had gone)
+                f"{exc} This was pass {i + 1} of the iterated update, linearised at x = {shown(point)} (the "
+                f"prediction: {shown(mean)}): the iterations moved away, as Gauss-Newton steps can from a prior "
+                "far from the data. Try iterations=1 (the plain update), another method, or a prior nearer the "
+                "data.") from exc
         if changed is not None and changed(post_mean, previous, state_angles) <= tol:
             passes, converged = i + 1, True
             break

@@ -129,6 +129,42 @@ def test_tol_0_stops_at_round_off(method, recwarn):
                     check="off")
     assert res.iterations.max() <= 3
     assert not [w for w in recwarn if issubclass(w.category, gf.ConvergenceWarning)]
+    # the smoother too: each pass re-filters the series, whose round-off (some 1e-14 standard deviations) never
+    # met tol=0, so it made all 50 passes and warned (audit DD4). The oracle is the RTS smoother.
+    sm = gf.smooth(model, gf.Gaussian([0.5, 0.0], np.eye(2)), [0.3, 0.9, 1.4, 0.2, -0.4], method=method, tol=0,
+                   check="off")
+    assert sm.iterations <= 5
+    assert not [w for w in recwarn if issubclass(w.category, gf.ConvergenceWarning)]
+    rts = gf.smooth(gf.LinearModel(F, [[1.0, 0.0]], 0.01 * np.eye(2), 0.1), gf.Gaussian([0.5, 0.0], np.eye(2)),
+                    [0.3, 0.9, 1.4, 0.2, -0.4])
+    np.testing.assert_allclose(sm.means, rts.means, rtol=1e-12, atol=1e-13)
+
+
+@pytest.mark.parametrize("method, plain", [("iekf", "ekf"), ("iplf", "ghkf")])
+def test_one_iteration_smooths_as_the_plain_smoother(pendulum, method, plain, recwarn):
+    """With iterations=1 the filter is the plain one, but the smoother made one pass about the filtered trajectory
+    (0.054 off the EKS) and always warned that it had not converged (audit DD4)."""
+    _, zs = pendulum
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    once = gf.smooth(_pendulum_model(), prior, zs[:80], method=method, iterations=1)
+    want = gf.smooth(_pendulum_model(), prior, zs[:80], method=plain)
+    np.testing.assert_array_equal(once.means, want.means)
+    np.testing.assert_array_equal(once.covs, want.covs)
+    assert once.iterations == 1
+    assert not [w for w in recwarn if issubclass(w.category, gf.ConvergenceWarning)]
+
+
+@pytest.mark.parametrize("method", ["iekf", "iplf"])
+def test_an_iterated_update_that_moves_away_says_so(method):
+    """h = exp, a prior far from z = 1000: Gauss-Newton's second pass is linearised at 989 and exp overflows. The
+    error named h's non-finite output or an overflow, not the iterations (audit DD4)."""
+    model = gf.NonlinearModel(lambda x: x, np.exp, np.zeros((1, 1)), 0.01 * np.eye(1))
+    with pytest.raises((ModelFunctionError, FloatingPointError),
+                       match=r"at step 0: .* This was pass 2 of the iterated update, linearised at x = \[.*\] \(the "
+                             r"prediction: \[0\.\]\): .* Try iterations=1"):
+        gf.filter(model, gf.Gaussian([0.0], [[1.0]]), [[1000.0]], method=method)
+    assert gf.filter(model, gf.Gaussian([0.0], [[1.0]]), [[1000.0]], method=method, iterations=1,
+                     check="off").means[0, 0] > 400  # the plain update runs
 
 
 def test_iterations_used_on_a_linear_model():

@@ -247,16 +247,18 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
     xa, za = _angles(model)
     if ending is not None and spec.iterated:
         raise ValueError(f"`ending` is not available for the iterated smoother {spec.name!r}.")
-    if not spec.iterated:
+    if not spec.iterated or passes == 1:  # (one iteration: the plain filter, and its smoother: audit DD4)
         means, covs, gains, factors = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa,
                                                    ending=ending)
-        return SmoothResult(means, covs, gains, filt, cov_factors=factors), unconverged, False
+        return (SmoothResult(means, covs, gains, filt, 1 if spec.iterated else None, cov_factors=factors),
+                unconverged, False)
     # Iterated smoothers: each pass linearises about the previous pass's smoothed
     # trajectory (the first about the iterated filter's), from the prior's time on,
-    # until the trajectory moves by at most `tol` (in the pass's predicted covariances).
+    # until the trajectory moves by at most `tol` (in the pass's predicted covariances),
+    # or by round-off (_SETTLED_PASSES).
     means = np.concatenate([prior.mean[None], filt.means])
     covs = np.concatenate([prior.cov[None], filt.covs])
-    converged = False
+    converged, before = False, np.inf
     for used in range(1, passes + 1):
         nominal = Nominal(lin, means, covs, xa)
         last = run_filter(nominal, prior, zs, state_angles=xa, measurement_angles=za)[0]
@@ -264,11 +266,18 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
         norms = (prior.cov, *last.predicted_covs)
         change = max(kalman.iterate_changed(P)(new, old, xa) for P, new, old in zip(norms, new_means, means))
         means = new_means
-        if change <= tol:
+        if change <= tol or before <= change <= _SETTLED_PASSES:
             converged = True
             break
+        before = change
     first = 0 if to_prior else 1
     return SmoothResult(means[first:], covs[first:], gains[first:], filt, used), unconverged, not converged
+
+
+_SETTLED_PASSES = float(np.sqrt(np.finfo(np.float64).eps))
+"""An iterated smoother's passes are at their fixed point when one changes the trajectory by at most this (in
+standard deviations) and no less than the pass before: each pass re-filters the whole series, and its round-off,
+some 1e-14 standard deviations, kept `tol=0` from ever being met (50 passes and a warning: audit DD4)."""
 
 
 def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes: int = 0,
