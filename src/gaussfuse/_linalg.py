@@ -557,7 +557,7 @@ def in_pivot_order(L: np.ndarray) -> bool:
     return bool(np.all((largest == 0.0) | ((pivots > 0.0) & (np.frexp(largest)[1] <= np.frexp(pivots)[1]))))
 
 
-def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.ndarray:
+def downdate(L: np.ndarray, V: np.ndarray, name: str | tuple = "the covariance") -> np.ndarray:
     r"""A lower-triangular square root of ``L Lᵀ - V Vᵀ``: Cholesky downdates by hyperbolic rotations.
 
     Parameters
@@ -566,8 +566,10 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
         Lower triangular with a non-negative diagonal (:func:`tria`).
     V : ndarray of shape (n, r)
         The columns to take away.
-    name : str
-        What ``L Lᵀ - V Vᵀ`` is, for the error.
+    name : str, or tuple of (str, int) pairs
+        What ``L Lᵀ - V Vᵀ`` is, for the error; or, for a joint array,
+        what each block of its components is and how many it has (an
+        update's innovation covariance, then its filtered covariance).
 
     Returns
     -------
@@ -631,9 +633,10 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
                 try:
                     return semidefinite_cholesky(symmetrize(given @ given.T - V @ V.T))
                 except np.linalg.LinAlgError:
+                    what, j = _block(name, k)
                     raise np.linalg.LinAlgError(
-                        f"{name} is not positive semi-definite: taking away a negatively weighted term leaves "
-                        f"component {k} a variance of {rho2:.3g}. {_POSITIVE_RULES[0].upper()}{_POSITIVE_RULES[1:]}"
+                        f"{what} is not positive semi-definite: taking away a negatively weighted term leaves "
+                        f"component {j} a variance of {rho2:.3g}. {_POSITIVE_RULES[0].upper()}{_POSITIVE_RULES[1:]}"
                     ) from None
             rho = np.sqrt(rho2)
             c, s = rho / a, v[k] / a
@@ -641,6 +644,18 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str = "the covariance") -> np.n
             L[k + 1:, k] = (L[k + 1:, k] - s * v[k + 1:]) / c
             v[k + 1:] = c * v[k + 1:] - s * L[k + 1:, k]
     return L
+
+
+def _block(name: str | tuple, k: int) -> tuple[str, int]:
+    """The name of the block of :func:`downdate`'s `name` that row k is in, and k's index within it (a joint
+    array's row of the filtered covariance was named as the innovation covariance's: audit DD5)."""
+    if isinstance(name, str):
+        return name, k
+    for what, size in name:
+        if k < size:
+            return what, k
+        k -= size
+    raise IndexError(k)
 
 
 def zero_pivots(L: np.ndarray) -> np.ndarray:

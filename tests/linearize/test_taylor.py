@@ -347,6 +347,10 @@ def test_a_function_is_checked_at_its_first_jacobians_and_remembered():
     (lambda x: np.sin(x) - x, [0.0], [1.0]),
     (lambda x: x**2 + x**3, [0.0], None),  # a state of zeros, no spread
     (lambda x: np.sin(1000 * x), [0.3], [1.0]),  # curved over a thousandth of the spread
+    (lambda x: np.sin(1000 * x), [0.3], [3.0]),  # ... of a third of it (review R29: finite differences then failed)
+    (lambda x: np.tanh(x / 1e-3), [0.0], [10.0]),
+    (lambda x: np.arctan(x), [0.0], [1e4]),
+    (lambda x: x * np.exp(-x**2), [0.0], [3e3]),  # (finite differences gave a slope of 3e-153 for 1)
     (lambda x: np.exp(x), [1.0], [300.0]),
     (lambda x: 1 / (1 + x / 1e-16), [1.0], [1.0]),
     (lambda x: x**2, [1e-150], [1e-151]),
@@ -427,6 +431,16 @@ def test_an_online_filter_keeps_its_record_of_checks_across_calls_with_their_own
             kf.update([1.5, 1.5], R=np.eye(2) if per_call else None)
         counts.append(len(calls))
     assert counts[1] == counts[0]
+
+
+def test_a_drop_found_after_the_first_checks_is_remembered():
+    """|x0| held at 0 for the first three Jacobians hides its dropped slope; found at a later one, it was checked
+    and differenced again at every step (review R29)."""
+    lin = Taylor(NonlinearModel(lambda x: x, lambda x: np.array([np.abs(x[0]), x[1]]), np.eye(2), np.eye(2)))
+    for x0 in (0.0, 0.0, 0.0, 0.5, -0.7):
+        H = lin.measurement(0, np.array([x0, 1.0]), np.eye(2))[0]
+        np.testing.assert_allclose(H, [[np.sign(x0), 0.0], [0.0, 1.0]], atol=1e-9)
+    assert lin.checks == {"h": -1}
 
 
 def test_the_check_argument_is_checked():

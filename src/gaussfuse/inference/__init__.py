@@ -267,9 +267,8 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     prior's time; they stop after the first pass in which no smoothed mean
     moved by more than `tol`, measured as in :func:`filter` (Notes) in the
     pass's predicted covariance of its step (the prior's at time 0), or once
-    a pass moves them by at most √ε (1.5e-8) standard deviations and no
-    less than the pass before (round-off: so ``tol=0`` runs to the fixed
-    point). With ``iterations=1`` they are the plain smoothers of their
+    a pass moves them by at most 1e-10 standard deviations and no less than
+    the pass before (round-off: so ``tol=0`` runs to the fixed point). With ``iterations=1`` they are the plain smoothers of their
     filters (the extended and Gauss–Hermite RTS smoothers). Their
     ``.filtered`` is the iterated filter, and ``.iterations`` the passes made.
     `check` tests the forward pass's innovations as in :func:`filter`.

@@ -245,7 +245,7 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
         zs = np.where(filt.rejected, np.nan, zs)
     lin, passes, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
-    if ending is not None and spec.iterated:
+    if ending is not None and spec.iterated and passes > 1:
         raise ValueError(f"`ending` is not available for the iterated smoother {spec.name!r}.")
     if not spec.iterated or passes == 1:  # (one iteration: the plain filter, and its smoother: audit DD4)
         means, covs, gains, factors = run_smoother(lin, filt, prior if to_prior else None, state_angles=xa,
@@ -274,10 +274,11 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
     return SmoothResult(means[first:], covs[first:], gains[first:], filt, used), unconverged, not converged
 
 
-_SETTLED_PASSES = float(np.sqrt(np.finfo(np.float64).eps))
+_SETTLED_PASSES = 1e-10
 """An iterated smoother's passes are at their fixed point when one changes the trajectory by at most this (in
 standard deviations) and no less than the pass before: each pass re-filters the whole series, and its round-off,
-some 1e-14 standard deviations, kept `tol=0` from ever being met (50 passes and a warning: audit DD4)."""
+some 1e-14 standard deviations, kept `tol=0` from ever being met (50 passes and a warning: audit DD4). Below the
+default `tol` (1e-9), so it can end the passes early only for a `tol` below it (review R29)."""
 
 
 def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes: int = 0,
@@ -427,14 +428,15 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
                 return compiled.filter(lin, model, prior, zs, us, keep, form="sqrt")
             except ReadablePath:  # a singular factor or a failed downdate: the readable steps decide
                 return filter_batch(spec, model, prior, zs, us, options, "python", keep, form)
-        if target is None:
-            return compiled.filter(lin, model, prior, zs, us, keep)
-        return compiled.filter(lin, model, prior, zs, us, keep, target)
+        result = compiled.filter(lin, model, prior, zs, us, keep, *(() if target is None else (target,)))
+        return _filtered_checked(lin, result, zs.shape[1])
     runs = each_series(lambda i: _method_filter(spec, model, prior, zs[i], None if us is None else us[i], options,
                                                 keep, form, target, gains, gate), zs.shape[0])
     if spec.iterated:
         _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
-    return stack([r[0] for r in runs])
+    result = stack([r[0] for r in runs])
+    return _filtered_checked(linearisation(spec, model, None, options)[0], result, zs.shape[1]) if form == "cov" \
+        else result
 
 
 def _readable_only(spec: Method, engine: str, form: str, gate, option: str | None = None) -> tuple[str, str | None]:
@@ -481,6 +483,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
             return result
         result = compiled.smooth(lin, model, prior, zs, us) if ending is None else \
             compiled.smooth(lin, model, prior, zs, us, ending)
+        _filtered_checked(lin, result.filtered, zs.shape[1])
         return _spread_checked(lin, _back_to_prior(model, prior, result) if to_prior else result, to_prior)
     runs = each_series(lambda i: _method_smooth(spec, model, prior, zs[i], None if us is None else us[i], options,
                                                 to_prior, form, gate, ending), zs.shape[0])
@@ -489,7 +492,9 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
                           passes=sum(r[2] for r in runs), series=zs.shape[0])
     result = stack([r[0] for r in runs])
     if form == "cov" and not spec.iterated:
-        _spread_checked(linearisation(spec, model, None, options)[0], result, to_prior)
+        lin = linearisation(spec, model, None, options)[0]
+        _filtered_checked(lin, result.filtered, zs.shape[1])
+        _spread_checked(lin, result, to_prior)
     return result
 
 
@@ -499,21 +504,39 @@ def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:
 
     The covariance form's RTS step, :math:`P + G (P^s - P^-) G^\top`, keeps what the filter hands it; a
     negative weight can make the regression's residual spread indefinite, and a smoothed covariance with it.
+    Named by the backward step's transition, as run_smoother's errors, and the first the backward pass meets.
     """
+    _indefinite_error(lin, result.covs, "smoothed", lambda k: k if to_prior else k + 1, last=True)
+    return result
+
+
+def _filtered_checked(lin, result: FilterResult, T: int) -> FilterResult:
+    """`result` of T steps, after raising LinAlgError where a sigma-point rule that weighs a point negatively left
+    a filtered covariance that is not positive semi-definite, as the square-root form does; the covariance form
+    returned it (a variance of -0.047 from kappa = -4.5: audit DD5). Those it keeps: all, or the last."""
+    if result.covs is not None:
+        _indefinite_error(lin, result.covs, "filtered", lambda k: k)
+    elif result.last_cov is not None:
+        _indefinite_error(lin, result.last_cov[..., None, :, :], "filtered", lambda k: T - 1)
+    return result
+
+
+def _indefinite_error(lin, covs: np.ndarray, stage: str, step, last: bool = False) -> None:
+    """Raise LinAlgError naming the first (or `last`) `stage` covariance of `covs` ((N,) T, n, n) that is not
+    positive semi-definite, where `lin`'s sigma-point rule weighs a point negatively; `step(k)` names step k."""
     rule = getattr(lin, "rule", None)
     if rule is None or rule.wc.min() >= 0.0:
-        return result
-    covs = result.covs if result.covs.ndim == 4 else result.covs[None]
+        return
+    covs = covs if covs.ndim == 4 else covs[None]
     bad = indefinite(covs)
     if bad.any():
         s = int(np.flatnonzero(bad.any(axis=1))[0])
-        k = int(np.flatnonzero(bad[s])[-1])  # the first the backward pass meets
+        k = int(np.flatnonzero(bad[s])[-1 if last else 0])
         vals = np.linalg.eigvalsh(covs[s, k])
         where = f"in series {s}, " if covs.shape[0] > 1 else ""
-        raise np.linalg.LinAlgError(  # named by the backward step's transition, as run_smoother's errors
-            f"{where}at step {k if to_prior else k + 1}: the smoothed covariance is not positive semi-definite "
+        raise np.linalg.LinAlgError(
+            f"{where}at step {step(k)}: the {stage} covariance is not positive semi-definite "
             f"(smallest eigenvalue {vals[0]:.3g}, largest {vals[-1]:.3g}){negative_weight(rule.wc)}.")
-    return result
 
 
 def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:

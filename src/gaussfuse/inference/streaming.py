@@ -102,7 +102,8 @@ def filter_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
     method : str, optional
         As for :func:`gaussfuse.filter` (its default by the model's type).
         :func:`smooth_pieces` refuses an iterated method (``"iekf"``,
-        ``"iplf"``), whose smoother repeats its pass over the whole series.
+        ``"iplf"``), whose smoother repeats its pass over the whole series,
+        but with ``iterations=1`` (the plain EKF and GH smoothers).
     **options
         The method's options, as for :func:`gaussfuse.filter`.
 
@@ -168,9 +169,9 @@ def smooth_pieces(model, prior: Gaussian | str, pieces: Iterable[Piece], *, time
         piece's first, or T_c - 1 for the last piece: joined in order, the
         whole series' T - 1.
     """
-    if isinstance(method, str) and method in METHODS and METHODS[method].iterated:
+    if isinstance(method, str) and method in METHODS and METHODS[method].iterated and options.get("iterations") != 1:
         raise ValueError(f"`method` {method!r} smooths by passes over the whole series, which pieces do not give; "
-                         "smooth it whole with gaussfuse.smooth, or take a one-pass method.")
+                         "smooth it whole with gaussfuse.smooth, or take a one-pass method (or iterations=1).")
     pieces = iter(pieces)
     head = list(islice(pieces, 2))
     if engine == "auto" and len(head) > 1:  # the compiled smoother's ending is the linear kernel's; the forward

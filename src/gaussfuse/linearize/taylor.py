@@ -170,7 +170,8 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: 
     f(x + m) - f(x) (review R24; a second step could leave a narrow domain: review R26). An output disagrees
     when the first estimate is further from J m than 1% of itself, plus the two estimates' difference (the
     truncation error, which grows with the step: at a stationary point of x³, or along sin(1000 x) stepped by
-    a thousandth of a spread of 1, the cubic term alone disagreed: review R28), plus f's round-off.
+    a thousandth of a spread of 1, the cubic term alone disagreed: review R28), plus f's round-off; and again
+    with steps 1e-3 times as long.
     """
     eps = np.finfo(np.float64).eps
 
@@ -184,7 +185,9 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: 
             return None
 
     centre = None
-    for move in moves:
+
+    def disagrees(move: np.ndarray) -> bool:
+        nonlocal centre
         ahead, behind = at(x + move), at(x - move)
         if ahead is not None and behind is not None:
             far = (at(x + 2 * move), at(x - 2 * move))
@@ -193,20 +196,22 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: 
             else:  # a domain's edge between one step and two
                 near = (at(x + move / 2), at(x - move / 2))
                 if near[0] is None or near[1] is None:
-                    continue  # no evidence either way
+                    return False  # no evidence either way
                 fine, coarse, ends = near[0] - near[1], (ahead - behind) / 2, (ahead, behind, *near)
         else:
             centre = at(x) if centre is None else centre
             side, sign = (ahead, 1.0) if ahead is not None else (behind, -1.0)
             half = None if side is None or centre is None else at(x + sign * move / 2)
             if half is None:
-                continue
+                return False
             fine, coarse, ends = sign * (4 * (half - centre) - (side - centre)), sign * (side - centre), (side, centre, half)
         fine, coarse = fine[rows], coarse[rows]
         slack = 64 * eps * np.max(np.abs(np.stack(ends)), axis=0)[rows]
-        if np.any(np.abs(fine - (J @ move)[rows]) > 0.01 * np.abs(fine) + np.abs(fine - coarse) + slack):
-            return True
-    return False
+        return bool(np.any(np.abs(fine - (J @ move)[rows]) > 0.01 * np.abs(fine) + np.abs(fine - coarse) + slack))
+
+    # a derivative that was dropped is missed at every step; the truncation error of one curving within the step
+    # (sin(1000 x) under a spread of 3, review R29) shrinks with it: a disagreement must hold at 1e-3 of the step
+    return any(disagrees(move) and disagrees(1e-3 * move) for move in moves)
 
 
 _TINY_OUTPUT = 1e-150
@@ -317,7 +322,7 @@ class Taylor:
         self.model, self.us = model, us
         self.checks: dict[str, int] = {}
         """For "f" and "h": how many of their first complex-step Jacobians passed the check of every row, or -1
-        once one failed (an online filter's strategies for one call share it)."""
+        once one failed a check or was refused (an online filter's strategies for one call share it)."""
 
     def _affine(self, name, fn, jac, x, spread, args, size, vectorized):
         y = (self.model.transition(x, *args) if name == "f" else self.model.measurement(x))
@@ -341,8 +346,7 @@ class Taylor:
                 self.checks[name] = min(passed + 1, _FULL_CHECKS)
                 return A
             except _RejectsComplex:
-                if passed < _FULL_CHECKS:
-                    self.checks[name] = -1
+                self.checks[name] = -1  # (after the full checks too: review R29)
         angles = self.model.state_angles if name == "f" else self.model.measurement_angles
         return finite_difference_jacobian(name, fn, x, args, size, vectorized, spread, angles)
 
