@@ -31,7 +31,7 @@ from ._validation import integer
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .models.compose import TimedModel
-from .inference.frames import ahead
+from .inference.frames import ahead, measurement_names
 from .inference.registry import linearisation, resolve_method
 from .inference.results import FilterResult, SmoothResult
 from .inference.timing import as_seconds, resolve
@@ -195,6 +195,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     (array([2., 3., 4.]), array([4., 5., 6.]))
     """
     check_model(model)
+    sensed = measurement_names(model)  # (a TimedModel's, before it is discretised: audit DD6)
     if times is not None:
         if steps is not None:
             raise ValueError("give `steps` or `times`, not both: the number of steps is len(times) - 1.")
@@ -237,12 +238,14 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         raise at_step(exc, k) from exc
     for a in (means, covs, zmeans, zcovs):
         a.setflags(write=False)
-    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps, n, m, getattr(model, "names", None)))
+    return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps, n, m, getattr(model, "names", None),
+                                                         sensed))
 
 
-def _labels(belief, times, steps: int, n: int, m: int, names) -> tuple:
+def _labels(belief, times, steps: int, n: int, m: int, names, sensed) -> tuple:
     """The forecast's index, state names and measurement names (see :class:`Forecast`): from `times` or the
-    pandas input of the result `belief`, if any; the state names else the model's `names`."""
+    pandas input of the result `belief`, if any; the state names else the model's `names`, the measurement names
+    else the model's `sensed`."""
     if isinstance(belief, SmoothResult):
         belief = belief.filtered
     result = belief if isinstance(belief, FilterResult) else None
@@ -257,7 +260,7 @@ def _labels(belief, times, steps: int, n: int, m: int, names) -> tuple:
 
     columns = None if table is None else table.columns
     states = None if result is None else result.state_names
-    return index, fitting(states, n) or names, fitting(columns, m)
+    return index, fitting(states, n) or names, fitting(columns, m) or fitting(sensed, m)
 
 
 def _angles(model, name: str) -> np.ndarray | None:

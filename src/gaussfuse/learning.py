@@ -1825,17 +1825,19 @@ def fit(
     """
     timed = isinstance(model, TimedModel)
     start = model
-    zs, times, _ = frames.unpack(zs, times, frames.by_rows(model))
+    zs, times, table = frames.unpack(zs, times, model)
+    us = frames.controls(us, table)
+    where = "times" if table is None else table.times_name
     pooled = chunked.is_dask(zs)
     if pooled:
         chunked.check_lazy(zs, us, model)
     T = zs.shape[1] if pooled else zs
     if timed and times is not None and params is None:
-        grid = timing.steps("times", times, T if pooled else check_measurements(zs, model.m).shape[1])
+        grid = timing.steps(where, times, T if pooled else check_measurements(zs, model.m).shape[1])
         if grid.regular:  # one model for the grid's step, whose F, Q (and B) can be learned
             model, us = model.at(np.full(1, grid.step), us)
             times = None
-    model, us = timing.resolve(model, times, T, us)
+    model, us = timing.resolve(model, times, T, us, name=where)
     if timed and model.steps is not None and params is None:
         varying = sorted({"F", "Q", "B"} & set([learn] if isinstance(learn, str) else learn))
         if varying:

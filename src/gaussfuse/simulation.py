@@ -133,7 +133,7 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     """
     T = integer("T", T)
     check_model(model)
-    model, us = resolve(model, times, T, us)
+    model, us = resolve(model, times, T, us, rows=False)  # (no rows: simulate takes no `zs`, audit DD6)
     prior = check_prior(prior, model.n)
     check_steps(model, T, "`T` asks for")
     count = 1 if size is None else integer("size", size)
@@ -243,9 +243,11 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, times=No
 
     if not isinstance(model, (LinearModel, TimedModel)):
         raise refuse()
-    zs, times, _ = frames.unpack(zs, times, frames.by_rows(model))  # a pandas index supplies the times, as in filter
+    zs, times, table = frames.unpack(zs, times, model)  # a pandas index supplies the times, as in filter
+    us = frames.controls(us, table)
     if times is not None or isinstance(model, TimedModel):  # (audit AA3: a TimedModel was refused as not linear)
-        model, us = resolve(model, times, check_measurements(zs, model.m, one=True), us)
+        model, us = resolve(model, times, check_measurements(zs, model.m, one=True), us,
+                            name="times" if table is None else table.times_name)
     if not isinstance(model, LinearModel):
         raise refuse(" (a TimedModel of a nonlinear motion or sensor)")
     prior = check_prior(prior, model.n)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import datetime
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -131,10 +133,10 @@ def test_a_calendar_index_is_one_step_a_row_for_a_model_with_fixed_matrices():
         assert gf.fit(model, prior, pd.Series(flow, index=index), method="em", iterations=2, tol=0).loglik == \
             gf.fit(model, prior, flow, method="em", iterations=2, tol=0).loglik
     gap = pd.to_datetime(["2020-01-01", "2020-01-02", "2020-01-03", "2020-01-05", "2020-01-06"])  # a day missed
-    with pytest.raises(ValueError, match=r"`times` are irregular .* leave `times` out"):
+    with pytest.raises(ValueError, match=r"`zs.index` are irregular .* give `zs.to_numpy\(\)`"):  # (named: DD6)
         gf.filter(model, prior, pd.Series(flow[:5], index=gap))
     monthly = pd.Series(flow[:5], index=pd.date_range("2020-01", periods=5, freq="MS"))
-    with pytest.raises(ValueError, match=r"`times` are irregular"):  # a model with a dt in seconds
+    with pytest.raises(ValueError, match=r"`zs.index` are irregular"):  # a model with a dt in seconds
         gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, dt=0.1), prior, monthly)
     timed = gf.model(gf.LocalLevel(q=1e-4), gf.LinearSensor(H=[[1.0]], R=[[15099.0]]))
     seconds = (monthly.index - monthly.index[0]).total_seconds().to_numpy()
@@ -171,3 +173,101 @@ def test_a_column_of_dates_or_durations_is_not_measurements(column):
         gf.filter(model, prior, pd.DataFrame({"t": column}))
     with pytest.raises(TypeError, match=r"`zs` must hold numbers; got (datetime|timedelta) values in column 't'"):
         gf.filter(model, prior, pd.Series(column, name="t"))
+
+
+def _track():
+    return gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=4.0)), gf.Gaussian([0, 0, 1, 0.5],
+                                                                                                10 * np.eye(4))
+
+
+def test_a_frames_columns_are_taken_by_the_models_measurement_names():
+    """Columns named as the sensor's measurements, in another order, were taken by position: x and y swapped,
+    silently (audit DD6). The oracle is the frame in the model's order."""
+    track, prior = _track()
+    when = pd.to_datetime("2026-05-01 12:00") + pd.to_timedelta([0, 1, 2, 5, 6, 8], unit="s")
+    fixes = pd.DataFrame({"x": [0.0, 1.1, 1.9, 5.2, None, 8.1], "y": [0.0, 0.4, 1.1, 2.4, 3.1, 3.9]}, index=when)
+    want = gf.smooth(track, prior, fixes)
+    got = gf.smooth(track, prior, fixes[["y", "x"]])
+    np.testing.assert_array_equal(got.means, want.means)
+    assert got.filtered.table.columns == ("x", "y")
+    with pytest.raises(ValueError, match=r"`zs` has the columns \['x', 'vy'\], some of the model's measurements"):
+        gf.filter(track, prior, fixes.rename(columns={"y": "vy"}))
+    by_position = gf.filter(track, prior, fixes.rename(columns={"x": "east", "y": "north"}))  # other names: in order
+    np.testing.assert_array_equal(by_position.means, want.filtered.means)
+
+
+def test_a_regular_grid_stamped_to_its_unit_is_regular():
+    """A 30 Hz grid in nanoseconds steps by 33333333 and 33333334 ns (in microseconds, by 33333 and 33334), and
+    was refused by a model for dt = 1/30 s as irregular (audit DD6). Steps of 1 s and 2 s stamped in seconds are
+    still two steps."""
+    model = gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1 / 30)
+    prior, zs = gf.Gaussian(0.0, 1.0), np.linspace(0.0, 1.0, 40)
+    want = gf.filter(model, prior, zs)
+    start = pd.Timestamp("2026-01-01")
+    stamps = [start + pd.to_timedelta(np.arange(40) / 30, unit="s"),
+              pd.date_range(start, periods=40, freq=pd.Timedelta(seconds=1 / 30)),
+              [datetime.datetime(2026, 1, 1) + datetime.timedelta(seconds=k / 30) for k in range(40)]]  # (µs)
+    for times in stamps:
+        np.testing.assert_array_equal(gf.filter(model, prior, zs, times=times).means, want.means)
+    np.testing.assert_array_equal(gf.filter(model, prior, pd.Series(zs, index=stamps[0])).means, want.means)
+    with pytest.raises(ValueError, match="are irregular"):
+        gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1.0), prior, [1.0, 2.0, 3.0],
+                  times=np.array(["2026-01-01T00:00:00", "2026-01-01T00:00:01", "2026-01-01T00:00:03"],
+                                 dtype="datetime64[s]"))
+
+
+def test_pandas_controls_must_be_the_rows_of_the_measurements():
+    """They were taken by position whatever their labels: reversed, or a year off, silently (audit DD6)."""
+    model = gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, B=1.0)
+    index = pd.date_range("2026-01-01", periods=5, freq="D")
+    zs, us = pd.Series([1.0, 2.0, 3.5, 4.0, 5.5], index=index), pd.Series([1.0, 0.5, 2.0, 0.0, 1.0], index=index)
+    prior = gf.Gaussian(0.0, 1.0)
+    np.testing.assert_array_equal(gf.filter(model, prior, zs, us).means, gf.filter(model, prior, zs, us.to_numpy()).means)
+    for wrong in (us[::-1], us.set_axis(index + pd.Timedelta(days=365))):
+        with pytest.raises(ValueError, match="`us` is a pandas object whose index is not that of `zs`"):
+            gf.filter(model, prior, zs, wrong)
+
+
+def test_a_frame_of_one_row_needs_no_times_for_a_model_with_fixed_matrices():
+    """Its DatetimeIndex was taken for times, and one time gives no step (audit DD6)."""
+    model, prior = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.eye(2), R=np.eye(2), dt=1.0), gf.Gaussian([0, 0], np.eye(2))
+    row = pd.DataFrame([[1.0, 1.0]], index=pd.to_datetime(["2026-01-01"]))
+    np.testing.assert_array_equal(gf.filter(model, prior, row).means, gf.filter(model, prior, row.to_numpy()).means)
+
+
+def test_dates_in_an_object_column_are_refused_and_index_errors_name_the_index():
+    """np.datetime64 values in an object column were read as day counts; a bad index was called `times`, which
+    the caller never gave (audit DD6)."""
+    model, prior = gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0), gf.Gaussian(0.0, 1.0)
+    dates = pd.Series([np.datetime64("2026-01-01"), np.datetime64("2026-01-02")], dtype=object)
+    with pytest.raises(TypeError, match="`zs` must hold numbers; got datetime64 values"):
+        gf.filter(model, prior, dates)
+    timed = gf.model(gf.LocalLevel(q=0.1), gf.LinearSensor(H=[[1.0]], R=[[1.0]]))
+    unsorted = pd.Series([1.0, 2.0, 3.0], index=pd.to_datetime(["2026-01-02", "2026-01-01", "2026-01-03"]))
+    with pytest.raises(ValueError, match=r"^`zs.index` must be strictly increasing"):
+        gf.filter(timed, prior, unsorted)
+
+
+def test_a_pyarrow_index_of_timestamps_gives_the_times():
+    """It was not taken for times at all (audit DD6). The oracle is the same index as a DatetimeIndex."""
+    pytest.importorskip("pyarrow")
+    timed = gf.model(gf.LocalLevel(q=0.1), gf.LinearSensor(H=[[1.0]], R=[[1.0]]))
+    index = pd.to_datetime(["2026-01-01", "2026-01-02", "2026-01-05"])
+    arrow = pd.Index(index, dtype="timestamp[ns][pyarrow]")
+    prior = gf.Gaussian(0.0, 1.0)
+    want = gf.filter(timed, prior, pd.Series([1.0, 2.0, 3.0], index=index))
+    np.testing.assert_array_equal(gf.filter(timed, prior, pd.Series([1.0, 2.0, 3.0], index=arrow)).means, want.means)
+
+
+def test_names_of_a_timed_models_sensor_and_of_a_batch_reach_the_tables():
+    """A forecast of a TimedModel had measurement columns z0, z1 for its sensor's x, y; a batch kept no state
+    names (audit DD6)."""
+    track, prior = _track()
+    fc = gf.forecast(track, prior, times=[0.0, 1.0, 2.0])
+    assert fc.measurement_names == ("x", "y")
+    model = gf.LinearModel(F=[[1, 1], [0, 1]], H=[[1, 0]], Q=np.eye(2), R=1.0, names=("level", "slope"))
+    batch = gf.filter(model, gf.Gaussian([0, 0], np.eye(2)), np.ones((2, 5, 1)))
+    assert batch.state_names == ("level", "slope")
+    from gaussfuse.inference.results import first
+
+    assert list(first(batch, 1).to_pandas().columns[:2]) == ["level", "slope"]

@@ -249,7 +249,7 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
     else:
         result = drivers.filter_batch(spec, model, prior, zs, us, options, engine, keep, form, steady, gains, gate)
     drivers.check_divergence(result, check, gate=gate)
-    return result if batch else _labelled(first(result), table, names)
+    return _labelled(result, None, names) if batch else _labelled(first(result), table, names)  # (a batch's too: DD6)
 
 
 def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None, *,
@@ -347,16 +347,17 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         result = drivers.smooth_batch(spec, model, prior, zs, us, options, engine, form=form, gate=gate)
     drivers.check_divergence(result.filtered, check, gate=gate)
     if batch:
-        return result
+        return replace(result, filtered=_labelled(result.filtered, None, names))
     result = first(result)
     return replace(result, filtered=_labelled(result.filtered, table, names))
 
 
 def _inputs(model, zs, us, times):
     """A pandas `zs` unpacked and a TimedModel discretised at `times`: ``(model, zs, us, table, state names)``."""
-    zs, times, table = frames.unpack(zs, times, frames.by_rows(model))
+    zs, times, table = frames.unpack(zs, times, model)
+    us = frames.controls(us, table)
     names = getattr(model, "names", None)
-    model, us = timing.resolve(model, times, zs, us)
+    model, us = timing.resolve(model, times, zs, us, name="times" if table is None else table.times_name)
     return model, zs, us, table, names
 
 

@@ -11,31 +11,44 @@ deviations and, on request, covariances, indexed like the input.
 
 from __future__ import annotations
 
+import datetime
+
 import numpy as np
 
 from .._linalg import marginal_std
 from ..models import TimedModel
 
-__all__ = ["Table", "ahead", "by_rows", "unpack", "to_frame"]
+__all__ = ["Table", "ahead", "by_rows", "unpack", "controls", "to_frame", "measurement_names"]
 
 
 class Table:
-    """What a pandas `zs` carried besides its values: its index and column names."""
+    """What a pandas `zs` carried besides its values: its index and column names, and whether its index gave the
+    times (so that their errors name it)."""
 
-    __slots__ = ("index", "columns")
+    __slots__ = ("index", "columns", "timed")
 
-    def __init__(self, index, columns) -> None:
-        self.index, self.columns = index, columns
+    def __init__(self, index, columns, timed: bool = False) -> None:
+        self.index, self.columns, self.timed = index, columns, timed
 
     def __reduce__(self):
-        return type(self), (self.index, self.columns)
+        return type(self), (self.index, self.columns, self.timed)
+
+    @property
+    def times_name(self) -> str:
+        """What the times are called in errors: the index's name where it gave them (audit DD6)."""
+        return "zs.index" if self.timed else "times"
+
+
+def measurement_names(model) -> tuple[str, ...] | None:
+    """A model's measurement names, where it has them: a TimedModel's sensor's."""
+    return tuple(model.sensor.names) if isinstance(model, TimedModel) else None
 
 
 def _is_pandas(value) -> bool:
     return type(value).__module__.split(".")[0] == "pandas" and hasattr(value, "to_numpy")
 
 
-def _check_columns(zs) -> None:
+def _check_columns(zs, name: str = "zs") -> None:
     """Refuse what :func:`gaussfuse._validation.as_array` refuses in an array: complex, boolean, date and text values.
 
     pandas' cast to float dropped an imaginary part (with only its own
@@ -45,19 +58,20 @@ def _check_columns(zs) -> None:
                                   is_timedelta64_dtype)
 
     columns = zs.items() if hasattr(zs, "columns") else [(zs.name, zs)]
-    for name, column in columns:
+    for label, column in columns:
         if is_complex_dtype(column.dtype):
-            raise TypeError(f"`zs` must be real; got complex values in column {name!r}.")
+            raise TypeError(f"`{name}` must be real; got complex values in column {label!r}.")
         if is_bool_dtype(column.dtype):
-            raise TypeError(f"`zs` must hold numbers; got booleans in column {name!r}.")
+            raise TypeError(f"`{name}` must hold numbers; got booleans in column {label!r}.")
         if is_datetime64_any_dtype(column.dtype) or is_timedelta64_dtype(column.dtype):  # (as nanosecond counts)
             what = "timedelta" if is_timedelta64_dtype(column.dtype) else "datetime"
-            raise TypeError(f"`zs` must hold numbers; got {what} values in column {name!r} (times go in `times` "
+            raise TypeError(f"`{name}` must hold numbers; got {what} values in column {label!r} (times go in `times` "
                             "or the index).")
-        if not is_numeric_dtype(column.dtype):
-            odd = [v for v in column.dropna() if isinstance(v, (str, bytes, bool, np.bool_, complex))]
+        if not is_numeric_dtype(column.dtype):  # (dates in an object column were read as day counts: audit DD6)
+            odd = [v for v in column.dropna() if isinstance(v, (str, bytes, bool, np.bool_, complex, np.datetime64,
+                                                                np.timedelta64, datetime.date, datetime.timedelta))]
             if odd:
-                raise TypeError(f"`zs` must hold numbers; got {type(odd[0]).__name__} values in column {name!r} "
+                raise TypeError(f"`{name}` must hold numbers; got {type(odd[0]).__name__} values in column {label!r} "
                                 f"(such as {odd[0]!r}).")
 
 
@@ -95,13 +109,17 @@ def by_rows(model) -> bool:
     return not isinstance(model, TimedModel) and getattr(model, "dt", None) is None
 
 
-def unpack(zs, times, rows: bool):
+def unpack(zs, times, model):
     """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array).
 
     The index of a pandas `zs` supplies `times` when none are given, except one of calendar periods (monthly,
-    yearly, business days) when `rows` (a model with fixed matrices and no ``dt``): its rows are then one step
-    each, as they are in a statistical model of monthly data; in seconds they are irregular, which such a model
-    refuses.
+    yearly, business days) for a model with fixed matrices and no ``dt`` (:func:`by_rows`): its rows are then
+    one step each, as they are in a statistical model of monthly data; in seconds they are irregular, which such
+    a model refuses. A model with fixed matrices takes one row without times (it has no step to check).
+
+    A DataFrame whose columns are the model's measurement names (:func:`measurement_names`) in another order is
+    taken in the model's order; one that names some of them and not others is refused (its columns were taken
+    by position: x and y swapped, silently, audit DD6). Columns named otherwise are taken by position.
     """
     if not _is_pandas(zs) or not hasattr(zs, "index"):
         return zs, times, None
@@ -119,10 +137,47 @@ def unpack(zs, times, rows: bool):
         raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
     columns = (tuple(str(c) for c in zs.columns) if hasattr(zs, "columns")
                else None if zs.name is None else (str(zs.name),))  # (an unnamed Series' column is not "None")
-    if times is None and type(zs.index).__name__ in ("DatetimeIndex", "TimedeltaIndex") and (
-            not rows or not _calendar(zs.index)):
-        times = zs.index
-    return values, times, Table(zs.index, columns)
+    names = measurement_names(model)
+    if names is not None and hasattr(zs, "columns") and columns != names and set(columns) & set(names):
+        if sorted(columns) != sorted(names):
+            raise ValueError(f"`zs` has the columns {list(columns)}, some of the model's measurements {list(names)} "
+                             "and not the others: name them as the model does, in any order, or give "
+                             "`zs.to_numpy()` to take the columns in their order.")
+        values, columns = values[:, [columns.index(name) for name in names]], names
+    index, timed = _datetimes(zs.index), False
+    rows = by_rows(model)
+    if times is None and index is not None and (not rows or not _calendar(index)) and (
+            len(index) > 1 or isinstance(model, TimedModel)):
+        times, timed = index, True
+    return values, times, Table(zs.index, columns, timed)
+
+
+def _datetimes(index):
+    """A pandas index of datetimes or durations as a DatetimeIndex or TimedeltaIndex (a pyarrow-backed index of
+    timestamps was not taken for times: audit DD6), or None."""
+    import pandas as pd
+    from pandas.api.types import is_datetime64_any_dtype, is_timedelta64_dtype
+
+    if isinstance(index, (pd.DatetimeIndex, pd.TimedeltaIndex)):
+        return index
+    if is_datetime64_any_dtype(index.dtype):
+        return pd.DatetimeIndex(index)
+    if is_timedelta64_dtype(index.dtype):
+        return pd.TimedeltaIndex(index)
+    return None
+
+
+def controls(us, table: Table | None):
+    """A pandas `us` as a float array, its rows those of the pandas `zs` of `table` (its index must be `zs`'s: the
+    controls were taken by position, whatever their labels, audit DD6); anything else as it is."""
+    if not _is_pandas(us) or not hasattr(us, "index"):
+        return us
+    if table is not None and not us.index.equals(table.index):
+        raise ValueError("`us` is a pandas object whose index is not that of `zs`: give the controls of the same "
+                         "rows (`us.reindex(zs.index)`), or an array to take them in order.")
+    _check_columns(us, "us")
+    values = us.to_numpy(dtype=np.float64, na_value=np.nan)
+    return values
 
 
 def ahead(index, k: int):

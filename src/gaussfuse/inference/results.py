@@ -227,6 +227,8 @@ def first(result, index: int = 0):
             values[f.name] = float(item[index])
         elif f.name == "iterations" and np.ndim(item) == 1 and isinstance(result, SmoothResult):
             values[f.name] = int(item[index])
+        elif f.name in ("state_names", "table"):  # the call's labels, the same for every series
+            values[f.name] = item
         else:
             values[f.name] = None if item is None else item[index]
     return type(result)(**values)

@@ -246,13 +246,22 @@ class Steps(NamedTuple):
     total: float | None = None  # the steps' sum and number, and the number of series they belong to, where `dts`
     count: int = 0              # holds only the smallest and the largest (a file read in pieces, a table's series:
     series: int = 1             # gaussfuse.panels.step_range)
+    resolution: float = 0.0     # seconds: a datetime's unit, to which each time was rounded (0 for float seconds)
+
+    def _rounded(self, step: float) -> float:
+        """The datetimes' rounding, where it is at most 1e-4 of `step`: a 30 Hz grid stamped in nanoseconds steps
+        by 33333333 and 33333334 ns (33333332 to 33333335 ns from float seconds, each stamp within a unit or so
+        either way), and was refused as irregular (audit DD6); steps of 1 s and 2 s stamped in seconds are not
+        one step."""
+        return self.resolution if self.resolution <= 1e-4 * step else 0.0
 
     @property
     def regular(self) -> bool:
-        """Whether the steps are one step, to 1e-9 of it or to the times' round-off (one infinite step too)."""
+        """Whether the steps are one step, to 1e-9 of it, to the times' round-off (one infinite step too), or to
+        the rounding of datetimes to their unit."""
         low, high = self.dts.min(), self.dts.max()
         with np.errstate(invalid="ignore"):  # inf - inf
-            return bool(high == low or high - low <= 1e-9 * high + self.slack)
+            return bool(high == low or high - low <= 1e-9 * high + self.slack + 4 * self._rounded(low))
 
     @property
     def step(self) -> float:
@@ -266,7 +275,7 @@ class Steps(NamedTuple):
         over all steps by as many times that as there are series (review R12: 200 series of 2 rows, allowed the
         round-off over 200 steps, were told a 0.1 s grid steps by 0.0999999 s)."""
         count = self.dts.shape[0] if self.total is None else self.count / self.series
-        return abs(self.step - dt) <= 1e-9 * dt + self.slack / count
+        return abs(self.step - dt) <= 1e-9 * dt + self.slack / count + 2 * self._rounded(dt)
 
 
 def round_off(largest: float) -> float:
@@ -277,7 +286,7 @@ def round_off(largest: float) -> float:
 def steps(name: str, times, T: int) -> Steps:
     """:func:`step_sizes` as :class:`Steps`; raises as it does."""
     values, per_second = _clock(name, times)
-    slack = 0.0
+    slack, resolution = 0.0, 0.0 if per_second is None else 1.0 / per_second
     if per_second is None:
         with np.errstate(over="ignore"):
             diffs = np.diff(values)
@@ -302,7 +311,7 @@ def steps(name: str, times, T: int) -> Steps:
         k = int(np.flatnonzero(np.isinf(dts))[0])
         raise ValueError(f"`{name}` step {k} is longer than the largest float64 (dt = inf s): times so far apart "
                          "cannot be stepped.")
-    return Steps(dts, slack)
+    return Steps(dts, slack, resolution=resolution)
 
 
 def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True):
@@ -331,7 +340,9 @@ def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True):
     if timed:
         return model.at(grid.dts, us)
     low, high = float(grid.dts.min()), float(grid.dts.max())
-    each = ", or, if each row is one step{} whatever its time, leave `times` out (for a pandas `zs`, pass its values)"
+    each = (", or, if each row is one step{} whatever its time, give `zs.to_numpy()` (its index gives the times)"
+            if name == "zs.index" else
+            ", or, if each row is one step{} whatever its time, leave `times` out (for a pandas `zs`, pass its values)")
     if not grid.regular:
         raise ValueError(
             f"`{name}` are irregular (steps from {low:g} s to {high:g} s) but the model's matrices are fixed; build "
