@@ -566,10 +566,11 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str | tuple = "the covariance")
         Lower triangular with a non-negative diagonal (:func:`tria`).
     V : ndarray of shape (n, r)
         The columns to take away.
-    name : str, or tuple of (str, int) pairs
+    name : str, or tuple of (str, int or sequence of int) pairs
         What ``L Lᵀ - V Vᵀ`` is, for the error; or, for a joint array,
-        what each block of its components is and how many it has (an
-        update's innovation covariance, then its filtered covariance).
+        what each block of its rows is and how many it has, or which
+        components they are (an update's observed measurements in their
+        order, then its filtered covariance).
 
     Returns
     -------
@@ -633,11 +634,12 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str | tuple = "the covariance")
                 try:
                     return semidefinite_cholesky(symmetrize(given @ given.T - V @ V.T))
                 except np.linalg.LinAlgError:
-                    what, j = _block(name, k)
+                    what, j, first = _block(name, k)
+                    given = "" if first else " given the components before it"
                     raise np.linalg.LinAlgError(
                         f"{what} is not positive semi-definite: taking away a negatively weighted term leaves "
-                        f"component {j} a variance of {rho2:.3g}. {_POSITIVE_RULES[0].upper()}{_POSITIVE_RULES[1:]}"
-                    ) from None
+                        f"component {j} a variance of {rho2:.3g}{given}. "
+                        f"{_POSITIVE_RULES[0].upper()}{_POSITIVE_RULES[1:]}") from None
             rho = np.sqrt(rho2)
             c, s = rho / a, v[k] / a
             L[k, k] = rho
@@ -646,15 +648,17 @@ def downdate(L: np.ndarray, V: np.ndarray, name: str | tuple = "the covariance")
     return L
 
 
-def _block(name: str | tuple, k: int) -> tuple[str, int]:
-    """The name of the block of :func:`downdate`'s `name` that row k is in, and k's index within it (a joint
-    array's row of the filtered covariance was named as the innovation covariance's: audit DD5)."""
+def _block(name: str | tuple, k: int) -> tuple[str, int, bool]:
+    """The name of the block of :func:`downdate`'s `name` that row k is in, the component that row is, and whether
+    it is the block's first row (a joint array's row of the filtered covariance was named as the innovation
+    covariance's: audit DD5). A block's second entry is its number of rows, or the components they are."""
     if isinstance(name, str):
-        return name, k
-    for what, size in name:
-        if k < size:
-            return what, k
-        k -= size
+        return name, k, k == 0
+    for what, rows in name:
+        count = rows if isinstance(rows, int) else len(rows)
+        if k < count:
+            return what, k if isinstance(rows, int) else int(rows[k]), k == 0
+        k -= count
     raise IndexError(k)
 
 

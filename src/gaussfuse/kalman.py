@@ -949,8 +949,9 @@ def sqrt_gain(factor: np.ndarray, H: np.ndarray, R_factor: np.ndarray, observed:
         D_o = None if D_o is None else D_o[order]
         post = tria(pre)
     if D_o is not None:
+        rows = np.arange(H.shape[0]) if observed is None else np.flatnonzero(observed)  # (review R30: named by row)
         post = downdate(post, np.concatenate([D_o, np.zeros((n, D_o.shape[1]))]),
-                        (("the innovation covariance", mo), ("the filtered covariance", n)))
+                        (("the innovation covariance", rows[order] if moved else rows), ("the filtered covariance", n)))
     L_S, Kbar = post[:mo, :mo], post[mo:, :mo]
     if not np.all(np.diagonal(L_S) > 0.0) or zero_pivots(L_S).any() and (
             D_o is not None or _dependent(R_factor if observed is None else R_factor[observed], HL_o, factor)):

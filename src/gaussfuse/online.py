@@ -12,6 +12,7 @@ from ._validation import StepOverflowError, as_array, as_matrix, check_psd, real
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
+from .inference.drivers import check_spread
 from .inference.registry import linearisation, resolve_method
 from .inference.validation import check_form, check_prior
 from .models.compose import TimedModel
@@ -387,6 +388,7 @@ class KalmanFilter:
         else:
             post = self._run(kalman.correct, lin, k, belief.mean, belief.cov, z, self._iterations, self._tol, xa, za,
                              steady=steady, gate=checked_gate)[0]
+            check_spread(lin, post.cov[None], "filtered", lambda _: k)  # as gf.filter (review R30)
             self._belief = Gaussian._trusted(post.mean, post.cov)
         if lin is not self._lin:
             self._steady = self._fresh_steady()

@@ -919,6 +919,19 @@ def test_a_negative_weight_that_leaves_a_filtered_variance_below_zero_is_an_erro
     for keep in ("last", "means"):  # (both keep the last covariance)
         with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: the filtered covariance"):
             gf.filter(model, prior, zs, keep=keep, **options)
+    kf = gf.KalmanFilter(model, prior, method="ukf", kappa=-4.5)  # online and IMM too (review R30)
+    kf.predict()
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0: the filtered covariance is not positive semi-def"):
+        kf.update(zs[0])
+    assert np.array_equal(kf.P, kf.P_prior)  # the belief is kept
+    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 0 \(model 0\): the filtered covariance is not"):
+        gf.imm_filter([model], prior, zs, transition=[[1.0]], method="ukf", kappa=-4.5)
+    hidden = gf.NonlinearModel(lambda x: x.copy(), lambda x: np.array([x[2], x[0] + 2 * x[1] ** 2]),
+                               1e-4 * np.eye(5), 1e-4 * np.eye(2))  # its second measurement's S is -1
+    for z in ([0.3, 0.5], [np.nan, 0.5]):  # named as measurement 1, whichever rows are observed (review R30)
+        with pytest.raises(np.linalg.LinAlgError, match=r"the innovation covariance is not positive semi-definite: "
+                                                         r".* leaves component 1 a variance of -1"):
+            gf.filter(hidden, prior, [z], form="sqrt", **options)
 
 
 def known_gravity():

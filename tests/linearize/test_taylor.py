@@ -443,6 +443,16 @@ def test_a_drop_found_after_the_first_checks_is_remembered():
     assert lin.checks == {"h": -1}
 
 
+@pytest.mark.parametrize("offset", [1e6, 1e8, 1e10])
+def test_a_dropped_slope_of_an_output_far_larger_than_its_change_is_found(offset):
+    """At steps 1e-3 as short the change of 1e8 + |x0| is within its round-off: the confirmation found no
+    disagreement there, and the slope of 0 was kept (review R30: an ENU pseudorange of 2e7 m never moved the
+    position). No evidence at the shorter step keeps the longer one's. The oracle is analytic."""
+    h = lambda x: np.array([offset + np.abs(x[0]), x[1]])  # noqa: E731
+    J = jacobian("h", h, np.array([0.7, 1.0]), (), 2, spread=np.array([1.0, 1.0]))
+    np.testing.assert_allclose(J, [[1.0, 0.0], [0.0, 1.0]], rtol=0, atol=1e-3)
+
+
 def test_the_check_argument_is_checked():
     with pytest.raises(ValueError, match="`check` must be 'all' or 'faint'; got 'none'"):
         jacobian("h", _pseudoranges, np.array([1.0, 2.0, 0.5]), (), 3, check="none")

@@ -506,7 +506,7 @@ def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:
     negative weight can make the regression's residual spread indefinite, and a smoothed covariance with it.
     Named by the backward step's transition, as run_smoother's errors, and the first the backward pass meets.
     """
-    _indefinite_error(lin, result.covs, "smoothed", lambda k: k if to_prior else k + 1, last=True)
+    check_spread(lin, result.covs, "smoothed", lambda k: k if to_prior else k + 1, last=True)
     return result
 
 
@@ -515,13 +515,13 @@ def _filtered_checked(lin, result: FilterResult, T: int) -> FilterResult:
     a filtered covariance that is not positive semi-definite, as the square-root form does; the covariance form
     returned it (a variance of -0.047 from kappa = -4.5: audit DD5). Those it keeps: all, or the last."""
     if result.covs is not None:
-        _indefinite_error(lin, result.covs, "filtered", lambda k: k)
+        check_spread(lin, result.covs, "filtered", lambda k: k)
     elif result.last_cov is not None:
-        _indefinite_error(lin, result.last_cov[..., None, :, :], "filtered", lambda k: T - 1)
+        check_spread(lin, result.last_cov[..., None, :, :], "filtered", lambda k: T - 1)
     return result
 
 
-def _indefinite_error(lin, covs: np.ndarray, stage: str, step, last: bool = False) -> None:
+def check_spread(lin, covs: np.ndarray, stage: str, step, last: bool = False) -> None:
     """Raise LinAlgError naming the first (or `last`) `stage` covariance of `covs` ((N,) T, n, n) that is not
     positive semi-definite, where `lin`'s sigma-point rule weighs a point negatively; `step(k)` names step k."""
     rule = getattr(lin, "rule", None)
