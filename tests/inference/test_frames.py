@@ -190,7 +190,8 @@ def test_a_frames_columns_are_taken_by_the_models_measurement_names():
     got = gf.smooth(track, prior, fixes[["y", "x"]])
     np.testing.assert_array_equal(got.means, want.means)
     assert got.filtered.table.columns == ("x", "y")
-    with pytest.raises(ValueError, match=r"`zs` has the columns \['x', 'vy'\], some of the model's measurements"):
+    with pytest.raises(ValueError, match=r"`zs` has the columns \['x', 'vy'\], some of the model's measurements "
+                                         r"\['x', 'y'\], without \['y'\], and \['vy'\] besides"):
         gf.filter(track, prior, fixes.rename(columns={"y": "vy"}))
     by_position = gf.filter(track, prior, fixes.rename(columns={"x": "east", "y": "north"}))  # other names: in order
     np.testing.assert_array_equal(by_position.means, want.filtered.means)
@@ -214,6 +215,14 @@ def test_a_regular_grid_stamped_to_its_unit_is_regular():
         gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1.0), prior, [1.0, 2.0, 3.0],
                   times=np.array(["2026-01-01T00:00:00", "2026-01-01T00:00:01", "2026-01-01T00:00:03"],
                                  dtype="datetime64[s]"))
+    # not a grid that drifts from one (500 steps of 10000 ns, then 500 of 10004), nor one of another dt (review R31)
+    ten = gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1e-5)
+    drifting = np.concatenate([[0], np.cumsum([10000] * 500 + [10004] * 500)]).astype("datetime64[ns]")
+    with pytest.raises(ValueError, match="are irregular"):
+        gf.filter(ten, prior, np.zeros(1000), times=drifting)
+    exact = (np.arange(1001) * 10000).astype("datetime64[ns]")
+    with pytest.raises(ValueError, match="the model is for dt = 1.0002e-05 s"):
+        gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1.0002e-5), prior, np.zeros(1000), times=exact)
 
 
 def test_pandas_controls_must_be_the_rows_of_the_measurements():
@@ -248,15 +257,18 @@ def test_dates_in_an_object_column_are_refused_and_index_errors_name_the_index()
         gf.filter(timed, prior, unsorted)
 
 
-def test_a_pyarrow_index_of_timestamps_gives_the_times():
-    """It was not taken for times at all (audit DD6). The oracle is the same index as a DatetimeIndex."""
+def test_a_pyarrow_index_of_timestamps_or_durations_gives_the_times():
+    """It was not taken for times at all (audit DD6, review R31). The oracle is the same index in numpy's types."""
     pytest.importorskip("pyarrow")
     timed = gf.model(gf.LocalLevel(q=0.1), gf.LinearSensor(H=[[1.0]], R=[[1.0]]))
-    index = pd.to_datetime(["2026-01-01", "2026-01-02", "2026-01-05"])
-    arrow = pd.Index(index, dtype="timestamp[ns][pyarrow]")
     prior = gf.Gaussian(0.0, 1.0)
-    want = gf.filter(timed, prior, pd.Series([1.0, 2.0, 3.0], index=index))
-    np.testing.assert_array_equal(gf.filter(timed, prior, pd.Series([1.0, 2.0, 3.0], index=arrow)).means, want.means)
+    for index, arrow in (("2026-01-01 2026-01-02 2026-01-05", "timestamp[ns][pyarrow]"), (None, "duration[ns][pyarrow]")):
+        index = pd.to_datetime(index.split()) if index else pd.to_timedelta([1, 2, 5], unit="D")
+        want = gf.filter(timed, prior, pd.Series([1.0, 2.0, 3.0], index=index))
+        got = gf.filter(timed, prior, pd.Series([1.0, 2.0, 3.0], index=pd.Index(index, dtype=arrow)))
+        np.testing.assert_array_equal(got.means, want.means)
+    with pytest.raises(ValueError, match=r"^`zs` has one row, whose time alone gives no time step: pass `times`"):
+        gf.filter(timed, prior, pd.Series([1.0], index=pd.to_datetime(["2026-01-01"])))
 
 
 def test_names_of_a_timed_models_sensor_and_of_a_batch_reach_the_tables():

@@ -351,6 +351,8 @@ def test_a_function_is_checked_at_its_first_jacobians_and_remembered():
     (lambda x: np.tanh(x / 1e-3), [0.0], [10.0]),
     (lambda x: np.arctan(x), [0.0], [1e4]),
     (lambda x: x * np.exp(-x**2), [0.0], [3e3]),  # (finite differences gave a slope of 3e-153 for 1)
+    (lambda x: 1e8 + x + np.sin(x), [3.0], [3e3]),  # a step lost in round-off confirmed a drop (review R31)
+    (lambda x: 1e10 + np.sin(10 * x), [0.0], [316.0]),
     (lambda x: np.exp(x), [1.0], [300.0]),
     (lambda x: 1 / (1 + x / 1e-16), [1.0], [1.0]),
     (lambda x: x**2, [1e-150], [1e-151]),

@@ -117,9 +117,10 @@ def unpack(zs, times, model):
     one step each, as they are in a statistical model of monthly data; in seconds they are irregular, which such
     a model refuses. A model with fixed matrices takes one row without times (it has no step to check).
 
-    A DataFrame whose columns are the model's measurement names (:func:`measurement_names`) in another order is
-    taken in the model's order; one that names some of them and not others is refused (its columns were taken
-    by position: x and y swapped, silently, audit DD6). Columns named otherwise are taken by position.
+    A DataFrame whose columns are the model's measurement names (:func:`measurement_names`: a TimedModel's
+    sensor's) in another order is taken in the model's order; one that names some of them and not others is
+    refused (its columns were taken by position: x and y swapped, silently, audit DD6). Columns named otherwise,
+    and every DataFrame for a LinearModel or NonlinearModel, which name no measurements, are taken by position.
     """
     if not _is_pandas(zs) or not hasattr(zs, "index"):
         return zs, times, None
@@ -140,9 +141,11 @@ def unpack(zs, times, model):
     names = measurement_names(model)
     if names is not None and hasattr(zs, "columns") and columns != names and set(columns) & set(names):
         if sorted(columns) != sorted(names):
-            raise ValueError(f"`zs` has the columns {list(columns)}, some of the model's measurements {list(names)} "
-                             "and not the others: name them as the model does, in any order, or give "
-                             "`zs.to_numpy()` to take the columns in their order.")
+            missing, other = [n for n in names if n not in columns], [c for c in columns if c not in names]
+            raise ValueError(f"`zs` has the columns {list(columns)}, some of the model's measurements {list(names)}"
+                             + (f", without {missing}" if missing else "") + (f", and {other} besides" if other else "")
+                             + ": name them as the model does, in any order, or give `zs.to_numpy()` to take the "
+                             "columns in their order.")
         values, columns = values[:, [columns.index(name) for name in names]], names
     index, timed = _datetimes(zs.index), False
     rows = by_rows(model)
@@ -162,8 +165,8 @@ def _datetimes(index):
         return index
     if is_datetime64_any_dtype(index.dtype):
         return pd.DatetimeIndex(index)
-    if is_timedelta64_dtype(index.dtype):
-        return pd.TimedeltaIndex(index)
+    if is_timedelta64_dtype(index.dtype) or getattr(index.dtype, "kind", None) == "m":  # (pyarrow's: review R31)
+        return pd.TimedeltaIndex(index.astype("timedelta64[ns]"))
     return None
 
 

@@ -258,10 +258,15 @@ class Steps(NamedTuple):
     @property
     def regular(self) -> bool:
         """Whether the steps are one step, to 1e-9 of it, to the times' round-off (one infinite step too), or to
-        the rounding of datetimes to their unit."""
+        the rounding of datetimes to their unit, with the times within a few units of one grid (steps of 10000
+        and 10004 ns, 500 of each, drift 1000 ns from it: review R31)."""
         low, high = self.dts.min(), self.dts.max()
         with np.errstate(invalid="ignore"):  # inf - inf
-            return bool(high == low or high - low <= 1e-9 * high + self.slack + 4 * self._rounded(low))
+            if high == low or high - low <= 1e-9 * high + self.slack:
+                return True
+        unit = self._rounded(low)
+        return bool(unit > 0.0 and high - low <= 4 * unit and self.total is None
+                    and np.abs(np.cumsum(self.dts - self.dts.mean())).max() <= 4 * unit)
 
     @property
     def step(self) -> float:
@@ -275,7 +280,7 @@ class Steps(NamedTuple):
         over all steps by as many times that as there are series (review R12: 200 series of 2 rows, allowed the
         round-off over 200 steps, were told a 0.1 s grid steps by 0.0999999 s)."""
         count = self.dts.shape[0] if self.total is None else self.count / self.series
-        return abs(self.step - dt) <= 1e-9 * dt + self.slack / count + 2 * self._rounded(dt)
+        return abs(self.step - dt) <= 1e-9 * dt + self.slack / count + self._rounded(dt)  # (a step in whole units)
 
 
 def round_off(largest: float) -> float:
@@ -299,6 +304,9 @@ def steps(name: str, times, T: int) -> Steps:
         dts = np.concatenate([diffs[:1], diffs])
     else:
         if T == 1:  # one time alone gives no step: its dt is not known
+            if name == "zs.index":  # (it cannot have two: review R31)
+                raise ValueError("`zs` has one row, whose time alone gives no time step: pass `times` with the "
+                                 "prior's time first, and then the row's.")
             raise ValueError(f"`{name}` must have 2 entries with one measurement, the prior's time and then the "
                              f"measurement's (one time alone gives no time step); got {values.shape[0]}.")
         raise ValueError(f"`{name}` must have {T} entries, one per measurement, or {T + 1} with the prior's time "

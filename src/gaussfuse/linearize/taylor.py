@@ -170,8 +170,8 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: 
     f(x + m) - f(x) (review R24; a second step could leave a narrow domain: review R26). An output disagrees
     when the first estimate is further from J m than 1% of itself, plus the two estimates' difference (the
     truncation error, which grows with the step: at a stationary point of x³, or along sin(1000 x) stepped by
-    a thousandth of a spread of 1, the cubic term alone disagreed: review R28), plus f's round-off; and again
-    with steps 1e-3 times as long.
+    a thousandth of a spread of 1, the cubic term alone disagreed: review R28), plus f's round-off; and it must
+    not agree at a step 1/32 or 1/1024 as long.
     """
     eps = np.finfo(np.float64).eps
 
@@ -213,15 +213,21 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: 
         return np.where((verdict == 0) & (np.maximum(np.abs(fine), np.abs(linear)) <= 100 * slack), -1, verdict)
 
     # a derivative that was dropped is missed at every step; the truncation error of one curving within the step
-    # (sin(1000 x) under a spread of 3, review R29) shrinks with it: a disagreement must hold at 1e-3 of the step,
-    # or be lost there in f's round-off (a pseudorange of 2e7 m changes by 2e-7 m over 1e-6 of a spread of 0.1 m,
-    # and its dropped slope was missed: review R30)
+    # (sin(1000 x) under a spread of 3, review R29) shrinks with it: a disagreement is cleared by an agreement at
+    # a step 1/32 or 1/1024 as long, not by one lost there in f's round-off (a pseudorange of 2e7 m changes by
+    # 2e-7 m over 1e-6 of a spread of 0.1 m, and its dropped slope was missed: review R30; a sine beside 1e8 at a
+    # spread of 3000 was taken for a drop where only the shortest step was lost: review R31)
     for move in moves:
-        first = disagrees(move)
-        if first is not None and (first == 1).any():
-            again = disagrees(1e-3 * move)
-            if again is None or ((first == 1) & (again != 0)).any():
-                return True
+        flagged = disagrees(move)
+        if flagged is None or not (flagged == 1).any():
+            continue
+        flagged = flagged == 1
+        for shorter in (move / 32, move / 1024):
+            again = disagrees(shorter)
+            if again is not None:
+                flagged &= again != 0
+        if flagged.any():
+            return True
     return False
 
 
