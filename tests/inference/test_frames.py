@@ -220,6 +220,9 @@ def test_a_regular_grid_stamped_to_its_unit_is_regular():
     drifting = np.concatenate([[0], np.cumsum([10000] * 500 + [10004] * 500)]).astype("datetime64[ns]")
     with pytest.raises(ValueError, match="are irregular"):
         gf.filter(ten, prior, np.zeros(1000), times=drifting)
+    summed = (np.cumsum(np.full(300_000, 1 / 30)) * 1e9).astype(np.int64).astype("datetime64[ns]")  # (review R32:
+    thirty = gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1 / 30)  # a clock summed in floats, 100 ns off by its end)
+    assert gf.filter(thirty, prior, np.zeros(299_999), times=summed, engine="numba", keep="last").last_mean.shape == (1,)
     exact = (np.arange(1001) * 10000).astype("datetime64[ns]")
     with pytest.raises(ValueError, match="the model is for dt = 1.0002e-05 s"):
         gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0, dt=1.0002e-5), prior, np.zeros(1000), times=exact)

@@ -226,6 +226,8 @@ def _dropped(fn: Callable, x: np.ndarray, args: tuple, vectorized: bool, moves: 
             again = disagrees(shorter)
             if again is not None:
                 flagged &= again != 0
+            if not flagged.any():  # (cleared: review R32)
+                break
         if flagged.any():
             return True
     return False
