@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import _oracle
@@ -155,10 +156,15 @@ def test_steady_is_checked():
         gf.filter(gf.LinearModel(np.ones((5, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), np.zeros((5, 1)),
                   steady=True)
     timed = gf.model(gf.ConstantVelocity(), gf.Position())  # (the message named a time axis the user never gave)
-    with pytest.raises(ValueError, match="`steady=True` needs one time step, and the steps between the `times`"):
+    with pytest.raises(ValueError, match="`steady=True` needs one time step, and the steps between the times"):
         gf.filter(timed, prior, np.ones((3, 1)), times=[0.0, 1.0, 2.5, 3.0], steady=True)
     regular = gf.filter(timed, prior, np.ones((3, 1)), times=[0.0, 1.0, 2.0, 3.0], steady=True)
     np.testing.assert_array_equal(regular.means, gf.filter(timed, prior, np.ones((3, 1)), times=[0, 1, 2, 3]).means)
+    stamps = pd.Timestamp("2026-01-01") + pd.to_timedelta(np.arange(4) / 30, unit="s")  # 33333333 or ...4 ns
+    thirty = gf.filter(timed, prior, pd.DataFrame(np.ones((4, 1)), index=stamps), steady=True)  # (review R33)
+    fixed = gf.filter(gf.model(gf.ConstantVelocity(), gf.Position(), float(np.diff(stamps.asi8).mean()) / 1e9),
+                      prior, np.ones((4, 1)), steady=True)
+    np.testing.assert_allclose(thirty.means, fixed.means, rtol=1e-8)  # (dt to a nanosecond)
     with pytest.raises(ValueError, match="time-varying"):  # a time-varying model at regular times (review R28)
         gf.filter(gf.LinearModel(np.ones((5, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), np.zeros((5, 1)),
                   steady=True, times=np.arange(5.0))

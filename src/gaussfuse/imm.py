@@ -28,9 +28,9 @@ from ._frozen import reduce_frozen, shapes_repr
 from ._validation import as_array
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
-from .inference.drivers import check_spread
 from .inference.registry import check_options, linearisation, resolve_method
-from .inference.validation import check_controls, check_measurements, check_prior, check_steps
+from .inference.validation import (check_controls, check_measurements, check_prior, check_semidefinite,
+                                   check_steps)
 from .models.linear import LinearModel
 from .models.nonlinear import NonlinearModel
 
@@ -257,7 +257,7 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
         log_c, starts = _mix(log_mu, log_P, prev_means, prev_covs, angles)
         for j, mode in enumerate(modes):
             post = mode.step(k, *starts[j], zs[k])
-            check_spread(mode.lin, post.cov[None], "filtered", lambda _: f"{k} (model {j})")  # (review R30)
+            check_semidefinite(mode.lin, post.cov[None], "filtered", lambda _: f"{k} (model {j})")  # (review R30)
             out.mode_means[k, j], out.mode_covs[k, j], logl[j] = post.mean, post.cov, post.loglik
         if not np.any(logl + log_c > -np.inf):
             raise np.linalg.LinAlgError(f"at step {k}: the measurement is impossible under every model that can be "

@@ -12,12 +12,11 @@ from ._validation import StepOverflowError, as_array, as_matrix, check_psd, real
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
-from .inference.drivers import check_spread
 from .inference.registry import linearisation, resolve_method
-from .inference.validation import check_form, check_prior
+from .inference.validation import check_form, check_prior, check_semidefinite
 from .models.compose import TimedModel
-from .models.motion import LinearMotion
 from .models.linear import LinearModel
+from .models.motion import LinearMotion
 
 __all__ = ["KalmanFilter"]
 
@@ -314,7 +313,8 @@ class KalmanFilter:
         p = getattr(self._model, "p", None) if self.timed is None else self._timed_p
         if p == 0 and u is not None:
             raise ValueError("`u` was given but the model has no control input"
-                             + ("; give the model `B`." if isinstance(self._model, LinearModel) else "."))
+                             + ("; its motion takes none." if self.timed is not None else "; give the model `B`."
+                                if isinstance(self._model, LinearModel) else "."))
         if u is None and p:
             raise ValueError(f"`u` is required: the model has a control input with p = {p}.")
         if u is not None:
@@ -330,8 +330,8 @@ class KalmanFilter:
         lin.us = self._controls if u is not None or isinstance(self._model, LinearModel) else None
         steady = self._steady if lin is self._lin else None
         if self.form == "sqrt":
-            self._set(*self._run(kalman.forecast_sqrt, lin, k, belief.mean, self._own_factor(), self._roots, self._angles[0],
-                                 steady=steady))
+            self._set(*self._run(kalman.forecast_sqrt, lin, k, belief.mean, self._own_factor(), self._roots,
+                                 self._angles[0], steady=steady))
         else:
             mean, cov = self._run(kalman.forecast, lin, k, belief.mean, belief.cov, self._angles[0], steady=steady)
             self._belief = Gaussian._trusted(mean, cov)
@@ -382,13 +382,13 @@ class KalmanFilter:
         xa, za = self._angles
         checked_gate = kalman.Gate.of(gate, gate_by)
         if self.form == "sqrt":
-            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self._own_factor(), z, self._roots, xa, za, steady=steady,
-                             gate=checked_gate)
+            post = self._run(kalman.correct_sqrt, lin, k, belief.mean, self._own_factor(), z, self._roots, xa, za,
+                             steady=steady, gate=checked_gate)
             self._set(post.mean, post.factor)
         else:
             post = self._run(kalman.correct, lin, k, belief.mean, belief.cov, z, self._iterations, self._tol, xa, za,
                              steady=steady, gate=checked_gate)[0]
-            check_spread(lin, post.cov[None], "filtered", lambda _: k)  # as gf.filter (review R30)
+            check_semidefinite(lin, post.cov[None], "filtered", lambda _: k)  # as gf.filter (review R30)
             self._belief = Gaussian._trusted(post.mean, post.cov)
         if lin is not self._lin:
             self._steady = self._fresh_steady()

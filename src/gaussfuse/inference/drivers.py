@@ -21,7 +21,7 @@ import numpy as np
 from .. import kalman
 from .. import _kernels
 from .._kernels import jitted_loop_state, kernel_states, kernels
-from .._linalg import indefinite, negative_weight, symmetrize, weighed, wrap_components
+from .._linalg import symmetrize, weighed, wrap_components
 from .. import diagnostics
 from ..errors import (STEP_ERRORS, ConvergenceWarning, DivergenceWarning, ReadablePath, at_step, average_text, diverging,
                       gate_lost)
@@ -30,6 +30,7 @@ from ..linearize import Nominal
 from ..steady import steady_state
 from .registry import METHODS, Method, linearisation
 from .results import FilterResult, SmoothResult, stack
+from .validation import check_semidefinite
 
 __all__ = ["run_filter", "run_smoother", "each_series", "filter_batch", "smooth_batch", "ENGINES", "compiled_engine",
            "start_seconds",
@@ -223,12 +224,21 @@ def run_smoother(lin, filt: FilterResult, prior: Gaussian | None = None, *, stat
 
 def _method_filter(spec: Method, model, prior, zs, us, options, keep: str = "all", form: str = "cov",
                    target: np.ndarray | None = None, gains: bool = False,
-                   gate: kalman.Gate | None = None) -> tuple[FilterResult, int]:
-    """The filter for one series, and how many of its steps stopped at the iteration limit."""
-    lin, iterations, tol = linearisation(spec, model, us, options)
+                   gate: kalman.Gate | None = None, lin=None) -> tuple[FilterResult, int]:
+    """The filter for one series, and how many of its steps stopped at the iteration limit; through `lin`, the
+    linearisation :func:`gaussfuse.inference.registry.linearisation` makes, if given."""
+    made, iterations, tol = linearisation(spec, model, us, options)
+    lin = made if lin is None else lin
     xa, za = _angles(model)
     return run_filter(lin, prior, zs, iterations=iterations, tol=tol, state_angles=xa, measurement_angles=za,
                       keep=keep, form=form, target=target, gains=gains, gate=gate)
+
+
+_SETTLED_PASSES = 1e-10
+"""An iterated smoother's passes are at their fixed point when one changes the trajectory by at most this (in
+standard deviations) and no less than the pass before: each pass re-filters the whole series, and its round-off,
+some 1e-14 standard deviations, kept `tol=0` from ever being met (50 passes and a warning: audit DD4). Below the
+default `tol` (1e-9), so it can end the passes early only for a `tol` below it (review R29)."""
 
 
 def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool = False,
@@ -240,10 +250,11 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
     time 0 (T + 1 beliefs, T gains). `ending` is :func:`run_smoother`'s (not
     for the iterated smoothers, whose passes re-filter).
     """
-    filt, unconverged = _method_filter(spec, model, prior, zs, us, options, form=form, gate=gate)
+    # one strategy for both passes, so that its record of the Jacobians' checks (Taylor.checks) is the run's
+    lin, passes, tol = linearisation(spec, model, us, options)  # (each pass had its own: review R33)
+    filt, unconverged = _method_filter(spec, model, prior, zs, us, options, form=form, gate=gate, lin=lin)
     if filt.rejected is not None:  # the iterated smoother's passes leave out what the filter's gate rejected
         zs = np.where(filt.rejected, np.nan, zs)
-    lin, passes, tol = linearisation(spec, model, us, options)
     xa, za = _angles(model)
     if ending is not None and spec.iterated and passes > 1:
         raise ValueError(f"`ending` is not available for the iterated smoother {spec.name!r}.")
@@ -272,13 +283,6 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
         before = change
     first = 0 if to_prior else 1
     return SmoothResult(means[first:], covs[first:], gains[first:], filt, used), unconverged, not converged
-
-
-_SETTLED_PASSES = 1e-10
-"""An iterated smoother's passes are at their fixed point when one changes the trajectory by at most this (in
-standard deviations) and no less than the pass before: each pass re-filters the whole series, and its round-off,
-some 1e-14 standard deviations, kept `tol=0` from ever being met (50 passes and a warning: audit DD4). Below the
-default `tol` (1e-9), so it can end the passes early only for a `tol` below it (review R29)."""
 
 
 def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes: int = 0,
@@ -506,7 +510,7 @@ def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:
     negative weight can make the regression's residual spread indefinite, and a smoothed covariance with it.
     Named by the backward step's transition, as run_smoother's errors, and the first the backward pass meets.
     """
-    check_spread(lin, result.covs, "smoothed", lambda k: k if to_prior else k + 1, last=True)
+    check_semidefinite(lin, result.covs, "smoothed", lambda k: k if to_prior else k + 1, last=True)
     return result
 
 
@@ -515,28 +519,10 @@ def _filtered_checked(lin, result: FilterResult, T: int) -> FilterResult:
     a filtered covariance that is not positive semi-definite, as the square-root form does; the covariance form
     returned it (a variance of -0.047 from kappa = -4.5: audit DD5). Those it keeps: all, or the last."""
     if result.covs is not None:
-        check_spread(lin, result.covs, "filtered", lambda k: k)
+        check_semidefinite(lin, result.covs, "filtered", lambda k: k)
     elif result.last_cov is not None:
-        check_spread(lin, result.last_cov[..., None, :, :], "filtered", lambda k: T - 1)
+        check_semidefinite(lin, result.last_cov[..., None, :, :], "filtered", lambda k: T - 1)
     return result
-
-
-def check_spread(lin, covs: np.ndarray, stage: str, step, last: bool = False) -> None:
-    """Raise LinAlgError naming the first (or `last`) `stage` covariance of `covs` ((N,) T, n, n) that is not
-    positive semi-definite, where `lin`'s sigma-point rule weighs a point negatively; `step(k)` names step k."""
-    rule = getattr(lin, "rule", None)
-    if rule is None or rule.wc.min() >= 0.0:
-        return
-    covs = covs if covs.ndim == 4 else covs[None]
-    bad = indefinite(covs)
-    if bad.any():
-        s = int(np.flatnonzero(bad.any(axis=1))[0])
-        k = int(np.flatnonzero(bad[s])[-1 if last else 0])
-        vals = np.linalg.eigvalsh(covs[s, k])
-        where = f"in series {s}, " if covs.shape[0] > 1 else ""
-        raise np.linalg.LinAlgError(
-            f"{where}at step {step(k)}: the {stage} covariance is not positive semi-definite "
-            f"(smallest eigenvalue {vals[0]:.3g}, largest {vals[-1]:.3g}){negative_weight(rule.wc)}.")
 
 
 def _back_to_prior(model, prior: Gaussian, sm: SmoothResult) -> SmoothResult:

@@ -4,7 +4,9 @@ pandas is optional: nothing here imports it unless a pandas object is given
 or a DataFrame is asked for. A Series or DataFrame as `zs` gives its values
 (``pd.NA`` and NaN are missing), its index (a DatetimeIndex or
 TimedeltaIndex supplies `times` when none are given, except calendar periods
-for a model with fixed matrices: one step a row) and its column names;
+for a model with fixed matrices: one step a row) and its column names (a
+TimedModel's sensor's, in any order, are taken by name: :func:`unpack`); a
+pandas `us` must have its index (:func:`controls`);
 :meth:`~gaussfuse.FilterResult.to_pandas` gives the means, standard
 deviations and, on request, covariances, indexed like the input.
 """
@@ -18,25 +20,25 @@ import numpy as np
 from .._linalg import marginal_std
 from ..models import TimedModel
 
-__all__ = ["Table", "ahead", "by_rows", "unpack", "controls", "to_frame", "measurement_names"]
+__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names"]
 
 
 class Table:
     """What a pandas `zs` carried besides its values: its index and column names, and whether its index gave the
     times (so that their errors name it)."""
 
-    __slots__ = ("index", "columns", "timed")
+    __slots__ = ("index", "columns", "index_times")
 
-    def __init__(self, index, columns, timed: bool = False) -> None:
-        self.index, self.columns, self.timed = index, columns, timed
+    def __init__(self, index, columns, index_times: bool = False) -> None:
+        self.index, self.columns, self.index_times = index, columns, index_times
 
     def __reduce__(self):
-        return type(self), (self.index, self.columns, self.timed)
+        return type(self), (self.index, self.columns, self.index_times)
 
     @property
     def times_name(self) -> str:
         """What the times are called in errors: the index's name where it gave them (audit DD6)."""
-        return "zs.index" if self.timed else "times"
+        return "zs.index" if self.index_times else "times"
 
 
 def measurement_names(model) -> tuple[str, ...] | None:
@@ -103,7 +105,7 @@ def _frequency(index):
     return freq
 
 
-def by_rows(model) -> bool:
+def _by_rows(model) -> bool:
     """Whether `model` takes a calendar index one step a row (:func:`unpack`): its matrices are fixed, without a
     ``dt`` in seconds to check the times against."""
     return not isinstance(model, TimedModel) and getattr(model, "dt", None) is None
@@ -113,7 +115,7 @@ def unpack(zs, times, model):
     """`zs` as a float array (NaN for missing), the `times` to use, and its :class:`Table` (None for an array).
 
     The index of a pandas `zs` supplies `times` when none are given, except one of calendar periods (monthly,
-    yearly, business days) for a model with fixed matrices and no ``dt`` (:func:`by_rows`): its rows are then
+    yearly, business days) for a model with fixed matrices and no ``dt`` (:func:`_by_rows`): its rows are then
     one step each, as they are in a statistical model of monthly data; in seconds they are irregular, which such
     a model refuses. A model with fixed matrices takes one row without times (it has no step to check).
 
@@ -147,12 +149,12 @@ def unpack(zs, times, model):
                              + ": name them as the model does, in any order, or give `zs.to_numpy()` to take the "
                              "columns in their order.")
         values, columns = values[:, [columns.index(name) for name in names]], names
-    index, timed = _datetimes(zs.index), False
-    rows = by_rows(model)
+    index, index_times = _datetimes(zs.index), False
+    rows = _by_rows(model)
     if times is None and index is not None and (not rows or not _calendar(index)) and (
             len(index) > 1 or isinstance(model, TimedModel)):
-        times, timed = index, True
-    return values, times, Table(zs.index, columns, timed)
+        times, index_times = index, True
+    return values, times, Table(zs.index, columns, index_times)
 
 
 def _datetimes(index):
@@ -176,11 +178,13 @@ def controls(us, table: Table | None):
     if not _is_pandas(us) or not hasattr(us, "index"):
         return us
     if table is not None and not us.index.equals(table.index):
-        raise ValueError("`us` is a pandas object whose index is not that of `zs`: give the controls of the same "
-                         "rows (`us.reindex(zs.index)`), or an array to take them in order.")
+        differ = next((k for k, (a, b) in enumerate(zip(us.index, table.index)) if a != b), None)
+        where = (f"{len(us.index)} rows for {len(table.index)}" if differ is None
+                 else f"row {differ} is {us.index[differ]!r} for {table.index[differ]!r}")
+        raise ValueError(f"`us` is a pandas object whose index is not that of `zs` ({where}): give the controls of "
+                         "the same rows (`us.reindex(zs.index)`), or an array to take them in order.")
     _check_columns(us, "us")
-    values = us.to_numpy(dtype=np.float64, na_value=np.nan)
-    return values
+    return us.to_numpy(dtype=np.float64, na_value=np.nan)
 
 
 def ahead(index, k: int):

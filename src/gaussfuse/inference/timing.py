@@ -258,7 +258,7 @@ class Steps(NamedTuple):
     @property
     def regular(self) -> bool:
         """Whether the steps are one step: to 1e-9 of it or to the times' round-off (one infinite step too); or,
-        for datetimes, to 4 units of their unit, the times staying within 4 units, or 1e-9 of their span, of one
+        for datetimes, to 4 units of their unit, the times staying within 4 units plus 1e-9 of their span of one
         grid (steps of 10000 and 10004 ns, 500 of each, drift 1000 ns from it: review R31; a 30 Hz clock summed
         in float seconds drifts 317 ns over 1e6 rows, 1e-11 of its span: review R32)."""
         low, high = self.dts.min(), self.dts.max()
@@ -266,7 +266,7 @@ class Steps(NamedTuple):
             if high == low or high - low <= 1e-9 * high + self.slack:
                 return True
         unit = self._rounded(low)
-        if not (unit > 0.0 and high - low <= 4 * unit and self.total is None):
+        if not (unit > 0.0 and high - low <= 4 * unit):  # (a datetime's steps are all kept: no `total`)
             return False
         drift = np.abs(np.cumsum(self.dts - self.dts.mean())).max()
         return bool(drift <= 4 * unit + 1e-9 * float(np.sum(self.dts)))

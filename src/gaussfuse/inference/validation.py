@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._linalg import indefinite, negative_weight
 from .._validation import as_array, flag, shape_error
 from ..gaussian import Gaussian
 from ..models.compose import TimedModel
@@ -121,8 +122,8 @@ def check_steady(steady, spec, form: str, prior, model, timed: bool) -> None:
                          f"method {spec.name!r}, form {form!r}" + (", a 'diffuse' prior." if isinstance(prior, str)
                                                                    else "."))
     if steady and timed and np.ndim(model.F) == 3:  # (audit DD3: the message named a time axis)
-        raise ValueError("`steady=True` needs one time step, and the steps between the `times` given are not all "
-                         "the same (to the last bit): each step has its own F and Q, so the filter has no steady "
+        raise ValueError("`steady=True` needs one time step, and the steps between the times (`times`, or the "
+                         "index of `zs`) are irregular: each step has its own F and Q, so the filter has no steady "
                          "state.")
 
 
@@ -142,3 +143,19 @@ def prepare(model, prior, zs, us, method, options, form: str = "cov", caller=Non
     return spec, options, prior, zs, us, batch
 
 
+def check_semidefinite(lin, covs: np.ndarray, stage: str, step, last: bool = False) -> None:
+    """Raise LinAlgError naming the first (or `last`) `stage` covariance of `covs` ((N,) T, n, n) that is not
+    positive semi-definite, where `lin`'s sigma-point rule weighs a point negatively; `step(k)` names step k."""
+    rule = getattr(lin, "rule", None)
+    if rule is None or rule.wc.min() >= 0.0:
+        return
+    covs = covs if covs.ndim == 4 else covs[None]
+    bad = indefinite(covs)
+    if bad.any():
+        s = int(np.flatnonzero(bad.any(axis=1))[0])
+        k = int(np.flatnonzero(bad[s])[-1 if last else 0])
+        vals = np.linalg.eigvalsh(covs[s, k])
+        where = f"in series {s}, " if covs.shape[0] > 1 else ""
+        raise np.linalg.LinAlgError(
+            f"{where}at step {step(k)}: the {stage} covariance is not positive semi-definite "
+            f"(smallest eigenvalue {vals[0]:.3g}, largest {vals[-1]:.3g}){negative_weight(rule.wc)}.")
