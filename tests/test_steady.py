@@ -165,6 +165,14 @@ def test_steady_is_checked():
     fixed = gf.filter(gf.model(gf.ConstantVelocity(), gf.Position(), float(np.diff(stamps.asi8).mean()) / 1e9),
                       prior, np.ones((4, 1)), steady=True)
     np.testing.assert_allclose(thirty.means, fixed.means, rtol=1e-8)  # (dt to a nanosecond)
+    np.testing.assert_array_equal(gf.filter(timed, prior, np.ones((3, 1)), times=[0, 1, 2, 3], steady=np.True_).means,
+                                  regular.means)  # (review R34: NumPy's True took the old path)
+    turning = gf.model(gf.CoordinatedTurn(q_acc=0.1, q_turn=1e-3), gf.RangeBearing())  # still the method's refusal
+    with pytest.raises(ValueError, match="`steady=True` is for method 'kf'"):
+        gf.filter(turning, gf.Gaussian(np.zeros(5), np.eye(5)), np.ones((3, 2)), times=[0, 1, 2, 3], method="ekf",
+                  steady=True)
+    with pytest.raises(TypeError, match="`zs` must be a rectangular array"):  # (not NumPy's error: review R34)
+        gf.filter(timed, prior, [[1.0], [1.0, 2.0], [1.0]], times=[0, 1, 2, 3], steady=True)
     with pytest.raises(ValueError, match="time-varying"):  # a time-varying model at regular times (review R28)
         gf.filter(gf.LinearModel(np.ones((5, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), np.zeros((5, 1)),
                   steady=True, times=np.arange(5.0))

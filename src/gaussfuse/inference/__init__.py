@@ -21,7 +21,7 @@ from ..models.compose import TimedModel
 from . import chunked, diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
-from .validation import check_steady, prepare
+from .validation import check_measurements, check_steady, prepare
 
 __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
@@ -369,8 +369,9 @@ def _inputs(model, zs, us, times, steady: bool = False):
     us = frames.controls(us, table)
     names = getattr(model, "names", None)
     name = "times" if table is None else table.times_name
-    if steady is True and isinstance(model, TimedModel) and times is not None:
-        grid = timing.steps(name, times, np.shape(zs)[-2] if np.ndim(zs) > 1 else np.shape(zs)[0])
+    if isinstance(steady, (bool, np.bool_)) and steady and isinstance(model, TimedModel) and model.linear \
+            and times is not None:  # (a nonlinear one is refused by check_steady, as before: review R34)
+        grid = timing.steps(name, times, check_measurements(zs, model.m).shape[1])
         if grid.regular:
             model, us = model.at(np.full(1, grid.step), us)
             return model, zs, us, table, names
