@@ -252,8 +252,8 @@ def test_dates_in_an_object_column_are_refused_and_index_errors_name_the_index()
     the caller never gave (audit DD6)."""
     model, prior = gf.LinearModel(F=1.0, H=1.0, Q=0.1, R=1.0), gf.Gaussian(0.0, 1.0)
     dates = pd.Series([np.datetime64("2026-01-01"), np.datetime64("2026-01-02")], dtype=object)
-    with pytest.raises(TypeError, match="`zs` must hold numbers; got datetime64 values"):
-        gf.filter(model, prior, dates)
+    with pytest.raises(TypeError, match="`zs` must hold numbers; got datetime64 values in the Series"):
+        gf.filter(model, prior, dates)  # (an unnamed Series was "column None")
     timed = gf.model(gf.LocalLevel(q=0.1), gf.LinearSensor(H=[[1.0]], R=[[1.0]]))
     unsorted = pd.Series([1.0, 2.0, 3.0], index=pd.to_datetime(["2026-01-02", "2026-01-01", "2026-01-03"]))
     with pytest.raises(ValueError, match=r"^`zs.index` must be strictly increasing"):

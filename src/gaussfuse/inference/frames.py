@@ -61,19 +61,20 @@ def _check_columns(zs, name: str = "zs") -> None:
 
     columns = zs.items() if hasattr(zs, "columns") else [(zs.name, zs)]
     for label, column in columns:
+        where = "in the Series" if label is None else f"in column {label!r}"  # (not "column None": audit DD6)
         if is_complex_dtype(column.dtype):
-            raise TypeError(f"`{name}` must be real; got complex values in column {label!r}.")
+            raise TypeError(f"`{name}` must be real; got complex values {where}.")
         if is_bool_dtype(column.dtype):
-            raise TypeError(f"`{name}` must hold numbers; got booleans in column {label!r}.")
+            raise TypeError(f"`{name}` must hold numbers; got booleans {where}.")
         if is_datetime64_any_dtype(column.dtype) or is_timedelta64_dtype(column.dtype):  # (as nanosecond counts)
             what = "timedelta" if is_timedelta64_dtype(column.dtype) else "datetime"
-            raise TypeError(f"`{name}` must hold numbers; got {what} values in column {label!r} (times go in `times` "
+            raise TypeError(f"`{name}` must hold numbers; got {what} values {where} (times go in `times` "
                             "or the index).")
         if not is_numeric_dtype(column.dtype):  # (dates in an object column were read as day counts: audit DD6)
             odd = [v for v in column.dropna() if isinstance(v, (str, bytes, bool, np.bool_, complex, np.datetime64,
                                                                 np.timedelta64, datetime.date, datetime.timedelta))]
             if odd:
-                raise TypeError(f"`{name}` must hold numbers; got {type(odd[0]).__name__} values in column {label!r} "
+                raise TypeError(f"`{name}` must hold numbers; got {type(odd[0]).__name__} values {where} "
                                 f"(such as {odd[0]!r}).")
 
 
