@@ -21,7 +21,7 @@ from ..models.compose import TimedModel
 from . import chunked, diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
-from .validation import check_measurements, check_steady, prepare
+from .validation import check_steady, prepare
 
 __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
@@ -359,23 +359,13 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
 
 
 def _inputs(model, zs, us, times, steady: bool = False):
-    """A pandas `zs` unpacked and a TimedModel discretised at `times`: ``(model, zs, us, table, state names)``.
-
-    With `steady`, a TimedModel at regular times (:attr:`~.timing.Steps.regular`: to the rounding of datetimes
-    too) is discretised for their one step, which has a steady state (a 30 Hz index in nanoseconds, steps of
-    33333333 and 33333334 ns, was refused: review R33).
-    """
+    """A pandas `zs` unpacked and a TimedModel discretised at `times`: ``(model, zs, us, table, state names)``;
+    with `steady`, at regular times for their one step (:func:`~.timing.resolve`)."""
     zs, times, table = frames.unpack(zs, times, model)
     us = frames.controls(us, table)
     names = getattr(model, "names", None)
-    name = "times" if table is None else table.times_name
-    if isinstance(steady, (bool, np.bool_)) and steady and isinstance(model, TimedModel) and model.linear \
-            and times is not None:  # (a nonlinear one is refused by check_steady, as before: review R34)
-        grid = timing.steps(name, times, check_measurements(zs, model.m).shape[1])
-        if grid.regular:
-            model, us = model.at(np.full(1, grid.step), us)
-            return model, zs, us, table, names
-    model, us = timing.resolve(model, times, zs, us, name=name)
+    model, us = timing.resolve(model, times, zs, us, name="times" if table is None else table.times_name,
+                               one_step=isinstance(steady, (bool, np.bool_)) and bool(steady))
     return model, zs, us, table, names
 
 

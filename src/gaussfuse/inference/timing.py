@@ -325,11 +325,15 @@ def steps(name: str, times, T: int) -> Steps:
     return Steps(dts, slack, resolution=resolution)
 
 
-def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True):
+def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True, one_step: bool = False):
     """The model to filter `zs` with at `times`, and its controls.
 
     A :class:`TimedModel` becomes the model of its steps (exactly
-    discretised for each dt); a model with fixed matrices is returned as it
+    discretised for each dt); with `one_step`, a linear one at regular
+    times (:attr:`Steps.regular`: to the rounding of datetimes too) that of
+    their one step, which has a steady state (a 30 Hz index in nanoseconds,
+    steps of 33333333 and 33333334 ns, was refused by ``steady=True``:
+    review R33). A model with fixed matrices is returned as it
     is, once `times` are found regular (and at its ``dt``, if it has one).
     `rows` is whether the steps are rows of data, which the messages then
     offer to take one step each (a forecast's are not).
@@ -348,8 +352,8 @@ def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True):
         return model, us
     T = zs if isinstance(zs, int) else check_measurements(zs, model.m).shape[1]
     grid = steps(name, times, T)
-    if timed:
-        return model.at(grid.dts, us)
+    if timed:  # (a nonlinear one is left to the steady filter's refusal of its method: review R34)
+        return model.at(np.full(1, grid.step) if one_step and model.linear and grid.regular else grid.dts, us)
     low, high = float(grid.dts.min()), float(grid.dts.max())
     each = (", or, if each row is one step{} whatever its time, give `zs.to_numpy()` (its index gives the times)"
             if name == "zs.index" else
