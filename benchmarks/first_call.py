@@ -1,6 +1,7 @@
 """The cost of the first call in a fresh process: import, compilation or cache loading, warm-up.
 
     python benchmarks/first_call.py [--cache cold,warm] [--steps 5000] [--repeats 3] [--engine auto]
+    python benchmarks/first_call.py --floor [--repeats 5]
 
 For each call (filter, smooth, fit by maximum likelihood, an unscented
 filter, each on one series of `--steps` steps) a fresh Python process
@@ -12,6 +13,13 @@ pipeline, pays once. `--cache cold` gives each process an empty
 the same call with ``engine="numba"``, has filled with the compiled kernels. The report is the median over `--repeats` processes.
 The package's bytecode is compiled first and the children read it, as an
 installed package's are (see :func:`_environment`).
+
+`--floor` times, instead, what a warm first call pays before gaussfuse
+does anything: fresh processes importing NumPy, SciPy's optimizers (which
+`fit` runs), numba, and numba's first load of a cached function (its
+registries of typing and lowering, set up once per process). A warm first
+`fit` pays all of them, so no change to gaussfuse's own code brings its
+overhead below their sum.
 """
 
 from __future__ import annotations
@@ -81,6 +89,36 @@ print(json.dumps({"import": t_import, "first": first, "again": again,
 
 CALLS = ("filter", "smooth", "fit", "ukf")
 
+FLOOR_CHILD = r"""
+import sys, time
+t0 = time.perf_counter()
+exec(sys.argv[1])
+print(time.perf_counter() - t0)
+"""
+FLOOR_KERNEL = "import numba\n\n@numba.njit(cache=True)\ndef one(x):\n    return x + 1.0\n"
+FLOORS = (("import numpy", "import numpy"),
+          ("import numpy, scipy.optimize", "import numpy, scipy.optimize"),
+          ("import numpy, numba", "import numpy, numba"),
+          ("import numpy, numba, scipy.optimize", "import numpy, numba, scipy.optimize"),
+          ("the same, and a cached numba function's first call",
+           "import numpy, numba, scipy.optimize, floor_kernel; floor_kernel.one(1.0)"),
+          ("import gaussfuse", "import gaussfuse"))
+
+
+def floor(repeats: int) -> None:
+    """Print the median time of each of :data:`FLOORS` in fresh processes (see the module notes)."""
+    print("| fresh process | median (s) |")
+    print("| --- | --- |")
+    with tempfile.TemporaryDirectory() as where:
+        with open(os.path.join(where, "floor_kernel.py"), "w") as f:
+            f.write(FLOOR_KERNEL)
+        env = _environment(NUMBA_CACHE_DIR=os.path.join(where, "cache"), PYTHONPATH=where)
+        subprocess.run([sys.executable, "-c", "import floor_kernel; floor_kernel.one(1.0)"], env=env, check=True)
+        for label, code in FLOORS:
+            times = [float(subprocess.run([sys.executable, "-c", FLOOR_CHILD, code], env=env, check=True,
+                                          capture_output=True, text=True).stdout) for _ in range(repeats)]
+            print(f"| {label} | {statistics.median(times):.3f} |", flush=True)
+
 
 def _environment(**extra: str) -> dict:
     """The children's environment: Python's default of reading and writing bytecode (.pyc) files.
@@ -125,8 +163,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--engine", default="auto")
     parser.add_argument("--only", default=",".join(CALLS), help=f"some of {','.join(CALLS)}")
+    parser.add_argument("--floor", action="store_true",
+                        help="time the imports and numba's set-up that a warm first fit pays, instead")
     args = parser.parse_args(argv)
     compile_package()
+    if args.floor:
+        floor(args.repeats)
+        return 0
     print(f"| call | cache | import (s) | first call (s) | repeated call (s) | overhead (s) | numba loaded |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for call in args.only.split(","):

@@ -475,11 +475,11 @@ if numba is not None:
         return out
 
 
-def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
+def w4_problem(T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, gf.Gaussian, np.ndarray]:
+    """W4's F, Q, R, prior and T measurements (also ``ukf_floor.py``'s)."""
     base = gf.constant_velocity(dt=UKF_DT, q=UKF_Q, r=1.0, dim=2)
     F, Q = base.F, base.Q
     R = np.diag([SIGMA_RANGE**2, SIGMA_BEARING**2])
-    T = sizes.T_ukf
     rng = np.random.default_rng(11)
     x0 = np.array([300.0, 100.0, 5.0, 3.0])
     xs, _ = simulate_linear(F, np.eye(4)[:2], Q, np.eye(2), x0, T, rng)
@@ -487,6 +487,12 @@ def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
     assert truth[:, 0].min() > 50 and np.abs(truth[:, 1]).max() < 2.5, "track must stay clear of ±180°"
     zs = truth + rng.standard_normal((T, 2)) * [SIGMA_RANGE, SIGMA_BEARING]
     prior = gf.Gaussian(x0 + [2.0, -2.0, 0.5, -0.5], np.diag([4.0, 4.0, 1.0, 1.0]))
+    return F, Q, R, prior, zs
+
+
+def w4(sizes: Sizes, avail: dict[str, bool], engine: str) -> Workload:
+    T = sizes.T_ukf
+    _, Q, R, prior, zs = w4_problem(T)
     opts = dict(method="ukf", alpha=1.0, beta=0.0, kappa=-1.0)
     plain = gf.NonlinearModel(f_plain, h_plain, Q, R)
     vec = gf.NonlinearModel(f_vec, h_vec, Q, R, vectorized=True)

@@ -1,0 +1,241 @@
+"""How fast a compiled UKF step can be at W4's size: bare kernels beside gaussfuse and filterpy, in one run.
+
+    python benchmarks/ukf_floor.py [--steps 5000] [--repeats 20]
+
+W4 (``run.py``) asks gaussfuse's compiled sigma-point engine, with
+numba-jitted f and h, for 100 times filterpy's steps per second. This
+script measures how far that is from what the arithmetic allows. It times,
+on W4's model and data (:func:`workloads.w4_problem`), side by side:
+
+* filterpy's ``UnscentedKalmanFilter.batch_filter`` (W4's peer);
+* ``gf.filter(..., method="ukf", engine="numba")`` with W4's numba-jitted
+  vectorized f and h (W4's row);
+* a **bare kernel**: the unscented filter of W4's model written out as one
+  numba loop with none of what the library's kernel also does (no
+  log-likelihood, innovations or predicted beliefs kept; no check of f's
+  and h's values, of positive definiteness, of overflow or of round-off;
+  no missing components, angles, controls or time-varying matrices), but
+  the same algebra as :func:`gaussfuse.kalman.update` through
+  :class:`gaussfuse.linearize.SigmaPoints`: the statistical linear
+  regression of f and h, then the Joseph form. Three versions:
+
+  1. sizes read from the arrays at run time, f and h numba functions
+     called as first-class functions (what the library's kernel must do:
+     it serves every n and m, and a new f must not recompile its step);
+  2. sizes at run time, f and h compiled into the loop (one compilation
+     per f and h);
+  3. n = 4 and m = 2 fixed when compiling, f and h compiled in (one
+     compilation per model).
+
+Each row: steps per second (best of ``--repeats``), the ratio to filterpy,
+and the largest difference of the filtered means and covariances from
+gaussfuse's readable path (``engine="python"``), which every row must
+match to round-off.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numba
+import numpy as np
+from numba import types
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import gaussfuse as gf  # noqa: E402
+from gaussfuse._kernels._dense import cho_solve, cholesky  # noqa: E402
+import workloads  # noqa: E402
+
+_C2 = types.float64[:, ::1]
+
+
+def bare_kernel(fixed: tuple[int, int] | None):
+    """The bare unscented filter (see the module notes) as a Python function for numba to compile.
+
+    With `fixed`, (n, m) are constants of the compiled code; else they are
+    read from the prior and the measurements. The Cholesky factor and solves
+    are the library's loops (:mod:`gaussfuse._kernels._dense`). Returns
+    ``ukf(f, h, zs, m0, P0, Q, R, xi, wm, wc, means, covs)``: f and h act
+    on the (k, n) stack of points; ``xi`` (k, n) are the unit points,
+    ``wm``, ``wc`` their weights.
+    """
+    n_fixed, m_fixed = fixed or (0, 0)
+
+    def moments(Y, wm, wc, d, mean, cov, base):  # mean = Σ wm Y_i, cov = base + Σ wc (Y_i - mean)(Y_i - mean)ᵀ
+        for a in range(d):
+            t = 0.0
+            for i in range(Y.shape[0]):
+                t += wm[i] * Y[i, a]
+            mean[a] = t
+        for a in range(d):
+            for b in range(d):
+                t = base[a, b]
+                for i in range(Y.shape[0]):
+                    t += wc[i] * (Y[i, a] - mean[a]) * (Y[i, b] - mean[b])
+                cov[a, b] = t
+
+    def draw(mean, L, xi, X, n):  # X_i = mean + L ξ_i
+        for i in range(xi.shape[0]):
+            for a in range(n):
+                t = mean[a]
+                for b in range(a + 1):
+                    t += L[a, b] * xi[i, b]
+                X[i, a] = t
+
+    moments, draw = numba.njit(moments), numba.njit(draw)
+
+    def ukf(f, h, zs, m0, P0, Q, R, xi, wm, wc, means, covs):
+        n = n_fixed if n_fixed else m0.shape[0]
+        m = m_fixed if m_fixed else zs.shape[1]
+        k = xi.shape[0]
+        x, P = m0.copy(), P0.copy()
+        L, X = np.zeros((n, n)), np.empty((k, n))
+        xp, Pp, zp, S = np.empty(n), np.empty((n, n)), np.empty(m), np.empty((m, m))
+        C, At, A, Kt = np.empty((n, m)), np.empty((n, m)), np.empty((m, n)), np.empty((m, n))
+        LS, IKA, M, KRK, Rp = np.zeros((m, m)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((m, m))
+        for t in range(zs.shape[0]):
+            cholesky(P, L, n)  # predict: the regression of f at N(x, P), Ω added to Q, as kalman.predict
+            draw(x, L, xi, X, n)
+            moments(f(X), wm, wc, n, xp, Pp, Q)
+            cholesky(Pp, L, n)  # update: the regression of h at N(xp, Pp)
+            draw(xp, L, xi, X, n)
+            Z = h(X)
+            moments(Z, wm, wc, m, zp, S, R)
+            for a in range(n):  # C = Σ wc (X_i - xp)(Z_i - zp)ᵀ
+                for b in range(m):
+                    s = 0.0
+                    for i in range(k):
+                        s += wc[i] * (X[i, a] - xp[a]) * (Z[i, b] - zp[b])
+                    C[a, b] = s
+                    At[a, b] = s
+            cho_solve(L, At, n, m)  # Aᵀ = Pp⁻¹ C: H = A, and R + Ω = S - A Pp Aᵀ
+            for a in range(m):
+                for b in range(n):
+                    A[a, b] = At[b, a]
+                    Kt[a, b] = C[b, a]
+            for a in range(m):
+                for b in range(m):
+                    s = 0.0
+                    for i in range(n):
+                        s += A[a, i] * C[i, b]  # A Pp Aᵀ = A C
+                    Rp[a, b] = S[a, b] - s
+            cholesky(S, LS, m)  # Kᵀ = S⁻¹ Cᵀ
+            cho_solve(LS, Kt, m, n)
+            for a in range(n):
+                s = xp[a]
+                for b in range(m):
+                    s += Kt[b, a] * (zs[t, b] - zp[b])
+                x[a] = s
+                for b in range(n):  # I - K A
+                    s = 1.0 if a == b else 0.0
+                    for c in range(m):
+                        s -= Kt[c, a] * A[c, b]
+                    IKA[a, b] = s
+            for a in range(n):  # the Joseph form: (I - K A) Pp (I - K A)ᵀ + K (R + Ω) Kᵀ
+                for b in range(n):
+                    s = 0.0
+                    for c in range(n):
+                        s += IKA[a, c] * Pp[c, b]
+                    M[a, b] = s
+            for a in range(n):
+                for b in range(n):
+                    s = 0.0
+                    for c in range(n):
+                        s += M[a, c] * IKA[b, c]
+                    r = 0.0
+                    for c in range(m):
+                        for d in range(m):
+                            r += Kt[c, a] * Rp[c, d] * Kt[d, b]
+                    KRK[a, b] = s + r
+            for a in range(n):
+                for b in range(n):
+                    P[a, b] = 0.5 * (KRK[a, b] + KRK[b, a])
+                means[t, a] = x[a]
+                for b in range(n):
+                    covs[t, a, b] = P[a, b]
+        return 0
+
+    return ukf
+
+
+def _best(run, repeats: int) -> float:
+    run()  # compiles, or loads from numba's cache
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=5000)
+    parser.add_argument("--repeats", type=int, default=20)
+    args = parser.parse_args(argv)
+    T = args.steps
+    _, Q, R, prior, zs = workloads.w4_problem(T)
+    opts = dict(method="ukf", alpha=1.0, beta=0.0, kappa=-1.0)
+    reference = gf.filter(gf.NonlinearModel(workloads.f_plain, workloads.h_plain, Q, R), prior, zs,
+                          engine="python", **opts)
+    rule = gf.linearize.rules.unscented(4, alpha=1.0, beta=0.0, kappa=-1.0)
+    xi, wm, wc = (np.ascontiguousarray(a, dtype=float) for a in (rule.points, rule.wm, rule.wc))
+    rows = []
+
+    try:
+        from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+    except ImportError:
+        filterpy = None
+        print("filterpy is not installed (pip install -e '.[bench]'): no ratios.", file=sys.stderr)
+    else:
+        points = MerweScaledSigmaPoints(n=4, alpha=1.0, beta=0.0, kappa=-1.0)
+        filterpy = UnscentedKalmanFilter(dim_x=4, dim_z=2, dt=workloads.UKF_DT, hx=workloads.h_plain,
+                                         fx=workloads.fx_filterpy, points=points)
+        filterpy.Q, filterpy.R = Q.copy(), R.copy()
+
+        def run_filterpy():
+            filterpy.x, filterpy.P = prior.mean.copy(), prior.cov.copy()
+            return filterpy.batch_filter(zs)
+
+        rows.append(("filterpy UnscentedKalmanFilter.batch_filter", _best(run_filterpy, max(args.repeats // 10, 1)),
+                     run_filterpy()))
+
+    model = gf.NonlinearModel(workloads.f_nb_vec, workloads.h_nb_vec, Q, R, vectorized=True)
+    library = lambda: gf.filter(model, prior, zs, engine="numba", **opts)  # noqa: E731
+    result = library()
+    rows.append(('gaussfuse engine="numba", numba.njit vectorized f, h (W4)', _best(library, args.repeats),
+                 (result.means, result.covs)))
+
+    f, h = workloads.f_nb_vec, workloads.h_nb_vec
+    out = (np.empty((T, 4)), np.empty((T, 4, 4)))
+    given = (zs, prior.mean, prior.cov, Q, R, xi, wm, wc) + out
+    first_class = types.FunctionType(_C2(_C2))
+    for label, fixed, compiled_in in (("bare kernel 1: run-time sizes, first-class f, h", None, False),
+                                      ("bare kernel 2: run-time sizes, f, h compiled in", None, True),
+                                      ("bare kernel 3: n, m fixed, f, h compiled in", (4, 2), True)):
+        if compiled_in:
+            kernel = numba.njit(bare_kernel(fixed))
+        else:
+            f.compile((_C2,))
+            h.compile((_C2,))
+            kernel = numba.njit((first_class, first_class) + tuple(numba.typeof(a) for a in given))(bare_kernel(fixed))
+        seconds = _best(lambda: kernel(f, h, *given), args.repeats)
+        rows.append((label, seconds, tuple(a.copy() for a in out)))
+
+    peer = rows[0][1] if filterpy is not None else None
+    print(f"W4's model and data, {T:,} steps; best of {args.repeats} runs (filterpy: {max(args.repeats // 10, 1)}).\n")
+    print("| row | steps/s | ratio to filterpy | max abs diff from the readable path, means | covs |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    for label, seconds, (means, covs) in rows:
+        ratio = f"{peer / seconds:.1f}x" if peer else "-"
+        print(f"| {label} | {T / seconds / 1e3:.1f} k | {ratio} | {np.abs(means - reference.means).max():.1e} | "
+              f"{np.abs(covs - reference.covs).max():.1e} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
