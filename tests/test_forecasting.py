@@ -222,3 +222,28 @@ def test_a_misspelt_steps_and_times_at_another_dt_are_explained():
     with pytest.raises(ValueError, match=r"^`times` step by 2 s but the model is for dt = 1 s; build it for the "
                                          r"times' step, or with gf.model\(motion, sensor\) without dt\.$"):
         gf.forecast(model, gf.Gaussian([0.0, 1.0], np.eye(2)), times=[0.0, 2.0, 4.0])
+
+
+@pytest.mark.parametrize("index", [
+    pd.date_range("2026-01-01", periods=3, freq="2s"),
+    pd.date_range("2026-03-29 00:59:58", periods=3, freq="2s", tz="Europe/Berlin"),
+    pd.timedelta_range(0, periods=3, freq="2s"),
+])
+def test_times_start_at_the_time_of_a_pandas_result(index):
+    """A forecast from a result whose index gave its times took `times[0]` as the belief's time unchecked: the
+    future times alone made a forecast one step short whose first step was the gap between the first two of them
+    (audit DD6)."""
+    track = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.Position(dim=1, r=1.0))
+    zs = pd.Series([0.0, 2.0, 4.0], index=index)
+    result = gf.filter(track, gf.Gaussian([0.0, 1.0], np.eye(2)), zs)
+    times = index[-1:].append(index[-1] + (index[1:] - index[0]))  # the belief's time, then two steps of 2 s
+    fc = gf.forecast(track, result, times=times)
+    want = gf.forecast(track, gf.Gaussian(result.last_mean, result.last_cov), times=[0.0, 2.0, 4.0])
+    np.testing.assert_array_equal(fc.covs, want.covs)
+    pd.testing.assert_index_equal(fc.to_pandas().index, times[1:])
+    smoothed = gf.smooth(track, gf.Gaussian([0.0, 1.0], np.eye(2)), zs)
+    np.testing.assert_array_equal(gf.forecast(track, smoothed, times=times.to_numpy()).covs, want.covs)
+    for wrong in (times[1:], [0.0, 2.0, 4.0]):
+        with pytest.raises(ValueError, match=r"^`times\[0\]` must be the belief's time, the last entry of zs\.index "
+                                             r"\(.*\); got .*\. Give that time, then the times to forecast at\.$"):
+            gf.forecast(track, result, times=wrong)

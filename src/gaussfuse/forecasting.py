@@ -34,7 +34,7 @@ from .models.compose import TimedModel
 from .inference.frames import ahead, measurement_names
 from .inference.registry import linearisation, resolve_method
 from .inference.results import FilterResult, SmoothResult
-from .inference.timing import as_seconds, resolve
+from .inference.timing import as_seconds, resolve, same_time
 from .inference.validation import check_controls, check_model, check_prior
 
 __all__ = ["forecast", "Forecast"]
@@ -162,6 +162,8 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         The belief's time, then the times to forecast at (see
         :func:`gaussfuse.filter`'s `times`): a TimedModel
         (:func:`gaussfuse.model` without dt) is discretised for each step.
+        From a result whose pandas index gave its times, the first must be
+        the index's last entry.
     method : str, optional
         How a NonlinearModel is made affine (see :data:`gaussfuse.METHODS`;
         default "ukf"); a LinearModel's is exact.
@@ -176,8 +178,8 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
     ------
     TypeError, ValueError
         For a model or belief of the wrong kind, a belief of the wrong
-        dimension, a batch result, bad `steps` or `us`, or a time-varying
-        model shorter than `steps`.
+        dimension, a batch result, bad `steps`, `times` or `us`, or a
+        time-varying model shorter than `steps`.
 
     Notes
     -----
@@ -202,6 +204,7 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         steps = len(as_seconds("times", times)) - 1
         if steps < 1:
             raise ValueError("`times` must hold the belief's time and at least one time to forecast at.")
+        _check_origin(belief, times)
         model, us = resolve(model, times, steps, us, rows=False)  # (no rows to take one step each: review R10)
     elif steps is None:
         import difflib
@@ -240,6 +243,20 @@ def forecast(model, belief, steps: int | None = None, us=None, *, times=None, me
         a.setflags(write=False)
     return Forecast(means, covs, zmeans, zcovs, *_labels(given, times, steps, n, m, getattr(model, "names", None),
                                                          sensed))
+
+
+def _check_origin(belief, times) -> None:
+    """`times[0]` must be the belief's time where the belief knows it: the last entry of the index that gave a
+    pandas result its times. Only the future times would make the first step the gap between the first two of
+    them, and the forecast one step short, silently (audit DD6)."""
+    result = belief.filtered if isinstance(belief, SmoothResult) else belief
+    table = getattr(result, "table", None)
+    if table is None or not table.index_times:
+        return
+    last, first = table.index[-1], np.asarray(times.to_numpy() if hasattr(times, "to_numpy") else times).ravel()[0]
+    if not same_time(last, first):
+        raise ValueError(f"`times[0]` must be the belief's time, the last entry of zs.index ({last}); got {first}. "
+                         "Give that time, then the times to forecast at.")
 
 
 def _labels(belief, times, steps: int, n: int, m: int, names, sensed) -> tuple:

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 import gaussfuse as gf
-from gaussfuse.inference.timing import as_seconds
+from gaussfuse.inference.timing import as_seconds, same_time
 
 
 def _integrated_wiener_joint(ts: np.ndarray, q: float, m0: np.ndarray, P0: np.ndarray):
@@ -271,3 +271,31 @@ def test_one_measurement_with_one_time_asks_for_the_prior_s_time():
                                          r"then the measurement's \(one time alone gives no time step\); got 1\.$"):
         gf.smooth(timed, gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0], times=[0.8])
     assert gf.smooth(timed, gf.Gaussian([0.0, 1.0], np.eye(2)), [1.0], times=[0.0, 0.8]).means.shape == (1, 2)
+
+
+def test_numbers_held_as_objects_are_seconds():
+    """Times in an object array or a pandas object column, all numbers, raised a bare StopIteration (a mixed-kind
+    check that found no entry of another kind): they are seconds, as the same numbers in a float array."""
+    timed = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.Position(dim=1, r=1.0))
+    prior, zs = gf.Gaussian([0.0, 1.0], np.eye(2)), [0.0, 2.0, 4.0]
+    want = gf.filter(timed, prior, zs, times=np.array([0.0, 1.0, 2.5])).means
+    for times in (np.array([0, 1.0, 2.5], dtype=object), pd.Series([0.0, 1.0, 2.5], dtype=object),
+                  [0, np.float32(1.0), 2.5]):
+        np.testing.assert_array_equal(gf.filter(timed, prior, zs, times=times).means, want)
+    with pytest.raises(TypeError, match=re.escape("all of one kind; got bool at `times[1]`.")):
+        gf.filter(timed, prior, zs, times=np.array([0, True, 2.5], dtype=object))
+
+
+@pytest.mark.parametrize("a, b, same", [
+    (pd.Timestamp("2026-03-29 01:00", tz="Europe/Berlin"), pd.Timestamp("2026-03-29 00:00"), True),  # (as UTC)
+    (pd.Timestamp("2026-03-29 01:00", tz="Europe/Berlin"), pd.Timestamp("2026-03-29 01:00"), False),
+    (np.datetime64("2026-01-01"), datetime.datetime(2026, 1, 1, tzinfo=datetime.timezone.utc), True),
+    (np.datetime64("2026-01-01T00:00:00.000000001"), np.datetime64("2026-01-01"), False),
+    (pd.Timedelta(1, "s"), np.timedelta64(1000, "ms"), True),
+    (np.timedelta64(0, "s"), np.datetime64(0, "s"), False),  # a duration is not a date
+    (0, 0.0, True), (1.0, np.float32(1.0), True),
+    (1, pd.Timestamp(1), False), (True, 1, False), (np.nan, np.nan, False), ("x", "x", False),
+])
+def test_same_time(a, b, same):
+    assert same_time(a, b) is same
+    assert same_time(b, a) is same

@@ -22,7 +22,7 @@ import numpy as np
 from ..models.compose import TimedModel
 from .validation import check_measurements
 
-__all__ = ["as_seconds", "as_instants", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within",
+__all__ = ["as_seconds", "as_instants", "same_time", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within",
            "ticks", "elapsed", "finest", "per_second", "since"]
 
 
@@ -145,6 +145,24 @@ def as_instants(name: str, times) -> np.ndarray | None:
     return _without_nat(name, arr)
 
 
+def same_time(a, b) -> bool:
+    """Whether `a` and `b` are one time: both numbers of seconds, both datetimes or both durations (in any unit; a
+    zone as UTC), equal; False for two kinds, or anything that is not a time."""
+    read = []
+    for value in (a, b):
+        arr = np.array([value.to_numpy() if hasattr(value, "to_numpy") else value])  # pandas' as NumPy's (zone: UTC)
+        try:
+            instants = as_instants("times", arr)
+            values, per_second = _clock("times", arr)
+        except (TypeError, ValueError):
+            return False
+        read.append((None if instants is None else instants.dtype.kind, values[0], per_second))
+    (kind_a, x, per_a), (kind_b, y, per_b) = read
+    if kind_a != kind_b:
+        return False
+    return bool(x == y) if per_a is None else int(x) * per_b == int(y) * per_a  # (exact across units)
+
+
 def _array(times) -> np.ndarray:
     """`times` as a NumPy array (pandas' values; a time zone as UTC)."""
     times = _naive_utc(times)
@@ -188,15 +206,18 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
         raise ValueError(f"`{name}` must be one-dimensional, one time per step; got shape {arr.shape}.")
     if arr.dtype == object:
         read = _stamps(name, arr)
-        if not arr.size or any(v is None for v in read):
-            number = [not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
-                      for v in arr.tolist()]
+        number = [not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
+                  for v in arr.tolist()]
+        if arr.size and all(number):  # numbers held as objects (a pandas object column): seconds
+            arr = np.array(arr.tolist(), dtype=np.float64)
+        elif not arr.size or any(v is None for v in read):
             bad = next((i for i, (v, x) in enumerate(zip(read, number)) if v is None and not x), None)
             if bad is None and arr.size:  # numbers and times mixed: the first that differs from the first
                 bad = next(i for i, v in enumerate(read) if (v is None) != (read[0] is None))
             got = "nothing" if bad is None else f"{type(arr[bad]).__name__} at `{name}[{bad}]`"
             raise TypeError(f"`{name}` must be {_KINDS}, all of one kind; got {got}.")
-        arr = _in_one_unit(name, read)
+        else:
+            arr = _in_one_unit(name, read)
     if arr.dtype.kind in "Mm":
         return ticks(name, _without_nat(name, arr))
     if arr.dtype.kind not in "iuf" or arr.dtype.kind == "b":
