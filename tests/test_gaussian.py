@@ -185,6 +185,24 @@ def test_sample_from_a_singular_gaussian_stays_on_its_support():
     np.testing.assert_array_equal(certain.sample(3, rng=0), [[4.0, -1.0]] * 3)
 
 
+def test_sample_from_a_singular_gaussian_of_inexact_entries_stays_on_its_support():
+    """``a aᵀ`` rounded has eigenvalues of ±1e-17 where it has none: NumPy's eigendecomposition spread the samples
+    by their square roots, 9e-9 off the line x = t a; the semi-definite factor has no such column."""
+    a = np.array([1.0, 1 / 3, 0.1])
+    x = gf.Gaussian(np.zeros(3), np.outer(a, a)).sample(200, rng=0)
+    np.testing.assert_array_equal(x[:, 1], x[:, 0] * a[1])
+    np.testing.assert_array_equal(x[:, 2], x[:, 0] * a[2])
+    assert x[:, 0].std() == pytest.approx(1.0, rel=0.15)
+
+
+def test_sample_of_a_positive_definite_gaussian_is_numpy_s_cholesky_draw():
+    mean = np.array([1.0, -2.0, 0.5])
+    cov = np.array([[2.0, 0.6, 0.0], [0.6, 1.0, -0.3], [0.0, -0.3, 0.5]])
+    for size in (None, 7):
+        want = np.random.default_rng(4).multivariate_normal(mean, cov, size=size, method="cholesky")
+        np.testing.assert_array_equal(gf.Gaussian(mean, cov).sample(size, rng=4), want)
+
+
 # ---------------------------------------------------------------------------
 # fuse
 # ---------------------------------------------------------------------------
