@@ -527,7 +527,8 @@ def test_datetimes_are_drawn_as_dates(filtered):
             np.testing.assert_allclose(mdates.date2num(line.get_xdata()), want, rtol=0, atol=1e-9)
     # durations in seconds, whatever their unit: matplotlib drew their counts (4 s was 4, 4000 or 4e6; audit X4)
     for times in (np.arange(12) * np.timedelta64(1, "s"), np.arange(12) * np.timedelta64(1000, "ms"),
-                  pd.to_timedelta(np.arange(12), unit="s")):
+                  pd.to_timedelta(np.arange(12), unit="s"), [pd.Timedelta(i, "s") for i in range(12)],
+                  [datetime.timedelta(seconds=i) for i in range(12)]):  # (lists of durations: refused before)
         for fig in (plot_series(times, res.means, res.covs, zs=zs),
                     plot_measurements(times, zs, res.means, res.covs, model.H)):
             np.testing.assert_array_equal(fig.axes[0].get_lines()[-1].get_xdata(), np.arange(12.0))

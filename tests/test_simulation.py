@@ -153,8 +153,9 @@ def test_posterior_draws_of_a_huge_prior_stay_finite_and_consistent():
     (lambda m, p: gf.simulate(m, p, 5, size=0), ValueError, "`size` must be a positive integer"),
     (lambda m, p: gf.simulate(m, p, 5, rng="seed"), TypeError, "`rng` must be None, a non-negative integer seed"),
     (lambda m, p: gf.simulate(m, p, 5, rng=True), TypeError, "`rng` must be None, a non-negative integer seed"),
-    (lambda m, p: gf.forecast(m, p, times="abc"), TypeError, r"`times` must be numbers \(seconds\) or times "
-                                                              r"\(datetime64, .*\), one per step; got str 'abc'\.$"),
+    (lambda m, p: gf.forecast(m, p, times="abc"), TypeError, r"`times` must be numbers \(seconds\), times "
+                                                              r"\(datetime64, .*\) or durations \(timedelta64, .*\), "
+                                                              r"one per step; got str 'abc'\.$"),
     (lambda m, p: gf.simulate("model", p, 5), TypeError, "`model` must be a gaussfuse.LinearModel"),
     (lambda m, p: gf.simulate(m, gf.Gaussian([0.0], [[1.0]]), 5), ValueError, "dimension 2"),
     (lambda m, p: gf.sample_posterior(m, p, np.zeros((2, 5, 1)), 10), ValueError, "one series"),

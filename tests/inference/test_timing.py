@@ -299,3 +299,22 @@ def test_numbers_held_as_objects_are_seconds():
 def test_same_time(a, b, same):
     assert same_time(a, b) is same
     assert same_time(b, a) is same
+
+
+def test_durations_held_as_objects_are_times():
+    """A list of pandas Timedeltas, timedeltas or timedelta64s was refused ("got Timedelta"), with a message that
+    named no durations, where a TimedeltaIndex of the same durations was taken."""
+    timed = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.Position(dim=1, r=1.0))
+    prior, zs = gf.Gaussian([0.0, 1.0], np.eye(2)), [0.0, 2.0, 4.0]
+    want = gf.filter(timed, prior, zs, times=[0.0, 1.5, 3.0]).means
+    for times in ([pd.Timedelta(0), pd.Timedelta(1.5, "s"), pd.Timedelta(3, "s")],
+                  [datetime.timedelta(0), datetime.timedelta(seconds=1.5), np.timedelta64(3, "s")],
+                  pd.timedelta_range(0, periods=3, freq="1500ms")):
+        np.testing.assert_array_equal(gf.filter(timed, prior, zs, times=times).means, want)
+    with pytest.raises(TypeError, match=re.escape("or durations (timedelta64, timedelta, a pandas TimedeltaIndex), "
+                                                  "all of one kind; got float at `times[1]`.")):
+        gf.filter(timed, prior, zs, times=[pd.Timedelta(0), 1.5, 3.0])
+    with pytest.raises(TypeError, match=re.escape("all of one kind; got datetime at `times[1]`.")):
+        gf.filter(timed, prior, zs, times=[datetime.timedelta(0), datetime.datetime(2026, 1, 1), 3.0])
+    with pytest.raises(ValueError, match=re.escape("`times[1]` must be a time; got NaT.")):
+        gf.filter(timed, prior, zs, times=[pd.Timedelta(0), pd.NaT, pd.Timedelta(3, "s")])

@@ -142,8 +142,9 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         Gate the whole measurement, or each component on its own
         (:math:`v_i^2 / S_{ii}` against :math:`\chi^2_1`).
     times : array_like of shape (T,) or (T + 1,), optional
-        The measurements' times: float seconds, ``datetime64``, datetimes
-        or a pandas DatetimeIndex/TimedeltaIndex (time zones taken to UTC);
+        The measurements' times: float seconds, dates (``datetime64``,
+        datetimes, a pandas DatetimeIndex; time zones taken to UTC) or
+        durations (``timedelta64``, timedeltas, a pandas TimedeltaIndex);
         with T + 1, the prior's time first, otherwise the prior is one step
         of ``times[1] - times[0]`` before the first
         (:mod:`gaussfuse.inference.timing`). Required by a TimedModel; a

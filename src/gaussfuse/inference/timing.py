@@ -137,9 +137,13 @@ def as_instants(name: str, times) -> np.ndarray | None:
     arr = _array(times)
     if arr.dtype == object:
         read = _stamps(name, arr.ravel())
-        if not read or any(v is None for v in read):
+        spans = [_span(f"{name}[{i}]", v) for i, v in enumerate(arr.ravel().tolist())]
+        if read and all(v is not None for v in read):
+            arr = _in_one_unit(name, read).reshape(arr.shape)
+        elif spans and all(v is not None for v in spans):
+            arr = np.array(spans).reshape(arr.shape)
+        else:
             return None
-        arr = _in_one_unit(name, read).reshape(arr.shape)
     if arr.dtype.kind not in "Mm":
         return None
     return _without_nat(name, arr)
@@ -174,6 +178,21 @@ def _stamps(name: str, arr: np.ndarray) -> list:
     return [stamp(f"{name}[{i}]", v) for i, v in enumerate(arr.tolist())]
 
 
+def _span(name: str, value) -> np.timedelta64 | None:
+    """A duration (``datetime.timedelta``, ``numpy.timedelta64``, ``pandas.Timedelta``) as a timedelta64, else None."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if hasattr(value, "to_timedelta64"):  # a pandas Timedelta (its NaT is pandas' NaT, a time: see stamp)
+        value = value.to_timedelta64()
+    elif isinstance(value, datetime.timedelta):
+        value = np.timedelta64(value)
+    if not isinstance(value, np.timedelta64):
+        return None
+    if np.isnat(value):
+        raise ValueError(f"`{name}` must be a time; got {value!r}.")
+    return value
+
+
 def _in_one_unit(name: str, read: list) -> np.ndarray:
     """Datetime64 values in the finest of their units, exactly (:func:`within`)."""
     unit = finest(np.datetime_data(v.dtype)[0] for v in read)
@@ -186,7 +205,8 @@ def _without_nat(name: str, arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-_KINDS = "numbers (seconds) or times (datetime64, datetime, a pandas DatetimeIndex)"
+_KINDS = ("numbers (seconds), times (datetime64, datetime, a pandas DatetimeIndex) or durations (timedelta64, "
+          "timedelta, a pandas TimedeltaIndex)")
 
 
 def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
@@ -205,17 +225,22 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
     if arr.ndim != 1:
         raise ValueError(f"`{name}` must be one-dimensional, one time per step; got shape {arr.shape}.")
     if arr.dtype == object:
+        items = arr.tolist()
         read = _stamps(name, arr)
-        number = [not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
-                  for v in arr.tolist()]
-        if arr.size and all(number):  # numbers held as objects (a pandas object column): seconds
-            arr = np.array(arr.tolist(), dtype=np.float64)
-        elif not arr.size or any(v is None for v in read):
-            bad = next((i for i, (v, x) in enumerate(zip(read, number)) if v is None and not x), None)
-            if bad is None and arr.size:  # numbers and times mixed: the first that differs from the first
-                bad = next(i for i, v in enumerate(read) if (v is None) != (read[0] is None))
+        spans = [_span(f"{name}[{i}]", v) for i, v in enumerate(items)]
+        kinds = ["time" if r is not None else "duration" if d is not None else "number"
+                 if not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
+                 else None for v, r, d in zip(items, read, spans)]
+        if not arr.size or None in kinds or len(set(kinds)) > 1:
+            bad = next((i for i, k in enumerate(kinds) if k is None), None)
+            if bad is None and arr.size:  # kinds mixed: the first that differs from the first
+                bad = next(i for i, k in enumerate(kinds) if k != kinds[0])
             got = "nothing" if bad is None else f"{type(arr[bad]).__name__} at `{name}[{bad}]`"
             raise TypeError(f"`{name}` must be {_KINDS}, all of one kind; got {got}.")
+        if kinds[0] == "number":  # numbers held as objects (a pandas object column): seconds
+            arr = np.array(items, dtype=np.float64)
+        elif kinds[0] == "duration":  # in the finest of their units (NumPy's promotion, exact)
+            arr = np.array(spans)
         else:
             arr = _in_one_unit(name, read)
     if arr.dtype.kind in "Mm":
