@@ -1147,6 +1147,69 @@ def test_a_learned_b_has_the_units_of_the_state_over_those_of_the_controls():
         np.testing.assert_allclose(fit.model.B / s, one.model.B, rtol=1e-5)
 
 
+def _gls(X: np.ndarray, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """The generalised least-squares estimate of β in z = X β + e, e ~ N(0, cov): the maximum-likelihood one."""
+    L = np.linalg.cholesky(cov)
+    Xw, zw = np.linalg.solve(L, X), np.linalg.solve(L, z)
+    return np.linalg.lstsq(Xw, zw, rcond=None)[0]
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e8, 1e12, 1e-150])
+def test_maximum_likelihood_of_a_known_start_or_a_noise_free_drift_in_any_units(scale):
+    """m0 under a prior certain of it, and B of a state without process noise, had a unit of 1 in the search: data
+    in units of 1e8 or 1e12 left them at their starts of 0, 142 and 84 below the maxima, said converged after
+    0 iterations; units of 1e-150 or 1e-8 reached the maxima but warned of a loss of precision (audit EE1).
+    Oracle: both maxima are generalised least squares (z = m0 + a random walk + noise, all Gaussian; z = x0 + b U
+    + noise with U the controls' running sum and x0 diffuse, a free intercept)."""
+    rng = np.random.default_rng(0)
+    T = 50
+    z = (10.0 + np.cumsum(rng.normal(size=T) * 0.3) + rng.normal(size=T)) * scale
+    steps = np.arange(1, T + 1)
+    cov = (0.09 * np.minimum.outer(steps, steps) + np.eye(T)) * scale**2  # x_t = m0 + w_1 + ... + w_t
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.09 * scale**2, R=scale**2), gf.Gaussian([0.0], [[0.0]]), z,
+                     method="mle", learn=("m0",))
+    assert fit.converged
+    assert fit.prior.mean[0] == pytest.approx(_gls(np.ones((T, 1)), z, cov)[0], rel=1e-6)
+    rng = np.random.default_rng(1)
+    T = 40
+    us = rng.normal(size=(T, 1))
+    z = (5.0 + np.cumsum(0.7 * us[:, 0]) + rng.normal(size=T) * 0.5) * scale
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.0, R=0.25 * scale**2, B=[[0.0]]), "diffuse", z, us, method="mle",
+                     learn=("B",))
+    assert fit.converged
+    X = np.column_stack([np.ones(T), np.cumsum(us[:, 0])])
+    assert fit.model.B[0, 0] == pytest.approx(_gls(X, z, 0.25 * scale**2 * np.eye(T))[1], rel=1e-6)
+
+
+def test_standard_errors_of_controls_and_data_in_far_apart_units():
+    """The observed information was formed in θ, where B's entry for controls of 1e150 and data of 1e-10 is
+    u²/Q = 1e320: inf, and the standard errors raised LinAlgError ("Eigenvalues did not converge"); those of
+    controls of 1e100 and data of 1e-100 were NaN, and EM warned of a stall (audit EE1). In φ = θ / units the
+    information does not depend on the units: the fits and their errors are those in units of 1, rescaled."""
+    rng = np.random.default_rng(5)
+    T = 200
+    us = rng.normal(size=(T, 1))
+    truth = gf.LinearModel(F=0.8, H=1.0, Q=0.5, R=1.0, B=[[2.0]])
+    zs = gf.simulate(truth, gf.Gaussian([0.0], [[1.0]]), T, us=us, rng=rng).measurements
+    start = dict(F=0.8, H=1.0, Q=1.0, R=1.0, B=[[1.0]])
+    one = gf.fit(gf.LinearModel(**start), gf.Gaussian([0.0], [[1.0]]), zs, us, learn=("B", "Q", "R"), method="mle")
+    assert one.converged and np.isfinite(one.bse["B"])
+    for cu, cz in ((1e150, 1e-10), (1e100, 1e-100), (1e-150, 1e10)):
+        scaled = dict(start, Q=cz**2, R=cz**2, B=[[cz / cu]])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            fit = gf.fit(gf.LinearModel(**scaled), gf.Gaussian([0.0], [[cz**2]]), zs * cz, us * cu,
+                         learn=("B", "Q", "R"), method="mle")
+        assert fit.converged
+        assert fit.model.B[0, 0] * cu / cz == pytest.approx(one.model.B[0, 0], rel=1e-6)
+        assert np.ravel(fit.bse["B"])[0] * cu / cz == pytest.approx(np.ravel(one.bse["B"])[0], rel=1e-4)
+        assert np.ravel(fit.bse["Q"])[0] / cz**2 == pytest.approx(np.ravel(one.bse["Q"])[0], rel=1e-4)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 3])
 def test_a_variance_estimated_at_its_boundary_has_no_standard_error(seed):
     """Audit AA3: white noise fitted with a local level puts Q at about 3e-9, where the gradient's differences are

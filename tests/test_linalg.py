@@ -356,3 +356,11 @@ def test_the_compiled_clip_decides_as_the_readable_one_at_every_scale(scale):
         compiled = P.copy()
         _dense.clip_variances(compiled, t, 3)
         np.testing.assert_array_equal(compiled, clip_variances(P, lambda: t))
+
+
+def test_a_matrix_with_an_infinite_entry_is_not_positive_definite():
+    """NumPy's Cholesky of [[inf, 1], [1, 2]] succeeds, with NaN in its factor: the test said positive definite,
+    and an infinite information reached an eigenvalue routine that failed (audit EE1)."""
+    assert not _linalg.is_positive_definite(np.array([[np.inf, 1.0], [1.0, 2.0]]))
+    assert not _linalg.is_positive_definite(np.array([[1.0, np.nan], [np.nan, 2.0]]))
+    assert _linalg.is_positive_definite(np.array([[1.0, 0.5], [0.5, 2.0]]))

@@ -209,7 +209,9 @@ def _roundoff(j: int, variance: float) -> float:
 
 
 def is_positive_definite(mat: np.ndarray) -> bool:
-    """Whether `mat` (each of a stack) has a Cholesky factor."""
+    """Whether `mat` (each of a stack) has a (finite) Cholesky factor."""
+    if not np.isfinite(mat).all():  # numpy's Cholesky of [[inf, 1], [1, 2]] succeeds, with nan in its factor
+        return False
     try:
         cholesky(mat)
     except np.linalg.LinAlgError:

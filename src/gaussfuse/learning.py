@@ -877,18 +877,29 @@ class _Parametrisation:
         a log variance and an entry of F or H, a component's standard deviation for an entry of a Cholesky
         factor's row or of m0 (which scale with the data), and for B[i, j] the process noise's standard
         deviation of component i over the size of control j (B u moves the state; the controls may be in other
-        units than the data)."""
+        units than the data). A component with neither a prior nor a process noise variance is sized by what
+        measures it: the measurement noise's standard deviation over its column's largest entry of H."""
         out = []
         model, prior = self(theta)
-        sd = np.ones(model.n) if isinstance(prior, str) else np.sqrt(np.diag(prior.cov))  # (a diffuse prior: 1)
+        n = model.n
+        sd = np.zeros(n) if isinstance(prior, str) else np.sqrt(np.clip(np.diag(prior.cov), 0.0, None))
+        variances = np.diagonal(model.Q, axis1=-2, axis2=-1).reshape(-1, n).mean(axis=0)
+        noise = np.sqrt(np.clip(variances, 0.0, None))
+        # a state component with no prior variance and no process noise: its size from what measures it,
+        # the measurement noise's standard deviation over the largest entry of its column of H (in the data's
+        # units, not 1: a unit of 1 stopped the search at its start for data of 1e8: m0 and B were not learned)
+        R = np.diagonal(model.R, axis1=-2, axis2=-1).reshape(-1, model.m).mean(axis=0)
+        H = np.abs(model.H).reshape(-1, model.m, n).max(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            seen = np.sqrt(np.clip(R, 0.0, None))[:, None] / H  # (m, n); inf or NaN where H is 0
+        seen = np.where(np.isfinite(seen), seen, 0.0).max(axis=0)
+        measured = np.where(seen > 0, seen, 1.0)
         for name, t in self.split(theta).items():
             if name == "m0":
-                out.append(np.where(sd > 0, sd, 1.0))
+                out.append(np.where(sd > 0, sd, np.where(noise > 0, noise, measured)))
             elif name == "B":
-                n, p = model.n, t.size // model.n
-                variances = np.diagonal(model.Q, axis1=-2, axis2=-1).reshape(-1, n).mean(axis=0)
-                noise = np.sqrt(np.clip(variances, 0.0, None))
-                rows = np.where(noise > 0, noise, np.where(sd > 0, sd, 1.0))
+                p = t.size // n
+                rows = np.where(noise > 0, noise, np.where(sd > 0, sd, measured))
                 cols = np.ones(p) if self.controls is None else np.where(self.controls > 0, self.controls, 1.0)
                 out.append((rows[:, None] / cols[None, :]).ravel())
             elif name in COVARIANCES and self.structure[name] == "full" and t.size:
@@ -1411,8 +1422,10 @@ def _sizes(theta: np.ndarray, units: np.ndarray) -> np.ndarray:
     return np.maximum(units, np.abs(theta))
 
 
-def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """The Hessian of the log-likelihood, by central differences of the exact gradient (symmetrised).
+def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray, units: np.ndarray) -> np.ndarray:
+    """The Hessian of the log-likelihood in φ = θ / `units`, by central differences of the exact gradient
+    (symmetrised): ``D H D`` with ``D = diag(units)``, formed without forming H in θ, whose entry for B of
+    controls of 1e150 and data of 1e-10 is u²/Q, 1e320 (audit EE1: the standard errors raised LinAlgError).
 
     Each step is 1e-5 of the entry's `sizes` (:func:`_sizes`).
     """
@@ -1423,7 +1436,7 @@ def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     evaluate.prefetch([theta] + up + down)  # (θ's gradient too, which the standard errors' test reads)
     hess = np.zeros((k, k))
     for j in range(k):
-        hess[:, j] = (evaluate(up[j])[1] - evaluate(down[j])[1]) / (2 * steps[j])
+        hess[:, j] = (evaluate(up[j])[1] * units - evaluate(down[j])[1] * units) * (units[j] / (2 * steps[j]))
     return symmetrize(hess)
 
 
@@ -1441,10 +1454,10 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: 
         if met(grad):
             return theta, True
         try:
-            information = -_hessian(evaluate, theta, _sizes(theta, units))
+            information = -_hessian(evaluate, theta, _sizes(theta, units), units)  # on φ = θ / units: finite
             if not is_positive_definite(information):
                 break
-            step = theta + cho_solve(cholesky(information), grad)
+            step = theta + units * cho_solve(cholesky(information), grad * units)
             if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
                 break
         except NO_LIKELIHOOD:  # a neighbour with no likelihood: no step
@@ -1461,7 +1474,7 @@ def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarra
     the largest is moved by a tenth of its size (at least a tenth of its unit) both ways; it is flat when the
     log-likelihood stays within 1e-12 of its size.
     """
-    diag = np.abs(np.diagonal(information)) * units * units
+    diag = np.abs(np.diagonal(information))  # (the information in φ = θ / units: see _standard_errors)
     flat = np.zeros(theta.size, dtype=bool)
     suspects = np.flatnonzero(diag <= 1e-6 * diag.max(initial=0.0))
     if not suspects.size:
@@ -1542,7 +1555,8 @@ def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None
     not positive definite (None), the gradient per unit of θ is above :data:`_MLE_GTOL` per observation."""
     gradient = evaluate(theta)[1]
     if cov_theta is not None:
-        gain = 0.5 * gradient @ cov_theta @ gradient  # what a Newton step would add to the log-likelihood
+        scaled = gradient * build.units(theta)  # (cov_theta is on φ = θ / units: see _standard_errors)
+        gain = 0.5 * scaled @ cov_theta @ scaled  # what a Newton step would add to the log-likelihood
         if gain > _EM_STALLED * tol * nobs:
             return (f"the log-likelihood changed by less than `tol`, but a Newton step from here would raise it by "
                     f"{gain:.3g} more: EM has stalled short of the maximum, as it does on a parameter its M-step "
@@ -1563,7 +1577,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn,
 
     Returns the per-matrix standard errors (None if the information is not
     positive definite, or not beyond the gradient: :func:`_beyond_gradient`),
-    those of ``build.natural`` (NaN then), and the inverse information on θ
+    those of ``build.natural`` (NaN then), and the inverse information on φ = θ / units
     (None where it is not positive definite; zero rows and columns for the
     parameters the log-likelihood does not depend on).
     """
@@ -1576,7 +1590,7 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn,
     sizes = _sizes(theta, units)
     try:
         curved = build.curved(theta)
-        information = -_hessian(evaluate, theta, sizes)
+        information = -_hessian(evaluate, theta, sizes, units)  # on φ = θ / units: finite in any units
         flat = _flat(evaluate, theta, information, units)
         # (as flat: held fixed) where the log-likelihood is stationary along it, to maximum likelihood's tolerance;
         # elsewhere it is a plateau, not a boundary (EM stalled from Q = 1e-6 on the Nile: review R16)
@@ -1589,7 +1603,8 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn,
         return None, nan, None
     cov_theta = np.zeros((k, k))
     cov_theta[np.ix_(kept, kept)] = cho_solve(cholesky(information[np.ix_(kept, kept)]), np.eye(int(kept.sum())))
-    if not _beyond_gradient(information[np.ix_(kept, kept)], evaluate(theta)[1][kept], build.curved(theta)[kept]):
+    if not _beyond_gradient(information[np.ix_(kept, kept)], (evaluate(theta)[1] * units)[kept],
+                            build.curved(theta)[kept]):
         return None, nan, cov_theta  # (what a Newton step would gain is still told: see _em_stalled)
 
     def jacobian(fn) -> np.ndarray:
@@ -1603,11 +1618,13 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn,
         return J
 
     def delta(J):  # each row scaled to its largest entry first: J C Jᵀ of estimates of 1e200 overflows
+        moved = (J[:, flat] != 0.0).any(axis=1)
+        J = J * units[None, :]  # on φ = θ / units, as cov_theta
         s = np.max(np.abs(J), axis=1)
         s = np.where(s > 0, s, 1.0)
         unit = J / s[:, None]
         se = s * np.sqrt(np.clip(np.einsum("ij,jk,ik->i", unit, cov_theta, unit), 0, None))
-        return np.where((J[:, flat] != 0.0).any(axis=1), np.nan, se)  # what moves with a flat parameter: none
+        return np.where(moved, np.nan, se)  # what moves with a flat parameter: none
 
     bse = delta(jacobian(natural))
     if learn is None:
