@@ -304,3 +304,18 @@ def test_data_far_from_zero_keep_the_diffuse_likelihood(level, engine):
                        for data in (z + level, z)]
         np.testing.assert_allclose([learned[0].Q[0, 0], learned[0].R[0, 0]], [learned[1].Q[0, 0], learned[1].R[0, 0]],
                                    rtol=1e-3)
+
+
+def test_an_overflow_of_the_assembled_beliefs_is_a_floating_point_error():
+    """The Nile in units of 1e152: the innovation variance, 1e308 and more, overflows where the diffuse filter
+    assembles its beliefs, past the checked runs; a ValueError named an internal `innovation_covs`, where filter
+    and fit promise the FloatingPointError of an overflow (audit EE1)."""
+    y = np.asarray(nile()[1], dtype=float) * 1e152
+    model = gf.LinearModel(F=1, H=1, Q=1e3 * 1e304, R=1e4 * 1e304)
+    message = r"^at step 1: the predicted measurement mean or covariance is not finite \(inf or NaN\)"
+    with pytest.raises(FloatingPointError, match=message):
+        gf.filter(model, "diffuse", y)
+    with pytest.raises(FloatingPointError, match=message):
+        gf.fit(model, "diffuse", y, method="mle")
+    assert np.isfinite(gf.filter(gf.LinearModel(F=1, H=1, Q=1e3 * 1e296, R=1e4 * 1e296), "diffuse",
+                                 y * 1e-4).innovation_covs[1:]).all()  # 1e300 is fine

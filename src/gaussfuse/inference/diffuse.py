@@ -82,6 +82,7 @@ import numpy as np
 
 from .._linalg import cho_solve, cholesky, is_positive_definite, observed_gram, symmetrize, unit_diagonal, whiten
 from ..diagnostics import nis
+from ..errors import at_step, not_finite
 from ..gaussian import Gaussian
 from ..models.linear import LinearModel
 from .drivers import filter_batch, smooth_batch
@@ -281,19 +282,35 @@ def _filter(model, runs: AugmentedRuns, inf: _Information) -> FilterResult:
         raise not_identified()
     d = int(np.argmax(ok))  # the information only grows: identified from step d on
     L = cholesky(inf.info[d:], "the information about the diffuse state")
-    shift, spread = _spread(L, inf.score[d:], M[d:])
-    out["means"][d:] = base.means[d:] + shift
-    out["covs"][d:] = symmetrize(base.covs[d:] + spread)
-    # predictions and innovations at step t use what is known after step t - 1
-    L, sc = L[:-1], inf.score[d:-1]
-    for name, base_name, sens in (("predicted_means", "predicted_covs", Mp), ("innovations", "innovation_covs", V)):
-        shift, spread = _spread(L, sc, sens[d + 1:])
-        out[name][d + 1:] = getattr(base, name)[d + 1:] + shift
-        out[base_name][d + 1:] = symmetrize(getattr(base, base_name)[d + 1:] + spread)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below, naming the step
+        shift, spread = _spread(L, inf.score[d:], M[d:])
+        out["means"][d:] = base.means[d:] + shift
+        out["covs"][d:] = symmetrize(base.covs[d:] + spread)
+        # predictions and innovations at step t use what is known after step t - 1
+        L, sc = L[:-1], inf.score[d:-1]
+        for name, base_name, sens in (("predicted_means", "predicted_covs", Mp),
+                                      ("innovations", "innovation_covs", V)):
+            shift, spread = _spread(L, sc, sens[d + 1:])
+            out[name][d + 1:] = getattr(base, name)[d + 1:] + shift
+            out[base_name][d + 1:] = symmetrize(getattr(base, base_name)[d + 1:] + spread)
+    _check_overflow(out, d)
     out["nis"] = np.full(len(out["means"]), np.nan)  # once identified
     out["nis"][d + 1:] = nis(out["innovations"][d + 1:], out["innovation_covs"][d + 1:])
     loglik = _diffuse_loglik(inf, (cholesky(inf.info[-1]), inf.score[-1]))
     return FilterResult(**out, loglik=loglik, last_mean=out["means"][-1], last_cov=out["covs"][-1])
+
+
+def _check_overflow(out: dict, d: int) -> None:
+    """FloatingPointError at the first step whose assembled belief is not finite, as kalman.check_finite says it:
+    data near float64's limits overflow here, past the runs that were checked (audit EE1: a ValueError named an
+    internal `innovation_covs`)."""
+    for stage, means, covs, start in (("filtered", out["means"], out["covs"], d),
+                                      ("predicted", out["predicted_means"], out["predicted_covs"], d + 1),
+                                      ("predicted measurement", None, out["innovation_covs"], d + 1)):
+        total = np.trace(covs[start:], axis1=1, axis2=2) + (0.0 if means is None else means[start:].sum(axis=1))
+        bad = np.flatnonzero(~np.isfinite(total))
+        if bad.size:
+            raise at_step(FloatingPointError(not_finite(stage)), start + int(bad[0]))
 
 
 def _diffuse_loglik(inf: _Information, final: tuple[np.ndarray, np.ndarray]) -> float:
