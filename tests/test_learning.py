@@ -1185,6 +1185,42 @@ def test_maximum_likelihood_of_a_known_start_or_a_noise_free_drift_in_any_units(
     assert fit.model.B[0, 0] == pytest.approx(_gls(X, z, 0.25 * scale**2 * np.eye(T))[1], rel=1e-6)
 
 
+@pytest.mark.parametrize("q, gains, scale", [(1e-20, [1.0], 1.0), (1e-12, [1.0], 1.0), (0.0, [1.0, 0.0], 1e12),
+                                             (0.0, [1.0, 1e-10], 1.0), (0.0, [1.0, 1e-14], 1.0)])
+def test_maximum_likelihood_of_a_known_start_sized_by_what_sees_it(q, gains, scale):
+    """m0 under a prior certain of it (review R35 of the units above): a Q of 1e-20 beside an R of 1 sized it by
+    Q's 1e-10, and the search stopped at its start, said converged, 2511 below the maximum; a velocity no sensor
+    sees was sized 1, 687 below at data of 1e12; a second sensor of gain 1e-10 sized the level by 1e10, and the
+    fit warned of a loss of precision at the maximum. Oracle: generalised least squares of z on the columns that
+    m0 enters (the mean of z is H Fᵏ m0; Q's random walk and R are the noise)."""
+    rng = np.random.default_rng(6)
+    T, n = 60, 2
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    H = np.array([[1.0, 0.0], [0.0, gains[1]]]) if len(gains) == 2 else np.array([[1.0, 0.0]])
+    H = H[H.any(axis=1)]  # (the unseen velocity: one sensor, of the level)
+    m = H.shape[0]
+    powers = [np.linalg.matrix_power(F, k + 1) for k in range(T)]
+    X = np.concatenate([H @ P for P in powers]) * 1.0  # (T m, n): z_k's mean is H F^(k+1) m0
+    Qm = q * scale**2 * np.diag([1.0, 0.0])  # noise on the level only
+    cov = np.zeros((T * m, T * m))  # the random walk's covariance, through H, plus R
+    for j in range(T):
+        for k in range(T):
+            s = sum(np.linalg.matrix_power(F, j - i) @ Qm @ np.linalg.matrix_power(F, k - i).T
+                    for i in range(min(j, k) + 1))
+            cov[j * m:(j + 1) * m, k * m:(k + 1) * m] = H @ s @ H.T
+    cov += np.kron(np.eye(T), scale**2 * np.eye(m))
+    truth = np.array([10.0, 0.5]) * scale
+    z = X @ truth + np.linalg.cholesky(cov) @ rng.normal(size=T * m)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=F, H=H, Q=Qm, R=scale**2 * np.eye(m)), gf.Gaussian([0.0, 0.0], np.zeros((2, 2))),
+                     z.reshape(T, m), method="mle", learn=("m0",))
+    assert fit.converged
+    want = _gls(X, z, cov)
+    se = np.sqrt(np.diag(np.linalg.inv(X.T @ np.linalg.solve(cov, X))))
+    np.testing.assert_allclose(fit.prior.mean, want, rtol=0, atol=1e-6 * se.max())
+
+
 def test_standard_errors_of_controls_and_data_in_far_apart_units():
     """The observed information was formed in θ, where B's entry for controls of 1e150 and data of 1e-10 is
     u²/Q = 1e320: inf, and the standard errors raised LinAlgError ("Eigenvalues did not converge"); those of

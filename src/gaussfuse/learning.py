@@ -791,6 +791,28 @@ def _current(model: LinearModel, prior, name: str) -> np.ndarray:
 # ---------------------------------------------------------------------------
 
 
+def _resolved_sizes(model: LinearModel) -> np.ndarray:
+    r"""Each state component's size as n noise-free steps from a known start resolve it: 1 / √ of the diagonal of
+    their information about it, :math:`\sum_{k=1}^{n} (H F^k)^\top R^{-1} (H F^k)` (the first step's matrices;
+    measurements with R_ii = 0 left out), in the data's units; the largest of the others' for a component they
+    do not resolve, and 1 if they resolve none. A velocity that H = [1, 0] does not see is resolved through F;
+    a unit of 1 left m0 at its start for data of 1e8, said converged, and a sensor's own noise over a gain of
+    1e-10 (1e10) kept the search from meeting `tol` at the maximum (audit EE1, review R35)."""
+    n, m = model.n, model.m
+    F, H = model.F.reshape(-1, n, n)[0], model.H.reshape(-1, m, n)[0]
+    r = np.diagonal(model.R.reshape(-1, m, m)[0]).copy()
+    seen = r > 0
+    info, power = np.zeros(n), np.eye(n)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for _ in range(n):
+            power = F @ power
+            A = H[seen] @ power
+            info += (A * A / r[seen][:, None]).sum(axis=0)
+        size = 1.0 / np.sqrt(info)
+    resolved = np.isfinite(size) & (size > 0)
+    return np.where(resolved, size, size[resolved].max() if resolved.any() else 1.0)
+
+
 class _Parametrisation:
     """Unconstrained parameters θ ↔ the learned matrices (see the module notes).
 
@@ -877,26 +899,20 @@ class _Parametrisation:
         a log variance and an entry of F or H, a component's standard deviation for an entry of a Cholesky
         factor's row or of m0 (which scale with the data), and for B[i, j] the process noise's standard
         deviation of component i over the size of control j (B u moves the state; the controls may be in other
-        units than the data). A component with neither a prior nor a process noise variance is sized by what
-        measures it: the measurement noise's standard deviation over its column's largest entry of H."""
+        units than the data). Where those are missing, a component is sized by what the measurements resolve
+        of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
+        noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), B's row by its
+        process noise, else its prior's, else that."""
         out = []
         model, prior = self(theta)
         n = model.n
         sd = np.zeros(n) if isinstance(prior, str) else np.sqrt(np.clip(np.diag(prior.cov), 0.0, None))
         variances = np.diagonal(model.Q, axis1=-2, axis2=-1).reshape(-1, n).mean(axis=0)
         noise = np.sqrt(np.clip(variances, 0.0, None))
-        # a state component with no prior variance and no process noise: its size from what measures it,
-        # the measurement noise's standard deviation over the largest entry of its column of H (in the data's
-        # units, not 1: a unit of 1 stopped the search at its start for data of 1e8: m0 and B were not learned)
-        R = np.diagonal(model.R, axis1=-2, axis2=-1).reshape(-1, model.m).mean(axis=0)
-        H = np.abs(model.H).reshape(-1, model.m, n).max(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            seen = np.sqrt(np.clip(R, 0.0, None))[:, None] / H  # (m, n); inf or NaN where H is 0
-        seen = np.where(np.isfinite(seen), seen, 0.0).max(axis=0)
-        measured = np.where(seen > 0, seen, 1.0)
+        measured = _resolved_sizes(model)
         for name, t in self.split(theta).items():
             if name == "m0":
-                out.append(np.where(sd > 0, sd, np.where(noise > 0, noise, measured)))
+                out.append(np.where(sd > 0, sd, np.maximum(noise, measured)))  # (a tiny Q is no size for m0)
             elif name == "B":
                 p = t.size // n
                 rows = np.where(noise > 0, noise, np.where(sd > 0, sd, measured))
