@@ -147,7 +147,10 @@ class Gaussian:
         scale. A pivot that the covariance's own round-off leaves above the
         test keeps such a column: in 300 random rank-deficient covariances
         A Aᵀ of 2 to 6 components, 9%, the largest 5e-9 of the scale, where
-        NumPy's draws were in 90%.)
+        NumPy's draws were in 90%. A covariance accepted to the round-off of
+        its largest entry that the factor refuses on its components' own
+        scales is drawn from its eigendecomposition, negative eigenvalues
+        taken as 0.)
 
         Parameters
         ----------
@@ -177,7 +180,11 @@ class Gaussian:
                 raise ValueError(f"`size` must be None or a non-negative integer; got {size}.")
             size = int(size)
         rng = generator(rng)
-        L = kalman.cov_factor(self.cov)
+        try:
+            L = kalman.cov_factor(self.cov)
+        except np.linalg.LinAlgError:  # accepted to round-off of its largest entry, refused on its components' own
+            vals, vecs = np.linalg.eigh(self.cov)  # scales (review R35: 1 in 3000 near-tolerance covariances):
+            L = vecs * np.sqrt(np.clip(vals, 0.0, None))  # its semi-definite part
         return self.mean + rng.standard_normal(self.dim if size is None else (size, self.dim)) @ L.T
 
 

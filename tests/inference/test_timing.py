@@ -318,3 +318,16 @@ def test_durations_held_as_objects_are_times():
         gf.filter(timed, prior, zs, times=[datetime.timedelta(0), datetime.datetime(2026, 1, 1), 3.0])
     with pytest.raises(ValueError, match=re.escape("`times[1]` must be a time; got NaT.")):
         gf.filter(timed, prior, zs, times=[pd.Timedelta(0), pd.NaT, pd.Timedelta(3, "s")])
+
+
+def test_durations_that_the_finest_unit_cannot_hold_are_refused():
+    """300 years in days beside a 1 ns Timedelta, held as objects, were promoted by NumPy to nanoseconds, which
+    wrapped to -9e9 s; an array of 1e17 days wrapped in its cast to seconds (review R35). Durations now go through
+    the datetimes' exact conversion, which refuses what the finest unit among them cannot hold."""
+    with pytest.raises(ValueError, match=re.escape("`times[1]` holds 9460800000 seconds, which timedelta64[ns]")):
+        as_seconds("times", [pd.Timedelta(1, "ns"), np.timedelta64(300 * 365, "D")])
+    with pytest.raises(ValueError, match=re.escape("holds 100000000000000000 days, which timedelta64[s]")):
+        as_seconds("times", np.array([0, 10**17], dtype="m8[D]"))
+    np.testing.assert_array_equal(as_seconds("times", [pd.Timedelta(1, "ns"), np.timedelta64(200 * 365, "D")]),
+                                  [0.0, (200 * 365 * 86400 * 10**9 - 1) / 1e9])
+    np.testing.assert_array_equal(as_seconds("times", np.array([0, 5], dtype="m8[W]")), [0.0, 5 * 7 * 86400.0])

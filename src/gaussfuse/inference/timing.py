@@ -73,7 +73,7 @@ def stamp(name: str, value) -> np.datetime64 | None:
 
 
 def within(name: str, values, unit: str):
-    """Datetime64 `values` in `unit` (one of :data:`_FINE`), exactly.
+    """Datetime64 (or timedelta64) `values` in `unit` (one of :data:`_FINE`), exactly.
 
     Raises
     ------
@@ -82,12 +82,13 @@ def within(name: str, values, unit: str):
         years that unit's int64 holds (NumPy's cast wraps them silently).
     """
     values = np.asarray(values)
-    out = values.astype(f"datetime64[{unit}]")
+    kind = "datetime64" if values.dtype.kind == "M" else "timedelta64"
+    out = values.astype(f"{kind}[{unit}]")
     back = out.astype(values.dtype)
     bad = np.flatnonzero(np.isnat(out).ravel() | (back != values).ravel())
     if bad.size:
         shown = values.ravel()[bad[0]]
-        raise ValueError(f"`{name}` holds {shown}, which datetime64[{unit}] (the finest resolution among the times) "
+        raise ValueError(f"`{name}` holds {shown}, which {kind}[{unit}] (the finest resolution among the times) "
                          "cannot hold exactly: give the times in one resolution, within the years it holds.")
     return out[()] if out.ndim == 0 else out
 
@@ -97,10 +98,7 @@ def ticks(name: str, stamps: np.ndarray) -> tuple[np.ndarray, int]:
     unit = np.datetime_data(stamps.dtype)[0]
     if unit not in _FINE:
         unit = "s"
-        if stamps.dtype.kind == "M":
-            stamps = within(name, stamps, unit)
-        else:
-            stamps = stamps.astype("timedelta64[s]")
+        stamps = within(name, stamps, unit)
     return stamps.astype(f"{stamps.dtype.kind}8[{unit}]").astype(np.int64), per_second(unit)
 
 
@@ -141,7 +139,7 @@ def as_instants(name: str, times) -> np.ndarray | None:
         if read and all(v is not None for v in read):
             arr = _in_one_unit(name, read).reshape(arr.shape)
         elif spans and all(v is not None for v in spans):
-            arr = np.array(spans).reshape(arr.shape)
+            arr = _in_one_unit(name, spans).reshape(arr.shape)
         else:
             return None
     if arr.dtype.kind not in "Mm":
@@ -190,11 +188,12 @@ def _span(name: str, value) -> np.timedelta64 | None:
         return None
     if np.isnat(value):
         raise ValueError(f"`{name}` must be a time; got {value!r}.")
-    return value
+    unit = np.datetime_data(value.dtype)[0]
+    return within(name, value, unit if unit in _FINE else "s")
 
 
 def _in_one_unit(name: str, read: list) -> np.ndarray:
-    """Datetime64 values in the finest of their units, exactly (:func:`within`)."""
+    """Datetime64 (or timedelta64) values in the finest of their units, exactly (:func:`within`)."""
     unit = finest(np.datetime_data(v.dtype)[0] for v in read)
     return np.array([within(f"{name}[{i}]", v, unit) for i, v in enumerate(read)])
 
@@ -239,8 +238,8 @@ def _clock(name: str, times) -> tuple[np.ndarray, int | None]:
             raise TypeError(f"`{name}` must be {_KINDS}, all of one kind; got {got}.")
         if kinds[0] == "number":  # numbers held as objects (a pandas object column): seconds
             arr = np.array(items, dtype=np.float64)
-        elif kinds[0] == "duration":  # in the finest of their units (NumPy's promotion, exact)
-            arr = np.array(spans)
+        elif kinds[0] == "duration":
+            arr = _in_one_unit(name, spans)
         else:
             arr = _in_one_unit(name, read)
     if arr.dtype.kind in "Mm":
