@@ -1686,3 +1686,40 @@ def test_help_that_cannot_be_written_is_an_error(buffered):
         done = subprocess.run([sys.executable, "-m", "gaussfuse", "filter"], stdout=subprocess.DEVNULL, stderr=full,
                               env=env, timeout=120)
     assert done.returncode == 2
+
+
+XY_TOML = ('[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.5\nr = 0.25\n\n'
+           '[prior]\nmean = [0.0, 0.0, 1.0, 0.5]\nvar = 4.0\n')
+
+
+def test_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys):
+    """A named model's file whose columns are its sensor's x and y in another order was read by position: x and
+    y swapped in the estimates, silently, where gaussfuse.filter takes such a DataFrame by name (audit EE2). A
+    file that names some of them and not others is refused; columns named otherwise are taken in order."""
+    toml = tmp_path / "cv.toml"
+    toml.write_text(XY_TOML)
+    rows = [(0.5, 0.254, -0.147), (1.0, 1.187, 1.057), (1.5, 1.6, 1.4), (2.0, 2.3, 1.9)]
+    (tmp_path / "xy.csv").write_text("t,x,y\n" + "".join(f"{t},{x},{y}\n" for t, x, y in rows))
+    (tmp_path / "yx.csv").write_text("t,y,x\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
+    (tmp_path / "ab.csv").write_text("t,a,b\n" + "".join(f"{t},{x},{y}\n" for t, x, y in rows))
+    timed = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.25))
+    times = np.array([t for t, _, _ in rows])
+    want = gf.filter(timed, gf.Gaussian([0.0, 0.0, 1.0, 0.5], 4.0 * np.eye(4)), np.array([r[1:] for r in rows]),
+                     times=times)
+    for name in ("xy.csv", "yx.csv", "ab.csv"):
+        code, stdout, err = run(capsys, "filter", tmp_path / name, "--model", toml)
+        assert (code, err) == (0, ""), err
+        np.testing.assert_allclose(read_csv(stdout)[1][:, 1:5], want.means, rtol=1e-12, atol=1e-12)
+    fits = []
+    for name in ("xy.csv", "yx.csv"):
+        out = tmp_path / f"fit-{name}.toml"
+        code, _, err = run(capsys, "fit", tmp_path / name, "--model", toml, "--out", out, "--iterations", "5",
+                           "--tol", "0")
+        assert code == 0, err
+        fits.append([line for line in out.read_text().splitlines() if not line.startswith("#")])
+    assert fits[0] == fits[1]
+    (tmp_path / "yz.csv").write_text("t,y,z\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
+    code, stdout, err = run(capsys, "filter", tmp_path / "yz.csv", "--model", toml)
+    assert code == 2 and stdout == ""
+    assert_one_line_error(err, r"yz\.csv: line 1: the measurement columns \['y', 'z'\] name some of the model's "
+                               r"measurements \['x', 'y'\], without \['x'\], and \['z'\] besides: .* --columns\.$")

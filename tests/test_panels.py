@@ -672,3 +672,21 @@ def _refused(path, text: str, match: str) -> None:
     path.write_text(text)
     with pytest.raises(gfio.InputFileError, match=match):
         panels.read_partition(str(path), "id", 1)
+
+
+def test_series_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys, scheduler):
+    """As in one file (test_cli): a table whose columns are the sensor's y and x was filtered with them swapped
+    (audit EE2)."""
+    toml = tmp_path / "cv.toml"
+    toml.write_text('[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.5\nr = 0.25\n\n'
+                    '[prior]\nmean = [0.0, 0.0, 1.0, 0.5]\nvar = 4.0\n')
+    rows = [("a", 0.5, 0.254, -0.147), ("a", 1.0, 1.187, 1.057), ("b", 0.5, 2.0, 1.0), ("b", 1.5, 2.6, 1.4)]
+    (tmp_path / "xy").mkdir()
+    (tmp_path / "yx").mkdir()
+    (tmp_path / "xy" / "d.csv").write_text("id,t,x,y\n" + "".join(f"{i},{t},{x},{y}\n" for i, t, x, y in rows))
+    (tmp_path / "yx" / "d.csv").write_text("id,t,y,x\n" + "".join(f"{i},{t},{y},{x}\n" for i, t, x, y in rows))
+    for name in ("xy", "yx"):
+        code, _, err = run(capsys, "filter", tmp_path / name, "--model", toml, "--series-column", "id",
+                           "--out", tmp_path / f"out-{name}", "--scheduler", scheduler)
+        assert code == 0, err
+    assert (tmp_path / "out-xy" / "d.csv").read_text() == (tmp_path / "out-yx" / "d.csv").read_text()

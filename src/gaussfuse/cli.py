@@ -52,7 +52,9 @@ by --time-column, strictly increasing: seconds, or ISO-8601 times such as
 each becomes seconds since the file's first time, rounded once: a step is
 exact to about 1e-16 of that time, 4 ns a year in); every other column (or
 those named by --columns), in order, is one measurement component (as many
-as the model's m). An empty cell or NaN is a missing component.
+as the model's m); for a named model, columns named as its sensor's
+measurements (x, y) are taken by name, in any order. An empty cell or NaN is
+a missing component.
 
 MODEL.toml: explicit matrices
     [model]
@@ -258,7 +260,7 @@ def _run_filter(args: argparse.Namespace) -> int:
     columns = _columns(args)
     if args.series_column is not None:
         return _run_many(args, spec, columns)
-    read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns}
+    read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns, "names": _sensed(spec)}
     if (args.smooth and isinstance(spec.prior, str)) or spec.model.steps is not None:
         # A diffuse prior is smoothed whole; matrices given per step are for the whole file, which they already
         # hold in memory step by step.
@@ -715,7 +717,8 @@ def _run_fit(args: argparse.Namespace) -> int:
     structure = _structure(args.structure)
     learning.check_learn(spec.model, spec.prior, learn, structure)  # before any data are read (audit Y5)
     if args.series_column is None:
-        data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns)
+        data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns,
+                                      names=_sensed(spec))
         T = data.times.shape[0]
         grid = timing.steps("times", data.times, T - 1) if T > 1 else None  # the T - 1 steps between the rows
         return _fit_and_write(args, _stepped(spec, grid), learn, structure, data.zs)
@@ -761,7 +764,8 @@ def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, parts: list
     import dask
     import dask.array as da
 
-    read = dict(series_column=args.series_column, m=spec.model.m, time_column=args.time_column, columns=columns)
+    read = dict(series_column=args.series_column, m=spec.model.m, time_column=args.time_column, columns=columns,
+                names=_sensed(spec))
     shapes = client.gather([client.submit(panels.partition_shape, part, **read, pure=False) for part in parts])
     seen: dict = {}
     for part, (ids, _, _) in zip(parts, shapes):
@@ -958,6 +962,11 @@ def _column_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--time-column", metavar="NAME", type=_given, help="the time column (default: the one named t or time)")
     command.add_argument("--columns", metavar="A,B,...", type=_given,
                          help="the measurement columns, in order (default: every other column)")
+
+
+def _sensed(spec: gfio.ModelFile) -> list[str] | None:
+    """A named model's measurement names (its sensor's), by which a file's columns are matched; None for matrices."""
+    return None if spec.timed is None else list(spec.timed.sensor.names)
 
 
 def _columns(args: argparse.Namespace) -> list[str] | None:

@@ -12,7 +12,8 @@ A header row, then one row per time step::
 * One column is the time, named ``t`` or ``time`` (any case); its values are
   numbers of seconds or ISO-8601 times, strictly increasing (how the command
   line steps by them: ``gaussfuse filter --help``).
-* Every other column, in order, is one component of the measurement.
+* Every other column, in order, is one component of the measurement (or, with
+  a named model's measurement names, columns named as those are taken by name).
 * An empty cell, ``nan`` or ``NaN`` is a missing component.
 
 Model file (TOML)
@@ -205,7 +206,7 @@ class Measurements(NamedTuple):
 
 
 def read_measurements(path: StrPath, m: int | None = None, time_column: str | None = None,
-                      columns: Sequence[str] | None = None) -> Measurements:
+                      columns: Sequence[str] | None = None, names: Sequence[str] | None = None) -> Measurements:
     """Read a measurement CSV file (see the module docstring for the format).
 
     Parameters
@@ -225,6 +226,12 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
     columns : sequence of str, optional
         The measurement columns, in this order (default: every other one,
         each of which must have a name); the others are not read.
+    names : sequence of str, optional
+        The model's measurement names (a named model's sensor's), for the
+        default `columns`: a file whose measurement columns are these names
+        in another order is read in the model's order, as
+        :func:`gaussfuse.filter` takes such a DataFrame; one that names some
+        of them and not others is refused (it would be read by position).
 
     Returns
     -------
@@ -254,13 +261,14 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
     --------
     iter_measurements : the same file in pieces, in memory independent of its length.
     """
-    pieces = list(iter_measurements(path, m, time_column, columns))
+    pieces = list(iter_measurements(path, m, time_column, columns, names=names))
     return Measurements(np.concatenate([p.times for p in pieces]), np.concatenate([p.zs for p in pieces]),
                         pieces[0].columns, [text for p in pieces for text in p.time_text])
 
 
 def iter_measurements(path: StrPath, m: int | None = None, time_column: str | None = None,
-                      columns: Sequence[str] | None = None, rows: int = CHUNK_ROWS) -> Iterator[Measurements]:
+                      columns: Sequence[str] | None = None, rows: int = CHUNK_ROWS,
+                      names: Sequence[str] | None = None) -> Iterator[Measurements]:
     """Read a measurement CSV file in pieces of at most `rows` rows, each as it is needed.
 
     Takes the arguments of :func:`read_measurements` and checks the file as
@@ -280,6 +288,8 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
         The measurement columns, as for :func:`read_measurements`.
     rows : int, default CHUNK_ROWS
         The most rows per piece (positive).
+    names : sequence of str, optional
+        The model's measurement names, as for :func:`read_measurements`.
 
     Yields
     ------
@@ -307,15 +317,15 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
             header = [name.strip() for name in next(reader, [])]
             _check_header(path, header)
             time_col = _time_column(path, header, time_column)
-            wanted = _measurement_columns(path, header, time_col, columns)
-            names = [header[time_col]] + [header[i] for i in wanted]
-            if m is not None and len(names) - 1 != m:
+            wanted = _measurement_columns(path, header, time_col, columns, names)
+            labels = [header[time_col]] + [header[i] for i in wanted]
+            if m is not None and len(labels) - 1 != m:
                 raise InputFileError(
                     path,
-                    f"found {len(names) - 1} measurement column(s) {names[1:]} besides `{names[0]}`, "
+                    f"found {len(labels) - 1} measurement column(s) {labels[1:]} besides `{labels[0]}`, "
                     f"but the model measures m = {m} component(s).",
                 )
-            parser = _Rows(path, header, time_col, wanted, names)
+            parser = _Rows(path, header, time_col, wanted, labels)
             cells: list[list[str]] = []
             lines: list[int] = []
             done = reader.line_num
@@ -499,8 +509,9 @@ def _time_column(path, header: list[str], name: str | None = None) -> int:
     return found[0]
 
 
-def _measurement_columns(path, header: list[str], time_col: int, columns) -> list[int]:
-    """Indices of the measurement columns: those named in `columns`, in order, or every one but the time's."""
+def _measurement_columns(path, header: list[str], time_col: int, columns, named=None) -> list[int]:
+    """Indices of the measurement columns: those named in `columns`, in order, or every one but the time's (in the
+    order of the model's measurement names `named`, where they are those names: see :func:`read_measurements`)."""
     if columns is None:
         if len(header) < 2:
             raise InputFileError(path, f"no measurement columns besides `{header[time_col]}`.")
@@ -512,7 +523,16 @@ def _measurement_columns(path, header: list[str], time_col: int, columns) -> lis
         if unnamed:  # a trailing comma made a column that is always missing, taken as a measurement
             raise InputFileError(path, f"the header's column {unnamed[0]} has no name; found columns {header} (choose "
                                  "the measurement columns with --columns).", line=1)
-        return [i for i in range(len(header)) if i != time_col]
+        others = [i for i in range(len(header)) if i != time_col]
+        given = [header[i] for i in others]
+        if named is None or len(given) != len(named) or given == list(named) or not set(given) & set(named):
+            return others  # (a count other than the model's is named by the caller)
+        if sorted(given) != sorted(named):  # (taken by position, x and y could swap silently: audit EE2)
+            missing, other = [n for n in named if n not in given], [g for g in given if g not in named]
+            raise InputFileError(path, f"the measurement columns {given} name some of the model's measurements "
+                                 f"{list(named)}, without {missing}, and {other} besides: name them as the model "
+                                 "does, in any order, or choose the columns with --columns.", line=1)
+        return [others[given.index(name)] for name in named]
     out = []
     for name in columns:
         found = [i for i, h in enumerate(header) if h == name]

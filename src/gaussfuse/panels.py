@@ -116,11 +116,14 @@ def _header(path: str) -> list[str]:
 
 
 def read_partition(path: str, series_column: str, m: int, time_column: str | None = None,
-                   columns: list[str] | None = None) -> Partition:
+                   columns: list[str] | None = None, names: list[str] | None = None) -> Partition:
     """Read one partition of a long-format table (see the module notes).
 
     A partition of a header only (as a dataset's writer may leave) has no
-    series; its columns are checked all the same.
+    series; its columns are checked all the same. With `names`, a named
+    model's measurement names, measurement columns that are those names in
+    another order are read in the model's order, as in
+    :func:`gaussfuse.io.read_measurements`.
 
     Raises
     ------
@@ -163,7 +166,7 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
                                    f"and the measurements; found columns {header}.")
     try:
         at = _time_column(path, rest, time_column)
-        wanted = [rest[i] for i in _measurement_columns(path, rest, at, columns)]
+        wanted = [rest[i] for i in _measurement_columns(path, rest, at, columns, names)]
     except InputFileError as exc:
         if time_column is None and series_column.lower() in TIME_COLUMNS:
             raise InputFileError(path, f"the series-id column `{series_column}` is named like a time column; name "
@@ -356,9 +359,10 @@ def _plain_stamps(texts) -> list[int] | None:
 
 
 def partition_arrays(path: str, series_column: str, m: int, time_column: str | None = None,
-                     columns: list[str] | None = None, steps: int | None = None) -> np.ndarray:
+                     columns: list[str] | None = None, steps: int | None = None,
+                     names: list[str] | None = None) -> np.ndarray:
     """A partition's series as one array (N, steps, m), each padded at its end with missing (NaN) steps."""
-    return _padded(read_partition(path, series_column, m, time_column, columns), m, steps)
+    return _padded(read_partition(path, series_column, m, time_column, columns, names), m, steps)
 
 
 def _padded(part: Partition, m: int, steps: int | None = None, rows=None) -> np.ndarray:
@@ -373,10 +377,10 @@ def _padded(part: Partition, m: int, steps: int | None = None, rows=None) -> np.
 
 
 def partition_shape(path: str, series_column: str, m: int, time_column: str | None = None,
-                    columns: list[str] | None = None) -> tuple[list, int, Steps | None]:
+                    columns: list[str] | None = None, names: list[str] | None = None) -> tuple[list, int, Steps | None]:
     """A partition's series ids, its longest series' length (0 without a series), and the range of its series'
     steps (:func:`step_range`)."""
-    part = read_partition(path, series_column, m, time_column, columns)
+    part = read_partition(path, series_column, m, time_column, columns, names)
     return part.ids, max((len(t) for t in part.times), default=0), step_range(part.times)
 
 
@@ -442,7 +446,8 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         (:func:`gaussfuse.diagnostics.divergence`), to show where the
         command runs; with ``check="raise"`` the first is raised instead.
     """
-    part = read_partition(path, series_column, spec.model.m, time_column, columns)
+    sensed = None if spec.timed is None else list(spec.timed.sensor.names)  # (columns matched by them: io)
+    part = read_partition(path, series_column, spec.model.m, time_column, columns, sensed)
     try:  # refused before the work, if ambiguous
         estimate_columns(part.frame.columns[1], spec.state_names, part.frame.columns[0])
     except ValueError as exc:
