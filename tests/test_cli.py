@@ -575,7 +575,11 @@ def test_demo_checks_its_options_before_printing(tmp_path, capsys):
     "expected non-negative integer" and "File exists"."""
     (tmp_path / "afile").write_text("")
     for argv, match in ((["--seed", "-1", "--out", tmp_path / "d"], r"--seed must be a non-negative integer; got -1\."),
-                        (["--out", tmp_path / "afile"], r"--out .*afile is a file; it must be a directory")):
+                        (["--out", tmp_path / "afile"], r"--out .*afile is a file; it must be a directory"),
+                        # (a folder that cannot take a file printed the tables, then failed: audit EE2; /proc is
+                        # read-only even to root)
+                        (["--out", "/proc/gaussfuse-demo"], r"/proc/gaussfuse-demo: cannot write in `--out`"),
+                        (["--out", tmp_path / "afile" / "d"], r"Not a directory \(on the way to `--out`\)")):
         code, stdout, err = run(capsys, "demo", *argv)
         assert code == 2 and stdout == ""
         assert_one_line_error(err, match)

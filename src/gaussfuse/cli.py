@@ -218,6 +218,12 @@ def _run_demo(args: argparse.Namespace) -> int:
         raise ValueError(f"--seed must be a non-negative integer; got {args.seed}.")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out} is a file; it must be a directory (created if missing).")
+    existing = os.path.abspath(args.out)  # the folder its figures go in, or the one it is made in: before printing
+    while not os.path.exists(existing):  # (a read-only one printed the tables, then failed: audit EE2)
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise NotADirectoryError(errno.ENOTDIR, f"{os.strerror(errno.ENOTDIR)} (on the way to `--out`)", existing)
+    _takes_a_file(existing, "`--out`", args.out)
     zs, res = textbook_example()
     print("1-D textbook example: x0 = [0, 1], P0 = 500 I, F = [[1, 1], [0, 1]], H = [1, 0],")
     print("Q = diag(1, 3), R = 10")
@@ -629,17 +635,22 @@ def _check_paths(args: argparse.Namespace, outputs: dict[str, str | None]) -> No
         if not made and not os.path.isdir(folder):
             raise FileNotFoundError(errno.ENOENT, f"{os.strerror(errno.ENOENT)} (the folder of `{option}`)", path)
         special = os.path.exists(path) and not os.path.isfile(path)  # /dev/null, a FIFO: written in place
-        if os.path.isdir(folder) and not special:
-            try:  # a file is written beside its name, then renamed: the folder must take a new file
-                tempfile.TemporaryFile(dir=folder).close()
-            except OSError as exc:
-                raise type(exc)(exc.errno, f"cannot write in the folder of `{option}` ({exc.strerror})", path) from None
+        if os.path.isdir(folder) and not special:  # a file is written beside its name, then renamed
+            _takes_a_file(folder, f"the folder of `{option}`", path)
         for what, other in earlier:
             if _same_file(path, other):
                 raise ValueError(f"`{option}` {path} is the same file as {what} {other}; choose another path.")
         earlier.append((f"`{option}`", path))
         if option == "--plot":
             plotting.image_format(path)  # a format matplotlib cannot write: said now, not after the work
+
+
+def _takes_a_file(folder: str, what: str, path) -> None:
+    """Raise, naming `what` and `path`, the OSError of making a new file in `folder` (read-only, say)."""
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as exc:
+        raise type(exc)(exc.errno, f"cannot write in {what} ({exc.strerror})", path) from None
 
 
 def _same_file(a: str, b: str) -> bool:
