@@ -1727,3 +1727,14 @@ def test_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys):
     assert code == 2 and stdout == ""
     assert_one_line_error(err, r"yz\.csv: line 1: the measurement columns \['y', 'z'\] name some of the model's "
                                r"measurements \['x', 'y'\], without \['x'\], and \['z'\] besides: .* --columns\.$")
+
+
+def test_out_dash_is_standard_output(tmp_path, capsys, monkeypatch):
+    """`--out -` wrote a file named "-" and printed nothing (audit EE2); "-" is standard output, as everywhere."""
+    monkeypatch.chdir(tmp_path)
+    data, model = EXAMPLES / "data" / "nile.csv", EXAMPLES / "models" / "local_level.toml"
+    code, stdout, err = run(capsys, "filter", data, "--model", model, "--out", "-")
+    assert (code, err) == (0, "") and stdout == run(capsys, "filter", data, "--model", model)[1]
+    code, stdout, _ = run(capsys, "fit", data, "--model", model, "-o", "-", "--iterations", "3", "--tol", "0")
+    assert code == 0 and "[model]" in stdout
+    assert not (tmp_path / "-").exists()

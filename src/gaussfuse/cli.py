@@ -851,6 +851,11 @@ def _given(text: str) -> str:
     return text
 
 
+def _output(text: str) -> str | None:
+    """An output file's option: None (standard output) for ``-``, which wrote a file named "-" (audit EE2)."""
+    return None if _given(text) == "-" else text
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse's parser, whose usage errors are one line like the command's other errors (exit status 2)."""
 
@@ -913,8 +918,8 @@ def build_parser() -> argparse.ArgumentParser:
     filt.add_argument("-m", "--model", metavar="MODEL.toml", type=_given, required=True, help="the model and prior")
     filt.add_argument("--smooth", action="store_true",
                       help="write smoothed estimates (RTS smoother) instead of filtered ones")
-    filt.add_argument("-o", "--out", metavar="OUT.csv", type=_given,
-                      help="write the estimates to this file (default: standard output); "
+    filt.add_argument("-o", "--out", metavar="OUT.csv", type=_output,
+                      help="write the estimates to this file (default, or -: standard output); "
                            "not DATA.csv, MODEL.toml or FIG.png")
     filt.add_argument("--plot", metavar="FIG.png", type=_given,
                       help="also draw measurements against the estimates with ±2σ bands, and for two "
@@ -961,8 +966,8 @@ def build_parser() -> argparse.ArgumentParser:
     _column_options(fit)
     _many_options(fit, "fit one model to every series of a long-format table (CSV or Parquet file, or a "
                        "directory of them), pooled")
-    fit.add_argument("-o", "--out", metavar="FITTED.toml", type=_given,
-                     help="write the fitted model to this file (default: standard output); "
+    fit.add_argument("-o", "--out", metavar="FITTED.toml", type=_output,
+                     help="write the fitted model to this file (default, or -: standard output); "
                           "not DATA.csv or MODEL.toml")
     _engine_option(fit)
     fit.set_defaults(run=_run_fit, parser=fit)
