@@ -1295,3 +1295,16 @@ def test_an_interior_variance_beside_a_level_far_from_zero_keeps_its_standard_er
     near = gf.fit(start, "diffuse", walk, method="mle")
     assert far.converged and np.isfinite(far.bse["Q"])
     assert far.bse["Q"] == pytest.approx(near.bse["Q"], rel=1e-3)
+
+
+def test_a_summary_of_a_log_likelihood_near_the_float_limit_is_one_short_line():
+    """Six decimals of -5e307 were 315 characters in the summary, the CLI's status line and a fitted model's
+    comments (audit EE2); from 1e12 on the numbers are in scientific notation."""
+    from gaussfuse.errors import fixed_text
+    assert fixed_text(-633.46456381, 4) == "-633.4646" and fixed_text(-5e307, 4) == "-5.000000e+307"
+    assert fixed_text(float("inf"), 2) == "inf" and fixed_text(float("nan"), 2) == "nan"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = gf.fit(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian([1e308], [[1e308]]), [1.0, 2.0, 3.0])
+    line = res.summary().splitlines()[1]
+    assert line.startswith("log-likelihood -5.000000e+307   AIC 1.000000e+308   BIC 1.000000e+308"), line

@@ -32,7 +32,7 @@ import numpy as np
 
 from . import __version__, inference, learning, panels, plotting
 from . import io as gfio
-from .errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, spooled
+from .errors import STEP_ERRORS, ConvergenceWarning, DivergenceWarning, fixed_text, spooled
 from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference import streaming, timing
@@ -704,7 +704,7 @@ class _Progress:
         width = 30
         done = min(width, round(width * iteration / max(self.total, 1)))
         self.stream.write(f"\r{self.method} [{'#' * done}{'.' * (width - done)}] "
-                          f"{iteration}/{self.total}  loglik {loglik:.6f}")
+                          f"{iteration}/{self.total}  loglik {fixed_text(loglik, 6)}")
         self.stream.flush()
 
     def close(self) -> None:
@@ -829,7 +829,7 @@ def _fit_and_write(args: argparse.Namespace, spec: gfio.ModelFile, learn: list[s
         text = StringIO()
         gfio.write_model(text, res.model, res.prior, spec.state_names, comments)
         _StandardOutput().write(text.getvalue().encode("utf-8"))
-    print(f"{args.method}: {_options(res.message).rstrip('.')}; log-likelihood {res.loglik:.6f} after "
+    print(f"{args.method}: {_options(res.message).rstrip('.')}; log-likelihood {fixed_text(res.loglik, 6)} after "
           f"{len(res.history) - 1} iterations" + (f"; wrote {args.out}" if args.out else ""), file=sys.stderr)
     if res.message.startswith("interrupted"):
         return 130

@@ -113,7 +113,7 @@ import numpy as np
 from ._frozen import reduce_frozen, shapes_repr
 from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize, unit_diagonal
 from ._validation import as_vector, integer, real
-from .errors import ConvergenceWarning, ModelFunctionError
+from .errors import ConvergenceWarning, ModelFunctionError, fixed_text
 from .gaussian import Gaussian
 from .inference.diffuse import NotIdentified, augmented_runs, diffuse_moments, not_identified
 from .inference.results import first
@@ -257,7 +257,8 @@ class FitResult:
         k = self._diffuse_states
         after = f" (with {k} diffuse state{'s' * (k > 1)})" if k else ""
         lines = [f"gaussfuse fit: {how}, {state}",
-                 f"log-likelihood {self.loglik:.4f}   AIC {self.aic:.4f}   BIC {self.bic:.4f}   "
+                 f"log-likelihood {fixed_text(self.loglik, 4)}   AIC {fixed_text(self.aic, 4)}   "
+                 f"BIC {fixed_text(self.bic, 4)}   "
                  f"observations {self.nobs}{after}",
                  f"{'parameter':<14} {'estimate':>11} {'std err':>12} {'[0.025':>12} {'0.975]':>13}"]
         for name, value in self.params.items():
