@@ -574,12 +574,15 @@ def test_demo_checks_its_options_before_printing(tmp_path, capsys):
     """--seed -1 and an --out that is a file were found after the tables were printed, as NumPy's
     "expected non-negative integer" and "File exists"."""
     (tmp_path / "afile").write_text("")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
     for argv, match in ((["--seed", "-1", "--out", tmp_path / "d"], r"--seed must be a non-negative integer; got -1\."),
                         (["--out", tmp_path / "afile"], r"--out .*afile is a file; it must be a directory"),
                         # (a folder that cannot take a file printed the tables, then failed: audit EE2; /proc is
                         # read-only even to root)
                         (["--out", "/proc/gaussfuse-demo"], r"/proc/gaussfuse-demo: cannot write in `--out`"),
-                        (["--out", tmp_path / "afile" / "d"], r"Not a directory \(on the way to `--out`\)")):
+                        (["--out", tmp_path / "afile" / "d"], r"Not a directory \(on the way to `--out`\)"),
+                        # (a dangling link: the tables were printed, then "File exists": review R36)
+                        (["--out", tmp_path / "dangling" / "d"], r"Not a directory \(on the way to `--out`\)")):
         code, stdout, err = run(capsys, "demo", *argv)
         assert code == 2 and stdout == ""
         assert_one_line_error(err, match)
@@ -1722,6 +1725,17 @@ def test_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys):
         assert code == 0, err
         fits.append([line for line in out.read_text().splitlines() if not line.startswith("#")])
     assert fits[0] == fits[1]
+    # states relabelled y, x: the file's columns are matched in the model's names, which the estimates are
+    # written under (they were matched in the sensor's own x, y, and swapped: review R36)
+    relabelled = tmp_path / "relabelled.toml"
+    relabelled.write_text(XY_TOML.replace("[prior]", 'states = ["y", "x", "vy", "vx"]\n\n[prior]'))
+    code, stdout, err = run(capsys, "filter", tmp_path / "yx.csv", "--model", relabelled)
+    assert code == 0, err
+    header, values = read_csv(stdout)
+    assert header[:3] == ["t", "y", "x"]
+    swapped = gf.filter(timed, gf.Gaussian([0.0, 0.0, 1.0, 0.5], 4.0 * np.eye(4)),
+                        np.array([(y, x) for _, x, y in rows]), times=times)  # the y column is the first state
+    np.testing.assert_allclose(values[:, 1:5], swapped.means, rtol=1e-12, atol=1e-12)
     (tmp_path / "yz.csv").write_text("t,y,z\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
     code, stdout, err = run(capsys, "filter", tmp_path / "yz.csv", "--model", toml)
     assert code == 2 and stdout == ""

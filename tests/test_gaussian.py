@@ -212,6 +212,14 @@ def test_sample_of_a_covariance_accepted_to_the_round_off_of_its_largest_entry()
     s = np.sqrt(np.diag(C))
     assert np.isfinite(x).all()
     np.testing.assert_allclose(np.cov(x.T) / np.outer(s, s), C / np.outer(s, s), atol=0.05)
+    # the covariance's own eigendecomposition, exact only to its largest entry, drew this one's second component
+    # with 1950 times its variance (review R36); that of its correlation matrix keeps each component's
+    C = np.array([[9.99999999459451e+17, 93780492.3087803, 1.85843496432943e+16, -7.052108423294346e+17],
+                  [93780492.3087803, 0.06098707194384359, 10363269.855348399, 27085298.330837682],
+                  [1.85843496432943e+16, 10363269.855348399, 2756679276613026.5, -1309713022773643.0],
+                  [-7.052108423294346e+17, 27085298.330837682, -1309713022773643.0, 6.76951792715343e+17]])
+    x = gf.Gaussian(np.zeros(4), C).sample(20_000, rng=1)
+    np.testing.assert_allclose(x.var(axis=0) / np.diag(C), 1.0, atol=0.05)
 
 
 def test_sample_of_a_positive_definite_gaussian_is_numpy_s_cholesky_draw():

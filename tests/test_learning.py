@@ -1221,6 +1221,24 @@ def test_maximum_likelihood_of_a_known_start_sized_by_what_sees_it(q, gains, sca
     np.testing.assert_allclose(fit.prior.mean, want, rtol=0, atol=1e-6 * se.max())
 
 
+@pytest.mark.parametrize("scale", [1e12, 1e100])
+def test_maximum_likelihood_of_a_known_start_when_the_first_step_measures_nothing(scale):
+    """The sizes took the first step's H, which measured nothing (the sensor reports from the second step on):
+    every component was sized 1, and m0 stayed at its start for data of 1e12, said converged (review R36).
+    Oracle: F = 1, Q = 0, H_k = 1 from k = 1: the maximum is the mean of the measurements."""
+    T = 30
+    H = np.ones((T, 1, 1))
+    H[0] = 0.0
+    z = (3.0 + np.random.default_rng(5).standard_normal(T)) * scale
+    z[0] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=np.eye(1), H=H, Q=np.zeros((1, 1)), R=np.eye(1) * scale**2),
+                     gf.Gaussian([0.0], [[0.0]]), z[:, None], learn=["m0"], method="mle")
+    assert fit.converged
+    assert fit.prior.mean[0] == pytest.approx(np.nanmean(z), rel=1e-9)
+
+
 def test_standard_errors_of_controls_and_data_in_far_apart_units():
     """The observed information was formed in θ, where B's entry for controls of 1e150 and data of 1e-10 is
     u²/Q = 1e320: inf, and the standard errors raised LinAlgError ("Eigenvalues did not converge"); those of

@@ -37,6 +37,7 @@ from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference import streaming, timing
 from .inference.drivers import ENGINES
+from .inference.frames import measurement_names
 from .models import LinearModel, constant_velocity
 
 __all__ = ["main", "build_parser", "textbook_example", "tracking_demo", "TrackingDemo"]
@@ -219,7 +220,8 @@ def _run_demo(args: argparse.Namespace) -> int:
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out} is a file; it must be a directory (created if missing).")
     existing = os.path.abspath(args.out)  # the folder its figures go in, or the one it is made in: before printing
-    while not os.path.exists(existing):  # (a read-only one printed the tables, then failed: audit EE2)
+    while not os.path.lexists(existing):  # (a read-only one printed the tables, then failed: audit EE2; a
+        # dangling link is a name the folder cannot be made under: review R36)
         existing = os.path.dirname(existing)
     if not os.path.isdir(existing):
         raise NotADirectoryError(errno.ENOTDIR, f"{os.strerror(errno.ENOTDIR)} (on the way to `--out`)", existing)
@@ -981,8 +983,8 @@ def _column_options(command: argparse.ArgumentParser) -> None:
 
 
 def _sensed(spec: gfio.ModelFile) -> list[str] | None:
-    """A named model's measurement names (its sensor's), by which a file's columns are matched; None for matrices."""
-    return None if spec.timed is None else list(spec.timed.sensor.names)
+    """A named model's measurement names, by which a file's columns are matched; None for matrices."""
+    return None if spec.timed is None else list(measurement_names(spec.timed))
 
 
 def _columns(args: argparse.Namespace) -> list[str] | None:

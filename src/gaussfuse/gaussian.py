@@ -149,8 +149,8 @@ class Gaussian:
         A Aᵀ of 2 to 6 components, 9%, the largest 5e-9 of the scale, where
         NumPy's draws were in 90%. A covariance accepted to the round-off of
         its largest entry that the factor refuses on its components' own
-        scales is drawn from its eigendecomposition, negative eigenvalues
-        taken as 0.)
+        scales is drawn from its correlation matrix's eigendecomposition,
+        negative eigenvalues taken as 0.)
 
         Parameters
         ----------
@@ -183,8 +183,12 @@ class Gaussian:
         try:
             L = kalman.cov_factor(self.cov)
         except np.linalg.LinAlgError:  # accepted to round-off of its largest entry, refused on its components' own
-            vals, vecs = np.linalg.eigh(self.cov)  # scales (review R35: 1 in 3000 near-tolerance covariances):
-            L = vecs * np.sqrt(np.clip(vals, 0.0, None))  # its semi-definite part
+            # scales (review R35: 1 in 3000 near-tolerance covariances): its semi-definite part, on the components'
+            # scales (one of the covariance itself is exact only to its largest entry: 1950 times a small variance)
+            d = np.sqrt(np.clip(np.diagonal(self.cov), 0.0, None))
+            safe = np.where(d > 0, d, 1.0)
+            vals, vecs = np.linalg.eigh(self.cov / np.outer(safe, safe))
+            L = np.where(d > 0, d, 0.0)[:, None] * (vecs * np.sqrt(np.clip(vals, 0.0, None)))
         return self.mean + rng.standard_normal(self.dim if size is None else (size, self.dim)) @ L.T
 
 

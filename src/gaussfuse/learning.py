@@ -794,21 +794,27 @@ def _current(model: LinearModel, prior, name: str) -> np.ndarray:
 
 def _resolved_sizes(model: LinearModel) -> np.ndarray:
     r"""Each state component's size as n noise-free steps from a known start resolve it: 1 / √ of the diagonal of
-    their information about it, :math:`\sum_{k=1}^{n} (H F^k)^\top R^{-1} (H F^k)` (the first step's matrices;
-    measurements with R_ii = 0 left out), in the data's units; the largest of the others' for a component they
+    their information about it, :math:`\sum_{k=1}^{n} (H_k \Phi_k)^\top R_k^{-1} (H_k \Phi_k)`,
+    :math:`\Phi_k = F_k \cdots F_1` (each step's matrices, and more steps of a time-varying model until each
+    component is resolved; measurements with R_ii = 0 left out), in the data's units; the largest of the others' for a component they
     do not resolve, and 1 if they resolve none. A velocity that H = [1, 0] does not see is resolved through F;
     a unit of 1 left m0 at its start for data of 1e8, said converged, and a sensor's own noise over a gain of
     1e-10 (1e10) kept the search from meeting `tol` at the maximum (audit EE1, review R35)."""
     n, m = model.n, model.m
-    F, H = model.F.reshape(-1, n, n)[0], model.H.reshape(-1, m, n)[0]
-    r = np.diagonal(model.R.reshape(-1, m, m)[0]).copy()
-    seen = r > 0
+    Fs, Hs = model.F.reshape(-1, n, n), model.H.reshape(-1, m, n)
+    Rs = np.diagonal(model.R.reshape(-1, m, m), axis1=-2, axis2=-1)
     info, power = np.zeros(n), np.eye(n)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        for _ in range(n):
+        # each step's own matrices: n steps, or for a time-varying model on until every component is resolved
+        # (a first step that measures nothing sized them all 1, whatever the data's units: review R36)
+        for k in range(max(n, len(Fs), len(Hs), len(Rs))):
+            F, H, r = Fs[min(k, len(Fs) - 1)], Hs[min(k, len(Hs) - 1)], Rs[min(k, len(Rs) - 1)]
+            seen = r > 0
             power = F @ power
             A = H[seen] @ power
             info += (A * A / r[seen][:, None]).sum(axis=0)
+            if k + 1 >= n and (info > 0).all():
+                break
         size = 1.0 / np.sqrt(info)
     resolved = np.isfinite(size) & (size > 0)
     return np.where(resolved, size, size[resolved].max() if resolved.any() else 1.0)

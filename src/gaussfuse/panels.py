@@ -34,6 +34,7 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
+from .inference.frames import measurement_names
 from .inference.timing import Steps, per_second, round_off, since
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _check_header,
                  _check_separator, _float, _measurement_columns, _parse_time, _time_column, _wrong_cells)
@@ -446,7 +447,7 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         (:func:`gaussfuse.diagnostics.divergence`), to show where the
         command runs; with ``check="raise"`` the first is raised instead.
     """
-    sensed = None if spec.timed is None else list(spec.timed.sensor.names)  # (columns matched by them: io)
+    sensed = None if spec.timed is None else list(measurement_names(spec.timed))  # (columns matched by them: io)
     part = read_partition(path, series_column, spec.model.m, time_column, columns, sensed)
     try:  # refused before the work, if ambiguous
         estimate_columns(part.frame.columns[1], spec.state_names, part.frame.columns[0])

@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 import gaussfuse as gf
+from gaussfuse.inference.frames import measurement_names
 
 
 def _frame():
@@ -286,3 +287,17 @@ def test_names_of_a_timed_models_sensor_and_of_a_batch_reach_the_tables():
     from gaussfuse.inference.results import first
 
     assert list(first(batch, 1).to_pandas().columns[:2]) == ["level", "slope"]
+
+
+def test_a_model_s_relabelled_states_name_its_measurements():
+    """gf.model(..., names=["y", "x", ...]) kept the sensor's own "x", "y" as its measurement names, so a DataFrame
+    in the model's names was taken swapped (review R36): the sensor's names are the states' it measures, renamed."""
+    track = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.25), names=["y", "x", "vy", "vx"])
+    assert measurement_names(track) == ("y", "x")
+    zs = np.array([[0.25, -0.15], [1.2, 1.05], [1.6, 1.4]])
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], 4.0 * np.eye(4))
+    want = gf.filter(track, prior, zs, times=[0.5, 1.0, 1.5]).means
+    frame = pd.DataFrame({"x": zs[:, 1], "y": zs[:, 0]}, index=pd.to_timedelta([0.5, 1.0, 1.5], unit="s"))
+    np.testing.assert_array_equal(gf.filter(track, prior, frame).means, want)
+    plain = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.25))
+    assert measurement_names(plain) == ("x", "y")

@@ -331,3 +331,6 @@ def test_durations_that_the_finest_unit_cannot_hold_are_refused():
     np.testing.assert_array_equal(as_seconds("times", [pd.Timedelta(1, "ns"), np.timedelta64(200 * 365, "D")]),
                                   [0.0, (200 * 365 * 86400 * 10**9 - 1) / 1e9])
     np.testing.assert_array_equal(as_seconds("times", np.array([0, 5], dtype="m8[W]")), [0.0, 5 * 7 * 86400.0])
+    # attoseconds beside seconds: NumPy's conversion factor itself overflowed, its OverflowError let through (R36)
+    with pytest.raises(ValueError, match=re.escape("`times[1]` holds 10 seconds, which timedelta64[as]")):
+        as_seconds("times", np.array([np.timedelta64(0, "as"), np.timedelta64(10, "s")], dtype=object))

@@ -42,8 +42,13 @@ class Table:
 
 
 def measurement_names(model) -> tuple[str, ...] | None:
-    """A model's measurement names, where it has them: a TimedModel's sensor's."""
-    return tuple(model.sensor.names) if isinstance(model, TimedModel) else None
+    """A model's measurement names, where it has them: a TimedModel's sensor's, each that names one of the
+    motion's states under the name the model gives that state (``gf.model(..., names=[...])``: states relabelled
+    ["y", "x", ...] kept the sensor's "x", "y", so a DataFrame in the model's names was read swapped; review R36)."""
+    if not isinstance(model, TimedModel):
+        return None
+    own = tuple(model.motion.names)
+    return tuple(model.names[own.index(name)] if name in own else name for name in model.sensor.names)
 
 
 def _is_pandas(value) -> bool:
