@@ -582,7 +582,9 @@ def test_demo_checks_its_options_before_printing(tmp_path, capsys):
                         (["--out", "/proc/gaussfuse-demo"], r"/proc/gaussfuse-demo: cannot write in `--out`"),
                         (["--out", tmp_path / "afile" / "d"], r"Not a directory \(on the way to `--out`\)"),
                         # (a dangling link: the tables were printed, then "File exists": review R36)
-                        (["--out", tmp_path / "dangling" / "d"], r"Not a directory \(on the way to `--out`\)")):
+                        (["--out", tmp_path / "dangling" / "d"], r"Not a directory \(on the way to `--out`\)"),
+                        # (through "dangling/..", which abspath took as tmp_path itself: review R37)
+                        (["--out", f"{tmp_path}/dangling/../d"], r"Not a directory \(on the way to `--out`\)")):
         code, stdout, err = run(capsys, "demo", *argv)
         assert code == 2 and stdout == ""
         assert_one_line_error(err, match)

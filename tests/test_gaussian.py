@@ -220,6 +220,11 @@ def test_sample_of_a_covariance_accepted_to_the_round_off_of_its_largest_entry()
                   [-7.052108423294346e+17, 27085298.330837682, -1309713022773643.0, 6.76951792715343e+17]])
     x = gf.Gaussian(np.zeros(4), C).sample(20_000, rng=1)
     np.testing.assert_allclose(x.var(axis=0) / np.diag(C), 1.0, atol=0.05)
+    # a zero variance's covariances, accepted to the largest entry's round-off, divided by 1 drew its neighbour
+    # with 5e4 times its variance (review R37): its row and column are 0
+    x = gf.Gaussian(np.zeros(3), [[1e40, 0, 0], [0, 1.0, 1e5], [0, 1e5, 0.0]]).sample(20_000, rng=1)
+    np.testing.assert_allclose(x.var(axis=0)[:2] / [1e40, 1.0], 1.0, atol=0.05)
+    assert np.all(x[:, 2] == 0.0)
 
 
 def test_sample_of_a_positive_definite_gaussian_is_numpy_s_cholesky_draw():

@@ -1239,6 +1239,26 @@ def test_maximum_likelihood_of_a_known_start_when_the_first_step_measures_nothin
     assert fit.prior.mean[0] == pytest.approx(np.nanmean(z), rel=1e-9)
 
 
+def test_sizes_of_a_time_varying_model_are_those_of_its_steps():
+    """Review R37: a component no sensor sees walked all T steps (1 s at T = 1e5, four times a fit) and was sized
+    by T steps, 5.5e-8 where the same model without time variation gives 0.27; an explosive F overflowed the
+    information and every size fell back to the largest. n steps from the first that measures something."""
+    F = np.array([[1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    H, R = np.array([[1.0, 0.0, 0.0]]), np.eye(1)
+    T = 1000
+    fixed = learning._resolved_sizes(gf.LinearModel(F=F, H=H, Q=np.zeros((3, 3)), R=R))
+    varying = learning._resolved_sizes(gf.LinearModel(F=np.tile(F, (T, 1, 1)), H=np.tile(H, (T, 1, 1)),
+                                                      Q=np.zeros((3, 3)), R=R))
+    np.testing.assert_array_equal(varying, fixed)
+    explosive = np.diag([1.5, 1.0, 1.0])
+    H2 = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    fixed = learning._resolved_sizes(gf.LinearModel(F=explosive, H=H2, Q=np.zeros((3, 3)), R=np.eye(2)))
+    varying = learning._resolved_sizes(gf.LinearModel(F=np.tile(explosive, (T, 1, 1)), H=np.tile(H2, (T, 1, 1)),
+                                                      Q=np.zeros((3, 3)), R=np.eye(2)))
+    np.testing.assert_array_equal(varying, fixed)
+    assert varying[0] < varying[1]  # the explosive component resolved, not the largest size
+
+
 def test_standard_errors_of_controls_and_data_in_far_apart_units():
     """The observed information was formed in θ, where B's entry for controls of 1e150 and data of 1e-10 is
     u²/Q = 1e320: inf, and the standard errors raised LinAlgError ("Eigenvalues did not converge"); those of

@@ -53,9 +53,9 @@ by --time-column, strictly increasing: seconds, or ISO-8601 times such as
 each becomes seconds since the file's first time, rounded once: a step is
 exact to about 1e-16 of that time, 4 ns a year in); every other column (or
 those named by --columns), in order, is one measurement component (as many
-as the model's m); for a named model, columns named as its sensor's
-measurements (x, y) are taken by name, in any order. An empty cell or NaN is
-a missing component.
+as the model's m); for a named model, columns named as the states it
+measures (x, y, or its `states` names for them) are taken by name, in any
+order. An empty cell or NaN is a missing component.
 
 MODEL.toml: explicit matrices
     [model]
@@ -219,13 +219,15 @@ def _run_demo(args: argparse.Namespace) -> int:
         raise ValueError(f"--seed must be a non-negative integer; got {args.seed}.")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out} is a file; it must be a directory (created if missing).")
-    existing = os.path.abspath(args.out)  # the folder its figures go in, or the one it is made in: before printing
+    # the folder its figures go in, or the one it is made in: before printing. Not normalised (abspath takes
+    # "link/.." as the working folder, where the OS takes the link's target's parent, or fails on a dangling one)
+    existing = os.path.join(os.getcwd(), args.out)
     while not os.path.lexists(existing):  # (a read-only one printed the tables, then failed: audit EE2; a
         # dangling link is a name the folder cannot be made under: review R36)
         existing = os.path.dirname(existing)
     if not os.path.isdir(existing):
         raise NotADirectoryError(errno.ENOTDIR, f"{os.strerror(errno.ENOTDIR)} (on the way to `--out`)", existing)
-    _takes_a_file(existing, "`--out`", args.out)
+    _takes_a_file(os.path.realpath(existing), "`--out`", args.out)  # (tempfile normalises "link/.." lexically)
     zs, res = textbook_example()
     print("1-D textbook example: x0 = [0, 1], P0 = 500 I, F = [[1, 1], [0, 1]], H = [1, 0],")
     print("Q = diag(1, 3), R = 10")

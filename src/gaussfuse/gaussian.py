@@ -186,8 +186,9 @@ class Gaussian:
             # scales (review R35: 1 in 3000 near-tolerance covariances): its semi-definite part, on the components'
             # scales (one of the covariance itself is exact only to its largest entry: 1950 times a small variance)
             d = np.sqrt(np.clip(np.diagonal(self.cov), 0.0, None))
-            safe = np.where(d > 0, d, 1.0)
-            vals, vecs = np.linalg.eigh(self.cov / np.outer(safe, safe))
+            safe = np.where(d > 0, d, np.inf)  # a zero (or negative round-off) variance's row and column are 0:
+            scaled = self.cov / safe[:, None] / safe[None, :]  # its covariances, accepted to the largest entry's
+            vals, vecs = np.linalg.eigh(scaled)  # round-off, divided by 1 spread its neighbours' draws
             L = np.where(d > 0, d, 0.0)[:, None] * (vecs * np.sqrt(np.clip(vals, 0.0, None)))
         return self.mean + rng.standard_normal(self.dim if size is None else (size, self.dim)) @ L.T
 

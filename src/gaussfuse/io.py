@@ -227,7 +227,8 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         The measurement columns, in this order (default: every other one,
         each of which must have a name); the others are not read.
     names : sequence of str, optional
-        The model's measurement names (a named model's sensor's), for the
+        The model's measurement names (a named model's: the names of the
+        states its sensor reads), for the
         default `columns`: a file whose measurement columns are these names
         in another order is read in the model's order, as
         :func:`gaussfuse.filter` takes such a DataFrame; one that names some

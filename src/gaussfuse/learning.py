@@ -803,7 +803,7 @@ def _resolved_sizes(model: LinearModel) -> np.ndarray:
     n, m = model.n, model.m
     Fs, Hs = model.F.reshape(-1, n, n), model.H.reshape(-1, m, n)
     Rs = np.diagonal(model.R.reshape(-1, m, m), axis1=-2, axis2=-1)
-    info, power = np.zeros(n), np.eye(n)
+    info, power, first = np.zeros(n), np.eye(n), None
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         # each step's own matrices: n steps, or for a time-varying model on until every component is resolved
         # (a first step that measures nothing sized them all 1, whatever the data's units: review R36)
@@ -811,9 +811,14 @@ def _resolved_sizes(model: LinearModel) -> np.ndarray:
             F, H, r = Fs[min(k, len(Fs) - 1)], Hs[min(k, len(Hs) - 1)], Rs[min(k, len(Rs) - 1)]
             seen = r > 0
             power = F @ power
+            if not np.isfinite(power).all():  # (an explosive F over many steps: inf and nan, not information)
+                break
             A = H[seen] @ power
             info += (A * A / r[seen][:, None]).sum(axis=0)
-            if k + 1 >= n and (info > 0).all():
+            first = k if first is None and (info > 0).any() else first
+            # n steps from the first that measures something (a component they do not resolve, none later would
+            # in the first step's terms: walking all T steps cost 1 s at T = 1e5 and sized by T, not n, steps)
+            if k + 1 >= n and ((info > 0).all() or (first is not None and k + 1 - first >= n)):
                 break
         size = 1.0 / np.sqrt(info)
     resolved = np.isfinite(size) & (size > 0)

@@ -301,3 +301,19 @@ def test_a_model_s_relabelled_states_name_its_measurements():
     np.testing.assert_array_equal(gf.filter(track, prior, frame).means, want)
     plain = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.25))
     assert measurement_names(plain) == ("x", "y")
+
+
+def test_relabelled_names_that_would_name_two_measurements_alike_keep_the_sensor_s():
+    """A sensor reading x and its own "speed", states relabelled ["speed", "v"]: the measurement names came out
+    ("speed", "speed"), which no DataFrame matches and forecast's frame refused (review R37). They stay the
+    sensor's own; a name is taken from the model only for a measurement that reads that state alone."""
+    sensor = gf.LinearSensor([[1, 0], [0, 1]], np.diag([0.1, 0.2]), names=("x", "speed"))
+    track = gf.model(gf.ConstantVelocity(dim=1, q=0.5), sensor, names=["speed", "v"])
+    assert measurement_names(track) == ("x", "speed")
+    zs = np.random.default_rng(0).normal(size=(5, 2))
+    prior = gf.Gaussian([0.0, 0.0], np.eye(2))
+    result = gf.filter(track, prior, zs, times=np.arange(5.0))
+    frame = pd.DataFrame({"speed": zs[:, 1], "x": zs[:, 0]}, index=pd.to_timedelta(np.arange(5.0), unit="s"))
+    np.testing.assert_array_equal(gf.filter(track, prior, frame).means, result.means)
+    assert list(gf.forecast(track, result, times=[4.0, 5.0]).to_pandas().columns) == ["x", "speed", "x_sd",
+                                                                                    "speed_sd"]

@@ -334,3 +334,6 @@ def test_durations_that_the_finest_unit_cannot_hold_are_refused():
     # attoseconds beside seconds: NumPy's conversion factor itself overflowed, its OverflowError let through (R36)
     with pytest.raises(ValueError, match=re.escape("`times[1]` holds 10 seconds, which timedelta64[as]")):
         as_seconds("times", np.array([np.timedelta64(0, "as"), np.timedelta64(10, "s")], dtype=object))
+    # (converted through milliseconds: 1 s, which attoseconds hold, was refused as 10 s is: review R37)
+    np.testing.assert_array_equal(
+        as_seconds("times", np.array([np.timedelta64(0, "as"), np.timedelta64(1, "s")], dtype=object)), [0.0, 1.0])

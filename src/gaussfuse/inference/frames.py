@@ -5,7 +5,8 @@ or a DataFrame is asked for. A Series or DataFrame as `zs` gives its values
 (``pd.NA`` and NaN are missing), its index (a DatetimeIndex or
 TimedeltaIndex supplies `times` when none are given, except calendar periods
 for a model with fixed matrices: one step a row) and its column names (a
-TimedModel's sensor's, in any order, are taken by name: :func:`unpack`); a
+TimedModel's measurement names, in any order, are taken by name:
+:func:`measurement_names`, :func:`unpack`); a
 pandas `us` must have its index (:func:`controls`);
 :meth:`~gaussfuse.FilterResult.to_pandas` gives the means, standard
 deviations and, on request, covariances, indexed like the input.
@@ -18,7 +19,7 @@ import datetime
 import numpy as np
 
 from .._linalg import marginal_std
-from ..models import TimedModel
+from ..models import LinearSensor, TimedModel
 
 __all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names"]
 
@@ -42,13 +43,25 @@ class Table:
 
 
 def measurement_names(model) -> tuple[str, ...] | None:
-    """A model's measurement names, where it has them: a TimedModel's sensor's, each that names one of the
-    motion's states under the name the model gives that state (``gf.model(..., names=[...])``: states relabelled
-    ["y", "x", ...] kept the sensor's "x", "y", so a DataFrame in the model's names was read swapped; review R36)."""
+    """A model's measurement names, where it has them: a TimedModel's sensor's, each that reads one of the
+    motion's states alone under the name the model gives that state (``gf.model(..., names=[...])``: states
+    relabelled ["y", "x", ...] kept the sensor's "x", "y", so a DataFrame in the model's names was read swapped:
+    review R36); the sensor's own names where that would name two measurements alike (review R37)."""
     if not isinstance(model, TimedModel):
         return None
-    own = tuple(model.motion.names)
-    return tuple(model.names[own.index(name)] if name in own else name for name in model.sensor.names)
+    own, sensed = tuple(model.motion.names), tuple(model.sensor.names)
+    if model.names == own:
+        return sensed
+    H = model.sensor.linear(model.n)[0] if isinstance(model.sensor, LinearSensor) else None
+    out = []
+    for i, name in enumerate(sensed):
+        j = own.index(name) if name in own else None
+        # a measurement takes the model's name of a state only where it reads that state alone (H's row i is a
+        # multiple of e_j): a sensor's "x" of a motion whose "x" is another component is not that state
+        reads = j is not None and (H is None or (np.count_nonzero(H[i]) == 1 and H[i, j] != 0))
+        out.append(model.names[j] if reads else name)
+    # a name twice (a sensor's own "speed" beside its "x" relabelled "speed") matches no column: the sensor's own
+    return tuple(out) if len(set(out)) == len(out) else sensed
 
 
 def _is_pandas(value) -> bool:
@@ -125,8 +138,8 @@ def unpack(zs, times, model):
     one step each, as they are in a statistical model of monthly data; in seconds they are irregular, which such
     a model refuses. A model with fixed matrices takes one row without times (it has no step to check).
 
-    A DataFrame whose columns are the model's measurement names (:func:`measurement_names`: a TimedModel's
-    sensor's) in another order is taken in the model's order; one that names some of them and not others is
+    A DataFrame whose columns are the model's measurement names (:func:`measurement_names`: a TimedModel's, in
+    its state names) in another order is taken in the model's order; one that names some of them and not others is
     refused (its columns were taken by position: x and y swapped, silently, audit DD6). Columns named otherwise,
     and every DataFrame for a LinearModel or NonlinearModel, which name no measurements, are taken by position.
     """

@@ -83,11 +83,17 @@ def within(name: str, values, unit: str):
     """
     values = np.asarray(values)
     kind = "datetime64" if values.dtype.kind == "M" else "timedelta64"
+    def cast(a, dtype):
+        try:
+            return a.astype(dtype)
+        except OverflowError:  # NumPy's conversion factor itself overflows (seconds and attoseconds): through ms
+            return a.astype(f"{kind}[ms]").astype(dtype)  # (reviews R36, R37)
+
     try:
-        out = values.astype(f"{kind}[{unit}]")
-        bad = np.flatnonzero(np.isnat(out).ravel() | (out.astype(values.dtype) != values).ravel())
-    except OverflowError:  # NumPy's conversion factor itself overflows (seconds beside attoseconds: review R36)
-        out, bad = None, np.arange(values.size)
+        out = cast(values, f"{kind}[{unit}]")
+        bad = np.flatnonzero(np.isnat(out).ravel() | (cast(out, values.dtype) != values).ravel())
+    except OverflowError:
+        out, bad = values, np.arange(values.size)
     if bad.size:
         shown = values.ravel()[bad[0]]
         raise ValueError(f"`{name}` holds {shown}, which {kind}[{unit}] (the finest resolution among the times) "
