@@ -584,11 +584,13 @@ def test_demo_checks_its_options_before_printing(tmp_path, capsys):
                         # (a dangling link: the tables were printed, then "File exists": review R36)
                         (["--out", tmp_path / "dangling" / "d"], r"Not a directory \(on the way to `--out`\)"),
                         # (through "dangling/..", which abspath took as tmp_path itself: review R37)
-                        (["--out", f"{tmp_path}/dangling/../d"], r"Not a directory \(on the way to `--out`\)")):
+                        (["--out", f"{tmp_path}/dangling/../d"], r"Not a directory \(on the way to `--out`\)"),
+                        # (a folder to be made, then "..": the OS leaves it for /proc; review R38)
+                        (["--out", f"{tmp_path}/new" + "/.." * 40 + "/proc/gf-demo"], r"cannot write in `--out`")):
         code, stdout, err = run(capsys, "demo", *argv)
         assert code == 2 and stdout == ""
         assert_one_line_error(err, match)
-    assert not (tmp_path / "d").exists()
+    assert not (tmp_path / "d").exists() and not (tmp_path / "new").exists()
 
 
 def test_help_documents_the_non_convergence_status(capsys):

@@ -1257,6 +1257,18 @@ def test_sizes_of_a_time_varying_model_are_those_of_its_steps():
                                                       Q=np.zeros((3, 3)), R=np.eye(2)))
     np.testing.assert_array_equal(varying, fixed)
     assert varying[0] < varying[1]  # the explosive component resolved, not the largest size
+    # a component first measured late counts its own n steps (it was sized by the other's: review R38), and one
+    # measured only after the power of an explosive F has overflowed is still resolved
+    H3 = np.zeros((30, 2, 2))
+    H3[:5, 0, 0], H3[5:, 1, 1] = 1.0, 1.0
+    sizes = learning._resolved_sizes(gf.LinearModel(F=np.eye(2), H=H3, Q=np.zeros((2, 2)),
+                                                    R=np.diag([1e-200, 1e200])))
+    np.testing.assert_allclose(sizes, [1e-100 / np.sqrt(2), 1e100 / np.sqrt(2)], rtol=1e-12)
+    H4 = np.zeros((1900, 1, 2))
+    H4[1800:, 0, 1] = 1.0
+    sizes = learning._resolved_sizes(gf.LinearModel(F=np.diag([1.5, 1.0]), H=H4, Q=np.zeros((2, 2)),
+                                                    R=np.eye(1) * 1e16))
+    assert sizes[1] == pytest.approx(1e8 / np.sqrt(2), rel=1e-12)
 
 
 def test_standard_errors_of_controls_and_data_in_far_apart_units():

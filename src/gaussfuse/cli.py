@@ -227,7 +227,10 @@ def _run_demo(args: argparse.Namespace) -> int:
         existing = os.path.dirname(existing)
     if not os.path.isdir(existing):
         raise NotADirectoryError(errno.ENOTDIR, f"{os.strerror(errno.ENOTDIR)} (on the way to `--out`)", existing)
-    _takes_a_file(os.path.realpath(existing), "`--out`", args.out)  # (tempfile normalises "link/.." lexically)
+    resolved = os.path.realpath(args.out)  # where the OS puts it: "new/../.." leaves the folder made (review R38)
+    while not os.path.exists(resolved):
+        resolved = os.path.dirname(resolved)
+    _takes_a_file(resolved, "`--out`", args.out)
     zs, res = textbook_example()
     print("1-D textbook example: x0 = [0, 1], P0 = 500 I, F = [[1, 1], [0, 1]], H = [1, 0],")
     print("Q = diag(1, 3), R = 10")
@@ -986,7 +989,8 @@ def _column_options(command: argparse.ArgumentParser) -> None:
 
 def _sensed(spec: gfio.ModelFile) -> list[str] | None:
     """A named model's measurement names, by which a file's columns are matched; None for matrices."""
-    return None if spec.timed is None else list(measurement_names(spec.timed))
+    names = measurement_names(spec.timed)  # (None for explicit matrices, whose spec.timed is None)
+    return None if names is None else list(names)
 
 
 def _columns(args: argparse.Namespace) -> list[str] | None:

@@ -794,31 +794,33 @@ def _current(model: LinearModel, prior, name: str) -> np.ndarray:
 
 def _resolved_sizes(model: LinearModel) -> np.ndarray:
     r"""Each state component's size as n noise-free steps from a known start resolve it: 1 / √ of the diagonal of
-    their information about it, :math:`\sum_{k=1}^{n} (H_k \Phi_k)^\top R_k^{-1} (H_k \Phi_k)`,
-    :math:`\Phi_k = F_k \cdots F_1` (each step's matrices, and more steps of a time-varying model until each
-    component is resolved; measurements with R_ii = 0 left out), in the data's units; the largest of the others' for a component they
-    do not resolve, and 1 if they resolve none. A velocity that H = [1, 0] does not see is resolved through F;
-    a unit of 1 left m0 at its start for data of 1e8, said converged, and a sensor's own noise over a gain of
-    1e-10 (1e10) kept the search from meeting `tol` at the maximum (audit EE1, review R35)."""
+    their information about it, :math:`\sum_k (H_k \Phi_k)^\top R_k^{-1} (H_k \Phi_k)`,
+    :math:`\Phi_k = F_k \cdots F_1`, in the data's units (measurements with R_ii = 0 left out). Each component
+    counts the n steps from the first that informs it, through each step's matrices (a time-varying model's
+    walked on until every component has had its n, or its steps end); the largest of the others' sizes for a
+    component none resolves, and 1 if they resolve none. A velocity that H = [1, 0] does not see is resolved
+    through F. A unit of 1 left m0 at its start for data of 1e8, said converged (audit EE1); a sensor's own noise
+    over a gain of 1e-10 (1e10) kept the search from meeting `tol` (review R35); a first step measuring nothing,
+    or a component first measured late, was sized by another's or by 1 (reviews R36, R38); a never-resolved
+    component's walk over all T steps shrank the others' sizes with T (review R37)."""
     n, m = model.n, model.m
     Fs, Hs = model.F.reshape(-1, n, n), model.H.reshape(-1, m, n)
     Rs = np.diagonal(model.R.reshape(-1, m, m), axis1=-2, axis2=-1)
-    info, power, first = np.zeros(n), np.eye(n), None
+    steps = max(len(Fs), len(Hs), len(Rs))
+    info, power, counted = np.zeros(n), np.eye(n), np.zeros(n, dtype=np.int64)  # steps of information counted
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        # each step's own matrices: n steps, or for a time-varying model on until every component is resolved
-        # (a first step that measures nothing sized them all 1, whatever the data's units: review R36)
-        for k in range(max(n, len(Fs), len(Hs), len(Rs))):
+        for k in range(max(n, steps)):
             F, H, r = Fs[min(k, len(Fs) - 1)], Hs[min(k, len(Hs) - 1)], Rs[min(k, len(Rs) - 1)]
             seen = r > 0
             power = F @ power
-            if not np.isfinite(power).all():  # (an explosive F over many steps: inf and nan, not information)
+            if not np.isfinite(power).any():  # (everything overflowed: nothing more to learn)
                 break
             A = H[seen] @ power
-            info += (A * A / r[seen][:, None]).sum(axis=0)
-            first = k if first is None and (info > 0).any() else first
-            # n steps from the first that measures something (a component they do not resolve, none later would
-            # in the first step's terms: walking all T steps cost 1 s at T = 1e5 and sized by T, not n, steps)
-            if k + 1 >= n and ((info > 0).all() or (first is not None and k + 1 - first >= n)):
+            gathering = counted < n
+            terms = (A * A / r[seen][:, None]).sum(axis=0)  # an explosive component's inf or NaN is no information:
+            info += np.where(gathering & np.isfinite(terms), terms, 0.0)  # the others' still count (reviews R37, R38)
+            counted += gathering & (info > 0)
+            if (counted >= n).all() or (k + 1 >= n and steps <= n):  # (a time-invariant model: n steps)
                 break
         size = 1.0 / np.sqrt(info)
     resolved = np.isfinite(size) & (size > 0)

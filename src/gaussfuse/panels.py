@@ -447,8 +447,9 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         (:func:`gaussfuse.diagnostics.divergence`), to show where the
         command runs; with ``check="raise"`` the first is raised instead.
     """
-    sensed = None if spec.timed is None else list(measurement_names(spec.timed))  # (columns matched by them: io)
-    part = read_partition(path, series_column, spec.model.m, time_column, columns, sensed)
+    sensed = measurement_names(spec.timed)  # (columns matched by them: io; None for explicit matrices)
+    part = read_partition(path, series_column, spec.model.m, time_column, columns,
+                          None if sensed is None else list(sensed))
     try:  # refused before the work, if ambiguous
         estimate_columns(part.frame.columns[1], spec.state_names, part.frame.columns[0])
     except ValueError as exc:

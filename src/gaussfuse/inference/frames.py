@@ -46,7 +46,7 @@ def measurement_names(model) -> tuple[str, ...] | None:
     """A model's measurement names, where it has them: a TimedModel's sensor's, each that reads one of the
     motion's states alone under the name the model gives that state (``gf.model(..., names=[...])``: states
     relabelled ["y", "x", ...] kept the sensor's "x", "y", so a DataFrame in the model's names was read swapped:
-    review R36); the sensor's own names where that would name two measurements alike (review R37)."""
+    review R36); None (columns taken in order) where that would name two measurements alike (reviews R37, R38)."""
     if not isinstance(model, TimedModel):
         return None
     own, sensed = tuple(model.motion.names), tuple(model.sensor.names)
@@ -60,8 +60,9 @@ def measurement_names(model) -> tuple[str, ...] | None:
         # multiple of e_j): a sensor's "x" of a motion whose "x" is another component is not that state
         reads = j is not None and (H is None or (np.count_nonzero(H[i]) == 1 and H[i, j] != 0))
         out.append(model.names[j] if reads else name)
-    # a name twice (a sensor's own "speed" beside its "x" relabelled "speed") matches no column: the sensor's own
-    return tuple(out) if len(set(out)) == len(out) else sensed
+    # a name twice (a sensor's own "speed" beside its "x" relabelled "speed") would match no column, and the
+    # sensor's own names may be the model's for other states (R38): none, so that columns are taken in order
+    return tuple(out) if len(set(out)) == len(out) else None
 
 
 def _is_pandas(value) -> bool:
