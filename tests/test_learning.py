@@ -1199,15 +1199,19 @@ def test_maximum_likelihood_of_a_known_start_sized_by_what_sees_it(q, gains, sca
     H = np.array([[1.0, 0.0], [0.0, gains[1]]]) if len(gains) == 2 else np.array([[1.0, 0.0]])
     H = H[H.any(axis=1)]  # (the unseen velocity: one sensor, of the level)
     m = H.shape[0]
-    powers = [np.linalg.matrix_power(F, k + 1) for k in range(T)]
-    X = np.concatenate([H @ P for P in powers]) * 1.0  # (T m, n): z_k's mean is H F^(k+1) m0
+    powers = [np.linalg.matrix_power(F, k) for k in range(T + 1)]
+    X = np.concatenate([H @ P for P in powers[1:]])  # (T m, n): z_k's mean is H F^(k+1) m0
     Qm = q * scale**2 * np.diag([1.0, 0.0])  # noise on the level only
-    cov = np.zeros((T * m, T * m))  # the random walk's covariance, through H, plus R
+    P, Ps = np.zeros((2, 2)), []  # Cov(x_j) of the noise alone: F P Fᵀ + Q; Cov(x_j, x_k) = P_j (F^(k-j))ᵀ, k >= j
+    for _ in range(T):
+        P = F @ P @ F.T + Qm
+        Ps.append(P)
+    cov = np.zeros((T * m, T * m))  # the noise's covariance, through H, plus R
     for j in range(T):
-        for k in range(T):
-            s = sum(np.linalg.matrix_power(F, j - i) @ Qm @ np.linalg.matrix_power(F, k - i).T
-                    for i in range(min(j, k) + 1))
-            cov[j * m:(j + 1) * m, k * m:(k + 1) * m] = H @ s @ H.T
+        for k in range(j, T):
+            block = H @ Ps[j] @ powers[k - j].T @ H.T
+            cov[j * m:(j + 1) * m, k * m:(k + 1) * m] = block
+            cov[k * m:(k + 1) * m, j * m:(j + 1) * m] = block.T
     cov += np.kron(np.eye(T), scale**2 * np.eye(m))
     truth = np.array([10.0, 0.5]) * scale
     z = X @ truth + np.linalg.cholesky(cov) @ rng.normal(size=T * m)
