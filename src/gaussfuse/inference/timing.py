@@ -22,8 +22,8 @@ import numpy as np
 from ..models.compose import TimedModel
 from .validation import check_measurements
 
-__all__ = ["as_seconds", "as_instants", "same_time", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp", "within",
-           "ticks", "elapsed", "finest", "per_second", "since"]
+__all__ = ["as_seconds", "as_instants", "same_time", "step_sizes", "steps", "Steps", "round_off", "resolve", "stamp",
+           "within", "ticks", "elapsed", "finest", "per_second", "since"]
 
 
 _FINE = ("s", "ms", "us", "ns", "ps", "fs", "as")
@@ -83,6 +83,7 @@ def within(name: str, values, unit: str):
     """
     values = np.asarray(values)
     kind = "datetime64" if values.dtype.kind == "M" else "timedelta64"
+
     def cast(a, dtype):
         try:
             return a.astype(dtype)
