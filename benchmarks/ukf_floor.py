@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 import numba
 import numpy as np
@@ -49,6 +48,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import gaussfuse as gf  # noqa: E402
 from gaussfuse._kernels._dense import cho_solve, cholesky  # noqa: E402
 import workloads  # noqa: E402
+from forms import best  # noqa: E402  (a warm-up call, then the best of `repeats`)
 
 _C2 = types.float64[:, ::1]
 
@@ -162,16 +162,6 @@ def bare_kernel(fixed: tuple[int, int] | None):
     return ukf
 
 
-def _best(run, repeats: int) -> float:
-    run()  # compiles, or loads from numba's cache
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=5000)
@@ -201,13 +191,13 @@ def main(argv: list[str] | None = None) -> int:
             filterpy.x, filterpy.P = prior.mean.copy(), prior.cov.copy()
             return filterpy.batch_filter(zs)
 
-        rows.append(("filterpy UnscentedKalmanFilter.batch_filter", _best(run_filterpy, max(args.repeats // 10, 1)),
+        rows.append(("filterpy UnscentedKalmanFilter.batch_filter", best(run_filterpy, max(args.repeats // 10, 1)),
                      run_filterpy()))
 
     model = gf.NonlinearModel(workloads.f_nb_vec, workloads.h_nb_vec, Q, R, vectorized=True)
     library = lambda: gf.filter(model, prior, zs, engine="numba", **opts)  # noqa: E731
     result = library()
-    rows.append(('gaussfuse engine="numba", numba.njit vectorized f, h (W4)', _best(library, args.repeats),
+    rows.append(('gaussfuse engine="numba", numba.njit vectorized f, h (W4)', best(library, args.repeats),
                  (result.means, result.covs)))
 
     f, h = workloads.f_nb_vec, workloads.h_nb_vec
@@ -227,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
             kernel(f, h, *given[:-2], means, covs)
             return means, covs
 
-        seconds = _best(run, args.repeats)
+        seconds = best(run, args.repeats)
         rows.append((label, seconds, run()))
 
     peer = rows[0][1] if filterpy is not None else None

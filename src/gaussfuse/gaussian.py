@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kalman
-from ._linalg import (circular_mean, cholesky, log_density, marginal_std, symmetrize, whiten,
+from ._linalg import (circular_mean, cholesky, correlation_root, log_density, marginal_std, symmetrize, whiten,
                       wrap_angle, wrap_components)
 from ._validation import as_array, as_matrix, as_vector, check_psd, generator
 
@@ -183,13 +183,7 @@ class Gaussian:
         try:
             L = kalman.cov_factor(self.cov)
         except np.linalg.LinAlgError:  # accepted to round-off of its largest entry, refused on its components' own
-            # scales (review R35: 1 in 3000 near-tolerance covariances): its semi-definite part, on the components'
-            # scales (one of the covariance itself is exact only to its largest entry: 1950 times a small variance)
-            d = np.sqrt(np.clip(np.diagonal(self.cov), 0.0, None))
-            safe = np.where(d > 0, d, np.inf)  # a zero (or negative round-off) variance's row and column are 0:
-            scaled = self.cov / safe[:, None] / safe[None, :]  # its covariances, accepted to the largest entry's
-            vals, vecs = np.linalg.eigh(scaled)  # round-off, divided by 1 spread its neighbours' draws
-            L = np.where(d > 0, d, 0.0)[:, None] * (vecs * np.sqrt(np.clip(vals, 0.0, None)))
+            L = correlation_root(self.cov)  # scales (reviews R35-R37): its root on those scales
         return self.mean + rng.standard_normal(self.dim if size is None else (size, self.dim)) @ L.T
 
 

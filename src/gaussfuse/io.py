@@ -96,6 +96,7 @@ import numpy as np
 from ._linalg import marginal_std
 from ._validation import as_array, as_vector, integer, real, shape_error
 from .gaussian import Gaussian
+from .inference.frames import by_name
 from .inference.validation import check_prior
 from .models._base import check_names
 from .models.linear import LinearModel
@@ -526,14 +527,14 @@ def _measurement_columns(path, header: list[str], time_col: int, columns, named=
                                  "the measurement columns with --columns).", line=1)
         others = [i for i in range(len(header)) if i != time_col]
         given = [header[i] for i in others]
-        if named is None or len(given) != len(named) or given == list(named) or not set(given) & set(named):
+        if named is None or len(given) != len(named):
             return others  # (a count other than the model's is named by the caller)
-        if sorted(given) != sorted(named):  # (taken by position, x and y could swap silently: audit EE2)
-            missing, other = [n for n in named if n not in given], [g for g in given if g not in named]
-            raise InputFileError(path, f"the measurement columns {given} name some of the model's measurements "
-                                 f"{list(named)}, without {missing}, and {other} besides: name them as the model "
-                                 "does, in any order, or choose the columns with --columns.", line=1)
-        return [others[given.index(name)] for name in named]
+        try:  # as gaussfuse.filter takes a DataFrame's (audit EE2)
+            order = by_name(given, named, f"the measurement columns {given} name some of",
+                            "choose the columns with --columns")
+        except ValueError as exc:
+            raise InputFileError(path, str(exc), line=1) from None
+        return others if order is None else [others[i] for i in order]
     out = []
     for name in columns:
         found = [i for i, h in enumerate(header) if h == name]

@@ -21,7 +21,7 @@ import numpy as np
 from .._linalg import marginal_std
 from ..models import LinearSensor, TimedModel
 
-__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names"]
+__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names", "by_name"]
 
 
 class Table:
@@ -63,6 +63,27 @@ def measurement_names(model) -> tuple[str, ...] | None:
     # a name twice (a sensor's own "speed" beside its "x" relabelled "speed") would match no column, and the
     # sensor's own names may be the model's for other states (R38): none, so that columns are taken in order
     return tuple(out) if len(set(out)) == len(out) else None
+
+
+def by_name(columns, names, what: str, fix: str) -> list[int] | None:
+    """Where `columns` are the measurement `names` in another order, the position of each name among them; None
+    where they are taken in order (no names, the same order, or none of them).
+
+    Raises
+    ------
+    ValueError
+        Where they name some of the names and not others (taken by position, x and y could swap silently: audits
+        DD6, EE2): "`what` the model's measurements [...], without [...], and [...] besides: ..., or `fix`."
+    """
+    columns = list(columns)
+    if names is None or columns == list(names) or not set(columns) & set(names):
+        return None
+    if sorted(columns) != sorted(names):
+        missing, other = [n for n in names if n not in columns], [c for c in columns if c not in names]
+        raise ValueError(f"{what} the model's measurements {list(names)}" + (f", without {missing}" if missing else "")
+                         + (f", and {other} besides" if other else "")
+                         + f": name them as the model does, in any order, or {fix}.")
+    return [columns.index(name) for name in names]
 
 
 def _is_pandas(value) -> bool:
@@ -161,14 +182,11 @@ def unpack(zs, times, model):
     columns = (tuple(str(c) for c in zs.columns) if hasattr(zs, "columns")
                else None if zs.name is None else (str(zs.name),))  # (an unnamed Series' column is not "None")
     names = measurement_names(model)
-    if names is not None and hasattr(zs, "columns") and columns != names and set(columns) & set(names):
-        if sorted(columns) != sorted(names):
-            missing, other = [n for n in names if n not in columns], [c for c in columns if c not in names]
-            raise ValueError(f"`zs` has the columns {list(columns)}, some of the model's measurements {list(names)}"
-                             + (f", without {missing}" if missing else "") + (f", and {other} besides" if other else "")
-                             + ": name them as the model does, in any order, or give `zs.to_numpy()` to take the "
-                             "columns in their order.")
-        values, columns = values[:, [columns.index(name) for name in names]], names
+    order = None if not hasattr(zs, "columns") else by_name(
+        columns, names, f"`zs` has the columns {list(columns)}, some of",
+        "give `zs.to_numpy()` to take the columns in their order")
+    if order is not None:
+        values, columns = values[:, order], names
     index, index_times = _datetimes(zs.index), False
     rows = _by_rows(model)
     if times is None and index is not None and (not rows or not _calendar(index)) and (
