@@ -63,7 +63,7 @@ class Regression(NamedTuple):
     A: np.ndarray      # (d, n)
     b: np.ndarray      # (d,)
     noise: np.ndarray  # (d, d) Ω, then the noise covariance plus Ω
-    reach: np.ndarray  # (k, n) |m| + |L ξ_i|, the size of each point's coordinates
+    reach: np.ndarray  # (k, n) |m| + |L ξ_i|, the size of each point's coordinates (written with the points)
 
 
 @register_jitable
@@ -75,18 +75,18 @@ def regression(k, n, d):
 
 
 @register_jitable(**_JIT)
-def _points(mean, xi, L, X):
+def _points(mean, xi, L, X, reach):
+    """``X_i = m + L ξ_i`` and ``reach_i = |m| + |L ξ_i|`` (the size of the point's coordinates, for regress)."""
     n = mean.shape[0]
     for i in range(xi.shape[0]):
-        for a in range(n):
-            X[i, a] = 0.0
-        for b in range(n):
-            c = xi[i, b]
-            if c != 0.0:
-                for a in range(b, n):
-                    X[i, a] += c * L[a, b]
-        for a in range(n):
-            X[i, a] += mean[a]
+        for a in range(n):  # each coordinate summed once, over b in order, zero terms skipped
+            t = 0.0
+            for b in range(a + 1):
+                c = xi[i, b]
+                if c != 0.0:
+                    t += c * L[a, b]
+            reach[i, a] = abs(mean[a]) + abs(t)
+            X[i, a] = t + mean[a]
 
 
 @jit(inline="always", **_JIT)
@@ -96,7 +96,7 @@ def points(mean, rule, g, X):
     The terms of ξ that are zero are skipped (the unscented and cubature
     points have one nonzero coordinate each): they add exactly zero.
     """
-    _points(mean, rule.points, g.L, X)
+    _points(mean, rule.points, g.L, X, g.reach)
 
 
 @jit(inline="always", **_JIT)
@@ -107,11 +107,11 @@ def draw(mean, cov, rule, g, X):
     caller then gives :func:`gaussfuse._linalg.sqrt_cov`'s semi-definite
     factor in ``g.L`` and ``g.keep`` and calls :func:`points`.
     """
-    return _draw(mean, cov, rule.points, g.L, g.keep, X)
+    return _draw(mean, cov, rule.points, g.L, g.keep, X, g.reach)
 
 
 @register_jitable(**_JIT)
-def _draw(mean, cov, xi, L, keep, X):
+def _draw(mean, cov, xi, L, keep, X, reach):
     n = mean.shape[0]
     for a in range(n):  # a spread below the mean's resolution: _linalg.sqrt_cov's, given the mean, in Python
         if not cov[a, a] > 0.0 or math.sqrt(cov[a, a]) <= UNRESOLVED * abs(mean[a]):
@@ -125,7 +125,7 @@ def _draw(mean, cov, xi, L, keep, X):
         keep[a] = True
         for b in range(a + 1, n):
             L[a, b] = 0.0
-    _points(mean, xi, L, X)
+    _points(mean, xi, L, X, reach)
     return True
 
 
@@ -175,12 +175,12 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
     for j in range(n):  # Ξ = (ξ_r wc)ᵀ δY, and L_rr
         if keep[j]:
             for a in range(d):
-                Xi[r, a] = 0.0
-            for i in range(k):
-                c = xi[i, j] * wc[i]
-                if c != 0.0:
-                    for a in range(d):
-                        Xi[r, a] += c * dY[i, a]
+                t = 0.0
+                for i in range(k):
+                    c = xi[i, j] * wc[i]
+                    if c != 0.0:
+                        t += c * dY[i, a]
+                Xi[r, a] = t
             rr = 0
             for jj in range(n):
                 if keep[jj]:
@@ -218,12 +218,6 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
         for j in range(n):
             t += A[a, j] * mean[j]
         offset[a] = ybar[a] - t
-    for i in range(k):  # |m| + |L ξ_i|, once per point
-        for j in range(n):
-            t = 0.0
-            for jj in range(j + 1):
-                t += L[j, jj] * xi[i, jj]
-            reach[i, j] = abs(mean[j]) + abs(t)
     cut = 4.0 * k * _EPS
     for a in range(d):  # the round-off of ȳ: Σ_l |w_l| |δY_l|
         t = 0.0
@@ -246,20 +240,21 @@ def _regress(Y, d, xi, wm, wc, mean, angles, L, keep, Lr, ybar, dY, E, Xi, A, of
 
 
 @jit(inline="always", **_JIT)
-def regress_sqrt(Y, d, rule, mean, angles, g, E, dev, At):
+def regress_sqrt(Y, d, rule, mean, angles, g, E, At):
     r"""linearize.sigma_points.slr_sqrt on the outputs ``Y[:, :d]`` at the points of ``N(mean, L Lᵀ)``.
 
     ``g.L`` is the lower-triangular factor that drew the points, with a
     positive diagonal. Writes ``g.A[:d]``, ``g.b[:d]`` and the residuals
     :math:`e_i = \delta\mathcal Y_i - \Xi^\top \xi_i` in ``E[:, :d]``, those
     within the round-off of the points and outputs set to 0 (see slr_sqrt);
-    `dev` (k, n) and `At` (n, ≥ d) are scratch for :math:`|\xi L^\top|` and :math:`A^\top`.
+    `At` (n, ≥ d) is scratch for :math:`A^\top`.
     """
-    _regress_sqrt(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.ybar, g.dY, g.Xi, At, g.A, g.b, E, dev)
+    _regress_sqrt(Y, d, rule.points, rule.wm, rule.wc, mean, angles, g.L, g.ybar, g.dY, g.Xi, At, g.A, g.b, E,
+                  g.reach)
 
 
 @register_jitable(**_JIT)
-def _regress_sqrt(Y, d, xi, wm, wc, mean, angles, L, ybar, dY, Xi, At, A, offset, E, dev):
+def _regress_sqrt(Y, d, xi, wm, wc, mean, angles, L, ybar, dY, Xi, At, A, offset, E, reach):
     k = Y.shape[0]
     n = mean.shape[0]
     _spread(Y, d, wm, angles, ybar, dY)
@@ -287,12 +282,6 @@ def _regress_sqrt(Y, d, xi, wm, wc, mean, angles, L, ybar, dY, Xi, At, A, offset
             A[a, j] = At[j, a]
             t += At[j, a] * mean[j]
         offset[a] = ybar[a] - t
-    for i in range(k):  # |ξ_i Lᵀ|, the points' distances from the mean
-        for j in range(n):
-            t = 0.0
-            for jj in range(j + 1):
-                t += xi[i, jj] * L[j, jj]
-            dev[i, j] = abs(t)
     cut = 4.0 * k * _EPS
     for a in range(d):  # the round-off of ȳ: Σ_l |w_l| |δY_l|
         t = 0.0
@@ -302,6 +291,6 @@ def _regress_sqrt(Y, d, xi, wm, wc, mean, angles, L, ybar, dY, Xi, At, A, offset
         for i in range(k):  # residuals at the round-off of (|m| + |ξ_i Lᵀ|) |A|ᵀ + |δY_i| + |ȳ| + Σ_l |w_l| |δY_l|
             size = abs(dY[i, a]) + abs(ybar[a]) + offset_err  # are zero
             for j in range(n):
-                size += (abs(mean[j]) + dev[i, j]) * abs(A[a, j])
+                size += reach[i, j] * abs(A[a, j])
             if abs(E[i, a]) <= cut * size:
                 E[i, a] = 0.0

@@ -158,7 +158,6 @@ class SqrtBelief(NamedTuple):
     Xh: np.ndarray          # (k, n)
     loglik: np.ndarray      # (1,)
     E: np.ndarray           # (k, max(n, m)) the residuals e_i
-    dev: np.ndarray         # (k, n) |ξ_i Lᵀ|
     At: np.ndarray          # (n, max(n, m)) Aᵀ
     Qc: np.ndarray          # (n, n + k) [L_Q, √w e]
     Qm: np.ndarray          # (n, k) √-w e
@@ -190,7 +189,7 @@ def _sqrt_belief(k: int, n: int, m: int, N: int, T: int, smoothing: bool) -> Sqr
     d = max(n, m)
     links = max(T - 1, 0) if smoothing else 0
     return SqrtBelief(np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n)), np.empty(m), np.empty((m, m)),
-                      np.empty((k, n)), np.empty((k, n)), np.zeros(1), np.empty((k, d)), np.empty((k, n)),
+                      np.empty((k, n)), np.empty((k, n)), np.zeros(1), np.empty((k, d)),
                       np.empty((n, d)), np.empty((n, n + k)), np.empty((n, k)), np.empty((m, m + k)),
                       np.empty((m, k)), sqrt_workspace(n, m, k), sqrt_back_workspace(n, k),
                       np.empty((N, links, 2 * n, 2 * n)), np.empty((N, links, n)))
@@ -356,7 +355,7 @@ def _forecast_sqrt(s, t, Y, prob, bel, out, w, gf, fail):
     is stored for the backward pass.
     """
     n = bel.mean.shape[0]
-    regress_sqrt(Y, n, prob.rule, bel.mean, prob.state_angles, gf, bel.E, bel.dev, bel.At)
+    regress_sqrt(Y, n, prob.rule, bel.mean, prob.state_angles, gf, bel.E, bel.At)
     q, p = _columns(bel.E, n, prob.rule.wc, at(prob.Qf, t), bel.Qc, bel.Qm)
     predict_sqrt(bel.sw, bel.mean, bel.cov, gf.A, bel.Qc[:, :q], gf.b, bel.pmean, bel.pcov)
     if p > 0 and not downdate(bel.pcov, bel.Qm, n, p, bel.sw.v):
@@ -385,7 +384,7 @@ def _correct_sqrt(s, t, Z, prob, bel, out, w, gh, fail):
     """kalman.correct_sqrt through SigmaPoints.measurement_sqrt, with h's values Z; False if it fails."""
     n = bel.mean.shape[0]
     m = prob.zs.shape[2]
-    regress_sqrt(Z, m, prob.rule, bel.pmean, prob.measurement_angles, gh, bel.E, bel.dev, bel.At)
+    regress_sqrt(Z, m, prob.rule, bel.pmean, prob.measurement_angles, gh, bel.E, bel.At)
     q, p = _columns(bel.E, m, prob.rule.wc, at(prob.Rf, t), bel.Rc, bel.Rm)
     ok, ll, mo = update_sqrt(w, bel.sw, bel.pmean, bel.pcov, prob.zs[s, t], gh.A, bel.Rc[:, :q], bel.Rm[:, :p],
                              gh.b, prob.measurement_angles, bel.mean, bel.cov, bel.innovation)
