@@ -10,14 +10,20 @@ on W4's model and data (:func:`workloads.w4_problem`), side by side:
 * filterpy's ``UnscentedKalmanFilter.batch_filter`` (W4's peer);
 * ``gf.filter(..., method="ukf", engine="numba")`` with W4's numba-jitted
   vectorized f and h (W4's row);
-* a **bare kernel**: the unscented filter of W4's model written out as one
-  numba loop with none of what the library's kernel also does (no
-  log-likelihood, innovations or predicted beliefs kept; no check of f's
-  and h's values, of positive definiteness, of overflow or of round-off;
-  no missing components, angles, controls or time-varying matrices), but
-  the same algebra as :func:`gaussfuse.kalman.update` through
-  :class:`gaussfuse.linearize.SigmaPoints`: the statistical linear
-  regression of f and h, then the Joseph form. Three versions:
+* a **bare kernel**: the classic unscented filter of W4's model written
+  out as one numba loop: the predicted covariance from the points'
+  weighted outer products, the measurement's affine map and noise from
+  the cross-covariance (``A = Cᵀ (P⁻)⁻¹``, ``R + Ω = S - A C``), then the
+  Joseph form. That equals the library's statistical linear regression
+  and Joseph form in exact arithmetic, not operation for operation: it
+  forms no per-point residuals and resolves none of their round-off
+  (under a prior 1e12 times the sensor's noise, the last table, that
+  costs it a thousand times the error of the library's covariance form).
+  It also does none of what the library's kernel
+  does besides (no log-likelihood, innovations or predicted beliefs
+  kept; no check of f's and h's values, of positive definiteness or of
+  overflow; no missing components, angles, controls or time-varying
+  matrices). Three versions:
 
   1. sizes read from the arrays at run time, f and h numba functions
      called as first-class functions (what the library's kernel must do:
@@ -25,12 +31,21 @@ on W4's model and data (:func:`workloads.w4_problem`), side by side:
   2. sizes at run time, f and h compiled into the loop (one compilation
      per f and h);
   3. n = 4 and m = 2 fixed when compiling, f and h compiled in (one
-     compilation per model).
+     compilation per model);
+
+* **the library's blocks alone** (:func:`library_blocks_kernel`): the
+  compiled blocks that ``engine="numba"`` runs, the exact mirror of the
+  readable path (the regression with its residuals, then the Joseph
+  form), in one loop with sizes at run time and f and h compiled in, and
+  nothing else: the most the library's algebra allows, whatever the
+  kernel around it.
 
 Each row: steps per second (best of ``--repeats``), the ratio to filterpy,
 and the largest difference of the filtered means and covariances from
 gaussfuse's readable path (``engine="python"``), which every row must
-match to round-off.
+match to round-off. Then a second table (:func:`exactness`): the error of
+each algebra against a 50-digit Kalman filter where the unscented filter
+must equal it, under priors up to 1e12 times the sensor's noise.
 """
 
 from __future__ import annotations
@@ -46,8 +61,11 @@ from numba import types
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gaussfuse as gf  # noqa: E402
+from gaussfuse._kernels import _slr, _step  # noqa: E402
 from gaussfuse._kernels._dense import cho_solve, cholesky  # noqa: E402
 import workloads  # noqa: E402
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+from _mp_oracle import filter_50_digits  # noqa: E402  the test suite's 50-digit reference
 from forms import best  # noqa: E402  (a warm-up call, then the best of `repeats`)
 
 _C2 = types.float64[:, ::1]
@@ -162,6 +180,50 @@ def bare_kernel(fixed: tuple[int, int] | None):
     return ukf
 
 
+def library_blocks_kernel():
+    """W4's filter as one numba loop of the library's own compiled blocks, and nothing else.
+
+    The exact mirror of the readable path that ``engine="numba"`` runs
+    (:func:`gaussfuse._kernels._slr.draw` and :func:`~gaussfuse._kernels._slr.regress`,
+    the statistical linear regression with its residuals; :func:`gaussfuse._kernels._step.predict`
+    and :func:`~gaussfuse._kernels._step.update`, the Joseph form), with sizes
+    read at run time and f and h compiled in, but without the library's
+    kernel's state machine, outputs, checks and fallbacks: the most that
+    algebra allows. Returns ``ukf(f, h, zs, m0, P0, Q, R, rule, means, covs)``.
+    """
+    def ukf(f, h, zs, m0, P0, Q, R, rule, means, covs):
+        n, m, k = m0.shape[0], zs.shape[1], rule.points.shape[0]
+        gf_, gh_, w = _slr.regression(k, n, n), _slr.regression(k, n, m), _step.workspace(n, m)
+        x, P, xp, Pp = m0.copy(), P0.copy(), np.empty(n), np.empty((n, n))
+        Qk, Rk, v, S = np.empty((n, n)), np.empty((m, m)), np.empty(m), np.empty((m, m))
+        X, Xh = np.empty((k, n)), np.empty((k, n))
+        state_angles, measurement_angles = np.zeros(n, dtype=np.bool_), np.zeros(m, dtype=np.bool_)
+        for t in range(zs.shape[0]):
+            if not _slr.draw(x, P, rule, gf_, X):
+                return -1  # (W4 never needs the semi-definite root)
+            _slr.regress(f(X), n, rule, x, state_angles, gf_)
+            for a in range(n):
+                for b in range(n):
+                    Qk[a, b] = Q[a, b] + gf_.noise[a, b]
+            _step.predict(w, x, P, gf_.A, Qk, gf_.b, xp, Pp)
+            if not _slr.draw(xp, Pp, rule, gh_, Xh):
+                return -1
+            _slr.regress(h(Xh), m, rule, xp, measurement_angles, gh_)
+            for a in range(m):
+                for b in range(m):
+                    Rk[a, b] = R[a, b] + gh_.noise[a, b]
+            ok, _, _ = _step.update(w, xp, Pp, zs[t], gh_.A, Rk, gh_.b, measurement_angles, x, P, v, S)
+            if not ok:
+                return -1
+            for a in range(n):
+                means[t, a] = x[a]
+                for b in range(n):
+                    covs[t, a, b] = P[a, b]
+        return 0
+
+    return ukf
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=5000)
@@ -220,6 +282,18 @@ def main(argv: list[str] | None = None) -> int:
         seconds = best(run, args.repeats)
         rows.append((label, seconds, run()))
 
+    blocks = numba.njit(library_blocks_kernel())
+    rule_t = _slr.Rule(xi, wm, wc)
+
+    def run_blocks():
+        means, covs = np.empty((T, 4)), np.empty((T, 4, 4))
+        if blocks(f, h, zs, prior.mean, prior.cov, Q, R, rule_t, means, covs) != 0:
+            raise RuntimeError("the library's blocks needed a fallback on W4")
+        return means, covs
+
+    rows.append(("the library's blocks alone: run-time sizes, f, h compiled in", best(run_blocks, args.repeats),
+                 run_blocks()))
+
     peer = rows[0][1] if filterpy is not None else None
     print(f"W4's model and data, {T:,} steps; best of {args.repeats} runs (filterpy: {max(args.repeats // 10, 1)}).\n")
     print("| row | steps/s | ratio to filterpy | max abs diff from the readable path, means | covs |")
@@ -228,7 +302,57 @@ def main(argv: list[str] | None = None) -> int:
         ratio = f"{peer / seconds:.1f}x" if peer else "-"
         print(f"| {label} | {T / seconds / 1e3:.1f} k | {ratio} | {np.abs(means - reference.means).max():.1e} | "
               f"{np.abs(covs - reference.covs).max():.1e} |")
+    print()
+    exactness(workloads.f_nb_vec)
     return 0
+
+
+def exactness(f) -> None:
+    """Print what each algebra gives where the unscented filter must equal the Kalman filter: W4's f with a
+    linear position sensor, under a prior ever larger than the sensor's noise.
+
+    The oracle is the test suite's 50-digit Kalman filter
+    (``tests/_mp_oracle.py``, mpmath only, nothing of gaussfuse). Per row,
+    over 20 steps: the largest relative error of the filtered variances and
+    the largest error of the means in the oracle's standard deviations, for
+    ``engine="numba"`` (the library's regression) in the covariance and the
+    square-root form, and for the bare kernel (the classic form, whose
+    ``R + Ω = S - A C`` is the difference that
+    :mod:`gaussfuse.linearize.sigma_points` computes from residuals instead).
+    """
+    @numba.njit
+    def positions(X):
+        return np.ascontiguousarray(X[:, :2])
+
+    base = gf.constant_velocity(dt=workloads.UKF_DT, q=workloads.UKF_Q, r=1.0, dim=2)
+    rule = gf.linearize.rules.unscented(4, alpha=1.0, beta=0.0, kappa=-1.0)
+    xi, wm, wc = (np.ascontiguousarray(a, dtype=float) for a in (rule.points, rule.wm, rule.wc))
+    classic = numba.njit(bare_kernel(None))
+    rng = np.random.default_rng(3)
+    T = 20
+    print("Where the UKF must equal the Kalman filter (W4's f, a linear position sensor, 20 steps): the largest "
+          "relative error of the variances / of the means, in standard deviations.\n")
+    print("| prior variance | sensor variance | gaussfuse engine=\"numba\" | the same, form=\"sqrt\" | "
+          "bare kernel (classic form) |")
+    print("| ---: | ---: | ---: | ---: | ---: |")
+    for prior_var, r in ((1.0, 1.0), (1e8, 1e-4), (1e12, 1e-6)):
+        R = np.eye(2) * r
+        prior = gf.Gaussian(np.array([300.0, 100.0, 5.0, 3.0]), np.eye(4) * prior_var)
+        zs = np.array([300.0, 100.0]) + np.arange(1, T + 1)[:, None] * [5.0, 3.0] + rng.standard_normal((T, 2)) * r**0.5
+        exact_means, exact_covs = filter_50_digits(base.F, base.H, base.Q, R, prior.mean, prior.cov, zs)
+        model = gf.NonlinearModel(f, positions, base.Q, R, vectorized=True)
+        ours, ours_sqrt = (gf.filter(model, prior, zs, engine="numba", method="ukf", alpha=1.0, beta=0.0, kappa=-1.0,
+                                     check="off", form=form) for form in ("cov", "sqrt"))
+        means, covs = np.empty((T, 4)), np.empty((T, 4, 4))
+        classic(f, positions, zs, prior.mean, prior.cov, base.Q, R, xi, wm, wc, means, covs)
+        variances = np.diagonal(exact_covs, axis1=1, axis2=2)
+
+        def errors(m, c):
+            return (f"{np.abs(np.diagonal(c, axis1=1, axis2=2) / variances - 1).max():.1e} / "
+                    f"{np.abs((m - exact_means) / np.sqrt(variances)).max():.1e}")
+
+        print(f"| {prior_var:g} | {r:g} | {errors(ours.means, ours.covs)} | "
+              f"{errors(ours_sqrt.means, ours_sqrt.covs)} | {errors(means, covs)} |")
 
 
 if __name__ == "__main__":
