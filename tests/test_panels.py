@@ -314,6 +314,7 @@ def test_errors_are_one_line(tmp_path, capsys, scheduler):
             "--scheduler", scheduler]
     for extra, match in ((["--out", data], "is the same file as the data file"),
                          ([], "name an output directory with --out"),
+                         (["--out", "-"], "name an output directory with --out (standard output, --out -, holds one"),
                          (["--out", tmp_path / "o", "--plot", tmp_path / "f.png"], "--plot draws one series")):
         code, _, err = run(capsys, *base, *extra)
         assert code == 2 and err.startswith("gaussfuse: error: ") and match in err and err.count("\n") == 1, err

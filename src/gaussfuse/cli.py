@@ -345,7 +345,8 @@ def _run_filter(args: argparse.Namespace) -> int:
 def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
     """`gaussfuse filter --series-column`: each partition filtered where a worker runs, to its own output file."""
     if not args.out:
-        raise ValueError("--series-column writes one output file per partition: name an output directory with --out.")
+        raise ValueError("--series-column writes one output file per partition: name an output directory with --out "
+                         "(standard output, --out -, holds one file).")
     if args.plot:
         raise ValueError("--plot draws one series; leave it out with --series-column.")
     if spec.model.steps is not None:
