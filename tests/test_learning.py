@@ -1225,6 +1225,53 @@ def test_maximum_likelihood_of_a_known_start_sized_by_what_sees_it(q, gains, sca
     np.testing.assert_allclose(fit.prior.mean, want, rtol=0, atol=1e-6 * se.max())
 
 
+@pytest.mark.parametrize("q, offset", [(1e-20, 0.0), (1e-12, 0.0), (1e-8, 1e4), (1e-12, 1e4)])
+def test_maximum_likelihood_of_b_under_a_tiny_process_noise(q, offset):
+    """B of a state whose process noise is tiny beside what the data resolve of it (reviews R35, R36): Fisher's
+    identity reads the smoothed E[w] = E[x_t] - E[x_(t-1)] - B u, all round-off there, through Q⁻¹. Q = 1e-20
+    stopped the search at its start, said converged, 128 below the maximum; at 1e-12 the standard error was 2%
+    off; with states near 1e4 the gradient was 3e-4 off at Q = 1e-8. B's unit was Q's standard deviation
+    besides (1e-10: the gradient test was met at the start). Oracle: generalised least squares of z on the
+    controls' running sum (and a column of ones for m0): the noise is Q's random walk plus R."""
+    rng = np.random.default_rng(4)
+    T = 50
+    us = rng.normal(size=(T, 1))
+    z = offset + np.cumsum(0.7 * us[:, 0]) + rng.normal(size=T)
+    steps = np.arange(1, T + 1)
+    cov = q * np.minimum.outer(steps, steps) + np.eye(T)
+    learn = ("B",) if offset == 0.0 else ("m0", "B")
+    X = np.cumsum(us, axis=0) if offset == 0.0 else np.column_stack([np.ones(T), np.cumsum(us[:, 0])])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=q, R=1, B=[[0.0]]), gf.Gaussian([offset], [[0.0]]), z[:, None],
+                     us, method="mle", learn=learn)
+    assert fit.converged
+    information = X.T @ np.linalg.solve(cov, X)
+    se = np.sqrt(np.diag(np.linalg.inv(information)))
+    got = np.concatenate([np.ravel(fit.prior.mean)] * ("m0" in learn) + [np.ravel(fit.model.B)])
+    np.testing.assert_allclose(got, _gls(X, z, cov), rtol=0, atol=1e-6 * se.min())
+    got_se = np.concatenate([np.ravel(fit.standard_errors[name]) for name in learn])
+    np.testing.assert_allclose(got_se, se, rtol=1e-6)
+
+
+def test_the_gradient_is_the_filters_own_where_fishers_identity_cannot_resolve_it():
+    """The exact gradient at Q = 1e-20 and 1e-12 (review R35): Fisher's identity gave B's -1.3e5 for the filter's
+    6.1, and Q's 37 times too large; elsewhere it is used, and both agree to round-off."""
+    rng = np.random.default_rng(4)
+    T = 50
+    us = rng.normal(size=(T, 1))
+    z = (np.cumsum(0.7 * us[:, 0]) + rng.normal(size=T))[:, None]
+    for q, fisher in ((1.0, True), (1e-12, False), (1e-20, False)):
+        model = gf.LinearModel(F=np.eye(1), H=np.eye(1), Q=[[q]], R=np.eye(1), B=[[0.7]])
+        prior = gf.Gaussian([0.0], [[0.0]])
+        directions = [{"B": np.ones((1, 1))}, {"Q": np.full((1, 1), q)}]
+        _, stats = learning._e_step(model, prior, z[None], us[None], "python")
+        assert learning._fisher_resolves(model, prior, stats, {"B", "Q"}) is fisher
+        _, grad = learning._loglik_and_gradient(model, prior, z[None], us[None], directions, "python")
+        _, exact = learning._tangent_score(model, prior, z, us, directions, "python")
+        np.testing.assert_allclose(grad, exact, rtol=1e-9)
+
+
 @pytest.mark.parametrize("scale", [1e12, 1e100])
 def test_maximum_likelihood_of_a_known_start_when_the_first_step_measures_nothing(scale):
     """The sizes took the first step's H, which measured nothing (the sensor reports from the second step on):

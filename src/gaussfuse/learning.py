@@ -58,7 +58,10 @@ so the sums over transitions start at :math:`t = 2`.
   and :math:`\partial/\partial F = Q^{-1} \sum E[w x_{t-1}^\top]`. Where one
   is singular (a noise-free state or sensor, a known constant, an ARMA
   model in state-space form), the complete-data density has no inverse to
-  offer, and the gradient is the derivative of the filter's own
+  offer; where one is tiny beside what the data resolve of the states
+  (a process noise of 1e-20), the smoothed :math:`E[w]` it is divided into
+  is round-off (:func:`_fisher_resolves`). There the gradient is the
+  derivative of the filter's own
   log-likelihood :math:`\sum_t -\tfrac12 (v_t^\top S_t^{-1} v_t + \log|S_t|)`,
   propagated along each parameter direction :math:`\dot\theta` with the
   filter (Harvey 1989, sec. 3.4.6):
@@ -921,8 +924,8 @@ class _Parametrisation:
         deviation of component i over the size of control j (B u moves the state; the controls may be in other
         units than the data). Where those are missing, a component is sized by what the measurements resolve
         of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
-        noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), B's row by its
-        process noise, else its prior's, else that."""
+        noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), B's row by the
+        larger of that and its process noise's (else its prior's)."""
         out = []
         model, prior = self(theta)
         n = model.n
@@ -935,7 +938,7 @@ class _Parametrisation:
                 out.append(np.where(sd > 0, sd, np.maximum(noise, measured)))  # (a tiny Q is no size for m0)
             elif name == "B":
                 p = t.size // n
-                rows = np.where(noise > 0, noise, np.where(sd > 0, sd, measured))
+                rows = np.maximum(np.where(noise > 0, noise, sd), measured)  # (a tiny Q is no size for B either)
                 cols = np.ones(p) if self.controls is None else np.where(self.controls > 0, self.controls, 1.0)
                 out.append((rows[:, None] / cols[None, :]).ravel())
             elif name in COVARIANCES and self.structure[name] == "full" and t.size:
@@ -1291,21 +1294,95 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
     return float(loglik), grad
 
 
+_FISHER_ROUNDOFF = 1e-8
+"""Fisher's identity gives the gradient where the round-off of the residual means it reads is at most this
+fraction of them (:func:`_fisher_resolves`); the filter's own score gives it elsewhere."""
+
+
+def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed: set) -> bool:
+    r"""Whether the smoothed residual moments that Fisher's identity reads for `needed` are resolved.
+
+    The gradients of F and B read :math:`E[w_t] = E[x_t] - F_t E[x_{t-1}] - B_t u_t`
+    (through :math:`Q^{-1}`), that of Q also :math:`E[w_t w_t^	op] - Q_t`; those of H
+    and R read :math:`E[v_t] = z_t - H_t E[x_t]` and :math:`E[v_t v_t^	op] - R_t`,
+    those of m0 and P0 :math:`E[x_0] - m_0` and :math:`E[(x_0 - m_0)(x_0 - m_0)^	op] - P_0`.
+    Each is a difference of terms of the states' size (the means) or
+    variance (the covariances), whose round-off does not shrink with the
+    noise: where a noise is tiny beside what the data resolve of the states
+    (:math:`E[w_t] pprox Q r_t`), the round-off is all there is of the
+    difference. A process noise of 1e-20 gave B a gradient of -1.3e5 for 6.1
+    and a fit that stopped at its start, 128 below the maximum; with states
+    near 1e4, Q = 1e-8 gave it 3e-4 off; Q's own gradient was 37 times too
+    large at 1e-20. So, per component (the diagonal, for the second moments)
+    over the steps (those up to each series' last observation, or with one,
+    as EM's sums), the round-off estimate :math:`\epsilon` times the sizes of
+    the terms must be at most :data:`_FISHER_ROUNDOFF` of the differences,
+    both as root sums of squares; elsewhere the filter's own score
+    (:func:`_tangent_score`), which forms no such difference, gives the
+    gradient.
+    """
+    sums: dict = {}
+
+    def add(kind, read, size):
+        total = sums.setdefault(kind, [0.0, 0.0])
+        total[0] = total[0] + np.sum(read * read, axis=0)
+        total[1] = total[1] + np.sum(size * size, axis=0)
+
+    def residual(kind, M, mean, cov, noise, kept):
+        """E[r] = M s and diag(E[r rᵀ]) - diag(noise) for the residual r = M s of moments (mean, cov), and sizes."""
+        if not kept.all():
+            M, mean, cov, noise = M[kept], mean[kept], cov[kept], None if noise is None else noise[kept]
+        absM = np.abs(M)
+        r = (M @ mean[:, :, None])[..., 0]
+        r_size = (absM @ np.abs(mean)[:, :, None])[..., 0]
+        add(kind, r, r_size)
+        if noise is not None:  # the diagonals of M C Mᵀ + r rᵀ - noise, and sizes (|M| √diag C)² + 2 |r| r_size + noise
+            var = np.diagonal(noise, axis1=-2, axis2=-1)
+            quad = np.sum((M @ cov) * M, axis=-1)
+            spread = (absM @ np.sqrt(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)))[:, :, None])[..., 0]
+            add(kind + "2", quad + r * r - var, spread * spread + 2.0 * r_size * np.abs(r) + var)
+
+    for s in stats:
+        if needed & {"F", "B", "Q"}:
+            residual("w", s.w_map(model.F, model.B), s.mu, s.sig, s.per_step(model.Q, s.start) if "Q" in needed
+                     else None, s.kept_w)
+        if needed & {"H", "R"}:
+            residual("v", s.v_map(model.H), s.nu, s.tau, s.per_step(model.R) if "R" in needed else None, s.kept_v)
+        if needed & {"m0", "P0"} and not isinstance(prior, str):
+            x0, n = s.x0_mean[s.seen], model.n
+            residual("x0", np.broadcast_to(np.hstack([np.eye(n), -np.eye(n)]), (len(x0), n, 2 * n)),
+                     np.hstack([x0, np.broadcast_to(prior.mean, x0.shape)]),
+                     np.pad(s.x0_cov[s.seen], ((0, 0), (0, n), (0, n))),
+                     np.broadcast_to(prior.cov, (len(x0), n, n)) if "P0" in needed else None,
+                     np.ones(len(x0), dtype=bool))
+    eps = np.finfo(float).eps
+    return all(np.all(eps * np.sqrt(size) <= _FISHER_ROUNDOFF * np.sqrt(read)) for read, size in sums.values())
+
+
+def _fisher_gradient(model: LinearModel, prior, stats: list[Statistics], directions: list[dict]) -> np.ndarray:
+    """The derivative of ``log p(z)`` along each direction by Fisher's identity, from the smoother's statistics."""
+    G = _matrix_gradients(model, prior, stats, _needed(directions))
+    return np.array([sum(_contract(G[k], D) for k, D in d.items()) for d in directions])
+
+
 def _fisher_score(model, prior, zs, us, directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
     """``log p(z)`` over the series and its derivative along each direction, by Fisher's identity."""
     ll, stats = _e_step(model, prior, zs, us, engine)
-    G = _matrix_gradients(model, prior, stats, _needed(directions))
-    return ll, np.array([sum(_contract(G[k], D) for k, D in d.items()) for d in directions])
+    return ll, _fisher_gradient(model, prior, stats, directions)
 
 
 def _loglik_and_gradient(model, prior, zs, us, directions: list[dict], engine: str) -> tuple[float, np.ndarray]:
     """``log p(z)`` over the series and its exact derivative along each direction.
 
-    By Fisher's identity where it applies (one smoother pass, compiled), by
-    the filter's own score otherwise.
+    By Fisher's identity where it applies and its statistics resolve the
+    gradient (one smoother pass, compiled: :func:`_fisher_applies`,
+    :func:`_fisher_resolves`), by the filter's own score otherwise.
     """
-    if _fisher_applies(model, prior, _needed(directions), 1 if isinstance(prior, str) else 0):
-        return _fisher_score(model, prior, zs, us, directions, engine)
+    needed = _needed(directions)
+    if _fisher_applies(model, prior, needed, 1 if isinstance(prior, str) else 0):
+        ll, stats = _e_step(model, prior, zs, us, engine)
+        if _fisher_resolves(model, prior, stats, needed):
+            return ll, _fisher_gradient(model, prior, stats, directions)
     ll, grad = 0.0, np.zeros(len(directions))
     for i, z in enumerate(zs):
         li, gi = _tangent_score(model, prior, z, None if us is None else us[i], directions, engine)
