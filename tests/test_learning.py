@@ -1290,6 +1290,26 @@ def test_maximum_likelihood_of_a_known_start_when_the_first_step_measures_nothin
     assert fit.prior.mean[0] == pytest.approx(np.nanmean(z), rel=1e-9)
 
 
+@pytest.mark.parametrize("R, level, first", [(1e-12, 1e3, 1e-12), (1e-20, 1.0, 1e-20), (1.0, 3.0, 1e20)])
+def test_maximum_likelihood_at_the_resolution_of_floating_point_converges(R, level, first):
+    """A sensor of R = 1e-12 measuring a level of 1e3, or 1e-20 one of 1: m0 came out equal to the measurements'
+    mean to the last digit, but the gradient's round-off stays above `tol`, and the fit warned that it did not
+    converge; so did one whose first step has R = 1e20 (reviews R35, R36). A Newton step below θ's
+    floating-point resolution is convergence. Oracle: F = 1, Q = 0, so the maximum is the mean of the
+    measurements weighted by 1/R."""
+    T = 50
+    z = level + np.random.default_rng(0).standard_normal(T) * np.sqrt(R)
+    Rs = np.full((T, 1, 1), R)
+    Rs[0] = first
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.0, R=Rs), gf.Gaussian([0.0], [[0.0]]), z, learn=["m0"],
+                     method="mle")
+    assert fit.converged
+    weights = 1.0 / Rs[:, 0, 0]
+    assert fit.prior.mean[0] == pytest.approx(np.sum(weights * z) / np.sum(weights), rel=1e-14)
+
+
 def test_sizes_of_a_time_varying_model_are_those_of_its_steps():
     """Review R37: a component no sensor sees walked all T steps (1 s at T = 1e5, four times a fit) and was sized
     by T steps, 5.5e-8 where the same model without time variation gives 0.27; an explosive F overflowed the

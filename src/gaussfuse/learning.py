@@ -1519,9 +1519,13 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
         if evaluate(theta)[0] < best[1]:
             theta = best[0]
         if res.status == 2:  # BFGS's line search stalled near the optimum: finish with Newton steps
-            theta, converged = _newton(evaluate, theta, tol * n_obs, units)
-            if converged:
+            theta, reached = _newton(evaluate, theta, tol * n_obs, units)
+            converged = reached is not None
+            if reached == "gradient":
                 message = "converged: the gradient is below `tol` after Newton steps with the observed information"
+            elif reached == "resolution":
+                message = ("converged: a Newton step with the observed information moves no parameter beyond its "
+                           "floating-point resolution (the gradient's round-off is above `tol`)")
     except KeyboardInterrupt:
         theta, converged, message = best[0], False, "interrupted: the best model so far"
     ll = evaluate(theta)[0]
@@ -1553,11 +1557,17 @@ def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray, units: np.ndarray) 
     return symmetrize(hess)
 
 
-def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: int = 5) -> tuple[np.ndarray, bool]:
-    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; whether ``max|∇ℓ units| <= gtol``.
+def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray,
+            steps: int = 5) -> tuple[np.ndarray, str | None]:
+    """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; why they stopped at a maximum, or None.
 
     Near the optimum the log-likelihood is flat to round-off, so a step that
-    lowers it by no more than round-off still counts as a rise.
+    lowers it by no more than round-off still counts as a rise. At a maximum:
+    "gradient" where ``max|∇ℓ units| <= gtol``; "resolution" where the Newton
+    step moves no entry of θ by more than 4 ε |θ_j|: θ is the maximum to
+    floating point, whatever the gradient's round-off (a sensor of R = 1e-20
+    measuring a level of 1, or 1e-12 one of 1e3: m0 equal to the data's mean to
+    the last digit, and the gradient test out of reach).
     """
     def met(grad) -> bool:
         return bool(np.max(np.abs(grad * units), initial=0.0) <= gtol)
@@ -1565,18 +1575,21 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray, steps: 
     for _ in range(steps):
         ll, grad = evaluate(theta)
         if met(grad):
-            return theta, True
+            return theta, "gradient"
         try:
             information = -_hessian(evaluate, theta, _sizes(theta, units), units)  # on φ = θ / units: finite
             if not is_positive_definite(information):
                 break
-            step = theta + units * cho_solve(cholesky(information), grad * units)
+            move = units * cho_solve(cholesky(information), grad * units)
+            if np.all(np.abs(move) <= 4.0 * np.finfo(float).eps * np.abs(theta)):
+                return theta, "resolution"
+            step = theta + move
             if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
                 break
         except NO_LIKELIHOOD:  # a neighbour with no likelihood: no step
             break
         theta = step
-    return theta, met(evaluate(theta)[1])
+    return theta, "gradient" if met(evaluate(theta)[1]) else None
 
 
 def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarray) -> np.ndarray:
