@@ -1692,8 +1692,10 @@ def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None
     steepest = np.abs(gradient * build.units(theta)).max() / nobs  # per unit: in any units
     if steepest > _MLE_GTOL:  # a plateau or a saddle: EM's steps stalled, not at a maximum
         return (f"the log-likelihood changed by less than `tol`, but its gradient is still {steepest:.2g} per "
-                "observation and the observed information is not positive definite: a plateau, not a maximum (EM "
-                "stalls there, as from a variance started near 0); try method='mle', or another start")
+                "observation and the observed information is not positive definite: the likelihood is flat or "
+                "curved upwards along some direction here (a plateau, a saddle, or the approach to a ridge of "
+                "equally good models), not at a maximum, and EM's steps stall there (as from a variance started "
+                "near 0); try method='mle', or another start")
     return None
 
 
