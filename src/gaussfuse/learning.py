@@ -322,6 +322,10 @@ class Statistics:
         The first transition that is part of the model (1 for a diffuse x_1).
     x0_mean, x0_cov : ndarray of shape (N, n), (N, n, n)
         Smoothed moments of x_0.
+    filtered_w, filtered_v, filtered_x0 : ndarray of shape (N·T_w, d), (N·T, e), (N, n)
+        The filter's variances of the states in s_t, r_t and x_0 (zeros where not given).
+    innovation_var, observed : ndarray of shape (N·T, m)
+        The filter's innovation variances (NaN where not given), and which components of z are observed.
     kept_w, kept_v, seen : ndarray of bool, shape (N·T_w,), (N·T,), (N,)
         The transitions up to each series' last observation, the steps with
         an observation, and the series with one: EM's sums
@@ -331,7 +335,7 @@ class Statistics:
     """
 
     def __init__(self, model: LinearModel, means: np.ndarray, covs: np.ndarray, cross: np.ndarray, zs: np.ndarray,
-                 us: np.ndarray | None, start: int = 0):
+                 us: np.ndarray | None, start: int = 0, filtered: tuple | None = None):
         N, T, m = zs.shape
         n = model.n
         p = 0 if us is None else us.shape[2]
@@ -380,10 +384,39 @@ class Statistics:
             tau[t, m:m + n, :m] = np.swapaxes(AP, -1, -2)
         self.nu, self.tau = nu, tau
         self.x0_mean, self.x0_cov = means[:, 0], covs[:, 0]
+        # the filter's variances, (N, T + 1, n) from the prior's time, and its innovations', (N, T, m): the sizes of
+        # the numbers the smoother cancelled, and the scale of the filter's own score (see _fisher_resolves)
+        self._filtered = filtered if filtered is not None else (np.zeros((N, T + 1, n)), np.full((N, T, m), np.nan))
+        self.observed = ~gaps
         observed = ~np.isnan(zs).all(axis=2)  # (N, T)
         self.seen = observed.any(axis=1)
         upto = np.cumsum(observed[:, ::-1], axis=1)[:, ::-1] > 0  # at or before the series' last observation
         self.kept_w, self.kept_v = upto[:, a:].ravel(), observed.ravel()
+
+    @property
+    def filtered_w(self) -> np.ndarray:
+        """The filter's variances of s_t's states, (N·T_w, d): x_t's, x_{t-1}'s, then zeros."""
+        variances = self._filtered[0]
+        zeros = np.zeros((self.N, self.T, self.p + 1))
+        return np.concatenate([variances[:, 1:], variances[:, :-1], zeros], axis=-1)[:, self.start:].reshape(
+            self.mu.shape)
+
+    @property
+    def filtered_v(self) -> np.ndarray:
+        """The filter's variances of r_t's state, (N·T, e): zeros for z_t and 1."""
+        variances = self._filtered[0]
+        return np.concatenate([np.zeros((self.N, self.T, self.m)), variances[:, 1:], np.zeros((self.N, self.T, 1))],
+                              axis=-1).reshape(self.nu.shape)
+
+    @property
+    def filtered_x0(self) -> np.ndarray:
+        """The filter's variances at the prior's time, (N, n)."""
+        return self._filtered[0][:, 0]
+
+    @property
+    def innovation_var(self) -> np.ndarray:
+        """The filter's innovation variances, (N·T, m)."""
+        return self._filtered[1].reshape(-1, self.m)
 
     def per_step(self, M: np.ndarray | None, start: int = 0) -> np.ndarray | None:
         """A model matrix (time-invariant, or one per step) at each step of the stack from step `start` on."""
@@ -458,17 +491,30 @@ def _e_step(model, prior, zs, us, engine: str = "auto") -> tuple[float, list[Sta
         for i, z in enumerate(zs):
             mom = diffuse_moments(model, z, None if us is None else us[i], engine)
             loglik += mom.loglik
+            filtered = _filtered(mom.filtered, mom.covs[:1])
             stats.append(Statistics(model, mom.means[None], mom.covs[None], mom.cross[None], zs[i:i + 1],
-                                    None if us is None else us[i:i + 1], mom.first))
+                                    None if us is None else us[i:i + 1], mom.first,
+                                    tuple(a[None] for a in filtered)))
         return loglik, stats
     sm = smooth_batch(_METHODS["kf"], model, prior, zs, us, {}, engine, to_prior=True)
     cross = sm.covs[:, 1:] @ np.swapaxes(sm.gains, -1, -2)
     N, T = zs.shape[:2]
     d = 2 * model.n + (0 if us is None else us.shape[2]) + 1
     size = max(1, _BLOCK // max(1, (T + 1) * d * d))
+    variances, innovations = _filtered(sm.filtered, np.broadcast_to(prior.cov, (N, 1, model.n, model.n)))
     stats = [Statistics(model, sm.means[i:i + size], sm.covs[i:i + size], cross[i:i + size], zs[i:i + size],
-                        None if us is None else us[i:i + size]) for i in range(0, N, size)]
+                        None if us is None else us[i:i + size], filtered=(variances[i:i + size],
+                                                                          innovations[i:i + size]))
+             for i in range(0, N, size)]
     return float(np.sum(sm.filtered.loglik)), stats
+
+
+def _filtered(result, first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The variances of a filter's `result` from the prior's time on (`first`: the covariance there, (..., 1, n, n))
+    and its innovation variances: what :class:`Statistics` keeps of the filter."""
+    variances = np.concatenate([np.diagonal(first, axis1=-2, axis2=-1), np.diagonal(result.covs, axis1=-2, axis2=-1)],
+                               axis=-2)
+    return variances, np.diagonal(result.innovation_covs, axis1=-2, axis2=-1)
 
 
 # ---------------------------------------------------------------------------
@@ -1300,27 +1346,35 @@ fraction of them (:func:`_fisher_resolves`); the filter's own score gives it els
 
 
 def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed: set) -> bool:
-    r"""Whether the smoothed residual moments that Fisher's identity reads for `needed` are resolved.
+    r"""Whether Fisher's identity resolves the gradient of `needed`, beside the filter's own score.
 
     The gradients of F and B read :math:`E[w_t] = E[x_t] - F_t E[x_{t-1}] - B_t u_t`
-    (through :math:`Q^{-1}`), that of Q also :math:`E[w_t w_t^	op] - Q_t`; those of H
-    and R read :math:`E[v_t] = z_t - H_t E[x_t]` and :math:`E[v_t v_t^	op] - R_t`,
-    those of m0 and P0 :math:`E[x_0] - m_0` and :math:`E[(x_0 - m_0)(x_0 - m_0)^	op] - P_0`.
-    Each is a difference of terms of the states' size (the means) or
-    variance (the covariances), whose round-off does not shrink with the
-    noise: where a noise is tiny beside what the data resolve of the states
-    (:math:`E[w_t] pprox Q r_t`), the round-off is all there is of the
-    difference. A process noise of 1e-20 gave B a gradient of -1.3e5 for 6.1
-    and a fit that stopped at its start, 128 below the maximum; with states
-    near 1e4, Q = 1e-8 gave it 3e-4 off; Q's own gradient was 37 times too
-    large at 1e-20. So, per component (the diagonal, for the second moments)
-    over the steps (those up to each series' last observation, or with one,
-    as EM's sums), the round-off estimate :math:`\epsilon` times the sizes of
-    the terms must be at most :data:`_FISHER_ROUNDOFF` of the differences,
-    both as root sums of squares; elsewhere the filter's own score
-    (:func:`_tangent_score`), which forms no such difference, gives the
-    gradient.
+    (through :math:`Q^{-1}`), that of Q also :math:`E[w_t w_t^\top] - Q_t`; those of H and R
+    read :math:`E[v_t] = z_t - H_t E[x_t]` and :math:`E[v_t v_t^\top] - R_t`, those of
+    m0 and P0 :math:`E[x_0] - m_0` and :math:`E[(x_0 - m_0)(x_0 - m_0)^\top] - P_0`.
+    Each is a difference of numbers of the states' size (the means) or of
+    the filter's variances (which the smoother's covariances cancel), whose
+    round-off does not shrink with the noise: where a noise is tiny beside
+    what the data resolve of the states (:math:`E[w_t] \approx Q r_t`), the
+    round-off is all there is of the difference. A process noise of 1e-20 gave
+    B a gradient of -1.3e5 for 6.1 and a fit that stopped at its start, 128
+    below the maximum; with states near 1e4, Q = 1e-8 gave it 3e-4 off; a
+    prior variance of 1e16 gave Q's 30% off (review R40). So, per component
+    (the diagonal, for the second moments) over the steps (those up to each
+    series' last observation, or with one, as EM's sums), the round-off
+    estimate, :math:`\epsilon` times the sizes of the terms, against the
+    difference, both as root sums of squares, is Fisher's relative round-off.
+    The filter's own score (:func:`_tangent_score`) reads the innovations
+    :math:`z_t - H_t m^-_t` against their standard deviations, with round-off
+    :math:`\epsilon (|z_t| + |H_t| |m_t|)`. Where Fisher's is at most
+    :data:`_FISHER_ROUNDOFF`, or at most ten times the filter's, Fisher's
+    identity gives the gradient (a level near 1e7 under unit noises costs
+    both about 1e-10 per observation, and the filter's score took 3.7 times
+    as long: review R40); elsewhere the filter's score does. Not caught: a
+    nearly singular Q amplifies, through :math:`Q^{-1}`, round-off that is
+    small per component (condition 2e7 gave B's gradient 2e-3 off).
     """
+    eps = np.finfo(float).eps
     sums: dict = {}
 
     def add(kind, read, size):
@@ -1328,35 +1382,48 @@ def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed:
         total[0] = total[0] + np.sum(read * read, axis=0)
         total[1] = total[1] + np.sum(size * size, axis=0)
 
-    def residual(kind, M, mean, cov, noise, kept):
-        """E[r] = M s and diag(E[r rᵀ]) - diag(noise) for the residual r = M s of moments (mean, cov), and sizes."""
+    def residual(kind, M, mean, cov, filtered, noise, kept, second):
+        """E[r] = M s (and diag E[r rᵀ] - diag noise) and the sizes of their terms, per component, into `kind`'s sums;
+        r's sizes, (steps, k)."""
         if not kept.all():
-            M, mean, cov, noise = M[kept], mean[kept], cov[kept], None if noise is None else noise[kept]
+            M, mean, cov, filtered = M[kept], mean[kept], cov[kept], filtered[kept]
+            noise = None if noise is None else noise[kept]
         absM = np.abs(M)
         r = (M @ mean[:, :, None])[..., 0]
         r_size = (absM @ np.abs(mean)[:, :, None])[..., 0]
+        if noise is None:
+            return r_size
         add(kind, r, r_size)
-        if noise is not None:  # the diagonals of M C Mᵀ + r rᵀ - noise, and sizes (|M| √diag C)² + 2 |r| r_size + noise
+        if second:  # the covariance's terms are of the filter's variances, which the smoother's cancelled
             var = np.diagonal(noise, axis1=-2, axis2=-1)
             quad = np.sum((M @ cov) * M, axis=-1)
-            spread = (absM @ np.sqrt(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)))[:, :, None])[..., 0]
-            add(kind + "2", quad + r * r - var, spread * spread + 2.0 * r_size * np.abs(r) + var)
+            spread = (absM @ np.sqrt(np.maximum(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), filtered))[:, :, None])
+            add(kind + "2", quad + r * r - var, spread[..., 0] ** 2 + 2.0 * r_size * np.abs(r) + np.abs(var))
+        return r_size
 
+    innovation = [0.0, 0.0]
     for s in stats:
-        if needed & {"F", "B", "Q"}:
-            residual("w", s.w_map(model.F, model.B), s.mu, s.sig, s.per_step(model.Q, s.start) if "Q" in needed
-                     else None, s.kept_w)
-        if needed & {"H", "R"}:
-            residual("v", s.v_map(model.H), s.nu, s.tau, s.per_step(model.R) if "R" in needed else None, s.kept_v)
+        w_noise = s.per_step(model.Q, s.start) if needed & {"F", "B", "Q"} else None
+        if w_noise is not None:
+            residual("w", s.w_map(model.F, model.B), s.mu, s.sig, s.filtered_w, w_noise, s.kept_w, "Q" in needed)
+        v_noise = s.per_step(model.R) if needed & {"H", "R"} else None
+        v_size = residual("v", s.v_map(model.H), s.nu, s.tau, s.filtered_v, v_noise, s.kept_v, "R" in needed)
+        variances = s.innovation_var[s.kept_v]
+        seen = s.observed[s.kept_v] & np.isfinite(variances)  # (a diffuse first step has none)
+        innovation[0] += float(np.sum(np.where(seen, variances, 0.0)))
+        innovation[1] += float(np.sum(np.where(seen, v_size ** 2, 0.0)))
         if needed & {"m0", "P0"} and not isinstance(prior, str):
-            x0, n = s.x0_mean[s.seen], model.n
-            residual("x0", np.broadcast_to(np.hstack([np.eye(n), -np.eye(n)]), (len(x0), n, 2 * n)),
+            x0, n, k = s.x0_mean[s.seen], model.n, int(s.seen.sum())
+            residual("x0", np.broadcast_to(np.hstack([np.eye(n), -np.eye(n)]), (k, n, 2 * n)),
                      np.hstack([x0, np.broadcast_to(prior.mean, x0.shape)]),
                      np.pad(s.x0_cov[s.seen], ((0, 0), (0, n), (0, n))),
-                     np.broadcast_to(prior.cov, (len(x0), n, n)) if "P0" in needed else None,
-                     np.ones(len(x0), dtype=bool))
-    eps = np.finfo(float).eps
-    return all(np.all(eps * np.sqrt(size) <= _FISHER_ROUNDOFF * np.sqrt(read)) for read, size in sums.values())
+                     np.pad(s.filtered_x0[s.seen], ((0, 0), (0, n))), np.broadcast_to(prior.cov, (k, n, n)),
+                     np.ones(k, dtype=bool), "P0" in needed)
+    with np.errstate(divide="ignore", invalid="ignore"):  # (a component with no residual and no size: 0)
+        fisher = max((float(np.max(np.where(size > 0.0, eps * np.sqrt(size) / np.sqrt(read), 0.0), initial=0.0))
+                      for read, size in sums.values()), default=0.0)
+    tangent = eps * np.sqrt(innovation[1]) / np.sqrt(innovation[0]) if innovation[0] > 0.0 else 0.0
+    return bool(fisher <= max(_FISHER_ROUNDOFF, 10.0 * tangent))
 
 
 def _fisher_gradient(model: LinearModel, prior, stats: list[Statistics], directions: list[dict]) -> np.ndarray:
