@@ -1326,6 +1326,40 @@ def test_fishers_identity_is_kept_where_the_filters_score_is_no_more_precise():
     np.testing.assert_allclose(grad, exact, rtol=0, atol=1e-9 * T)
 
 
+@pytest.mark.parametrize("missing_first", [False, True])
+def test_the_check_reads_the_filters_variances_before_a_diffuse_state_is_known(missing_first):
+    """The filter's variances are NaN until a diffuse state is known (a first measurement missing); the check's
+    maximum with them was NaN, and that component's second moments went unchecked: Fisher's identity was taken
+    where, with the first measurement present, the same model refused it (review R41). A sensor nearly blind
+    (R = 1e16) over the first six steps of a local level: the filter's variances there are huge."""
+    T = 60
+    rng = np.random.default_rng(1)
+    Rs = np.ones((T, 1, 1))
+    Rs[:6] = 1e16
+    z = (np.cumsum(rng.normal(size=T)) + rng.normal(size=T) * np.sqrt(Rs[:, 0, 0]))[:, None]
+    if missing_first:
+        z[0] = np.nan
+    model = gf.LinearModel(F=1, H=1, Q=1.0, R=Rs)
+    _, stats = learning._e_step(model, "diffuse", z[None], None, "python")
+    assert not learning._fisher_resolves(model, "diffuse", stats, {"Q"})
+
+
+def test_maximum_likelihood_takes_the_gradient_test_again_in_the_units_where_it_ends():
+    """m0 and R learned from m0 = 0 under R = 2e-12, the data near 1e3: the search raised R to 1e6, where m0's
+    unit from the start (1e-6) made its gradient pass the test, and it stopped with m0 at 4e-14, said converged,
+    1041 below the maximum (review R41). The test is taken again in the units where the search ends, and the
+    search goes on. Oracle: F = 1, Q = 0, so m0 is the mean and R the mean squared deviation."""
+    T = 50
+    z = 1e3 + np.random.default_rng(0).standard_normal(T) * 1e-6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.0, R=2e-12), gf.Gaussian([0.0], [[0.0]]), z, learn=["m0", "R"],
+                     method="mle")
+    assert fit.converged
+    assert fit.prior.mean[0] == pytest.approx(z.mean(), rel=1e-14)
+    assert fit.model.R[0, 0] == pytest.approx(np.mean((z - z.mean()) ** 2), rel=1e-6)
+
+
 @pytest.mark.parametrize("R, level, first", [(1e-12, 1e3, 1e-12), (1e-20, 1.0, 1e-20), (1.0, 3.0, 1e20)])
 def test_maximum_likelihood_at_the_resolution_of_floating_point_converges(R, level, first):
     """A sensor of R = 1e-12 measuring a level of 1e3, or 1e-20 one of 1: m0 came out equal to the measurements'

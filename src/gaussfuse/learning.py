@@ -1394,10 +1394,11 @@ def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed:
         if noise is None:
             return r_size
         add(kind, r, r_size)
-        if second:  # the covariance's terms are of the filter's variances, which the smoother's cancelled
+        if second:  # the covariance's terms are of the filter's variances, which the smoother's cancelled (NaN
+            # before a diffuse state is known: fmax takes the smoothed one there)
             var = np.diagonal(noise, axis1=-2, axis2=-1)
             quad = np.sum((M @ cov) * M, axis=-1)
-            spread = (absM @ np.sqrt(np.maximum(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), filtered))[:, :, None])
+            spread = (absM @ np.sqrt(np.fmax(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), filtered))[:, :, None])
             add(kind + "2", quad + r * r - var, spread[..., 0] ** 2 + 2.0 * r_size * np.abs(r) + np.abs(var))
         return r_size
 
@@ -1543,8 +1544,15 @@ evaluated first, outside these handlers."""
 
 
 def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
-    """BFGS on the log-likelihood per observation, in θ's units at the start (``build.units``): the search, its
-    gradient test (`tol`) and the Newton steps that finish it are the same in any units of the data."""
+    """BFGS on the log-likelihood per observation, in θ's units (``build.units``): the search, its gradient test
+    (`tol`) and the Newton steps that finish it are the same in any units of the data.
+
+    The units are those of the start; where the search ends, the gradient test is taken again in the units there,
+    and where it fails the search goes on from there in those units (at most :data:`_MLE_ROUNDS` rounds in all,
+    within `iterations`). A variance that grows by many orders over the search changes the units of what it
+    measures: m0's unit under R = 1e-12 is 1e-6, and a search that raised R to 1e6 stopped there with m0 at its
+    start of 0, said converged, 1041 below the maximum (review R41).
+    """
     n_obs = max(n_obs, 1)
     evaluate = _evaluator(build, data, engine)
     units = build.units(theta0)  # the search moves φ = θ / units
@@ -1574,31 +1582,44 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
             evaluate
     from scipy import optimize
 
+    theta = theta0
     try:
-        # the first step is -hess_inv0 @ gradient: at most 1 in any entry of φ. With the identity, a start far
-        # below the data's variances stepped a log variance by ~1e3 and stalled there (audit Y2: Nile from
-        # Q = R = 1 stopped at loglik -1384.95 with Q = 8e-16)
-        steepest = float(np.max(np.abs(objective(theta0 / units)[1])))
-        hess_inv0 = np.eye(theta0.size) / max(1.0, steepest)
-        res = optimize.minimize(objective, theta0 / units, jac=True, method="BFGS", callback=on_iteration,
-                                options={"maxiter": iterations, "gtol": tol, "hess_inv0": hess_inv0})
-        theta, converged, message = res.x * units, bool(res.success), str(res.message)
-        if evaluate(theta)[0] < best[1]:
-            theta = best[0]
-        if res.status == 2:  # BFGS's line search stalled near the optimum: finish with Newton steps
-            theta, reached = _newton(evaluate, theta, tol * n_obs, units)
-            converged = reached is not None
-            if reached == "gradient":
-                message = "converged: the gradient is below `tol` after Newton steps with the observed information"
-            elif reached == "resolution":
-                message = ("converged: a Newton step with the observed information moves no parameter beyond its "
-                           "floating-point resolution (the gradient's round-off is above `tol`)")
+        for _ in range(_MLE_ROUNDS):
+            # the first step is -hess_inv0 @ gradient: at most 1 in any entry of φ. With the identity, a start far
+            # below the data's variances stepped a log variance by ~1e3 and stalled there (audit Y2: Nile from
+            # Q = R = 1 stopped at loglik -1384.95 with Q = 8e-16)
+            steepest = float(np.max(np.abs(objective(theta / units)[1])))
+            hess_inv0 = np.eye(theta.size) / max(1.0, steepest)
+            res = optimize.minimize(objective, theta / units, jac=True, method="BFGS", callback=on_iteration,
+                                    options={"maxiter": max(iterations - len(history) + 1, 1), "gtol": tol,
+                                             "hess_inv0": hess_inv0})
+            theta, converged, message, reached = res.x * units, bool(res.success), str(res.message), None
+            if evaluate(theta)[0] < best[1]:
+                theta = best[0]
+            if res.status == 2:  # BFGS's line search stalled near the optimum: finish with Newton steps
+                theta, reached = _newton(evaluate, theta, tol * n_obs, units)
+                converged = reached is not None
+                if reached == "gradient":
+                    message = "converged: the gradient is below `tol` after Newton steps with the observed information"
+                elif reached == "resolution":
+                    message = ("converged: a Newton step with the observed information moves no parameter beyond "
+                               "its floating-point resolution (the gradient's round-off is above `tol`)")
+            if not converged or reached == "resolution" or len(history) > iterations:
+                break
+            units = build.units(theta)  # the gradient test again, in the units where the search ended
+            if np.max(np.abs(evaluate(theta)[1] * units), initial=0.0) <= tol * n_obs:
+                break
+            converged, message = False, "stopped where the gradient test is not met in the units there"
     except KeyboardInterrupt:
         theta, converged, message = best[0], False, "interrupted: the best model so far"
     ll = evaluate(theta)[0]
     if not history or history[-1] != ll:
         history.append(ll)
     return theta, np.array(history), converged, message, evaluate
+
+
+_MLE_ROUNDS = 4
+"""How many times :func:`_mle` starts BFGS afresh in the units where the last round ended."""
 
 
 def _sizes(theta: np.ndarray, units: np.ndarray) -> np.ndarray:
