@@ -1349,66 +1349,74 @@ def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed:
     r"""Whether Fisher's identity resolves the gradient of `needed`, beside the filter's own score.
 
     The gradients of F and B read :math:`E[w_t] = E[x_t] - F_t E[x_{t-1}] - B_t u_t`
-    (through :math:`Q^{-1}`), that of Q also :math:`E[w_t w_t^\top] - Q_t`; those of H and R
-    read :math:`E[v_t] = z_t - H_t E[x_t]` and :math:`E[v_t v_t^\top] - R_t`, those of
-    m0 and P0 :math:`E[x_0] - m_0` and :math:`E[(x_0 - m_0)(x_0 - m_0)^\top] - P_0`.
-    Each is a difference of numbers of the states' size (the means) or of
-    the filter's variances (which the smoother's covariances cancel), whose
-    round-off does not shrink with the noise: where a noise is tiny beside
-    what the data resolve of the states (:math:`E[w_t] \approx Q r_t`), the
-    round-off is all there is of the difference. A process noise of 1e-20 gave
-    B a gradient of -1.3e5 for 6.1 and a fit that stopped at its start, 128
-    below the maximum; with states near 1e4, Q = 1e-8 gave it 3e-4 off; a
-    prior variance of 1e16 gave Q's 30% off (review R40). So, per component
-    (the diagonal, for the second moments) over the steps (those up to each
-    series' last observation, or with one, as EM's sums), the round-off
-    estimate, :math:`\epsilon` times the sizes of the terms, against the
-    difference, both as root sums of squares, is Fisher's relative round-off.
-    The filter's own score (:func:`_tangent_score`) reads the innovations
-    :math:`z_t - H_t m^-_t` against their standard deviations, with round-off
-    :math:`\epsilon (|z_t| + |H_t| |m_t|)`. Where Fisher's is at most
-    :data:`_FISHER_ROUNDOFF`, or at most ten times the filter's, Fisher's
-    identity gives the gradient (a level near 1e7 under unit noises costs
-    both about 1e-10 per observation, and the filter's score took 3.7 times
-    as long: review R40); elsewhere the filter's score does. Not caught: a
-    nearly singular Q amplifies, through :math:`Q^{-1}`, round-off that is
-    small per component (condition 2e7 gave B's gradient 2e-3 off).
+    through :math:`Q^{-1}`, that of H :math:`E[v_t] = z_t - H_t E[x_t]` through
+    :math:`R^{-1}`, that of m0 :math:`E[x_0] - m_0` through :math:`P_0^{-1}`; each is a
+    difference of numbers of the states' size, whose round-off does not
+    shrink with the noise: where a noise is tiny beside what the data resolve
+    of the states (:math:`E[w_t] \approx Q r_t`), the round-off is all there is
+    of the difference. A process noise of 1e-20 gave B a gradient of -1.3e5
+    for 6.1 and a fit that stopped at its start, 128 below the maximum; with
+    states near 1e4, Q = 1e-8 gave it 3e-4 off. So, per component over the
+    steps (those up to each series' last observation, or with one, as EM's
+    sums), the round-off estimate (:math:`\epsilon` times the sizes of the
+    terms) against the difference, as root sums of squares, must be at most
+    :data:`_FISHER_ROUNDOFF`, or at most ten times the filter's own: its
+    score (:func:`_tangent_score`) reads the innovations :math:`z_t - H_t m^-_t`
+    against their standard deviations, with round-off
+    :math:`\epsilon (|z_t| + |H_t| |m_t|)` (a level near 1e7 under unit noises
+    costs both about 1e-10 per observation, and the filter's score took 3.7
+    times as long: review R40).
+
+    The gradients of Q, R and P0 read :math:`E[r_t r_t^\top]` minus the noise, in
+    a log variance's units per observation the mean over the steps of
+    :math:`(E[r_t^2] - \sigma^2) / \sigma^2`; its terms are of the filter's
+    variances, which the smoother's covariances cancel (a prior variance of
+    1e16 gave Q's gradient 30% off: review R40). Their round-off, summed with
+    random signs over the steps, must be at most a tenth of maximum
+    likelihood's default tolerance. (A variance the data hardly inform can
+    have a gradient that is imprecise beside itself and negligible beside the
+    tolerance: Q = 1e-20's is 1e-15 per observation.) Elsewhere the filter's
+    own score gives the gradient. Not caught: a nearly singular Q amplifies,
+    through :math:`Q^{-1}`, round-off that is small per component (condition
+    2e7 gave B's gradient 2e-3 off).
     """
     eps = np.finfo(float).eps
-    sums: dict = {}
+    sums: dict = {}  # per kind of mean: Σ read², Σ size² per component
+    spread: dict = {}  # per kind of second moment: Σ (size / variance)² per component, and the steps
 
     def add(kind, read, size):
         total = sums.setdefault(kind, [0.0, 0.0])
         total[0] = total[0] + np.sum(read * read, axis=0)
         total[1] = total[1] + np.sum(size * size, axis=0)
 
-    def residual(kind, M, mean, cov, filtered, noise, kept, second):
-        """E[r] = M s (and diag E[r rᵀ] - diag noise) and the sizes of their terms, per component, into `kind`'s sums;
-        r's sizes, (steps, k)."""
+    def residual(kind, M, mean, cov, filtered, noise, kept, linear, second):
+        """E[r] = M s and the sizes of its terms, per component, where a `linear` parameter reads it; with `second`,
+        the round-off of diag E[r rᵀ] - diag noise over the noise's variances; r's sizes, (steps, k)."""
         if not kept.all():
             M, mean, cov, filtered = M[kept], mean[kept], cov[kept], filtered[kept]
             noise = None if noise is None else noise[kept]
         absM = np.abs(M)
         r = (M @ mean[:, :, None])[..., 0]
         r_size = (absM @ np.abs(mean)[:, :, None])[..., 0]
-        if noise is None:
-            return r_size
-        add(kind, r, r_size)
+        if linear:
+            add(kind, r, r_size)
         if second:  # the covariance's terms are of the filter's variances, which the smoother's cancelled (NaN
             # before a diffuse state is known: fmax takes the smoothed one there)
-            var = np.diagonal(noise, axis1=-2, axis2=-1)
-            quad = np.sum((M @ cov) * M, axis=-1)
-            spread = (absM @ np.sqrt(np.fmax(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), filtered))[:, :, None])
-            add(kind + "2", quad + r * r - var, spread[..., 0] ** 2 + 2.0 * r_size * np.abs(r) + np.abs(var))
+            var = np.abs(np.diagonal(noise, axis1=-2, axis2=-1))
+            sd = (absM @ np.sqrt(np.fmax(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)), filtered))[:, :, None])[..., 0]
+            size = sd ** 2 + 2.0 * r_size * np.abs(r) + var
+            total = spread.setdefault(kind, [0.0, 0])
+            total[0] = total[0] + np.sum((size / var) ** 2, axis=0)
+            total[1] += r.shape[0]
         return r_size
 
     innovation = [0.0, 0.0]
     for s in stats:
-        w_noise = s.per_step(model.Q, s.start) if needed & {"F", "B", "Q"} else None
-        if w_noise is not None:
-            residual("w", s.w_map(model.F, model.B), s.mu, s.sig, s.filtered_w, w_noise, s.kept_w, "Q" in needed)
-        v_noise = s.per_step(model.R) if needed & {"H", "R"} else None
-        v_size = residual("v", s.v_map(model.H), s.nu, s.tau, s.filtered_v, v_noise, s.kept_v, "R" in needed)
+        if needed & {"F", "B", "Q"}:
+            residual("w", s.w_map(model.F, model.B), s.mu, s.sig, s.filtered_w, s.per_step(model.Q, s.start),
+                     s.kept_w, bool(needed & {"F", "B"}), "Q" in needed)
+        v_size = residual("v", s.v_map(model.H), s.nu, s.tau, s.filtered_v, s.per_step(model.R), s.kept_v,
+                          "H" in needed, "R" in needed)
         variances = s.innovation_var[s.kept_v]
         seen = s.observed[s.kept_v] & np.isfinite(variances)  # (a diffuse first step has none)
         innovation[0] += float(np.sum(np.where(seen, variances, 0.0)))
@@ -1419,12 +1427,16 @@ def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed:
                      np.hstack([x0, np.broadcast_to(prior.mean, x0.shape)]),
                      np.pad(s.x0_cov[s.seen], ((0, 0), (0, n), (0, n))),
                      np.pad(s.filtered_x0[s.seen], ((0, 0), (0, n))), np.broadcast_to(prior.cov, (k, n, n)),
-                     np.ones(k, dtype=bool), "P0" in needed)
+                     np.ones(k, dtype=bool), "m0" in needed, "P0" in needed)
     with np.errstate(divide="ignore", invalid="ignore"):  # (a component with no residual and no size: 0)
         fisher = max((float(np.max(np.where(size > 0.0, eps * np.sqrt(size) / np.sqrt(read), 0.0), initial=0.0))
                       for read, size in sums.values()), default=0.0)
+        # a log variance's gradient per observation is the mean of (E[r²] - var) / var: its round-off, summed with
+        # random signs over the steps, against a tenth of maximum likelihood's default tolerance
+        variance = max((float(np.max(eps * np.sqrt(total) / max(steps, 1), initial=0.0))
+                        for total, steps in spread.values()), default=0.0)
     tangent = eps * np.sqrt(innovation[1]) / np.sqrt(innovation[0]) if innovation[0] > 0.0 else 0.0
-    return bool(fisher <= max(_FISHER_ROUNDOFF, 10.0 * tangent))
+    return bool(fisher <= max(_FISHER_ROUNDOFF, 10.0 * tangent) and not variance > 0.1 * _MLE_GTOL)
 
 
 def _fisher_gradient(model: LinearModel, prior, stats: list[Statistics], directions: list[dict]) -> np.ndarray:
