@@ -1344,16 +1344,18 @@ def test_the_check_reads_the_filters_variances_before_a_diffuse_state_is_known(m
     assert not learning._fisher_resolves(model, "diffuse", stats, {"Q"})
 
 
-def test_maximum_likelihood_takes_the_gradient_test_again_in_the_units_where_it_ends():
+@pytest.mark.parametrize("start", [2e-12, 1e-20])
+def test_maximum_likelihood_takes_the_gradient_test_again_in_the_units_where_it_ends(start):
     """m0 and R learned from m0 = 0 under R = 2e-12, the data near 1e3: the search raised R to 1e6, where m0's
     unit from the start (1e-6) made its gradient pass the test, and it stopped with m0 at 4e-14, said converged,
     1041 below the maximum (review R41). The test is taken again in the units where the search ends, and the
-    search goes on. Oracle: F = 1, Q = 0, so m0 is the mean and R the mean squared deviation."""
+    search goes on; also where it stalled there (from R = 1e-20 it stopped unconverged, 1041 below: review R42).
+    Oracle: F = 1, Q = 0, so m0 is the mean and R the mean squared deviation."""
     T = 50
     z = 1e3 + np.random.default_rng(0).standard_normal(T) * 1e-6
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.0, R=2e-12), gf.Gaussian([0.0], [[0.0]]), z, learn=["m0", "R"],
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.0, R=start), gf.Gaussian([0.0], [[0.0]]), z, learn=["m0", "R"],
                      method="mle")
     assert fit.converged
     assert fit.prior.mean[0] == pytest.approx(z.mean(), rel=1e-14)

@@ -1616,12 +1616,16 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
                 elif reached == "resolution":
                     message = ("converged: a Newton step with the observed information moves no parameter beyond "
                                "its floating-point resolution (the gradient's round-off is above `tol`)")
-            if not converged or reached == "resolution" or len(history) > iterations:
+            if reached == "resolution" or len(history) > iterations:
                 break
-            units = build.units(theta)  # the gradient test again, in the units where the search ended
-            if np.max(np.abs(evaluate(theta)[1] * units), initial=0.0) <= tol * n_obs:
+            ended = build.units(theta)  # the gradient test again, in the units where the search ended
+            if converged:
+                if np.max(np.abs(evaluate(theta)[1] * ended), initial=0.0) <= tol * n_obs:
+                    break
+                converged, message = False, "stopped where the gradient test is not met in the units there"
+            elif np.all((ended <= 2.0 * units) & (units <= 2.0 * ended)):  # stalled in the same units: no new try
                 break
-            converged, message = False, "stopped where the gradient test is not met in the units there"
+            units = ended
     except KeyboardInterrupt:
         theta, converged, message = best[0], False, "interrupted: the best model so far"
     ll = evaluate(theta)[0]
