@@ -61,7 +61,7 @@ from numba import types
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gaussfuse as gf  # noqa: E402
-from gaussfuse._kernels import _slr, _step  # noqa: E402
+from gaussfuse._kernels import _slr, _step, sigma_points  # noqa: E402
 from gaussfuse._kernels._dense import cho_solve, cholesky  # noqa: E402
 import workloads  # noqa: E402
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
@@ -202,16 +202,12 @@ def library_blocks_kernel():
             if not _slr.draw(x, P, rule, gf_, X):
                 return -1  # (W4 never needs the semi-definite root)
             _slr.regress(f(X), n, rule, x, state_angles, gf_)
-            for a in range(n):
-                for b in range(n):
-                    Qk[a, b] = Q[a, b] + gf_.noise[a, b]
+            sigma_points._noise(Q, gf_.noise, Qk)  # Q + Ω, as the library's kernel adds it
             _step.predict(w, x, P, gf_.A, Qk, gf_.b, xp, Pp)
             if not _slr.draw(xp, Pp, rule, gh_, Xh):
                 return -1
             _slr.regress(h(Xh), m, rule, xp, measurement_angles, gh_)
-            for a in range(m):
-                for b in range(m):
-                    Rk[a, b] = R[a, b] + gh_.noise[a, b]
+            sigma_points._noise(R, gh_.noise, Rk)
             ok, _, _ = _step.update(w, xp, Pp, zs[t], gh_.A, Rk, gh_.b, measurement_angles, x, P, v, S)
             if not ok:
                 return -1

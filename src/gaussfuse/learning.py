@@ -1340,6 +1340,8 @@ def _tangent_score(model: LinearModel, prior, zs: np.ndarray, us: np.ndarray | N
     return float(loglik), grad
 
 
+_EPS = float(np.finfo(np.float64).eps)
+
 _FISHER_ROUNDOFF = 1e-8
 """Fisher's identity gives the gradient where the round-off of the residual means it reads is at most this
 fraction of them (:func:`_fisher_resolves`); the filter's own score gives it elsewhere."""
@@ -1380,7 +1382,6 @@ def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed:
     through :math:`Q^{-1}`, round-off that is small per component (condition
     2e7 gave B's gradient 2e-3 off).
     """
-    eps = np.finfo(float).eps
     sums: dict = {}  # per kind of mean: Σ read², Σ size² per component
     spread: dict = {}  # per kind of second moment: Σ (size / variance)² per component, and the steps
 
@@ -1429,13 +1430,13 @@ def _fisher_resolves(model: LinearModel, prior, stats: list[Statistics], needed:
                      np.pad(s.filtered_x0[s.seen], ((0, 0), (0, n))), np.broadcast_to(prior.cov, (k, n, n)),
                      np.ones(k, dtype=bool), "m0" in needed, "P0" in needed)
     with np.errstate(divide="ignore", invalid="ignore"):  # (a component with no residual and no size: 0)
-        fisher = max((float(np.max(np.where(size > 0.0, eps * np.sqrt(size) / np.sqrt(read), 0.0), initial=0.0))
+        fisher = max((float(np.max(np.where(size > 0.0, _EPS * np.sqrt(size) / np.sqrt(read), 0.0), initial=0.0))
                       for read, size in sums.values()), default=0.0)
         # a log variance's gradient per observation is the mean of (E[r²] - var) / var: its round-off, summed with
         # random signs over the steps, against a tenth of maximum likelihood's default tolerance
-        variance = max((float(np.max(eps * np.sqrt(total) / max(steps, 1), initial=0.0))
+        variance = max((float(np.max(_EPS * np.sqrt(total) / max(steps, 1), initial=0.0))
                         for total, steps in spread.values()), default=0.0)
-    tangent = eps * np.sqrt(innovation[1]) / np.sqrt(innovation[0]) if innovation[0] > 0.0 else 0.0
+    tangent = _EPS * np.sqrt(innovation[1]) / np.sqrt(innovation[0]) if innovation[0] > 0.0 else 0.0
     return bool(fisher <= max(_FISHER_ROUNDOFF, 10.0 * tangent) and not variance > 0.1 * _MLE_GTOL)
 
 
@@ -1620,7 +1621,7 @@ def _mle(build, theta0, data, n_obs, iterations, tol, callback, engine):
                 break
             ended = build.units(theta)  # the gradient test again, in the units where the search ended
             if converged:
-                if np.max(np.abs(evaluate(theta)[1] * ended), initial=0.0) <= tol * n_obs:
+                if _gradient_met(evaluate(theta)[1], ended, tol * n_obs):
                     break
                 converged, message = False, "stopped where the gradient test is not met in the units there"
             elif np.all((ended <= 2.0 * units) & (units <= 2.0 * ended)):  # stalled in the same units: no new try
@@ -1661,6 +1662,11 @@ def _hessian(evaluate, theta: np.ndarray, sizes: np.ndarray, units: np.ndarray) 
     return symmetrize(hess)
 
 
+def _gradient_met(grad: np.ndarray, units: np.ndarray, gtol: float) -> bool:
+    """Maximum likelihood's gradient test: ``max|∇ℓ units| <= gtol``, the gradient in φ = θ / units."""
+    return bool(np.max(np.abs(grad * units), initial=0.0) <= gtol)
+
+
 def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray,
             steps: int = 5) -> tuple[np.ndarray, str | None]:
     """Newton steps ``θ + I(θ)⁻¹ ∇ℓ`` while they raise the log-likelihood; why they stopped at a maximum, or None.
@@ -1673,19 +1679,16 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray,
     measuring a level of 1, or 1e-12 one of 1e3: m0 equal to the data's mean to
     the last digit, and the gradient test out of reach).
     """
-    def met(grad) -> bool:
-        return bool(np.max(np.abs(grad * units), initial=0.0) <= gtol)
-
     for _ in range(steps):
         ll, grad = evaluate(theta)
-        if met(grad):
+        if _gradient_met(grad, units, gtol):
             return theta, "gradient"
         try:
             information = -_hessian(evaluate, theta, _sizes(theta, units), units)  # on φ = θ / units: finite
             if not is_positive_definite(information):
                 break
             move = units * cho_solve(cholesky(information), grad * units)
-            if np.all(np.abs(move) <= 4.0 * np.finfo(float).eps * np.abs(theta)):
+            if np.all(np.abs(move) <= 4.0 * _EPS * np.abs(theta)):
                 return theta, "resolution"
             step = theta + move
             if not evaluate(step)[0] >= ll - 1e-11 * (1.0 + abs(ll)):  # (a rise, to round-off)
@@ -1693,7 +1696,7 @@ def _newton(evaluate, theta: np.ndarray, gtol: float, units: np.ndarray,
         except NO_LIKELIHOOD:  # a neighbour with no likelihood: no step
             break
         theta = step
-    return theta, "gradient" if met(evaluate(theta)[1]) else None
+    return theta, "gradient" if _gradient_met(evaluate(theta)[1], units, gtol) else None
 
 
 def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarray) -> np.ndarray:
