@@ -71,6 +71,28 @@ def test_model_is_immutable():
             getattr(model, name)[0, 0] = 5.0
     F[0, 0] = 7.0  # the caller's array is not aliased
     assert model.F[0, 0] == 1.0
+    with pytest.raises(AttributeError, match=r"^LinearModel is immutable; build a new one instead\.$"):
+        del model.F  # (it went, and the model could no longer filter, print or pickle: audit GG1)
+    assert model.F[0, 0] == 1.0 and repr(model) == "LinearModel(n=2, m=1, p=1)"
+
+
+def test_the_matrices_at_a_step_that_is_not_one_of_the_model_are_refused_naming_k():
+    """Audit GG5: a time-varying model's at(-1) gave its last step, at(T) NumPy's IndexError, at(None) F with two
+    axes more; a time-invariant model's at("x") gave its matrices."""
+    Fs = np.stack([F2, 2 * F2, 3 * F2])
+    varying = gf.LinearModel(F=Fs, H=[1.0, 0.0], Q=np.eye(2), R=1.0)
+    fixed = gf.LinearModel(F=F2, H=[1.0, 0.0], Q=np.eye(2), R=1.0)
+    np.testing.assert_array_equal(varying.at(np.int64(2))[0], Fs[2])
+    np.testing.assert_array_equal(fixed.at(10**9)[0], F2)  # the same at every step
+    with pytest.raises(ValueError, match=r"^`k` must be a step of the model, 0 to 2 \(it is time-varying over 3 steps\); "
+                                         r"got 3\.$"):
+        varying.at(3)
+    with pytest.raises(ValueError, match=r"^`k` must be a non-negative integer; got -1\.$"):
+        varying.at(-1)
+    for model in (varying, fixed):
+        for k in (None, 1.0, "x", True):
+            with pytest.raises(TypeError, match=rf"^`k` must be a non-negative integer; got {k!r:.4}"):
+                model.at(k)
 
 
 # ---------------------------------------------------------------------------

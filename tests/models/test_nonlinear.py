@@ -33,6 +33,22 @@ def test_immutable():
         model.Q = np.eye(2)
     with pytest.raises(ValueError, match="read-only"):
         model.Q[0, 0] = 2.0
+    with pytest.raises(AttributeError, match=r"^NonlinearModel is immutable; build a new one instead\.$"):
+        del model.Q  # (it went: audit GG1)
+    np.testing.assert_array_equal(model.Q, np.eye(2))
+
+
+def test_the_noise_at_a_step_that_is_not_one_of_the_model_is_refused_naming_k():
+    """Audit GG5 (as LinearModel.at): noise(-1) read a time-varying Q from its end, noise(T) raised IndexError."""
+    model = gf.NonlinearModel(f, h, np.stack([np.eye(2), 2 * np.eye(2)]), 1.0)
+    np.testing.assert_array_equal(model.noise(1)[0], 2 * np.eye(2))
+    with pytest.raises(ValueError, match=r"^`k` must be a step of the model, 0 to 1 \(it is time-varying over 2 steps\); "
+                                         r"got 2\.$"):
+        model.noise(2)
+    with pytest.raises(ValueError, match="non-negative integer; got -1"):
+        model.noise(-1)
+    with pytest.raises(TypeError, match="non-negative integer; got 0.0"):
+        model.noise(0.0)
 
 
 @pytest.mark.parametrize(

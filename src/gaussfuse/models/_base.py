@@ -4,14 +4,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_numbers
+from .._validation import as_numbers, integer
 
-__all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state"]
+__all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state", "check_step"]
 
 def check_dim(value) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 3:
         raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
     return int(value)
+
+
+def check_step(k, steps: int | None) -> int:
+    """`k` as a step of a model: an integer from 0, below `steps` where the model is time-varying over `steps`.
+
+    A negative step read a time-varying model's matrices from its end, one past its last raised NumPy's
+    IndexError, and None added an axis (audit GG5).
+    """
+    if isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)) and 0 <= k < (steps or k + 1):
+        return k
+    k = integer("k", k, minimum=0)
+    raise ValueError(f"`k` must be a step of the model, 0 to {steps - 1} (it is time-varying over {steps} "
+                     f"steps); got {k}.")
 
 
 def check_noise_kind(value) -> str:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_matrix, check_psd, real
-from ._base import check_names
+from ._base import Frozen, check_names, check_step
 
 __all__ = ["LinearModel"]
 
 
-class LinearModel:
+class LinearModel(Frozen):
     r"""A linear-Gaussian state-space model with optional control input.
 
     .. math::
@@ -97,9 +97,6 @@ class LinearModel:
         object.__setattr__(self, "dt", None if dt is None else real("dt", dt, positive=True))
         object.__setattr__(self, "names", check_names(names, n, None))
 
-    def __setattr__(self, name, value):
-        raise AttributeError("LinearModel is immutable; build a new one instead.")
-
     @classmethod
     def _indexed(cls, distinct: LinearModel, index: np.ndarray) -> LinearModel:
         """The model whose step k has the matrices of `distinct`'s step ``index[k]``.
@@ -159,8 +156,8 @@ class LinearModel:
         Parameters
         ----------
         k : int
-            The step, from 0; a time-invariant matrix is the same at every
-            step.
+            The step, from 0 (below :attr:`steps` for a time-varying model);
+            a time-invariant matrix is the same at every step.
 
         Returns
         -------
@@ -174,7 +171,13 @@ class LinearModel:
             Measurement-noise covariance.
         B : ndarray of shape (n, p) or None
             Control matrix; None without a control input.
+
+        Raises
+        ------
+        TypeError, ValueError
+            When `k` is not an integer, or not a step of the model.
         """
+        k = check_step(k, self.steps)
         return tuple(None if a is None else (a[k] if a.ndim == 3 else a)
                      for a in (self.F, self.H, self.Q, self.R, self.B))
 

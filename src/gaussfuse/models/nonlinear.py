@@ -9,12 +9,12 @@ import numpy as np
 
 from .._validation import (as_matrix, call_checked, call_each, check_psd, component_mask, flag, integer, real,
                            size_reason)
-from ._base import check_names
+from ._base import Frozen, check_names, check_step
 
 __all__ = ["NonlinearModel"]
 
 
-class NonlinearModel:
+class NonlinearModel(Frozen):
     r"""A nonlinear state-space model with additive Gaussian noise.
 
     .. math::
@@ -147,9 +147,6 @@ class NonlinearModel:
         object.__setattr__(self, "p", None if p is None else integer("p", p, minimum=0))
         object.__setattr__(self, "names", check_names(names, Q.shape[-1], None))
 
-    def __setattr__(self, name, value):
-        raise AttributeError("NonlinearModel is immutable; build a new one instead.")
-
     def __reduce__(self):
         # Pickled and copied by its arguments, rebuilt (validated, read-only) by the constructor.
         # f, h and the Jacobians pickle as themselves: a lambda or a closure raises pickle's own
@@ -183,8 +180,8 @@ class NonlinearModel:
         Parameters
         ----------
         k : int
-            The step, from 0; a time-invariant matrix is the same at every
-            step.
+            The step, from 0 (below :attr:`steps` for a time-varying model);
+            a time-invariant matrix is the same at every step.
 
         Returns
         -------
@@ -192,7 +189,13 @@ class NonlinearModel:
             Process-noise covariance.
         R : ndarray of shape (m, m)
             Measurement-noise covariance.
+
+        Raises
+        ------
+        TypeError, ValueError
+            When `k` is not an integer, or not a step of the model.
         """
+        k = check_step(k, self.steps)
         return tuple(a[k] if a.ndim == 3 else a for a in (self.Q, self.R))
 
     def __repr__(self) -> str:
