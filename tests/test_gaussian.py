@@ -528,3 +528,31 @@ def test_a_mixtures_circular_mean_is_wrapped_to_minus_pi_up_to_pi(degrees):
     assert -np.pi <= mean[1] < np.pi and mean[0] == 2.0
     spread = gf.wrap_angle(means[:, 1] - mean[1])  # each mode's heading from the mean, the short way round
     assert cov[1, 1] == pytest.approx(0.01 + np.mean(spread ** 2), rel=1e-12)
+
+
+def test_a_belief_the_filter_computed_is_taken_back_as_it_is():
+    """Audit GG2: the covariance form's last covariance of a huge prior and a sharp sensor is indefinite by
+    round-off (the form's documented limit), beyond the PSD test's tolerance for what users give: `res.last` and a
+    forecast from `res` raised a ValueError about a `cov` the user never passed, and an online filter's belief
+    pickled but did not unpickle. They take the filter's numbers as they are now."""
+    import pickle
+
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.zeros((2, 2)), R=1e-12)
+    prior = gf.Gaussian([0.0, 0.0], 1e12 * np.eye(2))
+    zs = 3.0 + np.arange(40.0) + 1e-6 * np.random.default_rng(0).standard_normal(40)
+    res = gf.filter(model, prior, zs, check="off", engine="python")
+    with pytest.raises(ValueError, match="positive semi-definite"):  # what the case is: refused from a user
+        gf.Gaussian(res.last_mean, res.last_cov)
+    last = res.last
+    np.testing.assert_array_equal(last.mean, res.last_mean)
+    np.testing.assert_array_equal(last.cov, res.last_cov)
+    assert not last.cov.flags.writeable and res.last_cov.flags.writeable  # the result's own array is left as it was
+    ahead = gf.forecast(model, res, steps=2)
+    np.testing.assert_array_equal(ahead.means[0], gf.forecast(model, last, steps=1).means[0])
+    kf = gf.KalmanFilter(model, prior)
+    for z in zs:
+        kf.predict()
+        kf.update(z)
+    for copied in (pickle.loads(pickle.dumps(kf.belief)), pickle.loads(pickle.dumps(kf.belief, 0))):
+        np.testing.assert_array_equal(copied.cov, kf.belief.cov)
+        assert isinstance(copied, gf.Gaussian) and not copied.cov.flags.writeable

@@ -293,7 +293,7 @@ def _last_belief(belief, n: int) -> Gaussian:
         if belief.last_mean.ndim != 1:
             raise ValueError(f"`belief` must be the result of one series; got a batch of {belief.last_mean.shape[0]} "
                              "(forecast each series from its own result).")
-        belief = Gaussian(belief.last_mean, belief.last_cov)
+        belief = belief.last
     if not isinstance(belief, Gaussian):
         raise TypeError(f"`belief` must be a gaussfuse.Gaussian, FilterResult or SmoothResult; "
                         f"got {type(belief).__name__}.")

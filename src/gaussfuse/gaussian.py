@@ -67,9 +67,11 @@ class Gaussian:
         return cls._trusted(*_checked(mean, cov, dim, names))
 
     def __reduce__(self):
-        # Pickled and copied by its arguments: the constructor makes the arrays read-only
-        # again, which a pickle (protocol < 5) or a deep copy of the arrays would not.
-        return type(self), (self.mean, self.cov)
+        # Pickled and copied by its arguments, made read-only again (which a pickle of protocol < 5 or a deep copy
+        # of the arrays would not do) but not checked again: they passed the constructor's checks, or are a belief
+        # gaussfuse computed, whose round-off those checks may refuse (a filter's indefinite covariance at
+        # -1e-24 did not unpickle: audit GG2).
+        return type(self)._trusted, (self.mean, self.cov)
 
     @classmethod
     def _trusted(cls, mean: np.ndarray, cov: np.ndarray) -> Gaussian:

@@ -47,6 +47,19 @@ def test_the_gate_is_the_chi_square_test_and_a_rejection_is_a_missing_value(by, 
     assert res.loglik == plain.loglik
 
 
+@pytest.mark.parametrize("batch", [False, True])
+def test_keep_last_keeps_nothing_per_step_with_a_gate_either(batch):
+    """Audit GG4: keep="last" kept the gate's per-step `rejected` (T, m), where its documentation promises nothing
+    per step, so that memory does not grow with T; its final belief and log-likelihood are the full run's."""
+    model, prior, zs, _ = _track(seed=3)
+    zs = np.stack([zs, zs[::-1]]) if batch else zs
+    full = gf.filter(model, prior, zs, gate=0.999)
+    last = gf.filter(model, prior, zs, gate=0.999, keep="last")
+    assert full.rejected.any() and last.rejected is None
+    np.testing.assert_array_equal(last.last_mean, full.last_mean)
+    np.testing.assert_array_equal(last.loglik, full.loglik)
+
+
 def test_gating_removes_the_outliers_damage():
     model, prior, zs, truth = _track(seed=3)
     gated = gf.smooth(model, prior, zs, gate=0.999)

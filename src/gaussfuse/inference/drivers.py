@@ -111,7 +111,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     factors, pfactors = np.empty((crows if sqrt else 0, n, n)), np.empty((crows if sqrt else 0, n, n))
     used = np.empty(rows if tol is not None else 0, dtype=np.int64)  # an iterated method's passes, even 1
     K = np.zeros((rows if gains else 0, n, m))
-    rejected = np.zeros((T if gate is not None else 0, m), dtype=bool)
+    rejected = np.zeros((rows if gate is not None else 0, m), dtype=bool)
     nis = np.empty(rows)
     unconverged, loglik = 0, 0.0
     mean, cov = prior.mean, prior.cov
@@ -133,9 +133,9 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
                                      steady, gate)
                     mean, cov = st.update.mean, st.update.cov
                 post = st.update
-                if post.rejected is not None:
-                    rejected[k] = post.rejected
                 if rows:
+                    if post.rejected is not None:
+                        rejected[k] = post.rejected
                     pmeans[k], means[k], innov[k], nis[k] = st.predicted_mean, mean, post.innovation, post.nis
                     if used.shape[0]:
                         used[k] = st.passes
@@ -156,7 +156,7 @@ def run_filter(lin, prior: Gaussian, zs: np.ndarray, *, iterations: int = 1, tol
     result = FilterResult(*(a if a.shape[0] else None for a in per_step), loglik, mean,
                           _square(cov) if sqrt else cov, used if used.shape[0] else None,
                           factors if factors.shape[0] else None, pfactors if pfactors.shape[0] else None,
-                          K if K.shape[0] else None, nis if rows else None, rejected if gate is not None else None)
+                          K if K.shape[0] else None, nis if rows else None, rejected if rejected.shape[0] else None)
     return result, unconverged
 
 

@@ -133,7 +133,8 @@ class FilterResult:
         """The final filtered belief, to continue filtering from (one series only)."""
         if self.last_mean.ndim != 1:
             raise ValueError("`last` is for one series; use `last_mean` and `last_cov` for a batch.")
-        return Gaussian(self.last_mean, self.last_cov)
+        # the filter's own belief, not checked as a user's (its round-off can fail the PSD test: audit GG2)
+        return Gaussian._trusted(np.array(self.last_mean), np.array(self.last_cov))
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,8 +238,8 @@ def first(result, index: int = 0):
 def kept(result: FilterResult, keep: str) -> FilterResult:
     """Drop what `keep` does not ask for from a full single-series result."""
     covariances = ("covs", "predicted_covs", "innovation_covs", "cov_factors", "predicted_cov_factors")
-    drop = {"all": (), "means": covariances,
-            "last": ("means", "predicted_means", "innovations", "iterations", "gains", "nis", *covariances)}[keep]
+    per_step = ("means", "predicted_means", "innovations", "iterations", "gains", "nis", "rejected")
+    drop = {"all": (), "means": covariances, "last": per_step + covariances}[keep]
     return replace(result, **dict.fromkeys(drop))
 
 
