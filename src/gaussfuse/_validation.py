@@ -60,6 +60,15 @@ def as_array(name: str, value, *, allow_nan: bool = False, copy: bool = True) ->
                 raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
             if entry is None and not allow_nan:
                 raise ValueError(f"`{name}` must be an array of numbers; got None at index {index}.")
+            # the cast below would read the text "10" as 10, a date as a count of days, and drop an imaginary part
+            if isinstance(entry, (str, bytes)):
+                raise TypeError(f"`{name}` must be an array of numbers; got the text {entry!r:.40} at index {index}.")
+            if isinstance(entry, (complex, np.complexfloating)):
+                raise TypeError(f"`{name}` must be real; got the complex value {entry} at index {index}.")
+            if isinstance(entry, (datetime.date, datetime.timedelta, np.datetime64, np.timedelta64)):
+                raise TypeError(f"`{name}` must be an array of numbers; got the date or time {entry} at index {index} "
+                                "(dates and times are not numbers here, and are not converted to counts of days or "
+                                "seconds).")
     if kind == "b" or (isinstance(value, (list, tuple)) and _holds_bool(value)):
         raise TypeError(f"`{name}` must be an array of numbers; got booleans.")
     if kind in ("U", "S"):  # the cast below would read "1" as 1.0

@@ -21,7 +21,7 @@ from ..models.compose import TimedModel
 from . import chunked, diffuse, drivers, frames, timing
 from .registry import METHODS
 from .results import KEEP, FilterResult, SmoothResult, first, kept, stack
-from .validation import check_steady, prepare
+from .validation import check_model, check_steady, prepare
 
 __all__ = ["filter", "smooth", "FilterResult", "SmoothResult", "METHODS"]
 
@@ -362,6 +362,7 @@ def smooth(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
 def _inputs(model, zs, us, times, steady: bool = False):
     """A pandas `zs` unpacked and a TimedModel discretised at `times`: ``(model, zs, us, table, state names)``;
     with `steady`, at regular times for their one step (:func:`~.timing.resolve`)."""
+    check_model(model)  # (before `model` is read: its message names a TimedModel, and a motion's remedy: audit GG6)
     zs, times, table = frames.unpack(zs, times, model)
     us = frames.controls(us, table)
     names = getattr(model, "names", None)

@@ -13,7 +13,9 @@ from .._validation import as_array, flag, shape_error
 from ..gaussian import Gaussian
 from ..models.compose import TimedModel
 from ..models.linear import LinearModel
+from ..models.motion import LinearMotion, NonlinearMotion
 from ..models.nonlinear import NonlinearModel
+from ..models.sensors import LinearSensor, NonlinearSensor
 from .registry import FORMS, METHODS, resolve_method
 
 __all__ = ["check_model", "check_prior", "check_measurements", "check_controls", "check_steps", "check_form", "check_steady",
@@ -23,8 +25,12 @@ __all__ = ["check_model", "check_prior", "check_measurements", "check_controls",
 def check_model(model) -> None:
     """`model` must be a LinearModel, a NonlinearModel or a TimedModel (what :func:`gaussfuse.model` makes)."""
     if not isinstance(model, (LinearModel, NonlinearModel, TimedModel)):
+        part = ("motion" if isinstance(model, (LinearMotion, NonlinearMotion)) else
+                "sensor" if isinstance(model, (LinearSensor, NonlinearSensor)) else None)
+        hint = (f" (a {part} model: gaussfuse.model(motion, sensor) makes the model of both, or of a motion and a "
+                "dict of named sensors)") if part else ""
         raise TypeError(f"`model` must be a gaussfuse.LinearModel, NonlinearModel or TimedModel; "
-                        f"got {type(model).__name__}.")
+                        f"got {type(model).__name__}{hint}.")
 
 
 def check_prior(prior, n: int, *, diffuse_ok: bool = False, name: str = "prior") -> Gaussian | str:
