@@ -56,7 +56,11 @@ class FilterResult:
     cov_factors : ndarray of shape (T, n, n), or None
         With ``form="sqrt"``: the lower-triangular Cholesky factors
         :math:`L_k` the square-root filter propagates, ``covs[k] = L_k L_kᵀ``
-        (symmetrised). None for the covariance form.
+        (symmetrised). None for the covariance form. A singular covariance
+        (a state known exactly) has many such factors: below a pivot of 0
+        (or of round-off) a column holds whatever the triangularisation left,
+        and the two engines may leave different ones (a noise-free sensor:
+        entries 0.3 and -0.47 for the same ``covs``).
     predicted_cov_factors : ndarray of shape (T, n, n), or None
         With ``form="sqrt"``: the factors of `predicted_covs`.
     gains : ndarray of shape (T, n, m), or None
@@ -163,7 +167,8 @@ class SmoothResult:
         None for the other methods.
     cov_factors : ndarray of shape (T, n, n), or None
         With ``form="sqrt"``: the lower-triangular factors of `covs`
-        (``covs[k] = L_k L_kᵀ``, symmetrised). None for the covariance form.
+        (``covs[k] = L_k L_kᵀ``, symmetrised); not unique where a covariance
+        is singular (see :class:`FilterResult`). None for the covariance form.
     """
 
     means: np.ndarray
