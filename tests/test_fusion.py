@@ -427,6 +427,43 @@ def test_fuser_validation():
         gf.Fuser(_motion(), _sensors(), [0.0] * 4, 0.0)
 
 
+def test_a_fusers_belief_and_time_are_checked_when_set():
+    """Audit HH2: they were plain attributes, and a wrong one failed at the next update with NumPy's matmul error
+    (a 3-state belief), an AttributeError (a tuple) or a comparison of a float with a str (a time of 'noon')."""
+    fuser = gf.Fuser(_motion(), _sensors(), _prior(), 0.0)
+    with pytest.raises(ValueError, match=re.escape("`belief` must have dimension 4 (the model's state); got 3.")):
+        fuser.belief = gf.Gaussian(np.zeros(3), np.eye(3))
+    with pytest.raises(TypeError, match=re.escape("`belief` must be a gaussfuse.Gaussian(mean, cov); got tuple.")):
+        fuser.belief = (np.zeros(4), np.eye(4))
+    with pytest.raises(TypeError, match=re.escape("`t` must be a real number of seconds or a datetime; got 'noon'.")):
+        fuser.t = "noon"
+    with pytest.raises(TypeError, match=re.escape("`t` must be a real number of seconds, as `t0` is")):
+        fuser.t = np.datetime64("2026-01-01")
+    assert fuser.t == 0.0 and fuser.belief is not None
+    restarted = gf.Gaussian(np.ones(4), 2.0 * np.eye(4))  # a track restarted by hand, at 5 s
+    fuser.belief, fuser.t = restarted, 5
+    fresh = gf.Fuser(_motion(), _sensors(), restarted, 5.0)
+    for f in (fuser, fresh):
+        f.update(6.0, "pos", [1.0, 2.0])
+    np.testing.assert_array_equal(fuser.belief.mean, fresh.belief.mean)
+    assert fuser.t == 6.0 and isinstance(fuser.t, float)
+
+
+def test_a_motion_that_overflows_over_one_second_fuses_steps_of_milliseconds():
+    """Audit HH1: fuse_timeline and Fuser built a model over 1 s first, which a LinearSDE of rate 800/s overflows
+    (StepOverflowError naming a step of 1 s nobody gave), where filter(times=...) and KalmanFilter take it."""
+    motion, sensor = gf.LinearSDE([[800.0]], [1.0], 1.0), gf.LinearSensor(H=1.0, R=1.0)
+    prior, ts, zs = gf.Gaussian([0.0], [[1.0]]), 1e-3 * np.arange(1, 6), np.array([0.1, 0.2, 0.3, 0.5, 0.8])
+    want = gf.filter(gf.model(motion, sensor), prior, zs, times=np.r_[0.0, ts])
+    timeline = gf.fuse_timeline(motion, {"s": sensor}, prior, 0.0, [(t, "s", z) for t, z in zip(ts, zs)])
+    np.testing.assert_allclose(timeline.means, want.means, rtol=1e-13)
+    fuser = gf.Fuser(motion, {"s": sensor}, prior, 0.0)
+    for t, z in zip(ts, zs):
+        fuser.update(t, "s", z)
+    np.testing.assert_allclose(fuser.belief.mean, want.last_mean, rtol=1e-13)
+    np.testing.assert_allclose(fuser.belief.cov, want.last_cov, rtol=1e-13)
+
+
 def test_scalar_sensor_and_nan_component():
     motion = gf.ConstantVelocity(dim=1, q=0.1)
     sensors = {"gps": gf.Position(dim=1, r=4.0), "both": gf.LinearSensor(H=np.eye(2), R=np.eye(2))}

@@ -40,7 +40,7 @@ from .inference.registry import resolve_method
 from .inference.results import stack
 from .inference.validation import check_prior
 from .models.compose import model as compose_model
-from .models.compose import stack_sensors
+from .models.compose import probe_step, stack_sensors
 from .models.linear import LinearModel
 from .models.motion import LinearMotion, NonlinearMotion
 from .models.nonlinear import NonlinearModel
@@ -210,7 +210,7 @@ class _Timeline:
         noise. A linear timeline is a time-varying LinearModel; otherwise a
         NonlinearModel whose ``f(x, u)`` moves x over ``dt = u[0]``.
         """
-        probe = self.model_over(1.0)
+        probe = probe_step(self.model_over)[0]  # (of 1 s, which overflowed a LinearSDE at 800/s: audit HH1)
         Q = np.stack([self.model_over(float(dt)).Q if dt > 0 else np.zeros((self.n, self.n)) for dt in dts])
         if self.linear:
             F = np.stack([self.model_over(float(dt)).F if dt > 0 else np.eye(self.n) for dt in dts])
@@ -558,10 +558,12 @@ class Fuser:
     Attributes
     ----------
     belief : Gaussian
-        The current belief, at time `t`.
+        The current belief, at time `t`. It may be set (to restart a
+        track), to a Gaussian over the motion's state.
     t : float or numpy.datetime64
         The time of the belief: seconds, or (when `t0` was a datetime) a
-        UTC datetime64 in the finest resolution given so far.
+        UTC datetime64 in the finest resolution given so far. It may be set,
+        in the kind `t0` was given in.
     loglik : float
         Log-likelihood of the measurements taken so far.
 
@@ -603,9 +605,9 @@ class Fuser:
                  check: str = "warn", **options) -> None:
         self._monitor = DivergenceMonitor.for_check(check)
         self._timeline = _Timeline(motion, sensors)
-        self.belief = check_prior(prior, self._timeline.n)
-        self.t = _time("t0", t0)
-        self._dated = isinstance(self.t, np.datetime64)
+        self._belief = check_prior(prior, self._timeline.n)
+        self._t = _time("t0", t0)
+        self._dated = isinstance(self._t, np.datetime64)
         self.loglik = 0.0
         probe, _ = self._timeline.model(np.zeros(1))
         method = self._timeline.default_method() if method is None else method
@@ -620,6 +622,24 @@ class Fuser:
         self._state_angles, self._measurement_angles = (
             mask if mask is not None and mask.any() else None
             for mask in (getattr(probe, "state_angles", None), getattr(probe, "measurement_angles", None)))
+
+    @property
+    def belief(self) -> Gaussian:
+        """The current belief, at time :attr:`t`; set it (a Gaussian over the motion's state) to restart a track."""
+        return self._belief
+
+    @belief.setter
+    def belief(self, value: Gaussian) -> None:  # (unchecked, a wrong one failed at the next update: audit HH2)
+        self._belief = check_prior(value, self._timeline.n, name="belief")
+
+    @property
+    def t(self):
+        """The time of the belief; set it (seconds, or a datetime where `t0` was one) with :attr:`belief`."""
+        return self._t
+
+    @t.setter
+    def t(self, value) -> None:
+        self._t = _time("t", value, self._dated)
 
     def __repr__(self) -> str:  # (the default named only the object's address: audit Y3)
         return (f"Fuser(sensors={list(self._timeline.names)}, method={self._method!r}, t={self.t!r}, "
@@ -648,9 +668,9 @@ class Fuser:
             model, _ = self._timeline.model(np.array([dt]))
             lin = self._strategy(model, [dt])
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
-                self.belief = Gaussian._trusted(*kalman.forecast(lin, 0, self.belief.mean, self.belief.cov,
-                                                                 self._state_angles))
-        self.t = t
+                self._belief = Gaussian._trusted(*kalman.forecast(lin, 0, self._belief.mean, self._belief.cov,
+                                                                  self._state_angles))
+        self._t = t
 
     def predict(self, t: float) -> Gaussian:
         """Move the belief to time `t` (>= the current time) and return it.
@@ -694,16 +714,16 @@ class Fuser:
         t = _time("t", t, self._dated)
         name = self._timeline.check_name(sensor, "sensor")
         z = self._timeline.measurement_vector(name, z)
-        before = self.belief, self.t
+        before = self._belief, self._t
         self._advance(t, "t")
         try:
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow raises FloatingPointError
                 post = kalman.correct(self._measure, 0, self.belief.mean, self.belief.cov, z,
                                       state_angles=self._state_angles, measurement_angles=self._measurement_angles)[0]
         except BaseException:  # a failed (or interrupted) update leaves the fuser as it was (it had moved to `t`)
-            self.belief, self.t = before
+            self._belief, self._t = before
             raise
-        self.belief = Gaussian._trusted(post.mean, post.cov)
+        self._belief = Gaussian._trusted(post.mean, post.cov)
         self.loglik += post.loglik
         if self._monitor is not None:
             self._monitor.observe(post, self.t, "times {} to {}")

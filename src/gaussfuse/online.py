@@ -8,13 +8,13 @@ import numpy as np
 
 from . import kalman
 from ._linalg import symmetrize
-from ._validation import StepOverflowError, as_array, as_matrix, check_psd, real, shape_error
+from ._validation import as_array, as_matrix, check_psd, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .inference.registry import linearisation, resolve_method
 from .inference.validation import check_form, check_prior, check_semidefinite
-from .models.compose import TimedModel
+from .models.compose import TimedModel, probe_step
 from .models.linear import LinearModel
 from .models.motion import LinearMotion
 
@@ -461,18 +461,14 @@ class KalmanFilter:
 
 
 def _one_step(timed: TimedModel) -> tuple:
-    """A TimedModel's model over one step, for the method, dimensions and angles, and the number of controls its
-    motion takes (its nonlinear steps take dt too, which the user does not give): of 1 s, or shorter where that
-    overflows (a LinearSDE's rate of 800/s: audit DD3), as :class:`TimedModel` checks itself."""
-    dt = 1.0
-    while True:
-        try:
-            B = timed.motion.control(dt) if isinstance(timed.motion, LinearMotion) else None
-            return timed.at(np.array([dt]))[0], 0 if B is None else B.shape[1]
-        except StepOverflowError:
-            if dt < 1e-290:
-                raise
-            dt *= 2.0**-32
+    """A TimedModel's model over one step (:func:`~.models.compose.probe_step`), for the method, dimensions and
+    angles, and the number of controls its motion takes (its nonlinear steps take dt too, which the user does not
+    give)."""
+    def over(dt: float) -> tuple:
+        B = timed.motion.control(dt) if isinstance(timed.motion, LinearMotion) else None
+        return timed.at(np.array([dt]))[0], 0 if B is None else B.shape[1]
+
+    return probe_step(over)[0]
 
 
 class _Replaced:

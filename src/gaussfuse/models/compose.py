@@ -6,7 +6,7 @@ model, measuring the positions, in one call.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from functools import partial
 
 import numpy as np
@@ -133,6 +133,23 @@ def model(motion, sensor, dt: float | None = None, *, names=None) -> LinearModel
                           names=names)
 
 
+def probe_step(build: Callable[[float], object]) -> tuple[object, float]:
+    """``(build(dt), dt)`` for a step of dt = 1 s, or for steps 2**-32 times shorter where that overflows.
+
+    For what does not depend on the step's length (dimensions, the sensor,
+    the method): a motion whose F or Q overflows over 1 s (a LinearSDE's
+    rate of 800/s: audit DD3) may serve steps of milliseconds.
+    """
+    dt = 1.0
+    while True:
+        try:
+            return build(dt), dt
+        except StepOverflowError:
+            if dt < 1e-290:
+                raise
+            dt *= 2.0**-32
+
+
 class TimedModel(Frozen):
     r"""A motion observed by a sensor, discretised for each step's own time step (:func:`model` without dt).
 
@@ -167,10 +184,7 @@ class TimedModel(Frozen):
     __slots__ = ("motion", "sensor", "names")
 
     def __init__(self, motion, sensor, names=None) -> None:
-        try:
-            model(motion, sensor, 1.0)  # checks that they fit, as model() does
-        except StepOverflowError:
-            pass  # a step of 1 s too long for the motion says nothing of the steps it will be given
+        probe_step(partial(model, motion, sensor))  # checks that they fit, as model() does
         self._set(motion=motion, sensor=sensor, names=check_names(names, motion.n, tuple(motion.names)))
 
     def __repr__(self) -> str:
