@@ -62,7 +62,10 @@ class KalmanFilter:
         a consistent filter is flagged with probability at most 1e-3 over its
         whole run), and, for gated updates, its test of a gate that rejects
         at least half (a lost track): a :class:`gaussfuse.DivergenceWarning`
-        naming the steps, raised with ``"raise"``.
+        naming the steps, raised with ``"raise"``. A window is tested once
+        it is full, from the 50th update with an observation on: a shorter
+        run is not tested, where :func:`gaussfuse.filter` tests a shorter
+        series whole.
     method : str, optional
         How the model is made affine (:data:`gaussfuse.METHODS`): "kf" for
         a LinearModel, "ukf" by default for a NonlinearModel.
