@@ -124,6 +124,15 @@ def test_models_without_a_steady_state_are_named():
     assert type(e.value) is ValueError
 
 
+def test_two_sensors_repeating_one_measurement_are_named_as_such():
+    """Audit HH4: two sensors of one state with fully correlated noise (R singular, S singular at every step) were
+    said to be a state "known exactly in the long run" with "R = 0 where it is measured", neither of which holds."""
+    model = gf.LinearModel(F=1.0, H=[[1.0], [2.0]], Q=1.0, R=[[1.0, 2.0], [2.0, 4.0]])
+    with pytest.raises(ValueError, match=r"or repeats another measurement with the same noise \(two sensors of one "
+                                         r"component with fully correlated noise\)\. Give R a positive definite"):
+        gf.steady_state(model)
+
+
 @pytest.mark.parametrize("engine", ["python", "numba"])
 def test_the_steady_state_filter_equals_the_full_filter_after_convergence(engine):
     """Held from the first step within 1e-10 of the stationary covariance: the full filter to 1e-9, sooner."""

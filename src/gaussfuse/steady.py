@@ -139,8 +139,11 @@ def steady_state(model: LinearModel) -> Stationary:
     except np.linalg.LinAlgError:
         raise ValueError(
             "the filter of `model` has no steady gain: its stationary innovation covariance S = H P Hᵀ + R is "
-            f"singular ({np.array2string(symmetrize(model.H @ P @ model.H.T + model.R), separator=', ')}): the "
-            "state is known exactly in the long run and R = 0 where it is measured. Give R a positive variance."
+            f"singular ({np.array2string(symmetrize(model.H @ P @ model.H.T + model.R), separator=', ')}): a "
+            "combination of the measurements has no noise (R is singular on it) and measures what the state knows "
+            "exactly in the long run, or repeats another measurement with the same noise (two sensors of one "
+            "component with fully correlated noise). Give R a positive definite covariance, or leave out the "
+            "repeated measurement."
         ) from None
     out = Stationary(P, g.cov, g.K, g.innovation_cov)
     for f in fields(out):
