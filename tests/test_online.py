@@ -180,6 +180,20 @@ def test_stepping_past_the_end_of_a_time_varying_model():
     assert kf.step == 2
 
 
+def test_the_step_is_checked_when_set():
+    """Audit HH5: `step` was a plain attribute: -3 was taken, and a time-invariant model predicted from it."""
+    kf = gf.KalmanFilter(gf.LinearModel(np.ones((3, 1, 1)), 1.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]))
+    for bad, error in ((-3, ValueError), (1.5, TypeError), (None, TypeError)):
+        with pytest.raises(error, match=rf"^`step` must be a non-negative integer; got {bad!r}\.$"):
+            kf.step = bad
+    assert kf.step == 0
+    kf.predict()
+    kf.step = 0  # the time-varying model's first step again
+    kf.predict()
+    assert kf.step == 1 and repr(kf).count("step=1") == 1
+    assert pickle.loads(pickle.dumps(kf)).step == 1
+
+
 def test_constructor_checks_model_and_prior():
     with pytest.raises(TypeError, match=r"^`model` must be a LinearModel, NonlinearModel; got dict\.$"):
         gf.KalmanFilter({}, gf.Gaussian([0.0], [[1.0]]))

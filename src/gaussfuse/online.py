@@ -8,7 +8,7 @@ import numpy as np
 
 from . import kalman
 from ._linalg import symmetrize
-from ._validation import as_array, as_matrix, check_psd, real, shape_error
+from ._validation import as_array, as_matrix, check_psd, integer, real, shape_error
 from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
@@ -94,7 +94,8 @@ class KalmanFilter:
         for a TimedModel, those of the last step predicted (before the
         first, of a step of 1 s, or shorter where that overflows).
     step : int
-        Number of predictions made so far.
+        Number of predictions made so far; settable (to a non-negative
+        integer), to start a time-varying model's steps again, say.
     loglik : float
         Sum of the log-likelihood contributions of the updates so far.
     x_prior, P_prior : ndarray
@@ -149,7 +150,7 @@ class KalmanFilter:
         self._views: dict[str, np.ndarray] = {}  # x and P as handed out, for in-place changes
         self._factor: tuple[Gaussian, np.ndarray] | None = None  # (belief, its factor) in the square-root form
         self._roots = kalman.Factors()
-        self.step = 0
+        self._step = 0
         self.loglik = 0.0
         self._controls: dict = {}  # u_k of the step being predicted, for the strategy
         self._lin, self._iterations, self._tol = linearisation(spec, model, self._controls, options)
@@ -190,6 +191,8 @@ class KalmanFilter:
 
     def __setstate__(self, state: dict) -> None:
         readonly = state.pop("_readonly", ())
+        if "step" in state:  # (pickled before `step` was a checked property)
+            state["_step"] = state.pop("step")
         self.__dict__.update(state)
         self._belief = Gaussian._trusted(*state["_belief"])
         self._factor = None if state["_factor"] is None else (self._belief, state["_factor"])
@@ -199,6 +202,16 @@ class KalmanFilter:
     def __repr__(self) -> str:
         return (f"KalmanFilter({self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "
                 f"loglik={self.loglik:.6g})")
+
+    @property
+    def step(self) -> int:
+        """Number of predictions made so far: the step of a time-varying model the next one takes; settable, to a
+        non-negative integer."""
+        return self._step
+
+    @step.setter
+    def step(self, value: int) -> None:
+        self._step = integer("step", value, minimum=0)
 
     # -- the belief, and filterpy's x and P --------------------------------
 
@@ -309,7 +322,7 @@ class KalmanFilter:
             The prediction, also in ``x_prior`` and ``P_prior``.
         """
         belief = self.belief
-        k = self.step
+        k = self._step
         self._check_step(k)
         # a NonlinearModel's too, when it knows its f's controls (audit AA1); a TimedModel's, its motion's (its
         # nonlinear steps take dt as a control of their own, which the user does not give: audit DD3)
@@ -342,7 +355,7 @@ class KalmanFilter:
             self._steady = self._fresh_steady()
         self._views.clear()
         self.x_prior, self.P_prior = self._belief.mean, self._belief.cov
-        self.step += 1
+        self._step += 1
         return self._belief
 
     def update(self, z, R=None, H=None, gate: float | None = None, gate_by: str = "measurement") -> Gaussian:
@@ -372,7 +385,7 @@ class KalmanFilter:
             and ``mahalanobis``.
         """
         belief = self.belief
-        k = max(self.step - 1, 0)
+        k = max(self._step - 1, 0)
         self._check_step(k)
         m = self._model.m if H is None else self._matrix("H", H, None, self._model.n).shape[0]
         if H is not None and m != self._model.m and R is None:
