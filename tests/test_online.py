@@ -192,6 +192,11 @@ def test_the_step_is_checked_when_set():
     kf.predict()
     assert kf.step == 1 and repr(kf).count("step=1") == 1
     assert pickle.loads(pickle.dumps(kf)).step == 1
+    state = kf.__getstate__()
+    state["step"] = state.pop("_step")  # as pickled before `step` was a property
+    old = gf.KalmanFilter.__new__(gf.KalmanFilter)
+    old.__setstate__(state)
+    assert old.step == 1
 
 
 def test_constructor_checks_model_and_prior():
