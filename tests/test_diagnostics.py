@@ -226,9 +226,10 @@ def test_monitor_in_pieces_matches_the_rule_update_by_update(seed):
     both = dg.DivergenceMonitor(window=window)
     while k < T:
         n = int(rng.integers(1, 120))
-        pieces += many.add_many(nis[k:k + n], dofs[k:k + n], range(k, k + n))
+        steps = range(k, min(k + n, T))  # (one label per update: the last piece is shorter)
+        pieces += many.add_many(nis[k:k + n], dofs[k:k + n], steps)
         if n % 2:  # the two mixed on one monitor
-            mixed += both.add_many(nis[k:k + n], dofs[k:k + n], range(k, k + n))
+            mixed += both.add_many(nis[k:k + n], dofs[k:k + n], steps)
         else:
             mixed += [r for j in range(k, min(k + n, T)) if (r := both.add(nis[j], dofs[j], j)) is not None]
         k += n
@@ -554,9 +555,15 @@ def test_a_covariance_that_is_not_symmetric_is_refused(name):
     (([0, 1, 1], [1, 1], 0.99), r"must be counts of one shape"),
     (([0, 2], [1, 1], 0.99), r"with rejected <= offered"),
     (([0, 0.5], [1, 1], 0.99), r"must be counts"),
+    (([0, 1, 1], [1.5, 1.5, 1.7], 0.99), r"^`offered` must be counts \(0, 1, 2, \.\.\.\) of shape \(T,\) or \(N, T\); got "
+                                          r"\[1\.5, 1\.5, 1\.7\]\.$"),
+    (([0, 1], [1, np.inf], 0.99), r"^`offered` must be counts"),
+    (([[0, 1], [1]], [[1, 1], [1]], 0.99), r"^`rejected` must be counts"),
 ])
 def test_rejections_checks_its_arguments(args, message):
-    """A probability of 1.5 returned [] silently; mismatched lengths raised NumPy's window-shape error (audit Q)."""
+    """A probability of 1.5 returned [] silently; mismatched lengths raised NumPy's window-shape error (audit Q);
+    offered counts of 1.5 were read as 1, of inf cast to a garbage integer, and ragged ones raised NumPy's message
+    (audit II3)."""
     with pytest.raises(ValueError, match=message):
         dg.rejections(*args)
 
@@ -645,3 +652,61 @@ def test_an_innovation_covariance_nan_in_part_is_refused_and_none_at_all_is_said
     with pytest.raises(ValueError, match=re.escape("whiteness needs at least 2 steps with a complete innovation and "
                                                    "its covariance; 0 of the 50 have both.")):
         dg.whiteness(v, np.full((50, 2, 2), np.nan))
+
+
+def test_a_batch_kept_without_covariances_has_its_consistency_report():
+    """Audit II1: keep="means" over a batch raised a bare TypeError (its innovation covariances are None), where one
+    series gave the report, whose NIS the batch's equals over their runs."""
+    model = gf.LinearModel(1.0, 1.0, 0.5, 1.0)
+    zs = gf.simulate(model, gf.Gaussian([0.0], [[1.0]]), 60, size=3, rng=1).measurements
+    means = dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[1.0]]), zs, keep="means"))
+    full = dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[1.0]]), zs))
+    assert means.whiteness is None and full.whiteness is not None and means.runs == 3
+    assert means.nis == pytest.approx(full.nis, rel=1e-12) and means.nis_ok == full.nis_ok
+
+
+def test_the_report_says_the_confidence_of_its_intervals():
+    """Audit II4: the table said "95% interval" beside a 50% one."""
+    model = gf.LinearModel(1.0, 1.0, 0.5, 1.0)
+    z = gf.simulate(model, gf.Gaussian([0.0], [[1.0]]), 200, rng=2).measurements
+    for confidence, header in ((0.5, "50% interval"), (0.999, "99.9% interval"), (0.95, "95% interval")):
+        report = dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[1.0]]), z), confidence=confidence)
+        assert str(report).splitlines()[0].split()[2:4] == header.split() and report.confidence == confidence
+        assert report.nis_interval == pytest.approx(dg.chi2_interval(1, 200, confidence))
+
+
+def test_a_monitor_fed_many_updates_checks_their_lengths():
+    """Audit II2: nis_values of 6 with dofs of 4 dropped two values of 1e6 silently; steps too short raised an
+    IndexError."""
+    monitor = dg.DivergenceMonitor(window=4, check="off")
+    with pytest.raises(ValueError, match=re.escape("`dofs` must have shape (6,), that of `nis_values`; got shape (4,).")):
+        monitor.add_many([1, 1, 1, 1, 1e6, 1e6], [1, 1, 1, 1], list(range(6)))
+    with pytest.raises(ValueError, match=re.escape("`steps` must hold one label per update, 5; got 1.")):
+        monitor.add_many(np.ones(5), np.ones(5), [0])
+    with pytest.raises(ValueError, match=re.escape("`dofs` must be counts of observed components (0, 1, 2, ...); "
+                                                   "got np.float64(0.5).")):
+        monitor.add_many(np.ones(2), [1, 0.5], [0, 1])
+    assert monitor.add_many([1, 1, 1, 1, 1e6, 1e6], [1] * 6, list(range(6))) == [(2, 5, 500000.5)]
+
+
+def test_rmse_names_an_axis_that_is_not_one_of_the_leading_ones():
+    """Audit II6: NumPy's AxisError named the array left after the sum over the last axis ("dimension 2")."""
+    a = np.ones((3, 4, 2))
+    np.testing.assert_array_equal(dg.rmse(a, 0 * a, axis=-1), np.full(3, np.sqrt(2.0)))
+    with pytest.raises(ValueError, match=re.escape("`axis` must be one of the estimates' 2 leading axes, from -2 to "
+                                                   "1, or a tuple of them (estimates of shape (3, 4, 2)); got 2.")):
+        dg.rmse(a, a, axis=2)
+    with pytest.raises(TypeError, match=r"^`axis` must be one of .*; got '0'\.$"):
+        dg.rmse(a, a, axis="0")
+
+
+def test_nees_refuses_a_covariance_nan_in_part_as_nis_does():
+    """Audit II7: nees left NaN for a covariance NaN in part, where nis names the step; NaN throughout (a belief
+    not computed) is NaN, as before."""
+    C = np.array([[[np.nan, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 1.0]], [[np.nan, np.nan], [np.nan, np.nan]]])
+    for quadratic in (dg.nis, dg.nees):
+        name = "innovation_covs" if quadratic is dg.nis else "covs"
+        with pytest.raises(ValueError, match=rf"^`{name}` must be finite where it was computed; it is NaN or "
+                                             r"infinite in part at step 0\.$"):
+            quadratic(np.ones((3, 2)), C)
+    np.testing.assert_array_equal(dg.nees(np.ones((2, 2)), C[1:]), [2.0, np.nan])

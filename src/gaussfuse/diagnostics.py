@@ -196,9 +196,13 @@ def _nees(errors, covs, scale=None) -> tuple[np.ndarray, np.ndarray]:
     out[whole], dof[whole] = _pseudo_nees(flat_e[whole], flat_C[whole], floor[whole])
     for t in np.flatnonzero(~whole & ~np.isnan(flat_e).all(axis=1)):  # some components missing: their block
         o = ~np.isnan(flat_e[t])
-        if np.isfinite(flat_C[t][np.ix_(o, o)]).all():
-            value, rank = _pseudo_nees(flat_e[t][o][None], flat_C[t][np.ix_(o, o)][None], floor[t][o][None])
+        block = flat_C[t][np.ix_(o, o)]
+        if np.isfinite(block).all():
+            value, rank = _pseudo_nees(flat_e[t][o][None], block[None], floor[t][o][None])
             out[t], dof[t] = value[0], rank[0]
+        elif not np.isnan(block).all():  # as nis refuses it (a NaN was left as NaN, unseen: audit II7)
+            raise ValueError(f"`covs` must be finite where it was computed; it is NaN or infinite in part "
+                             f"{_place(np.unravel_index(t, e.shape[:-1]))}.")
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
 
 
@@ -421,10 +425,18 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
     if isinstance(probability, (bool, np.bool_)) or not isinstance(probability, (int, float, np.integer, np.floating)) \
             or not 0.0 < probability < 1.0:
         raise ValueError(f"`probability` must be the gate's, in (0, 1); got {probability!r}.")
-    r, o = np.asarray(rejected), np.asarray(offered)
-    numbers = r.dtype.kind in "biuf" and o.dtype.kind in "biuf"
-    if not numbers or r.shape != o.shape or r.ndim not in (1, 2) or (r != np.round(r)).any() or (r < 0).any() \
-            or (r > o).any():
+    counts = []
+    for name, value in (("rejected", rejected), ("offered", offered)):  # (booleans count: gate_counts' any())
+        try:
+            a = np.asarray(value)
+        except ValueError:  # ragged
+            a = np.asarray(value, dtype=object)
+        if a.dtype.kind not in "biuf" or not np.isfinite(a).all() or (a < 0).any() or (a != np.round(a)).any():
+            raise ValueError(f"`{name}` must be counts (0, 1, 2, ...) of shape (T,) or (N, T); got "
+                             f"{value!r:.60}.")  # (offered counts of 1.5 and inf were cast: audit II3)
+        counts.append(a)
+    r, o = counts
+    if r.shape != o.shape or r.ndim not in (1, 2) or (r > o).any():
         raise ValueError(f"`rejected` and `offered` must be counts of one shape, (T,) or (N, T), with rejected <= "
                          f"offered; got shapes {r.shape} and {o.shape}.")
     r, o = np.atleast_2d(r.astype(np.int64)), np.atleast_2d(o.astype(np.int64))
@@ -614,13 +626,29 @@ class DivergenceMonitor:
         dofs : array_like of int, shape (k,)
         steps : sequence of length k
             The updates' labels.
+
+        Raises
+        ------
+        ValueError
+            For arguments of different lengths, or degrees of freedom that
+            are not counts.
         """
-        dofs = np.asarray(dofs, dtype=np.float64)
+        nis_values = as_array("nis_values", nis_values, allow_nan=True)
+        if nis_values.ndim != 1:
+            raise shape_error("nis_values", "(k,)", nis_values.shape)
+        dofs = as_array("dofs", dofs)  # (paired silently, or an IndexError, when the lengths differed: audit II2)
+        if dofs.shape != nis_values.shape:
+            raise shape_error("dofs", f"{nis_values.shape}, that of `nis_values`", dofs.shape)
+        if (dofs < 0).any() or (dofs != np.round(dofs)).any():
+            bad = dofs[(dofs < 0) | (dofs != np.round(dofs))][0]
+            raise ValueError(f"`dofs` must be counts of observed components (0, 1, 2, ...); got {bad!r}.")
+        if len(steps) != nis_values.shape[0]:
+            raise ValueError(f"`steps` must hold one label per update, {nis_values.shape[0]}; got {len(steps)}.")
         kept = np.flatnonzero(dofs > 0)
         if kept.size == 0:
             return []
         old = len(self._values)
-        values = np.concatenate([np.asarray(self._values, dtype=np.float64), np.asarray(nis_values, dtype=np.float64)[kept]])
+        values = np.concatenate([np.asarray(self._values, dtype=np.float64), nis_values[kept]])
         counts = np.concatenate([np.asarray(self._dofs, dtype=np.float64), dofs[kept]])
         stride = max(self.window // 2, 1)
         # the updates (indices into `values`) whose window is tested: the window-th, then every stride-th
@@ -848,6 +876,13 @@ def rmse(estimates, truth, axis=None, angles=None) -> np.ndarray | float:
         raise shape_error("truth", f"{a.shape}, that of `estimates`", b.shape)
     if a.ndim == 1:  # a series of scalars
         a, b = a[:, None], b[:, None]
+    if axis is not None:  # (NumPy's AxisError named the array left after the sum over the last axis: audit II6)
+        lead, axes = a.ndim - 1, axis if isinstance(axis, tuple) else (axis,)
+        expected = f"`axis` must be one of the estimates' {lead} leading axes, from {-lead} to {lead - 1}, or a tuple"
+        if not all(isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) for i in axes):
+            raise TypeError(f"{expected} of them; got {axis!r:.60}.")
+        if not all(-lead <= i < lead for i in axes):
+            raise ValueError(f"{expected} of them (estimates of shape {np.shape(estimates)}); got {axis!r}.")
     with np.errstate(over="ignore"):  # (a difference beyond the largest float is an error of inf)
         diff = wrap_components(a - b, None if angles is None else component_mask("angles", angles, a.shape[-1]))
     # in units of the largest difference that each mean takes in, so that the squares neither overflow (errors
@@ -887,6 +922,8 @@ class ConsistencyReport:
         Of the means, with the truth.
     runs : int
         Number of runs (series).
+    confidence : float, default 0.95
+        The intervals' confidence.
     """
 
     nis: float
@@ -898,6 +935,7 @@ class ConsistencyReport:
     whiteness: Whiteness | None
     rmse: float | None
     runs: int
+    confidence: float = 0.95
 
     @property
     def consistent(self) -> bool:
@@ -905,7 +943,8 @@ class ConsistencyReport:
         return self.nis_ok and self.nees_ok is not False
 
     def __str__(self) -> str:
-        lines = [f"{'statistic':<10} {'average':>10} {'95% interval':>22}  verdict"]
+        # (it said 95% whatever the confidence: audit II4)
+        lines = [f"{'statistic':<10} {'average':>10} {f'{100 * self.confidence:g}% interval':>22}  verdict"]
 
         def row(name, value, interval, ok):
             verdict = "consistent" if ok else ("overconfident" if value > interval[1] else "too cautious")
@@ -1008,7 +1047,8 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
         err = rmse(result.means[known], truth[known], angles=mask)
     batch = np.ndim(result.innovations) == 3
     first_v = result.innovations[0] if batch else result.innovations
-    first_S = result.innovation_covs[0] if batch else result.innovation_covs
+    first_S = result.innovation_covs  # (None with keep="means": a batch's raised a TypeError, audit II1)
+    first_S = first_S[0] if batch and first_S is not None else first_S
     white = None
     if first_S is not None:
         # from the first step with an innovation covariance on (a diffuse prior's first steps have none)
@@ -1018,4 +1058,4 @@ def consistency(result, truth=None, confidence: float = 0.95, lags: int | None =
         if np.isfinite(first_S).all() and complete >= 10:
             white = whiteness(first_v, first_S, min(10, complete // 5) if lags is None else lags, confidence)
     return ConsistencyReport(nis_avg, nis_interval, nis_interval[0] <= nis_avg <= nis_interval[1],
-                             nees_avg, nees_interval, nees_ok, white, err, runs)
+                             nees_avg, nees_interval, nees_ok, white, err, runs, confidence)

@@ -61,7 +61,9 @@ class KalmanFilter:
         updates as they come (:class:`gaussfuse.diagnostics.DivergenceMonitor`:
         a consistent filter is flagged with probability at most 1e-3 over its
         whole run), and, for gated updates, its test of a gate that rejects
-        at least half (a lost track): a :class:`gaussfuse.DivergenceWarning`
+        at least half (a lost track), itself at most 1e-3 (so 2e-3 for the
+        two together, where :func:`gaussfuse.filter`, which knows of its
+        gate from the start, halves each): a :class:`gaussfuse.DivergenceWarning`
         naming the steps, raised with ``"raise"``. A window is tested once
         it is full, from the 50th update with an observation on: a shorter
         run is not tested, where :func:`gaussfuse.filter` tests a shorter

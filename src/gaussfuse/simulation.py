@@ -102,7 +102,9 @@ def simulate(model, prior, T: int, us=None, *, times=None, size: int | None = No
     rng : None, int or numpy.random.Generator
         The source of randomness; an integer seeds a new Generator (anything
         else :func:`numpy.random.default_rng` takes is taken, a
-        ``RandomState`` too).
+        ``RandomState`` too). The draws are made a step at a time for all
+        series together, so a seed's first series depends on `size` (``size=1``
+        gives the series of ``size=None``).
 
     Returns
     -------
@@ -193,6 +195,8 @@ def sample_posterior(model: LinearModel, prior, zs, n: int, us=None, *, times=No
         `zs` with a DatetimeIndex supplies them): a TimedModel of a linear
         motion and sensor steps by them.
     rng : None, int or numpy.random.Generator
+        As for :func:`simulate`: the draws are made a step at a time for all
+        `n` trajectories together, so a seed's first one depends on `n`.
     form : {"cov", "sqrt"}, default "cov"
         The filter's form (see :func:`gaussfuse.filter`): ``"sqrt"`` where
         the covariance form loses its accuracy (a huge prior with a precise
