@@ -326,6 +326,27 @@ def test_filter_plot(tmp_path, capsys, series):
     assert read_csv(out)[1].shape == (25, 9)
 
 
+def test_filter_plot_draws_names_as_they_are_written(tmp_path, capsys, monkeypatch):
+    """Audit JJ3: a column named "$\\foo$" or a file named "$\\bar$.csv" went to matplotlib as mathtext, and a file
+    name with a byte that is not UTF-8 to set_text as it was: the figure failed after the work, and no output was
+    written. They are drawn literally now."""
+    import matplotlib.figure
+
+    titles = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle", lambda self, t, **kw: titles.append(t))
+    model = tmp_path / "m.toml"
+    model.write_text('[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n')
+    for name, column in ((b"plain.csv", b"$\\foo$"), (b"$\\bar$.csv", b"z"), (b"f_\xff.csv", b"z")):
+        data = os.path.join(os.fsencode(tmp_path), name)
+        with open(data, "wb") as f:
+            f.write(b"t," + column + b"\n0,1\n1,2\n")
+        out, fig = tmp_path / "out.csv", tmp_path / "fig.png"
+        code, _, err = run(capsys, "filter", os.fsdecode(data), "-m", model, "-o", out, "--plot", fig)
+        assert (code, err) == (0, ""), err
+        assert fig.read_bytes()[:8] == PNG_SIGNATURE and out.exists()
+    assert titles[1].startswith(r"\$\bar\$.csv: filtered") and titles[2].startswith("f_\ufffd.csv: filtered")
+
+
 @pytest.mark.parametrize("smooth", [False, True])
 def test_filter_plot_has_a_title_a_track_panel_and_says_what_it_drew(tmp_path, capsys, monkeypatch, smooth):
     """The figure the CLI saves: titled, one panel per column plus the x–y track, "smoothed" when smoothing.
@@ -1756,3 +1777,13 @@ def test_out_dash_is_standard_output(tmp_path, capsys, monkeypatch):
     code, stdout, _ = run(capsys, "fit", data, "--model", model, "-o", "-", "--iterations", "3", "--tol", "0")
     assert code == 0 and "[model]" in stdout
     assert not (tmp_path / "-").exists()
+
+
+def test_a_divergence_raised_by_check_names_the_data_file(tmp_path, capsys):
+    """Audit JJ5: --check raise gave the DivergenceWarning's message alone, where every other error of the data
+    names the file first (as --series-column's does)."""
+    (tmp_path / "m.toml").write_text('[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[1.0]]\n')
+    (tmp_path / "d.csv").write_text("t,z\n0,1\n1,99999999999999999999\n")
+    code, _, err = run(capsys, "filter", tmp_path / "d.csv", "-m", tmp_path / "m.toml", "--check", "raise")
+    assert code == 2
+    assert_one_line_error(err, rf"^gaussfuse: error: {re.escape(str(tmp_path / 'd.csv'))}: the filter may be diverging")

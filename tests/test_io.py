@@ -9,6 +9,7 @@ import socket
 import stat
 import subprocess
 import sys
+from contextlib import suppress
 
 import numpy as np
 import pytest
@@ -126,6 +127,35 @@ def test_read_measurements_not_utf8_names_the_line_and_column(tmp_path, data, li
                                              rf"{column} cannot be decoded\.$") as info:
         read_measurements(path)
     assert info.value.line == line
+
+
+@pytest.mark.parametrize("reader", ["data", "model"])
+def test_a_byte_that_is_not_utf8_in_a_pipe_is_named(tmp_path, reader):
+    """Audit JJ1: the line of the byte was looked for by reading the file again, which a pipe cannot be (a FIFO,
+    /dev/stdin, a shell's <(...)): an AssertionError's traceback reached the terminal. A pipe's error names the
+    byte; a model file, read whole, is searched in memory, so its line is named too."""
+    import threading
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    data = b"t,x\n1,2\n2,\xff\n" if reader == "data" else b"[model]\nF = 1\nH = 1\nQ = 1\nR = 1\n# \xff\n"
+    writer = threading.Thread(target=fifo.write_bytes, args=(data,))
+    writer.start()
+
+    def end() -> None:  # a reader that opened the pipe again would wait for a writer forever: give it an end
+        with suppress(OSError):  # (ENXIO: no reader waits)
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+
+    guard = threading.Timer(5.0, end)
+    guard.start()
+    expected = r"pipe: not UTF-8 text: byte 0xff cannot be decoded\.$" if reader == "data" else \
+        r"pipe: line 6: not UTF-8 text: byte 0xff at column 3 cannot be decoded\.$"
+    try:
+        with pytest.raises(InputFileError, match=expected):
+            read_measurements(fifo) if reader == "data" else read_model(fifo)
+    finally:
+        guard.cancel()
+        writer.join(timeout=10)
 
 
 def test_a_time_column_without_a_name_is_read_when_chosen(tmp_path):

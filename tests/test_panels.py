@@ -9,6 +9,7 @@ own (`--workers`).
 import io
 import os
 import re
+import stat
 import warnings
 
 import numpy as np
@@ -201,7 +202,8 @@ def test_a_partition_is_read_as_one_series_file_is(tmp_path):
     _refused(tmp_path / "s.csv", "id;t;z\na;0;1\n",  # (it said "no column named `id`": audit Y3)
              r"s\.csv: one column named 'id;t;z': the file's columns seem to be separated by ';'")
     (tmp_path / "l.csv").write_bytes(b"id,t,z\na,0,1\na,1,\xe9\n")
-    with pytest.raises(gfio.InputFileError, match=r"l\.csv: not UTF-8 text"):
+    with pytest.raises(gfio.InputFileError, match=r"l\.csv: line 3: not UTF-8 text: byte 0xe9 at column 5 cannot be "
+                                                  r"decoded\.$"):  # (the codec's "position 17": audit JJ6)
         panels.read_partition(str(tmp_path / "l.csv"), "id", 1)
 
 
@@ -691,3 +693,34 @@ def test_series_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys, 
                            "--out", tmp_path / f"out-{name}", "--scheduler", scheduler)
         assert code == 0, err
     assert (tmp_path / "out-xy" / "d.csv").read_text() == (tmp_path / "out-yx" / "d.csv").read_text()
+
+
+def test_outputs_are_checked_before_the_work_and_written_as_one_file_is(tmp_path, capsys, scheduler):
+    """Audit JJ2, JJ4: an output that was a folder failed after the work (naming the temporary file), with the
+    earlier outputs already replaced; an output that was a symlink became a file (its target left as it was), and
+    one of mode 600 came back 644. Now as --out of one file: refused first, written through, kept."""
+    data, out = tmp_path / "data", tmp_path / "out"
+    dataset(data, kind="csv")
+    (tmp_path / "cv.toml").write_text(NAMED)
+    base = ["filter", data, "-m", tmp_path / "cv.toml", "--series-column", "unit", "--columns", "x",
+            "--scheduler", scheduler, "--check", "off", "--out", out]
+    first, second = out / "group=a" / "part.csv", out / "group=b" / "part.csv"
+    first.parent.mkdir(parents=True)
+    first.write_text("earlier results\n")
+    second.mkdir(parents=True)  # a folder where an output goes
+    code, _, err = run(capsys, *base)
+    assert code == 2 and err == f"gaussfuse: error: {second}: an output that exists must be a file; it is a directory.\n"
+    assert first.read_text() == "earlier results\n"
+    second.rmdir()
+    target = tmp_path / "kept" / "target.csv"
+    target.parent.mkdir()
+    target.write_text("old\n")
+    first.unlink()
+    first.symlink_to(target)
+    second.write_text("old\n")
+    second.chmod(0o600)
+    code, _, err = run(capsys, *base)
+    assert code == 0, err
+    assert first.is_symlink() and target.read_text().startswith("unit,t,x,vx,std_x,std_vx\n")
+    assert stat.S_IMODE(second.stat().st_mode) == 0o600 and second.read_text().startswith("unit,t,x,vx,std_x,std_vx\n")
+

@@ -78,7 +78,8 @@ and optionally the belief one step before the first measurement
     var = 100.0                    # var * I, or cov = [[...]]
 Without [prior] the prior is N(0, 1e6 I); `diffuse = true` alone in [prior]
 is a flat prior, handled exactly (the rows before the data determine the
-whole state are written as nan). A control input (B) is not supported
+whole state are written as nan; with --series-column, as empty cells,
+pandas' missing value). A control input (B) is not supported
 yet."""
 
 _FILTER_STEPS = """\
@@ -310,7 +311,7 @@ def _run_filter(args: argparse.Namespace) -> int:
                     progress.add("smoothed", piece.zs.shape[0])
                 if drawn is not None:
                     drawn.add(piece, result)
-        except (ValueError, FloatingPointError) as exc:
+        except (ValueError, FloatingPointError, DivergenceWarning) as exc:  # (--check raise's too: audit JJ5)
             if isinstance(exc, gfio.InputFileError):
                 raise  # a reading error, which names the file and line already
             raise type(exc)(f"{args.data}: {exc}") from exc  # the data's series: name the file
@@ -407,20 +408,42 @@ def _run_many(args: argparse.Namespace, spec: gfio.ModelFile, columns) -> int:
 def _written_together(finals: list[str]):
     """Temporary names beside the output files `finals`, renamed to them once the block succeeds.
 
+    As :func:`gaussfuse.io.open_atomic` writes one file: an existing output
+    is replaced keeping its permissions, a symbolic link is written through
+    to its file, and one that is not a regular file (a folder) or that the
+    user may not write is refused before the block runs (audit JJ2, JJ4: a
+    folder failed after the work, with earlier outputs already replaced).
     On an error, the temporary files and the directories made for them are
     removed: a failed run leaves no output, and replaces no earlier one.
     """
-    temps = [os.path.join(os.path.dirname(f), f".partial-{os.getpid()}-{os.path.basename(f)}") for f in finals]
-    made = set()
+    targets, modes = [], []
     for final in finals:
-        directory = os.path.dirname(os.path.abspath(final))
+        target = os.path.realpath(final)  # through symlinks: the link stays, its file is replaced
+        try:
+            info = os.stat(target)
+        except FileNotFoundError:
+            info = None
+        if info is not None and not stat.S_ISREG(info.st_mode):
+            raise ValueError(f"{final}: an output that exists must be a file; it is "
+                             f"{'a directory' if stat.S_ISDIR(info.st_mode) else 'not a regular file'}.")
+        if info is not None and not os.access(target, os.W_OK):
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), final)
+        targets.append(target)
+        modes.append(None if info is None else stat.S_IMODE(info.st_mode))
+    temps = [os.path.join(os.path.dirname(t), f".partial-{os.getpid()}-{os.path.basename(t)}") for t in targets]
+    made = set()
+    for target in targets:
+        directory = os.path.dirname(target)
         while not os.path.exists(directory):
             made.add(directory)
             directory = os.path.dirname(directory)
     try:
         yield temps
-        for temp, final in zip(temps, finals):
-            os.replace(temp, final)
+        for temp, mode in zip(temps, modes):
+            if mode is not None:  # what the user had
+                os.chmod(temp, mode)
+        for temp, target in zip(temps, targets):
+            os.replace(temp, target)
     except BaseException:
         for temp in temps:
             with suppress(FileNotFoundError):
@@ -596,6 +619,7 @@ class _Drawn:
         parts = sorted(self.parts, key=lambda p: p[0][0])  # the smoother's come last first
         times, zs, means, covs = (np.concatenate(a) for a in list(zip(*parts))[:4])
         what = "smoothed" if smoothed else "filtered"
+        columns = [_literal(c) for c in columns]
         xlabel = columns[0]
         if stamps:
             xlabel = f"{columns[0]} since {parts[0][4]}"
@@ -603,7 +627,14 @@ class _Drawn:
         return plotting.plot_measurements(
             times, zs, means, covs, spec.model.H, names=columns[1:], label=what, xlabel=xlabel,
             time_unit="s" if stamps or spec.timed is not None else None,
-            title=f"{os.path.basename(data)}: {what} estimates, ±2σ", track=len(columns) == 3)
+            title=f"{_literal(os.path.basename(data))}: {what} estimates, ±2σ", track=len(columns) == 3)
+
+
+def _literal(text: str) -> str:
+    """A file's or a column's name as matplotlib draws it as written: ``$`` escaped (it starts mathtext), and a
+    byte that is not UTF-8 (in a file's name) as U+FFFD. A column "$\\foo$" and a file "f_\\xff.csv" failed the
+    figure after the work was done (audit JJ3)."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace").replace("$", r"\$")
 
 
 def _check_many(args: argparse.Namespace) -> None:

@@ -347,10 +347,8 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
             if text == "unexpected end of data":  # the file ends within quotes: name the line the row starts on
                 text, line = "a quoted cell is not closed (a '\"' opens it and the file ends).", done + 1
             raise InputFileError(path, text, line=line) from None
-        except UnicodeDecodeError:  # decoded in blocks: the line is found again in the bytes
-            line, column, byte = _not_utf8(path)
-            raise InputFileError(path, f"not UTF-8 text: byte {byte:#04x} at column {column} cannot be decoded.",
-                                 line=line) from None
+        except UnicodeDecodeError as exc:  # decoded in blocks: the line is found again in the bytes
+            raise not_utf8(path, exc) from None
         if cells:
             yield parser.parse(cells, lines)
         elif parser.last is None:
@@ -429,25 +427,46 @@ class _Rows:
         self.last = (float(times[-1]), lines[-1], texts[-1])
 
 
-def _not_utf8(path) -> tuple[int, int, int]:
-    """The line, the column (from 1, in characters) and the value of the first byte of `path` that is not UTF-8.
+def _not_utf8(lines: IO[bytes]) -> tuple[int, int, int] | None:
+    """The line, the column (from 1, in characters) and the value of the first byte of `lines` that is not UTF-8,
+    or None where there is none.
 
     Lines end as the reader ends them: at ``\\n``, ``\\r\\n`` or a ``\\r`` alone.
     """
     number = 0
-    with open(path, "rb") as f:
-        for raw in f:  # split at b"\n", which no UTF-8 character holds
-            try:
-                raw.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                head = raw[:exc.start]
-                number += 1 + head.count(b"\r") - head.count(b"\r\n")
-                line = head[head.rfind(b"\r") + 1:].decode("utf-8")
-                if number == 1:
-                    line = line.removeprefix("\ufeff")  # a byte-order mark is not a column
-                return number, len(line) + 1, raw[exc.start]
-            number += 1 + raw.count(b"\r") - raw.count(b"\r\n")
-    raise AssertionError("the text decoder found a byte that is not UTF-8; the bytes do not")  # pragma: no cover
+    for raw in lines:  # split at b"\n", which no UTF-8 character holds
+        try:
+            raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            head = raw[:exc.start]
+            number += 1 + head.count(b"\r") - head.count(b"\r\n")
+            line = head[head.rfind(b"\r") + 1:].decode("utf-8")
+            if number == 1:
+                line = line.removeprefix("\ufeff")  # a byte-order mark is not a column
+            return number, len(line) + 1, raw[exc.start]
+        number += 1 + raw.count(b"\r") - raw.count(b"\r\n")
+    return None
+
+
+def not_utf8(path, exc: UnicodeDecodeError, data: bytes | None = None) -> InputFileError:
+    """The error for the byte of `path` that the decoder refused (`exc`), naming its line and column.
+
+    They are found in `data` (the file's bytes, where it was read whole), or
+    by reading a regular file again; a pipe cannot be read again (a FIFO
+    would wait for a writer), and its error names the byte alone (an
+    AssertionError's traceback before: audit JJ1).
+    """
+    if data is not None:
+        found = _not_utf8(stdio.BytesIO(data))
+    elif stat.S_ISREG(os.stat(path).st_mode):
+        with open(path, "rb") as again:
+            found = _not_utf8(again)
+    else:
+        found = None
+    if found is None:
+        return InputFileError(path, f"not UTF-8 text: byte {exc.object[exc.start]:#04x} cannot be decoded.")
+    line, column, byte = found
+    return InputFileError(path, f"not UTF-8 text: byte {byte:#04x} at column {column} cannot be decoded.", line=line)
 
 
 def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
@@ -684,10 +703,8 @@ def read_model(path: StrPath) -> ModelFile:
     too_deep = f"not a model file: tables and arrays nested more than {MAX_NESTING} levels deep."  # (valid TOML)
     try:
         doc = tomllib.loads(data.decode("utf-8-sig"))  # a byte-order mark, as some editors write, is not content
-    except UnicodeDecodeError:  # (it said "position 5", a byte's: audit BB2)
-        line, column, byte = _not_utf8(path)
-        raise InputFileError(path, f"not UTF-8 text: byte {byte:#04x} at column {column} cannot be decoded.",
-                             line=line) from None
+    except UnicodeDecodeError as exc:  # (it said "position 5", a byte's: audit BB2)
+        raise not_utf8(path, exc, data) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputFileError(path, f"invalid TOML: {exc}") from None
     except RecursionError:  # tomllib recurses once per level: no other way to stop it
