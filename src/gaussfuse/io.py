@@ -348,7 +348,7 @@ def iter_measurements(path: StrPath, m: int | None = None, time_column: str | No
                 text, line = "a quoted cell is not closed (a '\"' opens it and the file ends).", done + 1
             raise InputFileError(path, text, line=line) from None
         except UnicodeDecodeError as exc:  # decoded in blocks: the line is found again in the bytes
-            raise not_utf8(path, exc) from None
+            raise _undecodable(path, exc) from None
         if cells:
             yield parser.parse(cells, lines)
         elif parser.last is None:
@@ -448,7 +448,7 @@ def _not_utf8(lines: IO[bytes]) -> tuple[int, int, int] | None:
     return None
 
 
-def not_utf8(path, exc: UnicodeDecodeError, data: bytes | None = None) -> InputFileError:
+def _undecodable(path, exc: UnicodeDecodeError, data: bytes | None = None) -> InputFileError:
     """The error for the byte of `path` that the decoder refused (`exc`), naming its line and column.
 
     They are found in `data` (the file's bytes, where it was read whole), or
@@ -704,7 +704,7 @@ def read_model(path: StrPath) -> ModelFile:
     try:
         doc = tomllib.loads(data.decode("utf-8-sig"))  # a byte-order mark, as some editors write, is not content
     except UnicodeDecodeError as exc:  # (it said "position 5", a byte's: audit BB2)
-        raise not_utf8(path, exc, data) from None
+        raise _undecodable(path, exc, data) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputFileError(path, f"invalid TOML: {exc}") from None
     except RecursionError:  # tomllib recurses once per level: no other way to stop it

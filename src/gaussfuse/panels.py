@@ -36,8 +36,9 @@ from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
 from .inference.frames import measurement_names
 from .inference.timing import Steps, per_second, round_off, since
-from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, not_utf8, open_atomic, _check_header,
-                 _check_separator, _float, _measurement_columns, _parse_time, _time_column, _wrong_cells)
+from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _check_header,
+                 _check_separator, _float, _measurement_columns, _parse_time, _time_column, _undecodable,
+                 _wrong_cells)
 
 __all__ = ["Partition", "partitions", "output_path", "read_partition", "partition_arrays", "partition_shape",
            "filter_partition"]
@@ -143,7 +144,7 @@ def read_partition(path: str, series_column: str, m: int, time_column: str | Non
             lines = _check_cells(path)
             frame = pd.read_csv(path, index_col=False, dtype=str, keep_default_na=False, encoding="utf-8-sig")
         except UnicodeDecodeError as exc:  # (it said the codec's "position 17": audit JJ6)
-            raise not_utf8(path, exc) from None
+            raise _undecodable(path, exc) from None
         frame = frame.apply(lambda column: column.str.strip())
         frame = frame.mask(frame == "")  # an empty cell: a missing id, time or value
     header = _header(path) if csv_file else [str(c) for c in frame.columns]
