@@ -669,7 +669,8 @@ def test_the_report_says_the_confidence_of_its_intervals():
     """Audit II4: the table said "95% interval" beside a 50% one."""
     model = gf.LinearModel(1.0, 1.0, 0.5, 1.0)
     z = gf.simulate(model, gf.Gaussian([0.0], [[1.0]]), 200, rng=2).measurements
-    for confidence, header in ((0.5, "50% interval"), (0.999, "99.9% interval"), (0.95, "95% interval")):
+    for confidence, header in ((0.5, "50% interval"), (0.999, "99.9% interval"), (0.95, "95% interval"),
+                               (0.9999999, "99.99999% interval")):
         report = dg.consistency(gf.filter(model, gf.Gaussian([0.0], [[1.0]]), z), confidence=confidence)
         assert str(report).splitlines()[0].split()[2:4] == header.split() and report.confidence == confidence
         assert report.nis_interval == pytest.approx(dg.chi2_interval(1, 200, confidence))
@@ -684,9 +685,13 @@ def test_a_monitor_fed_many_updates_checks_their_lengths():
     with pytest.raises(ValueError, match=re.escape("`steps` must hold one label per update, 5; got 1.")):
         monitor.add_many(np.ones(5), np.ones(5), [0])
     with pytest.raises(ValueError, match=re.escape("`dofs` must be counts of observed components (0, 1, 2, ...); "
-                                                   "got np.float64(0.5).")):
+                                                   "got 0.5.")):
         monitor.add_many(np.ones(2), [1, 0.5], [0, 1])
     assert monitor.add_many([1, 1, 1, 1, 1e6, 1e6], [1] * 6, list(range(6))) == [(2, 5, 500000.5)]
+    one, many = dg.DivergenceMonitor(window=4, check="off"), dg.DivergenceMonitor(window=4, check="off")
+    values, dofs = [1.0, 1.0, 1.0, np.inf], [True, 1, 1, 1]  # what add takes, add_many takes (review R43)
+    assert [one.add(v, d, k) for k, (v, d) in enumerate(zip(values, dofs))][-1] == many.add_many(values, dofs,
+                                                                                              range(4))[0]
 
 
 def test_rmse_names_an_axis_that_is_not_one_of_the_leading_ones():
@@ -694,8 +699,11 @@ def test_rmse_names_an_axis_that_is_not_one_of_the_leading_ones():
     a = np.ones((3, 4, 2))
     np.testing.assert_array_equal(dg.rmse(a, 0 * a, axis=-1), np.full(3, np.sqrt(2.0)))
     with pytest.raises(ValueError, match=re.escape("`axis` must be one of the estimates' 2 leading axes, from -2 to "
-                                                   "1, or a tuple of them (estimates of shape (3, 4, 2)); got 2.")):
+                                                   "1, or a tuple of them, each once (estimates of shape (3, 4, 2)); "
+                                                   "got 2.")):
         dg.rmse(a, a, axis=2)
+    with pytest.raises(ValueError, match=r"each once .*; got \(0, -2\)\.$"):
+        dg.rmse(a, a, axis=(0, -2))
     with pytest.raises(TypeError, match=r"^`axis` must be one of .*; got '0'\.$"):
         dg.rmse(a, a, axis="0")
 

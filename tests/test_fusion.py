@@ -462,6 +462,23 @@ def test_a_motion_that_overflows_over_one_second_fuses_steps_of_milliseconds():
         fuser.update(t, "s", z)
     np.testing.assert_allclose(fuser.belief.mean, want.last_mean, rtol=1e-13)
     np.testing.assert_allclose(fuser.belief.cov, want.last_cov, rtol=1e-13)
+    calls = []
+    real = gaussfuse.fusion._Timeline.model_over
+    fuser._timeline.model_over = lambda dt: calls.append(dt) or real(fuser._timeline, dt)
+    fuser.update(6e-3, "s", 1.0)
+    assert 1.0 not in calls  # the step that overflowed is found once, not tried again at each update (review R43)
+
+
+def test_a_fuser_pickled_with_plain_belief_and_time_attributes_unpickles_with_them():
+    """Review R43: `belief` and `t` became properties; a Fuser pickled before kept them in its __dict__."""
+    fuser = gf.Fuser(_motion(), _sensors(), _prior(), 0.0)
+    fuser.update(1.0, "pos", [1.0, 2.0])
+    state = dict(fuser.__dict__)
+    state["belief"], state["t"] = state.pop("_belief"), state.pop("_t")  # as pickled before
+    old = gf.Fuser.__new__(gf.Fuser)
+    old.__setstate__(state)
+    assert old.t == 1.0 and old.belief is fuser.belief
+    old.update(2.0, "pos", [1.0, 2.0])
 
 
 def test_scalar_sensor_and_nan_component():

@@ -724,3 +724,16 @@ def test_outputs_are_checked_before_the_work_and_written_as_one_file_is(tmp_path
     assert first.is_symlink() and target.read_text().startswith("unit,t,x,vx,std_x,std_vx\n")
     assert stat.S_IMODE(second.stat().st_mode) == 0o600 and second.read_text().startswith("unit,t,x,vx,std_x,std_vx\n")
 
+
+
+def test_two_outputs_that_are_one_file_are_refused_before_the_work(tmp_path):
+    """Review R43: an output that was a symlink to another shared its temporary file with it: the run failed after
+    the work, naming the temporary file, with the other output already replaced."""
+    (tmp_path / "b.csv").write_text("earlier\n")
+    (tmp_path / "a.csv").symlink_to(tmp_path / "b.csv")
+    finals = [str(tmp_path / "a.csv"), str(tmp_path / "b.csv")]
+    with pytest.raises(ValueError, match=re.escape(f"{finals[1]} and {finals[0]} are the same file; each output must "
+                                                   "be a file of its own.")):
+        with cli._written_together(finals):
+            raise AssertionError("the work ran")  # pragma: no cover
+    assert (tmp_path / "b.csv").read_text() == "earlier\n"

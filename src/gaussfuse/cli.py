@@ -428,6 +428,9 @@ def _written_together(finals: list[str]):
                              f"{'a directory' if stat.S_ISDIR(info.st_mode) else 'not a regular file'}.")
         if info is not None and not os.access(target, os.W_OK):
             raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), final)
+        if target in targets:  # (through a symlink: one temporary file for both, and a failure after the work)
+            raise ValueError(f"{final} and {finals[targets.index(target)]} are the same file; each output must be "
+                             "a file of its own.")
         targets.append(target)
         modes.append(None if info is None else stat.S_IMODE(info.st_mode))
     temps = [os.path.join(os.path.dirname(t), f".partial-{os.getpid()}-{os.path.basename(t)}") for t in targets]

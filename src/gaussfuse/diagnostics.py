@@ -633,15 +633,16 @@ class DivergenceMonitor:
             For arguments of different lengths, or degrees of freedom that
             are not counts.
         """
-        nis_values = as_array("nis_values", nis_values, allow_nan=True)
+        # as add takes them (an infinite NIS too), in arrays of one length (paired silently, or an IndexError,
+        # when the lengths differed: audit II2)
+        nis_values, dofs = np.asarray(nis_values, dtype=np.float64), np.asarray(dofs, dtype=np.float64)
         if nis_values.ndim != 1:
             raise shape_error("nis_values", "(k,)", nis_values.shape)
-        dofs = as_array("dofs", dofs)  # (paired silently, or an IndexError, when the lengths differed: audit II2)
         if dofs.shape != nis_values.shape:
             raise shape_error("dofs", f"{nis_values.shape}, that of `nis_values`", dofs.shape)
         if (dofs < 0).any() or (dofs != np.round(dofs)).any():
-            bad = dofs[(dofs < 0) | (dofs != np.round(dofs))][0]
-            raise ValueError(f"`dofs` must be counts of observed components (0, 1, 2, ...); got {bad!r}.")
+            bad = float(dofs[(dofs < 0) | (dofs != np.round(dofs))][0])
+            raise ValueError(f"`dofs` must be counts of observed components (0, 1, 2, ...); got {bad:g}.")
         if len(steps) != nis_values.shape[0]:
             raise ValueError(f"`steps` must hold one label per update, {nis_values.shape[0]}; got {len(steps)}.")
         kept = np.flatnonzero(dofs > 0)
@@ -881,8 +882,9 @@ def rmse(estimates, truth, axis=None, angles=None) -> np.ndarray | float:
         expected = f"`axis` must be one of the estimates' {lead} leading axes, from {-lead} to {lead - 1}, or a tuple"
         if not all(isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) for i in axes):
             raise TypeError(f"{expected} of them; got {axis!r:.60}.")
-        if not all(-lead <= i < lead for i in axes):
-            raise ValueError(f"{expected} of them (estimates of shape {np.shape(estimates)}); got {axis!r}.")
+        if not all(-lead <= i < lead for i in axes) or len({i % lead for i in axes}) < len(axes):
+            raise ValueError(f"{expected} of them, each once (estimates of shape {np.shape(estimates)}); got "
+                             f"{axis!r}.")
     with np.errstate(over="ignore"):  # (a difference beyond the largest float is an error of inf)
         diff = wrap_components(a - b, None if angles is None else component_mask("angles", angles, a.shape[-1]))
     # in units of the largest difference that each mean takes in, so that the squares neither overflow (errors
@@ -944,7 +946,7 @@ class ConsistencyReport:
 
     def __str__(self) -> str:
         # (it said 95% whatever the confidence: audit II4)
-        lines = [f"{'statistic':<10} {'average':>10} {f'{100 * self.confidence:g}% interval':>22}  verdict"]
+        lines = [f"{'statistic':<10} {'average':>10} {f'{100 * self.confidence:.10g}% interval':>22}  verdict"]
 
         def row(name, value, interval, ok):
             verdict = "consistent" if ok else ("overconfident" if value > interval[1] else "too cautious")

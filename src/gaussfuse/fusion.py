@@ -189,6 +189,7 @@ class _Timeline:
         self.m = start
         self.linear = isinstance(motion, LinearMotion) and isinstance(self.sensor, LinearSensor)
         self._models: dict[float, LinearModel | NonlinearModel] = {}
+        self._probe: float | None = None  # the step model() takes the sensors' parts from (probe_step's)
 
     def model_over(self, dt: float) -> LinearModel | NonlinearModel:
         """:func:`gaussfuse.model` of the motion and the stacked sensors over `dt` > 0, made once per dt.
@@ -210,7 +211,9 @@ class _Timeline:
         noise. A linear timeline is a time-varying LinearModel; otherwise a
         NonlinearModel whose ``f(x, u)`` moves x over ``dt = u[0]``.
         """
-        probe = probe_step(self.model_over)[0]  # (of 1 s, which overflowed a LinearSDE at 800/s: audit HH1)
+        if getattr(self, "_probe", None) is None:  # of 1 s, which overflowed a LinearSDE at 800/s (audit HH1)
+            self._probe = probe_step(self.model_over)[1]
+        probe = self.model_over(self._probe)
         Q = np.stack([self.model_over(float(dt)).Q if dt > 0 else np.zeros((self.n, self.n)) for dt in dts])
         if self.linear:
             F = np.stack([self.model_over(float(dt)).F if dt > 0 else np.eye(self.n) for dt in dts])
@@ -648,6 +651,12 @@ class Fuser:
     def __copy__(self) -> Fuser:
         # a copy fuses on its own: a shallow one would share the divergence monitor with the original
         return copy.deepcopy(self)
+
+    def __setstate__(self, state: dict) -> None:
+        for name in ("belief", "t"):  # (pickled before they were checked properties)
+            if name in state:
+                state["_" + name] = state.pop(name)
+        self.__dict__.update(state)
 
     def _strategy(self, model, dts):
         us = None if self._timeline.linear else np.asarray(dts, dtype=float).reshape(-1, 1)

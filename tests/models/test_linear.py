@@ -84,6 +84,7 @@ def test_the_matrices_at_a_step_that_is_not_one_of_the_model_are_refused_naming_
     fixed = gf.LinearModel(F=F2, H=[1.0, 0.0], Q=np.eye(2), R=1.0)
     np.testing.assert_array_equal(varying.at(np.int64(2))[0], Fs[2])
     np.testing.assert_array_equal(fixed.at(10**9)[0], F2)  # the same at every step
+    np.testing.assert_array_equal(fixed.at(np.uint64(2**64 - 1))[0], F2)  # (k + 1 wrapped: review R43)
     with pytest.raises(ValueError, match=r"^`k` must be a step of the model, 0 to 2 \(it is time-varying over 3 steps\); "
                                          r"got 3\.$"):
         varying.at(3)

@@ -20,7 +20,8 @@ def check_step(k, steps: int | None) -> int:
     A negative step read a time-varying model's matrices from its end, one past its last raised NumPy's
     IndexError, and None added an axis (audit GG5).
     """
-    if isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)) and 0 <= k < (steps or k + 1):
+    if isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)) and 0 <= k and (
+            steps is None or k < steps):
         return k
     k = integer("k", k, minimum=0)
     raise ValueError(f"`k` must be a step of the model, 0 to {steps - 1} (it is time-varying over {steps} "
