@@ -416,23 +416,21 @@ def _written_together(finals: list[str]):
     On an error, the temporary files and the directories made for them are
     removed: a failed run leaves no output, and replaces no earlier one.
     """
-    targets, modes = [], []
+    targets, kept = [], []
     for final in finals:
-        target = os.path.realpath(final)  # through symlinks: the link stays, its file is replaced
         try:
-            info = os.stat(target)
+            info = os.stat(final)  # of the file a symlink points to
         except FileNotFoundError:
             info = None
         if info is not None and not stat.S_ISREG(info.st_mode):
             raise ValueError(f"{final}: an output that exists must be a file; it is "
                              f"{'a directory' if stat.S_ISDIR(info.st_mode) else 'not a regular file'}.")
-        if info is not None and not os.access(target, os.W_OK):
-            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), final)
+        target = gfio._replaced_file(final, info)
         if target in targets:  # (through a symlink: one temporary file for both, and a failure after the work)
             raise ValueError(f"{final} and {finals[targets.index(target)]} are the same file; each output must be "
                              "a file of its own.")
         targets.append(target)
-        modes.append(None if info is None else stat.S_IMODE(info.st_mode))
+        kept.append(info)
     temps = [os.path.join(os.path.dirname(t), f".partial-{os.getpid()}-{os.path.basename(t)}") for t in targets]
     made = set()
     for target in targets:
@@ -442,9 +440,9 @@ def _written_together(finals: list[str]):
             directory = os.path.dirname(directory)
     try:
         yield temps
-        for temp, mode in zip(temps, modes):
-            if mode is not None:  # what the user had
-                os.chmod(temp, mode)
+        for temp, info in zip(temps, kept):
+            if info is not None:  # what the user had
+                gfio._keep_status(temp, info)
         for temp, target in zip(temps, targets):
             os.replace(temp, target)
     except BaseException:

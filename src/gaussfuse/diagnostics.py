@@ -81,14 +81,23 @@ def _place(index: tuple) -> str:
     return f"at index {index}"
 
 
+def _counts(a: np.ndarray) -> bool:
+    """Whether every entry of `a` is a count: 0, 1, 2, ..."""
+    return not ((a < 0).any() or (a != np.round(a)).any())
+
+
+def _broken(cov_name: str, where: str) -> ValueError:
+    """The error for a covariance that is NaN or infinite in part (not throughout, as one not computed is)."""
+    return ValueError(f"`{cov_name}` must be finite where it was computed; it is NaN or infinite in part {where}.")
+
+
 def _uncomputed(cov_name: str, C: np.ndarray) -> np.ndarray:
     """Which covariances of `C` (..., m, m) were not computed (NaN throughout: a diffuse start's first steps), as a
     bool array (...); raises, naming the step, for one that is NaN or infinite in part (review R17)."""
     uncomputed = np.isnan(C).all(axis=(-2, -1))
     broken = np.argwhere(~uncomputed & ~np.isfinite(C).all(axis=(-2, -1)))
     if broken.size:
-        raise ValueError(f"`{cov_name}` must be finite where it was computed; it is NaN or infinite in part "
-                         f"{_place(broken[0])}.")
+        raise _broken(cov_name, _place(broken[0]))
     return uncomputed
 
 
@@ -201,8 +210,7 @@ def _nees(errors, covs, scale=None) -> tuple[np.ndarray, np.ndarray]:
             value, rank = _pseudo_nees(flat_e[t][o][None], block[None], floor[t][o][None])
             out[t], dof[t] = value[0], rank[0]
         elif not np.isnan(block).all():  # as nis refuses it (a NaN was left as NaN, unseen: audit II7)
-            raise ValueError(f"`covs` must be finite where it was computed; it is NaN or infinite in part "
-                             f"{_place(np.unravel_index(t, e.shape[:-1]))}.")
+            raise _broken("covs", _place(np.unravel_index(t, e.shape[:-1])))
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
 
 
@@ -334,7 +342,7 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
         raise ValueError("`nis_values` must be non-negative (normalised innovations squared); got a negative value.")
     per_step = np.ndim(dof) == 0  # the same dof at every step: a window's is dof times its observed steps
     counts = as_array("dof", dof)
-    if (counts < 0).any() or (counts != np.floor(counts)).any():
+    if not _counts(counts):
         raise ValueError("`dof` must be non-negative integers (each step's observed components).")
     try:
         k = np.broadcast_to(counts, v.shape)
@@ -431,7 +439,7 @@ def rejections(rejected, offered, probability: float, window: int = DIVERGENCE_W
             a = np.asarray(value)
         except ValueError:  # ragged
             a = np.asarray(value, dtype=object)
-        if a.dtype.kind not in "biuf" or not np.isfinite(a).all() or (a < 0).any() or (a != np.round(a)).any():
+        if a.dtype.kind not in "biuf" or not np.isfinite(a).all() or not _counts(a):
             raise ValueError(f"`{name}` must be counts (0, 1, 2, ...) of shape (T,) or (N, T); got "
                              f"{value!r:.60}.")  # (offered counts of 1.5 and inf were cast: audit II3)
         counts.append(a)
@@ -640,7 +648,7 @@ class DivergenceMonitor:
             raise shape_error("nis_values", "(k,)", nis_values.shape)
         if dofs.shape != nis_values.shape:
             raise shape_error("dofs", f"{nis_values.shape}, that of `nis_values`", dofs.shape)
-        if (dofs < 0).any() or (dofs != np.round(dofs)).any():
+        if not _counts(dofs):
             bad = float(dofs[(dofs < 0) | (dofs != np.round(dofs))][0])
             raise ValueError(f"`dofs` must be counts of observed components (0, 1, 2, ...); got {bad:g}.")
         if len(steps) != nis_values.shape[0]:

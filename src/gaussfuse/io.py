@@ -1153,12 +1153,27 @@ def open_atomic(path: StrPath, mode: str = "w", **kwargs) -> Iterator[IO]:
         yield f
 
 
+def _replaced_file(path: str, info: os.stat_result | None) -> str:
+    """The file that writing `path` replaces: through symlinks (the link stays, its file is replaced); one that
+    exists (`info`, its status) and that the user may not write is refused, as the shell would refuse it."""
+    target = os.path.realpath(path)
+    if info is not None and not os.access(target, os.W_OK):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+    return target
+
+
+def _keep_status(file: int | str, info: os.stat_result) -> None:
+    """Give the new `file` (a descriptor or a path) the permission bits, and where allowed the owner and group,
+    of the file it replaces (`info`): chown first, as it clears set-user-ID bits."""
+    with suppress(OSError):  # only root may give a file away
+        os.chown(file, info.st_uid, info.st_gid)
+    os.chmod(file, stat.S_IMODE(info.st_mode))
+
+
 @contextmanager
 def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: dict) -> Iterator[IO]:
     """Write a temporary file beside the file `path` names, then put it in that file's place."""
-    target = os.path.realpath(path)  # through symlinks: the link stays, its file is replaced
-    if info is not None and not os.access(target, os.W_OK):
-        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+    target = _replaced_file(path, info)
     directory, name = os.path.split(target)
     tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
     # The descriptor stays ours (the file object does not close it), so that the clean-up knows whether it is
@@ -1171,10 +1186,8 @@ def _write_replacing(path: str, info: os.stat_result | None, mode: str, kwargs: 
         except OSError as exc:
             made = False  # nothing was created, or the name is another's: nothing to remove
             raise _naming(exc, path) from None
-        if info is not None:  # keep what the user had; chown first, as it clears set-user-ID bits
-            with suppress(OSError):  # only root may give a file away
-                os.fchown(fd, info.st_uid, info.st_gid)
-            os.fchmod(fd, stat.S_IMODE(info.st_mode))
+        if info is not None:
+            _keep_status(fd, info)
         f = open(fd, mode, closefd=False, **kwargs)
         try:
             yield f
