@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -122,6 +124,33 @@ def test_models_without_a_steady_state_are_named():
     with pytest.raises(ValueError, match=r"no steady gain: its stationary innovation covariance S .* is singular") as e:
         gf.steady_state(ca)
     assert type(e.value) is ValueError
+
+
+def test_a_stable_model_whose_measured_component_settles_to_no_noise_has_no_steady_gain():
+    """Audit KK1: F = 0.5 I, H = [0, 1], Q = diag(1, 0), R = 0. The measured component has no process noise, so
+    its variance falls to 0 (P∞ = diag(4/3, 0)) and S with it. SciPy fails there and the doubling needs R
+    positive definite: the error blamed an unstable mode of F (it has none) instead of the singular S."""
+    model = gf.LinearModel(F=np.diag([0.5, 0.5]), H=[[0.0, 1.0]], Q=np.diag([1.0, 0.0]), R=0.0)
+    with pytest.raises(ValueError, match=r"no steady gain: its stationary innovation covariance S .* is singular "
+                                         r"\(\[\[0\.\]\]\)") as e:
+        gf.steady_state(model)
+    assert "unstable" not in str(e.value)
+    # the filter itself: from any prior the innovation variance falls to 0 (within two steps, the update on an
+    # exact measurement leaving the component known)
+    res = gf.filter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros((1, 1)), engine="python")
+    assert res.covs[-1][1, 1] == 0.0
+    # the same model with the measured component driven has its steady state
+    driven = gf.steady_state(gf.LinearModel(F=np.diag([0.5, 0.5]), H=[[0.0, 1.0]], Q=np.eye(2), R=0.0))
+    np.testing.assert_allclose(driven.predicted_cov, np.diag([4 / 3, 1.0]), rtol=1e-12)
+
+
+def test_the_largest_scales_solve_without_a_warning():
+    """Audit KK2: SciPy's unit, a power of two within a factor 2 of Q = 1e308, was 2**1024: NumPy's overflow
+    warning (the answer came from the doubling)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ss = gf.steady_state(gf.LinearModel(F=1.0, H=1.0, Q=1e308, R=1e-308))
+    assert ss.predicted_cov[0, 0] == 1e308 and ss.gain[0, 0] == 1.0
 
 
 def test_two_sensors_repeating_one_measurement_are_named_as_such():

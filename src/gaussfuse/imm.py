@@ -167,6 +167,14 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
     TypeError, ValueError
         For bad models, prior, measurements, probabilities or options,
         naming the argument.
+    ModelFunctionError
+        (a ValueError) When a nonlinear mode's f, h or Jacobian raises or
+        returns a wrong shape or a non-finite value, naming the step.
+    numpy.linalg.LinAlgError
+        At a step whose measurement is impossible under every mode that
+        can be in force (each has a singular innovation covariance S that
+        z lies outside), or where a mode's filtered covariance is not
+        positive semi-definite (a sigma-point rule with a negative weight).
 
     Notes
     -----

@@ -137,18 +137,22 @@ def steady_state(model: LinearModel) -> Stationary:
     try:
         g = kalman.gain(P, model.H, model.R)
     except np.linalg.LinAlgError:
-        raise ValueError(
-            "the filter of `model` has no steady gain: its stationary innovation covariance S = H P Hᵀ + R is "
-            f"singular ({np.array2string(symmetrize(model.H @ P @ model.H.T + model.R), separator=', ')}): a "
-            "combination of the measurements has no noise (R is singular on it) and measures what the state knows "
-            "exactly in the long run, or repeats another measurement with the same noise (two sensors of one "
-            "component with fully correlated noise). Give R a positive definite covariance, or leave out the "
-            "repeated measurement."
-        ) from None
+        raise _no_steady_gain(model, P) from None
     out = Stationary(P, g.cov, g.K, g.innovation_cov)
     for f in fields(out):
         getattr(out, f.name).setflags(write=False)
     return out
+
+
+def _no_steady_gain(model: LinearModel, P: np.ndarray) -> ValueError:
+    """The error for a filter whose predicted covariance `P` leaves S = H P Hᵀ + R singular: no gain to hold."""
+    S = symmetrize(model.H @ P @ model.H.T + model.R)
+    return ValueError(
+        "the filter of `model` has no steady gain: its stationary innovation covariance S = H P Hᵀ + R is "
+        f"singular ({np.array2string(S, separator=', ')}): a combination of the measurements has no noise (R is "
+        "singular on it) and measures what the state knows exactly in the long run, or repeats another "
+        "measurement with the same noise (two sensors of one component with fully correlated noise). Give R a "
+        "positive definite covariance, or leave out the repeated measurement.")
 
 
 def _riccati_solution(model: LinearModel) -> np.ndarray:
@@ -173,7 +177,7 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
         return np.zeros_like(Q)
     found, error = [], None
     for scale in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
-        scale = np.ldexp(1.0, int(np.frexp(scale)[1]))
+        scale = np.ldexp(1.0, int(np.frexp(scale)[1]) - 1)  # at most the scale: 2**1024 is past float64
         try:
             with np.errstate(invalid="ignore"):  # SciPy's own casts, where it fails
                 found.append(symmetrize(scale * solve_discrete_are(F.T, H.T, Q / scale, R / scale)))
@@ -345,20 +349,26 @@ def _doubled(model: LinearModel, most: int = 200) -> np.ndarray | None:
 
 
 def _iterated(model: LinearModel, steps: int = 10_000) -> np.ndarray | None:
-    """The filter's own predicted covariance from P⁻ = Q, run to its fixed point; None if it does not settle.
+    """The filter's own predicted covariance from a positive definite P⁻, run to its fixed point; None if it does
+    not settle.
 
     Where SciPy's solver fails on a badly scaled problem (an unstable F with Q 1e-30 of R), the recursion
     still converges to the stabilising solution when there is one (from any P⁻ ⪰ 0, for a model whose
     unstable modes are seen and reached); without one it grows without bound, or does not settle within
-    `steps` steps.
+    `steps` steps. It starts from ``Q + s I``, s the largest entry of Q and R, a prior that knows no
+    component exactly: a filter that reaches a singular S from there has no steady gain, and the
+    ValueError of :func:`_no_steady_gain` says so (F = 0.5 I with H = [0, 1], Q = diag(1, 0) and R = 0: the
+    measured component's variance falls to 0, and S with it, whatever the prior). A prior of 0 could reach
+    one only because it knows the state exactly at the start.
     """
-    P = model.Q.copy()
+    size = max(np.abs(model.Q).max(), np.abs(model.R).max())
+    P = model.Q + (size if size > 0.0 else 1.0) * np.eye(model.Q.shape[0])
     for _ in range(steps):
         try:
             with np.errstate(over="ignore", invalid="ignore"):
                 new = _riccati_map(model, P)
         except np.linalg.LinAlgError:
-            return None
+            raise _no_steady_gain(model, P) from None
         if not np.isfinite(new).all():
             return None
         if kalman.settled(new, P):
