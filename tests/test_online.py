@@ -661,3 +661,64 @@ def test_setting_the_belief_to_something_else_names_the_belief():
         kf.belief = "x"
     with pytest.raises(ValueError, match=re.escape("`belief` must have dimension 1 (the model's state); got 2.")):
         kf.belief = gf.Gaussian([0.0, 0.0], np.eye(2))
+
+
+@pytest.mark.parametrize("form", ["cov", "sqrt"])
+def test_the_innovation_covariance_handed_out_cannot_change_later_ones(form):
+    """Audit LL1: once the covariances settle, every update's S is the steady state's own array; `kf.S *= 7` at one
+    step made every later S seven times too large (the estimates stayed right). It is read-only now, as x_prior
+    and the others are, and each later S is still H P⁻ Hᵀ + R."""
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.01, 0.01]), R=4.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)), form=form)
+    for z in np.sin(np.arange(80.0)):
+        kf.predict()
+        kf.update(z)
+        with pytest.raises(ValueError, match="read-only"):
+            kf.S *= 7.0
+        want = model.H @ kf.P_prior @ model.H.T + model.R
+        np.testing.assert_allclose(kf.S, want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name, hint", [("alpha", "fading memory"), ("M", "cross-covariance"), ("inv", "Cholesky")])
+def test_filterpys_settings_that_are_not_offered_say_so(name, hint):
+    """Audit LL2: `kf.alpha = 1.05` (filterpy's fading memory) made an attribute nothing reads, and P went on as
+    before (2.818 where filterpy's is 2.947 after three steps); M and inv likewise."""
+    kf = gf.KalmanFilter(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian([0.0], [[1.0]]))
+    with pytest.raises(AttributeError, match=rf"^a KalmanFilter has no `{name}`: .*{hint}"):
+        setattr(kf, name, 1.05)
+    assert not hasattr(kf, name)
+    assert name not in vars(kf)
+
+
+def test_an_h_for_a_nonlinear_model_is_refused_before_its_r_and_z_are_checked():
+    """Audit LL3: an H of two rows was first told to bring its R, then a z of two components, and only then that a
+    NonlinearModel's h is a function."""
+    model = gf.NonlinearModel(lambda x: x, lambda x: x[:1], np.eye(2), 1.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
+    kf.predict()
+    for z, extra in [(1.0, {}), (1.0, {"R": np.eye(2)}), ([1.0, 2.0], {"R": np.eye(2)})]:
+        with pytest.raises(TypeError, match=r"^`H` replaces a LinearModel's matrix"):
+            kf.update(z, H=np.eye(2), **extra)
+    with pytest.raises(TypeError, match=r"^`F` replaces a LinearModel's matrix"):
+        kf.predict(F=np.eye(3))
+
+
+def test_a_failed_step_of_a_timed_model_keeps_the_matrices_of_the_last_one():
+    """Audit LL4: `predict(dt=7, Q=<3 x 3>)` raised and kept the belief and step, but F and Q became those of a
+    7 s step, where the docs say they are those of the last step predicted."""
+    kf = gf.KalmanFilter(gf.model(gf.ConstantVelocity(1, q=0.5), gf.Position(1, r=2.0)),
+                         gf.Gaussian([0.0, 1.0], np.eye(2)))
+    kf.predict(dt=0.5)
+    F, Q, belief = kf.F.copy(), kf.Q.copy(), kf.belief
+    with pytest.raises(ValueError, match=r"`Q` must have shape \(2, 2\)"):
+        kf.predict(dt=7.0, Q=np.eye(3))
+    np.testing.assert_array_equal(kf.F, F)
+    np.testing.assert_array_equal(kf.Q, Q)
+    assert kf.step == 1 and kf.belief is belief
+    kf.update(0.3)  # the update of the step predicted, with its H and R
+    again = gf.KalmanFilter(gf.model(gf.ConstantVelocity(1, q=0.5), gf.Position(1, r=2.0)),
+                            gf.Gaussian([0.0, 1.0], np.eye(2)))
+    again.predict(dt=0.5)
+    again.update(0.3)
+    np.testing.assert_array_equal(kf.x, again.x)
+    np.testing.assert_array_equal(kf.P, again.P)

@@ -39,6 +39,18 @@ def _fixed(name: str, read, doc: str) -> property:
     return property(read, refuse, doc=doc)
 
 
+def _not_offered(name: str, what: str) -> property:
+    """A filterpy setting that a :class:`KalmanFilter` does not have: reading or assigning it says so.
+
+    Assigned on a plain object, it would make an attribute nothing reads, and the estimates would go on without
+    it, silently (audit LL2: ``kf.alpha = 1.05``, filterpy's fading memory, left P as it was).
+    """
+    def refuse(self, value=None):
+        raise AttributeError(f"a KalmanFilter has no `{name}`: {what}")
+
+    return property(refuse, refuse, doc=f"Not offered (filterpy's `{name}`): {what}")
+
+
 class KalmanFilter:
     """A Kalman filter that takes measurements as they arrive.
 
@@ -92,7 +104,9 @@ class KalmanFilter:
         As given (read-only).
     F, H, Q, R, B : ndarray
         The model's matrices (read-only: assigning one is an error that
-        says how to change it, as filterpy's ``f.Q = ...`` would not work);
+        says how to change it, as filterpy's ``f.Q = ...`` would not work,
+        and so is reading or assigning filterpy's ``alpha``, ``M`` and
+        ``inv``, which are not offered);
         for a TimedModel, those of the last step predicted (before the
         first, of a step of 1 s, or shorter where that overflows).
     step : int
@@ -101,13 +115,14 @@ class KalmanFilter:
     loglik : float
         Sum of the log-likelihood contributions of the updates so far.
     x_prior, P_prior : ndarray
-        The last prediction (after :meth:`predict`).
+        The last prediction (after :meth:`predict`); read-only.
     x_post, P_post : ndarray
-        The last posterior (after :meth:`update`).
+        The last posterior (after :meth:`update`); read-only.
     y : ndarray of shape (m,)
         The last update's innovation ``z - (H x + d)``; NaN where missing.
     S : ndarray of shape (m, m)
-        Its covariance ``H P Hᵀ + R``.
+        Its covariance ``H P Hᵀ + R``; read-only (once the covariances
+        settle, every update's S is the same array).
     K : ndarray of shape (n, m)
         The gain applied, with zero columns for missing components.
     log_likelihood : float
@@ -168,6 +183,12 @@ class KalmanFilter:
     form = _fixed("form", lambda self: self._form, 'The form, "cov" or "sqrt" (read-only).')
     F, H, Q, R, B = (_fixed(name, lambda self, name=name: getattr(self._model, name), f"The model's {name} (read-only).")
                      for name in "FHQRB")
+    alpha = _not_offered("alpha", "filterpy's fading memory (P⁻ = α² F P Fᵀ + Q) is not offered; a larger Q, for "
+                                  "one step with kf.predict(Q=...) or in the model, widens the prediction instead.")
+    M = _not_offered("M", "filterpy's cross-covariance of the process and measurement noises is not offered; "
+                          "correlated noises need the state augmented with the noise they share.")
+    inv = _not_offered("inv", "the gain is found by Cholesky solves with S, never by inverting it, so there is no "
+                              "inverse to choose.")
 
     def _fresh_steady(self) -> kalman.SteadyState | None:
         """A time-invariant model's covariances reach a fixed point that steps then reuse, exactly."""
@@ -339,8 +360,19 @@ class KalmanFilter:
             u = np.atleast_1d(as_array("u", u))
             if u.ndim != 1 or (p is not None and u.shape != (p,)):
                 raise shape_error("u", f"({p if p is not None else 'p'},)", u.shape)
-        if dt is not None or self.timed is not None:
-            u = self._discretise(dt, u)
+        last = self._model, self._lin  # a TimedModel's step: kept if this one fails (audit LL4)
+        try:
+            if dt is not None or self.timed is not None:
+                u = self._discretise(dt, u)
+            self._predict(k, belief, u, F, Q)
+        except BaseException:
+            self._model, self._lin = last
+            raise
+        return self._belief
+
+    def _predict(self, k: int, belief: Gaussian, u, F, Q) -> None:
+        """:meth:`predict` of step k from `belief`, once its control `u` is checked (and its TimedModel's step
+        made)."""
         self._controls.clear()
         self._controls[k] = u
         lin = self._replaced(F=F, Q=Q)
@@ -358,7 +390,6 @@ class KalmanFilter:
         self._views.clear()
         self.x_prior, self.P_prior = self._belief.mean, self._belief.cov
         self._step += 1
-        return self._belief
 
     def update(self, z, R=None, H=None, gate: float | None = None, gate_by: str = "measurement") -> Gaussian:
         """Condition the belief on a measurement.
@@ -389,6 +420,7 @@ class KalmanFilter:
         belief = self.belief
         k = max(self._step - 1, 0)
         self._check_step(k)
+        self._functions_not_matrices(H=H)
         m = self._model.m if H is None else self._matrix("H", H, None, self._model.n).shape[0]
         if H is not None and m != self._model.m and R is None:
             raise ValueError(f"`R` is required with an `H` of {m} rows: the model's R is for {self._model.m}.")
@@ -417,7 +449,9 @@ class KalmanFilter:
         if post.gain is not None:
             K[:, observed] = post.gain
         self.x_post, self.P_post = self._belief.mean, self._belief.cov
-        self.y, self.S, self.K = post.innovation, post.innovation_cov, K
+        S = post.innovation_cov.view()  # read-only, as x_prior and the others: once the covariances settle it is
+        S.setflags(write=False)         # the steady state's own S, which every later update hands out (audit LL1)
+        self.y, self.S, self.K = post.innovation, S, K
         self.log_likelihood, self.mahalanobis = float(post.loglik), float(np.sqrt(post.nis))
         self.rejected = post.rejected
         if self._monitor is not None:
@@ -448,14 +482,20 @@ class KalmanFilter:
         if not given:
             return self._lin
         n = self._model.n
-        linear = isinstance(self._model, LinearModel)
-        if not linear and ("F" in given or "H" in given):
-            raise TypeError(f"`{'F' if 'F' in given else 'H'}` replaces a LinearModel's matrix; a NonlinearModel's "
-                            "f and h are functions (replace Q and R only).")
+        self._functions_not_matrices(**given)
         shapes = {"F": (n, n), "Q": (n, n), "H": (None, n), "R": (m, m)}
         checked = {name: self._matrix(name, value, *shapes[name]) for name, value in given.items()}
         return self._sharing(linearisation(self._spec, _Replaced(self._model, checked), self._controls,
                                            self._options)[0])
+
+    def _functions_not_matrices(self, **given) -> None:
+        """Refuse an F or H `given` for a NonlinearModel, before anything is checked against it (audit LL3: an H of
+        two rows was first told to bring its R, then a z of two components)."""
+        if not isinstance(self._model, LinearModel):
+            for name in ("F", "H"):
+                if given.get(name) is not None:
+                    raise TypeError(f"`{name}` replaces a LinearModel's matrix; a NonlinearModel's f and h are "
+                                    "functions (replace Q and R only).")
 
     def _sharing(self, lin):
         """`lin`, keeping the record of the automatic Jacobians' checks (:class:`gaussfuse.linearize.Taylor`) of
