@@ -506,6 +506,8 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
         outputs = np.atleast_1d(_times("times", times, dated))
     events = _parse(measurements, timeline, dated)
     clock = _Clock.finest([t0, *(t for t, _, _ in events), *outputs])
+    if clock.unit is not None:
+        timing.no_dates_for_steps(motion, "t0")
     start = clock.count("t0", t0)
     for i, (t, name, z) in enumerate(events):
         events[i] = (clock.count(f"measurements[{i}].t", t), name, z)
@@ -611,6 +613,8 @@ class Fuser:
         self._belief = check_prior(prior, self._timeline.n)
         self._t = _time("t0", t0)
         self._dated = isinstance(self._t, np.datetime64)
+        if self._dated:
+            timing.no_dates_for_steps(motion, "t0")
         self.loglik = 0.0
         probe, _ = self._timeline.model(np.zeros(1))
         method = self._timeline.default_method() if method is None else method
@@ -663,7 +667,7 @@ class Fuser:
         return self._spec.strategy(model, us, **self._options)
 
     def _advance(self, t, argument: str) -> None:
-        clock = _Clock.finest([self.t, t])
+        clock = _Clock.finest([self.t, t])  # (dated only from a dated t0, refused for a motion counting steps)
         now, then = clock.count("the fuser's time", self.t), clock.count(argument, t)
         if then < now:
             raise ValueError(

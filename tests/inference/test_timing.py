@@ -337,3 +337,35 @@ def test_durations_that_the_finest_unit_cannot_hold_are_refused():
     # (converted through milliseconds: 1 s, which attoseconds hold, was refused as 10 s is: review R37)
     np.testing.assert_array_equal(
         as_seconds("times", np.array([np.timedelta64(0, "as"), np.timedelta64(1, "s")], dtype=object)), [0.0, 1.0])
+
+
+@pytest.mark.parametrize("motion", [gf.LocalLevel(q=0.5), gf.LocalLinearTrend(q_level=1.0, q_slope=0.5)],
+                         ids=["LocalLevel", "LocalLinearTrend"])
+def test_a_motion_counting_steps_refuses_dated_times(motion):
+    """Audit MM1: LocalLevel and LocalLinearTrend count steps (dt = 1 for consecutive observations), but a
+    TimedModel of them given daily dates stepped them by 86400 (a daily pandas Series too, its index becoming the
+    times): the level's predicted variance 43201 where one step gives 1.1, silently."""
+    sensor = gf.LinearSensor(np.eye(1, motion.n), 1.0)
+    timed = gf.model(motion, sensor)
+    prior = gf.Gaussian(np.zeros(motion.n), np.eye(motion.n))
+    zs = np.array([1.0, 1.2, 0.9, 1.5, 1.1])
+    days = np.arange("2024-01-01", "2024-01-06", dtype="datetime64[D]")
+    name = type(motion).__name__
+    with pytest.raises(ValueError, match=rf"^`times` gives dates, but {name} counts steps .*np\.arange\(T\)"):
+        gf.filter(timed, prior, zs, times=days)
+    series = pd.Series(zs, index=pd.date_range("2024-01-01", periods=5, freq="D"))
+    with pytest.raises(ValueError, match=rf"^`zs.index` gives dates, but {name} counts steps .* `zs.to_numpy\(\)`"):
+        gf.smooth(timed, prior, series)
+    # step numbers are what it counts: the same as the model of one step
+    want = gf.filter(gf.model(motion, sensor, dt=1), prior, zs)
+    for got in (gf.filter(timed, prior, zs, times=np.arange(5.0)), gf.filter(timed, prior, series, times=np.arange(5))):
+        np.testing.assert_array_equal(got.means, want.means)
+        np.testing.assert_array_equal(got.covs, want.covs)
+
+
+def test_a_motion_in_time_takes_dated_times_in_seconds():
+    """The refusal is for motions that count steps: a random walk's q is per second, and a day is 86400 s."""
+    timed = gf.model(gf.RandomWalk(q=0.5), gf.LinearSensor([[1.0]], 1.0))
+    days = np.arange("2024-01-01", "2024-01-04", dtype="datetime64[D]")
+    got = gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), [1.0, 2.0, 3.0], times=days)
+    assert got.predicted_covs[1, 0, 0] == pytest.approx(got.covs[0, 0, 0] + 0.5 * 86400)

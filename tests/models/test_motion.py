@@ -777,3 +777,48 @@ def test_transitions_of_many_steps_are_each_step_s_to_the_bit(motion):
     if motion.n > motion.dim:  # (a random walk's Q = q dt does not overflow)
         with pytest.raises(ValueError, match=r"a step of dt = 1e\+200 s is too long"):  # named, as one step's
             motion.transitions(np.array([1.0, 1e200]))
+
+
+@pytest.mark.parametrize("motion", [gf.ConstantVelocity(q=1.0), gf.ConstantVelocity(q=1.0, noise="piecewise"),
+                                    gf.ConstantAcceleration(q=1.0), gf.Singer(), gf.LocalLevel()],
+                         ids=["velocity", "piecewise", "acceleration", "singer", "local-level"])
+def test_transitions_check_their_steps_as_transition_does(motion):
+    """Audit MM2: the closed forms took dt = -1 into a Q with a negative eigenvalue (-1.27) and dt = 0 into Q = 0,
+    and a 2-D dts into einsum's error, where transition() refuses both."""
+    for bad, match in [([-1.0], r"^`dts` must be positive time steps; dts\[0\] = -1\.$"),
+                       ([1.0, 0.0], r"^`dts` must be positive time steps; dts\[1\] = 0\.$"),
+                       ([[1.0, 2.0]], r"^`dts` must have shape \(k,\); got shape \(1, 2\)\.$"),
+                       ([1.0, np.nan], r"^`dts` must be finite")]:
+        with pytest.raises(ValueError, match=match):
+            motion.transitions(np.array(bad))
+    with pytest.raises(TypeError, match="`dts` must be an array of numbers"):
+        motion.transitions(["1"])
+    F, Q = motion.transitions(np.zeros(0))
+    assert F.shape == Q.shape == (0, motion.n, motion.n)
+
+
+def _singer_q_50_digits(tau: float, sigma: float, dt: float) -> np.ndarray:
+    """Singer's closed-form Q (position, velocity block) per axis, in mpmath at 1500 digits (Singer 1970; Bar-Shalom,
+    Li & Kirubarajan 2001, §8.2): no cancellation is left at any rate."""
+    import mpmath as mp
+
+    with mp.workdps(1500):
+        a, T = 1 / mp.mpf(tau), mp.mpf(dt)
+        q = 2 * mp.mpf(sigma) ** 2 / mp.mpf(tau)
+        e1, e2 = mp.exp(-a * T), mp.exp(-2 * a * T)
+        q00 = q / (2 * a**5) * (1 - e2 + 2 * a * T + 2 * a**3 * T**3 / 3 - 2 * a**2 * T**2 - 4 * a * T * e1)
+        q01 = q / (2 * a**4) * (e2 + 1 - 2 * e1 + 2 * a * T * e1 - 2 * a * T + a**2 * T**2)
+        q11 = q / (2 * a**3) * (4 * e1 - 3 - e2 + 2 * a * T)
+        return np.array([[float(q00), float(q01)], [float(q01), float(q11)]])
+
+
+@pytest.mark.parametrize("tau, sigma", [(1e-150, 1.0), (1e-140, 1e-10), (1e-200, 1e50), (1e-100, 1e-50)])
+def test_singer_at_the_fastest_rates_it_takes_is_its_closed_form(tau, sigma):
+    """Audit MM3: at sigma tau = 1e-160 Q's entries were 1e-3 off, below it 0 for 1e-200 (its sub-steps' terms
+    underflowed); from 1e-150 up they are exact to round-off, and below it the model is refused."""
+    for dt in (1e-6, 1.0, 1e6):
+        Q = gf.Singer(tau=tau, sigma=sigma).transition(dt)[1][:2, :2]
+        np.testing.assert_allclose(Q, _singer_q_50_digits(tau, sigma, dt), rtol=1e-13, atol=0)
+    with pytest.raises(ValueError, match=r"^sigma \* tau must be at least 1e-150, or sigma 0"):
+        gf.Singer(tau=tau, sigma=sigma / 1e11)
+    assert not gf.Singer(tau=1e-300, sigma=0.0).transition(1.0)[1].any()

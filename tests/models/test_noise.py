@@ -290,10 +290,12 @@ def test_a_short_step_keeps_every_entry_of_q(order, dt):
 
 def test_a_drift_past_2_to_the_1024_per_step_is_stepped():
     """dt / 2.0**halvings raised OverflowError (reported as a step too long) for ||A|| dt past 2**1024: Singer's F
-    and Q at tau = 1e-300 over 1e10 s are finite (F[1, 2] = tau, Q[2, 2] = sigma²)."""
-    F, Q = gf.Singer(tau=1e-300, sigma=2.0).transition(1e10)
-    assert F[1, 2] == pytest.approx(1e-300, rel=1e-12) and F[2, 2] == 0.0
-    assert Q[2, 2] == pytest.approx(4.0, rel=1e-12)
+    and Q at tau = 1e-200 over 1e109 s are finite (F[1, 2] = tau, Q[2, 2] = sigma²). (It was tau = 1e-300 with
+    sigma = 2, whose position and velocity variances underflow: Singer refuses sigma tau below 1e-150 since
+    audit MM3.)"""
+    F, Q = gf.Singer(tau=1e-200, sigma=1e50).transition(1e109)
+    assert F[1, 2] == pytest.approx(1e-200, rel=1e-12) and F[2, 2] == 0.0
+    assert Q[2, 2] == pytest.approx(1e100, rel=1e-12)
 
 
 def test_a_huge_density_over_a_step_whose_q_is_finite_is_not_refused():
@@ -486,3 +488,16 @@ def test_piecewise_noise_keeps_entries_whose_g_g_t_underflows():
                 exact = float(Fraction(var) * g[i] * g[j])
                 assert Q[i, j] == pytest.approx(exact, rel=1e-12, abs=1e-320), (K, dt, var, i, j)
     assert np.array_equal(piecewise_white_noise(1, 2.0, 0.5), [[2.0, 2.0], [2.0, 2.0]])  # exact where nothing underflows
+
+
+def test_a_fast_rate_before_an_integrator_loses_the_integrators_variance_as_documented():
+    """van_loan's notes: with A = [[0, 1], [0, -1e110]] and W = 1 over 1 s the position variance, W/a² (1 - ...)
+    about 1e-220, comes out 0 (its sub-step's W h³ underflows), while the velocity's entries are exact; at a rate
+    of 1e50 it is exact too."""
+    a = 1e110
+    F, Q = gf.van_loan(np.array([[0.0, 1.0], [0.0, -a]]), [0.0, 1.0], 1.0, 1.0)
+    assert Q[0, 0] == 0.0
+    np.testing.assert_allclose([Q[0, 1], Q[1, 1]], [0.5 / a**2, 0.5 / a], rtol=1e-14)
+    a = 1e50
+    F, Q = gf.van_loan(np.array([[0.0, 1.0], [0.0, -a]]), [0.0, 1.0], 1.0, 1.0)
+    np.testing.assert_allclose(Q, [[(1.0 - 1.5 / a) / a**2, 0.5 / a**2], [0.5 / a**2, 0.5 / a]], rtol=1e-14)

@@ -379,6 +379,18 @@ def steps(name: str, times, T: int) -> Steps:
     return Steps(dts, slack, resolution=resolution)
 
 
+def no_dates_for_steps(motion, name: str, instead: str = "") -> None:
+    """Refuse dated `name` for a motion whose dt counts steps (LocalLevel, LocalLinearTrend), not seconds.
+
+    A day would be 86400 of its steps, its variances 86400 times those of a step, silently (audit MM1).
+    """
+    if getattr(motion, "_counts_steps", False):
+        raise ValueError(
+            f"`{name}` gives dates, but {type(motion).__name__} counts steps (dt = 1 for consecutive observations), "
+            "not seconds: a day would be 86400 of its steps. Give times as step numbers (np.arange(T) for "
+            f"consecutive observations, or the days since the first where days are missed){instead}.")
+
+
 def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True, one_step: bool = False):
     """The model to filter `zs` with at `times`, and its controls.
 
@@ -406,6 +418,9 @@ def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True, o
         return model, us
     T = zs if isinstance(zs, int) else check_measurements(zs, model.m).shape[1]
     grid = steps(name, times, T)
+    if timed and grid.resolution > 0.0:
+        no_dates_for_steps(model.motion, name, ", or build the model with dt=1 and pass `zs.to_numpy()`"
+                           if name == "zs.index" else "")
     if timed:  # (a nonlinear one is left to the steady filter's refusal of its method: review R34)
         return model.at(np.full(1, grid.step) if one_step and model.linear and grid.regular else grid.dts, us)
     low, high = float(grid.dts.min()), float(grid.dts.max())

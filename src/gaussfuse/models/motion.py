@@ -20,7 +20,7 @@ from math import factorial
 
 import numpy as np
 
-from .._validation import finite_step, integer, real
+from .._validation import as_array, finite_step, integer, real, shape_error
 from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state
 from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan, white_noise_chains
 
@@ -125,7 +125,9 @@ class LinearMotion(Frozen):
         F : ndarray of shape (k, n, n)
         Q : ndarray of shape (k, n, n)
         """
-        pairs = [self.transition(float(dt)) for dt in dts]
+        pairs = [self.transition(float(dt)) for dt in _step_sizes(dts)]
+        if not pairs:
+            return np.zeros((0, self.n, self.n)), np.zeros((0, self.n, self.n))
         return np.stack([F for F, _ in pairs]), np.stack([Q for _, Q in pairs])
 
     def control(self, dt: float) -> np.ndarray | None:
@@ -144,6 +146,18 @@ class LinearMotion(Frozen):
         """
         real("dt", dt, positive=True)
         return None
+
+
+def _step_sizes(dts) -> np.ndarray:
+    """`dts` as float64 of shape (k,), each a positive time step; the errors name `dts` and the step (audit MM2: the
+    closed forms took -1 into a Q with a negative eigenvalue, and 0 into Q = 0)."""
+    dts = as_array("dts", dts, copy=False)
+    if dts.ndim != 1:
+        raise shape_error("dts", "(k,)", dts.shape)
+    bad = np.flatnonzero(~(dts > 0.0))
+    if bad.size:
+        raise ValueError(f"`dts` must be positive time steps; dts[{bad[0]}] = {dts[bad[0]]:g}.")
+    return dts
 
 
 class NonlinearMotion(Frozen):
@@ -284,7 +298,7 @@ class _IntegratedWhiteNoise(LinearMotion):
 
     def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # transition's formulas on the stack of steps, the same bits; the base's loop names a step that overflows
-        dts = np.asarray(dts, dtype=np.float64)
+        dts = _step_sizes(dts)
         if self.noise != "continuous" or not dts.size:
             return super().transitions(dts)
         K, d, k = self._order, self.dim, dts.shape[0]
@@ -521,7 +535,12 @@ class Singer(LinearMotion):
     ------
     ValueError
         For a `tau` or `sigma` out of range, or one that makes 1/τ or
-        2σ²/τ overflow float64 (τ = 1e-310, say).
+        2σ²/τ overflow float64 (τ = 1e-310, say), or a positive σ with
+        σ·τ below 1e-150: the discretisation's variances over its shortest
+        sub-step, about σ²τ², then fall below float64's normal numbers
+        and Q loses its digits (στ = 1e-160 left entries 1e-3 off, and
+        smaller products all of them; from 1e-150 up they are within 2e-15
+        of Singer's closed form).
 
     Notes
     -----
@@ -568,6 +587,11 @@ class Singer(LinearMotion):
             if not (np.isfinite(1.0 / np.float64(tau)) and np.isfinite(2.0 * np.float64(sigma) ** 2 / tau)):
                 raise ValueError(f"the noise density 2 sigma² / tau and the rate 1 / tau must be finite in float64; "
                                  f"got sigma = {sigma:g} and tau = {tau:g}.")
+            if sigma > 0.0 and sigma * tau < 1e-150:  # (audit MM3)
+                raise ValueError(f"sigma * tau must be at least 1e-150, or sigma 0: below it Q's terms over the "
+                                 f"discretisation's shortest step, about (sigma tau)², are lost to float64's "
+                                 f"underflow; got sigma = {sigma:g} and tau = {tau:g}. Measure time or distance "
+                                 "in other units.")
         self._set(dim=check_dim(dim), tau=tau, sigma=sigma)
 
     @property
@@ -679,6 +703,7 @@ class LocalLevel(LinearMotion):
     (array([[1.]]), array([[1469.1]]))
     """
 
+    _counts_steps = True  # dt is a number of steps, not seconds: dated times have none (timing.resolve)
     __slots__ = ("q",)
 
     def __init__(self, q: float = 1.0) -> None:
@@ -759,6 +784,7 @@ class LocalLinearTrend(LinearMotion):
            [0.5, 1. ]])
     """
 
+    _counts_steps = True  # dt is a number of steps, not seconds: dated times have none (timing.resolve)
     __slots__ = ("q_level", "q_slope")
 
     def __init__(self, q_level: float = 1.0, q_slope: float = 1.0) -> None:

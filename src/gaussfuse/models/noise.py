@@ -118,7 +118,12 @@ def van_loan(A, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     subnormal W and a Q more than about 8e609 apart (W = 1e-340 grown to
     2.7e289; less for a fast rate, 3e598 at a rate of 1e11 and 5e589 at
     1e20, where the last ones computed are within 1.2e-12) are refused as
-    an overflow. A coupling is not a rate: against a 700-digit
+    an overflow. A fast rate before an integrator spreads the sub-step's
+    entries over powers of h: :math:`W h` to :math:`W h^3` for one
+    integrator, whose smallest underflow first (``A = [[0, 1], [0, -1e110]]``
+    with W = 1 over 1 s gives a position variance of 0 for 1e-220, where
+    its other entries are exact; :class:`~gaussfuse.models.motion.Singer`
+    refuses σ·τ below 1e-150 for that reason). A coupling is not a rate: against a 700-digit
     oracle, Singer's model at :math:`\tau = \Delta t` = 1e9 s is within 2.5e-14
     (7.4e-9 when the halvings were set by :math:`\|A\|_1`, which counts
     each integrator's 1), and the triangular drift in mixed units
