@@ -667,14 +667,16 @@ class _Chunks:
     """
 
     def __init__(self, zs, us) -> None:
-        self.zs, self.us, _ = chunked.paired_blocks(zs, us)
+        self.zs, self.us, self.sizes = chunked.paired_blocks(zs, us)
+        self.firsts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(int).tolist()
 
     def total(self, fn, *args):
         """``fn(zs_c, us_c, *args)`` summed over the chunks c (numbers, arrays, and tuples or dicts of them)."""
         import dask
 
         shared = dask.delayed(args, traverse=False)  # one node for every chunk: not searched, hashed or sent again
-        parts = [dask.delayed(_apply)(fn, z, u, shared) for z, u in zip(self.zs, self.us)]
+        parts = [dask.delayed(_apply)(fn, first, z, u, shared)
+                 for first, z, u in zip(self.firsts, self.zs, self.us)]
         while len(parts) > 1:
             parts = [dask.delayed(_add)(*parts[i:i + 2]) for i in range(0, len(parts), 2)]
         return dask.compute(parts[0])[0]
@@ -697,8 +699,14 @@ class _Chunks:
         return list(self.total(_chunk_scores, tuple(requests), engine))
 
 
-def _apply(fn, zs, us, args):
-    return fn(zs, us, *args)
+def _apply(fn, first: int, zs, us, args):
+    """``fn(zs, us, *args)`` on the chunk of series from `first`, its errors naming them by their numbers in the whole
+    array (audit NN1: "in series 2" for the 6th)."""
+    try:
+        return fn(zs, us, *args)
+    except (ValueError, TypeError, FloatingPointError) as err:
+        chunked.renumber(err, first, zs.shape[0])
+        raise
 
 
 def _chunk_e_step(zs, us, model, prior, learn, engine):

@@ -438,3 +438,87 @@ def test_a_gate_that_loses_the_track_is_named_for_chunked_series_as_in_memory(ru
         run(model, prior, zs, gate=0.99)
     with dask.config.set(scheduler="synchronous"), pytest.warns(gf.DivergenceWarning, match="The gate rejected"):
         np.asarray(run(model, prior, da.from_array(zs, chunks=(2, 300, 1)), gate=0.99).means)
+
+
+def test_a_pooled_fit_names_series_by_their_numbers_in_the_whole_array():
+    """Audit NN1: with chunks of 3, the fit named the 6th series "series 2" (its place in its chunk) where the
+    in-memory fit and the chunked filter name it 5; and an infinite value was an overflow of a series there, where
+    in memory it is refused as `zs` must be finite, at its index."""
+    model, prior = gf.constant_velocity(1.0, 0.5, 1.0), gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = np.random.default_rng(0).normal(size=(7, 30, 1))
+    zs[5, 12, 0], zs[5, 13, 0] = 1e308, -1e308
+    with dask.config.set(scheduler="synchronous"):
+        for data in (zs, da.from_array(zs, chunks=(3, 30, 1))):
+            with warnings.catch_warnings(), pytest.raises(FloatingPointError, match=r"^in series 5, at step 12"):
+                warnings.simplefilter("ignore")
+                gf.fit(model, prior, data, learn=("R",), iterations=2)
+        zs = np.random.default_rng(0).normal(size=(7, 30, 1))
+        zs[4, 3, 0] = np.inf
+        for data in (zs, da.from_array(zs, chunks=(3, 30, 1))):
+            with pytest.raises(ValueError, match=r"^`zs` must be finite; got an infinite value at index \(4, 3, 0\)"):
+                gf.fit(model, prior, data, learn=("R",), iterations=2)
+
+
+def test_chunks_of_unknown_size_are_refused_before_the_work():
+    """Audit NN2: a dask array indexed by a mask, shape (nan, T, m): the filter's graph failed at compute on an
+    internal false-alarm rate of NaN, and the fit after its whole search on a NaN count."""
+    model, prior = gf.constant_velocity(0.1, 1.0, 0.25), gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = da.from_array(np.random.default_rng(0).normal(size=(10, 40, 1)), chunks=(3, 40, 1))
+    masked = zs[zs[:, 0, 0] > -100]
+    for call in (lambda: gf.filter(model, prior, masked), lambda: gf.smooth(model, prior, masked),
+                 lambda: gf.fit(model, prior, masked, learn=("R",), iterations=2)):
+        with pytest.raises(ValueError, match=r"^`zs` has chunks of unknown size \(shape \(nan, 40, 1\)\).*"
+                                             r"compute_chunk_sizes\(\)"):
+            call()
+    masked.compute_chunk_sizes()
+    with dask.config.set(scheduler="synchronous"):
+        np.testing.assert_array_equal(gf.filter(model, prior, masked).means.compute(),
+                                      gf.filter(model, prior, zs.compute()).means)
+
+
+def test_times_are_checked_whole_before_any_chunk_runs():
+    """Audit NN3: the times were checked against a model with fixed matrices on the probe's first steps only: times
+    irregular after 20 steps were refused at compute, blamed on a chunk of series; irregular early, the message gave
+    the first steps' range, not the whole series'."""
+    model, prior = gf.constant_velocity(1.0, 0.5, 1.0), gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = np.random.default_rng(0).normal(size=(6, 30, 1))
+    late = np.arange(30.0)
+    late[20:] += 0.5
+    early = np.cumsum(np.random.default_rng(0).uniform(0.5, 3.0, 30))
+    for times in (late, early):
+        with pytest.raises(ValueError) as memory:
+            gf.filter(model, prior, zs, times=times)
+        with pytest.raises(ValueError) as chunked:  # when the call is made: nothing is computed
+            gf.filter(model, prior, da.from_array(zs, chunks=(2, 30, 1)), times=times)
+        assert str(chunked.value) == str(memory.value) and "are irregular" in str(memory.value)
+
+
+def test_a_chunk_of_one_series_is_named_in_the_divergence_warning():
+    """Audit NN4: a chunk holding one series of several warned "over steps 0-79" without "of series 9", which a
+    call in memory and a chunk of three name."""
+    model, prior = gf.constant_velocity(0.1, 1.0, 0.25), gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    zs = np.random.default_rng(0).normal(size=(10, 80, 1)).cumsum(1) * 0.05
+    zs[9, 40:] += np.linspace(0.0, 200.0, 40)[:, None]  # series 9 jumps away from the model
+    with pytest.warns(gf.DivergenceWarning) as memory:
+        gf.filter(model, prior, zs)
+    assert len(memory) == 1 and "over steps 0-79 of series 9" in str(memory[0].message)
+    for chunks in (3, 1):
+        with dask.config.set(scheduler="synchronous"), pytest.warns(gf.DivergenceWarning) as chunked:
+            gf.filter(model, prior, da.from_array(zs, chunks=(chunks, 80, 1))).means.compute()
+        assert [str(w.message) for w in chunked] == [str(w.message) for w in memory]
+
+
+def test_a_dask_dataframe_is_refused_naming_zs():
+    """Audit NN5: a dask DataFrame was taken for a dask array (AttributeError: no `dtype`), and a dask Series got a
+    shape error showing an unevaluated expression."""
+    dd = pytest.importorskip("dask.dataframe")
+    pd = pytest.importorskip("pandas")
+    model, prior = gf.constant_velocity(1.0, 0.5, 1.0), gf.Gaussian([0.0, 0.0], 10.0 * np.eye(2))
+    frame = dd.from_pandas(pd.DataFrame({"z": np.arange(6.0)}), npartitions=2)
+    for zs, kind in ((frame, "DataFrame"), (frame["z"], "Series")):
+        for call in (gf.filter, gf.smooth):
+            with pytest.raises(TypeError, match=rf"^`zs` must be a dask array of N series, \(N, T, k\); got a dask "
+                                                rf"{kind}"):
+                call(model, prior, zs)
+        with pytest.raises(TypeError, match=rf"got a dask {kind}"):
+            gf.fit(model, prior, zs, learn=("R",))

@@ -139,7 +139,7 @@ def test_a_calendar_index_is_one_step_a_row_for_a_model_with_fixed_matrices():
     monthly = pd.Series(flow[:5], index=pd.date_range("2020-01", periods=5, freq="MS"))
     with pytest.raises(ValueError, match=r"`zs.index` are irregular"):  # a model with a dt in seconds
         gf.filter(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0, dt=0.1), prior, monthly)
-    timed = gf.model(gf.LocalLevel(q=1e-4), gf.LinearSensor(H=[[1.0]], R=[[15099.0]]))
+    timed = gf.model(gf.RandomWalk(q=1e-4), gf.LinearSensor(H=[[1.0]], R=[[15099.0]]))  # q per second
     seconds = (monthly.index - monthly.index[0]).total_seconds().to_numpy()
     np.testing.assert_array_equal(gf.filter(timed, prior, monthly).means,
                                   gf.filter(timed, prior, flow[:5], times=seconds).means)
@@ -264,7 +264,7 @@ def test_dates_in_an_object_column_are_refused_and_index_errors_name_the_index()
 def test_a_pyarrow_index_of_timestamps_or_durations_gives_the_times():
     """It was not taken for times at all (audit DD6, review R31). The oracle is the same index in numpy's types."""
     pytest.importorskip("pyarrow")
-    timed = gf.model(gf.LocalLevel(q=0.1), gf.LinearSensor(H=[[1.0]], R=[[1.0]]))
+    timed = gf.model(gf.RandomWalk(q=0.1), gf.LinearSensor(H=[[1.0]], R=[[1.0]]))  # (LocalLevel counts steps)
     prior = gf.Gaussian(0.0, 1.0)
     for index, arrow in (("2026-01-01 2026-01-02 2026-01-05", "timestamp[ns][pyarrow]"), (None, "duration[ns][pyarrow]")):
         index = pd.to_datetime(index.split()) if index else pd.to_timedelta([1, 2, 5], unit="D")

@@ -31,9 +31,10 @@ import numpy as np
 
 from .. import kalman
 from .._validation import as_array, shape_error
+from ..models.compose import TimedModel
 from . import drivers, timing
 
-__all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed"]
+__all__ = ["is_dask", "chunked_like", "series_blocks", "paired_blocks", "map_series", "observed", "renumber"]
 
 
 def is_dask(a) -> bool:
@@ -42,10 +43,28 @@ def is_dask(a) -> bool:
 
 
 def observed(zs) -> int:
-    """The number of observed (not NaN) entries of a dask array, computed."""
+    """The number of observed (not NaN) entries of a dask array (N, T, m), computed.
+
+    Raises
+    ------
+    ValueError
+        Where an entry is infinite, naming its index in the whole array, as
+        :func:`gaussfuse.fit` does in memory (in the same pass over the data;
+        audit NN1: the pooled fit met it as an overflow of a chunk's series).
+    """
+    import dask
     import dask.array as da
 
-    return int((~da.isnan(zs)).sum().compute())
+    count, infinite = dask.compute((~da.isnan(zs)).sum(), da.isinf(zs).any(axis=(1, 2)))
+    bad = np.flatnonzero(infinite)
+    if bad.size:
+        s = int(bad[0])
+        try:
+            as_array("zs", np.asarray(zs[s:s + 1].compute(), dtype=np.float64), allow_nan=True, copy=False)
+        except ValueError as err:
+            renumber(err, s, 1)
+            raise
+    return int(count)
 
 
 def observed_series(zs) -> np.ndarray:
@@ -134,6 +153,8 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     # seconds, their round-off is theirs): its model is resolved as theirs.
     times = kwargs.get("times")
     grid = None if times is None else timing.steps("times", times, T)
+    if times is not None and not isinstance(kwargs.get("model"), TimedModel):  # every step's, before any chunk runs
+        timing.resolve(kwargs.get("model"), times, T)  # (the probe's were its first few only: audit NN3)
     start = None if times is None else float(timing.as_seconds("times", times)[0])
 
     def meta(steps: int, own: bool = False):
@@ -163,7 +184,7 @@ def map_series(run: Callable, zs, us, kwargs: dict):
         except (ValueError, FloatingPointError) as err:  # at a step of the first series: name it, as a chunk does
             step = re.match(r"at step (\d+)", str(err))
             if step is not None and int(step.group(1)) < T:
-                _renumber(err, 0, 1)
+                renumber(err, 0, 1)
             raise
     firsts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     tasks = [dask.delayed(_chunk, pure=True)(run, first, block, control, kwargs, size / zs.shape[0])
@@ -209,6 +230,13 @@ def check_lazy(zs, us, model) -> None:
         when it has one); when a `us` in memory is NaN or infinite.
     """
     for name, a in (("zs", zs), ("us", us)):
+        if a is not None and is_dask(a) and not hasattr(a, "chunks"):  # a dask DataFrame or Series (audit NN5)
+            raise TypeError(f"`{name}` must be a dask array of N series, (N, T, k); got a dask "
+                            f"{type(a).__name__}: make one with .to_dask_array(lengths=True) and reshape it, or give "
+                            "the command line a long table with --series-column.")
+        if a is not None and is_dask(a) and any(np.isnan(c).any() for c in map(np.asarray, a.chunks)):
+            raise ValueError(f"`{name}` has chunks of unknown size (shape {a.shape}), as a dask array indexed by a "
+                             f"mask has: call `{name}.compute_chunk_sizes()` first.")
         dtype = None if a is None else a.dtype if is_dask(a) else as_array(name, a).dtype  # (`us` may be a list)
         if dtype is not None and dtype.kind not in "iuf":
             raise TypeError(f"`{name}` must be an array of real numbers; got {'a dask array' if is_dask(a) else 'an array'}"
@@ -236,14 +264,14 @@ def _chunk(run: Callable, first: int, zs: np.ndarray, us: np.ndarray | None, kwa
     try:
         result = run(zs=zs, us=us, **{**kwargs, "check": "off"})
     except (ValueError, TypeError, FloatingPointError) as err:  # (LinAlgError and ModelFunctionError are ValueErrors)
-        _renumber(err, first, zs.shape[0])
+        renumber(err, first, zs.shape[0])
         raise
     gate = kalman.Gate.of(kwargs.get("gate"), kwargs.get("gate_by", "measurement"))  # the gate's lost-track test too
     drivers.check_divergence(getattr(result, "filtered", result), check, first_series=first, gate=gate, share=share)
     return result
 
 
-def _renumber(err: Exception, first: int, size: int) -> None:
+def renumber(err: Exception, first: int, size: int) -> None:
     """Name the series in `err`'s message by their numbers in the whole array, whose chunk of `size` starts at
     `first`: the drivers' leading "in series s" and the check of `zs` or `us` ("... at index (s, ...") move by
     `first` (not a number in the user's own text: review R19); a message naming none gets the chunk's series."""

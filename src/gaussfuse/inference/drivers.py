@@ -579,7 +579,7 @@ def check_divergence(result: FilterResult, check: str, first_series: int = 0, ga
         dof = seen[..., 0].astype(np.float64)
         for j in range(1, seen.shape[-1]):  # m is small: m vector additions beat a reduction over the last axis
             dof += seen[..., j]
-    many = result.nis.shape[0] > 1
+    many = result.nis.shape[0] > 1 or share < 1.0  # a chunk of one series among several is named (audit NN4)
     where = [f"{average_text(avg)} over steps {a}-{b}{f' of series {s + first_series}' if many else ''}"
              for s, a, b, avg in diagnostics.divergence(result.nis, dof, false_alarm=false_alarm)]
     if gating:
