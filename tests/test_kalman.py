@@ -61,7 +61,7 @@ def test_joseph_form_stays_symmetric_psd_with_a_nearly_exact_measurement():
     post = kalman.update(np.zeros(2), cov, np.array([1.0]), H, np.array([[1e-12]]))
     np.testing.assert_array_equal(post.cov, post.cov.T)
     assert np.linalg.eigvalsh(post.cov)[0] >= -1e-15
-    assert post.cov[0, 0] == pytest.approx(1e-12, rel=1e-3)
+    assert post.cov[0, 0] == pytest.approx(1e-12, rel=1e-3, abs=0.0)
 
 
 def test_all_missing_update_returns_the_prediction_and_zero_loglik():
@@ -463,3 +463,41 @@ def test_cov_factor_keeps_valid_singular_and_graded_covariances():
     for cov in (np.diag([1e300, 1e-300, 0.0]), np.ones((2, 2)), np.zeros((3, 3))):
         L = kalman.cov_factor(cov)
         np.testing.assert_allclose(L @ L.T, cov, rtol=1e-15, atol=0)
+
+
+def test_an_empty_measurement_observes_nothing():
+    """Audit OO3: m = 0 raised an IndexError from the Cholesky wrapper in `update` and `cov_factor`, and
+    `update_sqrt` reported nis = 0 and loglik = -0.0 where an all-missing z gives NaN and 0."""
+    mean, cov = np.array([1.0, 2.0]), np.array([[2.0, 0.5], [0.5, 1.0]])
+    z, H, R = np.zeros(0), np.zeros((0, 2)), np.zeros((0, 0))
+    missing = kalman.update(mean, cov, np.array([np.nan]), np.eye(1, 2), np.eye(1))
+    for got in (kalman.update(mean, cov, z, H, R), kalman.update_sqrt(mean, kalman.cov_factor(cov), z, H, R)):
+        np.testing.assert_array_equal(got.mean, mean)
+        assert got.loglik == missing.loglik == 0.0 and np.isnan(got.nis) and np.isnan(missing.nis)
+    assert kalman.cov_factor(np.zeros((0, 0))).shape == (0, 0)
+
+
+def test_with_nothing_observed_the_posterior_is_the_callers_prediction_as_documented():
+    """`update` and `update_sqrt` say their posterior is `mean` and `cov` (or `factor`) themselves when nothing is
+    observed (audit OO5: it was undocumented)."""
+    mean, cov = np.zeros(2), np.eye(2)
+    got = kalman.update(mean, cov, np.array([np.nan]), np.eye(1, 2), np.eye(1))
+    assert got.mean is mean and got.cov is cov
+    got = kalman.update_sqrt(mean, cov, np.array([np.nan]), np.eye(1, 2), np.eye(1))
+    assert got.mean is mean and got.factor is cov
+
+
+@pytest.mark.parametrize("args, error, match", [
+    ((1.5,), ValueError, r"^`probability` must be a probability in \(0, 1\), such as 0\.99; got 1\.5\.$"),
+    (("0.99",), TypeError, r"^`probability` must be a probability in \(0, 1\), such as 0\.99; got str '0\.99'\.$"),
+    ((True,), TypeError, r"^`probability` must be a probability .* got bool True\.$"),
+    ((0.9, "x"), ValueError, r"^`by` must be 'measurement' or 'component'; got 'x'\.$"),
+])
+def test_a_gate_names_its_own_arguments(args, error, match):
+    """Audit OO4: `Gate(1.5)` said "`gate` must be ..." and `Gate(0.9, "x")` "`gate_by` ...", the front functions'
+    names, and a string was a ValueError. Through the front functions the names are theirs."""
+    with pytest.raises(error, match=match):
+        kalman.Gate(*args)
+    with pytest.raises(error, match=match.replace("`probability`", "`gate`").replace("`by`", "`gate_by`")):
+        kalman.Gate.of(*args)
+    assert kalman.Gate(np.int64(0) + 0.5).probability == 0.5 and kalman.Gate.of(None) is None

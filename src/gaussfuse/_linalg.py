@@ -162,6 +162,8 @@ def cholesky(mat: np.ndarray, name: str = "the matrix", resolved: bool = False) 
     factorisation fails (the wrapper ``np.linalg.cholesky`` costs five times
     as much on the small matrices of a filter step).
     """
+    if not mat.shape[-1]:  # no measurement: nothing to factorise (audit OO3: LAPACK's corner was indexed)
+        return np.zeros(mat.shape)
     if _potrf is None:
         try:
             L = np.linalg.cholesky(mat)

@@ -192,7 +192,9 @@ def update(
     -------
     Update
         Posterior mean and covariance, innovation, innovation covariance and
-        the log-likelihood contribution of the observed components.
+        the log-likelihood contribution of the observed components. With
+        nothing observed the posterior is the prediction: its mean and
+        covariance are `mean` and `cov` themselves, not copies.
 
     Notes
     -----
@@ -278,10 +280,11 @@ def observed_components(z: np.ndarray) -> np.ndarray | None:
     Returns
     -------
     ndarray of bool, shape (m,), or None
-        True where `z` is not NaN; None when no component is NaN.
+        True where `z` is not NaN; None when no component is NaN and there
+        is one (an empty `z` observes nothing: its mask is empty).
     """
     total = z.sum()
-    return None if total == total else ~np.isnan(z)
+    return None if total == total and z.shape[0] else ~np.isnan(z)
 
 
 def gain(cov: np.ndarray, H: np.ndarray, R: np.ndarray, observed: np.ndarray | None = None,
@@ -535,6 +538,18 @@ def fuse_moments(
 # ---------------------------------------------------------------------------
 
 
+def _check_gate(probability, by, names: tuple[str, str]) -> None:
+    """Refuse a gate's probability or kind, naming them `names` (the constructor's, or the front functions' `gate`
+    and `gate_by`: audit OO4)."""
+    if isinstance(probability, bool) or not isinstance(probability, (int, float, np.integer, np.floating)):
+        raise TypeError(f"`{names[0]}` must be a probability in (0, 1), such as 0.99; got "
+                        f"{type(probability).__name__} {probability!r}.")
+    if not 0.0 < probability < 1.0:
+        raise ValueError(f"`{names[0]}` must be a probability in (0, 1), such as 0.99; got {probability!r}.")
+    if not isinstance(by, str) or by not in ("measurement", "component"):
+        raise ValueError(f"`{names[1]}` must be 'measurement' or 'component'; got {by!r}.")
+
+
 class Gate:
     r"""A validation gate on the innovations, at a chi-square probability.
 
@@ -569,11 +584,7 @@ class Gate:
     __slots__ = ("probability", "by", "_quantiles")
 
     def __init__(self, probability: float, by: str = "measurement") -> None:
-        if isinstance(probability, bool) or not isinstance(probability, (int, float, np.floating)) \
-                or not 0.0 < probability < 1.0:
-            raise ValueError(f"`gate` must be a probability in (0, 1), such as 0.99; got {probability!r}.")
-        if not isinstance(by, str) or by not in ("measurement", "component"):
-            raise ValueError(f"`gate_by` must be 'measurement' or 'component'; got {by!r}.")
+        _check_gate(probability, by, ("probability", "by"))
         self.probability, self.by = float(probability), by
         self._quantiles: dict[int, float] = {}
 
@@ -615,8 +626,8 @@ class Gate:
         Gate or None
             The gate; None when `probability` is None.
         """
-        gate = cls(0.5 if probability is None else probability, by)
-        return None if probability is None else gate
+        _check_gate(0.5 if probability is None else probability, by, ("gate", "gate_by"))  # the front's names
+        return None if probability is None else cls(probability, by)
 
     def __call__(self, z: np.ndarray, predicted: np.ndarray, S: np.ndarray,
                  angles: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -820,6 +831,8 @@ def update_sqrt(mean: np.ndarray, factor: np.ndarray, z: np.ndarray, H: np.ndarr
     Returns
     -------
     SqrtUpdate
+        The posterior mean and factor, as :func:`update`'s; with nothing
+        observed they are `mean` and `factor` themselves, not copies.
 
     Raises
     ------

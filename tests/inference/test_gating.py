@@ -97,7 +97,7 @@ def test_a_nonlinear_filter_and_an_iterated_one_gate_too():
 
 @pytest.mark.parametrize("kwargs, error, message", [
     ({"gate": 1.0}, ValueError, r"`gate` must be a probability in \(0, 1\)"),
-    ({"gate": "0.9"}, ValueError, r"`gate` must be a probability in \(0, 1\)"),
+    ({"gate": "0.9"}, TypeError, r"`gate` must be a probability in \(0, 1\), such as 0\.99; got str '0\.9'"),
     ({"gate": 0.9, "gate_by": "all"}, ValueError, "`gate_by` must be 'measurement' or 'component'"),
     ({"gate_by": "all"}, ValueError, "`gate_by` must be 'measurement' or 'component'"),
     ({"gate": 0.9, "engine": "numba"}, ValueError, "cannot run gate=0.9"),
