@@ -255,7 +255,7 @@ def test_fuse_one_dimensional_matches_textbook_formulas(mu1, v1, mu2, v2):
     # rtol 1e-12; the mean's absolute floor is set by the inputs' magnitude,
     # since mu1 + K (mu2 - mu1) can cancel to (nearly) zero.
     assert fused.mean[0] == pytest.approx(float(mu), rel=1e-12, abs=1e-12 * (abs(mu1) + abs(mu2)))
-    assert fused.cov[0, 0] == pytest.approx(float(var), rel=1e-12)
+    assert fused.cov[0, 0] == pytest.approx(float(var), rel=1e-12, abs=0.0)
 
 
 @settings(max_examples=60, deadline=None)
@@ -287,7 +287,7 @@ def test_fuse_is_exact_and_symmetric_however_far_apart_the_variances(ratio):
         mean = (Fraction(v2) * Fraction(1.5) + Fraction(v1) * Fraction(-2.0)) / (Fraction(v1) + Fraction(v2))
         for a, b in ((gf.Gaussian(1.5, v1), gf.Gaussian(-2.0, v2)), (gf.Gaussian(-2.0, v2), gf.Gaussian(1.5, v1))):
             got = gf.fuse(a, b)
-            assert got.cov[0, 0] == pytest.approx(float(exact), rel=1e-15)
+            assert got.cov[0, 0] == pytest.approx(float(exact), rel=1e-15, abs=0.0)
             assert got.mean[0] == pytest.approx(float(mean), rel=1e-15, abs=1e-300)
     # and a belief certain about the value keeps it, whatever the other's variance
     certain = gf.fuse(gf.Gaussian(1.0, ratio), gf.Gaussian(3.0, 0.0))

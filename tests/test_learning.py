@@ -1172,7 +1172,7 @@ def test_maximum_likelihood_of_a_known_start_or_a_noise_free_drift_in_any_units(
         fit = gf.fit(gf.LinearModel(F=1, H=1, Q=0.09 * scale**2, R=scale**2), gf.Gaussian([0.0], [[0.0]]), z,
                      method="mle", learn=("m0",))
     assert fit.converged
-    assert fit.prior.mean[0] == pytest.approx(_gls(np.ones((T, 1)), z, cov)[0], rel=1e-6)
+    assert fit.prior.mean[0] == pytest.approx(_gls(np.ones((T, 1)), z, cov)[0], rel=1e-6, abs=0.0)
     rng = np.random.default_rng(1)
     T = 40
     us = rng.normal(size=(T, 1))
@@ -1183,7 +1183,7 @@ def test_maximum_likelihood_of_a_known_start_or_a_noise_free_drift_in_any_units(
                      learn=("B",))
     assert fit.converged
     X = np.column_stack([np.ones(T), np.cumsum(us[:, 0])])
-    assert fit.model.B[0, 0] == pytest.approx(_gls(X, z, 0.25 * scale**2 * np.eye(T))[1], rel=1e-6)
+    assert fit.model.B[0, 0] == pytest.approx(_gls(X, z, 0.25 * scale**2 * np.eye(T))[1], rel=1e-6, abs=0.0)
 
 
 @pytest.mark.parametrize("q, gains, scale", [(1e-20, [1.0], 1.0), (1e-12, [1.0], 1.0), (0.0, [1.0, 0.0], 1e12),
@@ -1359,7 +1359,7 @@ def test_maximum_likelihood_takes_the_gradient_test_again_in_the_units_where_it_
                      method="mle")
     assert fit.converged
     assert fit.prior.mean[0] == pytest.approx(z.mean(), rel=1e-14)
-    assert fit.model.R[0, 0] == pytest.approx(np.mean((z - z.mean()) ** 2), rel=1e-6)
+    assert fit.model.R[0, 0] == pytest.approx(np.mean((z - z.mean()) ** 2), rel=1e-6, abs=0.0)
 
 
 @pytest.mark.parametrize("R, level, first", [(1e-12, 1e3, 1e-12), (1e-20, 1.0, 1e-20), (1.0, 3.0, 1e20)])

@@ -294,7 +294,7 @@ def test_a_drift_past_2_to_the_1024_per_step_is_stepped():
     sigma = 2, whose position and velocity variances underflow: Singer refuses sigma tau below 1e-150 since
     audit MM3.)"""
     F, Q = gf.Singer(tau=1e-200, sigma=1e50).transition(1e109)
-    assert F[1, 2] == pytest.approx(1e-200, rel=1e-12) and F[2, 2] == 0.0
+    assert F[1, 2] == pytest.approx(1e-200, rel=1e-12, abs=0.0) and F[2, 2] == 0.0
     assert Q[2, 2] == pytest.approx(1e100, rel=1e-12)
 
 
@@ -449,7 +449,7 @@ def test_a_small_density_is_scaled_only_as_far_as_its_q_allows(a, dt, L, Qc):
     Q = van_loan([[a]], [[L]], Qc, dt)[1][0, 0]
     with mp.workdps(60):
         exact = mp.mpf(L) ** 2 * mp.mpf(Qc) * mp.expm1(2 * mp.mpf(a) * mp.mpf(dt)) / (2 * mp.mpf(a))
-    assert Q == pytest.approx(float(exact), rel=1e-14 * max(1.0, 2 * abs(a) * dt))  # (the Notes' eps alpha dt)
+    assert Q == pytest.approx(float(exact), rel=1e-14 * max(1.0, 2 * abs(a) * dt), abs=0.0)  # (the Notes' eps alpha dt)
 
 
 def test_a_density_and_a_growth_beyond_float64s_range_are_refused_not_zero():
