@@ -744,3 +744,16 @@ def test_nees_refuses_a_covariance_nan_in_part_as_nis_does():
                                              r"infinite in part at step 0\.$"):
             quadratic(np.ones((3, 2)), C)
     np.testing.assert_array_equal(dg.nees(np.ones((2, 2)), C[1:]), [2.0, np.nan])
+
+
+def test_divergence_refuses_a_positive_nis_where_nothing_was_observed():
+    """Audit OO6: `divergence(np.full(100, 50.0), 0)` returned [] in silence, leaving the inconsistent steps out of
+    the test; a NIS of 0 or NaN at such a step is what a filter gives, and is taken."""
+    with pytest.raises(ValueError, match=r"^`nis_values` is positive at a step of 0 degrees of freedom \(index \(0,\)\)"):
+        dg.divergence(np.full(100, 50.0), 0)
+    dof = np.ones((2, 100), dtype=int)
+    dof[1, 99] = 0
+    with pytest.raises(ValueError, match=r"\(index \(1, 99\)\)"):
+        dg.divergence(np.full((2, 100), 50.0), dof)
+    for last in (0.0, np.nan):
+        assert dg.divergence(np.r_[np.ones(99), last], np.r_[np.ones(99, dtype=int), 0]) == []

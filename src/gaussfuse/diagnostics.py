@@ -356,6 +356,12 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
     window = min(window, T)
     lo = _window_starts(T, window)
     seen = ~np.isnan(v)
+    stray = np.argwhere(seen & (v > 0) & (k == 0))
+    if stray.size:  # nothing observed there, so nothing to normalise (audit OO6: it was left out of the test)
+        at = tuple(int(i) for i in stray[0][-np.ndim(nis_values):]) if np.ndim(nis_values) else ()
+        raise ValueError(f"`nis_values` is positive at a step of 0 degrees of freedom (index {at}): a step with "
+                         "nothing observed has a NIS of 0 or NaN; check that `dof` counts each step's observed "
+                         "components.")
     complete = seen.all()
     if not complete:
         v, k = np.where(seen, v, 0.0), np.where(seen, k, 0.0)
