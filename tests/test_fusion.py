@@ -711,9 +711,9 @@ def test_a_motion_counting_steps_refuses_dated_times_in_fusion():
     """Audit MM1, as in gf.filter: a LocalLevel fused at daily dates stepped by 86400 of its steps a day."""
     days = np.arange("2024-01-01", "2024-01-06", dtype="datetime64[D]")
     sensors, prior = {"a": gf.LinearSensor([[1.0]], 1.0)}, gf.Gaussian([0.0], [[1.0]])
-    with pytest.raises(ValueError, match=r"^`t0` gives dates, but LocalLevel counts steps"):
+    with pytest.raises(ValueError, match=r"^`t0` gives dates or durations, but LocalLevel counts steps"):
         gf.fuse_timeline(gf.LocalLevel(q=0.5), sensors, prior, days[0], [(d, "a", [1.0]) for d in days[1:]])
-    with pytest.raises(ValueError, match=r"^`t0` gives dates, but LocalLevel counts steps"):
+    with pytest.raises(ValueError, match=r"^`t0` gives dates or durations, but LocalLevel counts steps"):
         gf.Fuser(gf.LocalLevel(q=0.5), sensors, prior, days[0])
     fused = gf.fuse_timeline(gf.LocalLevel(q=0.5), sensors, prior, 0.0, [(k, "a", [1.0]) for k in range(1, 5)])
     want = gf.filter(gf.model(gf.LocalLevel(q=0.5), sensors["a"], dt=1), prior, np.ones(4))

@@ -722,3 +722,20 @@ def test_a_failed_step_of_a_timed_model_keeps_the_matrices_of_the_last_one():
     again.update(0.3)
     np.testing.assert_array_equal(kf.x, again.x)
     np.testing.assert_array_equal(kf.P, again.P)
+
+
+def test_a_filter_pickled_with_a_writable_s_unpickles_it_read_only():
+    """Review R44: a KalmanFilter pickled before S was read-only kept it writable and shared with the steady
+    state, so kf.S *= 7 changed every later S (audit LL1's defect, for good)."""
+    model = gf.LinearModel(F=[[1.0, 1.0], [0.0, 1.0]], H=[1.0, 0.0], Q=np.diag([0.01, 0.01]), R=4.0)
+    kf = gf.KalmanFilter(model, gf.Gaussian([0.0, 0.0], np.eye(2)))
+    for z in np.sin(np.arange(80.0)):
+        kf.predict()
+        kf.update(z)
+    state = kf.__getstate__()
+    state["S"] = np.array(kf.S)  # as an old pickle held it: a writable array, not among the read-only names
+    state["_readonly"] = [name for name in state["_readonly"] if name != "S"]
+    old = gf.KalmanFilter.__new__(gf.KalmanFilter)
+    old.__setstate__(state)
+    assert not old.S.flags.writeable
+    np.testing.assert_array_equal(old.S, kf.S)

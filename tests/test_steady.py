@@ -413,3 +413,17 @@ def test_a_fast_constant_velocity_with_piecewise_noise_has_its_steady_state(dt):
     Q, R = 1e6 * g @ g.T, np.array([[1e-4]])
     got = gf.steady_state(gf.LinearModel(F, H, Q, R)).predicted_cov
     np.testing.assert_allclose(got, solve_discrete_are(F.T, H.T, Q, R), rtol=1e-8)
+
+
+@pytest.mark.parametrize("F, Q, R, match", [
+    (np.diag([2.0, 0.5]), np.eye(2), 1.7e308, "has no steady state: the Riccati equation has no stabilising solution"),
+    (1.0, 1e-280, 1e308, "has no steady state that float64 can hold"),
+])
+def test_the_fallback_recursion_at_the_largest_scales_keeps_the_models_message(F, Q, R, match):
+    """Review R44: the recursion's new start, Q + s I with s the largest of Q and R, overflowed S beside an R near
+    the largest float64, and the filter step's FloatingPointError escaped in place of steady_state's message."""
+    H = [[0.0, 1.0]] if np.ndim(F) else 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=match):
+            gf.steady_state(gf.LinearModel(F=F, H=H, Q=Q, R=R))

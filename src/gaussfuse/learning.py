@@ -2094,6 +2094,8 @@ def fit(
     T = zs.shape[1] if pooled else zs
     if timed and times is not None and params is None:
         grid = timing.steps(where, times, T if pooled else check_measurements(zs, model.m).shape[1])
+        if grid.resolution > 0.0:  # (a regular grid is stepped here, not by timing.resolve: review R44)
+            timing.no_dates_for_steps(model.motion, where)
         if grid.regular:  # one model for the grid's step, whose F, Q (and B) can be learned
             model, us = model.at(np.full(1, grid.step), us)
             times = None

@@ -221,6 +221,10 @@ class KalmanFilter:
         self._factor = None if state["_factor"] is None else (self._belief, state["_factor"])
         for name in readonly:
             self.__dict__[name].setflags(write=False)
+        if isinstance(self.__dict__.get("S"), np.ndarray) and self.S.flags.writeable:  # pickled before S was
+            S = self.S.view()  # read-only, it may share the steady state's array (review R44)
+            S.setflags(write=False)
+            self.S = S
 
     def __repr__(self) -> str:
         return (f"KalmanFilter({self.model!r}, method={self.method!r}, form={self.form!r}, step={self.step}, "

@@ -149,7 +149,7 @@ def _no_steady_gain(model: LinearModel, P: np.ndarray) -> ValueError:
     S = symmetrize(model.H @ P @ model.H.T + model.R)
     return ValueError(
         "the filter of `model` has no steady gain: its stationary innovation covariance S = H P Hᵀ + R is "
-        f"singular ({np.array2string(S, separator=', ')}): a combination of the measurements has no noise (R is "
+        f"singular ({np.array2string(S, separator=', ').replace(chr(10), '')}): a combination of the measurements has no noise (R is "
         "singular on it) and measures what the state knows exactly in the long run, or repeats another "
         "measurement with the same noise (two sensors of one component with fully correlated noise). Give R a "
         "positive definite covariance, or leave out the repeated measurement.")
@@ -179,7 +179,8 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
     for scale in dict.fromkeys((max(q, r), q if q > 0.0 else r)):
         scale = np.ldexp(1.0, int(np.frexp(scale)[1]) - 1)  # at most the scale: 2**1024 is past float64
         try:
-            with np.errstate(invalid="ignore"):  # SciPy's own casts, where it fails
+            with np.errstate(invalid="ignore", over="ignore"):  # SciPy's own casts, where it fails; a unit that
+                # overflows R / c (Q 1e-280 beside R 1e308) fails SciPy, its candidate with it
                 found.append(symmetrize(scale * solve_discrete_are(F.T, H.T, Q / scale, R / scale)))
         except (np.linalg.LinAlgError, ValueError) as exc:
             error = exc
@@ -369,6 +370,8 @@ def _iterated(model: LinearModel, steps: int = 10_000) -> np.ndarray | None:
                 new = _riccati_map(model, P)
         except np.linalg.LinAlgError:
             raise _no_steady_gain(model, P) from None
+        except FloatingPointError:  # S overflows (R near the largest float64): the caller's message (review R44)
+            return None
         if not np.isfinite(new).all():
             return None
         if kalman.settled(new, P):

@@ -522,3 +522,13 @@ def test_a_dask_dataframe_is_refused_naming_zs():
                 call(model, prior, zs)
         with pytest.raises(TypeError, match=rf"got a dask {kind}"):
             gf.fit(model, prior, zs, learn=("R",))
+
+
+def test_dated_times_for_a_motion_counting_steps_are_refused_before_any_chunk_runs():
+    """Review R44: with a TimedModel the probe steps in float seconds, so a LocalLevel given dates was refused only
+    when a chunk ran, blaming that chunk's series."""
+    timed = gf.model(gf.LocalLevel(q=0.5), gf.LinearSensor([[1.0]], 1.0))
+    zs = da.from_array(np.random.default_rng(0).normal(size=(6, 20, 1)), chunks=(2, 20, 1))
+    days = np.arange("2024-01-01", "2024-01-21", dtype="datetime64[D]")
+    with pytest.raises(ValueError, match=r"^`times` gives dates or durations, but LocalLevel counts steps"):
+        gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), zs, times=days)  # when called: nothing computed

@@ -351,10 +351,10 @@ def test_a_motion_counting_steps_refuses_dated_times(motion):
     zs = np.array([1.0, 1.2, 0.9, 1.5, 1.1])
     days = np.arange("2024-01-01", "2024-01-06", dtype="datetime64[D]")
     name = type(motion).__name__
-    with pytest.raises(ValueError, match=rf"^`times` gives dates, but {name} counts steps .*np\.arange\(T\)"):
+    with pytest.raises(ValueError, match=rf"^`times` gives dates or durations, but {name} counts steps .*np\.arange\(T\)"):
         gf.filter(timed, prior, zs, times=days)
     series = pd.Series(zs, index=pd.date_range("2024-01-01", periods=5, freq="D"))
-    with pytest.raises(ValueError, match=rf"^`zs.index` gives dates, but {name} counts steps .* `zs.to_numpy\(\)`"):
+    with pytest.raises(ValueError, match=rf"^`zs.index` gives dates or durations, but {name} counts steps .* `zs.to_numpy\(\)`"):
         gf.smooth(timed, prior, series)
     # step numbers are what it counts: the same as the model of one step
     want = gf.filter(gf.model(motion, sensor, dt=1), prior, zs)
@@ -369,3 +369,18 @@ def test_a_motion_in_time_takes_dated_times_in_seconds():
     days = np.arange("2024-01-01", "2024-01-04", dtype="datetime64[D]")
     got = gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), [1.0, 2.0, 3.0], times=days)
     assert got.predicted_covs[1, 0, 0] == pytest.approx(got.covs[0, 0, 0] + 0.5 * 86400)
+
+
+def test_a_fit_refuses_dated_times_for_a_motion_counting_steps():
+    """Review R44: `fit` steps a regular grid itself (one model for its step), so the refusal in `timing.resolve`
+    never ran: a LocalLevel fitted to a daily series took Q per second, 86400 a day."""
+    timed = gf.model(gf.LocalLevel(q=0.5), gf.LinearSensor([[1.0]], 1.0))
+    zs = pd.Series(np.sin(np.arange(30.0)), index=pd.date_range("2024-01-01", periods=30, freq="D"))
+    with pytest.raises(ValueError, match=r"^`zs.index` gives dates or durations, but LocalLevel counts steps"):
+        gf.fit(timed, gf.Gaussian([0.0], [[1.0]]), zs, learn=("R",), iterations=2)
+    with pytest.raises(ValueError, match=r"^`times` gives dates or durations, but LocalLevel counts steps"):
+        gf.fit(timed, gf.Gaussian([0.0], [[1.0]]), zs.to_numpy(), times=zs.index.to_numpy(), learn=("R",),
+               iterations=2)
+    durations = pd.to_timedelta(np.arange(30), unit="D").to_numpy()
+    with pytest.raises(ValueError, match=r"^`times` gives dates or durations"):
+        gf.filter(timed, gf.Gaussian([0.0], [[1.0]]), zs.to_numpy(), times=durations)

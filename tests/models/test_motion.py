@@ -785,8 +785,8 @@ def test_transitions_of_many_steps_are_each_step_s_to_the_bit(motion):
 def test_transitions_check_their_steps_as_transition_does(motion):
     """Audit MM2: the closed forms took dt = -1 into a Q with a negative eigenvalue (-1.27) and dt = 0 into Q = 0,
     and a 2-D dts into einsum's error, where transition() refuses both."""
-    for bad, match in [([-1.0], r"^`dts` must be positive time steps; dts\[0\] = -1\.$"),
-                       ([1.0, 0.0], r"^`dts` must be positive time steps; dts\[1\] = 0\.$"),
+    for bad, match in [([-1.0], r"^`dts` must be positive step sizes; got -1\.0 at index 0\.$"),
+                       ([1.0, 0.0], r"^`dts` must be positive step sizes; got 0\.0 at index 1\.$"),
                        ([[1.0, 2.0]], r"^`dts` must have shape \(k,\); got shape \(1, 2\)\.$"),
                        ([1.0, np.nan], r"^`dts` must be finite")]:
         with pytest.raises(ValueError, match=match):
@@ -797,7 +797,7 @@ def test_transitions_check_their_steps_as_transition_does(motion):
     assert F.shape == Q.shape == (0, motion.n, motion.n)
 
 
-def _singer_q_50_digits(tau: float, sigma: float, dt: float) -> np.ndarray:
+def _singer_q_1500_digits(tau: float, sigma: float, dt: float) -> np.ndarray:
     """Singer's closed-form Q (position, velocity block) per axis, in mpmath at 1500 digits (Singer 1970; Bar-Shalom,
     Li & Kirubarajan 2001, §8.2): no cancellation is left at any rate."""
     import mpmath as mp
@@ -818,7 +818,19 @@ def test_singer_at_the_fastest_rates_it_takes_is_its_closed_form(tau, sigma):
     underflowed); from 1e-150 up they are exact to round-off, and below it the model is refused."""
     for dt in (1e-6, 1.0, 1e6):
         Q = gf.Singer(tau=tau, sigma=sigma).transition(dt)[1][:2, :2]
-        np.testing.assert_allclose(Q, _singer_q_50_digits(tau, sigma, dt), rtol=1e-13, atol=0)
+        np.testing.assert_allclose(Q, _singer_q_1500_digits(tau, sigma, dt), rtol=1e-13, atol=0)
     with pytest.raises(ValueError, match=r"^sigma \* tau must be at least 1e-150, or sigma 0"):
         gf.Singer(tau=tau, sigma=sigma / 1e11)
     assert not gf.Singer(tau=1e-300, sigma=0.0).transition(1.0)[1].any()
+
+
+@pytest.mark.parametrize("tau, sigma", [(1e10, 1e-155), (1e50, 1e-160), (1.0, 1e-160)])
+def test_singer_refuses_a_density_below_the_normal_floats(tau, sigma):
+    """Review R44: sigma = 1e-160 with tau = 1e50 made 2 sigma² / tau 0 and Q = 0, where the closed form's position
+    variance is 6e-122; sigma = 1e-155 with tau = 1e10 a subnormal density, and Q 1e-5 off. A slow rate with a
+    normal density is exact."""
+    with pytest.raises(ValueError, match=r"^sigma² and the noise density 2 sigma² / tau must be at least float64's "
+                                         r"smallest normal number"):
+        gf.Singer(tau=tau, sigma=sigma)
+    Q = gf.Singer(tau=1e10, sigma=1e-140).transition(1e6)[1][:2, :2]
+    np.testing.assert_allclose(Q, _singer_q_1500_digits(1e10, 1e-140, 1e6), rtol=1e-13, atol=0)

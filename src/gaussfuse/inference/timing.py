@@ -386,8 +386,8 @@ def no_dates_for_steps(motion, name: str, instead: str = "") -> None:
     """
     if getattr(motion, "_counts_steps", False):
         raise ValueError(
-            f"`{name}` gives dates, but {type(motion).__name__} counts steps (dt = 1 for consecutive observations), "
-            "not seconds: a day would be 86400 of its steps. Give times as step numbers (np.arange(T) for "
+            f"`{name}` gives dates or durations, but {type(motion).__name__} counts steps (dt = 1 for consecutive "
+            "observations), not seconds: a day would be 86400 of its steps. Give times as step numbers (np.arange(T) for "
             f"consecutive observations, or the days since the first where days are missed){instead}.")
 
 

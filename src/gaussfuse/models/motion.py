@@ -156,7 +156,7 @@ def _step_sizes(dts) -> np.ndarray:
         raise shape_error("dts", "(k,)", dts.shape)
     bad = np.flatnonzero(~(dts > 0.0))
     if bad.size:
-        raise ValueError(f"`dts` must be positive time steps; dts[{bad[0]}] = {dts[bad[0]]:g}.")
+        raise ValueError(f"`dts` must be positive step sizes; got {float(dts[bad[0]])!r} at index {bad[0]}.")
     return dts
 
 
@@ -535,12 +535,17 @@ class Singer(LinearMotion):
     ------
     ValueError
         For a `tau` or `sigma` out of range, or one that makes 1/τ or
-        2σ²/τ overflow float64 (τ = 1e-310, say), or a positive σ with
-        σ·τ below 1e-150: the discretisation's variances over its shortest
-        sub-step, about σ²τ², then fall below float64's normal numbers
-        and Q loses its digits (στ = 1e-160 left entries 1e-3 off, and
-        smaller products all of them; from 1e-150 up they are within 2e-15
-        of Singer's closed form).
+        2σ²/τ overflow float64 (τ = 1e-310, say), or a positive σ whose
+        σ² or density 2σ²/τ falls below float64's normal numbers, where
+        it has lost digits (σ = 1e-155 with τ = 1e10: Q 1e-5 off; with
+        τ = 1e50, Q was 0), or a positive σ with σ·τ below 1e-150: under a fast rate the
+        discretisation's variances over its shortest sub-step, about σ²τ²,
+        fall below float64's normal numbers and Q loses its digits
+        (στ = 1e-160 left entries 1e-3 off, smaller products all of them).
+        The bound is conservative: a slow rate takes some smaller products
+        exactly (τ = 1 with σ = 1e-155). Above them, over τ from 1e-200 to
+        1e50, σ from 1e-150 to 1e60 and dt from 1e-6 to 1e6, the entries
+        were within 3e-15 of Singer's closed form.
 
     Notes
     -----
@@ -587,6 +592,11 @@ class Singer(LinearMotion):
             if not (np.isfinite(1.0 / np.float64(tau)) and np.isfinite(2.0 * np.float64(sigma) ** 2 / tau)):
                 raise ValueError(f"the noise density 2 sigma² / tau and the rate 1 / tau must be finite in float64; "
                                  f"got sigma = {sigma:g} and tau = {tau:g}.")
+            tiny = np.finfo(np.float64).tiny
+            if sigma > 0.0 and (np.float64(sigma) ** 2 < tiny or 2.0 * np.float64(sigma) ** 2 / tau < tiny):
+                raise ValueError(f"sigma² and the noise density 2 sigma² / tau must be at least float64's smallest "
+                                 f"normal number, {tiny:.3g}, or sigma 0: below it they have lost digits; got sigma = "
+                                 f"{sigma:g} and tau = {tau:g}. Measure time or distance in other units.")  # (R44)
             if sigma > 0.0 and sigma * tau < 1e-150:  # (audit MM3)
                 raise ValueError(f"sigma * tau must be at least 1e-150, or sigma 0: below it Q's terms over the "
                                  f"discretisation's shortest step, about (sigma tau)², are lost to float64's "
