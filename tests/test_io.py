@@ -286,6 +286,14 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         (EXPLICIT + "G = 1\n", r"m\.toml: \[model\]: unknown key\(s\) \['G'\]; valid keys are F, H, Q, R, states "
                                r"\(explicit matrices\), or kind, dim, dt, q, r, states \(a named model\)\."),
         (NAMED + "F = [[1]]\n", r"\[model\]: unknown key\(s\) \['F'\]; valid keys are kind, dim, dt, q, r, states"),
+        # misspelt keys: the one meant is offered, and a misspelt `kind` does not make the named model's keys unknown
+        # (audit PP2)
+        ('[model]\nknid = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.5\nr = 0.25\n',
+         r"m\.toml: \[model\]: `dim`, `dt`, `q`, `r` are keys of a named model, which needs `kind` \(one of "
+         r"constant_acceleration, constant_position, constant_velocity\) \(`knid` for `kind`\?\); explicit "
+         r"matrices are F, H, Q and R\.$"),
+        (NAMED.replace("dt = 1", "dts = 1"), r"\[model\]: unknown key\(s\) \['dts'\]; .* \(`dts` for `dt`\?\)$"),
+        ("[model]\nF = 1.0\nH = 1.0\nQ = 1.0\nRr = 3.0\n", r"unknown key\(s\) \['Rr'\]; .* \(`Rr` for `R`\?\)$"),
         (EXPLICIT + "B = [[1], [0]]\n",
          r"m\.toml: \[model\] B: a control input is not supported by the command line yet"),
         ("[model]\nF = [[1]]\nH = [[1]]\nQ = [[1]]\n", r"m\.toml: \[model\]: missing key\(s\) \['R'\]; "

@@ -603,3 +603,25 @@ def test_messages_name_the_argument_at_fault(filtered):
         plot_trajectory(res.means, res.covs[:3])
     with pytest.raises(TypeError, match=r"got ndarray for 'f'\.$"):
         plot_demo(times, zs, res.means[:, :4], {"f": res.means})
+
+
+@pytest.mark.parametrize("stacked", [False, True])
+def test_mode_probabilities_of_one_step_are_drawn(stacked):
+    """Audit PP1: a one-step IMM result drew nothing (one-point lines without a marker; stacked areas of no width)
+    under a legend that said otherwise. Oracle: the result's own mode probabilities."""
+    from gaussfuse.plotting import plot_mode_probabilities
+
+    model = gf.constant_velocity(1.0, 0.1, 1.0)
+    imm = gf.imm_filter([model, gf.constant_velocity(1.0, 10.0, 1.0)], gf.Gaussian([0.0, 1.0], np.eye(2)),
+                        np.array([0.3]), [[0.9, 0.1], [0.1, 0.9]])
+    ax = plot_mode_probabilities([0.0], imm.mode_probs, ["slow", "fast"], stacked=stacked).axes[0]
+    if stacked:  # a stacked bar: mode j from the sum of those before it to the sum up to it
+        segments = [np.asarray(c.get_segments()[0]) for c in ax.collections]
+        top = np.cumsum(imm.mode_probs[0])
+        np.testing.assert_allclose([seg[:, 1] for seg in segments], np.column_stack([top - imm.mode_probs[0], top]))
+        assert all((seg[:, 0] == 0.0).all() and c.get_linewidth()[0] > 1 for seg, c in zip(segments, ax.collections))
+    else:
+        lines = ax.get_lines()
+        assert [line.get_marker() for line in lines] == ["o", "o"]
+        np.testing.assert_array_equal([line.get_ydata()[0] for line in lines], imm.mode_probs[0])
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["slow", "fast"]

@@ -746,15 +746,23 @@ def _table(path, doc: dict, name: str) -> dict | None:
     return table
 
 
-def _check_keys(path, table_name: str | None, table: dict, valid: Sequence[str], hint: str = "") -> None:
-    """Reject keys of `table` not in `valid`, listing the valid ones."""
+def _check_keys(path, table_name: str | None, table: dict, valid: Sequence[str], hint: str = "",
+                also: Sequence[str] = ()) -> None:
+    """Reject keys of `table` not in `valid`, listing the valid ones and the one each may be a misspelling of
+    (among `valid` and `also`, the other kind of model's: audit PP2)."""
+    import difflib
+
     unknown = [key for key in table if key not in valid]
     if unknown:
         if table_name is None:
             what = f"unknown table(s) {unknown}; valid tables are " + ", ".join(f"[{t}]" for t in valid)
         else:
             what = f"unknown key(s) {unknown}; valid keys are {', '.join(valid)}"
-        raise InputFileError(path, what + hint + ".", field=None if table_name is None else f"[{table_name}]")
+        typos = [f"`{key}` for `{close[0]}`?" for key in unknown if isinstance(key, str)  # this kind's keys first
+                 for close in [difflib.get_close_matches(key, valid, n=1) or difflib.get_close_matches(key, also, n=1)]
+                 if close]
+        raise InputFileError(path, what + hint + "." + (f" ({'; '.join(typos)})" if typos else ""),
+                             field=None if table_name is None else f"[{table_name}]")
 
 
 def _require(path, table: dict, keys: Sequence[str], what: str) -> None:
@@ -787,8 +795,17 @@ def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
             path, "a control input is not supported by the command line yet (no controls are read); remove `B`.",
             field="[model] B",
         )
+    named = [key for key in table if key in _NAMED_KEYS and key != "states"]
+    if named:  # a named model's keys without `kind` (misspelt, say): blame the kind, not them (audit PP2)
+        import difflib
+
+        typos = [f" (`{key}` for `kind`?)" for key in table if key not in _NAMED_KEYS + _EXPLICIT_KEYS
+                 and isinstance(key, str) and difflib.get_close_matches(key, ["kind"], n=1)]
+        raise InputFileError(path, f"{', '.join(f'`{key}`' for key in named)} are keys of a named model, which needs "
+                             f"`kind` (one of {', '.join(sorted(_KINDS))}){''.join(typos[:1])}; explicit matrices "
+                             "are F, H, Q and R.", field="[model]")
     _check_keys(path, "model", table, _EXPLICIT_KEYS,
-                f" (explicit matrices), or {', '.join(_NAMED_KEYS)} (a named model)")
+                f" (explicit matrices), or {', '.join(_NAMED_KEYS)} (a named model)", also=_NAMED_KEYS)
     _require(path, table, ("F", "H", "Q", "R"), "explicit models need F, H, Q and R")
     with _field(path, "model", {k: k for k in "FHQR"}):
         model = LinearModel(table["F"], table["H"], table["Q"], table["R"])
@@ -798,7 +815,8 @@ def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
 def _named_model(path, table: dict) -> tuple[LinearModel, list[str], TimedModel]:
     """A named model at its dt, its state names, and the model for any dt (checked at dt = 1)."""
     _check_keys(path, "model", table, _NAMED_KEYS,
-                f" (a named model), or {', '.join(_EXPLICIT_KEYS)} (explicit matrices, without `kind`)")
+                f" (a named model), or {', '.join(_EXPLICIT_KEYS)} (explicit matrices, without `kind`)",
+                also=_EXPLICIT_KEYS)
     kind = table["kind"]
     if not isinstance(kind, str) or kind not in _KINDS:
         raise InputFileError(

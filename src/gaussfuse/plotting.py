@@ -385,11 +385,15 @@ def plot_mode_probabilities(
         raise ValueError(f"`names` must have one name per mode ({M}); got {len(names)}.")
     stacked = flag("stacked", stacked)
     fig, ax = _axes(ax, (7.0, 3.2))
-    if stacked:
+    if stacked and probs.shape[0] == 1:  # one step: stacked areas have no width (audit PP1), so a stacked bar
+        top = np.cumsum(probs[0])
+        for j in range(M):
+            ax.vlines(times, top[j] - probs[0, j], top[j], colors=f"C{j}", linewidth=12, alpha=0.8, label=names[j])
+    elif stacked:
         ax.stackplot(times, probs.T, labels=names, alpha=0.8)
     else:
         for j in range(M):
-            ax.plot(times, probs[:, j], label=names[j])
+            ax.plot(times, probs[:, j], label=names[j], **_dot(probs.shape[0]))
     ax.set(xlabel=_with_unit("time", time_unit), ylabel="mode probability", ylim=(-0.02, 1.02))
     ax.legend(loc="best", fontsize="small")
     return fig
