@@ -245,6 +245,7 @@ def test_monitor_in_pieces_matches_the_rule_update_by_update(seed):
     T, window = int(rng.integers(1, 500)), int(rng.integers(1, 70))
     dofs = rng.choice([0, 1, 2, 3], T)
     nis = rng.chisquare(np.maximum(dofs, 1)) * np.where(np.arange(T) % 97 > 60, 5.0, 1.0)
+    nis[dofs == 0] = 0.0  # nothing observed: a NIS of 0 (a positive one is refused since review R45)
     want = _reference_monitor(nis, dofs, window)
     one, many = dg.DivergenceMonitor(window=window), dg.DivergenceMonitor(window=window)
     singly = [r for k in range(T) if (r := one.add(nis[k], dofs[k], k)) is not None]
@@ -757,3 +758,24 @@ def test_divergence_refuses_a_positive_nis_where_nothing_was_observed():
         dg.divergence(np.full((2, 100), 50.0), dof)
     for last in (0.0, np.nan):
         assert dg.divergence(np.r_[np.ones(99), last], np.r_[np.ones(99, dtype=int), 0]) == []
+
+
+def test_the_whiteness_bound_keeps_its_tail_at_high_confidence():
+    """Review R45: the bound's normal quantile was ndtri(1 - alpha/2), whose subtraction rounds alpha away: 1.8e-3
+    off at a confidence of 1 - 1e-15. Oracle: scipy.stats.norm.isf, which takes the tail itself."""
+    innovations = np.random.default_rng(0).standard_normal((200, 2))
+    covs = np.broadcast_to(np.eye(2), (200, 2, 2))
+    for confidence in (0.95, 1 - 1e-9, 1 - 1e-12, 1 - 1e-15):
+        got = dg.whiteness(innovations, covs, confidence=confidence).bound
+        assert got == pytest.approx(stats.norm.isf((1 - confidence) / 2) / np.sqrt(2 * 200), rel=1e-14, abs=0.0)
+
+
+def test_the_divergence_monitor_refuses_a_positive_nis_where_nothing_was_observed():
+    """Review R45: `divergence` refuses it since audit OO6; the online monitor still skipped it in silence."""
+    monitor = dg.DivergenceMonitor()
+    with pytest.raises(ValueError, match=r"^`nis_value` is 50 at an update of 0 degrees of freedom"):
+        monitor.add(50.0, 0, 0)
+    with pytest.raises(ValueError, match=r"^`nis_values` is positive at an update of 0 degrees of freedom \(index 1\)"):
+        monitor.add_many(np.full(3, 50.0), [1, 0, 1], [0, 1, 2])
+    assert monitor.add(0.0, 0, 5) is None and monitor.add(np.nan, 0, 6) is None
+    assert monitor.add_many([0.0, np.nan], [0, 0], [7, 8]) == []

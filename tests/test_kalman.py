@@ -501,3 +501,14 @@ def test_a_gate_names_its_own_arguments(args, error, match):
     with pytest.raises(error, match=match.replace("`probability`", "`gate`").replace("`by`", "`gate_by`")):
         kalman.Gate.of(*args)
     assert kalman.Gate(np.int64(0) + 0.5).probability == 0.5 and kalman.Gate.of(None) is None
+
+
+def test_correct_with_nothing_observed_returns_the_callers_prediction_as_documented():
+    """Review R45: `correct` and `correct_sqrt` hand back the caller's own arrays too; their docstrings say so now."""
+    model = gf.LinearModel(F=np.eye(2), H=[[1.0, 0.0]], Q=np.eye(2), R=1.0)
+    lin = gf.METHODS["kf"].strategy(model, None)  # the Kalman filter's linearisation: the model itself
+    mean, cov = np.zeros(2), np.eye(2)
+    post = kalman.correct(lin, 0, mean, cov, np.array([np.nan]))[0]
+    assert post.mean is mean and post.cov is cov
+    post = kalman.correct_sqrt(lin, 0, mean, cov, np.array([np.nan]), kalman.Factors())
+    assert post.mean is mean and post.factor is cov

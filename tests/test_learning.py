@@ -358,8 +358,9 @@ def test_data_with_nothing_observed_is_an_error():
 
 def test_mle_needs_a_learned_full_covariance_positive_definite_on_its_variances():
     start = gf.LinearModel(F=np.eye(2), H=np.eye(2), Q=np.ones((2, 2)), R=np.eye(2))
-    with pytest.raises(ValueError, match=r"`Q` must be positive definite on its non-zero variances"):
+    with pytest.raises(ValueError, match=r"`Q` must be positive definite on its non-zero variances") as e:
         gf.fit(start, gf.Gaussian([0, 0], np.eye(2)), np.ones((5, 2)), learn=("Q",), method="mle")
+    assert "\n" not in str(e.value) and "Q = [[1., 1.], [1., 1.]]" in str(e.value)  # one line (review R45)
 
 
 def test_learning_needs_time_invariant_matrices_and_a_proper_prior():

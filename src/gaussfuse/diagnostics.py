@@ -312,6 +312,13 @@ def divergence(nis_values, dof, window: int = DIVERGENCE_WINDOW,
         merged), each with its series (0 for one series) and the average NIS
         per observed component over it (1 for a consistent filter).
 
+    Raises
+    ------
+    ValueError
+        For a shape or value out of range, naming the argument, and for a
+        positive NIS at a step of 0 degrees of freedom (nothing observed
+        there, nothing to normalise).
+
     Notes
     -----
     For a consistent filter the NIS of different steps are independent
@@ -591,7 +598,7 @@ class DivergenceMonitor:
         """Record an update; return ``(first, last, average)`` when the window ending here newly fails the test.
 
         `step` labels the update (a step number, a time). Updates without
-        observations (`dof` 0) are skipped. A window is
+        observations (`dof` 0, with a NIS of 0 or NaN) are skipped. A window is
         tested once the first `window` updates are in, then every
         ``window // 2`` updates; consecutive failing windows are reported
         once, at the first.
@@ -611,8 +618,17 @@ class DivergenceMonitor:
             ``(first, last, average)``: the labels of the failing window's
             first and last updates and its average NIS per observed
             component; None when no window newly fails here.
+
+        Raises
+        ------
+        ValueError
+            For a positive NIS with `dof` 0 (nothing observed, nothing to
+            normalise).
         """
         if dof == 0:
+            if nis_value > 0.0:  # as `divergence` refuses it (review R45)
+                raise ValueError(f"`nis_value` is {nis_value:g} at an update of 0 degrees of freedom: an update with "
+                                 "nothing observed has a NIS of 0 or NaN.")
             return None
         self._values.append(float(nis_value))
         self._dofs.append(int(dof))
@@ -646,8 +662,8 @@ class DivergenceMonitor:
         Raises
         ------
         ValueError
-            For arguments of different lengths, or degrees of freedom that
-            are not counts.
+            For arguments of different lengths, degrees of freedom that are
+            not counts, or a positive NIS with 0 degrees of freedom.
         """
         # as add takes them (an infinite NIS too), in arrays of one length (paired silently, or an IndexError,
         # when the lengths differed: audit II2)
@@ -661,6 +677,10 @@ class DivergenceMonitor:
             raise ValueError(f"`dofs` must be counts of observed components (0, 1, 2, ...); got {bad:g}.")
         if len(steps) != nis_values.shape[0]:
             raise ValueError(f"`steps` must hold one label per update, {nis_values.shape[0]}; got {len(steps)}.")
+        stray = np.flatnonzero((dofs == 0) & (nis_values > 0))
+        if stray.size:
+            raise ValueError(f"`nis_values` is positive at an update of 0 degrees of freedom (index {stray[0]}): an "
+                             "update with nothing observed has a NIS of 0 or NaN.")
         kept = np.flatnonzero(dofs > 0)
         if kept.size == 0:
             return []
@@ -858,7 +878,7 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     q = T * (T + 2) * np.sum(rho**2 / (T - np.arange(1, lags + 1))[:, None])
     p = float(chdtrc(lags * m, q))  # the χ² survival function
     # the mean over m components of independent autocorrelations of sd 1/√T has sd 1/√(mT)
-    bound = float(ndtri(1 - (1 - confidence) / 2) / np.sqrt(m * T))  # the normal quantile
+    bound = float(-ndtri((1 - confidence) / 2) / np.sqrt(m * T))  # the normal quantile, from its own tail (R45)
     return Whiteness(rho.mean(axis=1), bound, float(q), p, p >= 1 - confidence)
 
 

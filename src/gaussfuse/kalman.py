@@ -546,7 +546,7 @@ def _check_gate(probability, by, names: tuple[str, str]) -> None:
                         f"{type(probability).__name__} {probability!r}.")
     if not 0.0 < probability < 1.0:
         raise ValueError(f"`{names[0]}` must be a probability in (0, 1), such as 0.99; got {probability!r}.")
-    if not isinstance(by, str) or by not in ("measurement", "component"):
+    if not isinstance(by, str) or by not in ("measurement", "component"):  # a choice: a ValueError, as `method`'s
         raise ValueError(f"`{names[1]}` must be 'measurement' or 'component'; got {by!r}.")
 
 
@@ -1454,7 +1454,8 @@ def correct_sqrt(lin, k: int, mean: np.ndarray, factor: np.ndarray, z: np.ndarra
     Returns
     -------
     SqrtUpdate
-        The posterior, its mean wrapped to the state angles.
+        The posterior, its mean wrapped to the state angles; with nothing
+        observed, `mean` and `factor` themselves, not copies.
     """
     H, d, LR, DR = measurement_factors(lin, k, mean, factor, factors)
     rejected = None
@@ -1747,7 +1748,8 @@ def correct(lin, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, itera
     Returns
     -------
     post : Update
-        The last pass's update, its mean wrapped to the state angles.
+        The last pass's update, its mean wrapped to the state angles; with
+        nothing observed, `mean` and `cov` themselves, not copies.
     passes : int
     converged : bool
         False when `iterations` > 1 passes were made without meeting `tol`

@@ -914,7 +914,7 @@ class _Parametrisation:
                     raise ValueError(
                         f"`{name}` must be positive definite on its non-zero variances to be learned by "
                         f"maximum likelihood (through its Cholesky factor); got {name} = "
-                        f"{np.array2string(_current(model, prior, name), separator=', ')}. Start from a "
+                        f"{np.array2string(_current(model, prior, name), separator=', ').replace(chr(10), '')}. Start from a "
                         "positive definite value, hold a component at zero by giving it zero variance, "
                         "or use method='em'."
                     )

@@ -543,7 +543,7 @@ class Singer(LinearMotion):
         fall below float64's normal numbers and Q loses its digits
         (στ = 1e-160 left entries 1e-3 off, smaller products all of them).
         The bound is conservative: a slow rate takes some smaller products
-        exactly (τ = 1 with σ = 1e-155). Above them, over τ from 1e-200 to
+        exactly (τ = 1 with σ = 1e-151). Above them, over τ from 1e-200 to
         1e50, σ from 1e-150 to 1e60 and dt from 1e-6 to 1e6, the entries
         were within 3e-15 of Singer's closed form.
 
