@@ -89,8 +89,40 @@ def test_every_entry_point_exists():
             assert hasattr(importlib.import_module(f"gaussfuse._kernels.{module}"), name)
 
 
-def test_the_stamp_covers_every_kernel_source():
-    assert len(source_stamp()) == 32 and source_stamp() == source_stamp()
+def test_the_stamp_covers_every_kernel_source(tmp_path, monkeypatch):
+    """The stamp is the SHA-256 of every kernel module and of kalman.py, so that an edit to any of them leaves no
+    stale kernel in numba's cache. Checked on a copy of the sources: against hashlib over the same files, and
+    changed by an edit to each (audit QQ1: the test compared the stamp with itself, and passed with a stamp that
+    read no file)."""
+    import hashlib
+    import shutil
+
+    import gaussfuse._kernels as package
+
+    kernels = tmp_path / "gaussfuse" / "_kernels"
+    shutil.copytree(package._HERE, kernels, ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
+    shutil.copy(package._HERE.parent / "kalman.py", kernels.parent / "kalman.py")
+    monkeypatch.setattr(package, "_HERE", kernels)
+
+    def stamp():
+        source_stamp.cache_clear()
+        return source_stamp()
+
+    files = [*sorted(kernels.glob("*.py")), kernels.parent / "kalman.py"]
+    want = hashlib.sha256()
+    for path in files:
+        want.update(path.name.encode())
+        want.update(path.read_bytes())
+    first = stamp()
+    assert first == want.digest() and len(files) >= 5
+    seen = {first}
+    for path in files:
+        text = path.read_bytes()
+        path.write_bytes(text + b"\n# edited\n")
+        seen.add(stamp())
+        path.write_bytes(text)
+    assert len(seen) == len(files) + 1 and stamp() == first
+    source_stamp.cache_clear()
 
 
 def test_the_kernels_a_call_runs():
