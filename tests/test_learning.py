@@ -138,8 +138,8 @@ def test_controls_missing_data_and_all_parameters_em_vs_mle():
     assert np.all(np.diff(em.history) >= -1e-9 * abs(em.history[-1]))
     assert mle.loglik >= em.loglik - 1e-6
     assert mle.loglik - em.loglik < 1e-3
-    for name in ("F", "B", "Q", "R"):
-        np.testing.assert_allclose(getattr(em.model, name), getattr(mle.model, name), atol=2e-2)
+    for name in ("F", "B", "Q", "R"):  # (measured 6.7e-6 apart; 2e-2 let an 8% error through: audit QQ5)
+        np.testing.assert_allclose(getattr(em.model, name), getattr(mle.model, name), rtol=0, atol=1e-4)
 
 
 # ---------------------------------------------------------------------------
@@ -534,6 +534,7 @@ def test_an_em_fit_kept_readable_starts_the_kernels_once_its_iterations_would_ha
     _, flow = nile()
     with pytest.warns(gf.ConvergenceWarning):  # Nile's EM takes 211 iterations to its tolerance
         auto = gf.fit(_nile_start(), "diffuse", flow, method="em", iterations=40)
+    with pytest.warns(gf.ConvergenceWarning):  # each call warns (one block let either: audit QQ9)
         readable = gf.fit(_nile_start(), "diffuse", flow, method="em", iterations=40, engine="python")
     switch = int(np.ceil(0.45 / (3 * 2 * 100 * drivers.READABLE_STEP["linear"]))) - 1
     assert switch == 37 and len(auto.history) == 41
