@@ -498,6 +498,8 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
     prior = check_prior(prior, timeline.n)
     t0 = _time("t0", t0)
     dated = isinstance(t0, np.datetime64)
+    if dated:  # (every time is then a date)
+        timing.no_dates_for_steps(motion, "t0")
     smooth = flag("smooth", smooth)
     for name in _TIMELINE_OWN.keys() & options.keys():  # filter's arguments that the timeline sets (audit AA1)
         raise TypeError(f"`{name}` is not an option of fuse_timeline: {_TIMELINE_OWN[name]}.")
@@ -506,8 +508,6 @@ def fuse_timeline(motion, sensors, prior: Gaussian, t0: float, measurements, *, 
         outputs = np.atleast_1d(_times("times", times, dated))
     events = _parse(measurements, timeline, dated)
     clock = _Clock.finest([t0, *(t for t, _, _ in events), *outputs])
-    if clock.unit is not None:
-        timing.no_dates_for_steps(motion, "t0")
     start = clock.count("t0", t0)
     for i, (t, name, z) in enumerate(events):
         events[i] = (clock.count(f"measurements[{i}].t", t), name, z)
@@ -667,7 +667,7 @@ class Fuser:
         return self._spec.strategy(model, us, **self._options)
 
     def _advance(self, t, argument: str) -> None:
-        clock = _Clock.finest([self.t, t])  # (dated only from a dated t0, refused for a motion counting steps)
+        clock = _Clock.finest([self.t, t])
         now, then = clock.count("the fuser's time", self.t), clock.count(argument, t)
         if then < now:
             raise ValueError(

@@ -746,21 +746,28 @@ def _table(path, doc: dict, name: str) -> dict | None:
     return table
 
 
+def _meant(key, *choices: Sequence[str]) -> str | None:
+    """The key that `key` may be a misspelling of: the closest in the first of `choices` that has one (audit PP2)."""
+    import difflib
+
+    for keys in choices:
+        close = difflib.get_close_matches(key, keys, n=1) if isinstance(key, str) else []
+        if close:
+            return close[0]
+    return None
+
+
 def _check_keys(path, table_name: str | None, table: dict, valid: Sequence[str], hint: str = "",
                 also: Sequence[str] = ()) -> None:
     """Reject keys of `table` not in `valid`, listing the valid ones and the one each may be a misspelling of
-    (among `valid` and `also`, the other kind of model's: audit PP2)."""
-    import difflib
-
+    (among `valid`, then `also`, the other kind of model's)."""
     unknown = [key for key in table if key not in valid]
     if unknown:
         if table_name is None:
             what = f"unknown table(s) {unknown}; valid tables are " + ", ".join(f"[{t}]" for t in valid)
         else:
             what = f"unknown key(s) {unknown}; valid keys are {', '.join(valid)}"
-        typos = [f"`{key}` for `{close[0]}`?" for key in unknown if isinstance(key, str)  # this kind's keys first
-                 for close in [difflib.get_close_matches(key, valid, n=1) or difflib.get_close_matches(key, also, n=1)]
-                 if close]
+        typos = [f"`{key}` for `{meant}`?" for key in unknown if (meant := _meant(key, valid, also))]
         raise InputFileError(path, what + hint + "." + (f" ({'; '.join(typos)})" if typos else ""),
                              field=None if table_name is None else f"[{table_name}]")
 
@@ -797,10 +804,8 @@ def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
         )
     named = [key for key in table if key in _NAMED_KEYS and key != "states"]
     if named:  # a named model's keys without `kind` (misspelt, say): blame the kind, not them (audit PP2)
-        import difflib
-
         typos = [f" (`{key}` for `kind`?)" for key in table if key not in _NAMED_KEYS + _EXPLICIT_KEYS
-                 and isinstance(key, str) and difflib.get_close_matches(key, ["kind"], n=1)]
+                 and _meant(key, ["kind"])]
         raise InputFileError(path, f"{', '.join(f'`{key}`' for key in named)} are keys of a named model, which needs "
                              f"`kind` (one of {', '.join(sorted(_KINDS))}){''.join(typos[:1])}; explicit matrices "
                              "are F, H, Q and R.", field="[model]")

@@ -114,7 +114,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, symmetrize, unit_diagonal
+from ._linalg import LOG_2PI, cho_solve, cholesky, is_positive_definite, psd_solve, shown, symmetrize, unit_diagonal
 from ._validation import as_vector, integer, real
 from .errors import ConvergenceWarning, ModelFunctionError, fixed_text
 from .gaussian import Gaussian
@@ -914,7 +914,7 @@ class _Parametrisation:
                     raise ValueError(
                         f"`{name}` must be positive definite on its non-zero variances to be learned by "
                         f"maximum likelihood (through its Cholesky factor); got {name} = "
-                        f"{np.array2string(_current(model, prior, name), separator=', ').replace(chr(10), '')}. Start from a "
+                        f"{shown(_current(model, prior, name))}. Start from a "
                         "positive definite value, hold a component at zero by giving it zero variance, "
                         "or use method='em'."
                     )
@@ -2093,9 +2093,7 @@ def fit(
         chunked.check_lazy(zs, us, model)
     T = zs.shape[1] if pooled else zs
     if timed and times is not None and params is None:
-        grid = timing.steps(where, times, T if pooled else check_measurements(zs, model.m).shape[1])
-        if grid.resolution > 0.0:  # (a regular grid is stepped here, not by timing.resolve: review R44)
-            timing.no_dates_for_steps(model.motion, where)
+        grid = timing.steps(where, times, T if pooled else check_measurements(zs, model.m).shape[1], model)
         if grid.regular:  # one model for the grid's step, whose F, Q (and B) can be learned
             model, us = model.at(np.full(1, grid.step), us)
             times = None

@@ -351,6 +351,7 @@ class KalmanFilter:
         belief = self.belief
         k = self._step
         self._check_step(k)
+        self._functions_not_matrices(F=F)
         # a NonlinearModel's too, when it knows its f's controls (audit AA1); a TimedModel's, its motion's (its
         # nonlinear steps take dt as a control of their own, which the user does not give: audit DD3)
         p = getattr(self._model, "p", None) if self.timed is None else self._timed_p
@@ -486,15 +487,15 @@ class KalmanFilter:
         if not given:
             return self._lin
         n = self._model.n
-        self._functions_not_matrices(**given)
         shapes = {"F": (n, n), "Q": (n, n), "H": (None, n), "R": (m, m)}
         checked = {name: self._matrix(name, value, *shapes[name]) for name, value in given.items()}
         return self._sharing(linearisation(self._spec, _Replaced(self._model, checked), self._controls,
                                            self._options)[0])
 
     def _functions_not_matrices(self, **given) -> None:
-        """Refuse an F or H `given` for a NonlinearModel, before anything is checked against it (audit LL3: an H of
-        two rows was first told to bring its R, then a z of two components)."""
+        """Refuse an F or H `given` to :meth:`predict` or :meth:`update` for a NonlinearModel, before anything is
+        checked against it (audit LL3: an H of two rows was first told to bring its R, then a z of two
+        components)."""
         if not isinstance(self._model, LinearModel):
             for name in ("F", "H"):
                 if given.get(name) is not None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import kalman
 from ._frozen import reduce_frozen, shapes_repr
-from ._linalg import cholesky, general_solve, is_positive_definite, symmetrize, whiten
+from ._linalg import cholesky, general_solve, is_positive_definite, shown, symmetrize, whiten
 from .models.linear import LinearModel
 
 __all__ = ["Stationary", "steady_state"]
@@ -149,7 +149,7 @@ def _no_steady_gain(model: LinearModel, P: np.ndarray) -> ValueError:
     S = symmetrize(model.H @ P @ model.H.T + model.R)
     return ValueError(
         "the filter of `model` has no steady gain: its stationary innovation covariance S = H P Hᵀ + R is "
-        f"singular ({np.array2string(S, separator=', ').replace(chr(10), '')}): a combination of the measurements has no noise (R is "
+        f"singular ({shown(S)}): a combination of the measurements has no noise (R is "
         "singular on it) and measures what the state knows exactly in the long run, or repeats another "
         "measurement with the same noise (two sensors of one component with fully correlated noise). Give R a "
         "positive definite covariance, or leave out the repeated measurement.")

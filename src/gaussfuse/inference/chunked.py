@@ -152,11 +152,9 @@ def map_series(run: Callable, zs, us, kwargs: dict):
     # The probe steps as the real times do (their step, or their steps cycled), from their first time (in float
     # seconds, their round-off is theirs): its model is resolved as theirs.
     times = kwargs.get("times")
-    grid = None if times is None else timing.steps("times", times, T)
+    grid = None if times is None else timing.steps("times", times, T, kwargs.get("model"))
     if times is not None and not isinstance(kwargs.get("model"), TimedModel):  # every step's, before any chunk runs
         timing.resolve(kwargs.get("model"), times, T)  # (the probe's were its first few only: audit NN3)
-    elif times is not None and grid.resolution > 0.0:  # (the probe steps in float seconds: review R44)
-        timing.no_dates_for_steps(kwargs["model"].motion, "times")
     start = None if times is None else float(timing.as_seconds("times", times)[0])
 
     def meta(steps: int, own: bool = False):

@@ -345,8 +345,9 @@ def round_off(largest: float) -> float:
     return 8.0 * float(np.finfo(np.float64).eps) * largest
 
 
-def steps(name: str, times, T: int) -> Steps:
-    """:func:`step_sizes` as :class:`Steps`; raises as it does."""
+def steps(name: str, times, T: int, model=None) -> Steps:
+    """:func:`step_sizes` as :class:`Steps`; raises as it does, and where `times` are dates and `model` is a
+    TimedModel whose motion counts steps (:func:`no_dates_for_steps`)."""
     values, per_second = _clock(name, times)
     slack, resolution = 0.0, 0.0 if per_second is None else 1.0 / per_second
     if per_second is None:
@@ -376,6 +377,9 @@ def steps(name: str, times, T: int) -> Steps:
         k = int(np.flatnonzero(np.isinf(dts))[0])
         raise ValueError(f"`{name}` step {k} is longer than the largest float64 (dt = inf s): times so far apart "
                          "cannot be stepped.")
+    if resolution > 0.0:
+        no_dates_for_steps(getattr(model, "motion", None), name, ", or build the model with dt=1 and pass "
+                           "`zs.to_numpy()`" if name == "zs.index" else "")
     return Steps(dts, slack, resolution=resolution)
 
 
@@ -417,10 +421,7 @@ def resolve(model, times, zs, us=None, name: str = "times", rows: bool = True, o
                              "so it is discretised for each step's own time step.")
         return model, us
     T = zs if isinstance(zs, int) else check_measurements(zs, model.m).shape[1]
-    grid = steps(name, times, T)
-    if timed and grid.resolution > 0.0:
-        no_dates_for_steps(model.motion, name, ", or build the model with dt=1 and pass `zs.to_numpy()`"
-                           if name == "zs.index" else "")
+    grid = steps(name, times, T, model)
     if timed:  # (a nonlinear one is left to the steady filter's refusal of its method: review R34)
         return model.at(np.full(1, grid.step) if one_step and model.linear and grid.regular else grid.dts, us)
     low, high = float(grid.dts.min()), float(grid.dts.max())

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_numbers, integer
+from .._validation import as_array, as_numbers, integer, shape_error
 
-__all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state", "check_step"]
+__all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state", "check_step", "check_step_sizes"]
 
 def check_dim(value) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 3:
@@ -26,6 +26,19 @@ def check_step(k, steps: int | None) -> int:
     k = integer("k", k, minimum=0)
     raise ValueError(f"`k` must be a step of the model, 0 to {steps - 1} (it is time-varying over {steps} "
                      f"steps); got {k}.")
+
+
+def check_step_sizes(dts, expected: str = "(k,)", empty: bool = True) -> np.ndarray:
+    """`dts` as float64 of shape (k,) (k >= 1 unless `empty`), each a positive time step; the errors name `dts`,
+    the `expected` shape, and the first step that is not positive (TimedModel.at's, and the motions' transitions:
+    their closed forms took dt = -1 into a Q with a negative eigenvalue, audit MM2)."""
+    dts = as_array("dts", dts, copy=False)
+    if dts.ndim != 1 or not (empty or dts.size):
+        raise shape_error("dts", expected, dts.shape)
+    bad = np.flatnonzero(~(dts > 0.0))
+    if bad.size:
+        raise ValueError(f"`dts` must be positive step sizes; got {float(dts[bad[0]])!r} at index {bad[0]}.")
+    return dts
 
 
 def check_noise_kind(value) -> str:

@@ -12,7 +12,7 @@ from functools import partial
 import numpy as np
 
 from .._validation import StepOverflowError, as_array, as_numbers, call_checked, component_mask, integer, real, shape_error
-from ._base import Frozen, check_names
+from ._base import Frozen, check_names, check_step_sizes
 from .linear import LinearModel
 from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
 from .nonlinear import NonlinearModel
@@ -234,12 +234,7 @@ class TimedModel(Frozen):
             ``u_k = [dt_k, *us_k]`` its f takes, of shape (T, 1 + p), or
             (N, T, 1 + p) for N series ((T, 1) without `us`).
         """
-        dts = as_array("dts", dts)
-        if dts.ndim != 1 or not dts.size:
-            raise shape_error("dts", "(T,) with T >= 1, one step size per step", dts.shape)
-        if (dts <= 0.0).any():
-            k = int(np.flatnonzero(dts <= 0.0)[0])
-            raise ValueError(f"`dts` must be positive step sizes; got {float(dts[k])!r} at index {k}.")
+        dts = check_step_sizes(dts, "(T,) with T >= 1, one step size per step", empty=False)
         unique, index = np.unique(dts, return_inverse=True)
         if unique.shape[0] == 1 and (self.linear or us is None) and isinstance(self.motion, LinearMotion):
             return model(self.motion, self.sensor, float(unique[0]), names=self.names), us

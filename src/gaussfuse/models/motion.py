@@ -20,8 +20,8 @@ from math import factorial
 
 import numpy as np
 
-from .._validation import as_array, finite_step, integer, real, shape_error
-from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state
+from .._validation import finite_step, integer, real
+from ._base import Frozen, check_dim, check_names, check_noise_kind, check_state, check_step_sizes
 from .noise import continuous_white_noise, piecewise_white_noise, sde_arrays, van_loan, white_noise_chains
 
 __all__ = [
@@ -125,7 +125,7 @@ class LinearMotion(Frozen):
         F : ndarray of shape (k, n, n)
         Q : ndarray of shape (k, n, n)
         """
-        pairs = [self.transition(float(dt)) for dt in _step_sizes(dts)]
+        pairs = [self.transition(float(dt)) for dt in check_step_sizes(dts)]
         if not pairs:
             return np.zeros((0, self.n, self.n)), np.zeros((0, self.n, self.n))
         return np.stack([F for F, _ in pairs]), np.stack([Q for _, Q in pairs])
@@ -146,18 +146,6 @@ class LinearMotion(Frozen):
         """
         real("dt", dt, positive=True)
         return None
-
-
-def _step_sizes(dts) -> np.ndarray:
-    """`dts` as float64 of shape (k,), each a positive time step; the errors name `dts` and the step (audit MM2: the
-    closed forms took -1 into a Q with a negative eigenvalue, and 0 into Q = 0)."""
-    dts = as_array("dts", dts, copy=False)
-    if dts.ndim != 1:
-        raise shape_error("dts", "(k,)", dts.shape)
-    bad = np.flatnonzero(~(dts > 0.0))
-    if bad.size:
-        raise ValueError(f"`dts` must be positive step sizes; got {float(dts[bad[0]])!r} at index {bad[0]}.")
-    return dts
 
 
 class NonlinearMotion(Frozen):
@@ -298,7 +286,7 @@ class _IntegratedWhiteNoise(LinearMotion):
 
     def transitions(self, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # transition's formulas on the stack of steps, the same bits; the base's loop names a step that overflows
-        dts = _step_sizes(dts)
+        dts = check_step_sizes(dts)
         if self.noise != "continuous" or not dts.size:
             return super().transitions(dts)
         K, d, k = self._order, self.dim, dts.shape[0]
