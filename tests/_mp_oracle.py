@@ -25,13 +25,15 @@ def _forward(F, H, Q, R, m0, P0, zs):
 
     predict m⁻ = F m, P⁻ = F P Fᵀ + Q; update with K = P⁻ Hᵀ (H P⁻ Hᵀ + R)⁻¹,
     m = m⁻ + K (z - H m⁻), P = P⁻ - K H P⁻ (in 50 digits every form agrees).
-    Returns the transition F and the lists of (m⁻, P⁻) and (m, P).
+    R may be a stack (T, m, m), one per step. Returns the transition F and the lists of (m⁻, P⁻) and (m, P).
     """
-    F, H, Q, R = (mp.matrix(np.atleast_2d(a).tolist()) for a in (F, H, Q, R))
+    zs = np.asarray(zs, float).reshape(len(zs), -1)
+    Rs = [mp.matrix(np.atleast_2d(a).tolist()) for a in (R if np.ndim(R) == 3 else [R] * len(zs))]
+    F, H, Q = (mp.matrix(np.atleast_2d(a).tolist()) for a in (F, H, Q))
     m = mp.matrix(np.asarray(m0, float).tolist())
     P = mp.matrix(np.asarray(P0, float).tolist())
     pred, filt = [], []
-    for z in np.asarray(zs, float).reshape(len(zs), -1):
+    for z, R in zip(zs, Rs):
         pm, pP = F * m, F * P * F.T + Q
         K = pP * H.T * mp.inverse(H * pP * H.T + R)
         m = pm + K * (mp.matrix(z.tolist()) - H * pm)
@@ -78,18 +80,19 @@ def smooth_50_digits(F, H, Q, R, m0, P0, zs, digits: int = 50) -> tuple[np.ndarr
     return np.array(means[::-1]), np.array(covs[::-1])
 
 
-def smooth_dense_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarray]:
+def smooth_dense_50_digits(F, H, Q, R, m0, P0, zs, digits: int = 50, lag_one: bool = False) -> tuple:
     """Smoothed means (T, n) and covariances (T, n, n) by dense joint-Gaussian conditioning, in 50 digits.
 
     No recursion and no inverse of a state covariance, so a singular P⁻ (a state that copies another) is
     valid input: with the independent sources e = (x_0, w_1..w_T, v_1..v_T), x = M_x e + c_x and
     z = M_z e + c_z; then E[x | z] = c_x + Σ_xz Σ_zz⁻¹ (z - c_z), Cov[x | z] = Σ_xx - Σ_xz Σ_zz⁻¹ Σ_zx,
-    where only Σ_zz (positive definite for R > 0) is inverted. Time-invariant models only.
+    where only Σ_zz (positive definite for R > 0) is inverted. Time-invariant models only. With `lag_one`, also
+    the lag-one covariances Cov(x_k, x_{k+1} | z), (T - 1, n, n).
     """
     zs = np.asarray(zs, float).reshape(len(zs), -1)
     T, n, m = len(zs), np.shape(F)[0], np.atleast_2d(H).shape[0]
     ne = n + T * n + T * m
-    with mp.workdps(50):
+    with mp.workdps(digits):
         F, H, Q, R, P0 = (np.vectorize(mp.mpf, otypes=[object])(np.atleast_2d(np.asarray(a, float)))
                           for a in (F, H, Q, R, P0))
         cov_e = block_diag(P0, *[Q] * T, *[R] * T)
@@ -109,6 +112,9 @@ def smooth_dense_50_digits(F, H, Q, R, m0, P0, zs) -> tuple[np.ndarray, np.ndarr
         means = _to_float(mp.matrix(cX.ravel().tolist()) + gain * mp.matrix((zs.ravel() - cZ.ravel()).tolist()))
         means, full = means.reshape(T, n), _to_float(MX * cov_e * MX.T - gain * S_xz.T)
     covs = np.array([full[k * n:(k + 1) * n, k * n:(k + 1) * n] for k in range(T)])
+    if lag_one:
+        return means, (covs + covs.transpose(0, 2, 1)) / 2, np.array(
+            [full[k * n:(k + 1) * n, (k + 1) * n:(k + 2) * n] for k in range(T - 1)])
     return means, (covs + covs.transpose(0, 2, 1)) / 2
 
 

@@ -9,6 +9,8 @@ import statsmodels.api as sm
 import gaussfuse as gf
 from gaussfuse.datasets import nile
 
+from _mp_oracle import smooth_50_digits, smooth_dense_50_digits
+
 SIG_EPS, SIG_ETA = 15099.0, 1469.1
 
 
@@ -99,6 +101,69 @@ def test_diffuse_is_the_limit_of_a_wide_prior():
     np.testing.assert_allclose(wide.means, exact.means, atol=1e-5)
     np.testing.assert_allclose(wide.covs, exact.covs, atol=1e-5)
     np.testing.assert_allclose(wide.filtered.means[1:], exact.filtered.means[1:], atol=1e-5)
+
+
+def _trend_limit(zs, R, kappa=1e40, digits=200):
+    """The smoothed moments of a local linear trend (Q = diag(1, 0)) with x_1 ~ N(0, κ I + Q), in `digits`:
+    the prior on x_0 is N(0, κ F⁻¹ F⁻ᵀ) (see the test above), and κ = 1e40 is the diffuse limit to 1e-40."""
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    F_inv = np.linalg.solve(F, np.eye(2))
+    return smooth_50_digits(F, [[1.0, 0.0]], np.diag([1.0, 0.0]), R, np.zeros(2), kappa * F_inv @ F_inv.T, zs,
+                            digits=digits)
+
+
+def _trend(Q, R):
+    return gf.LinearModel(F=[[1, 1], [0, 1]], H=[1, 0], Q=Q, R=R)
+
+
+@pytest.mark.parametrize("q0", [1e8, 1e16])
+def test_the_noise_into_the_first_state_plays_no_part_at_any_size(q0):
+    """Audit SS2-3: the augmentation took its free covariance P_* from Q_1, the noise into x_1, which the docs say
+    plays no part; a user's Q_1 = 1e16 I (a wide guess, say) cost the smoothed variance of x_1 37% (1.0 for
+    0.7255), as the runs lost ε P_* to cancellation. P_* is Q_2 now, the model's own."""
+    T = 10
+    zs = np.random.default_rng(4).normal(size=T).cumsum()
+    zs[2] = np.nan
+    Q = np.diag([1.0, 0.1])
+    Qs = np.stack([q0 * np.eye(2)] + [Q] * (T - 1))
+    wide, same = (gf.smooth(_trend(q, 1.0), "diffuse", zs) for q in (Qs, Q))
+    assert wide.loglik == pytest.approx(same.loglik, rel=1e-13)
+    np.testing.assert_allclose(wide.means, same.means, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(wide.covs, same.covs, rtol=1e-12, atol=1e-12)
+
+
+def test_a_noisy_first_measurement_does_not_set_the_scale_of_the_runs():
+    """Audit SS2-2: with a singular Q, P_* was widened by the largest variance of Q_1 and R_1, so a first
+    measurement of variance 1e16 (a time-varying R) cost every smoothed covariance ε·1e16 (5.9 at step 0, for
+    entries of 1.8 and below). It is widened on the process noise's scale now. Oracle: the κ → ∞ limit in 200
+    digits."""
+    T = 15
+    zs = np.random.default_rng(4).normal(size=T).cumsum()
+    R = np.ones((T, 1, 1))
+    R[0] = 1e16
+    means, covs = _trend_limit(zs, R)
+    res = gf.smooth(_trend(np.diag([1.0, 0.0]), R), "diffuse", zs)
+    np.testing.assert_allclose(res.means, means, rtol=0, atol=1e-13 * np.abs(means).max())
+    np.testing.assert_allclose(res.covs, covs, rtol=0, atol=1e-14 * np.abs(covs).max())
+
+
+@pytest.mark.parametrize("Q, R", [(np.diag([1.0, 0.1]), 1.0), (np.diag([0.0, 0.1]), 0.0)], ids=["noisy", "exact"])
+def test_smoother_gains_give_the_lag_one_covariances(Q, R):
+    """Audit SS2-1: the gains were the augmentation's base run's (x_1 ~ N(·, P_*) given δ), not the model's, so
+    ``G_k P^s_{k+1}``, the lag-one covariance the result documents, was 0.125 off at k = 0 and 0.005 at k = 6.
+    Oracle: dense joint-Gaussian conditioning in 200 digits with x_1 ~ N(0, 1e40 I); the first gains are before
+    the slope is identified (k = 0), the second model's sensor is exact."""
+    T = 8
+    zs = np.random.default_rng(4).normal(size=T).cumsum()
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    F_inv = np.linalg.solve(F, np.eye(2))
+    means, covs, lag = smooth_dense_50_digits(F, [[1.0, 0.0]], Q, R, np.zeros(2), 1e40 * F_inv @ F_inv.T, zs,
+                                             digits=200, lag_one=True)
+    res = gf.smooth(_trend(Q, R), "diffuse", zs)
+    scale = np.abs(covs).max()
+    np.testing.assert_allclose(res.covs, covs, rtol=0, atol=1e-14 * scale)
+    assert np.isnan(res.filtered.means[0]).all()  # x_1 is not identified after the first step
+    np.testing.assert_allclose(res.gains @ res.covs[1:], lag, rtol=0, atol=1e-14 * scale)
 
 
 @pytest.mark.parametrize("ar", [[0.5], [2.0], [-1.3], [0.0], [0.5, 0.2], [0.3, 0.0]])
@@ -319,3 +384,23 @@ def test_an_overflow_of_the_assembled_beliefs_is_a_floating_point_error():
         gf.fit(model, "diffuse", y, method="mle")
     assert np.isfinite(gf.filter(gf.LinearModel(F=1, H=1, Q=1e3 * 1e296, R=1e4 * 1e296), "diffuse",
                                  y * 1e-4).innovation_covs[1:]).all()  # 1e300 is fine
+
+
+def test_an_information_that_overflows_is_a_floating_point_error():
+    """Audit SS2-4: at variances of 1e-308 the information about the diffuse state (1/variance, summed over steps)
+    overflowed, and filter and smooth returned a log-likelihood of -inf and means 6% off with only NumPy's
+    RuntimeWarnings. Down to 1e-300 the results scale exactly (the data by c, the variances by c²)."""
+    z = np.random.default_rng(0).normal(size=10).cumsum()
+    Q = np.diag([1.0, 0.1])
+    unit = gf.smooth(_trend(Q, 1.0), "diffuse", z)
+    c = 1e-150
+    scaled = gf.smooth(_trend(Q * c**2, c**2), "diffuse", z * c)
+    assert scaled.loglik == pytest.approx(unit.loglik - 8 * np.log(c), rel=1e-13)  # 10 observations, 2 diffuse
+    np.testing.assert_allclose(scaled.means / c, unit.means, rtol=1e-13)
+    c = np.sqrt(1e-308)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        for run in (gf.filter, gf.smooth):
+            with pytest.raises(FloatingPointError, match=r"^at step 4: the filtered mean, covariance or "
+                                                         r"log-likelihood is not finite \(inf or NaN\)"):
+                run(_trend(Q * c**2, c**2), "diffuse", z * c)

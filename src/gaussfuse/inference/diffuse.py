@@ -12,7 +12,8 @@ Koopman (1997):
 Write :math:`x_1 = \delta + w`, :math:`w \sim N(0, P_*)` for any fixed
 :math:`P_* \succeq 0`: a flat :math:`\delta` makes :math:`x_1` flat whatever
 :math:`P_*`, with the same normalisation, so the diffuse results do not depend
-on it (it is taken as :math:`Q_1`, widened where that is singular). Given
+on it (it is taken as :math:`Q_2`, the first process noise that is
+part of the model, widened where that is singular). Given
 :math:`\delta`, the model is an ordinary linear-Gaussian one, and every mean
 the Kalman filter and RTS smoother produce is affine in :math:`\delta` while no
 covariance depends on it:
@@ -80,7 +81,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._linalg import cho_solve, cholesky, is_positive_definite, observed_gram, symmetrize, unit_diagonal, whiten
+from .._linalg import (cho_solve, cholesky, is_positive_definite, observed_gram, psd_solve, symmetrize, unit_diagonal,
+                       whiten)
 from ..diagnostics import nis
 from ..errors import at_step, not_finite
 from ..gaussian import Gaussian
@@ -108,18 +110,26 @@ def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | No
 
     With ``x_0 = δ`` flat, ``x_1`` is flat (see the module notes), so the
     augmentation over ``x_0`` below is the exact diffuse treatment of ``x_1``.
-    ``P_* = Q_1`` where that is positive definite; else it is widened by a
-    multiple of the identity on the scale of ``Q_1`` and ``R_1``: with a
+    Any ``P_*`` gives the same results in exact arithmetic; in floating
+    point the runs lose about ε times ``P_*`` to cancellation, so it is
+    taken on the scale of the model's own noise: the process noise of the
+    first transition that is part of the model (``Q_2``; ``Q_1``, the noise
+    into ``x_1``, plays no part and may be anything: 1e16 there cost a
+    smoothed variance 37%), where that is positive definite. Else it is
+    widened by a multiple of the identity, the largest variance of that
+    noise (of ``R_1`` only where it has none: widened on a noisy first
+    measurement, R_1 = 1e16 cost the smoothed covariances 5.9): with a
     singular ``P_*`` the base run's innovation covariance can be singular
     where a noise-free sensor meets a noise-free state (at the first step,
     or at the first step that sensor is observed), though the diffuse state
     is not known there.
     """
     T, n = zs.shape[0], model.n
-    _, _, Q1, R1, _ = model.at(0)
-    P_star = np.array(Q1)
+    Q_star = np.array(model.at(min(1, T - 1))[2])
+    P_star = Q_star
     if not is_positive_definite(P_star):
-        scale = max(np.max(np.diag(Q1)), np.max(np.diag(R1)))
+        scale = np.max(np.diag(Q_star))
+        scale = scale if scale > 0 else np.max(np.diag(model.at(0)[3]))
         P_star = P_star + (scale if scale > 0 else 1.0) * np.eye(n)
     F = np.array(np.broadcast_to(model.F, (T, n, n)))
     Q = np.array(np.broadcast_to(model.Q, (T, n, n)))
@@ -196,9 +206,14 @@ def _information(model, runs: AugmentedRuns) -> _Information:
     base = runs.base
     V = _innovation_sensitivity(model, runs)                                  # (T, m, n)
     X = np.concatenate([V, np.nan_to_num(base.innovations)[..., None]], axis=-1)  # [V | v0]
-    gram, _ = observed_gram(base.innovation_covs, X, ~np.isnan(base.innovations),
-                            "the innovation covariance S")
-    return _Information(np.cumsum(gram[:, :-1, :-1], axis=0), -np.cumsum(gram[:, :-1, -1], axis=0), base.loglik)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised below, naming the step
+        gram, _ = observed_gram(base.innovation_covs, X, ~np.isnan(base.innovations),
+                                "the innovation covariance S")
+        inf = _Information(np.cumsum(gram[:, :-1, :-1], axis=0), -np.cumsum(gram[:, :-1, -1], axis=0), base.loglik)
+    bad = np.flatnonzero(~(np.isfinite(inf.info).all(axis=(1, 2)) & np.isfinite(inf.score).all(axis=1)))
+    if bad.size:  # an information of 1/variance: variances near 1e-308 (audit SS2-4: a log-likelihood of -inf)
+        raise at_step(FloatingPointError(not_finite("filtered")), int(bad[0]))
+    return inf
 
 
 def _predicted_sensitivity(runs: AugmentedRuns) -> np.ndarray:
@@ -360,7 +375,43 @@ def diffuse_moments(model, zs: np.ndarray, us: np.ndarray | None = None, engine:
     means = base_m + N @ delta
     covs = symmetrize(base_P + np.swapaxes(W, -1, -2) @ W)
     cross = base_P[1:] @ np.swapaxes(gains, -1, -2) + np.swapaxes(W[1:], -1, -2) @ W[:-1]
+    gains = np.concatenate([gains[:1], _gains(runs, inf, gains[1:])])
     return Moments(means, covs, cross, filt.loglik, filt, gains, first=1)
+
+
+def _gains(runs: AugmentedRuns, inf: _Information, base_gains: np.ndarray) -> np.ndarray:
+    r"""The smoother gains of the diffuse model from step k to k + 1, k = 0..T-2 (see the module notes).
+
+    Given δ the gain is the base run's :math:`G^{(0)}_k` (its filtered covariance :math:`P_k` and prediction
+    :math:`P^-_{k+1}` do not depend on δ); the diffuse one is the limit, as the prior on δ widens, of the
+    regression of :math:`x_k` on :math:`x_{k+1}` given :math:`z_{1:k}`, where δ carries the information
+    :math:`\mathcal S_k`:
+
+    .. math::
+
+        G_k = G^{(0)}_k + (M_k - G^{(0)}_k M^-_{k+1}) \left(\mathcal S_k + M^{-\top}_{k+1} (P^-_{k+1})^{-1}
+        M^-_{k+1}\right)^{-1} M^{-\top}_{k+1} (P^-_{k+1})^{-1},
+
+    with :math:`M_k, M^-_{k+1}` the filtered and predicted sensitivities. It is finite before the state is
+    identified (x_{k+1} tells what z_{1:k} do not), and the solves are least-squares where a matrix is singular,
+    as the driver's gains (see :func:`gaussfuse.kalman.rts_step`). The base run's gains alone are not the model's
+    (audit SS2-1: the lag-one covariance ``G_k P^s_{k+1}`` was 0.125 off at k = 0 and 0.005 at k = 6).
+    """
+    M = np.stack([r.means for r in runs.sens], axis=-1)[:-1]              # (T - 1, n, n)
+    Mp = _predicted_sensitivity(runs)[1:]
+    K = _psd_solve_each(runs.base.predicted_covs[1:], Mp)              # (P⁻)⁻¹ M⁻
+    A = inf.info[:-1] + np.swapaxes(Mp, -1, -2) @ K
+    D = M - base_gains @ Mp
+    return base_gains + D @ _psd_solve_each(A, np.swapaxes(K, -1, -2))
+
+
+def _psd_solve_each(C: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """:func:`gaussfuse._linalg.psd_solve` over a stack: one Cholesky solve of the stack where every C is positive
+    definite, else one by one."""
+    try:
+        return cho_solve(cholesky(C, resolved=True), B)
+    except np.linalg.LinAlgError:
+        return np.stack([psd_solve(c, b) for c, b in zip(C, B)]) if len(C) else np.zeros(B.shape)
 
 
 def diffuse_smooth(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> SmoothResult:
