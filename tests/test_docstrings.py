@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import doctest
 import importlib
@@ -24,3 +25,16 @@ def test_docstring_examples(name):
         result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted > 0, f"{name} has no docstring examples"
     assert result.failed == 0, out.getvalue()
+
+
+def test_no_docstring_holds_a_control_character():
+    """Audit SS4: ``\\top`` and ``\\theta`` in a docstring that is not a raw string are a TAB and "op" (four did:
+    the maths rendered broken); one file held the TAB itself. Only newlines belong in a docstring."""
+    found = []
+    for path in sorted((SRC / "gaussfuse").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+                doc = ast.get_docstring(node, clean=False) or ""
+                if any(ord(c) < 32 and c != "\n" for c in doc):
+                    found.append(f"{path.relative_to(SRC)}: {getattr(node, 'name', 'the module')}")
+    assert not found, found

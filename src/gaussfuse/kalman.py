@@ -1129,7 +1129,7 @@ def singular_pivots(pred_factor: np.ndarray, filt_factor: np.ndarray, A: np.ndar
     -----
     A pivot of :math:`L^-` smaller than the round-off of its row
     (:func:`gaussfuse._linalg.zero_pivots`) is zero, unless the prediction
-    cannot be singular: :math:`P^- \succeq A P_k A^	op`, which is
+    cannot be singular: :math:`P^- \succeq A P_k A^\top`, which is
     non-singular when :math:`A` and :math:`L_k` both are (and the noise
     has no negative terms). That case is a real pivot far below its row's
     size, as after a huge prior with no process noise (the variance of the

@@ -1770,7 +1770,7 @@ _WIDER = 1e-2  # :func:`_unresolved`'s wider step in a log variance
 
 
 def _beyond_gradient(information: np.ndarray, gradient: np.ndarray, curved: np.ndarray) -> bool:
-    """Whether the information, on its correlation scale, has its smallest eigenvalue over 10 times what the
+    r"""Whether the information, on its correlation scale, has its smallest eigenvalue over 10 times what the
     gradient adds to it through the parametrisation's curvature.
 
     Away from a stationary point the Hessian in θ carries, besides the curvature of the log-likelihood, the

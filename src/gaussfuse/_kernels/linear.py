@@ -127,7 +127,7 @@ def table(T, n, m, shared):
 
 @jit(inline="always", **_JIT)
 def fixed_gain(fx, w, F):
-    """The smoother gain between two held steps, from the fixed point's covariances, in ``fx.gain``.
+    r"""The smoother gain between two held steps, from the fixed point's covariances, in ``fx.gain``.
 
     :math:`G = P F^\top (P^-)^{-1}` with P and :math:`P^-` the fixed point's
     (:func:`._step.smoother_gain` on :math:`C^\top = F P`); where

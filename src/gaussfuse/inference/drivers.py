@@ -503,7 +503,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
 
 
 def _spread_checked(lin, result: SmoothResult, to_prior: bool) -> SmoothResult:
-    """`result`, after raising LinAlgError where a sigma-point rule that weighs a point negatively left a smoothed
+    r"""`result`, after raising LinAlgError where a sigma-point rule that weighs a point negatively left a smoothed
     covariance that is not positive semi-definite (the square-root form raises there too).
 
     The covariance form's RTS step, :math:`P + G (P^s - P^-) G^\top`, keeps what the filter hands it; a
