@@ -798,8 +798,8 @@ def test_transitions_check_their_steps_as_transition_does(motion):
 
 
 def _singer_q_1500_digits(tau: float, sigma: float, dt: float) -> np.ndarray:
-    """Singer's closed-form Q (position, velocity block) per axis, in mpmath at 1500 digits (Singer 1970; Bar-Shalom,
-    Li & Kirubarajan 2001, §8.2): no cancellation is left at any rate."""
+    """Singer's closed-form Q per axis, (3, 3), in mpmath at 1500 digits (Singer 1970; Bar-Shalom, Li & Kirubarajan
+    2001, §8.2): no cancellation is left at any rate."""
     import mpmath as mp
 
     with mp.workdps(1500):
@@ -808,20 +808,28 @@ def _singer_q_1500_digits(tau: float, sigma: float, dt: float) -> np.ndarray:
         e1, e2 = mp.exp(-a * T), mp.exp(-2 * a * T)
         q00 = q / (2 * a**5) * (1 - e2 + 2 * a * T + 2 * a**3 * T**3 / 3 - 2 * a**2 * T**2 - 4 * a * T * e1)
         q01 = q / (2 * a**4) * (e2 + 1 - 2 * e1 + 2 * a * T * e1 - 2 * a * T + a**2 * T**2)
+        q02 = q / (2 * a**3) * (1 - e2 - 2 * a * T * e1)
         q11 = q / (2 * a**3) * (4 * e1 - 3 - e2 + 2 * a * T)
-        return np.array([[float(q00), float(q01)], [float(q01), float(q11)]])
+        q12 = q / (2 * a**2) * (e2 + 1 - 2 * e1)
+        q22 = q / (2 * a) * (1 - e2)
+        return np.array([[float(q00), float(q01), float(q02)], [float(q01), float(q11), float(q12)],
+                         [float(q02), float(q12), float(q22)]])
 
 
-@pytest.mark.parametrize("tau, sigma", [(1e-150, 1.0), (1e-140, 1e-10), (1e-200, 1e50), (1e-100, 1e-50)])
+@pytest.mark.parametrize("tau, sigma", [(1e-150, 1.0), (1e-140, 1e-10), (1e-150, 1e10), (1e-100, 1e-50)])
 def test_singer_at_the_fastest_rates_it_takes_is_its_closed_form(tau, sigma):
     """Audit MM3: at sigma tau = 1e-160 Q's entries were 1e-3 off, below it 0 for 1e-200 (its sub-steps' terms
-    underflowed); from 1e-150 up they are exact to round-off, and below it the model is refused."""
+    underflowed); from 1e-150 up they are exact to round-off, and below it the model is refused. Review R46: the
+    same held for the position and velocity block only: at tau = 1e-175 (sigma = 1e30) Q[0, 2] was 43% off, as the
+    sub-steps' F[0, 2], about tau², underflowed; tau is refused below 1e-150 too, and all six entries are held."""
     for dt in (1e-6, 1.0, 1e6):
-        Q = gf.Singer(tau=tau, sigma=sigma).transition(dt)[1][:2, :2]
+        Q = gf.Singer(tau=tau, sigma=sigma).transition(dt)[1]
         np.testing.assert_allclose(Q, _singer_q_1500_digits(tau, sigma, dt), rtol=1e-13, atol=0)
     with pytest.raises(ValueError, match=r"^sigma \* tau must be at least 1e-150, or sigma 0"):
         gf.Singer(tau=tau, sigma=sigma / 1e11)
-    assert not gf.Singer(tau=1e-300, sigma=0.0).transition(1.0)[1].any()
+    for sigma in (0.0, 1e30):
+        with pytest.raises(ValueError, match=r"^tau must be at least 1e-150: .* got tau = 1e-175\."):
+            gf.Singer(tau=1e-175, sigma=sigma)
 
 
 @pytest.mark.parametrize("tau, sigma", [(1e10, 1e-155), (1e50, 1e-160), (1.0, 1e-160)])
@@ -832,5 +840,5 @@ def test_singer_refuses_a_density_below_the_normal_floats(tau, sigma):
     with pytest.raises(ValueError, match=r"^sigma² and the noise density 2 sigma² / tau must be at least float64's "
                                          r"smallest normal number"):
         gf.Singer(tau=tau, sigma=sigma)
-    Q = gf.Singer(tau=1e10, sigma=1e-140).transition(1e6)[1][:2, :2]
+    Q = gf.Singer(tau=1e10, sigma=1e-140).transition(1e6)[1]
     np.testing.assert_allclose(Q, _singer_q_1500_digits(1e10, 1e-140, 1e6), rtol=1e-13, atol=0)

@@ -289,13 +289,13 @@ def test_a_short_step_keeps_every_entry_of_q(order, dt):
 
 
 def test_a_drift_past_2_to_the_1024_per_step_is_stepped():
-    """dt / 2.0**halvings raised OverflowError (reported as a step too long) for ||A|| dt past 2**1024: Singer's F
-    and Q at tau = 1e-200 over 1e109 s are finite (F[1, 2] = tau, Q[2, 2] = sigma²). (It was tau = 1e-300 with
-    sigma = 2, whose position and velocity variances underflow: Singer refuses sigma tau below 1e-150 since
-    audit MM3.)"""
-    F, Q = gf.Singer(tau=1e-200, sigma=1e50).transition(1e109)
-    assert F[1, 2] == pytest.approx(1e-200, rel=1e-12, abs=0.0) and F[2, 2] == 0.0
-    assert Q[2, 2] == pytest.approx(1e100, rel=1e-12)
+    """dt / 2.0**halvings raised OverflowError (reported as a step too long) for ||A|| dt past 2**1024: a rate of
+    1e200 over 1e109 s has F = exp(-1e309) = 0 and Q = q / (2 rate) (1 - exp(-2e309)) = q / 2e200. (It was Singer
+    at tau = 1e-300, then at tau = 1e-200: Singer refuses tau below 1e-150 since review R46, and a Singer that
+    takes this path has Q past float64 unless sigma is 0.)"""
+    F, Q = van_loan([[-1e200]], [1.0], 1e100, 1e109)
+    assert F[0, 0] == 0.0
+    assert Q[0, 0] == pytest.approx(5e-101, rel=1e-12, abs=0.0)
 
 
 def test_a_huge_density_over_a_step_whose_q_is_finite_is_not_refused():

@@ -529,11 +529,14 @@ class Singer(LinearMotion):
         τ = 1e50, Q was 0), or a positive σ with σ·τ below 1e-150: under a fast rate the
         discretisation's variances over its shortest sub-step, about σ²τ²,
         fall below float64's normal numbers and Q loses its digits
-        (στ = 1e-160 left entries 1e-3 off, smaller products all of them).
-        The bound is conservative: a slow rate takes some smaller products
-        exactly (τ = 1 with σ = 1e-151). Above them, over τ from 1e-200 to
-        1e50, σ from 1e-150 to 1e60 and dt from 1e-6 to 1e6, the entries
-        were within 3e-15 of Singer's closed form.
+        (στ = 1e-160 left entries 1e-3 off, smaller products all of them),
+        or a τ below 1e-150, whose sub-steps' transition entries, about τ²,
+        do the same (τ = 1e-175 left the position-acceleration entry 43%
+        off). The bounds are conservative: a slow rate takes some smaller
+        products exactly (τ = 1 with σ = 1e-151). Above them, over τ from
+        1e-150 to 1e50, σ from 1e-150 to 1e60 and dt from 1e-6 to 1e6, the
+        entries in float64's normal range were within 3.3e-15 of Singer's
+        closed form.
 
     Notes
     -----
@@ -585,6 +588,10 @@ class Singer(LinearMotion):
                 raise ValueError(f"sigma² and the noise density 2 sigma² / tau must be at least float64's smallest "
                                  f"normal number, {tiny:.3g}, or sigma 0: below it they have lost digits; got sigma = "
                                  f"{sigma:g} and tau = {tau:g}. Measure time or distance in other units.")  # (R44)
+            if tau < 1e-150:  # (review R46)
+                raise ValueError(f"tau must be at least 1e-150: below it the transition's entries over the "
+                                 f"discretisation's shortest step, about tau², fall below float64's normal numbers "
+                                 f"and Q loses its digits; got tau = {tau:g}. Measure time in other units.")
             if sigma > 0.0 and sigma * tau < 1e-150:  # (audit MM3)
                 raise ValueError(f"sigma * tau must be at least 1e-150, or sigma 0: below it Q's terms over the "
                                  f"discretisation's shortest step, about (sigma tau)², are lost to float64's "
