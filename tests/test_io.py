@@ -285,7 +285,16 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
          r"m\.toml: \[prior\]: unknown key\(s\) \['sigma'\]; valid keys are mean, cov, var"),
         (EXPLICIT + "G = 1\n", r"m\.toml: \[model\]: unknown key\(s\) \['G'\]; valid keys are F, H, Q, R, states "
                                r"\(explicit matrices\), or kind, dim, dt, q, r, states \(a named model\)\."),
-        (NAMED + "F = [[1]]\n", r"\[model\]: unknown key\(s\) \['F'\]; valid keys are kind, dim, dt, q, r, states"),
+        (NAMED + "F = [[1]]\n", r"\[model\]: unknown key\(s\) \['F'\]; valid keys are kind, dim, dt, q, r, states "
+                                r"\(a named model\), or F, H, Q, R, states \(explicit matrices, without `kind`\)\.$"),
+        # review R46: no key offered as a misspelling of itself, another case first, and explicit matrices with a
+        # named model's key are not blamed on a missing `kind`
+        (NAMED + "R = 1\n", r"\[model\]: unknown key\(s\) \['R'\]; .*\. \(`R` for `r`\?\)$"),
+        (EXPLICIT.replace("R = 1", "r = 1"), r"\[model\]: unknown key\(s\) \['r'\]; valid keys are F, H, Q, R, states "
+                                            r"\(explicit matrices\), .*\. \(`r` for `R`\?\)$"),
+        (EXPLICIT + "dt = 1\n", r"\[model\]: unknown key\(s\) \['dt'\]; valid keys are F, H, Q, R, states \(explicit "
+                                r"matrices\), or kind, dim, dt, q, r, states \(a named model\)\.$"),
+        ('[model]\ndt = 1\n', r"\[model\]: `dt` is a key of a named model, which needs `kind`"),
         # misspelt keys: the one meant is offered, and a misspelt `kind` does not make the named model's keys unknown
         # (audit PP2)
         ('[model]\nknid = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.5\nr = 0.25\n',

@@ -750,8 +750,11 @@ def _meant(key, *choices: Sequence[str]) -> str | None:
     """The key that `key` may be a misspelling of: the closest in the first of `choices` that has one (audit PP2)."""
     import difflib
 
-    for keys in choices:
-        close = difflib.get_close_matches(key, keys, n=1) if isinstance(key, str) else []
+    if not isinstance(key, str):
+        return None
+    for keys in choices:  # the same letters in another case first (`r` for `R`), never the key itself (review R46)
+        close = [k for k in keys if k.lower() == key.lower()] + difflib.get_close_matches(key, keys, n=2)
+        close = [k for k in close if k != key]
         if close:
             return close[0]
     return None
@@ -803,10 +806,13 @@ def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
             field="[model] B",
         )
     named = [key for key in table if key in _NAMED_KEYS and key != "states"]
-    if named:  # a named model's keys without `kind` (misspelt, say): blame the kind, not them (audit PP2)
+    if named and not any(key in table for key in "FHQR"):
+        # a named model's keys without `kind` (misspelt, say): blame the kind, not them (audit PP2); beside explicit
+        # matrices they are unknown keys, below (review R46: `r` for `R` was blamed on a missing `kind`)
         typos = [f" (`{key}` for `kind`?)" for key in table if key not in _NAMED_KEYS + _EXPLICIT_KEYS
                  and _meant(key, ["kind"])]
-        raise InputFileError(path, f"{', '.join(f'`{key}`' for key in named)} are keys of a named model, which needs "
+        are = "are keys" if len(named) > 1 else "is a key"
+        raise InputFileError(path, f"{', '.join(f'`{key}`' for key in named)} {are} of a named model, which needs "
                              f"`kind` (one of {', '.join(sorted(_KINDS))}){''.join(typos[:1])}; explicit matrices "
                              "are F, H, Q and R.", field="[model]")
     _check_keys(path, "model", table, _EXPLICIT_KEYS,
