@@ -361,6 +361,12 @@ def test_mle_needs_a_learned_full_covariance_positive_definite_on_its_variances(
     with pytest.raises(ValueError, match=r"`Q` must be positive definite on its non-zero variances") as e:
         gf.fit(start, gf.Gaussian([0, 0], np.eye(2)), np.ones((5, 2)), learn=("Q",), method="mle")
     assert "\n" not in str(e.value) and "Q = [[1., 1.], [1., 1.]]" in str(e.value)  # one line (review R45)
+    Q = np.eye(7)
+    Q[3, 4] = Q[4, 3] = 1.0  # review R46: a 7 x 7 Q was elided, its bad entry with it (the rest looked like I)
+    with pytest.raises(ValueError, match=r"`Q` must be positive definite on its non-zero variances") as e:
+        gf.fit(gf.LinearModel(np.eye(7), np.eye(1, 7), Q, 1.0), gf.Gaussian(np.zeros(7), np.eye(7)), np.ones(5),
+               learn=("Q",), method="mle")
+    assert "[0., 0., 0., 1., 1., 0., 0.], [0., 0., 0., 1., 1., 0., 0.]" in str(e.value) and "..." not in str(e.value)
 
 
 def test_learning_needs_time_invariant_matrices_and_a_proper_prior():

@@ -182,8 +182,9 @@ def cholesky(mat: np.ndarray, name: str = "the matrix", resolved: bool = False) 
 
 
 def shown(mat) -> str:
-    """A matrix as an error message shows it: on one line, to 4 digits, elided past 36 entries."""
-    with np.printoptions(precision=4, threshold=36):
+    """A matrix as an error message shows it: on one line, to 4 digits, elided past 144 entries (12 × 12; at 36, a
+    7 × 7 Q's one bad entry was elided from the message that blamed it: review R46)."""
+    with np.printoptions(precision=4, threshold=144):
         return np.array2string(np.asarray(mat), separator=", ").replace("\n", "")
 
 
