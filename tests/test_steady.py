@@ -427,3 +427,18 @@ def test_the_fallback_recursion_at_the_largest_scales_keeps_the_models_message(F
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=match):
             gf.steady_state(gf.LinearModel(F=F, H=H, Q=Q, R=R))
+
+
+def test_the_fallback_recursion_starts_from_a_prior_that_knows_no_component_exactly():
+    """Review R46: the start of the recursion SciPy's failures fall back to (Q + s I since audit KK1) was pinned by
+    no test. A measured component driven only through F (Q = diag(1, 0), R = 0) has a steady state, but from
+    P⁻ = Q its first S is 0, and the recursion blamed the model for having no steady gain. Oracle: the fixed point
+    of the Riccati map, written here in NumPy."""
+    from gaussfuse.steady import _iterated
+
+    F, H, Q = np.array([[0.5, 0.0], [1.0, 0.5]]), np.array([[0.0, 1.0]]), np.diag([1.0, 0.0])
+    P = _iterated(gf.LinearModel(F=F, H=H, Q=Q, R=0.0))
+    S = H @ P @ H.T
+    posterior = P - P @ H.T @ np.linalg.solve(S, H @ P)
+    np.testing.assert_allclose(F @ posterior @ F.T + Q, P, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(P, [[1.25, 0.5], [0.5, 1.0]], rtol=1e-14)  # x2 = x1 + 0.5 x2: var 1 + 0.25
