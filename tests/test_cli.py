@@ -1761,6 +1761,15 @@ def test_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys):
     swapped = gf.filter(timed, gf.Gaussian([0.0, 0.0, 1.0, 0.5], 4.0 * np.eye(4)),
                         np.array([(y, x) for _, x, y in rows]), times=times)  # the y column is the first state
     np.testing.assert_allclose(values[:, 1:5], swapped.means, rtol=1e-12, atol=1e-12)
+    # states renamed px, py, ...: the sensor's own x, y are still its names, as the help says; and the names in
+    # another case (both were read by position, x from the y column, silently: audit SS1)
+    renamed = tmp_path / "renamed.toml"
+    renamed.write_text(XY_TOML.replace("[prior]", 'states = ["px", "py", "vx", "vy"]\n\n[prior]'))
+    (tmp_path / "YX.csv").write_text("t,Y,X\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
+    for name, model_file in (("yx.csv", renamed), ("YX.csv", toml), ("YX.csv", renamed)):
+        code, stdout, err = run(capsys, "filter", tmp_path / name, "--model", model_file)
+        assert (code, err) == (0, ""), err
+        np.testing.assert_allclose(read_csv(stdout)[1][:, 1:5], want.means, rtol=1e-12, atol=1e-12)
     (tmp_path / "yz.csv").write_text("t,y,z\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
     code, stdout, err = run(capsys, "filter", tmp_path / "yz.csv", "--model", toml)
     assert code == 2 and stdout == ""

@@ -38,7 +38,7 @@ from .inference import FilterResult, SmoothResult
 from .inference import streaming, timing
 from .inference.drivers import ENGINES
 from .inference.frames import measurement_names
-from .models import LinearModel, constant_velocity
+from .models import LinearModel, TimedModel, constant_velocity
 
 __all__ = ["main", "build_parser", "textbook_example", "tracking_demo", "TrackingDemo"]
 
@@ -54,8 +54,8 @@ each becomes seconds since the file's first time, rounded once: a step is
 exact to about 1e-16 of that time, 4 ns a year in); every other column (or
 those named by --columns), in order, is one measurement component (as many
 as the model's m); for a named model, columns named as the states it
-measures (x, y, or its `states` names for them) are taken by name, in any
-order. An empty cell or NaN is a missing component.
+measures (x, y, or its `states` names for them, in any case) are taken
+by name, in any order. An empty cell or NaN is a missing component.
 
 MODEL.toml: explicit matrices
     [model]
@@ -1020,10 +1020,14 @@ def _column_options(command: argparse.ArgumentParser) -> None:
                          help="the measurement columns, in order (default: every other column)")
 
 
-def _sensed(spec: gfio.ModelFile) -> list[str] | None:
-    """A named model's measurement names, by which a file's columns are matched; None for matrices."""
-    names = measurement_names(spec.timed)  # (None for explicit matrices, whose spec.timed is None)
-    return None if names is None else list(names)
+def _sensed(spec: gfio.ModelFile) -> list[list[str]] | None:
+    """A named model's measurement names by which a file's columns are matched, alternatives in turn: those of its
+    `states`, then its sensor's own (x, y), as the help says (audit SS1: a model with `states` read a file's x, y
+    by position); None for matrices."""
+    if spec.timed is None:
+        return None
+    own = TimedModel(spec.timed.motion, spec.timed.sensor)
+    return [list(names) for names in {measurement_names(spec.timed): 0, measurement_names(own): 0} if names]
 
 
 def _columns(args: argparse.Namespace) -> list[str] | None:

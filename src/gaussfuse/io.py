@@ -227,13 +227,14 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
     columns : sequence of str, optional
         The measurement columns, in this order (default: every other one,
         each of which must have a name); the others are not read.
-    names : sequence of str, optional
+    names : sequence of str, or a sequence of such sequences, optional
         The model's measurement names (a named model's: the names of the
         states its sensor reads), for the
         default `columns`: a file whose measurement columns are these names
-        in another order is read in the model's order, as
+        in another order, in any case, is read in the model's order, as
         :func:`gaussfuse.filter` takes such a DataFrame; one that names some
         of them and not others is refused (it would be read by position).
+        Several lists are alternatives, tried in turn.
 
     Returns
     -------
@@ -493,6 +494,26 @@ def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
         yield from lines
 
 
+def _in_model_order(given: list[str], named) -> list[int] | None:
+    """Where the measurement columns `given` are the model's measurement names in another order, the position of
+    each name among them; None where they are taken in order (see :func:`gaussfuse.inference.frames.by_name`).
+
+    `named` is one list of names or several, alternatives tried in turn (a renamed model's `states`, then its
+    sensor's own x, y), each as written, then in any case: the help promises either, and audit SS1 found both
+    read by position, silently (x filtered from a column named y)."""
+    if not named:
+        return None
+    for names in [named] if isinstance(named[0], str) else named:
+        if len(given) != len(names):
+            continue  # (a count other than the model's is named by the caller)
+        for fold in (lambda name: name, str.casefold):
+            columns, wanted = [fold(c) for c in given], [fold(n) for n in names]
+            if len(set(wanted)) == len(wanted) and set(columns) & set(wanted):
+                return by_name(columns, wanted, f"the measurement columns {given} name some of",
+                               "choose the columns with --columns")
+    return None
+
+
 def _check_header(path, header: list[str] | None) -> None:
     """A file without a header (empty, or a blank first line) is refused as such ("found columns []" said nothing
     of why: audit Y3; the panel reader's "line 2: expected 0 cells": review R11)."""
@@ -545,12 +566,8 @@ def _measurement_columns(path, header: list[str], time_col: int, columns, named=
             raise InputFileError(path, f"the header's column {unnamed[0]} has no name; found columns {header} (choose "
                                  "the measurement columns with --columns).", line=1)
         others = [i for i in range(len(header)) if i != time_col]
-        given = [header[i] for i in others]
-        if named is None or len(given) != len(named):
-            return others  # (a count other than the model's is named by the caller)
         try:  # as gaussfuse.filter takes a DataFrame's (audit EE2)
-            order = by_name(given, named, f"the measurement columns {given} name some of",
-                            "choose the columns with --columns")
+            order = _in_model_order([header[i] for i in others], named)
         except ValueError as exc:
             raise InputFileError(path, str(exc), line=1) from None
         return others if order is None else [others[i] for i in order]
