@@ -605,3 +605,33 @@ def test_stacked_names_that_join_to_one_name_are_refused_naming_the_sensors(firs
     sensors = {"a.b": first, "a": gf.LinearSensor([[0.0, 1.0, 0.0, 0.0]], 1.0, names=["b.bearing"])}
     with pytest.raises(ValueError, match=r"`sensors` join to the name 'a\.b\.bearing' twice"):
         gf.stack_sensors(sensors, gf.ConstantVelocity(dim=2))
+
+
+def test_a_users_sensor_without_r_or_with_an_r_of_another_size_is_named():
+    """Audit TT5: a NonlinearSensor subclass without R raised a bare AttributeError in model(); one with m = 3 and
+    a 2 x 2 R was stacked as 5 components over a 4 x 4 R, and the filter failed later on h's shape."""
+    from gaussfuse.models.sensors import NonlinearSensor
+
+    class NoR(NonlinearSensor):
+        __slots__ = ()
+        m, names = 2, ("a", "b")
+
+        def h(self, x):
+            return np.zeros(np.shape(x)[:-1] + (2,))
+
+        def jacobian(self, x):
+            return np.zeros((2, np.shape(x)[-1]))
+
+    class WrongM(NoR):
+        __slots__ = ()
+        m, R = 3, np.eye(2)
+
+    turn = gf.CoordinatedTurn()
+    with pytest.raises(TypeError, match=r"^`sensor` must give its measurement size `m` and noise covariance `R`, "
+                                        r"of shape \(m, m\), as a NonlinearSensor does; NoR has no `R`\.$"):
+        gf.model(turn, NoR(), 1.0)
+    message = r"^`sensors\['w'\]` has m = 3 components but its `R` has shape \(2, 2\); it must be \(3, 3\)\.$"
+    with pytest.raises(ValueError, match=message):
+        gf.stack_sensors({"w": WrongM(), "p": gf.Position(2)}, turn)
+    with pytest.raises(ValueError, match=message.replace(r"`sensors\['w'\]`", "`sensor`")):
+        gf.model(turn, WrongM(), 1.0)

@@ -190,3 +190,14 @@ def test_wrong_output_size_names_the_noise_that_fixes_it():
     with pytest.raises(ModelFunctionError, match=r"^at step 0: `h_jacobian` must return shape \(1, 2\) for an input of "
                                                  r"shape \(2,\), because `R` is 1 × 1 and `Q` is 2 × 2; got shape \(2, 2\)"):
         gf.filter(fine, gf.Gaussian([0.0, 0.0], np.eye(2)), [1.0], method="ekf")
+
+
+@pytest.mark.parametrize("Q, R, match", [
+    ([1.0, 2.0], 1.0, r"^`Q` must have shape \(n, n\) or, time-varying, \(T, n, n\); got shape \(2,\)"),
+    (np.eye(2), [1.0, 2.0], r"^`R` must have shape \(m, m\) or, time-varying, \(T, m, m\); got shape \(2,\)"),
+    (np.zeros((0, 0)), 1.0, r"^`Q` must have shape \(n, n\)"),
+])
+def test_a_noise_of_the_wrong_shape_is_named_with_its_own_shape(Q, R, match):
+    """Audit TT3: Q's and R's shape errors said (m, n), the default of a measurement matrix."""
+    with pytest.raises(ValueError, match=match):
+        gf.NonlinearModel(f, h, Q, R)

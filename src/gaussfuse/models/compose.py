@@ -352,6 +352,15 @@ def _check_fit(motion, sensor, n: int, label: str = "`sensor`") -> None:
         for name, inner in sensor.sensors:
             _check_fit(motion, inner, n, f"{label}[{name!r}]")
         return
+    if isinstance(sensor, NonlinearSensor):  # a user's own, whose R and m its class sets (audit TT5)
+        R, m = getattr(sensor, "R", None), getattr(sensor, "m", None)
+        if R is None or m is None:
+            raise TypeError(f"{label} must give its measurement size `m` and noise covariance `R`, of shape (m, m), "
+                            f"as a NonlinearSensor does; {type(sensor).__name__} has no "
+                            f"{'`R`' if R is None else '`m`'}.")
+        if np.shape(R) != (m, m):
+            raise ValueError(f"{label} has m = {m} components but its `R` has shape {np.shape(R)}; it must be "
+                             f"({m}, {m}).")
     if isinstance(sensor, LinearSensor) and sensor.H is not None and sensor.H.shape[1] != n:
         raise ValueError(
             f"{label} has `H` of shape {sensor.H.shape}, which does not fit the state of `motion` "

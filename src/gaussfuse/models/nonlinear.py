@@ -120,10 +120,10 @@ class NonlinearModel(Frozen):
                                    ("h_jacobian", h_jacobian, False)):
             if (fn is not None or required) and not callable(fn):
                 raise TypeError(f"`{name}` must be callable; got {type(fn).__name__}.")
-        Q = as_matrix("Q", Q, None, None)
+        Q = as_matrix("Q", Q, None, None, row_name="n")  # ((m, n) it said: audit TT3)
         if Q.shape[-1] != Q.shape[-2]:
             raise ValueError(f"`Q` must be square, of shape (n, n) or (T, n, n); got shape {Q.shape}.")
-        R = as_matrix("R", R, None, None)
+        R = as_matrix("R", R, None, None, col_name="m")
         if R.shape[-1] != R.shape[-2]:
             raise ValueError(f"`R` must be square, of shape (m, m) or (T, m, m); got shape {R.shape}.")
         Q, R = check_psd("Q", Q), check_psd("R", R)
