@@ -556,3 +556,26 @@ def test_a_belief_the_filter_computed_is_taken_back_as_it_is():
     for copied in (pickle.loads(pickle.dumps(kf.belief)), pickle.loads(pickle.dumps(kf.belief, 0))):
         np.testing.assert_array_equal(copied.cov, kf.belief.cov)
         assert isinstance(copied, gf.Gaussian) and not copied.cov.flags.writeable
+
+
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_a_zero_variance_with_round_off_covariances_is_fused_and_factored(engine):
+    """Audit VV1: an exact measurement (R = 0) of x0 leaves P - K H P with a variance of 0 and covariances of
+    round-off (-2.8e-17), which a Gaussian accepts; fuse refused it, blaming a direction both beliefs were certain
+    in (a.cov + I has eigenvalues of at least 1), and so did the square-root filter as a prior or a Q: the factor's
+    check divided the round-off by the zero variance. Oracle: the Kalman form C (C + I)⁻¹, C + I well conditioned."""
+    C = np.array([[0.0, -2.7755575615628914e-17, 0.0],
+                  [-2.7755575615628914e-17, 5.9757194235480018, 1.6996817095609580],
+                  [0.0, 1.6996817095609580, 1.9261427498120187]])
+    fused = gf.fuse(gf.Gaussian(np.zeros(3), C), gf.Gaussian(np.ones(3), np.eye(3)))
+    K = np.linalg.solve((C + np.eye(3)).T, C.T).T
+    np.testing.assert_allclose(fused.mean, K @ np.ones(3), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(fused.cov, C - K @ C, rtol=0, atol=1e-15)
+    L = gf.kalman.cov_factor(C)
+    np.testing.assert_allclose(L @ L.T, C, rtol=0, atol=1e-14)  # (round-off of entries of 6)
+    zs = np.array([1.0, 2.0, 0.5, 1.5])
+    for model, prior in ((gf.LinearModel(np.eye(3), [1, 0, 0], np.eye(3), 1.0), gf.Gaussian(np.zeros(3), C)),
+                         (gf.LinearModel(np.eye(3), [1, 0, 0], C, 1.0), gf.Gaussian(np.zeros(3), np.eye(3)))):
+        sqrt, cov = (gf.filter(model, prior, zs, form=form, engine=engine) for form in ("sqrt", "cov"))
+        np.testing.assert_allclose(sqrt.means, cov.means, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(sqrt.covs, cov.covs, rtol=0, atol=1e-13)

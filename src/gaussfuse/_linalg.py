@@ -48,7 +48,7 @@ def symmetrize(cov: np.ndarray) -> np.ndarray:
     return half + half.swapaxes(-1, -2)
 
 
-def clip_variances(cov: np.ndarray, magnitude) -> np.ndarray:
+def clip_variances(cov: np.ndarray, magnitude, zero: bool = False) -> np.ndarray:
     """`cov` (..., n, n) with the row and column of each variance that is zero to round-off, but below 0, set to 0.
 
     `cov` is a sum of congruences, ``A X Aᵀ + Y`` (the prediction, both
@@ -64,14 +64,17 @@ def clip_variances(cov: np.ndarray, magnitude) -> np.ndarray:
     result was refused as a prior, by ``forecast`` and by
     ``sample_posterior``. A variance further below 0 than its own terms'
     round-off (a sigma-point rule's negative weight) is kept, for the checks
-    that name it. `magnitude` is called only where a variance is negative.
+    that name it. `magnitude` is called only where a variance is negative
+    (with `zero`, also where one is 0: its covariances of round-off are
+    then set to 0 too).
     """
     d = np.diagonal(cov, axis1=-2, axis2=-1)
-    if (d >= 0.0).all() or not np.isfinite(cov).all():  # an overflow is not hidden
+    low = d <= 0.0 if zero else d < 0.0
+    if not low.any() or not np.isfinite(cov).all():  # an overflow is not hidden
         return cov
     root = np.sqrt(magnitude())
     quiet = (np.abs(cov) <= 16 * d.shape[-1] * _EPS * root[..., :, None] * root[..., None, :]).all(axis=-1)
-    keep = ~((d < 0.0) & quiet)
+    keep = ~(low & quiet)
     if keep.all():
         return cov
     return np.where(keep[..., :, None] & keep[..., None, :], cov, 0.0)

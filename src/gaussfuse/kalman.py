@@ -735,8 +735,10 @@ def cov_factor(cov: np.ndarray, name: str = "the covariance") -> np.ndarray:
     # A variance below 0 within round-off of the largest entry t, whose covariances are within round-off of t and
     # the other component's variance, is 0, as check_psd accepts it: clip_variances' bound 16 n ε √(t_i t_j) on
     # halves of t (that row) and of |c_ii| (the others) is check_psd's 8 n ε √(t |c_ii|)
+    # A variance of exactly 0 is taken so too, with covariances of round-off (-2.8e-17, as an exact measurement
+    # leaves them: audit VV1), which a Gaussian accepts and the factor's check then divided by 0.
     diag = np.diagonal(cov)
-    cov = clip_variances(cov, lambda: 0.5 * np.where(diag < 0.0, np.max(np.abs(cov)), np.abs(diag)))
+    cov = clip_variances(cov, lambda: 0.5 * np.where(diag <= 0.0, np.max(np.abs(cov)), np.abs(diag)), zero=True)
     try:
         L = sqrt_cov(cov)[0]
         failure = f"{name} is not symmetric positive semi-definite on the scale of its components: no factor L " \
