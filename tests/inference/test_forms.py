@@ -138,7 +138,9 @@ def test_the_compiled_covariance_form_is_as_accurate_as_the_readable_one_below_b
     (the readable path and BLAS average both). Under a prior 1e12 times the sensor's, n = 14 and 15 then raised
     "S is not positive definite" in 3 of 6 cases where the readable path returned, and were 14 to 27 times
     further from 50 digits elsewhere. Both are inexact here (the covariance form under a huge prior, see
-    docs/accuracy.md); the compiled one must be as good, within a factor of 3."""
+    docs/accuracy.md), each by its own round-off: over these six cases the compiled error is 0.53 to 4.1 times the
+    readable one under NumPy 2.4's OpenBLAS 0.3.31 (errors 0.003 to 0.098 on both), 0.5 to 3 under the one before.
+    The compiled one must be as good to within the factor of 6 that separates that spread from the defect's 14."""
     rng = np.random.default_rng(seed)
     U, _ = np.linalg.qr(rng.standard_normal((n, n)))
     P0 = 1e12 * (U * np.logspace(0, 1, n)) @ U.T
@@ -154,7 +156,7 @@ def test_the_compiled_covariance_form_is_as_accurate_as_the_readable_one_below_b
     for engine in ("python", "numba"):
         got = gf.filter(gf.LinearModel(F, H, Q, R), gf.Gaussian(np.zeros(n), P0), zs, engine=engine, check="off")
         errors[engine] = np.max(np.abs(got.covs - ref) / (sd[:, :, None] * sd[:, None, :]))
-    assert errors["numba"] < 3 * errors["python"] + 1e-12, errors
+    assert errors["numba"] < 6 * errors["python"] + 1e-12, errors
 
 
 COPY_F = np.array([[1.0, 0.5, 0.0], [0.0, 0.9, 0.0], [1.0, 0.5, 0.0]])  # x2 copies x0 after every step
@@ -1159,16 +1161,17 @@ def test_a_singular_prediction_keeps_the_states_on_small_scales(engine):
 
 
 @pytest.mark.parametrize("engine", ["python", "numba"])
-def test_the_square_root_smoothers_residue_without_process_noise_is_as_documented(engine):
-    """docs/accuracy.md (audit OO2): with Q = 0 the backward step's conditional covariance is exactly 0, and the
-    square-root array keeps eps times the prior's standard deviation there. A constant velocity measured from its
-    second step under a prior 1e30 I: step 0's smoothed variances 2.5% off; at 1e12 they are exact to 1e-12.
-    Oracle: x_k = F^(k+1) x_0 exactly, so the smoothed covariance is F^(k+1) C F^(k+1)ᵀ with C the posterior of
-    x_0 from the four measurements (least squares, the prior's information below round-off)."""
+def test_the_square_root_smoother_without_process_noise_is_exact_under_any_prior(engine):
+    """Audit OO2 documented a residue: with Q = 0 the backward step's conditional covariance is exactly 0, and the
+    square-root array kept eps times the prior's standard deviation there, step 0's smoothed variances 2.5% off
+    under a prior 1e30 I (3.5 times the answer at 1e32). It came from the zero factor of Q leading the joint array,
+    whose first reflection LAPACK scales by a reciprocal; tria puts zero columns last now, and they are exact to
+    round-off at every prior. Oracle: x_k = F^(k+1) x_0 exactly, so the smoothed covariance is F^(k+1) C F^(k+1)ᵀ
+    with C the posterior of x_0 from the four measurements (least squares, the prior's information below round-off)."""
     F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
     zs = np.array([np.nan, 3.0, 4.0, 5.0, 6.0])
     rows = np.array([(H @ np.linalg.matrix_power(F, k + 1))[0] for k in range(1, 5)])
-    for prior, low, high in ((1e30, 1e-3, 0.1), (1e12, 0.0, 1e-12)):
+    for prior in (1e12, 1e30, 1e32, 1e100, 1e300):
         C = np.linalg.inv(rows.T @ rows + np.eye(2) / prior)
         want = np.diag(F @ C @ F.T)
         with warnings.catch_warnings():
@@ -1176,4 +1179,4 @@ def test_the_square_root_smoothers_residue_without_process_noise_is_as_documente
             got = gf.smooth(gf.LinearModel(F, H, np.zeros((2, 2)), np.eye(1)), gf.Gaussian([0.0, 0.0], prior * np.eye(2)),
                             zs, form="sqrt", engine=engine, check="off")
         error = np.max(np.abs(np.diag(got.covs[0]) - want) / want)
-        assert low <= error <= high, (prior, error)
+        assert error <= 1e-14, (prior, error)

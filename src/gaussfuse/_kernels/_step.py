@@ -364,8 +364,8 @@ def tria(M, rows, cols, u, L):
     :math:`M^\top` that LAPACK's ``geqrf`` computes); its first ``rows``
     columns are L, with each column's sign made that of a non-negative
     diagonal. The nonzero columns are first put in decreasing order of the
-    binary exponent of their largest entry, stably, zero columns staying in
-    place, as the readable tria does. ``u`` (length ``cols``) holds those
+    binary exponent of their largest entry, stably, zero columns last, as
+    the readable tria does. ``u`` (length ``cols``) holds those
     exponents, then a reflection's vector.
     """
     for j in range(cols):
@@ -373,20 +373,13 @@ def tria(M, rows, cols, u, L):
         for r in range(rows):
             big = max(big, abs(M[r, j]))
         u[j] = math.frexp(big)[1] if big > 0.0 else _ZERO_COLUMN
-    for j in range(1, cols):  # insertion sort of the nonzero columns, by swaps: stable, zero columns stay put
-        if u[j] == _ZERO_COLUMN:
-            continue
+    for j in range(1, cols):  # insertion sort by swaps, stable: decreasing exponents, zero columns last
         k = j
-        while True:
-            prev = k - 1
-            while prev >= 0 and u[prev] == _ZERO_COLUMN:
-                prev -= 1
-            if prev < 0 or not u[prev] < u[k]:
-                break
-            u[prev], u[k] = u[k], u[prev]
+        while k > 0 and u[k - 1] < u[k]:
+            u[k - 1], u[k] = u[k], u[k - 1]
             for r in range(rows):
-                M[r, prev], M[r, k] = M[r, k], M[r, prev]
-            k = prev
+                M[r, k - 1], M[r, k] = M[r, k], M[r, k - 1]
+            k -= 1
     for i in range(rows):
         if i < cols:
             scale = 0.0
