@@ -1766,10 +1766,21 @@ def test_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys):
     renamed = tmp_path / "renamed.toml"
     renamed.write_text(XY_TOML.replace("[prior]", 'states = ["px", "py", "vx", "vy"]\n\n[prior]'))
     (tmp_path / "YX.csv").write_text("t,Y,X\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
-    for name, model_file in (("yx.csv", renamed), ("YX.csv", toml), ("YX.csv", renamed)):
+    (tmp_path / "Yx.csv").write_text("t,Y,x\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))  # (review R47)
+    for name, model_file in (("yx.csv", renamed), ("YX.csv", toml), ("YX.csv", renamed), ("Yx.csv", toml)):
         code, stdout, err = run(capsys, "filter", tmp_path / name, "--model", model_file)
         assert (code, err) == (0, ""), err
         np.testing.assert_allclose(read_csv(stdout)[1][:, 1:5], want.means, rtol=1e-12, atol=1e-12)
+    # and a table of series (review R47: --series-column still read a renamed model's x, y by position)
+    (tmp_path / "ids.csv").write_text("id,t,y,x\n" + "".join(f"a,{t},{y},{x}\n" for t, x, y in rows))
+    code, _, err = run(capsys, "filter", tmp_path / "ids.csv", "--model", renamed, "--series-column", "id", "--out",
+                       tmp_path / "out")
+    assert code == 0, err
+    written = list((tmp_path / "out").iterdir())
+    assert len(written) == 1, written
+    header, values = read_csv(written[0].read_text().replace("\na,", "\n0,"))
+    assert header[:4] == ["id", "t", "px", "py"]
+    np.testing.assert_allclose(values[:, 2:6], want.means, rtol=1e-12, atol=1e-12)
     (tmp_path / "yz.csv").write_text("t,y,z\n" + "".join(f"{t},{y},{x}\n" for t, x, y in rows))
     code, stdout, err = run(capsys, "filter", tmp_path / "yz.csv", "--model", toml)
     assert code == 2 and stdout == ""

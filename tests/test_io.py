@@ -295,6 +295,8 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         (EXPLICIT + "dt = 1\n", r"\[model\]: unknown key\(s\) \['dt'\]; valid keys are F, H, Q, R, states \(explicit "
                                 r"matrices\), or kind, dim, dt, q, r, states \(a named model\)\.$"),
         ('[model]\ndt = 1\n', r"\[model\]: `dt` is a key of a named model, which needs `kind`"),
+        ('[model]\ndim = 1\ndt = 1\nq = 1\nR = 1\n', r"\[model\]: `dim`, `dt`, `q` are keys of a named model, which "
+                                                    r"needs `kind`"),
         # misspelt keys: the one meant is offered, and a misspelt `kind` does not make the named model's keys unknown
         # (audit PP2)
         ('[model]\nknid = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.5\nr = 0.25\n',

@@ -37,8 +37,7 @@ from .gaussian import Gaussian
 from .inference import FilterResult, SmoothResult
 from .inference import streaming, timing
 from .inference.drivers import ENGINES
-from .inference.frames import measurement_names
-from .models import LinearModel, TimedModel, constant_velocity
+from .models import LinearModel, constant_velocity
 
 __all__ = ["main", "build_parser", "textbook_example", "tracking_demo", "TrackingDemo"]
 
@@ -274,7 +273,7 @@ def _run_filter(args: argparse.Namespace) -> int:
     columns = _columns(args)
     if args.series_column is not None:
         return _run_many(args, spec, columns)
-    read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns, "names": _sensed(spec)}
+    read = {"m": spec.model.m, "time_column": args.time_column, "columns": columns, "names": spec.sensed()}
     if (args.smooth and isinstance(spec.prior, str)) or spec.model.steps is not None:
         # A diffuse prior is smoothed whole; matrices given per step are for the whole file, which they already
         # hold in memory step by step.
@@ -769,7 +768,7 @@ def _run_fit(args: argparse.Namespace) -> int:
     learning.check_learn(spec.model, spec.prior, learn, structure)  # before any data are read (audit Y5)
     if args.series_column is None:
         data = gfio.read_measurements(args.data, m=spec.model.m, time_column=args.time_column, columns=columns,
-                                      names=_sensed(spec))
+                                      names=spec.sensed())
         T = data.times.shape[0]
         grid = timing.steps("times", data.times, T - 1) if T > 1 else None  # the T - 1 steps between the rows
         return _fit_and_write(args, _stepped(spec, grid), learn, structure, data.zs)
@@ -816,7 +815,7 @@ def _pooled(args: argparse.Namespace, spec: gfio.ModelFile, columns, parts: list
     import dask.array as da
 
     read = dict(series_column=args.series_column, m=spec.model.m, time_column=args.time_column, columns=columns,
-                names=_sensed(spec))
+                names=spec.sensed())
     shapes = client.gather([client.submit(panels.partition_shape, part, **read, pure=False) for part in parts])
     seen: dict = {}
     for part, (ids, _, _) in zip(parts, shapes):
@@ -1018,16 +1017,6 @@ def _column_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--time-column", metavar="NAME", type=_given, help="the time column (default: the one named t or time)")
     command.add_argument("--columns", metavar="A,B,...", type=_given,
                          help="the measurement columns, in order (default: every other column)")
-
-
-def _sensed(spec: gfio.ModelFile) -> list[list[str]] | None:
-    """A named model's measurement names by which a file's columns are matched, alternatives in turn: those of its
-    `states`, then its sensor's own (x, y), as the help says (audit SS1: a model with `states` read a file's x, y
-    by position); None for matrices."""
-    if spec.timed is None:
-        return None
-    own = TimedModel(spec.timed.motion, spec.timed.sensor)
-    return [list(names) for names in {measurement_names(spec.timed): 0, measurement_names(own): 0} if names]
 
 
 def _columns(args: argparse.Namespace) -> list[str] | None:

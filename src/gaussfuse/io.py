@@ -96,7 +96,7 @@ import numpy as np
 from ._linalg import marginal_std
 from ._validation import as_array, as_vector, integer, real, shape_error
 from .gaussian import Gaussian
-from .inference.frames import by_name
+from .inference.frames import by_name, measurement_names
 from .inference.validation import check_prior
 from .models._base import check_names
 from .models.linear import LinearModel
@@ -231,10 +231,11 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         The model's measurement names (a named model's: the names of the
         states its sensor reads), for the
         default `columns`: a file whose measurement columns are these names
-        in another order, in any case, is read in the model's order, as
-        :func:`gaussfuse.filter` takes such a DataFrame; one that names some
-        of them and not others is refused (it would be read by position).
-        Several lists are alternatives, tried in turn.
+        in another order, in any case, is read in the model's order (as
+        :func:`gaussfuse.filter` takes a DataFrame whose columns are the
+        names as written); one that names some of them and not others is
+        refused (it would be read by position). Several lists are
+        alternatives, the first that all the columns name taken.
 
     Returns
     -------
@@ -498,19 +499,28 @@ def _in_model_order(given: list[str], named) -> list[int] | None:
     """Where the measurement columns `given` are the model's measurement names in another order, the position of
     each name among them; None where they are taken in order (see :func:`gaussfuse.inference.frames.by_name`).
 
-    `named` is one list of names or several, alternatives tried in turn (a renamed model's `states`, then its
-    sensor's own x, y), each as written, then in any case: the help promises either, and audit SS1 found both
-    read by position, silently (x filtered from a column named y)."""
+    `named` is one list of names or several, alternatives (a renamed model's `states`, then its sensor's own x,
+    y), each as written, then in any case: the help promises either, and audit SS1 found both read by position,
+    silently (x filtered from a column named y). The first that all the columns name is taken; where none does,
+    one that some name and others do not is refused (review R47: `t,Y,x` was refused on the exact names before
+    the case-blind pass)."""
     if not named:
         return None
+    refused = None
     for names in [named] if isinstance(named[0], str) else named:
         if len(given) != len(names):
             continue  # (a count other than the model's is named by the caller)
         for fold in (lambda name: name, str.casefold):
             columns, wanted = [fold(c) for c in given], [fold(n) for n in names]
-            if len(set(wanted)) == len(wanted) and set(columns) & set(wanted):
+            if len(set(wanted)) < len(wanted) or not set(columns) & set(wanted):
+                continue
+            try:
                 return by_name(columns, wanted, f"the measurement columns {given} name some of",
                                "choose the columns with --columns")
+            except ValueError as exc:
+                refused = refused or exc
+    if refused is not None:
+        raise refused
     return None
 
 
@@ -688,6 +698,24 @@ class ModelFile(NamedTuple):
     state_names: list[str]
     timed: TimedModel | None = None
 
+    def sensed(self) -> list[list[str]] | None:
+        """The names by which a data file's measurement columns are matched (see :func:`read_measurements`).
+
+        Returns
+        -------
+        list of list of str, or None
+            For a named model, the names of the states its sensor reads as
+            its `states` give them, then as the sensor's own (x, y), where
+            they differ: alternatives, the first that a file's columns all
+            name taken (audit SS1: a model with `states` read a file's x, y
+            by position). None for explicit matrices.
+        """
+        if self.timed is None:
+            return None
+        own = TimedModel(self.timed.motion, self.timed.sensor)
+        return [list(names) for names in dict.fromkeys([measurement_names(self.timed), measurement_names(own)])
+                if names]
+
 
 def read_model(path: StrPath) -> ModelFile:
     """Read a model TOML file (see the module docstring for the format).
@@ -823,9 +851,10 @@ def _explicit_model(path, table: dict) -> tuple[LinearModel, list[str]]:
             field="[model] B",
         )
     named = [key for key in table if key in _NAMED_KEYS and key != "states"]
-    if named and not any(key in table for key in "FHQR"):
-        # a named model's keys without `kind` (misspelt, say): blame the kind, not them (audit PP2); beside explicit
-        # matrices they are unknown keys, below (review R46: `r` for `R` was blamed on a missing `kind`)
+    if named and len(named) >= sum(key in table for key in "FHQR"):
+        # a named model's keys without `kind` (misspelt, say): blame the kind, not them (audit PP2); beside as many
+        # explicit matrices or more they are unknown keys, below (review R46: `r` for `R` was blamed on a missing
+        # `kind`; review R47: dim, dt, q beside R are a named model's)
         typos = [f" (`{key}` for `kind`?)" for key in table if key not in _NAMED_KEYS + _EXPLICIT_KEYS
                  and _meant(key, ["kind"])]
         are = "are keys" if len(named) > 1 else "is a key"

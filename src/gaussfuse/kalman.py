@@ -50,9 +50,7 @@ _S_WHY = ("(S is singular to round-off where a component measured without noise,
           "H P Hᵀ, meets a state already known exactly, or another such component measuring the same: give R a "
           "variance above round-off.)")
 _S_NEGATIVE = ("(S is indefinite: it has a negative variance, or an eigenvalue below round-off on its components' "
-               "scales, which positive semi-definite P and R cannot give, save by round-off where a component "
-               "measured without noise, R = 0, meets a state already known exactly: then give R a variance above "
-               "round-off.)")
+               "scales, which positive semi-definite P and R cannot give.)")
 
 
 def _innovation_error(message: str, S: np.ndarray) -> np.linalg.LinAlgError:

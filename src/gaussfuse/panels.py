@@ -34,7 +34,6 @@ import numpy as np
 from . import diagnostics, inference
 from ._linalg import marginal_std
 from .errors import DivergenceWarning, average_text
-from .inference.frames import measurement_names
 from .inference.timing import Steps, per_second, round_off, since
 from .io import (InputFileError, ModelFile, TIME_COLUMNS, estimate_columns, open_atomic, _check_header,
                  _check_separator, _float, _measurement_columns, _parse_time, _time_column, _undecodable,
@@ -448,9 +447,7 @@ def filter_partition(path: str, out: str, spec: ModelFile, series_column: str, *
         (:func:`gaussfuse.diagnostics.divergence`), to show where the
         command runs; with ``check="raise"`` the first is raised instead.
     """
-    sensed = measurement_names(spec.timed)  # (columns matched by them: io; None for explicit matrices)
-    part = read_partition(path, series_column, spec.model.m, time_column, columns,
-                          None if sensed is None else list(sensed))
+    part = read_partition(path, series_column, spec.model.m, time_column, columns, spec.sensed())  # (review R47)
     try:  # refused before the work, if ambiguous
         estimate_columns(part.frame.columns[1], spec.state_names, part.frame.columns[0])
     except ValueError as exc:

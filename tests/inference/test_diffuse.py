@@ -147,12 +147,32 @@ def test_a_noisy_first_measurement_does_not_set_the_scale_of_the_runs():
     np.testing.assert_allclose(res.covs, covs, rtol=0, atol=1e-14 * np.abs(covs).max())
 
 
+@pytest.mark.parametrize("engine", ["python", "numba"])
+def test_a_noisy_first_measurement_without_process_noise_is_weighted_least_squares(engine):
+    """Review R47: without process noise the widening still took R_1's variance, 1e16, and the smoothed level
+    variance at step 0 was 4.9e-16 (compiled) for 0.714. Oracle: with Q = 0, x_k = F^k x_1 and x_1 given z is the
+    weighted least-squares fit under a flat prior."""
+    T = 8
+    z = np.random.default_rng(5).normal(size=T).cumsum()
+    F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    R = np.ones((T, 1, 1))
+    R[0] = 1e16
+    A = np.array([(H @ np.linalg.matrix_power(F, k))[0] for k in range(T)])
+    C = np.linalg.inv((A.T / R[:, 0, 0]) @ A)
+    x1 = C @ ((A.T / R[:, 0, 0]) @ z)
+    res = gf.smooth(gf.LinearModel(F, H, np.zeros((2, 2)), R), "diffuse", z, engine=engine)
+    powers = [np.linalg.matrix_power(F, k) for k in range(T)]
+    np.testing.assert_allclose(res.means, [P @ x1 for P in powers], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(res.covs, [P @ C @ P.T for P in powers], rtol=1e-12, atol=1e-14)
+
+
 @pytest.mark.parametrize("Q, R", [(np.diag([1.0, 0.1]), 1.0), (np.diag([0.0, 0.1]), 0.0)], ids=["noisy", "exact"])
 def test_smoother_gains_give_the_lag_one_covariances(Q, R):
     """Audit SS2-1: the gains were the augmentation's base run's (x_1 ~ N(·, P_*) given δ), not the model's, so
     ``G_k P^s_{k+1}``, the lag-one covariance the result documents, was 0.125 off at k = 0 and 0.005 at k = 6.
     Oracle: dense joint-Gaussian conditioning in 200 digits with x_1 ~ N(0, 1e40 I); the first gains are before
-    the slope is identified (k = 0), the second model's sensor is exact."""
+    the slope is identified (k = 0). The second model's sensor is exact, where the base run's gains happen to be
+    the model's (review R47: that case passed before the fix); it holds the formula's singular solves."""
     T = 8
     zs = np.random.default_rng(4).normal(size=T).cumsum()
     F = np.array([[1.0, 1.0], [0.0, 1.0]])

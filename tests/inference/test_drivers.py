@@ -768,16 +768,3 @@ def test_an_innovation_covariance_a_negative_weight_made_indefinite_names_the_we
                       engine=engine)
         assert "negatively" not in str(info.value) and "indefinite" not in str(info.value)
         assert "S is singular to round-off where" in str(info.value) and "R = 0" in str(info.value)
-
-
-@pytest.mark.parametrize("engine", ["python", "numba"])
-def test_a_round_off_negative_s_of_an_exact_sensor_names_its_way_out(engine):
-    """Audit SS1: a constant velocity without noise (q = 0, r = 0) measured exactly on a line knows its state after
-    two steps; the third S is -6.5e-34, round-off of 0, and the message said only that positive semi-definite P and
-    R cannot give a negative variance. It names the exact sensor and the way out now (docs/accuracy.md: which step
-    raises is round-off's doing)."""
-    t = np.arange(1, 21) * 0.5
-    with pytest.raises(np.linalg.LinAlgError, match=r"^at step 3: .*S is indefinite.*save by round-off where a "
-                                                    r"component measured without noise, R = 0, meets a state "
-                                                    r"already known exactly: then give R a variance above round-off"):
-        gf.filter(gf.constant_velocity(0.5, 0.0, 0.0), gf.Gaussian([0, 0], np.eye(2)), 1 + 2 * t, engine=engine)

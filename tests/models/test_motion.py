@@ -827,9 +827,12 @@ def test_singer_at_the_fastest_rates_it_takes_is_its_closed_form(tau, sigma):
         np.testing.assert_allclose(Q, _singer_q_1500_digits(tau, sigma, dt), rtol=1e-13, atol=0)
     with pytest.raises(ValueError, match=r"^sigma \* tau must be at least 1e-150, or sigma 0"):
         gf.Singer(tau=tau, sigma=sigma / 1e11)
-    for sigma in (0.0, 1e30):
-        with pytest.raises(ValueError, match=r"^tau must be at least 1e-150: .* got tau = 1e-175\."):
-            gf.Singer(tau=1e-175, sigma=sigma)
+    with pytest.raises(ValueError, match=r"^tau must be at least 1e-150, or sigma 0: .* got tau = 1e-175\."):
+        gf.Singer(tau=1e-175, sigma=1e30)
+    F, Q = gf.Singer(tau=1e-300, sigma=0.0).transition(1.0)  # without noise, F is exact (review R47)
+    assert not Q.any()
+    np.testing.assert_allclose(F[:3, :3], [[1.0, 1.0, 1e-300], [0.0, 1.0, 1e-300], [0.0, 0.0, 0.0]], rtol=1e-14,
+                               atol=0)
 
 
 @pytest.mark.parametrize("tau, sigma", [(1e10, 1e-155), (1e50, 1e-160), (1.0, 1e-160)])

@@ -116,9 +116,12 @@ def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | No
     first transition that is part of the model (``Q_2``; ``Q_1``, the noise
     into ``x_1``, plays no part and may be anything: 1e16 there cost a
     smoothed variance 37%), where that is positive definite. Else it is
-    widened by a multiple of the identity, the largest variance of that
-    noise (of ``R_1`` only where it has none: widened on a noisy first
-    measurement, R_1 = 1e16 cost the smoothed covariances 5.9): with a
+    widened by a multiple of the identity: the largest variance of that
+    noise or the median of the measurements' variances over every step,
+    whichever is larger (not ``R_1``'s: widened on a noisy first
+    measurement, R_1 = 1e16 cost the smoothed covariances 5.9; nor a tiny
+    Q's alone, 1e-300, whose information about the diffuse state
+    overflowed): with a
     singular ``P_*`` the base run's innovation covariance can be singular
     where a noise-free sensor meets a noise-free state (at the first step,
     or at the first step that sensor is observed), though the diffuse state
@@ -128,8 +131,9 @@ def _first_state_diffuse(model: LinearModel, zs: np.ndarray, us: np.ndarray | No
     Q_star = np.array(model.at(min(1, T - 1))[2])
     P_star = Q_star
     if not is_positive_definite(P_star):
-        scale = np.max(np.diag(Q_star))
-        scale = scale if scale > 0 else np.max(np.diag(model.at(0)[3]))
+        sensed = np.diagonal(model.R, axis1=-2, axis2=-1)
+        sensed = sensed[sensed > 0.0]
+        scale = max(np.max(np.diag(Q_star)), float(np.median(sensed)) if sensed.size else 0.0)
         P_star = P_star + (scale if scale > 0 else 1.0) * np.eye(n)
     F = np.array(np.broadcast_to(model.F, (T, n, n)))
     Q = np.array(np.broadcast_to(model.Q, (T, n, n)))
