@@ -1509,3 +1509,27 @@ def test_a_summary_of_a_log_likelihood_near_the_float_limit_is_one_short_line():
         res = gf.fit(gf.LinearModel(F=1.0, H=1.0, Q=1.0, R=1.0), gf.Gaussian([1e308], [[1e308]]), [1.0, 2.0, 3.0])
     line = res.summary().splitlines()[1]
     assert line.startswith("log-likelihood -5.000000e+307   AIC 1.000000e+308   BIC 1.000000e+308"), line
+
+
+@pytest.mark.parametrize("P0", [1e-16, 1e-20])
+def test_m0_under_a_nearly_certain_prior_is_searched_on_the_datas_scale(P0):
+    """Audit UU1: m0's search unit was the prior's standard deviation, 1e-8 at P0 = 1e-16: the first step, capped
+    at a unit, did not change the log-likelihood, and the fit said converged at its start, 17.6 below the maximum
+    (and that the log-likelihood does not depend on m0). Oracle: the dense joint-Gaussian log-likelihood of a local
+    level, z ~ N(m0 1, P0 1 1ᵀ + Q min(s, t) + R I), maximised by scipy."""
+    from scipy import optimize
+
+    rng = np.random.default_rng(20)
+    z = 5 + np.cumsum(rng.normal(size=60) * 0.3) + rng.normal(size=60)
+    t = np.arange(1, 61)
+
+    def loglik(v):
+        L = np.linalg.cholesky(P0 + np.exp(v[1]) * np.minimum.outer(t, t) + np.exp(v[2]) * np.eye(60))
+        a = np.linalg.solve(L, z - v[0])
+        return -0.5 * (a @ a + 2 * np.log(np.diag(L)).sum() + 60 * np.log(2 * np.pi))
+
+    best = optimize.minimize(lambda v: -loglik(v), [5.0, np.log(0.1), 0.0], method="BFGS", options={"gtol": 1e-9})
+    res = gf.fit(gf.LinearModel(1, 1, 0.1, 1.0), gf.Gaussian([0.0], [[P0]]), z, learn=("m0", "Q", "R"), method="mle")
+    assert res.converged
+    assert res.loglik == pytest.approx(-best.fun, abs=1e-6)
+    assert res.params["m0"] == pytest.approx(best.x[0], abs=1e-3)

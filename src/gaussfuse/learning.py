@@ -978,7 +978,8 @@ class _Parametrisation:
         deviation of component i over the size of control j (B u moves the state; the controls may be in other
         units than the data). Where those are missing, a component is sized by what the measurements resolve
         of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
-        noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), B's row by the
+        noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), under a prior nearly
+        certain of it by the larger of its standard deviation and that, B's row by the
         larger of that and its process noise's (else its prior's)."""
         out = []
         model, prior = self(theta)
@@ -989,7 +990,9 @@ class _Parametrisation:
         measured = _resolved_sizes(model)
         for name, t in self.split(theta).items():
             if name == "m0":
-                out.append(np.where(sd > 0, sd, np.maximum(noise, measured)))  # (a tiny Q is no size for m0)
+                # (a tiny Q is no size for m0; nor a prior nearly certain of it, below what the data resolve: at
+                # P0 = 1e-16 the search stayed at its start, converged, 17.6 below the maximum: audit UU1)
+                out.append(np.where(sd > 0, np.maximum(sd, measured), np.maximum(noise, measured)))
             elif name == "B":
                 p = t.size // n
                 rows = np.maximum(np.where(noise > 0, noise, sd), measured)  # (a tiny Q is no size for B either)
