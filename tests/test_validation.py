@@ -607,3 +607,18 @@ def test_a_choice_given_as_an_array_or_a_list_is_named(call, message):
     res = gf.filter(_CV, _CV_PRIOR, np.random.default_rng(0).standard_normal((60, 2)))
     with pytest.raises(ValueError, match=message):
         call(res)
+
+
+def test_a_timedelta_is_not_an_integer():
+    """Audit VV2: NumPy's timedelta64 is an integer type, and its count of its own units was taken for a size:
+    continuous_white_noise(order=np.timedelta64(2)) gave a 3 x 3 Q, a dim of timedelta64(2) four states, and
+    sample(np.timedelta64(2)) two draws. Each is refused as the argument's type."""
+    td = np.timedelta64(2)
+    with pytest.raises(TypeError, match=r"^`order` must be"):
+        gf.continuous_white_noise(order=td, dt=1.0, q=1.0)
+    with pytest.raises(ValueError, match=r"^`dim` must be 1, 2 or 3; got np\.timedelta64\(2\)"):
+        gf.ConstantVelocity(dim=td)
+    with pytest.raises(TypeError, match=r"^`size` must be None or a non-negative integer"):
+        gf.Gaussian(0.0, 1.0).sample(td)
+    with pytest.raises(TypeError, match=r"^`k` must be a non-negative integer"):
+        gf.LinearModel(np.ones((3, 1, 1)), 1.0, 1.0, 1.0).at(np.timedelta64(1))

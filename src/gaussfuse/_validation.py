@@ -306,6 +306,12 @@ def real(name: str, value, *, positive: bool = False, nonnegative: bool = False,
     return as_float
 
 
+def is_integer(value) -> bool:
+    """Whether `value` is an integer: a Python or NumPy int, not a bool, nor a ``np.timedelta64`` (NumPy's is an
+    integer type, whose count of its own units was taken for a size: audit VV2)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_, np.timedelta64))
+
+
 def integer(name: str, value, minimum: int = 1) -> int:
     """`value` as an int >= `minimum`.
 
@@ -318,7 +324,7 @@ def integer(name: str, value, minimum: int = 1) -> int:
     """
     kind = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
     expected = f"`{name}` must be {kind}; got {value!r}."
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+    if not is_integer(value):
         raise TypeError(expected)
     if value < minimum:
         raise ValueError(expected)

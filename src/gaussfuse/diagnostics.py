@@ -36,7 +36,7 @@ import numpy as np
 
 from ._linalg import PSD_RTOL, UNRESOLVED, observed_gram, step_cholesky, whiten, wrap_components
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
-from ._validation import as_array, component_mask, integer, shape_error
+from ._validation import as_array, component_mask, integer, is_integer, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
            "DIVERGENCE_FALSE_ALARM", "whiteness", "rmse", "consistency", "ConsistencyReport", "Whiteness"]
@@ -868,7 +868,7 @@ def whiteness(innovations, innovation_covs, lags: int = 10, confidence: float = 
     L = step_cholesky(S[keep], "`innovation_covs`", np.flatnonzero(keep))  # (named at its step: review R16)
     w = whiten(L, v[keep][..., None])[..., 0]  # (T', m) whitened
     T, m = w.shape
-    if isinstance(lags, (bool, np.bool_)) or not isinstance(lags, (int, np.integer)):
+    if not is_integer(lags):
         raise TypeError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")
     if not 1 <= lags < T:
         raise ValueError(f"`lags` must be an integer in [1, {T - 1}] for {T} complete innovations; got {lags!r}.")

@@ -9,7 +9,7 @@ import numpy as np
 from . import kalman
 from ._linalg import (circular_mean, cholesky, correlation_root, log_density, marginal_std, symmetrize, whiten,
                       wrap_angle, wrap_components)
-from ._validation import as_array, as_matrix, as_vector, check_psd, generator
+from ._validation import as_array, as_matrix, as_vector, check_psd, generator, is_integer
 
 __all__ = ["Gaussian", "fuse", "moment_match"]
 
@@ -176,7 +176,7 @@ class Gaussian:
             When `size` or an integer `rng` is negative.
         """
         if size is not None:
-            if isinstance(size, (bool, np.bool_)) or not isinstance(size, (int, np.integer)):
+            if not is_integer(size):
                 raise TypeError(f"`size` must be None or a non-negative integer; got {size!r}.")
             if size < 0:
                 raise ValueError(f"`size` must be None or a non-negative integer; got {size}.")

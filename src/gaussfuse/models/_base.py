@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_numbers, integer, shape_error
+from .._validation import as_array, as_numbers, integer, is_integer, shape_error
 
 __all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state", "check_step", "check_step_sizes"]
 
 def check_dim(value) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 3:
+    if not is_integer(value) or not 1 <= value <= 3:
         raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
     return int(value)
 
@@ -20,7 +20,7 @@ def check_step(k, steps: int | None) -> int:
     A negative step read a time-varying model's matrices from its end, one past its last raised NumPy's
     IndexError, and None added an axis (audit GG5).
     """
-    if isinstance(k, (int, np.integer)) and not isinstance(k, (bool, np.bool_)) and 0 <= k and (
+    if is_integer(k) and 0 <= k and (
             steps is None or k < steps):
         return k
     k = integer("k", k, minimum=0)
