@@ -482,7 +482,7 @@ def tria(M: np.ndarray) -> np.ndarray:
     made the first reflection one led by a zero, whose vector LAPACK scales
     by a reciprocal: a pivot of 1 under entries of 7e49, the velocity given
     the position after a prior of 1e100, came out as 2e34 of round-off
-    (OpenBLAS 0.3.31), and the smoothed variances were 2.5% off at a prior
+    (OpenBLAS 0.3.31), and the smoothed variances were 2.4% off at a prior
     of 1e30 without process noise; with them last, exact to round-off.
 
     References
