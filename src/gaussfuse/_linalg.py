@@ -792,7 +792,8 @@ def general_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
     r"""``C⁺ B`` for a positive semi-definite C: the Cholesky solve, or where C is singular a least-squares
-    solution (exact on the range of C, where B is for a conditional).
+    solution (exact on the range of C, where B is for a conditional). C and B may be stacks (k, n, n) and
+    (k, n, r): one Cholesky solve of the stack where every C is positive definite, else one by one.
 
     The least squares are taken on C scaled to unit diagonal, :math:`D^{-1} C D^{-1}` with
     :math:`D = \operatorname{diag}(C)^{1/2}` (1 where a variance is 0), so that which directions count as
@@ -802,6 +803,8 @@ def psd_solve(C: np.ndarray, B: np.ndarray) -> np.ndarray:
     try:
         L = cholesky(C, resolved=True)  # a pivot of round-off: C is singular, and dividing by it is noise
     except np.linalg.LinAlgError:
+        if C.ndim > 2:
+            return np.stack([psd_solve(c, b) for c, b in zip(C, B)]) if len(C) else np.zeros(B.shape)
         d = np.sqrt(np.diagonal(C).clip(min=0.0))
         d[d == 0.0] = 1.0
         scaled = C / d[:, None] / d[None, :]

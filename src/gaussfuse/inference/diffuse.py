@@ -403,19 +403,10 @@ def _gains(runs: AugmentedRuns, inf: _Information, base_gains: np.ndarray) -> np
     """
     M = np.stack([r.means for r in runs.sens], axis=-1)[:-1]              # (T - 1, n, n)
     Mp = _predicted_sensitivity(runs)[1:]
-    K = _psd_solve_each(runs.base.predicted_covs[1:], Mp)              # (P⁻)⁻¹ M⁻
+    K = psd_solve(runs.base.predicted_covs[1:], Mp)              # (P⁻)⁻¹ M⁻
     A = inf.info[:-1] + np.swapaxes(Mp, -1, -2) @ K
     D = M - base_gains @ Mp
-    return base_gains + D @ _psd_solve_each(A, np.swapaxes(K, -1, -2))
-
-
-def _psd_solve_each(C: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """:func:`gaussfuse._linalg.psd_solve` over a stack: one Cholesky solve of the stack where every C is positive
-    definite, else one by one."""
-    try:
-        return cho_solve(cholesky(C, resolved=True), B)
-    except np.linalg.LinAlgError:
-        return np.stack([psd_solve(c, b) for c, b in zip(C, B)]) if len(C) else np.zeros(B.shape)
+    return base_gains + D @ psd_solve(A, np.swapaxes(K, -1, -2))
 
 
 def diffuse_smooth(model, zs: np.ndarray, us: np.ndarray | None = None, engine: str = "auto") -> SmoothResult:
