@@ -1533,3 +1533,60 @@ def test_m0_under_a_nearly_certain_prior_is_searched_on_the_datas_scale(P0):
     assert res.converged
     assert res.loglik == pytest.approx(-best.fun, abs=1e-6)
     assert res.params["m0"] == pytest.approx(best.x[0], abs=1e-3)
+
+
+def _loading_case():
+    """A random walk seen through H = 2 with noise of 9: its likelihood is even in H, so H = 0 is a stationary
+    point (a saddle: a minimum along H), and its maximum, found on the dense joint Gaussian by Nelder-Mead over
+    (H, log R), is interior."""
+    import scipy.optimize
+
+    rng = np.random.default_rng(5)
+    T = 60
+    z = 2.0 * np.cumsum(rng.normal(size=T)) + 3.0 * rng.normal(size=T)
+
+    def dense(H, R):
+        return _oracle.JointGaussian([[1.0]], [[H]], [[1.0]], [[R]], [0.0], [[1.0]], T).loglik(z[:, None])
+
+    best = scipy.optimize.minimize(lambda v: -dense(v[0], np.exp(v[1])), [1.0, 0.0], method="Nelder-Mead",
+                                   options={"xatol": 1e-10, "fatol": 1e-12, "maxiter": 20000})
+    return z, dense, -best.fun, abs(best.x[0]), np.exp(best.x[1])
+
+
+@pytest.mark.parametrize("scale, H0", [(1.0, 0.0), (1e6, 1.0), (1e-6, 0.0)])
+def test_maximum_likelihood_searches_on_from_a_saddle_to_the_maximum(scale, H0):
+    """Learning H from H = 0, where the gradient vanishes because the likelihood is even in H, stopped at its
+    start with converged=True, 122 below the maximum; so did data in micro-units from H = 1, whose unit for H was
+    1 whatever the data's (audit UU2). The search goes on from above the saddle, and H's unit is a measurement's
+    noise over its state's: every start and scale reaches the dense oracle's maximum."""
+    z, dense, top, H, R = _loading_case()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ConvergenceWarning
+        fit = gf.fit(gf.LinearModel(1.0, H0, 1.0, scale ** 2), gf.Gaussian([0.0], [[1.0]]), z * scale,
+                     learn=("H", "R"), method="mle", engine="python")
+    assert fit.converged and fit.message == "Optimization terminated successfully."
+    assert dense(0.0, np.mean(z ** 2)) < top - 100  # (the saddle's best is far below)
+    assert fit.loglik + z.size * np.log(scale) == pytest.approx(top, abs=1e-8)
+    assert abs(fit.params["H"]) / scale == pytest.approx(H, rel=1e-6)
+    assert fit.params["R"] / scale ** 2 == pytest.approx(R, rel=1e-6)
+    assert fit.bse["H"] > 0  # at a maximum: its information is positive definite
+
+
+def test_em_at_a_saddle_is_not_called_converged():
+    """EM from H = 0 stays there (its M-step keeps H = 0) and said converged; it is not, and says so."""
+    z, dense, top, _, _ = _loading_case()
+    with pytest.warns(gf.ConvergenceWarning, match="stopped at a saddle point.*try method='mle'"):
+        fit = gf.fit(gf.LinearModel(1.0, 0.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), z, learn=("H", "R"),
+                     method="em", engine="python")
+    assert not fit.converged and fit.params["H"] == 0.0
+    assert fit.loglik == pytest.approx(dense(0.0, fit.params["R"]), abs=1e-9) and fit.loglik < top - 100
+
+
+def test_maximum_likelihood_that_cannot_leave_a_saddle_says_so(monkeypatch):
+    """With no search past the saddle allowed, the fit at H = 0 is not called converged either."""
+    monkeypatch.setattr(learning, "_ESCAPES", 0)
+    z, _, top, _, _ = _loading_case()
+    with pytest.warns(gf.ConvergenceWarning, match="stopped at a saddle point.*try another start"):
+        fit = gf.fit(gf.LinearModel(1.0, 0.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), z, learn=("H", "R"),
+                     method="mle", engine="python")
+    assert not fit.converged and fit.params["H"] == 0.0 and fit.loglik < top - 100

@@ -973,9 +973,10 @@ class _Parametrisation:
 
     def units(self, theta: np.ndarray) -> np.ndarray:
         """The size of a change of each entry of θ that moves the model as much in any units of the data: 1 for
-        a log variance and an entry of F or H, a component's standard deviation for an entry of a Cholesky
-        factor's row or of m0 (which scale with the data), and for B[i, j] the process noise's standard
-        deviation of component i over the size of control j (B u moves the state; the controls may be in other
+        a log variance and an entry of F, a component's standard deviation for an entry of a Cholesky
+        factor's row or of m0 (which scale with the data), for H[i, j] measurement i's noise standard deviation
+        over the process noise's (else the prior's) of component j (1 where R_ii = 0), and for B[i, j] the
+        process noise's standard deviation of component i over the size of control j (B u moves the state; the controls may be in other
         units than the data). Where those are missing, a component is sized by what the measurements resolve
         of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
         noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), under a prior nearly
@@ -993,6 +994,14 @@ class _Parametrisation:
                 # (a tiny Q is no size for m0; nor a prior nearly certain of it, below what the data resolve: at
                 # P0 = 1e-16 the search stayed at its start, converged, 17.6 below the maximum: audit UU1)
                 out.append(np.where(sd > 0, np.maximum(sd, measured), np.maximum(noise, measured)))
+            elif name == "H":
+                # a measurement's noise over its state's size, as B's: a unit of 1 for data of 1e6 kept the search
+                # at its start, as if the likelihood did not depend on H (audit UU2)
+                r = np.diagonal(model.R, axis1=-2, axis2=-1).reshape(-1, model.m).mean(axis=0)
+                rows = np.sqrt(np.clip(r, 0.0, None))
+                cols = np.where(noise > 0, noise, np.where(sd > 0, sd, 1.0))
+                unit = np.where(rows[:, None] > 0, rows[:, None] / cols[None, :], 1.0)
+                out.append(np.broadcast_to(unit, model.H.shape).ravel())
             elif name == "B":
                 p = t.size // n
                 rows = np.maximum(np.where(noise > 0, noise, sd), measured)  # (a tiny Q is no size for B either)
@@ -1817,21 +1826,21 @@ def _em_stalled(evaluate, build, theta: np.ndarray, cov_theta: np.ndarray | None
     return None
 
 
-def _standard_errors(evaluate, build, theta: np.ndarray, learn,
-                     nobs: int) -> tuple[dict | None, np.ndarray, np.ndarray | None]:
-    """Standard errors from the observed information, by central differences of the exact gradient.
+class _Curvature(NamedTuple):
+    """The observed information at θ, on φ = θ / `units`, and which parameters it measures (`flat`: those the
+    log-likelihood does not depend on, or whose information the differences do not resolve)."""
+    information: np.ndarray
+    flat: np.ndarray
+    units: np.ndarray
+    sizes: np.ndarray
 
-    Returns the per-matrix standard errors (None if the information is not
-    positive definite, or not beyond the gradient: :func:`_beyond_gradient`),
-    those of ``build.natural`` (NaN then), and the inverse information on φ = θ / units
-    (None where it is not positive definite; zero rows and columns for the
-    parameters the log-likelihood does not depend on).
-    """
-    k = theta.size
-    natural = build.natural
-    nan = np.full(natural(theta).size, np.nan)
-    if k == 0:
-        return None, nan, None
+
+def _curvature(evaluate, build, theta: np.ndarray, nobs: int) -> _Curvature | None:
+    """The observed information at θ by central differences of the exact gradient (:func:`_hessian`), with its
+    flat parameters (:func:`_flat`, :func:`_unresolved`); None where a neighbour has no likelihood (a variance
+    near 0) or there is nothing learned."""
+    if theta.size == 0:
+        return None
     units = build.units(theta)
     sizes = _sizes(theta, units)
     try:
@@ -1842,8 +1851,101 @@ def _standard_errors(evaluate, build, theta: np.ndarray, learn,
         # elsewhere it is a plateau, not a boundary (EM stalled from Q = 1e-6 on the Nile: review R16)
         still = np.abs(evaluate(theta)[1] * units) <= _MLE_GTOL * nobs
         flat |= _unresolved(evaluate, theta, information, curved & still, 1e-5 * sizes)
-    except NO_LIKELIHOOD:  # a neighbour with no likelihood (a variance near 0)
+    except NO_LIKELIHOOD:
+        return None
+    return _Curvature(information, flat, units, sizes)
+
+
+def _above_saddle(evaluate, theta: np.ndarray, curvature: _Curvature | None) -> np.ndarray | None:
+    r"""A point of higher log-likelihood than θ along a direction in which the log-likelihood curves upwards at
+    θ, or None: θ, where the search stopped, is then a saddle or a minimum, not a maximum.
+
+    The gradient vanishes at a saddle as at a maximum, and both searches stop there: learning H from a start of
+    H = 0, where the likelihood is even in H, stopped at its start with ``converged=True``, 122 below the
+    maximum (audit UU2). The directions are the eigenvectors :math:`w` of the information on its diagonal's
+    scale, :math:`C = D^{-1/2} I D^{-1/2}` with :math:`D = |\mathrm{diag}\, I|`, whose eigenvalue
+    :math:`\lambda` is negative, most negative first; a step :math:`t D^{-1/2} w` in φ changes the
+    log-likelihood by :math:`-\tfrac12 \lambda t^2`, so the first step tried, :math:`t = \sqrt{2 / |\lambda|}`,
+    is expected to raise it by one, and smaller ones (a quarter each time) follow where the likelihood is
+    not that nearly quadratic. A direction counts only where the log-likelihood measured on both sides
+    confirms it: its second difference is positive beyond round-off, and one side is higher than θ. (An
+    information that is not positive definite only by round-off, or at a boundary the differences do not
+    resolve, has no such side.)
+    """
+    if curvature is None:
+        return None
+    kept = ~curvature.flat
+    information = curvature.information[np.ix_(kept, kept)]
+    if not kept.any() or is_positive_definite(information):
+        return None
+    scale = np.sqrt(np.abs(np.diagonal(information)))
+    scale = np.where(scale > 0.0, scale, 1.0)
+    values, vectors = np.linalg.eigh(information / scale[:, None] / scale[None, :])
+    ll = evaluate(theta)[0]
+    noise = 4e-13 * (1.0 + abs(ll))  # the round-off of three log-likelihoods in a second difference
+    for value, w in zip(values, vectors.T):
+        if not value < 0.0:
+            break
+        direction = np.zeros(theta.size)
+        direction[kept] = curvature.units[kept] * w / scale  # in θ
+        t = np.sqrt(2.0 / -value)
+        for _ in range(6):
+            sides = [theta + t * direction, theta - t * direction]
+            try:
+                up, down = (evaluate(side)[0] for side in sides)
+            except NO_LIKELIHOOD:
+                up = down = -np.inf
+            if np.isfinite(up) and np.isfinite(down) and up + down - 2.0 * ll > noise and max(up, down) > ll + noise:
+                return sides[0] if up >= down else sides[1]
+            t /= 4.0
+    return None
+
+
+_ESCAPES = 3
+"""How many times maximum likelihood, stopped at a saddle (:func:`_above_saddle`), searches on from above it."""
+
+_SADDLE = ("stopped at a saddle point of the log-likelihood, not a maximum: it is higher on both sides along a "
+           "direction in which it curves upwards there (as at H = 0, where it is even in H)")
+
+
+def _mle_past_saddles(build, theta0, data, nobs, iterations, tol, callback, engine):
+    """:func:`_mle`, and again from above the saddle where it stopped (:func:`_above_saddle`), at most
+    :data:`_ESCAPES` times within `iterations`: its results, and the curvature where it ended (None where it was
+    interrupted). The history and the callback's count go on over the searches."""
+    history, escapes = np.zeros(0), 0
+    while True:
+        done = max(history.size - 1, 0)
+        tell = callback if callback is None or not done else (lambda it, ll, done=done: callback(it + done, ll))
+        theta, run, converged, message, evaluate = _mle(build, theta0, data, nobs, iterations - done, tol, tell,
+                                                        engine)
+        history = np.concatenate([history, run])
+        if message.startswith("interrupted"):
+            return theta, history, converged, message, evaluate, None
+        curvature = _curvature(evaluate, build, theta, nobs)
+        above = _above_saddle(evaluate, theta, curvature) if converged else None
+        if above is None:
+            return theta, history, converged, message, evaluate, curvature
+        if escapes == _ESCAPES or history.size - 1 >= iterations:
+            return theta, history, False, _SADDLE + "; try another start", evaluate, curvature
+        escapes, theta0 = escapes + 1, above
+
+
+def _standard_errors(evaluate, build, theta: np.ndarray, learn, curvature: _Curvature | None,
+                     ) -> tuple[dict | None, np.ndarray, np.ndarray | None]:
+    """Standard errors from the observed information (:func:`_curvature`).
+
+    Returns the per-matrix standard errors (None if the information is not
+    positive definite, or not beyond the gradient: :func:`_beyond_gradient`),
+    those of ``build.natural`` (NaN then), and the inverse information on φ = θ / units
+    (None where it is not positive definite; zero rows and columns for the
+    parameters the log-likelihood does not depend on).
+    """
+    k = theta.size
+    natural = build.natural
+    nan = np.full(natural(theta).size, np.nan)
+    if curvature is None:
         return None, nan, None
+    information, flat, units, sizes = curvature
     kept = ~flat
     if not kept.any() or not is_positive_definite(information[np.ix_(kept, kept)]):  # it is at a maximum
         return None, nan, None
@@ -2060,7 +2162,11 @@ def fit(
         When the fit stops at its iteration limit (EM, unless ``tol=0``) or
         the optimiser reports a failure (MLE) before meeting `tol`; when EM
         meets `tol` where a Newton step would still gain over 1000 times
-        `tol` per observation (stalled, not at a maximum); or when EM's
+        `tol` per observation (stalled, not at a maximum); when the fit
+        meets `tol` at a saddle point, where the log-likelihood curves
+        upwards along some direction and is higher on both sides (EM says
+        so; maximum likelihood searches on from the higher side, up to three
+        times, and says so only when it still ends at one); or when EM's
         learned model can no longer be filtered or no longer identifies a
         diffuse state (the likelihood growing without bound). The result is
         the best model found, with ``converged=False``.
@@ -2182,6 +2288,7 @@ def fit(
             _check_regression_q(model.Q)
     # Overflows (measurements or matrices near float64's limits) are not warnings: the result is checked below.
     with np.errstate(over="ignore", invalid="ignore"):
+        curvature = None
         if method == "em":
             model, prior, history, converged, message, engine = _em(model, prior, data, learn, structure,
                                                                     iterations, tol, nobs, callback, engine, switch)
@@ -2193,18 +2300,21 @@ def fit(
                 theta = build.encode()
                 evaluate = _evaluator(build, data, engine)
         else:
-            theta, history, converged, message, evaluate = _mle(build, theta0, data, nobs, iterations, tol, callback,
-                                                                engine)
+            theta, history, converged, message, evaluate, curvature = _mle_past_saddles(
+                build, theta0, data, nobs, iterations, tol, callback, engine)
             model, prior = build(theta)
         if build is not None:
             # Ctrl-C asked to stop: the Hessian's 2k gradient passes (a minute on a long series) would not
             # be at a maximum anyway
-            interrupted = message.startswith("interrupted")
-            errors, bse, cov_theta = (None, np.full(build.natural(theta).size, np.nan), None) if interrupted else \
-                _standard_errors(evaluate, build, theta, learn, nobs)
+            if curvature is None and not message.startswith("interrupted"):
+                curvature = _curvature(evaluate, build, theta, nobs)
+            errors, bse, cov_theta = _standard_errors(evaluate, build, theta, learn, curvature)
             names, values = build.names(), build.natural(theta)
             stalled = _em_stalled(evaluate, build, theta, cov_theta, tol, nobs) \
                 if method == "em" and converged and theta.size else None
+            if stalled is None and method == "em" and converged and _above_saddle(evaluate, theta, curvature) \
+                    is not None:  # (not restarted: EM from above the Nile's plateau crawled 496 more iterations to the limit)
+                stalled = _SADDLE + "; try method='mle', which searches on from above it, or another start"
             if stalled is not None:
                 converged, message = False, stalled
         else:  # a learned full covariance ended singular: its values, without standard errors
