@@ -497,28 +497,29 @@ def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
 
 def _in_model_order(given: list[str], named) -> list[int] | None:
     """Where the measurement columns `given` are the model's measurement names in another order, the position of
-    each name among them; None where they are taken in order (see :func:`gaussfuse.inference.frames.by_name`).
+    each name among them; None where they are taken in order (see :func:`gaussfuse.inference.frames.by_name`,
+    which matches names as written, then in any case).
 
     `named` is one list of names or several, alternatives (a renamed model's `states`, then its sensor's own x,
-    y), each as written, then in any case: the help promises either, and audit SS1 found both read by position,
-    silently (x filtered from a column named y). The first that all the columns name is taken; where none does,
-    one that some name and others do not is refused (review R47: `t,Y,x` was refused on the exact names before
-    the case-blind pass)."""
+    y): audit SS1 found a renamed model's columns read by position, silently (x filtered from a column named y).
+    The first that all the columns name is taken; where none does, one that some name and others do not is
+    refused (review R47: `t,Y,x` was refused on the exact names before the case-blind pass)."""
     if not named:
         return None
     refused = None
     for names in [named] if isinstance(named[0], str) else named:
-        if len(given) != len(names):
+        if len(given) != len(names) or len(set(names)) < len(names):
             continue  # (a count other than the model's is named by the caller)
-        for fold in (lambda name: name, str.casefold):
-            columns, wanted = [fold(c) for c in given], [fold(n) for n in names]
-            if len(set(wanted)) < len(wanted) or not set(columns) & set(wanted):
-                continue
-            try:
-                return by_name(columns, wanted, f"the measurement columns {given} name some of",
-                               "choose the columns with --columns")
-            except ValueError as exc:
-                refused = refused or exc
+        if given == list(names):
+            return None
+        try:
+            order = by_name(given, names, f"the measurement columns {given} name some of",
+                            "choose the columns with --columns")
+        except ValueError as exc:
+            refused = refused or exc
+            continue
+        if order is not None:
+            return order
     if refused is not None:
         raise refused
     return None

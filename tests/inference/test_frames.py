@@ -325,3 +325,33 @@ def test_relabelled_names_that_would_name_two_measurements_alike_name_none():
     frame = pd.DataFrame({"y": zs[:, 0], "x": zs[:, 1]}, index=pd.to_timedelta(np.arange(5.0), unit="s"))
     np.testing.assert_array_equal(gf.filter(swap, prior, frame).means,
                                   gf.filter(swap, prior, zs, times=np.arange(5.0)).means)
+
+
+def test_a_frames_columns_are_taken_by_name_in_any_case():
+    """Columns "Y", "X" for the measurements x, y were taken by position, swapped, silently, where the command
+    line reads such a file by name (audit SS1). The oracle is the frame in the model's order and case."""
+    track, prior = _track()
+    when = pd.to_datetime("2026-05-01 12:00") + pd.to_timedelta([0, 1, 2, 5, 6, 8], unit="s")
+    fixes = pd.DataFrame({"x": [0.0, 1.1, 1.9, 5.2, None, 8.1], "y": [0.0, 0.4, 1.1, 2.4, 3.1, 3.9]}, index=when)
+    want = gf.filter(track, prior, fixes)
+    for columns in ({"x": "X", "y": "Y"}, {"y": "Y"}):
+        got = gf.filter(track, prior, fixes.rename(columns=columns).iloc[:, ::-1])  # (in the other order too)
+        np.testing.assert_array_equal(got.means, want.means)
+        assert got.table.columns == ("x", "y")
+    with pytest.raises(ValueError, match=r"`zs` has the columns \['X', 'vy'\], some of the model's measurements "
+                                         r"\['x', 'y'\], without \['y'\], and \['vy'\] besides"):
+        gf.filter(track, prior, fixes.rename(columns={"x": "X", "y": "vy"}))
+
+
+def test_names_that_differ_only_in_case_are_matched_as_written():
+    """A sensor whose measurements are "x" and "X" tells them apart by case alone: columns are matched as
+    written, and a frame that names them in another case is not matched in any case (it is taken in order)."""
+    from gaussfuse.inference.frames import by_name
+
+    assert by_name(["X", "x"], ("x", "X"), "", "") == [1, 0]
+    assert by_name(["A", "B"], ("a", "b"), "", "") == [0, 1]
+    assert by_name(["B", "A"], ("a", "b"), "", "") == [1, 0]
+    assert by_name(["a", "b"], ("x", "X"), "", "") is None
+    for twice, missing in (["x", "x"], "X"), (["X", "X"], "x"):  # one of them twice: the other is missing
+        with pytest.raises(ValueError, match=rf"measurements \['x', 'X'\], without \['{missing}'\]: name them"):
+            by_name(twice, ("x", "X"), "`zs` has", "fix")

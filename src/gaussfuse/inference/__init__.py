@@ -59,8 +59,8 @@ def filter(model, prior: Gaussian | str, zs, us=None, method: str | None = None,
         chunked over series as `zs` is, or an array in memory, chunked so).
         A pandas Series or DataFrame gives its index as `times` (see
         :mod:`gaussfuse.inference.frames`); its columns are taken by name
-        where they are a TimedModel's sensor's names in another order (some
-        of them and not all is an error), else in order (a LinearModel
+        where they are a TimedModel's sensor's names in another order or
+        case (some of them and not all is an error), else in order (a LinearModel
         names no measurements), and a pandas `us` must have its index.
     us : array_like of shape (T, p), (T,) when p = 1, or (N, T, p), optional
         Control inputs: required exactly when a LinearModel has ``B``;

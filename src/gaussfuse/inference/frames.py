@@ -69,21 +69,35 @@ def by_name(columns, names, what: str, fix: str) -> list[int] | None:
     """Where `columns` are the measurement `names` in another order, the position of each name among them; None
     where they are taken in order (no names, the same order, or none of them).
 
+    The names are matched as written, then in any case (columns "Y", "X" for the measurements x, y were taken by
+    position, swapped, silently, as the command line's were: audit SS1), unless case is all that tells two names
+    apart.
+
     Raises
     ------
     ValueError
         Where they name some of the names and not others (taken by position, x and y could swap silently: audits
         DD6, EE2): "`what` the model's measurements [...], without [...], and [...] besides: ..., or `fix`."
+        (The names as written decide what is missing, unless only the pass in any case matched some.)
     """
     columns = list(columns)
-    if names is None or columns == list(names) or not set(columns) & set(names):
+    if names is None or columns == list(names):
         return None
-    if sorted(columns) != sorted(names):
-        missing, other = [n for n in names if n not in columns], [c for c in columns if c not in names]
-        raise ValueError(f"{what} the model's measurements {list(names)}" + (f", without {missing}" if missing else "")
-                         + (f", and {other} besides" if other else "")
-                         + f": name them as the model does, in any order, or {fix}.")
-    return [columns.index(name) for name in names]
+    names, refusal = list(names), None
+    for fold in (str, str.casefold):
+        given, wanted = [fold(c) for c in columns], [fold(n) for n in names]
+        if len(set(given)) < len(set(columns)) or len(set(wanted)) < len(set(names)) or not set(given) & set(wanted):
+            continue  # (none of them; or names that differ only in case, which only the first pass tells apart)
+        if sorted(given) == sorted(wanted):
+            return [given.index(name) for name in wanted]
+        refusal = refusal or ([n for n, w in zip(names, wanted) if w not in given],
+                              [c for c, g in zip(columns, given) if g not in wanted])
+    if refusal is None:
+        return None
+    missing, other = refusal
+    raise ValueError(f"{what} the model's measurements {names}" + (f", without {missing}" if missing else "")
+                     + (f", and {other} besides" if other else "")
+                     + f": name them as the model does, in any order, or {fix}.")
 
 
 def _is_pandas(value) -> bool:
@@ -161,8 +175,9 @@ def unpack(zs, times, model):
     a model refuses. A model with fixed matrices takes one row without times (it has no step to check).
 
     A DataFrame whose columns are the model's measurement names (:func:`measurement_names`: a TimedModel's, in
-    its state names) in another order is taken in the model's order; one that names some of them and not others is
-    refused (its columns were taken by position: x and y swapped, silently, audit DD6). Columns named otherwise,
+    its state names) in another order, or in another case, is taken in the model's order; one that names some of
+    them and not others is refused (its columns were taken by position: x and y swapped, silently, audit DD6;
+    and "Y", "X" for x, y until audit SS1's follow-up). Columns named otherwise,
     and every DataFrame for a LinearModel or NonlinearModel, which name no measurements, are taken by position.
     """
     if not _is_pandas(zs) or not hasattr(zs, "index"):
