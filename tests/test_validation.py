@@ -616,9 +616,21 @@ def test_a_timedelta_is_not_an_integer():
     td = np.timedelta64(2)
     with pytest.raises(TypeError, match=r"^`order` must be"):
         gf.continuous_white_noise(order=td, dt=1.0, q=1.0)
-    with pytest.raises(ValueError, match=r"^`dim` must be 1, 2 or 3; got np\.timedelta64\(2\)"):
+    with pytest.raises(TypeError, match=r"^`dim` must be an integer 1, 2 or 3; got np\.timedelta64\(2\)"):
         gf.ConstantVelocity(dim=td)
     with pytest.raises(TypeError, match=r"^`size` must be None or a non-negative integer"):
         gf.Gaussian(0.0, 1.0).sample(td)
     with pytest.raises(TypeError, match=r"^`k` must be a non-negative integer"):
         gf.LinearModel(np.ones((3, 1, 1)), 1.0, 1.0, 1.0).at(np.timedelta64(1))
+
+
+@pytest.mark.parametrize("make", [lambda names: gf.LinearModel(1.0, 1.0, 1.0, 1.0, names=names),
+                                  lambda names: gf.LinearSDE([[0.0]], [[1.0]], 1.0, names=names)])
+def test_names_of_a_0d_array_are_refused_naming_them(make):
+    """A 0-d array has __iter__, and NumPy's own "iteration over a 0-d array" named nothing (audit VV5); a str
+    array's names were kept as NumPy's str_ (printed np.str_('a'))."""
+    for bad in (np.array("a"), np.array(1.0)):
+        with pytest.raises(TypeError, match=r"^`names` must be a sequence of 1 strings; got array\("):
+            make(bad)
+    names = gf.LinearModel(np.eye(2), [1.0, 0.0], np.eye(2), 1.0, names=np.array(["a", "b"])).names
+    assert names == ("a", "b") and all(type(name) is str for name in names)

@@ -222,6 +222,13 @@ def test_sigma_point_filters_run_on_built_models(turn_track):
          r"^`sensor` reads 2 position components but `motion` has 1 spatial axis\.$"),
         ((gf.CoordinatedTurn(), gf.RangeBearingElevation(), 1.0), ValueError,
          r"^`sensor` reads 3 position components but `motion` has 2 spatial axes\.$"),
+        # a level and its slope are no position: RangeBearing read them as x, y (audit TT4)
+        ((gf.LocalLinearTrend(), gf.RangeBearing(), 1.0), ValueError,
+         r"^`sensor` reads 2 position components, but LocalLinearTrend's state \('level', 'slope'\) has no spatial "
+         r"axes; measure it with a LinearSensor \(H picks what is measured\)\.$"),
+        ((gf.LocalLinearTrend(), gf.Position(dim=2), 1.0), ValueError, r"^`sensor` reads 2 position components, but"),
+        ((gf.LocalLevel(), gf.Position(dim=1), 1.0), ValueError,
+         r"^`sensor` reads 1 position component, but LocalLevel's state \('level',\) has no spatial axes"),
         ((gf.RandomWalk(n=1), gf.BearingOnly(), 1.0), ValueError,
          r"^`sensor` reads 2 position components but the state of `motion` has only 1\.$"),
         ((gf.ConstantVelocity(dim=2), gf.LinearSensor([[1, 0, 0]], 1.0), 1.0), ValueError,

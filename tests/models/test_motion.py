@@ -121,9 +121,10 @@ def test_default_dim_is_one_and_numpy_integers_work():
         ({"r": -2.0}, ValueError, r"^`r` must be a non-negative number; got -2\.0\.$"),
         ({"dim": 0}, ValueError, r"^`dim` must be 1, 2 or 3; got 0\.$"),
         ({"dim": 4}, ValueError, r"^`dim` must be 1, 2 or 3; got 4\.$"),
-        ({"dim": 2.0}, ValueError, r"^`dim` must be 1, 2 or 3; got 2\.0\.$"),
-        ({"dim": "2"}, ValueError, r"^`dim` must be 1, 2 or 3; got '2'\.$"),
-        ({"dim": True}, ValueError, r"^`dim` must be 1, 2 or 3; got True\.$"),
+        # (not an integer: a TypeError, as `dt`'s "fast" and every integer argument's; audit VV4)
+        ({"dim": 2.0}, TypeError, r"^`dim` must be an integer 1, 2 or 3; got 2\.0 \(float\)\.$"),
+        ({"dim": "2"}, TypeError, r"^`dim` must be an integer 1, 2 or 3; got '2' \(str\)\.$"),
+        ({"dim": True}, TypeError, r"^`dim` must be an integer 1, 2 or 3; got True \(bool\)\.$"),
     ],
 )
 def test_invalid_arguments(make, kwargs, error, match):
@@ -845,3 +846,27 @@ def test_singer_refuses_a_density_below_the_normal_floats(tau, sigma):
         gf.Singer(tau=tau, sigma=sigma)
     Q = gf.Singer(tau=1e10, sigma=1e-140).transition(1e6)[1]
     np.testing.assert_allclose(Q, _singer_q_1500_digits(1e10, 1e-140, 1e6), rtol=1e-13, atol=0)
+
+
+def test_the_coordinated_turn_jacobian_of_a_step_too_long_is_noise_s_error():
+    """Past dt = 1.3e154 the Jacobian raised Python's bare OverflowError (a power of a Python float), where noise()
+    names the step (audit TT1); and the ∂/∂ω entries over θ² overflowed to 0 where they are finite. An entry
+    beyond float64 is now noise's ValueError; one within it is exact (the oracle: the closed form in mpmath at the
+    float64 turn angle)."""
+    import mpmath as mp
+
+    ct = gf.CoordinatedTurn()
+    for w in (0.0, 1e-170):  # dt²/2 and its neighbour overflow float64
+        with pytest.raises(ValueError, match=r"^a step of dt = 1e\+160 s is too long for CoordinatedTurn: its "
+                                             r"Jacobian overflows float64"):
+            ct.jacobian([1.0, 2.0, 3.0, 4.0, w], 1e160)
+        with pytest.raises(ValueError, match=r"too long for CoordinatedTurn: its Q overflows"):
+            ct.noise(1e160)
+    dt, w = 1e160, 0.1
+    J = ct.jacobian([1.0, 2.0, 3.0, 4.0, w], dt)
+    with mp.workdps(400):
+        theta, T = mp.mpf(float(np.float64(w) * dt)), mp.mpf(dt)
+        ds = T * T * (mp.cos(theta) / theta - mp.sin(theta) / theta ** 2)
+        dc = T * T * (mp.sin(theta) / theta - (1 - mp.cos(theta)) / theta ** 2)
+        want = [float(3 * ds - 4 * dc), float(3 * dc + 4 * ds)]
+    np.testing.assert_allclose(J[:2, 4], want, rtol=1e-13)

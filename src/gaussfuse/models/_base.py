@@ -9,7 +9,11 @@ from .._validation import as_array, as_numbers, integer, is_integer, shape_error
 __all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state", "check_step", "check_step_sizes"]
 
 def check_dim(value) -> int:
-    if not is_integer(value) or not 1 <= value <= 3:
+    """`dim`, the number of spatial axes: an integer 1, 2 or 3 (TypeError for another type, as for every integer
+    argument: 2.0 was a ValueError, audit VV4; ValueError for another integer)."""
+    if not is_integer(value):
+        raise TypeError(f"`dim` must be an integer 1, 2 or 3; got {value!r} ({type(value).__name__}).")
+    if not 1 <= value <= 3:
         raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
     return int(value)
 
@@ -51,11 +55,13 @@ def check_names(value, n: int, default: tuple[str, ...]) -> tuple[str, ...]:
     """A tuple of n strings (component names), or `default` for None."""
     if value is None:
         return default
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+    # (a 0-d array has __iter__ and raised NumPy's own "iteration over a 0-d array", naming nothing: audit VV5)
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__") or np.ndim(value) == 0:
         raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
     names = tuple(value)
     if not all(isinstance(s, str) for s in names):
         raise TypeError(f"`names` must be a sequence of {n} strings; got {value!r}.")
+    names = tuple(str(s) for s in names)  # (NumPy's str_ of a str array printed as np.str_('a') in reprs)
     if len(names) != n:
         raise ValueError(f"`names` must have {n} entries, one per component; got {len(names)}.")
     if not all(names) or len(set(names)) != n:  # they label columns (review R13)

@@ -14,7 +14,7 @@ import numpy as np
 from .._validation import StepOverflowError, as_array, as_numbers, call_checked, component_mask, integer, real, shape_error
 from ._base import Frozen, check_names, check_step_sizes
 from .linear import LinearModel
-from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, NonlinearMotion
+from .motion import ConstantAcceleration, ConstantVelocity, LinearMotion, LocalLevel, LocalLinearTrend, NonlinearMotion
 from .nonlinear import NonlinearModel
 from .sensors import LinearSensor, NonlinearSensor, Position
 
@@ -370,6 +370,10 @@ def _check_fit(motion, sensor, n: int, label: str = "`sensor`") -> None:
     if reads is None:
         return
     axes = getattr(motion, "dim", None)
+    if isinstance(motion, (LocalLevel, LocalLinearTrend)):  # (RangeBearing read a level and its slope as x, y:
+        raise ValueError(                                    # audit TT4)
+            f"{label} reads {reads} position component{'s' if reads > 1 else ''}, but {type(motion).__name__}'s "
+            f"state {motion.names} has no spatial axes; measure it with a LinearSensor (H picks what is measured).")
     if axes is not None and reads > axes:
         raise ValueError(
             f"{label} reads {reads} position components but `motion` has {axes} spatial "

@@ -939,8 +939,8 @@ def _turn_functions(theta):
     one_minus_cos = 2.0 * np.sin(0.5 * big) ** 2
     return (np.where(small, s, sin / big),
             np.where(small, c, one_minus_cos / big),
-            np.where(small, ds, (big * cos - sin) / big**2),
-            np.where(small, dc, (big * sin - one_minus_cos) / big**2))
+            np.where(small, ds, (cos - sin / big) / big),  # (over big², which overflowed past 1.3e154 to 0)
+            np.where(small, dc, (sin - one_minus_cos / big) / big))
 
 
 class CoordinatedTurn(NonlinearMotion):
@@ -1048,6 +1048,7 @@ class CoordinatedTurn(NonlinearMotion):
                          sin * vx + cos * vy,
                          w], axis=-1)
 
+    @finite_step("Jacobian")  # (noise's error, where it was Python's OverflowError past dt = 1.3e154: audit TT1)
     def jacobian(self, x, dt: float) -> np.ndarray:
         """∂f/∂x of shape (5, 5) (or (k, 5, 5) for a stack of states).
 
@@ -1063,6 +1064,12 @@ class CoordinatedTurn(NonlinearMotion):
         -------
         ndarray of shape (5, 5) or (k, 5, 5)
             The Jacobian of :meth:`f` at each state.
+
+        Raises
+        ------
+        ValueError
+            Where an entry overflows float64 (a step that long: its ∂/∂ω
+            entries grow as dt²), as :meth:`noise` does.
         """
         x = check_state(x, 5)
         dt = real("dt", dt, nonnegative=True)
@@ -1070,7 +1077,7 @@ class CoordinatedTurn(NonlinearMotion):
         theta = w * dt
         s, c, ds, dc = _turn_functions(theta)
         s, c = s * dt, c * dt
-        ds, dc = ds * dt**2, dc * dt**2  # d/dω of s and c
+        ds, dc = ds * dt * dt, dc * dt * dt  # d/dω of s and c (dt**2 of a Python float raises OverflowError)
         sin, cos = np.sin(theta), np.cos(theta)
         J = np.zeros(x.shape[:-1] + (5, 5), dtype=np.result_type(x.dtype, np.float64))
         J[..., 0, 0] = J[..., 1, 1] = J[..., 4, 4] = 1.0
