@@ -870,3 +870,20 @@ def test_the_coordinated_turn_jacobian_of_a_step_too_long_is_noise_s_error():
         dc = T * T * (mp.sin(theta) / theta - (1 - mp.cos(theta)) / theta ** 2)
         want = [float(3 * ds - 4 * dc), float(3 * dc + 4 * ds)]
     np.testing.assert_allclose(J[:2, 4], want, rtol=1e-13)
+
+
+@pytest.mark.parametrize("q_level, q_slope, dt", [(1.0, 1e-300, 1e120), (0.0, 1e-200, 1e104), (1.0, 1e-100, 1e110),
+                                                  (0.5, 0.01, 7.0), (2.0, 3.0, 0.75)])
+def test_a_local_linear_trend_s_q_overflows_only_where_it_does(q_level, q_slope, dt):
+    """d (d - 1) (2d - 1) overflowed before q_slope brought it back into range: steps whose F and Q are finite
+    were refused as "too long" (audit VV3). The oracle is the closed form in exact rational arithmetic."""
+    from fractions import Fraction
+
+    D, ql, qs = Fraction(dt), Fraction(q_level), Fraction(q_slope)
+    want = [[float(D * ql + qs * D * (D - 1) * (2 * D - 1) / 6), float(qs * D * (D - 1) / 2)],
+            [float(qs * D * (D - 1) / 2), float(D * qs)]]
+    F, Q = gf.LocalLinearTrend(q_level=q_level, q_slope=q_slope).transition(dt)
+    np.testing.assert_allclose(Q, want, rtol=4 * np.finfo(float).eps, atol=0.0)
+    assert F[0, 1] == dt
+    with pytest.raises(ValueError, match=r"too long for LocalLinearTrend: its F or Q overflows float64"):
+        gf.LocalLinearTrend(q_level=1.0, q_slope=1.0).transition(1e110)  # 3e329: a real overflow

@@ -736,6 +736,14 @@ class LocalLevel(LinearMotion):
         return np.ones((1, 1)), np.full((1, 1), self.q * dt)
 
 
+def _product(*factors: float) -> float:
+    """The product of `factors`, overflowing or underflowing only where it does, not on the way: the mantissas'
+    product times 2 to the exponents' sum (LocalLinearTrend's d (d - 1) (2d - 1) overflowed at dt = 1e104 before
+    q_slope = 1e-200 brought it back to 3e111: audit VV3)."""
+    mantissas, exponents = np.frexp(np.array(factors, dtype=np.float64))
+    return float(np.ldexp(np.prod(mantissas), int(np.sum(exponents))))
+
+
 class LocalLinearTrend(LinearMotion):
     r"""The local linear trend model of Durbin & Koopman; dt counts steps.
 
@@ -827,9 +835,9 @@ class LocalLinearTrend(LinearMotion):
                 f"`dt` = {d:g} is a fraction of a step, over which LocalLinearTrend(q_level={ql:g}, "
                 f"q_slope={qs:g}) has no noise covariance (it needs q_level >= q_slope (1 - dt²) / 12 = "
                 f"{qs * (1.0 - d * d) / 12.0:g}): the model counts whole steps.")
-        cross = qs * (d * (d - 1.0) / 2.0)
+        cross = _product(qs, d, d - 1.0, 0.5)
         return (np.array([[1.0, d], [0.0, 1.0]]),
-                np.array([[d * ql + qs * (d * (d - 1.0) * (2.0 * d - 1.0) / 6.0), cross], [cross, d * qs]]))
+                np.array([[d * ql + _product(qs, d, d - 1.0, 2.0 * d - 1.0, 1.0 / 6.0), cross], [cross, d * qs]]))
 
 
 class LinearSDE(LinearMotion):
