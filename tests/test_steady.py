@@ -442,3 +442,41 @@ def test_the_fallback_recursion_starts_from_a_prior_that_knows_no_component_exac
     posterior = P - P @ H.T @ np.linalg.solve(S, H @ P)
     np.testing.assert_allclose(F @ posterior @ F.T + Q, P, rtol=0, atol=1e-14)
     np.testing.assert_allclose(P, [[1.25, 0.5], [0.5, 1.0]], rtol=1e-14)  # x2 = x1 + 0.5 x2: var 1 + 0.25
+
+
+def _rotation(angle):
+    return np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+
+
+@pytest.mark.parametrize("F, H, Q, unseen, how", [
+    (_rotation(0.3), [[0.0, 0.0]], np.eye(2), [1.0, 0.0], "grows without bound, driven by Q"),
+    (_rotation(3.0), [[0.0, 0.0]], np.eye(2), [0.0, 1.0], "grows without bound, driven by Q"),
+    (np.eye(2), [[1.0, 0.0]], np.eye(2), [0.0, 1.0], "grows without bound, driven by Q"),  # a repeated eigenvalue
+    (np.eye(2), [[1.0, 1.0]], np.eye(2), [0.5 ** 0.5, -(0.5 ** 0.5)], "grows without bound, driven by Q"),
+    (np.diag([1.0, 0.5]), [[0.0, 1.0]], np.diag([0.0, 1.0]), [1.0, 0.0], "stays at the prior's, whatever it is"),
+])
+def test_a_mode_on_the_unit_circle_that_h_does_not_measure_has_no_steady_state(F, H, Q, unseen, how):
+    """A rotation that H never measures, driven by Q: its covariance grows as P0 + k Q (the recursion, iterated
+    below), but steady_state returned a variance of 1.7e16, its closed loop's radius computed as 1 - 1.1e-16
+    (audit WW1); undriven, the variance stays at the prior's, and the message said it falls to 0 as 1/k and
+    advised giving Q a variance there, which makes it grow (audit WW2)."""
+    model = gf.LinearModel(F=F, H=H, Q=Q, R=1.0)
+    P = 7.0 * np.eye(2)
+    for _ in range(1000):  # the oracle: the predicted covariance, step by step
+        S = model.H @ P @ model.H.T + model.R
+        P = model.F @ (P - P @ model.H.T @ np.linalg.solve(S, model.H @ P)) @ model.F.T + model.Q
+    variance = np.asarray(unseen) @ P @ np.asarray(unseen)  # along the mode H does not see
+    assert variance > 1000.0 if "grows" in how else variance == pytest.approx(7.0, rel=1e-12)
+    with pytest.raises(ValueError, match=r"^the filter of `model` has no steady state: F has a mode on the unit "
+                                         rf"circle \(eigenvalue .*\) that H does not measure.*{how}"):
+        gf.steady_state(model)
+
+
+def test_unit_circle_modes_that_h_measures_keep_their_steady_state():
+    """The same F with H seeing every mode: the stabilising solution, as SciPy's."""
+    from scipy.linalg import solve_discrete_are
+
+    for F, H in ((_rotation(0.3), [[1.0, 0.0]]), (np.eye(2), np.eye(2)), (np.diag([1.0, 0.5]), [[1.0, 1.0]])):
+        model = gf.LinearModel(F=F, H=H, Q=np.eye(2), R=np.eye(np.shape(H)[0]))
+        want = solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
+        np.testing.assert_allclose(gf.steady_state(model).predicted_cov, want, rtol=1e-12)

@@ -171,8 +171,16 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
 
     F, H, Q, R = model.F, model.H, model.Q, model.R
     q, r = np.abs(Q).max(), np.abs(R).max()
-    unit = _unit_circle_modes(F, Q)
-    still = [v for v, drive, noise in unit if drive <= noise]
+    unit = _unit_circle_modes(F, Q, H)
+    unseen = [(v, drive > noise) for v, drive, noise, seen in unit if not seen]
+    if unseen:  # (before the candidates, which a closed loop at 1 - 1.1e-16 passed: audit WW1)
+        v, driven = unseen[0]
+        raise ValueError(
+            f"the filter of `model` has no steady state: F has a mode on the unit circle (eigenvalue {v:.3g}) that "
+            "H does not measure, so nothing the filter sees settles it: its variance "
+            + ("grows without bound, driven by Q" if driven else "stays at the prior's, whatever it is")
+            + ". Measure that mode (a row of H that sees it), or filter without steady=True.")
+    still = [v for v, drive, noise, _ in unit if drive <= noise]
     if not still and not Q.any() and max(abs(v) for v in np.linalg.eigvals(F)) < 1.0:
         return np.zeros_like(Q)
     found, error = [], None
@@ -200,7 +208,7 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
         if iterated is not None and _stabilises(model, iterated):
             return iterated
         why = f" (SciPy: {error})" if error is not None else ""
-        faint = [(v, drive) for v, drive, _ in unit if drive < 1e-31 * r]
+        faint = [(v, drive) for v, drive, _, _ in unit if drive < 1e-31 * r]
         if faint:  # the gain, about √(Q/R) there, and the loop's distance from the circle are round-off
             raise ValueError(
                 f"the filter of `model` has no steady state that float64 can hold: F has a mode on the unit "
@@ -217,9 +225,14 @@ def _riccati_solution(model: LinearModel) -> np.ndarray:
     return min(kept, key=lambda P: (_residual(model, P) > _ROUND_OFF, _balance(model, P)))
 
 
-def _unit_circle_modes(F: np.ndarray, Q: np.ndarray) -> list[tuple[complex, float, float]]:
+def _unit_circle_modes(F: np.ndarray, Q: np.ndarray, H: np.ndarray) -> list[tuple[complex, float, float, bool]]:
     """The modes of F on the unit circle, to each eigenvalue's round-off: (λ, how much Q drives it, w* Q w for
-    the left eigenvector w, and that drive's own round-off).
+    the left eigenvector w, that drive's own round-off, and whether H sees it).
+
+    H sees a mode where ‖H x‖ of its unit right eigenvector x (the one H sees least, in a repeated eigenvalue's
+    eigenspace: :func:`_least_seen`) is above its round-off. One it does not see stays in the closed loop
+    F (I - K H) whatever the gain, so there is no stabilising solution; computed, the loop's radius came out
+    1 - 1.1e-16 and a rotation H never measured had a "steady" variance of 1.7e16 (audit WW1).
 
     An eigenvalue is computed to about ε ‖F‖ times its condition number 1 / |yᴴ x| (y and x its unit left and
     right eigenvectors): a rotation's is exact to 1e-16, so that a stable mode at 1 - 1e-10 is told from it, and a
@@ -240,10 +253,26 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray) -> list[tuple[complex, floa
         if abs(abs(v) - 1.0) <= tol:
             # its eigenspace: the singular values of F - v I that are round-off, not a Jordan block's coupling of 1e-6
             # (a clock's phase and drift at 1 MHz was refused when the eigenvalue's bound was used: review R18)
-            w = _least_driven(F, Q, complex(v), 1e-10 * max(np.abs(F).max(), 1.0), y / scale)
+            space = 1e-10 * max(np.abs(F).max(), 1.0)
+            w = _least_driven(F, Q, complex(v), space, y / scale)
             drive, noise = abs(np.conj(w) @ Q @ w), 64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w))
-            modes.append((complex(v), float(drive), float(noise)))
+            u = _least_seen(F, H, complex(v), space, x * scale)
+            seen = np.linalg.norm(H @ u) > 64.0 * eps * np.linalg.norm(np.abs(H) @ np.abs(u))
+            modes.append((complex(v), float(drive), float(noise), bool(seen)))
     return modes
+
+
+def _least_seen(F: np.ndarray, H: np.ndarray, v: complex, tol: float, x: np.ndarray) -> np.ndarray:
+    """The unit right eigenvector for `v` (in F's eigenspace there: singular values of F - v I up to `tol`) that H
+    sees least, or `x` normalised where the eigenspace is one direction (:func:`_least_driven`'s dual: with F = I
+    and H = [1, 0], neither returned eigenvector need be the unmeasured x2)."""
+    _, sv, Vh = np.linalg.svd(F - v * np.eye(F.shape[0]))
+    space = Vh[sv <= tol].conj().T
+    if space.shape[1] < 2:
+        return x / np.linalg.norm(x)
+    _, vecs = np.linalg.eigh(space.conj().T @ H.T @ H @ space)  # what H sees within the eigenspace, least first
+    least = space @ vecs[:, 0]
+    return least / np.linalg.norm(least)
 
 
 def _least_driven(F: np.ndarray, Q: np.ndarray, v: complex, tol: float, w: np.ndarray) -> np.ndarray:
