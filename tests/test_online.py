@@ -200,8 +200,12 @@ def test_the_step_is_checked_when_set():
 
 
 def test_constructor_checks_model_and_prior():
-    with pytest.raises(TypeError, match=r"^`model` must be a LinearModel, NonlinearModel; got dict\.$"):
+    # (it said "a LinearModel, NonlinearModel", leaving out the TimedModel it takes: audit WW3)
+    with pytest.raises(TypeError, match=r"^`model` must be a gaussfuse\.LinearModel, NonlinearModel or TimedModel; "
+                                        r"got dict\.$"):
         gf.KalmanFilter({}, gf.Gaussian([0.0], [[1.0]]))
+    with pytest.raises(TypeError, match=r"got ConstantVelocity \(a motion model: gaussfuse\.model\(motion, sensor\)"):
+        gf.KalmanFilter(gf.ConstantVelocity(), gf.Gaussian([0.0, 0.0], np.eye(2)))
     model = gf.constant_velocity(dt=1.0, q=1.0, r=1.0)
     with pytest.raises(ValueError, match=r"^`prior` must have dimension 2 \(the model's state\); got 1\.$"):
         gf.KalmanFilter(model, gf.Gaussian([0.0], [[1.0]]))

@@ -13,7 +13,7 @@ from .diagnostics import DivergenceMonitor
 from .errors import STEP_ERRORS, at_step
 from .gaussian import Gaussian
 from .inference.registry import linearisation, resolve_method
-from .inference.validation import check_form, check_prior, check_semidefinite
+from .inference.validation import check_form, check_model, check_prior, check_semidefinite
 from .models.compose import TimedModel, probe_step
 from .models.linear import LinearModel
 from .models.motion import LinearMotion
@@ -155,6 +155,7 @@ class KalmanFilter:
 
     def __init__(self, model, prior: Gaussian, form: str = "cov", check: str = "warn", method: str | None = None,
                  **options) -> None:
+        check_model(model)  # (the registry's message named neither TimedModel nor a motion's mistake: audit WW3)
         self.timed = model if isinstance(model, TimedModel) else None
         if self.timed is not None:
             model, self._timed_p = _one_step(self.timed)

@@ -133,8 +133,8 @@ def resolve_method(model, method: str | None, options: dict, caller: Callable | 
                 method = name
                 break
         else:
-            known = ", ".join(c.__name__ for c in DEFAULT_METHOD)
-            raise TypeError(f"`model` must be a {known}; got {type(model).__name__}.")
+            *most, last = (f"gaussfuse.{c.__name__}" for c in DEFAULT_METHOD)
+            raise TypeError(f"`model` must be a {', '.join(most)} or {last}; got {type(model).__name__}.")
     spec, options = check_options(method, options, caller)
     if not isinstance(model, spec.model_types):
         fits = sorted(k for k, v in METHODS.items() if isinstance(model, v.model_types))
