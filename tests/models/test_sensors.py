@@ -255,3 +255,25 @@ def test_the_range_bearing_elevation_jacobian_is_nan_where_its_docstring_says():
     np.testing.assert_array_equal(above[0], [0, 0, 1, 0])
     at = sensor.jacobian(np.array([1.0, 2.0, 3.0, 0.0]))  # at the sensor: the range's row, the elevation's z too
     np.testing.assert_array_equal(np.isnan(at), [[1, 1, 1, 0], [1, 1, 0, 0], [1, 1, 1, 0]])
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e200, 1e-200])
+def test_geometric_sensors_take_a_complex_step(scale):
+    """NumPy's hypot and arctan2 have no complex loop, so h refused a complex state and a NonlinearModel built on
+    a sensor's h (or a stacked one's) fell back to finite differences, 1e-11 off where a complex step is exact
+    (audit TT2). The complex step of h now equals the analytic Jacobian to round-off at any scale; real input
+    takes NumPy's own functions, bit for bit."""
+    from gaussfuse.models.compose import stack_sensors
+
+    motion = gf.ConstantVelocity(dim=3)
+    x = scale * np.array([3.0, -4.0, 1.5, 0.3, 0.1, -0.2])
+    sensors = [gf.RangeBearing(origin=(-scale, 0.0)), gf.BearingOnly(), gf.RangeBearingElevation(),
+               stack_sensors({"rb": gf.RangeBearing(), "p": gf.Position(dim=3)}, motion)]
+    h = 1e-20 * scale
+    for sensor in sensors:
+        J = sensor.jacobian(x)
+        stepped = np.stack([np.imag(sensor.h(x + 1j * h * e)) / h for e in np.eye(x.size)], axis=-1)
+        np.testing.assert_allclose(stepped * scale, J * scale, rtol=1e-14, atol=1e-15 * np.abs(J * scale).max())
+        np.testing.assert_allclose(np.real(sensor.h(x + 1j * h * np.eye(x.size)[0])), sensor.h(x), rtol=1e-15)
+    dx, dy = x[0] + scale, x[1]
+    np.testing.assert_array_equal(sensors[0].h(x), [np.hypot(dx, dy), np.arctan2(dy, dx)])

@@ -254,6 +254,28 @@ def _position(x, k: int) -> tuple[np.ndarray, int]:
     return arr, arr.shape[-1]
 
 
+def _hypot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    r"""``√(a² + b²)`` without overflow or underflow: NumPy's hypot for real input, and for complex input (a
+    complex step) the same analytic function on the scale of the real parts, :math:`s \sqrt{(a/s)^2 + (b/s)^2}`
+    (NumPy's hypot has no complex loop: a NonlinearModel built on a sensor's h lost the complex step, audit TT2)."""
+    if not (np.iscomplexobj(a) or np.iscomplexobj(b)):
+        return np.hypot(a, b)
+    s = np.maximum(np.abs(np.real(a)), np.abs(np.real(b)))
+    s = np.where(s > 0.0, s, 1.0)
+    return s * np.sqrt((a / s) ** 2 + (b / s) ** 2)
+
+
+def _arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    r"""The angle of (x, y): NumPy's arctan2 for real input, and for a complex step its first-order extension,
+    :math:`\operatorname{atan2}(y_r, x_r) + i\,(x_r y_i - y_r x_i) / (x_r^2 + y_r^2)` (exact to the step's
+    square, far below round-off; the division on the scale of r, whose square overflows beyond 1e154)."""
+    if not (np.iscomplexobj(x) or np.iscomplexobj(y)):
+        return np.arctan2(y, x)
+    xr, yr, r = np.real(x), np.real(y), np.hypot(np.real(x), np.real(y))
+    r = np.where(r > 0.0, r, 1.0)
+    return np.arctan2(yr, xr) + 1j * ((xr / r) * np.imag(y) - (yr / r) * np.imag(x)) / r
+
+
 def _origin(value, k: int) -> np.ndarray:
     return as_vector("origin", value, k)
 
@@ -330,7 +352,7 @@ class RangeBearing(NonlinearSensor):
         """
         x, _ = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
-        return np.stack([np.hypot(dx, dy), np.arctan2(dy, dx)], axis=-1)
+        return np.stack([_hypot(dx, dy), _arctan2(dy, dx)], axis=-1)
 
     def jacobian(self, x) -> np.ndarray:
         """∂h/∂x of shape (2, n).
@@ -441,8 +463,8 @@ class RangeBearingElevation(NonlinearSensor):
         """
         x, _ = _position(x, 3)
         dx, dy, dz = (x[..., i] - self.origin[i] for i in range(3))
-        rxy = np.hypot(dx, dy)
-        return np.stack([np.hypot(rxy, dz), np.arctan2(dy, dx), np.arctan2(dz, rxy)], axis=-1)
+        rxy = _hypot(dx, dy)
+        return np.stack([_hypot(rxy, dz), _arctan2(dy, dx), _arctan2(dz, rxy)], axis=-1)
 
     def jacobian(self, x) -> np.ndarray:
         """∂h/∂x of shape (3, n).
@@ -537,7 +559,7 @@ class BearingOnly(NonlinearSensor):
         """
         x, _ = _position(x, 2)
         dx, dy = x[..., 0] - self.origin[0], x[..., 1] - self.origin[1]
-        return np.arctan2(dy, dx)[..., None]
+        return _arctan2(dy, dx)[..., None]
 
     def jacobian(self, x) -> np.ndarray:
         """∂h/∂x of shape (1, n).
