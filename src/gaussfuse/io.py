@@ -96,7 +96,7 @@ import numpy as np
 from ._linalg import marginal_std
 from ._validation import as_array, as_vector, integer, real, shape_error
 from .gaussian import Gaussian
-from .inference.frames import by_name, measurement_names
+from .inference.frames import in_model_order, name_choices
 from .inference.validation import check_prior
 from .models._base import check_names
 from .models.linear import LinearModel
@@ -495,36 +495,6 @@ def _text_lines(path, f: IO[str], block: int = 2**20) -> Iterator[str]:
         yield from lines
 
 
-def _in_model_order(given: list[str], named) -> list[int] | None:
-    """Where the measurement columns `given` are the model's measurement names in another order, the position of
-    each name among them; None where they are taken in order (see :func:`gaussfuse.inference.frames.by_name`,
-    which matches names as written, then in any case).
-
-    `named` is one list of names or several, alternatives (a renamed model's `states`, then its sensor's own x,
-    y): audit SS1 found a renamed model's columns read by position, silently (x filtered from a column named y).
-    The first that all the columns name is taken; where none does, one that some name and others do not is
-    refused (review R47: `t,Y,x` was refused on the exact names before the case-blind pass)."""
-    if not named:
-        return None
-    refused = None
-    for names in [named] if isinstance(named[0], str) else named:
-        if len(given) != len(names) or len(set(names)) < len(names):
-            continue  # (a count other than the model's is named by the caller)
-        if given == list(names):
-            return None
-        try:
-            order = by_name(given, names, f"the measurement columns {given} name some of",
-                            "choose the columns with --columns")
-        except ValueError as exc:
-            refused = refused or exc
-            continue
-        if order is not None:
-            return order
-    if refused is not None:
-        raise refused
-    return None
-
-
 def _check_header(path, header: list[str] | None) -> None:
     """A file without a header (empty, or a blank first line) is refused as such ("found columns []" said nothing
     of why: audit Y3; the panel reader's "line 2: expected 0 cells": review R11)."""
@@ -578,7 +548,10 @@ def _measurement_columns(path, header: list[str], time_col: int, columns, named=
                                  "the measurement columns with --columns).", line=1)
         others = [i for i in range(len(header)) if i != time_col]
         try:  # as gaussfuse.filter takes a DataFrame's (audit EE2)
-            order = _in_model_order([header[i] for i in others], named)
+            order = None if not named else in_model_order(
+                [header[i] for i in others], [named] if isinstance(named[0], str) else named,
+                f"the measurement columns {[header[i] for i in others]} name some of",
+                "choose the columns with --columns")
         except ValueError as exc:
             raise InputFileError(path, str(exc), line=1) from None
         return others if order is None else [others[i] for i in order]
@@ -707,15 +680,15 @@ class ModelFile(NamedTuple):
         list of list of str, or None
             For a named model, the names of the states its sensor reads as
             its `states` give them, then as the sensor's own (x, y), where
-            they differ: alternatives, the first that a file's columns all
-            name taken (audit SS1: a model with `states` read a file's x, y
-            by position). None for explicit matrices.
+            they differ and name none of the states: alternatives, the first
+            that a file's columns all name taken (audit SS1: a model with
+            `states` read a file's x, y by position), as for a DataFrame
+            (:func:`gaussfuse.inference.frames.name_choices`). None for
+            explicit matrices.
         """
         if self.timed is None:
             return None
-        own = TimedModel(self.timed.motion, self.timed.sensor)
-        return [list(names) for names in dict.fromkeys([measurement_names(self.timed), measurement_names(own)])
-                if names]
+        return [list(names) for names in name_choices(self.timed)]
 
 
 def read_model(path: StrPath) -> ModelFile:

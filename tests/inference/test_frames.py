@@ -353,5 +353,31 @@ def test_names_that_differ_only_in_case_are_matched_as_written():
     assert by_name(["B", "A"], ("a", "b"), "", "") == [1, 0]
     assert by_name(["a", "b"], ("x", "X"), "", "") is None
     for twice, missing in (["x", "x"], "X"), (["X", "X"], "x"):  # one of them twice: the other is missing
-        with pytest.raises(ValueError, match=rf"measurements \['x', 'X'\], without \['{missing}'\]: name them"):
+        with pytest.raises(ValueError, match=rf"measurements \['x', 'X'\], without \['{missing}'\], "
+                                             rf"\['{twice[0]}'\] more than once: name them"):
             by_name(twice, ("x", "X"), "`zs` has", "fix")
+    # a column named twice beside the others: the message named nothing wrong (review R52)
+    with pytest.raises(ValueError, match=r"measurements \['x', 'y'\], \['x'\] more than once: name them"):
+        by_name(["x", "x", "y"], ("x", "y"), "`zs` has", "fix")
+
+
+def test_a_renamed_model_takes_a_frame_in_its_sensor_s_own_names():
+    """States renamed px, py, ...: a DataFrame in the sensor's own names y, x (or Y, X) was taken by position,
+    swapped, where the command line reads such a file by name (review R52). They are the second choice, where
+    they name none of the model's states (review R38's sensor names that do stay in order: see above)."""
+    from gaussfuse.inference.frames import name_choices
+
+    track = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.25), names=["px", "py", "vx", "vy"])
+    assert name_choices(track) == [("px", "py"), ("x", "y")]
+    zs = np.array([[0.25, -0.15], [1.2, 1.05], [1.6, 1.4]])
+    prior = gf.Gaussian([0.0, 0.0, 1.0, 0.5], 4.0 * np.eye(4))
+    want = gf.filter(track, prior, zs, times=[0.5, 1.0, 1.5])
+    index = pd.to_timedelta([0.5, 1.0, 1.5], unit="s")
+    for names in (["y", "x"], ["Y", "X"], ["py", "px"]):
+        frame = pd.DataFrame(dict(zip(names, [zs[:, 1], zs[:, 0]])), index=index)
+        got = gf.filter(track, prior, frame)
+        np.testing.assert_array_equal(got.means, want.means)
+        assert got.table.columns == ("px", "py")
+    swap = gf.model(gf.ConstantVelocity(dim=1, q=0.5), gf.LinearSensor(np.eye(2), np.eye(2), names=("x", "y")),
+                    names=["y", "x"])
+    assert name_choices(swap) == [] and name_choices(gf.LinearModel(1.0, 1.0, 1.0, 1.0)) == []

@@ -21,7 +21,8 @@ import numpy as np
 from .._linalg import marginal_std
 from ..models import LinearSensor, TimedModel
 
-__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names", "by_name"]
+__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names", "name_choices",
+           "in_model_order", "by_name"]
 
 
 class Table:
@@ -65,6 +66,44 @@ def measurement_names(model) -> tuple[str, ...] | None:
     return tuple(out) if len(set(out)) == len(out) else None
 
 
+def name_choices(model) -> list[tuple[str, ...]]:
+    """The names by which columns are matched to a model's measurements, alternatives in turn: its measurement
+    names (:func:`measurement_names`), then its sensor's own where they differ and name none of the model's
+    states. A renamed model (states "px", "py", ...) took a DataFrame of its sensor's "y", "x" by position,
+    swapped, where the command line read the file by name (review R52); a sensor's own names that are the
+    model's names of other states are no alternative (review R38: they swapped a frame in the model's names).
+    None for a model without them (a LinearModel or NonlinearModel)."""
+    names = measurement_names(model)
+    if names is None and not isinstance(model, TimedModel):
+        return []
+    own = tuple(model.sensor.names)
+    apart = len(set(own)) == len(own) and not set(own) & set(model.names)
+    return [choice for choice in dict.fromkeys([names, own if apart else None]) if choice]
+
+
+def in_model_order(columns, choices, what: str, fix: str) -> list[int] | None:
+    """Where `columns` are the measurement names of one of the `choices` (:func:`name_choices`) in another order or
+    case, the position of each name among them; None where they are taken in order. The first choice that all
+    the columns name is taken; where none does, one that some name and others do not is refused (review R47:
+    `t,Y,x` was refused on the exact names before the pass in any case)."""
+    refused = None
+    for names in choices:
+        if len(columns) != len(names) or len(set(names)) < len(names):
+            continue  # (a count other than the model's is named by the caller)
+        if list(columns) == list(names):
+            return None
+        try:
+            order = by_name(columns, names, what, fix)
+        except ValueError as exc:
+            refused = refused or exc
+            continue
+        if order is not None:
+            return order
+    if refused is not None:
+        raise refused
+    return None
+
+
 def by_name(columns, names, what: str, fix: str) -> list[int] | None:
     """Where `columns` are the measurement `names` in another order, the position of each name among them; None
     where they are taken in order (no names, the same order, or none of them).
@@ -91,12 +130,14 @@ def by_name(columns, names, what: str, fix: str) -> list[int] | None:
         if sorted(given) == sorted(wanted):
             return [given.index(name) for name in wanted]
         refusal = refusal or ([n for n, w in zip(names, wanted) if w not in given],
-                              [c for c, g in zip(columns, given) if g not in wanted])
+                              [c for c, g in zip(columns, given) if g not in wanted],
+                              sorted({c for c, g in zip(columns, given) if given.count(g) > 1}))
     if refusal is None:
         return None
-    missing, other = refusal
+    missing, other, twice = refusal
     raise ValueError(f"{what} the model's measurements {names}" + (f", without {missing}" if missing else "")
                      + (f", and {other} besides" if other else "")
+                     + (f", {twice} more than once" if twice else "")  # (it named nothing wrong: review R52)
                      + f": name them as the model does, in any order, or {fix}.")
 
 
@@ -196,12 +237,12 @@ def unpack(zs, times, model):
         raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
     columns = (tuple(str(c) for c in zs.columns) if hasattr(zs, "columns")
                else None if zs.name is None else (str(zs.name),))  # (an unnamed Series' column is not "None")
-    names = measurement_names(model)
-    order = None if not hasattr(zs, "columns") else by_name(
-        columns, names, f"`zs` has the columns {list(columns)}, some of",
+    choices = name_choices(model)
+    order = None if not hasattr(zs, "columns") else in_model_order(
+        columns, choices, f"`zs` has the columns {list(columns)}, some of",
         "give `zs.to_numpy()` to take the columns in their order")
     if order is not None:
-        values, columns = values[:, order], names
+        values, columns = values[:, order], choices[0]
     index, index_times = _datetimes(zs.index), False
     rows = _by_rows(model)
     if times is None and index is not None and (not rows or not _calendar(index)) and (
