@@ -1590,3 +1590,48 @@ def test_maximum_likelihood_that_cannot_leave_a_saddle_says_so(monkeypatch):
         fit = gf.fit(gf.LinearModel(1.0, 0.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), z, learn=("H", "R"),
                      method="mle", engine="python")
     assert not fit.converged and fit.params["H"] == 0.0 and fit.loglik < top - 100
+
+
+def test_h_is_searched_in_units_of_its_state_s_size():
+    """A level of 1e5 seen through H = 2 with a process noise of 1e-3: H's unit taken as √R over the process
+    noise's standard deviation (1e3, where H's size is √R / 1e5) stalled the search 0.27 below the maximum with R
+    at its start (review R52). The oracle: the dense joint Gaussian's log-likelihood, H profiled out for each
+    log R (a random walk's covariance in closed form)."""
+    import scipy.optimize
+
+    T, level, Q = 50, 1e5, 1e-6
+    rng = np.random.default_rng(2)
+    z = 2.0 * (level + np.cumsum(rng.normal(size=T)) * np.sqrt(Q)) + rng.normal(size=T)
+
+    def dense(H, R):
+        return _oracle.JointGaussian([[1.0]], [[H]], [[Q]], [[R]], [level], [[1e-2]], T).loglik(z[:, None])
+
+    def profiled(log_r):
+        return scipy.optimize.minimize_scalar(lambda H: -dense(H, np.exp(log_r)), bracket=(2 - 1e-3, 2 + 1e-3),
+                                              tol=1e-15).fun
+
+    best = scipy.optimize.minimize_scalar(profiled, bracket=(-1.0, 1.0), tol=1e-10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = gf.fit(gf.LinearModel(1.0, 1.9, Q, 1.0), gf.Gaussian([level], [[1e-2]]), z, learn=("H", "R"),
+                     method="mle", engine="python")
+    assert fit.converged
+    assert fit.loglik == pytest.approx(-best.fun, abs=1e-6)
+    assert fit.params["R"] == pytest.approx(np.exp(best.x), rel=1e-4)
+
+
+def test_the_count_goes_on_over_a_search_from_above_a_saddle():
+    """The callback told iteration 13 twice where the search went on from above the saddle, each later value
+    under the previous index, and `iterations=20` left 22 values where one search leaves at most 21 (review
+    R52): the count is the history's index, over every search, within `iterations`."""
+    z, _, _, _, _ = _loading_case()
+    for iterations in (1000, 20):
+        told = []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", gf.ConvergenceWarning)  # (20 iterations do not reach the maximum)
+            fit = gf.fit(gf.LinearModel(1.0, 0.0, 1.0, 1.0), gf.Gaussian([0.0], [[1.0]]), z, learn=("H", "R"),
+                         method="mle", engine="python", iterations=iterations,
+                         callback=lambda it, ll: told.append((it, ll)))
+        assert [it for it, _ in told] == list(range(len(told)))
+        assert all(fit.history[it] == ll for it, ll in told)
+        assert len(fit.history) <= iterations + 1 and fit.history[-1] == fit.loglik

@@ -977,7 +977,8 @@ class _Parametrisation:
         """The size of a change of each entry of θ that moves the model as much in any units of the data: 1 for
         a log variance and an entry of F, a component's standard deviation for an entry of a Cholesky
         factor's row or of m0 (which scale with the data), for H[i, j] measurement i's noise standard deviation
-        over the process noise's (else the prior's) of component j (1 where R_ii = 0), and for B[i, j] the
+        over component j's size (the largest of its prior mean, its prior's and its process noise's standard
+        deviations; 1 where that or R_ii is 0), and for B[i, j] the
         process noise's standard deviation of component i over the size of control j (B u moves the state; the controls may be in other
         units than the data). Where those are missing, a component is sized by what the measurements resolve
         of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
@@ -997,12 +998,16 @@ class _Parametrisation:
                 # P0 = 1e-16 the search stayed at its start, converged, 17.6 below the maximum: audit UU1)
                 out.append(np.where(sd > 0, np.maximum(sd, measured), np.maximum(noise, measured)))
             elif name == "H":
-                # a measurement's noise over its state's size, as B's: a unit of 1 for data of 1e6 kept the search
-                # at its start, as if the likelihood did not depend on H (audit UU2)
+                # a measurement's noise over its state's size: a unit of 1 for data of 1e6 kept the search at its
+                # start, as if the likelihood did not depend on H (audit UU2); the state's size is the largest of
+                # its prior mean, its prior's and its process noise's standard deviations (the noise's alone,
+                # 1e-2 for a level of 1e4, made H's unit 1e6 times its size, and the search stalled: review R52)
                 r = np.diagonal(model.R, axis1=-2, axis2=-1).reshape(-1, model.m).mean(axis=0)
                 rows = np.sqrt(np.clip(r, 0.0, None))
-                cols = np.where(noise > 0, noise, np.where(sd > 0, sd, 1.0))
-                unit = np.where(rows[:, None] > 0, rows[:, None] / cols[None, :], 1.0)
+                level = np.zeros(n) if isinstance(prior, str) else np.abs(prior.mean)
+                cols = np.maximum(np.maximum(level, sd), noise)
+                unit = np.where((rows[:, None] > 0) & (cols[None, :] > 0), rows[:, None] / np.where(cols > 0, cols, 1.0),
+                                1.0)
                 out.append(np.broadcast_to(unit, model.H.shape).ravel())
             elif name == "B":
                 p = t.size // n
@@ -1916,7 +1921,9 @@ def _mle_past_saddles(build, theta0, data, nobs, iterations, tol, callback, engi
     interrupted). The history and the callback's count go on over the searches."""
     history, escapes = np.zeros(0), 0
     while True:
-        done = max(history.size - 1, 0)
+        # values so far: a search from above the saddle starts with the next (its first, the point above), and
+        # the searches hold iterations + 1 values in all, as one does (review R52: 13 told twice, 22 of 21)
+        done = history.size
         tell = callback if callback is None or not done else (lambda it, ll, done=done: callback(it + done, ll))
         theta, run, converged, message, evaluate = _mle(build, theta0, data, nobs, iterations - done, tol, tell,
                                                         engine)
@@ -1927,7 +1934,7 @@ def _mle_past_saddles(build, theta0, data, nobs, iterations, tol, callback, engi
         above = _above_saddle(evaluate, theta, curvature) if converged else None
         if above is None:
             return theta, history, converged, message, evaluate, curvature
-        if escapes == _ESCAPES or history.size - 1 >= iterations:
+        if escapes == _ESCAPES or iterations - history.size < 1:
             return theta, history, False, _SADDLE + "; try another start", evaluate, curvature
         escapes, theta0 = escapes + 1, above
 
