@@ -779,3 +779,29 @@ def test_the_divergence_monitor_refuses_a_positive_nis_where_nothing_was_observe
         monitor.add_many(np.full(3, 50.0), [1, 0, 1], [0, 1, 2])
     assert monitor.add(0.0, 0, 5) is None and monitor.add(np.nan, 0, 6) is None
     assert monitor.add_many([0.0, np.nan], [0, 0], [7, 8]) == []
+
+
+def test_nees_names_the_step_of_a_covariance_that_is_not_a_covariance():
+    """nees said "a covariance has a variance of -1" without saying which, where nis names the step (audit XX2)."""
+    errors, covs = np.zeros((5, 2)), np.tile(np.eye(2), (5, 1, 1))
+    covs[3, 0, 0] = -1.0
+    with pytest.raises(np.linalg.LinAlgError, match=r"the covariance at step 3 has a variance of -1 at component 0"):
+        gf.diagnostics.nees(errors, covs)
+    indefinite = np.tile(np.eye(2), (2, 5, 1, 1))
+    indefinite[1, 2] = [[1.0, 2.0], [2.0, 1.0]]
+    with pytest.raises(np.linalg.LinAlgError, match=r"the covariance in series 1, at step 2 has an eigenvalue of -1"):
+        gf.diagnostics.nees(np.zeros((2, 5, 2)), indefinite)
+    partly = errors.copy()
+    partly[3, 1] = np.nan  # the observed block of a step with a missing component
+    with pytest.raises(np.linalg.LinAlgError, match=r"the covariance at step 3 has a variance of -1"):
+        gf.diagnostics.nees(partly, covs)
+
+
+def test_the_rmse_of_no_estimates_is_nan_without_a_warning():
+    """No estimates: NaN, as documented, but through NumPy's "mean of empty slice" and "invalid value" warnings,
+    errors under a strict warnings filter (audit XX5)."""
+    from gaussfuse.diagnostics import rmse
+
+    assert np.isnan(rmse(np.ones((0, 2)), np.ones((0, 2))))
+    assert np.isnan(rmse(np.ones((0, 4, 2)), np.zeros((0, 4, 2)), axis=0)).all()
+    assert rmse(np.ones((3, 4, 2)), np.zeros((3, 4, 2))) == pytest.approx(np.sqrt(2.0), rel=1e-15)

@@ -625,3 +625,23 @@ def test_mode_probabilities_of_one_step_are_drawn(stacked):
         assert [line.get_marker() for line in lines] == ["o", "o"]
         np.testing.assert_array_equal([line.get_ydata()[0] for line in lines], imm.mode_probs[0])
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["slow", "fast"]
+
+
+def test_values_that_cannot_be_what_is_drawn_are_refused():
+    """A negative variance drew a band of no width, NIS values of -1 were titled "too cautious", and negative mode
+    probabilities were drawn (audit XX4); a variance of round-off below 0, as a filter leaves, is drawn."""
+    from gaussfuse.plotting import plot_consistency, plot_mode_probabilities, plot_series
+
+    T, covs = 10, np.tile(np.eye(2), (10, 1, 1))
+    bad = covs.copy()
+    bad[4, 1, 1] = -1.0
+    with pytest.raises(ValueError, match=r"^`covs` must be covariances, whose variances are >= 0; got -1 at step 4, "
+                                         r"component 1\.$"):
+        plot_series(np.arange(T), np.zeros((T, 2)), bad)
+    roundoff = covs.copy()
+    roundoff[4, 1, 1] = -1e-17
+    assert isinstance(plot_series(np.arange(T), np.zeros((T, 2)), roundoff, component=1), Figure)
+    with pytest.raises(ValueError, match=r"^`values` must be NIS or NEES values, >= 0; got -1\.$"):
+        plot_consistency(-np.ones(5), (1.0, 2.0))
+    with pytest.raises(ValueError, match=r"^`probs` must be probabilities, in \[0, 1\]; got -1\.$"):
+        plot_mode_probabilities(np.arange(T), -np.ones((T, 2)))

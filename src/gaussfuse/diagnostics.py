@@ -179,6 +179,16 @@ def nees(errors, covs, scale=None) -> np.ndarray:
     ndarray of shape (..., T)
         Each value χ² with rank(P) degrees of freedom (n for a positive
         definite P) for a consistent filter.
+
+    Raises
+    ------
+    ValueError, TypeError
+        For arrays of the wrong shape or type, and a covariance that is NaN
+        or infinite in part, naming the step.
+    numpy.linalg.LinAlgError
+        For a covariance that is not positive semi-definite (a negative
+        variance, or an eigenvalue below round-off on its components'
+        scales), naming the step.
     """
     return _nees(errors, covs, scale)[0]
 
@@ -202,39 +212,44 @@ def _nees(errors, covs, scale=None) -> tuple[np.ndarray, np.ndarray]:
         floor = UNRESOLVED * np.abs(size.reshape(flat_e.shape))
     out, dof = np.full(flat_e.shape[0], np.nan), np.zeros(flat_e.shape[0], dtype=np.int64)
     whole = ~np.isnan(flat_e).any(axis=1) & np.isfinite(flat_C).all(axis=(1, 2))
-    out[whole], dof[whole] = _pseudo_nees(flat_e[whole], flat_C[whole], floor[whole])
+    def place(steps: np.ndarray):  # where the k-th of a stack of these flat steps is, for an error message
+        return lambda k: _place(np.unravel_index(steps[k], e.shape[:-1]))
+
+    out[whole], dof[whole] = _pseudo_nees(flat_e[whole], flat_C[whole], floor[whole], place(np.flatnonzero(whole)))
     for t in np.flatnonzero(~whole & ~np.isnan(flat_e).all(axis=1)):  # some components missing: their block
         o = ~np.isnan(flat_e[t])
         block = flat_C[t][np.ix_(o, o)]
         if np.isfinite(block).all():
-            value, rank = _pseudo_nees(flat_e[t][o][None], block[None], floor[t][o][None])
+            value, rank = _pseudo_nees(flat_e[t][o][None], block[None], floor[t][o][None], place(np.array([t])))
             out[t], dof[t] = value[0], rank[0]
         elif not np.isnan(block).all():  # as nis refuses it (a NaN was left as NaN, unseen: audit II7)
             raise _broken("covs", _place(np.unravel_index(t, e.shape[:-1])))
     return out.reshape(e.shape[:-1]), dof.reshape(e.shape[:-1])
 
 
-def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray, where) -> tuple[np.ndarray, np.ndarray]:
     """``eᵀ P⁺ e`` and rank(P) for stacks e (k, n) and P (k, n, n), on P scaled to unit diagonal (see :func:`nees`).
 
     A component of variance 0, or of standard deviation at most its `floor` (k, n), is a zero row of the scaled P:
-    its eigenvalue 0 falls below the cut, and its error is not counted.
+    its eigenvalue 0 falls below the cut, and its error is not counted. ``where(k)`` says where the k-th is, for
+    the error of one that is not positive semi-definite (it named no step, where nis names it: audit XX2).
     """
     n = P.shape[-1]
     variances = np.diagonal(P, axis1=-2, axis2=-1)
     top = np.max(np.abs(P), axis=(-2, -1), initial=0.0)[:, None]
     if (variances < -8 * n * np.finfo(np.float64).eps * top).any():  # not a zero variance computed with round-off
         k, i = (int(j) for j in np.argwhere(variances < -8 * n * np.finfo(np.float64).eps * top)[0])
-        raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; a covariance has a variance of "
-                                    f"{variances[k, i]:.3g} at component {i}.")
+        raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; the covariance {where(k)} has a "
+                                    f"variance of {variances[k, i]:.3g} at component {i}.")
     d = np.sqrt(variances.clip(min=0.0))
     known = d <= floor
     unit = np.where(known, 1.0, d)
     scaled = np.where(known[:, :, None] | known[:, None, :], 0.0, P / unit[:, :, None] / unit[:, None, :])
     vals, vecs = np.linalg.eigh(scaled)
-    if (vals[:, 0] < -PSD_RTOL * vals[:, -1]).any():  # indefinite on its components' scales: not dropped as singular
-        raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; a covariance has an eigenvalue of "
-                                    f"{vals[:, 0].min():.3g} relative to its variances.")
+    bad = np.flatnonzero(vals[:, 0] < -PSD_RTOL * vals[:, -1])
+    if bad.size:  # indefinite on its components' scales: not dropped as singular
+        raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; the covariance {where(bad[0])} has an "
+                                    f"eigenvalue of {vals[bad[0], 0]:.3g} relative to its variances.")
     rank = vals > SINGULAR * n * np.finfo(np.float64).eps * vals.max(axis=-1, initial=0.0)[:, None]
     w = np.einsum("kij,ki->kj", vecs, np.where(known, 0.0, e / unit))
     return np.sum(np.where(rank, w * w / np.where(rank, vals, 1.0), 0.0), axis=-1), rank.sum(axis=-1)
@@ -928,7 +943,10 @@ def rmse(estimates, truth, axis=None, angles=None) -> np.ndarray | float:
     top = np.max(np.abs(diff), axis=-1, initial=0.0)  # (initial: no error on no estimates, whose RMSE is NaN)
     largest = np.max(top, axis=axis, keepdims=True, initial=0.0)
     unit = np.where((largest > 0.0) & np.isfinite(largest), largest, 1.0)
-    out = np.squeeze(unit, axis=axis) * np.sqrt(np.mean(np.sum((diff / unit[..., None]) ** 2, axis=-1), axis=axis))
+    squares = np.sum((diff / unit[..., None]) ** 2, axis=-1)
+    with np.errstate(invalid="ignore"):  # no estimates: NaN, not NumPy's "mean of empty slice" (audit XX5)
+        mean = np.sum(squares, axis=axis) / np.sum(np.ones_like(squares), axis=axis)
+    out = np.squeeze(unit, axis=axis) * np.sqrt(mean)
     return float(out) if np.ndim(out) == 0 else out
 
 

@@ -116,8 +116,9 @@ def plot_series(
     Raises
     ------
     ValueError
-        If an argument has the wrong shape (the message names it), `component`
-        is out of range or `k` is not positive.
+        If an argument has the wrong shape (the message names it), `covs`
+        has a negative variance, `component` is out of range or `k` is not
+        positive.
 
     Examples
     --------
@@ -276,8 +277,8 @@ def plot_consistency(values, interval, *, kind: str = "NEES", ax: Axes | None = 
     Raises
     ------
     ValueError
-        If `values` has the wrong shape or no finite value, or `interval` is
-        not two finite numbers ``low <= high``.
+        If `values` has the wrong shape, no finite value or a negative one,
+        or `interval` is not two finite numbers ``low <= high``.
 
     Notes
     -----
@@ -306,6 +307,8 @@ def plot_consistency(values, interval, *, kind: str = "NEES", ax: Axes | None = 
         raise shape_error("values", "(T,) or (N, T) for N runs", values.shape)
     if not np.isfinite(values).any():
         raise ValueError("`values` must have at least one finite value; all are NaN.")
+    if (values < 0).any():  # (a NIS or NEES is a sum of squares: -1s were titled "too cautious", audit XX4)
+        raise ValueError(f"`values` must be NIS or NEES values, >= 0; got {values[values < 0].flat[0]:.3g}.")
     try:
         if isinstance(interval, (str, bytes)):
             raise TypeError
@@ -369,7 +372,8 @@ def plot_mode_probabilities(
     Raises
     ------
     ValueError
-        If `probs` or `names` does not match `times`.
+        If `probs` or `names` does not match `times`, or `probs` holds a
+        value outside [0, 1].
     TypeError
         If `names` is a string rather than a sequence of them, or `stacked`
         is not a bool.
@@ -379,6 +383,9 @@ def plot_mode_probabilities(
     T = times.shape[0]
     if probs.ndim != 2 or probs.shape[0] != T or probs.shape[1] == 0:
         raise shape_error("probs", f"({T}, M) to match `times`", probs.shape)
+    outside = (probs < -1e-12) | (probs > 1.0 + 1e-12)  # (beyond round-off: drawn as given, audit XX4)
+    if outside.any():
+        raise ValueError(f"`probs` must be probabilities, in [0, 1]; got {probs[outside][0]:.3g}.")
     M = probs.shape[1]
     names = [f"mode {j}" for j in range(M)] if names is None else _names(names)
     if len(names) != M:
@@ -767,6 +774,13 @@ def _covs(value, T: int, n: int, because: str, variances: bool = False) -> np.nd
         covs = covs[:, None, None]
     if covs.shape != (T, n, n):
         raise shape_error("covs", f"({T}, {n}, {n}) {because}", given)
+    variances = np.diagonal(covs, axis1=-2, axis2=-1)  # (a band of a negative one had no width: audit XX4)
+    top = np.nanmax(np.abs(covs), axis=(-2, -1), initial=0.0)[:, None]
+    bad = np.argwhere(variances < -8 * n * np.finfo(np.float64).eps * top)  # not a 0 computed with round-off
+    if bad.size:
+        k, i = (int(j) for j in bad[0])
+        raise ValueError(f"`covs` must be covariances, whose variances are >= 0; got {variances[k, i]:.3g} at step "
+                         f"{k}, component {i}.")
     return covs
 
 
