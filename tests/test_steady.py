@@ -480,3 +480,22 @@ def test_unit_circle_modes_that_h_measures_keep_their_steady_state():
         model = gf.LinearModel(F=F, H=H, Q=np.eye(2), R=np.eye(np.shape(H)[0]))
         want = solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
         np.testing.assert_allclose(gf.steady_state(model).predicted_cov, want, rtol=1e-12)
+
+
+def test_modes_near_the_unit_circle_that_h_measures_are_not_lumped_with_it():
+    """The eigenspace of a unit-circle mode was every singular value of F - λI up to 1e-10: a constant velocity
+    sampled at 1e-10 s and a mode at 1 - 1e-11 beside a random walk were taken for a repeated eigenvalue whose
+    unmeasured direction refused them, detectable as they are (review R53). The oracles: SciPy's solution, and
+    the closed forms of a random walk (Q = R = 1: the golden ratio) and of an AR(1) nobody measures, 1 / (1 - a²)."""
+    from scipy.linalg import solve_discrete_are
+
+    dt = 1e-10
+    cv = gf.LinearModel(F=[[1.0, dt], [0.0, 1.0]], H=[[1.0, 0.0]], R=1.0,
+                        Q=[[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+    want = solve_discrete_are(cv.F.T, cv.H.T, cv.Q, cv.R)
+    np.testing.assert_allclose(np.diag(gf.steady_state(cv).predicted_cov), np.diag(want), rtol=1e-4)
+    a = 1.0 - 1e-11
+    pair = gf.LinearModel(F=np.diag([1.0, a]), H=[[1.0, 0.0]], Q=np.eye(2), R=1.0)
+    np.testing.assert_allclose(np.diag(gf.steady_state(pair).predicted_cov), [(1 + 5 ** 0.5) / 2, 1 / (1 - a * a)],
+                               rtol=1e-4)
+    assert gf.filter(pair, gf.Gaussian([0.0, 0.0], np.eye(2)), np.zeros(3), steady=True).means.shape == (3, 2)

@@ -976,9 +976,9 @@ class _Parametrisation:
     def units(self, theta: np.ndarray) -> np.ndarray:
         """The size of a change of each entry of θ that moves the model as much in any units of the data: 1 for
         a log variance and an entry of F, a component's standard deviation for an entry of a Cholesky
-        factor's row or of m0 (which scale with the data), for H[i, j] measurement i's noise standard deviation
-        over component j's size (the largest of its prior mean, its prior's and its process noise's standard
-        deviations; 1 where that or R_ii is 0), and for B[i, j] the
+        factor's row or of m0 (which scale with the data), for H[i, j] the larger of 1 and measurement i's
+        noise standard deviation over component j's size (the largest of its prior mean, its prior's and its
+        process noise's standard deviations), and for B[i, j] the
         process noise's standard deviation of component i over the size of control j (B u moves the state; the controls may be in other
         units than the data). Where those are missing, a component is sized by what the measurements resolve
         of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
@@ -998,17 +998,19 @@ class _Parametrisation:
                 # P0 = 1e-16 the search stayed at its start, converged, 17.6 below the maximum: audit UU1)
                 out.append(np.where(sd > 0, np.maximum(sd, measured), np.maximum(noise, measured)))
             elif name == "H":
-                # a measurement's noise over its state's size: a unit of 1 for data of 1e6 kept the search at its
-                # start, as if the likelihood did not depend on H (audit UU2); the state's size is the largest of
-                # its prior mean, its prior's and its process noise's standard deviations (the noise's alone,
-                # 1e-2 for a level of 1e4, made H's unit 1e6 times its size, and the search stalled: review R52)
+                # 1, or where it is larger a measurement's noise over its state's size: a unit of 1 for data of
+                # 1e6 kept the search at its start, as if the likelihood did not depend on H (audit UU2). The
+                # state's size is the largest of its prior mean and its prior's and process noise's standard
+                # deviations: the noise's alone (1e-3 for a level of 1e5) made H's unit 1e6 times its size (review
+                # R52), and the ratio alone, under a prior of 1e4 beside a level of 1, 1e-4 of it (review R53):
+                # either stalled the search short of the maximum, where a unit of 1 reached it
                 r = np.diagonal(model.R, axis1=-2, axis2=-1).reshape(-1, model.m).mean(axis=0)
                 rows = np.sqrt(np.clip(r, 0.0, None))
                 level = np.zeros(n) if isinstance(prior, str) else np.abs(prior.mean)
                 cols = np.maximum(np.maximum(level, sd), noise)
                 unit = np.where((rows[:, None] > 0) & (cols[None, :] > 0), rows[:, None] / np.where(cols > 0, cols, 1.0),
                                 1.0)
-                out.append(np.broadcast_to(unit, model.H.shape).ravel())
+                out.append(np.maximum(1.0, np.broadcast_to(unit, model.H.shape).ravel()))
             elif name == "B":
                 p = t.size // n
                 rows = np.maximum(np.where(noise > 0, noise, sd), measured)  # (a tiny Q is no size for B either)

@@ -253,10 +253,12 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray, H: np.ndarray) -> list[tupl
         if abs(abs(v) - 1.0) <= tol:
             # its eigenspace: the singular values of F - v I that are round-off, not a Jordan block's coupling of 1e-6
             # (a clock's phase and drift at 1 MHz was refused when the eigenvalue's bound was used: review R18)
-            space = 1e-10 * max(np.abs(F).max(), 1.0)
-            w = _least_driven(F, Q, complex(v), space, y / scale)
+            w = _least_driven(F, Q, complex(v), 1e-10 * max(np.abs(F).max(), 1.0), y / scale)
             drive, noise = abs(np.conj(w) @ Q @ w), 64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w))
-            u = _least_seen(F, H, complex(v), space, x * scale)
+            # the eigenspace to round-off only: at 1e-10, a constant velocity sampled at 1e-10 s (F - I's singular
+            # value 1e-10) and a mode at 1 - 1e-11 beside one at 1 counted as a repeated eigenvalue, whose
+            # unmeasured direction refused them, detectable as they are (review R53)
+            u = _least_seen(F, H, complex(v), 64.0 * eps * max(np.abs(F).max(), 1.0), x * scale)
             seen = np.linalg.norm(H @ u) > 64.0 * eps * np.linalg.norm(np.abs(H) @ np.abs(u))
             modes.append((complex(v), float(drive), float(noise), bool(seen)))
     return modes
