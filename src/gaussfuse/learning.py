@@ -978,8 +978,8 @@ class _Parametrisation:
         a log variance and an entry of F, a component's standard deviation for an entry of a Cholesky
         factor's row or of m0 (which scale with the data), for H[i, j] the larger of 1 and measurement i's
         noise standard deviation over component j's size (the largest of its prior mean, its prior's and its
-        process noise's standard deviations), and for B[i, j] the
-        process noise's standard deviation of component i over the size of control j (B u moves the state; the controls may be in other
+        process noise's standard deviations), and for B[i, j] the process noise's standard deviation of
+        component i over the size of control j (B u moves the state; the controls may be in other
         units than the data). Where those are missing, a component is sized by what the measurements resolve
         of it (:func:`_resolved_sizes`): m0 under a prior certain of it by the larger of that and the process
         noise's (a Q of 1e-20 beside an R of 1 is no size: the search stopped at its start), under a prior nearly
