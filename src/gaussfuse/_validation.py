@@ -24,7 +24,8 @@ _F64 = np.dtype(np.float64)
 _DTYPE = attrgetter("dtype")
 
 __all__ = ["as_array", "as_numbers", "flag", "as_vector", "as_matrix", "check_psd", "shape_error", "real", "integer", "call_checked",
-           "call_each", "raise_call", "size_reason", "finite_step", "generator", "component_mask"]
+           "call_each", "raise_call", "size_reason", "finite_step", "generator", "component_mask",
+           "negative_variance"]
 
 
 def shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
@@ -201,6 +202,16 @@ def as_matrix(
     if arr.ndim == 3 and steps is not None and arr.shape[0] != steps:
         raise shape_error(name, expected, given)
     return arr
+
+
+def negative_variance(covs: np.ndarray) -> tuple[int, int] | None:
+    """The first (k, i) of a stack of covariances (k, n, n) whose variance i is below 0 by more than the round-off
+    of its largest entry, 8 n ε of it (a 0 computed with round-off is not one); None where there is none."""
+    n = covs.shape[-1]
+    variances = np.diagonal(covs, axis1=-2, axis2=-1)
+    top = np.nanmax(np.abs(covs), axis=(-2, -1), initial=0.0)[:, None]
+    bad = np.argwhere(variances < -8 * n * np.finfo(np.float64).eps * top)
+    return (int(bad[0][0]), int(bad[0][1])) if bad.size else None
 
 
 def check_psd(name: str, cov: np.ndarray, *, rtol: float = PSD_RTOL) -> np.ndarray:

@@ -36,7 +36,7 @@ import numpy as np
 
 from ._linalg import PSD_RTOL, UNRESOLVED, observed_gram, step_cholesky, whiten, wrap_components
 from .errors import DivergenceWarning, average_text, diverging, gate_lost
-from ._validation import as_array, component_mask, integer, is_integer, shape_error
+from ._validation import as_array, component_mask, integer, is_integer, negative_variance, shape_error
 
 __all__ = ["nis", "nees", "chi2_interval", "divergence", "DivergenceMonitor", "DIVERGENCE_WINDOW",
            "DIVERGENCE_FALSE_ALARM", "whiteness", "rmse", "consistency", "ConsistencyReport", "Whiteness"]
@@ -236,9 +236,9 @@ def _pseudo_nees(e: np.ndarray, P: np.ndarray, floor: np.ndarray, where) -> tupl
     """
     n = P.shape[-1]
     variances = np.diagonal(P, axis1=-2, axis2=-1)
-    top = np.max(np.abs(P), axis=(-2, -1), initial=0.0)[:, None]
-    if (variances < -8 * n * np.finfo(np.float64).eps * top).any():  # not a zero variance computed with round-off
-        k, i = (int(j) for j in np.argwhere(variances < -8 * n * np.finfo(np.float64).eps * top)[0])
+    negative = negative_variance(P)
+    if negative is not None:
+        k, i = negative
         raise np.linalg.LinAlgError(f"`covs` must be positive semi-definite; the covariance {where(k)} has a "
                                     f"variance of {variances[k, i]:.3g} at component {i}.")
     d = np.sqrt(variances.clip(min=0.0))

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ._linalg import marginal_std
-from ._validation import as_array, flag, real, shape_error
+from ._validation import as_array, flag, negative_variance, real, shape_error
 from .inference.timing import as_instants
 
 if TYPE_CHECKING:
@@ -774,12 +774,10 @@ def _covs(value, T: int, n: int, because: str, variances: bool = False) -> np.nd
         covs = covs[:, None, None]
     if covs.shape != (T, n, n):
         raise shape_error("covs", f"({T}, {n}, {n}) {because}", given)
-    variances = np.diagonal(covs, axis1=-2, axis2=-1)  # (a band of a negative one had no width: audit XX4)
-    top = np.nanmax(np.abs(covs), axis=(-2, -1), initial=0.0)[:, None]
-    bad = np.argwhere(variances < -8 * n * np.finfo(np.float64).eps * top)  # not a 0 computed with round-off
-    if bad.size:
-        k, i = (int(j) for j in bad[0])
-        raise ValueError(f"`covs` must be covariances, whose variances are >= 0; got {variances[k, i]:.3g} at step "
+    negative = negative_variance(covs)  # (a band of a negative one had no width: audit XX4)
+    if negative is not None:
+        k, i = negative
+        raise ValueError(f"`covs` must be covariances, whose variances are >= 0; got {covs[k, i, i]:.3g} at step "
                          f"{k}, component {i}.")
     return covs
 

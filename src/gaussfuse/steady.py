@@ -230,7 +230,7 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray, H: np.ndarray) -> list[tupl
     the left eigenvector w, that drive's own round-off, and whether H sees it).
 
     H sees a mode where ‖H x‖ of its unit right eigenvector x (the one H sees least, in a repeated eigenvalue's
-    eigenspace: :func:`_least_seen`) is above its round-off. One it does not see stays in the closed loop
+    eigenspace: :func:`_least`) is above its round-off. One it does not see stays in the closed loop
     F (I - K H) whatever the gain, so there is no stabilising solution; computed, the loop's radius came out
     1 - 1.1e-16 and a rotation H never measured had a "steady" variance of 1.7e16 (audit WW1).
 
@@ -253,41 +253,29 @@ def _unit_circle_modes(F: np.ndarray, Q: np.ndarray, H: np.ndarray) -> list[tupl
         if abs(abs(v) - 1.0) <= tol:
             # its eigenspace: the singular values of F - v I that are round-off, not a Jordan block's coupling of 1e-6
             # (a clock's phase and drift at 1 MHz was refused when the eigenvalue's bound was used: review R18)
-            w = _least_driven(F, Q, complex(v), 1e-10 * max(np.abs(F).max(), 1.0), y / scale)
+            w = _least(F, Q, complex(v), 1e-10 * max(np.abs(F).max(), 1.0), y / scale, left=True)
             drive, noise = abs(np.conj(w) @ Q @ w), 64.0 * eps * (np.abs(w) @ np.abs(Q) @ np.abs(w))
             # the eigenspace to round-off only: at 1e-10, a constant velocity sampled at 1e-10 s (F - I's singular
             # value 1e-10) and a mode at 1 - 1e-11 beside one at 1 counted as a repeated eigenvalue, whose
             # unmeasured direction refused them, detectable as they are (review R53)
-            u = _least_seen(F, H, complex(v), 64.0 * eps * max(np.abs(F).max(), 1.0), x * scale)
+            u = _least(F, H.T @ H, complex(v), 64.0 * eps * max(np.abs(F).max(), 1.0), x * scale, left=False)
             seen = np.linalg.norm(H @ u) > 64.0 * eps * np.linalg.norm(np.abs(H) @ np.abs(u))
             modes.append((complex(v), float(drive), float(noise), bool(seen)))
     return modes
 
 
-def _least_seen(F: np.ndarray, H: np.ndarray, v: complex, tol: float, x: np.ndarray) -> np.ndarray:
-    """The unit right eigenvector for `v` (in F's eigenspace there: singular values of F - v I up to `tol`) that H
-    sees least, or `x` normalised where the eigenspace is one direction (:func:`_least_driven`'s dual: with F = I
-    and H = [1, 0], neither returned eigenvector need be the unmeasured x2)."""
-    _, sv, Vh = np.linalg.svd(F - v * np.eye(F.shape[0]))
-    space = Vh[sv <= tol].conj().T
-    if space.shape[1] < 2:
-        return x / np.linalg.norm(x)
-    _, vecs = np.linalg.eigh(space.conj().T @ H.T @ H @ space)  # what H sees within the eigenspace, least first
-    least = space @ vecs[:, 0]
-    return least / np.linalg.norm(least)
-
-
-def _least_driven(F: np.ndarray, Q: np.ndarray, v: complex, tol: float, w: np.ndarray) -> np.ndarray:
-    """The unit left eigenvector for `v` (in F's eigenspace there: singular values of F - v I up to `tol`) that Q
-    drives least, or `w` normalised where the eigenspace is one direction.
+def _least(F: np.ndarray, A: np.ndarray, v: complex, tol: float, x: np.ndarray, left: bool) -> np.ndarray:
+    """The unit left (`left`) or right eigenvector u for `v`, in F's eigenspace there (singular values of F - v I up
+    to `tol`), with the least uᴴ A u; or `x` normalised where the eigenspace is one direction.
 
     A repeated eigenvalue's eigenvectors are any basis of its eigenspace: with F = I and Q = 1 1ᵀ, neither
-    returned one shows that Q never drives x1 - x2 (review R17)."""
-    U, sv, _ = np.linalg.svd(F - v * np.eye(F.shape[0]))
-    space = U[:, sv <= tol]
+    returned one shows that Q never drives x1 - x2 (review R17, A = Q on the left), nor with H = [1, 0] that H
+    never sees x2 (A = HᵀH on the right)."""
+    U, sv, Vh = np.linalg.svd(F - v * np.eye(F.shape[0]))
+    space = U[:, sv <= tol] if left else Vh[sv <= tol].conj().T
     if space.shape[1] < 2:
-        return w / np.linalg.norm(w)
-    _, vecs = np.linalg.eigh(space.conj().T @ Q @ space)  # the drive within the eigenspace, least first
+        return x / np.linalg.norm(x)
+    _, vecs = np.linalg.eigh(space.conj().T @ A @ space)  # within the eigenspace, least first
     least = space @ vecs[:, 0]
     return least / np.linalg.norm(least)
 
