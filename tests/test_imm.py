@@ -132,6 +132,32 @@ def test_single_nonlinear_model_imm_is_that_models_filter(method):
     assert res.loglik == pytest.approx(ref.loglik, rel=1e-12)
 
 
+def test_iterated_steps_at_their_limit_are_told_as_the_filter_tells_them():
+    """imm_filter ran the iterated update's passes but dropped its count: the filter warned that steps made
+    `iterations` passes without meeting `tol`, and the IMM, one model or two copies of it, said nothing (audit YY1)."""
+    def f(x):
+        return np.array([x[0] + 0.1 * np.sin(x[1]), 0.95 * x[1]])
+
+    def h(x):
+        return np.array([np.arctan2(x[1], 1.0 + x[0] ** 2)])
+
+    ct = gf.NonlinearModel(f, h, np.diag([0.1, 0.2]), 0.05)
+    start = gf.Gaussian([0.2, 0.4], 0.5 * np.eye(2))
+    zs = np.random.default_rng(3).normal(size=20) * 0.3
+    with pytest.warns(gf.ConvergenceWarning) as told:
+        gf.filter(ct, start, zs, method="iekf", iterations=2, tol=1e-12)
+    (expected,) = [str(w.message) for w in told]
+    count = re.match(r"method 'iekf': (\d+) of \d+ steps", expected).group(1)
+    assert int(count) > 0
+    with pytest.warns(gf.ConvergenceWarning) as alone:
+        gf.imm_filter([ct], start, zs, [[1.0]], method="iekf", iterations=2, tol=1e-12)
+    assert [str(w.message) for w in alone] == [expected]
+    with pytest.warns(gf.ConvergenceWarning) as pair:
+        gf.imm_filter([ct, ct], start, zs, [[0.9, 0.1], [0.1, 0.9]], method="iekf", iterations=2, tol=1e-12)
+    assert [str(w.message) for w in pair] == [expected.replace("'iekf':", f"'iekf' in `models[{j}]`:") for j in (0, 1)]
+    assert all(w.filename == __file__ for w in [*alone, *pair])
+
+
 def _reference_imm(models, m0, P0, zs, Pi, mu):
     """A textbook IMM for linear models (Bar-Shalom, Li & Kirubarajan 2001, §11.6.6), explicit inverses."""
     M, means, covs, out = len(models), [m0] * len(models), [P0] * len(models), []

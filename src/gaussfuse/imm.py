@@ -28,6 +28,7 @@ from ._frozen import reduce_frozen, shapes_repr
 from ._validation import as_array
 from .errors import ModelFunctionError
 from .gaussian import Gaussian, moment_match
+from .inference.drivers import warn_unconverged
 from .inference.registry import check_options, linearisation, resolve_method
 from .inference.validation import (check_controls, check_measurements, check_prior, check_semidefinite,
                                    check_steps)
@@ -275,6 +276,9 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
         out.mode_probs[k] = np.exp(log_mu)
         out.means[k], out.covs[k] = moment_match(out.mode_probs[k], out.mode_means[k], out.mode_covs[k], angles)
         prev_means, prev_covs = out.mode_means[k], out.mode_covs[k]
+    for mode in modes:  # (the iterated updates' steps at their limit were told by filter, not here: audit YY1)
+        warn_unconverged(mode.spec, mode.options, mode.unconverged, T,
+                         where=f"in `models[{mode.j}]`" if M > 1 else "", stacklevel=3)
     fields = (out.means, out.covs, out.mode_probs, out.mode_means, out.mode_covs)
     for a in fields:
         a.setflags(write=False)
@@ -284,15 +288,19 @@ def imm_filter(models, prior: Gaussian, zs, transition, mode_probs=None, us=None
 class _Mode:
     """One model of the IMM filter: its linearisation, and :func:`gaussfuse.kalman.step` through it."""
 
-    def __init__(self, j: int, lin, iterations: int, tol, state_angles, measurement_angles) -> None:
-        self.j, self.lin, self.iterations, self.tol = j, lin, iterations, tol
+    def __init__(self, j: int, spec, options: dict, lin, iterations: int, tol, state_angles,
+                 measurement_angles) -> None:
+        self.j, self.spec, self.options, self.lin, self.iterations, self.tol = j, spec, options, lin, iterations, tol
         self.state_angles, self.measurement_angles = state_angles, measurement_angles
+        self.unconverged = 0  # steps whose iterated update made `iterations` passes without meeting `tol`
 
     def step(self, k: int, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> kalman.Update:
         try:
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is raised by the step, as in run_filter
-                return kalman.step(self.lin, k, mean, cov, z, self.iterations, self.tol, self.state_angles,
-                                   self.measurement_angles).update
+                st = kalman.step(self.lin, k, mean, cov, z, self.iterations, self.tol, self.state_angles,
+                                 self.measurement_angles)
+            self.unconverged += not st.converged
+            return st.update
         except np.linalg.LinAlgError as exc:
             impossible = self._impossible(k, mean, cov, z)
             if impossible is None:
@@ -337,7 +345,7 @@ def _modes(models: list, us, T: int, method: str | None, options: dict) -> list[
             spec, opts = resolve_method(model, method, options, imm_filter)
         lin, iterations, tol = linearisation(spec, model, None if controls is None else controls[0], opts)
         z_angles = getattr(model, "measurement_angles", None)
-        modes.append(_Mode(j, lin, iterations, tol, angles,
+        modes.append(_Mode(j, spec, opts, lin, iterations, tol, angles,
                            z_angles if z_angles is not None and z_angles.any() else None))
     return modes
 

@@ -285,9 +285,10 @@ def _method_smooth(spec: Method, model, prior, zs, us, options, to_prior: bool =
     return SmoothResult(means[first:], covs[first:], gains[first:], filt, used), unconverged, not converged
 
 
-def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes: int = 0,
-                      series: int = 1) -> None:
-    """One ConvergenceWarning for a call: the steps (and smoother passes) that stopped at the limit."""
+def warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes: int = 0, series: int = 1, *,
+                     where: str = "", stacklevel: int = 4) -> None:
+    """One ConvergenceWarning for a call: the steps (and smoother passes) that stopped at the limit, `where` (as
+    "in `models[1]`", else nothing) and for the caller `stacklevel` frames up."""
     if not steps and not passes:
         return
     limit, tol = options["iterations"], options["tol"]
@@ -298,9 +299,9 @@ def _warn_unconverged(spec: Method, options: dict, steps: int, total: int, passe
         where = f" in {passes} of {series} series" if series > 1 else ""
         what.append(f"the smoother made {limit} passes{where}")
     warnings.warn(
-        f"method {spec.name!r}: {' and '.join(what)} (the limit, `iterations`={limit}) without the change "
+        f"method {spec.name!r}{' ' + where if where else ''}: {' and '.join(what)} (the limit, `iterations`={limit}) without the change "
         f"falling to `tol`={tol:g}; raise `iterations` or `tol`, or check the model.",
-        ConvergenceWarning, stacklevel=4,
+        ConvergenceWarning, stacklevel=stacklevel,
     )
 
 
@@ -437,7 +438,7 @@ def filter_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     runs = each_series(lambda i: _method_filter(spec, model, prior, zs[i], None if us is None else us[i], options,
                                                 keep, form, target, gains, gate), zs.shape[0])
     if spec.iterated:
-        _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
+        warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1])
     result = stack([r[0] for r in runs])
     return _filtered_checked(linearisation(spec, model, None, options)[0], result, zs.shape[1]) if form == "cov" \
         else result
@@ -492,7 +493,7 @@ def smooth_batch(spec: Method, model, prior: Gaussian, zs: np.ndarray, us, optio
     runs = each_series(lambda i: _method_smooth(spec, model, prior, zs[i], None if us is None else us[i], options,
                                                 to_prior, form, gate, ending), zs.shape[0])
     if spec.iterated:
-        _warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],
+        warn_unconverged(spec, options, sum(r[1] for r in runs), zs.shape[0] * zs.shape[1],
                           passes=sum(r[2] for r in runs), series=zs.shape[0])
     result = stack([r[0] for r in runs])
     if form == "cov" and not spec.iterated:
