@@ -231,6 +231,9 @@ def _run_demo(args: argparse.Namespace) -> int:
     while not os.path.exists(resolved):
         resolved = os.path.dirname(resolved)
     _takes_a_file(resolved, "`--out`", args.out)
+    path = os.path.join(args.out, DEMO_FIGURE)
+    if os.path.isdir(path):  # (it printed the tables, then failed: audit YY1)
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
     zs, res = textbook_example()
     print("1-D textbook example: x0 = [0, 1], P0 = 500 I, F = [[1, 1], [0, 1]], H = [1, 0],")
     print("Q = diag(1, 3), R = 10")
@@ -246,7 +249,6 @@ def _run_demo(args: argparse.Namespace) -> int:
         print(f"{name:<12} {value:>14.4f}")
 
     os.makedirs(args.out, exist_ok=True)
-    path = os.path.join(args.out, DEMO_FIGURE)
     sm = demo.smoothed
     estimates = {"filtered": (sm.filtered.means, sm.filtered.covs), "smoothed": (sm.means, sm.covs)}
     plotting.save_figure(plotting.plot_demo(demo.times, demo.zs, demo.truth, estimates), path)
