@@ -308,7 +308,7 @@ def real(name: str, value, *, positive: bool = False, nonnegative: bool = False,
         shown = as_float if number else repr(value)
     except OverflowError:  # an int beyond float64 (10**400)
         as_float = math.inf if value > 0 else -math.inf
-        shown = f"an integer of {len(str(abs(value)))} digits, beyond float64"
+        shown = f"{shown_integer(value)}, beyond float64"
     expected = f"`{name}` must be {kind} number{' or None' if optional else ''}; got {shown}."
     if not number:
         raise TypeError(expected)
@@ -323,6 +323,13 @@ def is_integer(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_, np.timedelta64))
 
 
+def shown_integer(value) -> str:
+    """`value`'s repr, or for an integer of over 20 digits their count (a `dim` of 401 digits was told in full)."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.timedelta64)) and abs(value) >= 10 ** 20:
+        return f"an integer of {len(str(abs(int(value))))} digits"
+    return repr(value)
+
+
 def integer(name: str, value, minimum: int = 1) -> int:
     """`value` as an int >= `minimum`.
 
@@ -334,7 +341,7 @@ def integer(name: str, value, minimum: int = 1) -> int:
         When it is below `minimum`.
     """
     kind = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
-    expected = f"`{name}` must be {kind}; got {value!r}."
+    expected = f"`{name}` must be {kind}; got {shown_integer(value)}."
     if not is_integer(value):
         raise TypeError(expected)
     if value < minimum:

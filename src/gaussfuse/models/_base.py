@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_numbers, integer, is_integer, shape_error
+from .._validation import as_array, as_numbers, integer, is_integer, shape_error, shown_integer
 
 __all__ = ["Frozen", "check_dim", "check_noise_kind", "check_names", "check_state", "check_step", "check_step_sizes"]
 
@@ -14,7 +14,7 @@ def check_dim(value) -> int:
     if not is_integer(value):
         raise TypeError(f"`dim` must be an integer 1, 2 or 3; got {value!r} ({type(value).__name__}).")
     if not 1 <= value <= 3:
-        raise ValueError(f"`dim` must be 1, 2 or 3; got {value!r}.")
+        raise ValueError(f"`dim` must be 1, 2 or 3; got {shown_integer(value)}.")
     return int(value)
 
 
