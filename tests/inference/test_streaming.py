@@ -252,6 +252,19 @@ def test_an_empty_piece_is_named(track, run):
 
 
 @pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
+def test_a_first_piece_of_one_row_is_named(track, run):
+    """Timed, it was refused as "`times` must have 2 entries with one measurement", an argument not given, and no
+    piece named (audit YY2); later pieces of one row are fine."""
+    model, prior, zs, times = track
+    pieces = [SimpleNamespace(zs=zs[:1], times=times[:1]), *cut(zs[1:], times[1:], 40)]
+    with pytest.raises(ValueError, match=r"^piece 0 of the series has one row, whose time alone gives no time step: "
+                                         r"the first piece needs at least two rows"):
+        list(run(model, prior, pieces, timed=True, engine="python", check="off"))
+    pieces = [SimpleNamespace(zs=zs[:2], times=times[:2]), SimpleNamespace(zs=zs[2:3], times=times[2:3])]
+    assert len(list(run(model, prior, pieces, timed=True, engine="python", check="off"))) == 2
+
+
+@pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
 def test_a_piece_of_the_wrong_shape_is_named(track, run):
     """A (1, T_c, m) piece gave one row of its T_c, and the others' errors named neither the piece nor what was
     given (audit BB3)."""

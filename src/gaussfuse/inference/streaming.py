@@ -224,6 +224,9 @@ def _check_piece(piece: Piece, k: int, m: int, timed: bool) -> None:
     if timed and np.shape(piece.times) != shape[:1]:
         raise ValueError(f"piece {k} of the series: `times` must have shape ({shape[0]},), one a row of its `zs`; "
                          f"got shape {np.shape(piece.times)}.")
+    if timed and k == 0 and shape[0] < 2:  # (timing's "`times` must have 2 entries" named neither: audit YY2)
+        raise ValueError("piece 0 of the series has one row, whose time alone gives no time step: the first piece "
+                         "needs at least two rows (its first step is taken with the time step of its second).")
 
 
 @contextmanager
