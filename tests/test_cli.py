@@ -591,6 +591,20 @@ def test_fit_discretises_a_named_model_for_the_datas_step(tmp_path, capsys):
     assert "A named model is fitted at the data's step" in help_text and "Output CSV" not in help_text
 
 
+def test_fit_keeps_a_variance_that_starts_at_zero_and_its_help_says_so(tmp_path, capsys):
+    """--learn Q,R from R = 0 leaves R at 0, as the library does (a component held at zero): the help did not say
+    so, and the fit ended 9.2 below the one from R = 1, silently (audit YY1)."""
+    data, model = tmp_path / "d.csv", tmp_path / "m.toml"
+    z = np.cumsum(np.random.default_rng(0).normal(size=30))
+    data.write_text("t,z\n" + "".join(f"{k},{float(v)!r}\n" for k, v in enumerate(z)))
+    model.write_text("[model]\nF = [[1.0]]\nH = [[1.0]]\nQ = [[1.0]]\nR = [[0.0]]\n")
+    code, stdout, err = run(capsys, "fit", data, "-m", model, "--learn", "Q,R", "--iterations", "5")
+    assert code in (0, 3), err
+    assert gfio.tomllib.loads(stdout)["model"]["R"] == [[0.0]]
+    code, help_text, _ = run(capsys, "fit", "--help")
+    assert "a variance that is 0 in MODEL.toml stays 0" in " ".join(help_text.split())
+
+
 def test_demo_checks_its_options_before_printing(tmp_path, capsys):
     """--seed -1 and an --out that is a file were found after the tables were printed, as NumPy's
     "expected non-negative integer" and "File exists"."""

@@ -992,7 +992,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("-m", "--model", metavar="MODEL.toml", type=_given, required=True,
                      help="the starting model and prior")
     fit.add_argument("--learn", metavar="NAMES", default="Q,R",
-                     help="comma-separated matrices to learn, of F,H,Q,R,m0,P0 (default: Q,R)")
+                     help="comma-separated matrices to learn, of F,H,Q,R,m0,P0 (default: Q,R); a variance "
+                          "that is 0 in MODEL.toml stays 0 (start it above 0 to learn it)")
     fit.add_argument("--method", choices=("em", "mle"), default="em",
                      help="expectation-maximisation or maximum likelihood (default: em)")
     fit.add_argument("--structure", metavar="NAME=KIND,...",
