@@ -1594,6 +1594,29 @@ def test_maximum_likelihood_that_cannot_leave_a_saddle_says_so(monkeypatch):
     assert not fit.converged and fit.params["H"] == 0.0 and fit.loglik < top - 100
 
 
+def test_maximum_likelihood_searches_on_from_the_plateau_of_a_variance_far_below_the_data():
+    """The Nile in units of 1e6 from Q = 1e3, R = 1e4: the search raised R first and stopped with Q at 2.6e-8 of
+    its estimate, where the log-likelihood is flat in log Q, said converged, 18.2 below the maximum (audit YY1).
+    The oracle: Durbin & Koopman's estimates, and statsmodels' exact diffuse log-likelihood at them, each in the
+    new units (the diffuse level takes one of the 100 observations: -99 log 1e6)."""
+    _, flow = nile()
+    s = 1e6
+    fit = gf.fit(_nile_start(), "diffuse", flow * s, method="mle")
+    assert fit.converged
+    assert fit.model.R[0, 0] / s**2 == pytest.approx(15099.0, rel=1e-4)
+    assert fit.model.Q[0, 0] / s**2 == pytest.approx(1469.1, rel=2e-4)
+    assert fit.loglik + 99 * np.log(s) == pytest.approx(-633.4646, abs=1e-4)
+
+
+def test_maximum_likelihood_that_cannot_leave_a_plateau_says_so(monkeypatch):
+    """With no search past it allowed, the fit on the plateau is not called converged."""
+    monkeypatch.setattr(learning, "_ESCAPES", 0)
+    _, flow = nile()
+    with pytest.warns(gf.ConvergenceWarning, match="stopped on a plateau.*try another start"):
+        fit = gf.fit(_nile_start(), "diffuse", flow * 1e6, method="mle")
+    assert not fit.converged and fit.model.Q[0, 0] < 1e-6 * 1469.1e12
+
+
 def test_h_is_searched_in_units_of_its_state_s_size():
     """A level of 1e5 seen through H = 2 with a process noise of 1e-3: H's unit taken as √R over the process
     noise's standard deviation (1e3, where H's size is √R / 1e5) stalled the search 0.27 below the maximum with R

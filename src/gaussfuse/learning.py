@@ -1910,17 +1910,61 @@ def _above_saddle(evaluate, theta: np.ndarray, curvature: _Curvature | None) -> 
     return None
 
 
+def _above_plateau(evaluate, build, theta: np.ndarray, curvature: _Curvature | None) -> np.ndarray | None:
+    r"""A point of higher log-likelihood than θ with one learned variance raised, or None: θ is then on the
+    plateau that a variance far below the data's scale makes, not at a maximum.
+
+    As a variance :math:`v` tends to 0 the log-likelihood tends to its value at 0, so in :math:`\log v` it
+    flattens, and its slope and curvature, :math:`v\,\partial\ell/\partial v` and that again, vanish with
+    :math:`v`. A search whose start is far below the data's scale can raise the other variances first and stop
+    on that plateau with the gradient test met: the Nile in units of 1e6 from Q = 1e3, R = 1e4 stopped with Q at
+    2.6e-8 of its estimate, said converged, 18.2 below the maximum (audit YY1). So each log variance along which
+    the log-likelihood does not curve downwards (its information is not positive, or not resolved:
+    :func:`_flat`, :func:`_unresolved`) is raised by 1, 2, 4, ... 32 (a variance up to e^32, 8e13, times
+    larger; a Cholesky factor's diagonal is its standard deviation's log) for as long as the log-likelihood
+    rises, and the highest point is returned where it is above θ's beyond round-off. At an interior maximum
+    every information is positive, and nothing is evaluated.
+    """
+    if curvature is None:
+        return None
+    ll = evaluate(theta)[0]
+    noise = 4e-13 * (1.0 + abs(ll))  # (as _above_saddle's)
+    upward = curvature.flat | ~(np.diagonal(curvature.information) > 0.0)
+    for j in np.flatnonzero(upward & build.curved(theta)):
+        best, top = None, ll + noise
+        for step in 2.0 ** np.arange(6):
+            raised = theta.copy()
+            raised[j] += step
+            try:
+                value = evaluate(raised)[0]
+            except NO_LIKELIHOOD:
+                break
+            if value > top:
+                best, top = raised, value
+            elif value < top - noise:
+                break
+        if best is not None:
+            return best
+    return None
+
+
 _ESCAPES = 3
-"""How many times maximum likelihood, stopped at a saddle (:func:`_above_saddle`), searches on from above it."""
+"""How many times maximum likelihood, stopped at a saddle (:func:`_above_saddle`) or on a plateau
+(:func:`_above_plateau`), searches on from above it."""
 
 _SADDLE = ("stopped at a saddle point of the log-likelihood, not a maximum: it is higher on both sides along a "
            "direction in which it curves upwards there (as at H = 0, where it is even in H)")
 
+_PLATEAU = ("stopped on a plateau of the log-likelihood, not at a maximum: a learned variance is so far below the "
+            "data's scale that the likelihood hardly moves with it, but it is higher where that variance is larger "
+            "(as from a start far below the data's variances)")
+
 
 def _mle_past_saddles(build, theta0, data, nobs, iterations, tol, callback, engine):
-    """:func:`_mle`, and again from above the saddle where it stopped (:func:`_above_saddle`), at most
-    :data:`_ESCAPES` times within `iterations`: its results, and the curvature where it ended (None where it was
-    interrupted). The history and the callback's count go on over the searches."""
+    """:func:`_mle`, and again from above the saddle or the plateau where it stopped (:func:`_above_saddle`,
+    :func:`_above_plateau`), at most :data:`_ESCAPES` times within `iterations`: its results, and the curvature
+    where it ended (None where it was interrupted). The history and the callback's count go on over the
+    searches."""
     history, escapes = np.zeros(0), 0
     while True:
         # values so far: a search from above the saddle starts with the next (its first, the point above), and
@@ -1933,11 +1977,13 @@ def _mle_past_saddles(build, theta0, data, nobs, iterations, tol, callback, engi
         if message.startswith("interrupted"):
             return theta, history, converged, message, evaluate, None
         curvature = _curvature(evaluate, build, theta, nobs)
-        above = _above_saddle(evaluate, theta, curvature) if converged else None
+        above, why = _above_saddle(evaluate, theta, curvature) if converged else None, _SADDLE
+        if above is None:
+            above, why = _above_plateau(evaluate, build, theta, curvature), _PLATEAU
         if above is None:
             return theta, history, converged, message, evaluate, curvature
         if escapes == _ESCAPES or iterations - history.size < 1:
-            return theta, history, False, _SADDLE + "; try another start", evaluate, curvature
+            return theta, history, False, why + "; try another start", evaluate, curvature
         escapes, theta0 = escapes + 1, above
 
 
@@ -2177,7 +2223,10 @@ def fit(
         meets `tol` at a saddle point, where the log-likelihood curves
         upwards along some direction and is higher on both sides (EM says
         so; maximum likelihood searches on from the higher side, up to three
-        times, and says so only when it still ends at one); or when EM's
+        times, and says so only when it still ends at one), and when
+        maximum likelihood stops on the plateau that a learned variance far
+        below the data's scale makes (it searches on from where that
+        variance is larger, as from a saddle); or when EM's
         learned model can no longer be filtered or no longer identifies a
         diffuse state (the likelihood growing without bound). The result is
         the best model found, with ``converged=False``.
