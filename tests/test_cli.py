@@ -1741,6 +1741,27 @@ XY_TOML = ('[model]\nkind = "constant_velocity"\ndim = 2\ndt = 0.5\nq = 0.5\nr =
            '[prior]\nmean = [0.0, 0.0, 1.0, 0.5]\nvar = 4.0\n')
 
 
+def test_columns_named_as_states_the_model_does_not_measure_are_refused(tmp_path, capsys):
+    """Columns vy, vx of a model that measures x, y were taken in order as its x and y, silently (audit YY1): a
+    file (read as a table of series is, by the same rule) and a DataFrame are refused, naming those states;
+    --columns still chooses them."""
+    toml = tmp_path / "cv.toml"
+    toml.write_text(XY_TOML)
+    rows = [(0.5, 0.254, -0.147), (1.0, 1.187, 1.057), (1.5, 1.6, 1.4)]
+    (tmp_path / "v.csv").write_text("t,vy,VX\n" + "".join(f"{t},{x},{y}\n" for t, x, y in rows))
+    code, stdout, err = run(capsys, "filter", tmp_path / "v.csv", "--out", tmp_path / "o.csv", "--model", toml)
+    assert code == 2 and stdout == "" and not (tmp_path / "o.csv").exists()
+    assert_one_line_error(err, r"the measurement columns \['vy', 'VX'\] name some of the model's states, "
+                               r"\['vy', 'VX'\], which it does not measure \(it measures \['x', 'y'\]\)")
+    code, _, err = run(capsys, "filter", tmp_path / "v.csv", "--model", toml, "--columns", "vy,VX")
+    assert (code, err) == (0, ""), err
+    pd = pytest.importorskip("pandas")
+    timed = gf.model(gf.ConstantVelocity(dim=2, q=0.5), gf.Position(dim=2, r=0.25))
+    frame = pd.DataFrame({"vy": [1.0, 2.0], "vx": [0.0, 1.0]}, index=pd.to_timedelta([0.0, 1.0], unit="s"))
+    with pytest.raises(ValueError, match=r"^`zs` has the columns \['vy', 'vx'\], some of the model's states"):
+        gf.filter(timed, gf.Gaussian(np.zeros(4), np.eye(4)), frame)
+
+
 def test_columns_named_by_the_sensor_are_taken_by_name(tmp_path, capsys):
     """A named model's file whose columns are its sensor's x and y in another order was read by position: x and
     y swapped in the estimates, silently, where gaussfuse.filter takes such a DataFrame by name (audit EE2). A

@@ -54,7 +54,8 @@ exact to about 1e-16 of that time, 4 ns a year in); every other column (or
 those named by --columns), in order, is one measurement component (as many
 as the model's m); for a named model, columns named as the states it
 measures (x, y, or its `states` names for them, in any case) are taken
-by name, in any order. An empty cell or NaN is a missing component.
+by name, in any order, and columns named as states it does not measure (vx)
+are refused. An empty cell or NaN is a missing component.
 
 MODEL.toml: explicit matrices
     [model]

@@ -96,7 +96,7 @@ import numpy as np
 from ._linalg import marginal_std
 from ._validation import StepOverflowError, as_array, as_vector, integer, real, shape_error
 from .gaussian import Gaussian
-from .inference.frames import in_model_order, name_choices
+from .inference.frames import ColumnNames, column_names, in_model_order
 from .inference.validation import check_prior
 from .models._base import check_names
 from .models.linear import LinearModel
@@ -227,7 +227,7 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
     columns : sequence of str, optional
         The measurement columns, in this order (default: every other one,
         each of which must have a name); the others are not read.
-    names : sequence of str, or a sequence of such sequences, optional
+    names : sequence of str, a sequence of such sequences, or ColumnNames, optional
         The model's measurement names (a named model's: the names of the
         states its sensor reads), for the
         default `columns`: a file whose measurement columns are these names
@@ -235,7 +235,11 @@ def read_measurements(path: StrPath, m: int | None = None, time_column: str | No
         :func:`gaussfuse.filter` takes a DataFrame whose columns are the
         names as written); one that names some of them and not others is
         refused (it would be read by position). Several lists are
-        alternatives, the first that all the columns name taken.
+        alternatives, the first that all the columns name taken. A
+        :class:`~gaussfuse.inference.frames.ColumnNames`
+        (:meth:`ModelFile.sensed`) also names the states the model does not
+        measure: columns taken in order that have one of those names are
+        refused.
 
     Returns
     -------
@@ -548,10 +552,11 @@ def _measurement_columns(path, header: list[str], time_col: int, columns, named=
                                  "the measurement columns with --columns).", line=1)
         others = [i for i in range(len(header)) if i != time_col]
         try:  # as gaussfuse.filter takes a DataFrame's (audit EE2)
-            order = None if not named else in_model_order(
-                [header[i] for i in others], [named] if isinstance(named[0], str) else named,
-                f"the measurement columns {[header[i] for i in others]} name some of",
-                "choose the columns with --columns")
+            choices, unmeasured = (named if isinstance(named, ColumnNames) else
+                                   ([named] if isinstance(named[0], str) else named, ()) if named else ([], ()))
+            order = in_model_order([header[i] for i in others], choices,
+                                   f"the measurement columns {[header[i] for i in others]} name some of",
+                                   "choose the columns with --columns", unmeasured)
         except ValueError as exc:
             raise InputFileError(path, str(exc), line=1) from None
         return others if order is None else [others[i] for i in order]
@@ -672,23 +677,27 @@ class ModelFile(NamedTuple):
     state_names: list[str]
     timed: TimedModel | None = None
 
-    def sensed(self) -> list[list[str]] | None:
+    def sensed(self) -> ColumnNames | None:
         """The names by which a data file's measurement columns are matched (see :func:`read_measurements`).
 
         Returns
         -------
-        list of list of str, or None
-            For a named model, the names of the states its sensor reads as
-            its `states` give them, then as the sensor's own (x, y), where
-            they differ and name none of the states: alternatives, the first
-            that a file's columns all name taken (audit SS1: a model with
-            `states` read a file's x, y by position), as for a DataFrame
-            (:func:`gaussfuse.inference.frames.name_choices`). None for
+        ColumnNames or None
+            For a named model, its ``choices``: the names of the states its
+            sensor reads as its `states` give them, then as the sensor's own
+            (x, y), where they differ and name none of the states:
+            alternatives, the first that a file's columns all name taken
+            (audit SS1: a model with `states` read a file's x, y by
+            position); and its ``unmeasured`` states' names, which no
+            measurement column taken in order may have (audit YY1: columns
+            vy, vx were read as positions). As for a DataFrame
+            (:func:`gaussfuse.inference.frames.column_names`). None for
             explicit matrices.
         """
         if self.timed is None:
             return None
-        return [list(names) for names in name_choices(self.timed)]
+        choices, unmeasured = column_names(self.timed)
+        return ColumnNames([list(names) for names in choices], unmeasured)
 
 
 def read_model(path: StrPath) -> ModelFile:

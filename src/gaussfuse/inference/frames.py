@@ -15,14 +15,15 @@ deviations and, on request, covariances, indexed like the input.
 from __future__ import annotations
 
 import datetime
+from typing import NamedTuple
 
 import numpy as np
 
 from .._linalg import marginal_std
 from ..models import LinearSensor, TimedModel
 
-__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names", "name_choices",
-           "in_model_order", "by_name"]
+__all__ = ["Table", "ahead", "unpack", "controls", "to_frame", "measurement_names", "name_choices", "ColumnNames",
+           "column_names", "in_model_order", "by_name"]
 
 
 class Table:
@@ -81,11 +82,32 @@ def name_choices(model) -> list[tuple[str, ...]]:
     return [choice for choice in dict.fromkeys([names, own if apart else None]) if choice]
 
 
-def in_model_order(columns, choices, what: str, fix: str) -> list[int] | None:
+class ColumnNames(NamedTuple):
+    """How a named model's measurement columns are matched (:func:`column_names`): `choices`, alternative lists of
+    its measurement names (:func:`name_choices`), and `unmeasured`, its names of the states it does not measure."""
+    choices: list
+    unmeasured: tuple
+
+
+def column_names(model) -> ColumnNames:
+    """A model's :class:`ColumnNames`: :func:`name_choices`, and the names of the states its linear sensor does not
+    read (H's column of zeros) and no choice names; none for another sensor (a range and bearing read x and y) or
+    a model without names."""
+    choices = name_choices(model)
+    if not isinstance(model, TimedModel) or not isinstance(model.sensor, LinearSensor):
+        return ColumnNames(choices, ())
+    taken = {name.casefold() for names in choices for name in names}
+    unread = ~np.any(model.sensor.linear(model.n)[0] != 0.0, axis=0)
+    return ColumnNames(choices, tuple(name for name, no in zip(model.names, unread) if no and name.casefold() not in taken))
+
+
+def in_model_order(columns, choices, what: str, fix: str, unmeasured=()) -> list[int] | None:
     """Where `columns` are the measurement names of one of the `choices` (:func:`name_choices`) in another order or
     case, the position of each name among them; None where they are taken in order. The first choice that all
     the columns name is taken; where none does, one that some name and others do not is refused (review R47:
-    `t,Y,x` was refused on the exact names before the pass in any case)."""
+    `t,Y,x` was refused on the exact names before the pass in any case), and so are columns taken in order of
+    which some are named, in any case, as `unmeasured` states (columns vy, vx of a model that measures x, y were
+    read as its x, y: audit YY1)."""
     refused = None
     for names in choices:
         if len(columns) != len(names) or len(set(names)) < len(names):
@@ -101,6 +123,11 @@ def in_model_order(columns, choices, what: str, fix: str) -> list[int] | None:
             return order
     if refused is not None:
         raise refused
+    others = {name.casefold() for name in unmeasured}
+    named = [column for column in columns if column.casefold() in others]
+    if named and choices and len(columns) == len(choices[0]):  # (another count is named by the caller)
+        raise ValueError(f"{what} the model's states, {named}, which it does not measure (it measures "
+                         f"{list(choices[0])}): name the columns as its measurements, or {fix}.")
     return None
 
 
@@ -237,10 +264,10 @@ def unpack(zs, times, model):
         raise TypeError(f"`zs` must hold numbers; its values do not convert to float ({exc}).") from None
     columns = (tuple(str(c) for c in zs.columns) if hasattr(zs, "columns")
                else None if zs.name is None else (str(zs.name),))  # (an unnamed Series' column is not "None")
-    choices = name_choices(model)
+    choices, unmeasured = column_names(model)
     order = None if not hasattr(zs, "columns") else in_model_order(
         columns, choices, f"`zs` has the columns {list(columns)}, some of",
-        "give `zs.to_numpy()` to take the columns in their order")
+        "give `zs.to_numpy()` to take the columns in their order", unmeasured)
     if order is not None:
         values, columns = values[:, order], choices[0]
     index, index_times = _datetimes(zs.index), False
