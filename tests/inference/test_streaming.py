@@ -264,6 +264,19 @@ def test_a_first_piece_of_one_row_is_named(track, run):
     assert len(list(run(model, prior, pieces, timed=True, engine="python", check="off"))) == 2
 
 
+def test_a_diffuse_first_piece_of_one_missing_row_is_joined_to_the_next(track):
+    """The check of a first piece of one row refused this one, which is joined to the next before it runs, as a
+    diffuse prior's pieces are until they identify the state (review R54). Against one piece."""
+    model, _, zs, times = track
+    missing = zs[:40].copy()
+    missing[0] = np.nan
+    whole = list(filter_pieces(model, "diffuse", [SimpleNamespace(zs=missing, times=times[:40])], timed=True,
+                               engine="python", check="off"))[-1][1]
+    split = [SimpleNamespace(zs=missing[:1], times=times[:1]), SimpleNamespace(zs=missing[1:], times=times[1:40])]
+    last = list(filter_pieces(model, "diffuse", split, timed=True, engine="python", check="off"))[-1][1]
+    np.testing.assert_allclose(last.means[-1], whole.means[-1], rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.parametrize("run", [filter_pieces, smooth_pieces])
 def test_a_piece_of_the_wrong_shape_is_named(track, run):
     """A (1, T_c, m) piece gave one row of its T_c, and the others' errors named neither the piece nor what was

@@ -224,9 +224,6 @@ def _check_piece(piece: Piece, k: int, m: int, timed: bool) -> None:
     if timed and np.shape(piece.times) != shape[:1]:
         raise ValueError(f"piece {k} of the series: `times` must have shape ({shape[0]},), one a row of its `zs`; "
                          f"got shape {np.shape(piece.times)}.")
-    if timed and k == 0 and shape[0] < 2:  # (timing's "`times` must have 2 entries" named neither: audit YY2)
-        raise ValueError("piece 0 of the series has one row, whose time alone gives no time step: the first piece "
-                         "needs at least two rows (its first step is taken with the time step of its second).")
 
 
 @contextmanager
@@ -274,6 +271,10 @@ def _times(piece: Piece, before, timed: bool, times: np.ndarray | None = None) -
     if not timed:
         return None
     times = piece.times if times is None else times
+    if before is None and len(times) < 2:  # (timing's "`times` must have 2 entries" named neither: audit YY2; a
+        # diffuse prior's first piece, all missing, is joined to the next before it runs: review R54)
+        raise ValueError("piece 0 of the series has one row, whose time alone gives no time step: the first piece "
+                         "needs at least two rows (its first step is taken with the time step of its second).")
     return times if before is None else np.concatenate([[before], times])
 
 
