@@ -768,3 +768,15 @@ def test_an_innovation_covariance_a_negative_weight_made_indefinite_names_the_we
                       engine=engine)
         assert "negatively" not in str(info.value) and "indefinite" not in str(info.value)
         assert "S is singular to round-off where" in str(info.value) and "R = 0" in str(info.value)
+
+
+def test_a_smoother_at_its_limit_over_series_counts_them_once():
+    """The series count of the smoother's passes was told twice, after the method's name too (review R54)."""
+    model = gf.NonlinearModel(f=lambda x: np.sin(x) * 2.0, h=lambda x: x ** 3, Q=[[0.5]], R=[[0.01]])
+    zs = np.random.default_rng(0).normal(0, 3, (2, 20, 1))
+    with pytest.warns(gf.ConvergenceWarning) as told:
+        gf.smooth(model, gf.Gaussian([0.5], [[4.0]]), zs, method="iekf", iterations=2, tol=1e-15, check="off")
+    assert [str(w.message) for w in told] == [
+        "method 'iekf': 40 of 40 steps of the filter made 2 iterations and the smoother made 2 passes in 2 of 2 "
+        "series (the limit, `iterations`=2) without the change falling to `tol`=1e-15; raise `iterations` or `tol`, "
+        "or check the model."]

@@ -296,11 +296,11 @@ def warn_unconverged(spec: Method, options: dict, steps: int, total: int, passes
     if steps:
         what.append(f"{steps} of {total} steps of the filter made {limit} iterations")
     if passes:
-        where = f" in {passes} of {series} series" if series > 1 else ""
-        what.append(f"the smoother made {limit} passes{where}")
+        among = f" in {passes} of {series} series" if series > 1 else ""  # (as `where`, it was told twice: review R54)
+        what.append(f"the smoother made {limit} passes{among}")
     warnings.warn(
-        f"method {spec.name!r}{' ' + where if where else ''}: {' and '.join(what)} (the limit, `iterations`={limit}) without the change "
-        f"falling to `tol`={tol:g}; raise `iterations` or `tol`, or check the model.",
+        f"method {spec.name!r}{' ' + where if where else ''}: {' and '.join(what)} (the limit, `iterations`={limit}) "
+        f"without the change falling to `tol`={tol:g}; raise `iterations` or `tol`, or check the model.",
         ConvergenceWarning, stacklevel=stacklevel,
     )
 
