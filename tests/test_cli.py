@@ -611,9 +611,13 @@ def test_demo_checks_its_options_before_printing(tmp_path, capsys):
     (tmp_path / "afile").write_text("")
     (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
     (tmp_path / "taken" / "gaussfuse-demo.png").mkdir(parents=True)
+    (tmp_path / "linked").mkdir()
+    (tmp_path / "linked" / "gaussfuse-demo.png").symlink_to(tmp_path / "nowhere" / "x.png")
     for argv, match in ((["--seed", "-1", "--out", tmp_path / "d"], r"--seed must be a non-negative integer; got -1\."),
                         # (the figure's name taken by a folder: the tables were printed, then the error: audit YY1)
                         (["--out", tmp_path / "taken"], r"taken/gaussfuse-demo\.png: Is a directory$"),
+                        (["--out", tmp_path / "linked"], r"linked/gaussfuse-demo\.png: No such file or directory "
+                                                         r"\(the folder its link points into\)$"),  # (review R54)
                         (["--out", tmp_path / "afile"], r"--out .*afile is a file; it must be a directory"),
                         # (a folder that cannot take a file printed the tables, then failed: audit EE2; /proc is
                         # read-only even to root)

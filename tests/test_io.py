@@ -319,9 +319,10 @@ NAMED = '[model]\nkind = "constant_velocity"\ndt = 1\nq = 1\nr = 1\n'
         (NAMED.replace("dt = 1", "dt = 1" + "0" * 400), r"m\.toml: \[model\] dt: `dt` must be a positive number; got an "
                                                        r"integer of 401 digits, beyond float64"),  # was a traceback
         (NAMED + "dim = 4\n", r"m\.toml: \[model\] dim: `dim` must be 1, 2 or 3"),
-        # (the integer was told in full, 444 characters; the step's overflow was put on the table, not on dt: audit YY2)
+        # (the integer was told in full, 444 characters: audit YY2; the step's overflow is dt's or q's, so the
+        # table's: review R54)
         (NAMED + "dim = 1" + "0" * 400 + "\n", r"\[model\] dim: `dim` must be 1, 2 or 3; got an integer of 401 digits\.$"),
-        (NAMED.replace("dt = 1", "dt = 1e308"), r"m\.toml: \[model\] dt: a step of dt = 1e\+308 s is too long"),
+        (NAMED.replace("dt = 1", "dt = 1e308"), r"m\.toml: \[model\]: a step of dt = 1e\+308 s is too long"),
         (EXPLICIT.replace("H = [[1, 0]]", "H = [[1, 0, 0]]"), r"m\.toml: \[model\] H: `H` must have shape"),
         (EXPLICIT.replace("F = [[1, 0], [0, 1]]", "F = [[1, 0]]"), r"m\.toml: \[model\] F: `F` must be square"),
         (EXPLICIT.replace("Q = [[1, 0], [0, 1]]", "Q = [[1, 0], [0, -1]]"),

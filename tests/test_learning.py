@@ -1617,6 +1617,15 @@ def test_maximum_likelihood_that_cannot_leave_a_plateau_says_so(monkeypatch):
     assert not fit.converged and fit.model.Q[0, 0] < 1e-6 * 1469.1e12
 
 
+def test_a_search_stopped_by_its_limit_is_told_so_not_a_plateau():
+    """A search cut short by `iterations` far below the maximum was told "stopped on a plateau", where raising
+    `iterations` is the remedy (review R54)."""
+    _, flow = nile()
+    with pytest.warns(gf.ConvergenceWarning, match="Maximum number of iterations has been exceeded"):
+        fit = gf.fit(gf.LinearModel(F=1, H=1, Q=1.0, R=1.0), "diffuse", flow, method="mle", iterations=2)
+    assert not fit.converged and "plateau" not in fit.message and len(fit.history) <= 3
+
+
 def test_h_is_searched_in_units_of_its_state_s_size():
     """A level of 1e5 seen through H = 2 with a process noise of 1e-3: H's unit taken as √R over the process
     noise's standard deviation (1e3, where H's size is √R / 1e5) stalled the search 0.27 below the maximum with R

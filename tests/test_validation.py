@@ -14,8 +14,8 @@ import pytest
 
 import gaussfuse as gf
 from gaussfuse import diagnostics
-from gaussfuse._validation import (as_array, as_matrix, as_vector, call_checked, call_each, check_psd, shape_error,
-                                   size_reason)
+from gaussfuse._validation import (as_array, as_matrix, as_vector, call_checked, call_each, check_psd, integer,
+                                   shape_error, size_reason)
 from gaussfuse.errors import ModelFunctionError
 
 FRONTS = [gf.filter, gf.smooth]
@@ -557,6 +557,15 @@ def test_an_integer_beyond_float64_is_named(call):
     np.isfinite of an int past 64 bits a TypeError naming nothing."""
     with pytest.raises(ValueError, match=r"must be a .*number; got an integer of 401 digits, beyond float64"):
         call()
+
+
+def test_an_integer_of_more_digits_than_str_converts_is_counted():
+    """Its digits were counted with str(), which refuses an int of over 4300 digits: the error named nothing
+    (review R54)."""
+    with pytest.raises(ValueError, match=r"^`dim` must be 1, 2 or 3; got an integer of 5001 digits\.$"):
+        gf.ConstantVelocity(dim=10**5000)
+    with pytest.raises(ValueError, match=r"^`n` must be a positive integer; got an integer of 5000 digits\.$"):
+        integer("n", -(10**5000 - 1))
 
 
 @pytest.mark.parametrize("F, error, message", [

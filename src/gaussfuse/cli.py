@@ -235,6 +235,8 @@ def _run_demo(args: argparse.Namespace) -> int:
     path = os.path.join(args.out, DEMO_FIGURE)
     if os.path.isdir(path):  # (it printed the tables, then failed: audit YY1)
         raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
+    if os.path.islink(path) and not os.path.isdir(os.path.dirname(os.path.realpath(path))):  # (review R54)
+        raise FileNotFoundError(errno.ENOENT, f"{os.strerror(errno.ENOENT)} (the folder its link points into)", path)
     zs, res = textbook_example()
     print("1-D textbook example: x0 = [0, 1], P0 = 500 I, F = [[1, 1], [0, 1]], H = [1, 0],")
     print("Q = diag(1, 3), R = 10")
@@ -994,7 +996,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the starting model and prior")
     fit.add_argument("--learn", metavar="NAMES", default="Q,R",
                      help="comma-separated matrices to learn, of F,H,Q,R,m0,P0 (default: Q,R); a variance "
-                          "that is 0 in MODEL.toml stays 0 (start it above 0 to learn it)")
+                          "that is 0 in MODEL.toml stays 0 (start it above 0 to learn it), under "
+                          "--structure NAME=scalar only where all of NAME's start at 0")
     fit.add_argument("--method", choices=("em", "mle"), default="em",
                      help="expectation-maximisation or maximum likelihood (default: em)")
     fit.add_argument("--structure", metavar="NAME=KIND,...",

@@ -94,7 +94,7 @@ from typing import IO, NamedTuple
 import numpy as np
 
 from ._linalg import marginal_std
-from ._validation import StepOverflowError, as_array, as_vector, integer, real, shape_error
+from ._validation import as_array, as_vector, integer, real, shape_error
 from .gaussian import Gaussian
 from .inference.frames import ColumnNames, column_names, in_model_order
 from .inference.validation import check_prior
@@ -821,8 +821,6 @@ def _field(path, table_name: str, fields: dict[str, str]) -> Iterator[None]:
     except (ValueError, TypeError) as exc:
         named = re.search(r"`(\w+)`", str(exc))
         key = fields.get(named.group(1)) if named else None
-        if isinstance(exc, StepOverflowError) and "dt" in fields:  # "a step of dt = 1e+308 s is too long" (audit YY2)
-            key = fields["dt"]
         field = f"[{table_name}] {key}" if key else f"[{table_name}]"
         # a hint in Python's words ("give 2 * np.eye(3)") in the file's (audit BB2)
         text = re.sub(r"give (\S+) \* np\.eye\((\d+)\)\.", r"write the \2 × \2 matrix with \1 on its diagonal.", str(exc))

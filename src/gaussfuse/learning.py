@@ -1978,7 +1978,8 @@ def _mle_past_saddles(build, theta0, data, nobs, iterations, tol, callback, engi
             return theta, history, converged, message, evaluate, None
         curvature = _curvature(evaluate, build, theta, nobs)
         above, why = _above_saddle(evaluate, theta, curvature) if converged else None, _SADDLE
-        if above is None:
+        if above is None and (converged or iterations - history.size >= 1):  # (a search its limit stopped is told
+            # so: review R54, "stopped on a plateau" at the Nile's -57841 after 2 iterations)
             above, why = _above_plateau(evaluate, build, theta, curvature), _PLATEAU
         if above is None:
             return theta, history, converged, message, evaluate, curvature
