@@ -325,7 +325,7 @@ def is_integer(value) -> bool:
 
 def shown_integer(value) -> str:
     """`value`'s repr, or for an integer of over 20 digits their count (a `dim` of 401 digits was told in full)."""
-    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.timedelta64)) and abs(value) >= 10 ** 20:
+    if is_integer(value) and abs(value) >= 10 ** 20:
         size = abs(int(value))  # (its digits by its bits: str() refuses an int of over 4300 digits: review R54)
         digits = int(size.bit_length() * math.log10(2))
         return f"an integer of {digits + (size >= 10 ** digits)} digits"

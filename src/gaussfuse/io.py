@@ -552,8 +552,9 @@ def _measurement_columns(path, header: list[str], time_col: int, columns, named=
                                  "the measurement columns with --columns).", line=1)
         others = [i for i in range(len(header)) if i != time_col]
         try:  # as gaussfuse.filter takes a DataFrame's (audit EE2)
-            choices, unmeasured = (named if isinstance(named, ColumnNames) else
-                                   ([named] if isinstance(named[0], str) else named, ()) if named else ([], ()))
+            if not isinstance(named, ColumnNames):  # a list of names, or of alternative lists
+                named = ColumnNames([named] if named and isinstance(named[0], str) else list(named or []), ())
+            choices, unmeasured = named
             order = in_model_order([header[i] for i in others], choices,
                                    f"the measurement columns {[header[i] for i in others]} name some of",
                                    "choose the columns with --columns", unmeasured)

@@ -1750,6 +1750,11 @@ def _flat(evaluate, theta: np.ndarray, information: np.ndarray, units: np.ndarra
     return flat
 
 
+def _second_difference_noise(ll: float) -> float:
+    """The round-off of three log-likelihoods near `ll` in a second difference (or of two in a first)."""
+    return 4e-13 * (1.0 + abs(ll))
+
+
 def _unresolved(evaluate, theta: np.ndarray, information: np.ndarray, curved: np.ndarray,
                 steps: np.ndarray) -> np.ndarray:
     """The log variances whose information the gradient's differences do not resolve, as a bool mask: a variance
@@ -1767,7 +1772,7 @@ def _unresolved(evaluate, theta: np.ndarray, information: np.ndarray, curved: np
     """
     bad = np.zeros(theta.size, dtype=bool)
     ll = evaluate(theta)[0]
-    noise = 4e-13 * (1.0 + abs(ll))  # the round-off of three log-likelihoods in a second difference
+    noise = _second_difference_noise(ll)
 
     def confirmed(j: int, h: float) -> bool:
         """Whether the second difference over ±h confirms θ_j's information: within half of it, and it above ten
@@ -1891,7 +1896,7 @@ def _above_saddle(evaluate, theta: np.ndarray, curvature: _Curvature | None) -> 
     scale = np.where(scale > 0.0, scale, 1.0)
     values, vectors = np.linalg.eigh(information / scale[:, None] / scale[None, :])
     ll = evaluate(theta)[0]
-    noise = 4e-13 * (1.0 + abs(ll))  # the round-off of three log-likelihoods in a second difference
+    noise = _second_difference_noise(ll)
     for value, w in zip(values, vectors.T):
         if not value < 0.0:
             break
@@ -1928,7 +1933,7 @@ def _above_plateau(evaluate, build, theta: np.ndarray, curvature: _Curvature | N
     if curvature is None:
         return None
     ll = evaluate(theta)[0]
-    noise = 4e-13 * (1.0 + abs(ll))  # (as _above_saddle's)
+    noise = _second_difference_noise(ll)
     upward = curvature.flat | ~(np.diagonal(curvature.information) > 0.0)
     for j in np.flatnonzero(upward & build.curved(theta)):
         best, top = None, ll + noise
